@@ -1,0 +1,123 @@
+// Atomic file writes (temporary + fsync + rename) and small-file reading.
+#include "matlaber/fileio.h"
+#include <errno.h>
+#include <fcntl.h>
+#include <libgen.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+static void fsync_parent_dir(const char* path) {
+    char* copy = strdup(path);
+    if (!copy) return;
+    int fd = open(dirname(copy), O_RDONLY | O_DIRECTORY);
+    if (fd >= 0) { fsync(fd); close(fd); }
+    free(copy);
+}
+
+mlb_status mlb_atomic_open(mlb_atomic_file* af, const char* path) {
+    memset(af, 0, sizeof *af);
+    size_t n = strlen(path);
+    af->path = strdup(path);
+    af->tmp_path = malloc(n + 32);
+    if (!af->path || !af->tmp_path) { mlb_atomic_abort(af); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
+    snprintf(af->tmp_path, n + 32, "%s.tmp.%ld.XXXXXX", path, (long)getpid());
+    int fd = mkstemp(af->tmp_path);
+    if (fd < 0) {
+        int e = errno;
+        free(af->tmp_path); af->tmp_path = NULL;
+        mlb_atomic_abort(af);
+        return mlb_fail(MLB_ERR_IO, "%s: cannot create a temporary file beside it: %s", path, strerror(e));
+    }
+    af->f = fdopen(fd, "wb");
+    if (!af->f) { close(fd); mlb_atomic_abort(af); return mlb_fail(MLB_ERR_IO, "%s: fdopen failed", path); }
+    return MLB_OK;
+}
+
+void mlb_atomic_abort(mlb_atomic_file* af) {
+    if (af->f) fclose(af->f);
+    if (af->tmp_path) unlink(af->tmp_path);
+    free(af->tmp_path);
+    free(af->path);
+    memset(af, 0, sizeof *af);
+}
+
+mlb_status mlb_atomic_commit(mlb_atomic_file* af) {
+    const char* what = NULL;
+    int e = 0;
+    if (fflush(af->f) != 0) what = "write", e = errno;
+    else if (ferror(af->f)) what = "write", e = EIO;
+    else if (fsync(fileno(af->f)) != 0) what = "fsync", e = errno;
+    if (what) {
+        char* p = strdup(af->path ? af->path : "?");
+        mlb_atomic_abort(af);
+        mlb_status s = mlb_fail(MLB_ERR_IO, "%s: %s failed: %s", p ? p : "?", what, strerror(e));
+        free(p);
+        return s;
+    }
+    int rc = fclose(af->f);
+    af->f = NULL;
+    if (rc != 0 || rename(af->tmp_path, af->path) != 0) {
+        e = errno;
+        char* p = strdup(af->path);
+        mlb_atomic_abort(af);
+        mlb_status s = mlb_fail(MLB_ERR_IO, "%s: cannot move the finished file into place: %s", p ? p : "?", strerror(e));
+        free(p);
+        return s;
+    }
+    fsync_parent_dir(af->path);
+    free(af->tmp_path); af->tmp_path = NULL;
+    free(af->path); af->path = NULL;
+    return MLB_OK;
+}
+
+mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n) {
+    mlb_atomic_file af;
+    MLB_TRY(mlb_atomic_open(&af, path));
+    if (n && fwrite(data, 1, n, af.f) != n) {
+        int e = errno;
+        mlb_atomic_abort(&af);
+        return mlb_fail(MLB_ERR_IO, "%s: write failed: %s", path, strerror(e));
+    }
+    return mlb_atomic_commit(&af);
+}
+
+mlb_status mlb_read_file(const char* path, char** data, size_t* n, size_t max_bytes) {
+    *data = NULL; *n = 0;
+    FILE* f = fopen(path, "rb");
+    if (!f) return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s", path, strerror(errno));
+    struct stat st;
+    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode)) { fclose(f); return mlb_fail(MLB_ERR_IO, "%s: not a regular file", path); }
+    if ((size_t)st.st_size > max_bytes) {
+        fclose(f);
+        return mlb_fail(MLB_ERR_FORMAT, "%s: %lld bytes, more than the %zu allowed", path, (long long)st.st_size, max_bytes);
+    }
+    char* buf = malloc((size_t)st.st_size + 1);
+    if (!buf) { fclose(f); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
+    size_t got = fread(buf, 1, (size_t)st.st_size, f);
+    fclose(f);
+    if (got != (size_t)st.st_size) { free(buf); return mlb_fail(MLB_ERR_IO, "%s: short read", path); }
+    buf[got] = 0;
+    *data = buf; *n = got;
+    return MLB_OK;
+}
+
+mlb_status mlb_mkdir_p(const char* path) {
+    char buf[4096];
+    if (strlen(path) >= sizeof buf) return mlb_fail(MLB_ERR_ARG, "%s: path too long", path);
+    strcpy(buf, path);
+    for (char* p = buf + 1; ; p++) {
+        if (*p == '/' || *p == 0) {
+            char c = *p;
+            *p = 0;
+            if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+                return mlb_fail(MLB_ERR_IO, "%s: cannot create folder: %s", buf, strerror(errno));
+            *p = c;
+            if (!c) break;
+        }
+    }
+    struct stat st;
+    if (stat(path, &st) != 0 || !S_ISDIR(st.st_mode)) return mlb_fail(MLB_ERR_IO, "%s: exists and is not a folder", path);
+    return MLB_OK;
+}

@@ -1,0 +1,35 @@
+// The scalar type of the dual sources (CMakeLists.txt: MLB_DUAL_SOURCES). Compiled once as float
+// (plain names) and once with MLB_F64 as double (names suffixed _f64), so that one piece of code
+// serves training (float) and the finite-difference tests (double).
+#ifndef MATLABER_REAL_H
+#define MATLABER_REAL_H
+#include <math.h>
+#include <cblas.h>
+
+#ifdef MLB_F64
+typedef double real;
+#define FN(name) name##_f64
+#define GEMM cblas_dgemm
+#define R_EXP exp
+#define R_LOG log
+#define R_LOG1P log1p
+#define R_TANH tanh
+#define R_SQRT sqrt
+#define R_FABS fabs
+#define R_ERF erf
+#define R_POW pow
+#else
+typedef float real;
+#define FN(name) name
+#define GEMM cblas_sgemm
+#define R_EXP expf
+#define R_LOG logf
+#define R_LOG1P log1pf
+#define R_TANH tanhf
+#define R_SQRT sqrtf
+#define R_FABS fabsf
+#define R_ERF erff
+#define R_POW powf
+#endif
+
+#endif

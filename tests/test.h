@@ -1,0 +1,76 @@
+// A small test harness. Each tests/test_*.c is one executable (one CTest test) made of cases:
+//   TEST(name) { CHECK(cond); CHECK_CLOSE(a, b, rtol, atol); }   and in main: RUN(name); return test_summary();
+// A case that cannot run (missing ../shared data, no GPU) calls SKIP("why"); a file whose every
+// case skipped exits 77, which CTest reports as skipped.
+#ifndef MATLABER_TEST_H
+#define MATLABER_TEST_H
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+static int test_n_pass, test_n_fail, test_n_skip, test_case_failed, test_case_skipped;
+static const char* test_case_name;
+
+#define TEST(name) static void test_##name(void)
+#define RUN(name) do { \
+    test_case_name = #name; test_case_failed = 0; test_case_skipped = 0; \
+    test_##name(); \
+    if (test_case_skipped) { test_n_skip++; printf("SKIP %s\n", #name); } \
+    else if (test_case_failed) { test_n_fail++; printf("FAIL %s\n", #name); } \
+    else { test_n_pass++; printf("ok   %s\n", #name); } \
+    fflush(stdout); } while (0)
+
+#define CHECK(cond) do { if (!(cond)) { \
+    printf("  %s:%d: %s: CHECK(%s) failed\n", __FILE__, __LINE__, test_case_name, #cond); \
+    test_case_failed = 1; } } while (0)
+#define CHECK_MSG(cond, ...) do { if (!(cond)) { \
+    printf("  %s:%d: %s: CHECK(%s) failed: ", __FILE__, __LINE__, test_case_name, #cond); \
+    printf(__VA_ARGS__); printf("\n"); test_case_failed = 1; } } while (0)
+// |a - b| <= atol + rtol * |b|, and neither is NaN
+#define CHECK_CLOSE(a, b, rtol, atol) do { double ta_ = (double)(a), tb_ = (double)(b); \
+    if (!(fabs(ta_ - tb_) <= (atol) + (rtol) * fabs(tb_))) { \
+    printf("  %s:%d: %s: %s = %.10g, expected %s = %.10g (rtol %g, atol %g)\n", __FILE__, __LINE__, \
+           test_case_name, #a, ta_, #b, tb_, (double)(rtol), (double)(atol)); test_case_failed = 1; } } while (0)
+// Stop the case with a failure (e.g. a setup step returned an error).
+#define REQUIRE(cond) do { if (!(cond)) { \
+    printf("  %s:%d: %s: REQUIRE(%s) failed\n", __FILE__, __LINE__, test_case_name, #cond); \
+    test_case_failed = 1; return; } } while (0)
+#define SKIP(...) do { printf("  skip: "); printf(__VA_ARGS__); printf("\n"); test_case_skipped = 1; return; } while (0)
+
+static inline int test_summary(void) {
+    printf("%d passed, %d failed, %d skipped\n", test_n_pass, test_n_fail, test_n_skip);
+    if (test_n_fail) return 1;
+    if (test_n_pass == 0 && test_n_skip > 0) return 77;
+    return 0;
+}
+
+// ../shared/data (or $MLB_SHARED_DATA) when present, else NULL: tests that need it SKIP.
+static inline const char* test_shared_data(void) {
+    static char path[4096];
+    const char* env = getenv("MLB_SHARED_DATA");
+    struct stat st;
+    if (env && stat(env, &st) == 0 && S_ISDIR(st.st_mode)) return env;
+#ifdef MLB_SOURCE_DIR
+    snprintf(path, sizeof path, "%s/../shared/data", MLB_SOURCE_DIR);
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return path;
+#endif
+    return NULL;
+}
+
+// A fresh scratch folder for this test binary under the build tree.
+static inline const char* test_tmpdir(const char* name) {
+    static char path[4096];
+#ifdef MLB_BINARY_DIR
+    snprintf(path, sizeof path, "%s/tests/tmp_%s", MLB_BINARY_DIR, name);
+#else
+    snprintf(path, sizeof path, "/tmp/mlb_test_%s", name);
+#endif
+    char cmd[4200];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s' && mkdir -p '%s'", path, path);
+    if (system(cmd) != 0) return NULL;
+    return path;
+}
+
+#endif

@@ -56,7 +56,7 @@ static int max_width(const FN(mlb_mlp)* mlp) {
 mlb_status FN(mlp_cache_alloc)(FN(mlb_mlp_cache)* c, const FN(mlb_mlp)* mlp, int B) {
     memset(c, 0, sizeof *c);
     size_t per_batch = 0;
-    for (int l = 0; l < mlp->n_layers; l++) per_batch += 4 * (size_t)mlp->dims[l + 1];
+    for (int l = 0; l < mlp->n_layers; l++) per_batch += 6 * (size_t)mlp->dims[l + 1];
     per_batch += 6 * (size_t)max_width(mlp);
     c->buffer = calloc(per_batch * (size_t)B, sizeof(real));
     if (!c->buffer) return mlb_fail(MLB_ERR_NOMEM, "mlp: cannot allocate activations for batch %d", B);
@@ -67,6 +67,8 @@ mlb_status FN(mlp_cache_alloc)(FN(mlb_mlp_cache)* c, const FN(mlb_mlp)* mlp, int
         size_t n = (size_t)B * mlp->dims[l + 1];
         c->pre[l] = p; p += n;
         c->post[l] = p; p += n;
+        c->d1[l] = p; p += n;
+        c->d2[l] = p; p += n;
         c->tpre[l] = p; p += n;
         c->tpost[l] = p; p += n;
     }
@@ -89,7 +91,7 @@ const real* FN(mlp_forward)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, const 
     for (int l = 0; l < mlp->n_layers; l++) {
         int C = mlp->dims[l], OC = mlp->dims[l + 1];
         FN(linear_forward)(c->pre[l], x, mlp->weight[l], mlp->bias[l], B, C, OC);
-        FN(activation_forward)(c->post[l], c->pre[l], (size_t)B * OC, layer_act(mlp, l));
+        FN(activation_forward_derivs)(c->post[l], c->d1[l], c->d2[l], c->pre[l], (size_t)B * OC, layer_act(mlp, l));
         x = c->post[l];
     }
     return x;
@@ -103,8 +105,7 @@ void FN(mlp_backward)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* dparam
     real* dpre = c->scratch[2];
     for (int l = mlp->n_layers - 1; l >= 0; l--) {
         int C = mlp->dims[l], OC = mlp->dims[l + 1];
-        memset(dpre, 0, sizeof(real) * (size_t)B * OC);
-        FN(activation_backward)(dpre, dpost, c->pre[l], (size_t)B * OC, layer_act(mlp, l));
+        for (size_t i = 0; i < (size_t)B * OC; i++) dpre[i] = dpost[i] * c->d1[l][i];
         real* dweight = dparams + (mlp->weight[l] - mlp->params);
         real* dbias = mlp->bias[l] ? dparams + (mlp->bias[l] - mlp->params) : NULL;
         const real* x = l ? c->post[l - 1] : in;
@@ -121,10 +122,9 @@ const real* FN(mlp_jvp_forward)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, co
     const real* t = tin;
     for (int l = 0; l < mlp->n_layers; l++) {
         int C = mlp->dims[l], OC = mlp->dims[l + 1];
-        mlb_activation act = layer_act(mlp, l);
         FN(linear_forward)(c->tpre[l], t, mlp->weight[l], NULL, B, C, OC);
         size_t n = (size_t)B * OC;
-        for (size_t i = 0; i < n; i++) c->tpost[l][i] = FN(mlb_act_d1)(act, c->pre[l][i]) * c->tpre[l][i];
+        for (size_t i = 0; i < n; i++) c->tpost[l][i] = c->d1[l][i] * c->tpre[l][i];
         t = c->tpost[l];
     }
     return t;
@@ -146,14 +146,11 @@ void FN(mlp_jvp_backward)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* dp
     const real* a_tpost = dtout;
     for (int l = mlp->n_layers - 1; l >= 0; l--) {
         int C = mlp->dims[l], OC = mlp->dims[l + 1];
-        mlb_activation act = layer_act(mlp, l);
         size_t n = (size_t)B * OC;
         for (size_t i = 0; i < n; i++) {
-            real pre = c->pre[l][i];
-            real d1 = FN(mlb_act_d1)(act, pre);
-            real at = a_tpost ? a_tpost[i] : 0;
+            real d1 = c->d1[l][i], at = a_tpost ? a_tpost[i] : 0;
             a_tpre[i] = at * d1;
-            a_pre[i] = at * FN(mlb_act_d2)(act, pre) * c->tpre[l][i] + (a_post ? a_post[i] * d1 : 0);
+            a_pre[i] = at * c->d2[l][i] * c->tpre[l][i] + (a_post ? a_post[i] * d1 : 0);
         }
         real* dweight = dparams + (mlp->weight[l] - mlp->params);
         real* dbias = mlp->bias[l] ? dparams + (mlp->bias[l] - mlp->params) : NULL;

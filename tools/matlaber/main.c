@@ -1,9 +1,77 @@
-// matlaber: the command-line program. One file per command group (cmd_*.c).
+// matlaber: material-aware text-to-3D with a latent BRDF prior. The command-line program;
+// one file per command group (cmd_*.c).
+#include <omp.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
+#include "cli.h"
 #include "matlaber/log.h"
+#include "matlaber/threads.h"
+
+#define MATLABER_VERSION "0.1.0"
+
+static void usage(FILE* out) {
+    fprintf(out,
+            "matlaber %s: material-aware text-to-3D with a latent BRDF auto-encoder\n\n"
+            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] <command> [options]\n\n"
+            "commands:\n"
+            "  demo            train the default BRDF prior and print its evaluation\n"
+            "  brdf train      train a latent BRDF auto-encoder (the material prior)\n"
+            "  brdf eval       reconstruction error vs PCA-4, KL, validity along interpolations\n"
+            "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
+            "  brdf decode     latent code -> BRDF\n"
+            "  brdf interp     decoded BRDFs along a latent path\n"
+            "  device          list compute devices\n"
+            "  version         print the version\n\n"
+            "'matlaber <command> --help' describes each command.\n",
+            MATLABER_VERSION);
+}
+
+// See mlb_blas_better_coretype: restart once with OpenBLAS pointed at the kernels this CPU can run.
+static void choose_blas_kernels(char** argv) {
+    const char* core = mlb_blas_better_coretype();
+    if (!core || getenv("MATLABER_REEXEC")) return;
+    setenv("OPENBLAS_CORETYPE", core, 1);
+    setenv("MATLABER_REEXEC", "1", 1);
+    execv("/proc/self/exe", argv);   // returns only on failure: carry on with the slow kernels
+}
+
 int main(int argc, char** argv) {
+    choose_blas_kernels(argv);
     mlb_log_set_sink(mlb_log_file_sink, stderr);
-    printf("matlaber\n");
-    return 0;
+    int i = 1;
+    // global options before the command
+    while (i < argc && strncmp(argv[i], "--", 2) == 0) {
+        if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) { usage(stdout); return 0; }
+        if (strcmp(argv[i], "--version") == 0) { printf("matlaber %s\n", MATLABER_VERSION); return 0; }
+        if (i + 1 >= argc) return cli_usage_error("", "option %s needs a value", argv[i]);
+        if (strcmp(argv[i], "--log-level") == 0) {
+            mlb_log_level level;
+            if (mlb_log_level_parse(argv[i + 1], &level) != 0)
+                return cli_usage_error("", "unknown log level '%s' (debug, info, warn, error, quiet)", argv[i + 1]);
+            mlb_log_set_level(level);
+        } else if (strcmp(argv[i], "--threads") == 0) {
+            long n;
+            if (cli_parse_long(argv[i + 1], 1, 1024, &n) != 0) return cli_usage_error("", "--threads: expected 1..1024");
+            mlb_set_threads((int)n);
+        } else {
+            fprintf(stderr, "matlaber: unknown option '%s'\n\n", argv[i]);
+            usage(stderr);
+            return EXIT_USAGE;
+        }
+        i += 2;
+    }
+    if (i >= argc) { usage(stderr); return EXIT_USAGE; }
+    const char* cmd = argv[i];
+    int sub_argc = argc - i;
+    char** sub_argv = argv + i;
+    if (strcmp(cmd, "brdf") == 0) return cmd_brdf(sub_argc, sub_argv);
+    if (strcmp(cmd, "demo") == 0) return cmd_demo(sub_argc, sub_argv);
+    if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);
+    if (strcmp(cmd, "version") == 0) { printf("matlaber %s\n", MATLABER_VERSION); return 0; }
+    if (strcmp(cmd, "help") == 0) { usage(stdout); return 0; }
+    fprintf(stderr, "matlaber: unknown command '%s'\n\n", cmd);
+    usage(stderr);
+    return EXIT_USAGE;
 }

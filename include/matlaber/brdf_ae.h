@@ -1,0 +1,95 @@
+// The latent BRDF auto-encoder (paper §3.3): encoder 7 -> 4 (mean, log-variance), decoder 4 -> 7
+// with outputs mapped into the valid BRDF ranges, trained with
+//   L = L_r + lambda_kl L_KL + lambda_s L_s + lambda_c L_c      (reference.md §1).
+// Model and loss exist in float and double (_f64), see core/real.h; training, files and
+// evaluation use the float model. Design notes: docs/brdf_prior.md.
+#ifndef MATLABER_BRDF_AE_H
+#define MATLABER_BRDF_AE_H
+#include <stdint.h>
+#include "matlaber/nn.h"
+#include "matlaber/progress.h"
+#include "matlaber/safetensors.h"
+
+#define MLB_LATENT_DIM 4
+
+typedef struct {
+    int hidden;              // width of the hidden layers (default 64)
+    int depth;               // hidden layers per network (default 3)
+    mlb_activation act;      // hidden activation (default SiLU: smooth, so the decoder's Jacobian is too)
+} mlb_brdf_ae_config;
+
+typedef struct {
+    double lambda_kl, lambda_s, lambda_c;   // 2e-4, 0.05, 1e-4 (paper)
+    int n_alpha;                            // interpolation weights alpha = j / (n_alpha - 1), j = 0..n_alpha-1
+    int sample_latent;                      // 1: z = mu + sigma * eps (training); 0: z = mu
+} mlb_brdf_loss_config;
+
+mlb_brdf_ae_config mlb_brdf_ae_default_config(void);
+mlb_brdf_loss_config mlb_brdf_loss_default_config(void);
+
+#define MLB_REAL float
+#define MLB_FN(name) name
+#include "matlaber/brdf_ae_api.inc"
+#undef MLB_REAL
+#undef MLB_FN
+#define MLB_REAL double
+#define MLB_FN(name) name##_f64
+#include "matlaber/brdf_ae_api.inc"
+#undef MLB_REAL
+#undef MLB_FN
+
+// ---- files (float model) ------------------------------------------------------------------
+// safetensors with tensors encoder.L.weight [out,in], encoder.L.bias [out], decoder.L.* and
+// metadata: format, hidden, depth, activation, kr_min, plus the caller's (command, data, ...).
+mlb_status mlb_brdf_ae_save(const mlb_brdf_ae* ae, const char* path, const mlb_st_meta* extra, size_t n_extra);
+mlb_status mlb_brdf_ae_load(mlb_brdf_ae* ae, const char* path);
+// From an opened file (also the built-in prior, opened from memory).
+mlb_status mlb_brdf_ae_from_safetensors(mlb_brdf_ae* ae, const mlb_safetensors* st);
+// The default prior: the file named by $MATLABER_PRIOR when set, else the prior built into the
+// program (models/brdf_prior.safetensors at build time). *source names what was used.
+mlb_status mlb_brdf_ae_load_default(mlb_brdf_ae* ae, char* source, size_t source_size);
+
+// ---- training (float model) -----------------------------------------------------------------
+typedef struct {
+    int epochs;            // 30
+    int batch;             // 256
+    double lr;             // 1e-4
+    double weight_decay;   // AdamW decoupled decay (0.01)
+    double beta1, beta2, eps;
+    uint64_t seed;
+    mlb_brdf_loss_config loss;
+} mlb_brdf_train_config;
+
+typedef struct {
+    int epoch;
+    double loss, l_r, l_kl, l_s, l_c;   // means over the epoch
+    double seconds, samples_per_second;
+} mlb_brdf_epoch_stats;
+
+typedef void (*mlb_brdf_epoch_callback)(const mlb_brdf_epoch_stats* stats, void* user);
+
+mlb_brdf_train_config mlb_brdf_train_default_config(void);
+// data: n rows of 7 floats. Deterministic in cfg->seed whatever the thread count.
+mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const mlb_brdf_train_config* cfg,
+                             mlb_progress* progress, mlb_brdf_epoch_callback on_epoch, void* user);
+
+// ---- evaluation -----------------------------------------------------------------------------
+typedef struct {
+    size_t n;                       // samples evaluated
+    double rmse[7], rmse_all;       // auto-encoder reconstruction D(mu(k)), linear units
+    double pca_rmse[7], pca_rmse_all;   // best linear 4-d code of the same data (PCA-4)
+    double pca_explained;           // share of variance PCA-4 explains
+    double kl;                      // mean KL(q(z|k) || N(0, I))
+    long interp_paths, interp_points, interp_valid;   // decoded BRDFs along random latent paths
+    double interp_valid_share;
+    double interp_path_ratio;       // mean (length of decoded path) / (distance of its ends); 1 = straight
+    double mean_sigma;              // mean posterior std over latent dims
+} mlb_brdf_eval_result;
+
+mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t n, uint64_t seed,
+                                mlb_brdf_eval_result* out);
+// PCA-k of data (n x 7, double precision, LAPACK): fills the reconstruction RMSE per channel.
+mlb_status mlb_pca_reconstruction_rmse(const float* data, size_t n, int k, double rmse[7], double* rmse_all,
+                                       double* explained);
+
+#endif

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages matlaber needs to build and test. Idempotent: does nothing when
+# everything is present. Needs root for apt-get; otherwise prints the command to run.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake pkg-config   # compiler (gcc with OpenMP, ASan/UBSan runtimes), build
+  libopenblas-dev                    # BLAS (GEMM) and LAPACK (PCA)
+  libcjson-dev                       # JSON (safetensors headers, configs)
+  libstb-dev                         # PNG/JPEG decoding
+  libpng-dev zlib1g-dev              # PNG writing, gzip
+  clang libclang-rt-14-dev           # libFuzzer target for the safetensors reader (scripts/fuzz.sh)
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+
+if [ "$(id -u)" -ne 0 ]; then
+  echo "install-deps: missing Debian packages: ${missing[*]}" >&2
+  echo "install-deps: not root; run this, then the same command again:" >&2
+  echo "  sudo apt-get update && sudo apt-get install -y --no-install-recommends ${missing[*]}" >&2
+  exit 1
+fi
+
+echo "install-deps: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -qq
+apt-get install -y -qq --no-install-recommends "${missing[@]}"
+echo "install-deps: done"

@@ -1,0 +1,88 @@
+// Training the latent BRDF auto-encoder: shuffled mini-batches, AdamW, one permutation per epoch
+// from the counter RNG, so a seed gives one run on any thread count.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/brdf_ae.h"
+#include "matlaber/rng.h"
+
+#define STREAM_SHUFFLE 0x3000
+
+mlb_brdf_ae_config mlb_brdf_ae_default_config(void) {
+    mlb_brdf_ae_config c = {.hidden = 64, .depth = 3, .act = MLB_ACT_SILU};
+    return c;
+}
+
+mlb_brdf_loss_config mlb_brdf_loss_default_config(void) {
+    mlb_brdf_loss_config c = {.lambda_kl = 2e-4, .lambda_s = 0.05, .lambda_c = 1e-4, .n_alpha = 8, .sample_latent = 1};
+    return c;
+}
+
+mlb_brdf_train_config mlb_brdf_train_default_config(void) {
+    mlb_brdf_train_config c = {.epochs = 30, .batch = 256, .lr = 1e-4, .weight_decay = 0.01,
+                               .beta1 = 0.9, .beta2 = 0.999, .eps = 1e-8, .seed = 1,
+                               .loss = mlb_brdf_loss_default_config()};
+    return c;
+}
+
+mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const mlb_brdf_train_config* cfg,
+                             mlb_progress* progress, mlb_brdf_epoch_callback on_epoch, void* user) {
+    if (n < 2) return mlb_fail(MLB_ERR_ARG, "BRDF training: %zu samples; need at least 2", n);
+    if (n > UINT32_MAX) return mlb_fail(MLB_ERR_ARG, "BRDF training: %zu samples; at most 2^32 - 1", n);
+    if (cfg->epochs < 1 || cfg->batch < 2 || !(cfg->lr > 0))
+        return mlb_fail(MLB_ERR_ARG, "BRDF training: epochs %d, batch %d, lr %g (need epochs >= 1, batch >= 2, lr > 0)",
+                        cfg->epochs, cfg->batch, cfg->lr);
+    int B = (size_t)cfg->batch > n ? (int)n : cfg->batch;
+    size_t steps_per_epoch = n / (size_t)B;   // the incomplete last batch is dropped; each epoch reshuffles
+    mlb_brdf_work w;
+    MLB_TRY(brdf_work_alloc(&w, ae, B));
+    float* m = calloc(ae->n_params, sizeof(float));
+    float* v = calloc(ae->n_params, sizeof(float));
+    float* batch = malloc(sizeof(float) * 7 * (size_t)B);
+    uint32_t* perm = malloc(sizeof(uint32_t) * n);
+    mlb_status status = MLB_OK;
+    if (!m || !v || !batch || !perm) { status = mlb_fail(MLB_ERR_NOMEM, "BRDF training: out of memory for %zu samples", n); goto done; }
+    mlb_adam_config adam = {.lr = cfg->lr, .beta1 = cfg->beta1, .beta2 = cfg->beta2, .eps = cfg->eps,
+                            .weight_decay = cfg->weight_decay, .decoupled = 1};
+    long step = 0, total_steps = (long)steps_per_epoch * cfg->epochs;
+    if (progress) {
+        progress->total = total_steps;
+    }
+    for (int epoch = 0; epoch < cfg->epochs; epoch++) {
+        double t0 = mlb_now_seconds();
+        double sum[5] = {0};
+        mlb_rng_permutation(perm, (uint32_t)n, cfg->seed, STREAM_SHUFFLE + (uint64_t)epoch);
+        for (size_t s = 0; s < steps_per_epoch; s++) {
+            for (int i = 0; i < B; i++) memcpy(batch + 7 * i, data + 7 * (size_t)perm[s * B + i], sizeof(float) * 7);
+            memset(ae->grads, 0, sizeof(float) * ae->n_params);
+            mlb_brdf_losses L;
+            status = brdf_ae_loss(ae, &w, batch, B, &cfg->loss, cfg->seed, (uint64_t)step, 1, &L);
+            if (status) goto done;
+            if (!isfinite(L.total)) {
+                status = mlb_fail(MLB_ERR_NUMERIC, "BRDF training diverged at epoch %d step %zu (loss %g); try a lower --lr",
+                                  epoch + 1, s, (double)L.total);
+                goto done;
+            }
+            step++;
+            adam_update(ae->params, ae->grads, m, v, ae->n_params, &adam, step);
+            sum[0] += L.total; sum[1] += L.l_r; sum[2] += L.l_kl; sum[3] += L.l_s; sum[4] += L.l_c;
+            if (progress) {
+                char text[96];
+                snprintf(text, sizeof text, "epoch %d/%d loss %.5f", epoch + 1, cfg->epochs, sum[0] / (double)(s + 1));
+                mlb_progress_update(progress, step, text);
+            }
+        }
+        if (on_epoch) {
+            double dt = mlb_now_seconds() - t0, k = (double)steps_per_epoch;
+            mlb_brdf_epoch_stats st = {.epoch = epoch + 1, .loss = sum[0] / k, .l_r = sum[1] / k, .l_kl = sum[2] / k,
+                                       .l_s = sum[3] / k, .l_c = sum[4] / k, .seconds = dt,
+                                       .samples_per_second = dt > 0 ? k * B / dt : 0};
+            on_epoch(&st, user);
+        }
+    }
+done:
+    brdf_work_free(&w);
+    free(m); free(v); free(batch); free(perm);
+    return status;
+}

@@ -1,0 +1,86 @@
+// float16 / bfloat16 <-> float32 by bit manipulation: portable, no F16C needed, exact rounding.
+#include "matlaber/half.h"
+#include <string.h>
+
+static uint32_t f32_bits(float f) { uint32_t u; memcpy(&u, &f, 4); return u; }
+static float bits_f32(uint32_t u) { float f; memcpy(&f, &u, 4); return f; }
+
+float mlb_f16_to_f32(uint16_t h) {
+    uint32_t sign = (uint32_t)(h & 0x8000u) << 16;
+    uint32_t exp = (h >> 10) & 0x1Fu;
+    uint32_t mant = h & 0x3FFu;
+    if (exp == 0x1F)   // inf, or NaN made quiet with its payload kept
+        return bits_f32(sign | 0x7F800000u | (mant ? (0x400000u | (mant << 13)) : 0));
+    if (exp == 0) {
+        if (mant == 0) return bits_f32(sign);
+        // Subnormal: value = mant * 2^-24, exact in float32 (mant < 2^10).
+        float v = (float)mant * 0x1p-24f;
+        return sign ? -v : v;
+    }
+    return bits_f32(sign | ((exp + 112u) << 23) | (mant << 13));   // rebias 15 -> 127
+}
+
+uint16_t mlb_f32_to_f16(float f) {
+    uint32_t u = f32_bits(f);
+    uint16_t sign = (uint16_t)((u >> 16) & 0x8000u);
+    uint32_t exp = (u >> 23) & 0xFFu;
+    uint32_t mant = u & 0x7FFFFFu;
+    if (exp == 0xFF) {
+        if (!mant) return sign | 0x7C00u;
+        return sign | 0x7E00u | (uint16_t)(mant >> 13);   // quiet NaN, top payload bits
+    }
+    int e = (int)exp - 127 + 15;   // float16 biased exponent
+    if (e >= 0x1F) return sign | 0x7C00u;   // certainly overflows, even before rounding
+    uint32_t sig, shift;
+    if (e >= 1) {   // normal result: 11-bit significand, drop 13 bits
+        sig = mant | 0x800000u;
+        shift = 13;
+    } else {   // subnormal (or zero) result: drop 13 + (1 - e) bits
+        if (e < -10) return sign;   // below half the smallest subnormal (2^-25): rounds to 0
+        sig = mant | 0x800000u;     // exp >= 102 here, so the input is a normal float32
+        shift = (uint32_t)(14 - e);
+        e = 0;
+    }
+    uint32_t kept = sig >> shift;
+    uint32_t rest = sig & ((1u << shift) - 1);
+    uint32_t half = 1u << (shift - 1);
+    if (rest > half || (rest == half && (kept & 1))) kept++;
+    // For normals kept includes the implicit bit (0x400): adding it to (e-1)<<10 sets the
+    // exponent to e, and a carry out of the significand bumps the exponent (up to inf: 0x7C00).
+    // For subnormals a carry to 0x400 lands exactly on the smallest normal.
+    uint32_t r = e ? ((uint32_t)(e - 1) << 10) + kept : kept;
+    return sign | (uint16_t)r;
+}
+
+float mlb_bf16_to_f32(uint16_t h) {
+    uint32_t u = (uint32_t)h << 16;
+    if ((u & 0x7F800000u) == 0x7F800000u && (u & 0x7FFFFFu)) u |= 0x400000u;   // quiet NaN
+    return bits_f32(u);
+}
+
+uint16_t mlb_f32_to_bf16(float f) {
+    uint32_t u = f32_bits(f);
+    if ((u & 0x7F800000u) == 0x7F800000u && (u & 0x7FFFFFu))
+        return (uint16_t)((u >> 16) | 0x40u);   // quiet NaN; never rounds into inf
+    // Round to nearest even on the 16 dropped bits; a carry may reach the exponent, and from
+    // the largest finite values up to inf, which is the correct rounding.
+    u += 0x7FFFu + ((u >> 16) & 1u);
+    return (uint16_t)(u >> 16);
+}
+
+void mlb_f16_to_f32_array(float* dst, const void* src, size_t n) {
+    const unsigned char* s = src;
+    for (size_t i = 0; i < n; i++) { uint16_t h; memcpy(&h, s + 2 * i, 2); dst[i] = mlb_f16_to_f32(h); }
+}
+void mlb_f32_to_f16_array(void* dst, const float* src, size_t n) {
+    unsigned char* d = dst;
+    for (size_t i = 0; i < n; i++) { uint16_t h = mlb_f32_to_f16(src[i]); memcpy(d + 2 * i, &h, 2); }
+}
+void mlb_bf16_to_f32_array(float* dst, const void* src, size_t n) {
+    const unsigned char* s = src;
+    for (size_t i = 0; i < n; i++) { uint16_t h; memcpy(&h, s + 2 * i, 2); dst[i] = mlb_bf16_to_f32(h); }
+}
+void mlb_f32_to_bf16_array(void* dst, const float* src, size_t n) {
+    unsigned char* d = dst;
+    for (size_t i = 0; i < n; i++) { uint16_t h = mlb_f32_to_bf16(src[i]); memcpy(d + 2 * i, &h, 2); }
+}

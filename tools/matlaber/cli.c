@@ -1,0 +1,84 @@
+// Shared helpers of the command-line program.
+#include "cli.h"
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+int cli_fail(mlb_status s, const char* what) {
+    const char* msg = mlb_last_error();
+    fprintf(stderr, "matlaber: error: %s%s%s\n", what ? what : "", what && *msg ? ": " : "", *msg ? msg : mlb_status_name(s));
+    return 1;
+}
+
+int cli_usage_error(const char* command, const char* fmt, ...) {
+    va_list ap;
+    fprintf(stderr, "matlaber %s: ", command);
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "\n(see 'matlaber %s --help')\n", command);
+    return EXIT_USAGE;
+}
+
+int cli_parse_floats(const char* text, float* out, int n) {
+    const char* p = text;
+    for (int i = 0; i < n; i++) {
+        char* end;
+        errno = 0;
+        double v = strtod(p, &end);
+        if (end == p || errno || !isfinite(v)) return -1;
+        out[i] = (float)v;
+        p = end;
+        while (*p == ' ') p++;
+        if (i < n - 1) { if (*p != ',') return -1; p++; }
+    }
+    return *p == 0 ? 0 : -1;
+}
+
+int cli_parse_long(const char* text, long lo, long hi, long* out) {
+    char* end;
+    errno = 0;
+    long v = strtol(text, &end, 10);
+    if (end == text || *end || errno || v < lo || v > hi) return -1;
+    *out = v;
+    return 0;
+}
+
+int cli_parse_double(const char* text, double lo, double hi, double* out) {
+    char* end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (end == text || *end || errno || !isfinite(v) || v < lo || v > hi) return -1;
+    *out = v;
+    return 0;
+}
+
+const char* cli_shared_data(void) {
+    static char path[4096];
+    struct stat st;
+    const char* env = getenv("MLB_SHARED_DATA");
+    if (env && stat(env, &st) == 0 && S_ISDIR(st.st_mode)) return env;
+    snprintf(path, sizeof path, "%s/../shared/data", MLB_SOURCE_DIR);
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return path;
+    return NULL;
+}
+
+void cli_print_options(FILE* out, const cli_option* o) {
+    for (; o->name; o++) {
+        char left[64];
+        snprintf(left, sizeof left, "--%s%s%s", o->name, o->has_arg ? " " : "", o->has_arg ? o->arg : "");
+        fprintf(out, "  %-24s %s\n", left, o->help);
+    }
+}
+
+const struct option* cli_getopt_table(const cli_option* opts) {
+    static struct option table[65];
+    int n = 0;
+    for (; opts[n].name && n < 64; n++)
+        table[n] = (struct option){opts[n].name, opts[n].has_arg, NULL, opts[n].val};
+    table[n] = (struct option){0, 0, 0, 0};
+    return table;
+}

@@ -1,0 +1,30 @@
+// Shared helpers of the command-line program.
+#ifndef MATLABER_CLI_H
+#define MATLABER_CLI_H
+#include <getopt.h>
+#include <stdio.h>
+#include "matlaber/error.h"
+
+#define EXIT_USAGE 2
+
+// "matlaber: error: <what>: <library message>"; returns 1 (the exit code for failures).
+int cli_fail(mlb_status s, const char* what);
+// Usage errors: message + hint to --help; returns EXIT_USAGE.
+int cli_usage_error(const char* command, const char* fmt, ...) __attribute__((format(printf, 2, 3)));
+// Comma-separated numbers into out[n]; exactly n values, all finite. 0 on success.
+int cli_parse_floats(const char* text, float* out, int n);
+int cli_parse_long(const char* text, long lo, long hi, long* out);
+int cli_parse_double(const char* text, double lo, double hi, double* out);
+// ../shared/data beside the source tree, or $MLB_SHARED_DATA; NULL when absent.
+const char* cli_shared_data(void);
+// Shown in --help: the getopt option table as "  --name ARG  help".
+typedef struct { const char* name; int has_arg; int val; const char* arg; const char* help; } cli_option;
+void cli_print_options(FILE* out, const cli_option* opts);
+// Converts cli_option[] into a struct option[] for getopt_long (static storage, up to 64).
+const struct option* cli_getopt_table(const cli_option* opts);
+
+int cmd_brdf(int argc, char** argv);
+int cmd_demo(int argc, char** argv);
+int cmd_device(int argc, char** argv);
+
+#endif

@@ -77,8 +77,10 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
 typedef struct {
     size_t n;                       // samples evaluated
     double rmse[7], rmse_all;       // auto-encoder reconstruction D(mu(k)), linear units
-    double pca_rmse[7], pca_rmse_all;   // best linear 4-d code of the same data (PCA-4)
+    double pca_rmse[7], pca_rmse_all;   // best linear 4-d code of the same data (PCA-4 fitted on it)
     double pca_explained;           // share of variance PCA-4 explains
+    int has_train_pca;              // the prior carries the PCA-4 of its training data:
+    double train_pca_rmse[7], train_pca_rmse_all;   // that linear code applied to this data
     double kl;                      // mean KL(q(z|k) || N(0, I))
     long interp_paths, interp_points, interp_valid;   // decoded BRDFs along random latent paths
     double interp_valid_share;
@@ -88,8 +90,11 @@ typedef struct {
 
 mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t n, uint64_t seed,
                                 mlb_brdf_eval_result* out);
-// PCA-k of data (n x 7, double precision, LAPACK): fills the reconstruction RMSE per channel.
-mlb_status mlb_pca_reconstruction_rmse(const float* data, size_t n, int k, double rmse[7], double* rmse_all,
-                                       double* explained);
+// PCA-k of data (n x 7; double precision, LAPACK): mean[7] and components [k,7] (unit rows,
+// largest variance first); *explained = share of the variance the k components hold.
+mlb_status mlb_pca_fit(const float* data, size_t n, int k, float mean[7], float* components, double* explained);
+// Per-channel and overall RMSE of reconstructing data through a k-component linear code.
+void mlb_pca_rmse(const float* data, size_t n, int k, const float mean[7], const float* components, double rmse[7],
+                  double* rmse_all);
 
 #endif

@@ -7,7 +7,9 @@
 //   z_n = alpha z_i + (1 - alpha) z_j;  dir = z_i - z_j = dz_n/dalpha
 //   k_n = map(D(z_n));  tk_n = J_map J_D(z_n) dir   (forward-mode tangent = dk_n/dalpha)
 //   zhat_n = mu(E(2 k_n - 1))
-//   L_r = mean (k_hat - k)^2;  L_KL = mean_b sum_d KL;  L_s = mean tk_n^2;  L_c = mean (zhat_n - z_n)^2
+// Each term is a per-sample squared L2 norm averaged over the batch, as the formulas read
+// (reference.md §1): L_r = mean_b |k_hat - k|^2, L_KL = mean_b sum_d KL_d, L_s = mean_b |tk_n|^2,
+// L_c = mean_b |zhat_n - z_n|^2.
 // map(s) = lo + (hi - lo) s puts the decoder's sigmoid outputs into the valid ranges.
 #include <stdlib.h>
 #include <string.h>
@@ -122,7 +124,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     }
     const real* s = FN(mlp_forward)(&ae->dec, &w->dec_data, w->z, B);
     map_to_ranges(w->k_hat, s, B);
-    real l_r = FN(mse_forward)(w->k_hat, k, (size_t)nk);
+    real l_r = K_DIM * FN(mse_forward)(w->k_hat, k, (size_t)nk);   // mean over B of the sum over 7
     real l_kl = FN(kl_normal_forward)(w->mu, w->logvar, B, Z_DIM);
 
     // ---- interpolation path: z_n and its derivative along alpha
@@ -145,11 +147,11 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
         w->tk_n[i] = (real)(range_hi[c] - range_lo[c]) * ts_n[i];
         sum_s += (double)w->tk_n[i] * w->tk_n[i];
     }
-    real l_s = (real)(sum_s / nk);
+    real l_s = (real)(sum_s / B);
     for (int i = 0; i < nk; i++) w->x_n[i] = 2 * w->k_n[i] - 1;
     const real* mulv_n = FN(mlp_forward)(&ae->enc, &w->enc_interp, w->x_n, B);
     split_mu_logvar(mulv_n, w->zhat_n, NULL, B);
-    real l_c = FN(mse_forward)(w->zhat_n, w->z_n, (size_t)nz);
+    real l_c = Z_DIM * FN(mse_forward)(w->zhat_n, w->z_n, (size_t)nz);
 
     out->l_r = l_r; out->l_kl = l_kl; out->l_s = l_s; out->l_c = l_c;
     out->total = (real)(l_r + lc->lambda_kl * l_kl + lc->lambda_s * l_s + lc->lambda_c * l_c);
@@ -163,7 +165,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     memset(w->g_encout, 0, sizeof(real) * 2 * nz);
     for (int i = 0; i < B; i++)
         for (int d = 0; d < Z_DIM; d++) {
-            real g = lam_c * 2 * (w->zhat_n[i * Z_DIM + d] - w->z_n[i * Z_DIM + d]) / nz;
+            real g = lam_c * 2 * (w->zhat_n[i * Z_DIM + d] - w->z_n[i * Z_DIM + d]) / B;
             w->g_encout[i * 2 * Z_DIM + d] = g;
             w->g_zn[i * Z_DIM + d] = -g;
         }
@@ -173,7 +175,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     for (int i = 0; i < nk; i++) {
         real scale = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]);
         w->g_s[i] = 2 * w->g_x_n[i] * scale;
-        w->g_ts[i] = lam_s * 2 * w->tk_n[i] / nk * scale;
+        w->g_ts[i] = lam_s * 2 * w->tk_n[i] / B * scale;
     }
     memset(w->g_dir, 0, sizeof(real) * nz);
     FN(mlp_jvp_backward)(&ae->dec, &w->dec_interp, g_dec, w->g_zn, w->g_dir, w->g_s, w->g_ts, w->z_n, w->dir, B);
@@ -190,7 +192,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     }
     // ---- reconstruction: d/dk_hat -> d/ds -> decoder -> d/dz
     memset(w->g_s, 0, sizeof(real) * nk);
-    FN(mse_backward)(w->g_s, w->k_hat, k, (size_t)nk, 1);
+    FN(mse_backward)(w->g_s, w->k_hat, k, (size_t)nk, K_DIM);
     for (int i = 0; i < nk; i++) w->g_s[i] *= (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]);
     FN(mlp_backward)(&ae->dec, &w->dec_data, g_dec, w->g_z, w->g_s, w->z, B);
     // ---- z = mu + exp(logvar/2) eps, plus the KL term

@@ -7,6 +7,9 @@
 #include "matlaber/brdf_ae.h"
 
 #define PRIOR_FORMAT "matlaber-brdf-ae/1"
+// Optional: PCA-4 of the training data, the linear baseline 'brdf eval' compares against.
+#define PCA_MEAN "baseline.pca4.mean"
+#define PCA_COMPONENTS "baseline.pca4.components"
 
 // Generated at build time from models/brdf_prior.safetensors (CMakeLists.txt).
 extern const unsigned char mlb_builtin_prior[];
@@ -17,7 +20,7 @@ static void tensor_name(char* buf, size_t n, const char* net, int layer, const c
 }
 
 mlb_status mlb_brdf_ae_save(const mlb_brdf_ae* ae, const char* path, const mlb_st_meta* extra, size_t n_extra) {
-    enum { MAX_T = 2 * 2 * MLB_MLP_MAX_LAYERS };
+    enum { MAX_T = 2 * 2 * MLB_MLP_MAX_LAYERS + 2 };
     mlb_st_entry entries[MAX_T];
     int64_t shapes[MAX_T][2];
     char names[MAX_T][40];
@@ -36,6 +39,11 @@ mlb_status mlb_brdf_ae_save(const mlb_brdf_ae* ae, const char* path, const mlb_s
             entries[n] = (mlb_st_entry){names[n], MLB_DT_F32, 1, shapes[n], nets[k]->bias[l]};
             n++;
         }
+    static const int64_t pca_mean_shape[1] = {7}, pca_comp_shape[2] = {4, 7};
+    if (ae->has_pca) {
+        entries[n++] = (mlb_st_entry){PCA_MEAN, MLB_DT_F32, 1, pca_mean_shape, ae->pca_mean};
+        entries[n++] = (mlb_st_entry){PCA_COMPONENTS, MLB_DT_F32, 2, pca_comp_shape, ae->pca_components};
+    }
     char hidden[16], depth[16], kr_min[32];
     snprintf(hidden, sizeof hidden, "%d", ae->config.hidden);
     snprintf(depth, sizeof depth, "%d", ae->config.depth);
@@ -102,7 +110,18 @@ mlb_status mlb_brdf_ae_from_safetensors(mlb_brdf_ae* ae, const mlb_safetensors* 
                 return s;
             }
         }
-    if (mlb_st_count(st) != (size_t)(2 * (ae->enc.n_layers + ae->dec.n_layers))) {
+    if (mlb_st_find(st, PCA_MEAN) || mlb_st_find(st, PCA_COMPONENTS)) {
+        static const int64_t mean_shape[1] = {7}, comp_shape[2] = {4, 7};
+        mlb_status s;
+        if ((s = mlb_st_expect(st, PCA_MEAN, 1, mean_shape)) || (s = mlb_st_expect(st, PCA_COMPONENTS, 2, comp_shape)) ||
+            (s = mlb_st_read_f32(st, PCA_MEAN, ae->pca_mean, 7)) ||
+            (s = mlb_st_read_f32(st, PCA_COMPONENTS, ae->pca_components, 28))) {
+            brdf_ae_free(ae);
+            return s;
+        }
+        ae->has_pca = 1;
+    }
+    if (mlb_st_count(st) != (size_t)(2 * (ae->enc.n_layers + ae->dec.n_layers) + 2 * ae->has_pca)) {
         size_t count = mlb_st_count(st);
         brdf_ae_free(ae);
         return mlb_fail(MLB_ERR_FORMAT, "%s: %zu tensors, expected %d for hidden %d depth %d", path, count,

@@ -14,42 +14,48 @@
 void dsyev_(const char* jobz, const char* uplo, const int* n, double* a, const int* lda, double* w,
             double* work, const int* lwork, int* info);
 
-mlb_status mlb_pca_reconstruction_rmse(const float* data, size_t n, int k, double rmse[7], double* rmse_all,
-                                       double* explained) {
+mlb_status mlb_pca_fit(const float* data, size_t n, int k, float mean[7], float* components, double* explained) {
     enum { D = 7 };
-    if (n < 2 || k < 0 || k > D) return mlb_fail(MLB_ERR_ARG, "PCA: %zu samples, %d components", n, k);
-    double mean[D] = {0}, cov[D * D] = {0};
+    if (n < 2 || k < 1 || k > D) return mlb_fail(MLB_ERR_ARG, "PCA: %zu samples, %d components", n, k);
+    double mu[D] = {0}, cov[D * D] = {0};
     for (size_t i = 0; i < n; i++)
-        for (int c = 0; c < D; c++) mean[c] += data[i * D + c];
-    for (int c = 0; c < D; c++) mean[c] /= (double)n;
+        for (int c = 0; c < D; c++) mu[c] += data[i * D + c];
+    for (int c = 0; c < D; c++) mu[c] /= (double)n;
     for (size_t i = 0; i < n; i++)
         for (int a = 0; a < D; a++)
-            for (int b = 0; b < D; b++) cov[a * D + b] += (data[i * D + a] - mean[a]) * (data[i * D + b] - mean[b]);
+            for (int b = 0; b < D; b++) cov[a * D + b] += (data[i * D + a] - mu[a]) * (data[i * D + b] - mu[b]);
     for (int i = 0; i < D * D; i++) cov[i] /= (double)n;
     double eig[D], work[256];
     int nn = D, lwork = 256, info = 0;
-    dsyev_("V", "U", &nn, cov, &nn, eig, work, &lwork, &info);   // columns of cov (column-major) = eigenvectors
+    dsyev_("V", "U", &nn, cov, &nn, eig, work, &lwork, &info);   // column e of cov (column-major) = eigenvector e
     if (info != 0) return mlb_fail(MLB_ERR_NUMERIC, "PCA: LAPACK dsyev failed (info %d)", info);
     double total = 0, top = 0;
     for (int c = 0; c < D; c++) total += eig[c];
     for (int c = D - k; c < D; c++) top += eig[c];
     if (explained) *explained = total > 0 ? top / total : 1;
-    double sq[D] = {0};
+    for (int c = 0; c < D; c++) mean[c] = (float)mu[c];
+    for (int j = 0; j < k; j++)   // largest eigenvalue first
+        for (int c = 0; c < D; c++) components[j * D + c] = (float)cov[(D - 1 - j) * D + c];
+    return MLB_OK;
+}
+
+void mlb_pca_rmse(const float* data, size_t n, int k, const float mean[7], const float* components, double rmse[7],
+                  double* rmse_all) {
+    enum { D = 7 };
+    double sq[D] = {0}, all = 0;
     for (size_t i = 0; i < n; i++) {
         double x[D], r[D];
-        for (int c = 0; c < D; c++) { x[c] = data[i * D + c] - mean[c]; r[c] = mean[c]; }
-        for (int e = D - k; e < D; e++) {
-            const double* v = cov + e * D;   // eigenvector e (column e, column-major)
+        for (int c = 0; c < D; c++) { x[c] = (double)data[i * D + c] - mean[c]; r[c] = mean[c]; }
+        for (int j = 0; j < k; j++) {
+            const float* v = components + j * D;
             double p = 0;
             for (int c = 0; c < D; c++) p += v[c] * x[c];
             for (int c = 0; c < D; c++) r[c] += p * v[c];
         }
         for (int c = 0; c < D; c++) { double d = r[c] - data[i * D + c]; sq[c] += d * d; }
     }
-    double all = 0;
-    for (int c = 0; c < D; c++) { rmse[c] = sqrt(sq[c] / (double)n); all += sq[c]; }
-    *rmse_all = sqrt(all / ((double)n * D));
-    return MLB_OK;
+    for (int c = 0; c < D; c++) { rmse[c] = n ? sqrt(sq[c] / (double)n) : 0; all += sq[c]; }
+    *rmse_all = n ? sqrt(all / ((double)n * D)) : 0;
 }
 
 mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t n, uint64_t seed,
@@ -74,7 +80,13 @@ mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t
     r->kl = kl_normal_forward(mu, lv, (int)(n > 2147483647 ? 2147483647 : n), 4);
     for (size_t i = 0; i < 4 * n; i++) sigma += exp(0.5 * lv[i]);
     r->mean_sigma = sigma / (4.0 * (double)n);
-    if ((s = mlb_pca_reconstruction_rmse(data, n, 4, r->pca_rmse, &r->pca_rmse_all, &r->pca_explained))) goto done;
+    // PCA-4 fitted on the evaluated data itself: the best linear 4-d code this data has
+    float pca_mean[7], pca_comp[4 * 7];
+    if ((s = mlb_pca_fit(data, n, 4, pca_mean, pca_comp, &r->pca_explained))) goto done;
+    mlb_pca_rmse(data, n, 4, pca_mean, pca_comp, r->pca_rmse, &r->pca_rmse_all);
+    // PCA-4 of the training data, when the prior carries it: the same protocol as the auto-encoder
+    r->has_train_pca = ae->has_pca;
+    if (ae->has_pca) mlb_pca_rmse(data, n, 4, ae->pca_mean, ae->pca_components, r->train_pca_rmse, &r->train_pca_rmse_all);
 
     // Latent paths: half between encodings of random data pairs, half between draws from N(0, I).
     double ratio_sum = 0;

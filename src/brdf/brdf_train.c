@@ -33,6 +33,9 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
     if (cfg->epochs < 1 || cfg->batch < 2 || !(cfg->lr > 0))
         return mlb_fail(MLB_ERR_ARG, "BRDF training: epochs %d, batch %d, lr %g (need epochs >= 1, batch >= 2, lr > 0)",
                         cfg->epochs, cfg->batch, cfg->lr);
+    // the linear baseline of the same training data travels with the prior (see mlb_brdf_ae_evaluate)
+    MLB_TRY(mlb_pca_fit(data, n, 4, ae->pca_mean, ae->pca_components, NULL));
+    ae->has_pca = 1;
     int B = (size_t)cfg->batch > n ? (int)n : cfg->batch;
     size_t steps_per_epoch = n / (size_t)B;   // the incomplete last batch is dropped; each epoch reshuffles
     mlb_brdf_work w;

@@ -323,7 +323,8 @@ mlb_status mlb_brdf_load_tiles(mlb_brdf_set* out, const char* file, const mlb_br
     if (im.w != 4 * im.h) {
         mlb_status s = mlb_fail(MLB_ERR_FORMAT,
                                 "%s: %dx%d is not 4 square tiles (expected width = 4 x height: normal | diffuse | "
-                                "roughness | specular)", file, im.w, im.h);
+                                "roughness | specular; for a TwoShotBRDF sample or a texture set pass its folder)",
+                                file, im.w, im.h);
         mlb_image_free(&im);
         return s;
     }
@@ -383,8 +384,7 @@ static int list_has(const name_list* l, const char* name) {
 // What a folder is: TwoShotBRDF when it has specular.png, or diffuse.png together with one of the
 // files only TwoShotBRDF samples carry (mask.png, normal.exr, depth.exr) - so a sample that lost its
 // specular.png is reported as such instead of being read as a metallic/roughness set; else a
-// metallic/roughness set when any file has a base colour / roughness / metallic name; else a plain
-// folder to search.
+// metallic/roughness set (see below); else a plain folder to search.
 static mlb_status discover(const char* path, int depth, job_list* jl) {
     if (depth > MAX_DEPTH) return mlb_fail(MLB_ERR_FORMAT, "%s: folders nested deeper than %d (a link loop?)", path, MAX_DEPTH);
     name_list l;
@@ -398,9 +398,22 @@ static mlb_status discover(const char* path, int depth, job_list* jl) {
         name_list_free(&l);
         return s;
     }
-    int pbr = 0;
-    for (size_t i = 0; i < l.n && !pbr; i++) pbr = file_role(l.names[i]) != ROLE_NONE;
-    if (pbr) {
+    // A texture set when it has a roughness map, or a base colour / metallic map and no
+    // subfolders (then a missing roughness map is reported); a stray "color_chart.png" beside
+    // sample folders does not stop the search.
+    int has_rough = 0, has_other = 0, has_dirs = 0;
+    for (size_t i = 0; i < l.n; i++) {
+        int role = file_role(l.names[i]);
+        has_rough |= role == ROLE_ROUGH;
+        has_other |= role == ROLE_BASE || role == ROLE_METAL;
+        if (!has_dirs) {
+            char* p = join(path, l.names[i]);
+            if (!p) { name_list_free(&l); return mlb_fail(MLB_ERR_NOMEM, "%s: path too long", path); }
+            has_dirs = is_dir(p);
+            free(p);
+        }
+    }
+    if (has_rough || (has_other && !has_dirs)) {
         s = add_job(jl, JOB_PBR, path);
         name_list_free(&l);
         return s;

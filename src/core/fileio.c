@@ -30,6 +30,10 @@ mlb_status mlb_atomic_open(mlb_atomic_file* af, const char* path) {
         mlb_atomic_abort(af);
         return mlb_fail(MLB_ERR_IO, "%s: cannot create a temporary file beside it: %s", path, strerror(e));
     }
+    // mkstemp creates the file 0600; give it the permissions a plain fopen would have
+    mode_t mask = umask(0);
+    umask(mask);
+    fchmod(fd, 0666 & ~mask);
     af->f = fdopen(fd, "wb");
     if (!af->f) { close(fd); mlb_atomic_abort(af); return mlb_fail(MLB_ERR_IO, "%s: fdopen failed", path); }
     return MLB_OK;

@@ -3,7 +3,7 @@
 //
 // Per batch k [B,7]:
 //   x = 2k - 1;  [mu | logvar] = E(x);  z = mu + exp(logvar/2) eps;  k_hat = map(D(z))
-//   pairs (i, j = (i + B/2) mod B), alpha_i = (i mod A) / (A - 1):
+//   pairs (i, j = (i + 1) mod B) of the shuffled batch, alpha_i = (i mod A) / (A - 1):
 //   z_n = alpha z_i + (1 - alpha) z_j;  dir = z_i - z_j = dz_n/dalpha
 //   k_n = map(D(z_n));  tk_n = J_map J_D(z_n) dir   (forward-mode tangent = dk_n/dalpha)
 //   zhat_n = mu(E(2 k_n - 1))
@@ -112,6 +112,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
         return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: batch %d outside 2..%d", B, w->capacity);
     const int nk = B * K_DIM, nz = B * Z_DIM;
     const int A = lc->n_alpha > 1 ? lc->n_alpha : 2;
+    if (A > 64) return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: %d interpolation weights, at most 64", A);
 
     // ---- reconstruction path
     for (int i = 0; i < nk; i++) w->x[i] = 2 * k[i] - 1;
@@ -129,7 +130,7 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
 
     // ---- interpolation path: z_n and its derivative along alpha
     for (int i = 0; i < B; i++) {
-        int j = (i + B / 2) % B;
+        int j = (i + 1) % B;
         real a = (real)(i % A) / (real)(A - 1);
         w->alpha[i] = a;
         for (int d = 0; d < Z_DIM; d++) {
@@ -141,13 +142,28 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     const real* s_n = FN(mlp_forward)(&ae->dec, &w->dec_interp, w->z_n, B);
     const real* ts_n = FN(mlp_jvp_forward)(&ae->dec, &w->dec_interp, w->dir, B);
     map_to_ranges(w->k_n, s_n, B);
+    for (int i = 0; i < nk; i++) w->tk_n[i] = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]) * ts_n[i];
+    // L_s and its gradient with respect to tk_n (w->g_ts, before lambda_s and the output map)
     double sum_s = 0;
-    for (int i = 0; i < nk; i++) {
-        int c = i % K_DIM;
-        w->tk_n[i] = (real)(range_hi[c] - range_lo[c]) * ts_n[i];
-        sum_s += (double)w->tk_n[i] * w->tk_n[i];
+    if (lc->smoothness == MLB_SMOOTH_BATCH) {
+        // g_a = sum over the n_a rows with weight index a of sum_c tk_n; L_s = mean_a g_a^2 / n_a
+        double g[64] = {0};
+        int count[64] = {0};
+        for (int i = 0; i < B; i++) {
+            count[i % A]++;
+            for (int c = 0; c < K_DIM; c++) g[i % A] += w->tk_n[i * K_DIM + c];
+        }
+        for (int a = 0; a < A; a++) if (count[a]) sum_s += g[a] * g[a] / count[a];
+        sum_s /= A;
+        for (int i = 0; i < nk; i++) {
+            int a = (i / K_DIM) % A;
+            w->g_ts[i] = (real)(2 * g[a] / ((double)A * count[a]));
+        }
+    } else {
+        for (int i = 0; i < nk; i++) { sum_s += (double)w->tk_n[i] * w->tk_n[i]; w->g_ts[i] = 2 * w->tk_n[i] / B; }
+        sum_s /= B;
     }
-    real l_s = (real)(sum_s / B);
+    real l_s = (real)sum_s;
     for (int i = 0; i < nk; i++) w->x_n[i] = 2 * w->k_n[i] - 1;
     const real* mulv_n = FN(mlp_forward)(&ae->enc, &w->enc_interp, w->x_n, B);
     split_mu_logvar(mulv_n, w->zhat_n, NULL, B);
@@ -175,14 +191,14 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     for (int i = 0; i < nk; i++) {
         real scale = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]);
         w->g_s[i] = 2 * w->g_x_n[i] * scale;
-        w->g_ts[i] = lam_s * 2 * w->tk_n[i] / B * scale;
+        w->g_ts[i] *= lam_s * scale;
     }
     memset(w->g_dir, 0, sizeof(real) * nz);
     FN(mlp_jvp_backward)(&ae->dec, &w->dec_interp, g_dec, w->g_zn, w->g_dir, w->g_s, w->g_ts, w->z_n, w->dir, B);
     // z_n = alpha z_i + (1 - alpha) z_j, dir = z_i - z_j
     memset(w->g_z, 0, sizeof(real) * nz);
     for (int i = 0; i < B; i++) {
-        int j = (i + B / 2) % B;
+        int j = (i + 1) % B;
         real a = w->alpha[i];
         for (int d = 0; d < Z_DIM; d++) {
             real gn = w->g_zn[i * Z_DIM + d], gd = w->g_dir[i * Z_DIM + d];

@@ -18,16 +18,17 @@ static const char* channel_names[7] = {"kd.r", "kd.g", "kd.b", "ks.r", "ks.g", "
 int brdf_gather_data(const brdf_data_options* o, mlb_brdf_set* set, char* description, size_t desc_size) {
     memset(set, 0, sizeof *set);
     description[0] = 0;
-    if (o->n_paths == 0) {
-        mlb_status s = mlb_brdf_procedural(set, (size_t)o->procedural_samples, o->seed);
+    size_t used = 0;
+    // procedural samples: the default without --data; with --data only when asked for
+    long n_proc = o->procedural_samples >= 0 ? o->procedural_samples : (o->n_paths ? 0 : o->default_procedural);
+    if (n_proc > 0) {
+        mlb_status s = mlb_brdf_procedural(set, (size_t)n_proc, o->seed);
         if (s) return cli_fail(s, "procedural materials");
-        snprintf(description, desc_size, "procedural materials: %ld samples, seed %llu", o->procedural_samples,
-                 (unsigned long long)o->seed);
-        return 0;
+        used += snprintf(description, desc_size, "procedural materials: %ld samples, seed %llu%s", n_proc,
+                         (unsigned long long)o->seed, o->n_paths ? "; " : "");
     }
     mlb_brdf_load_options lo = {.max_pixels_per_map = o->pixels_per_map, .seed = o->seed};
-    size_t used = 0;
-    used += snprintf(description, desc_size, "SVBRDF data:");
+    if (o->n_paths && used < desc_size) used += snprintf(description + used, desc_size - used, "SVBRDF data:");
     for (int i = 0; i < o->n_paths; i++) {
         size_t before = set->n;
         lo.seed = o->seed + 0x9E3779B97F4A7C15ull * (uint64_t)i;   // each path its own pixel choices
@@ -50,7 +51,7 @@ static int load_model(const char* path, mlb_brdf_ae* ae, char* source, size_t n)
 
 static const cli_option train_options[] = {
     {"data", 1, 'd', "PATH", "SVBRDF folder, texture set or tile image (repeatable); default: procedural"},
-    {"samples", 1, 'n', "N", "procedural samples when no --data (default 400000)"},
+    {"samples", 1, 'n', "N", "procedural samples (default 400000 without --data, 0 with it)"},
     {"pixels-per-map", 1, 'p', "N", "sample N pixels per SVBRDF map (default: every pixel)"},
     {"epochs", 1, 'e', "N", "epochs (default 30)"},
     {"batch", 1, 'b', "N", "batch size (default 256)"},
@@ -59,6 +60,10 @@ static const cli_option train_options[] = {
     {"hidden", 1, 'H', "N", "hidden width (default 64)"},
     {"depth", 1, 'D', "N", "hidden layers per network (default 3)"},
     {"activation", 1, 'a', "NAME", "hidden activation (default silu)"},
+    {"lambda-kl", 1, 'K', "X", "weight of the KL term (default 2e-4)"},
+    {"lambda-s", 1, 'S', "X", "weight of the interpolation smoothness term (default 0.05)"},
+    {"lambda-c", 1, 'C', "X", "weight of the cyclic term (default 1e-4)"},
+    {"smoothness", 1, 'F', "FORM", "per-pair | batch: reading of the smoothness term (docs/brdf_prior.md)"},
     {"seed", 1, 's', "S", "seed of data, initialisation, shuffling and noise (default 1)"},
     {"out", 1, 'o', "FILE", "output safetensors file (default brdf_prior.safetensors)"},
     {"json", 0, 'j', NULL, "print a JSON summary on stdout"},
@@ -73,7 +78,7 @@ static void print_epoch(const mlb_brdf_epoch_stats* st, void* user) {
 }
 
 int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae* trained_out) {
-    brdf_data_options data = {.procedural_samples = 400000, .seed = 1};
+    brdf_data_options data = {.procedural_samples = -1, .default_procedural = 400000, .seed = 1};
     mlb_brdf_train_config tc = mlb_brdf_train_default_config();
     mlb_brdf_ae_config mc = mlb_brdf_ae_default_config();
     const char* out_path = default_out;
@@ -89,7 +94,7 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
             if (data.n_paths >= BRDF_MAX_DATA_PATHS) return cli_usage_error("brdf train", "at most %d --data", BRDF_MAX_DATA_PATHS);
             data.paths[data.n_paths++] = optarg;
             break;
-        case 'n': if (cli_parse_long(optarg, 2, 100000000, &v)) return cli_usage_error("brdf train", "--samples: expected 2..1e8"); data.procedural_samples = v; break;
+        case 'n': if (cli_parse_long(optarg, 0, 100000000, &v)) return cli_usage_error("brdf train", "--samples: expected 0..1e8"); data.procedural_samples = v; break;
         case 'p': if (cli_parse_long(optarg, 1, 1L << 40, &v)) return cli_usage_error("brdf train", "--pixels-per-map: expected a positive count"); data.pixels_per_map = (size_t)v; break;
         case 'e': if (cli_parse_long(optarg, 1, 100000, &v)) return cli_usage_error("brdf train", "--epochs: expected 1..100000"); tc.epochs = (int)v; break;
         case 'b': if (cli_parse_long(optarg, 2, 1 << 20, &v)) return cli_usage_error("brdf train", "--batch: expected 2..1048576"); tc.batch = (int)v; break;
@@ -99,6 +104,14 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'D': if (cli_parse_long(optarg, 1, MLB_MLP_MAX_LAYERS - 1, &v)) return cli_usage_error("brdf train", "--depth: expected 1..%d", MLB_MLP_MAX_LAYERS - 1); mc.depth = (int)v; break;
         case 'a': if (mlb_activation_parse(optarg, &mc.act)) return cli_usage_error("brdf train", "--activation: unknown '%s'", optarg); break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error("brdf train", "--seed: expected a non-negative integer"); tc.seed = data.seed = (uint64_t)v; break;
+        case 'K': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-kl: expected >= 0"); tc.loss.lambda_kl = x; break;
+        case 'S': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-s: expected >= 0"); tc.loss.lambda_s = x; break;
+        case 'C': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-c: expected >= 0"); tc.loss.lambda_c = x; break;
+        case 'F':
+            if (strcmp(optarg, "per-pair") == 0) tc.loss.smoothness = MLB_SMOOTH_PER_PAIR;
+            else if (strcmp(optarg, "batch") == 0) tc.loss.smoothness = MLB_SMOOTH_BATCH;
+            else return cli_usage_error("brdf train", "--smoothness: expected per-pair or batch, got '%s'", optarg);
+            break;
         case 'o': out_path = optarg; break;
         case 'j': json = 1; break;
         case 'h':
@@ -133,9 +146,11 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
     size_t used = strlen(command);
     for (int i = 0; i < argc && used < sizeof command; i++) used += snprintf(command + used, sizeof command - used, " %s", argv[i]);
     char settings[512];
-    snprintf(settings, sizeof settings, "epochs %d, batch %d, lr %g, weight decay %g, seed %llu, hidden %d, depth %d, %s",
+    snprintf(settings, sizeof settings,
+             "epochs %d, batch %d, lr %g, weight decay %g, seed %llu, hidden %d, depth %d, %s, lambda_kl %g, lambda_s %g (%s), lambda_c %g",
              tc.epochs, tc.batch, tc.lr, tc.weight_decay, (unsigned long long)tc.seed, mc.hidden, mc.depth,
-             mlb_activation_name(mc.act));
+             mlb_activation_name(mc.act), tc.loss.lambda_kl, tc.loss.lambda_s,
+             tc.loss.smoothness == MLB_SMOOTH_BATCH ? "batch" : "per-pair", tc.loss.lambda_c);
     mlb_st_meta meta[] = {{"command", command}, {"data", description}, {"training", settings}};
     if (out_path) {
         s = mlb_brdf_ae_save(&ae, out_path, meta, sizeof meta / sizeof *meta);
@@ -168,7 +183,7 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
 static const cli_option eval_options[] = {
     {"model", 1, 'm', "FILE", "BRDF prior (default: $MATLABER_PRIOR or the built-in prior)"},
     {"data", 1, 'd', "PATH", "held-out SVBRDF data (repeatable); default: procedural, seed 1001"},
-    {"samples", 1, 'n', "N", "procedural samples when no --data (default 200000)"},
+    {"samples", 1, 'n', "N", "procedural samples (default 200000 without --data, 0 with it)"},
     {"pixels-per-map", 1, 'p', "N", "sample N pixels per map (default: every pixel)"},
     {"seed", 1, 's', "S", "seed of the data sampling and the random interpolations (default 1001)"},
     {"json", 0, 'j', NULL, "print the result as JSON"},
@@ -256,7 +271,7 @@ int brdf_eval_run(const mlb_brdf_ae* ae, const char* source, const brdf_data_opt
 }
 
 static int brdf_eval_main(int argc, char** argv) {
-    brdf_data_options data = {.procedural_samples = 200000, .seed = 1001};
+    brdf_data_options data = {.procedural_samples = -1, .default_procedural = 200000, .seed = 1001};
     const char* model = NULL;
     int json = 0;
     long v;
@@ -270,7 +285,7 @@ static int brdf_eval_main(int argc, char** argv) {
             if (data.n_paths >= BRDF_MAX_DATA_PATHS) return cli_usage_error("brdf eval", "at most %d --data", BRDF_MAX_DATA_PATHS);
             data.paths[data.n_paths++] = optarg;
             break;
-        case 'n': if (cli_parse_long(optarg, 2, 100000000, &v)) return cli_usage_error("brdf eval", "--samples: expected 2..1e8"); data.procedural_samples = v; break;
+        case 'n': if (cli_parse_long(optarg, 0, 100000000, &v)) return cli_usage_error("brdf eval", "--samples: expected 0..1e8"); data.procedural_samples = v; break;
         case 'p': if (cli_parse_long(optarg, 1, 1L << 40, &v)) return cli_usage_error("brdf eval", "--pixels-per-map: expected a positive count"); data.pixels_per_map = (size_t)v; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error("brdf eval", "--seed: expected a non-negative integer"); data.seed = (uint64_t)v; break;
         case 'j': json = 1; break;
@@ -334,11 +349,17 @@ static int code_main(int argc, char** argv, int encode) {
     }
     if (optind < argc) return cli_usage_error(cmd, "unexpected argument '%s'", argv[optind]);
     int in_dim = encode ? 7 : 4, out_dim = encode ? 4 : 7;
+    float in[7], out[7];
+    if (values) {   // check the arguments before loading anything
+        if (cli_parse_floats(values, in, in_dim))
+            return cli_usage_error(cmd, "--%s: expected %d comma-separated numbers, got '%s'", encode ? "k" : "z", in_dim, values);
+        if (encode && !mlb_brdf_valid(in))
+            return cli_usage_error(cmd, "--k: not a valid BRDF (kd, ks in [0,1], kr in [%g,1])", (double)MLB_KR_MIN);
+    }
     mlb_brdf_ae ae;
     char source[1024];
     int rc = load_model(model, &ae, source, sizeof source);
     if (rc) return rc;
-    float in[7], out[7];
     char line[4096];
     long row = 0;
     if (json) printf("[\n");

@@ -9,7 +9,8 @@
 typedef struct {
     const char* paths[BRDF_MAX_DATA_PATHS];
     int n_paths;                 // 0: procedural
-    long procedural_samples;
+    long procedural_samples;     // -1: default_procedural without paths, 0 with them
+    long default_procedural;
     size_t pixels_per_map;       // 0: every pixel
     uint64_t seed;
 } brdf_data_options;

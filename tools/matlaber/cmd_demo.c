@@ -51,7 +51,7 @@ int cmd_demo(int argc, char** argv) {
             char path[4096];
             snprintf(path, sizeof path, "%s/%s", shared, sets[i]);
             printf("\n== %zu. real SVBRDF maps, never seen in training: %s\n", i + 3, sets[i]);
-            brdf_data_options real = {.paths = {path}, .n_paths = 1, .pixels_per_map = 65536, .seed = 1001};
+            brdf_data_options real = {.paths = {path}, .n_paths = 1, .procedural_samples = 0, .pixels_per_map = 65536, .seed = 1001};
             rc = brdf_eval_run(&ae, out_path, &real, 0);
         }
     } else if (!rc) {

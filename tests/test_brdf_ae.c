@@ -108,21 +108,19 @@ TEST(loss_gradient_matches_finite_differences) {
     random_brdfs_f64(k, B, 1);
     mlb_brdf_work_f64 w;
     REQUIRE(brdf_work_alloc_f64(&w, &ae, B) == MLB_OK);
-    mlb_brdf_loss_config configs[4] = {strong_terms(), mlb_brdf_loss_default_config(), strong_terms(),
-                                       mlb_brdf_loss_default_config()};
-    configs[2].smoothness = configs[3].smoothness = MLB_SMOOTH_BATCH;
-    for (int ci = 0; ci < 4; ci++) {
+    mlb_brdf_loss_config configs[2] = {strong_terms(), mlb_brdf_loss_default_config()};
+    for (int ci = 0; ci < 2; ci++) {
         mlb_brdf_loss_config lc = configs[ci];
         mlb_brdf_losses_f64 L;
         memset(ae.grads, 0, sizeof(double) * ae.n_params);
-        REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, 1, &L) == MLB_OK);
+        REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, ae.grads, &L) == MLB_OK);
         CHECK(L.l_r > 0 && L.l_kl > 0 && L.l_s > 0 && L.l_c > 0);
         double h = 1e-6, worst = 0;
         for (size_t i = 0; i < ae.n_params; i++) {
             double keep = ae.params[i];
             mlb_brdf_losses_f64 Lp, Lm;
-            ae.params[i] = keep + h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, 0, &Lp);
-            ae.params[i] = keep - h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, 0, &Lm);
+            ae.params[i] = keep + h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, NULL, &Lp);
+            ae.params[i] = keep - h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 9, 4, NULL, &Lm);
             ae.params[i] = keep;
             double fd = (Lp.total - Lm.total) / (2 * h);
             double err = fabs(ae.grads[i] - fd) / (fabs(fd) + 1e-6);
@@ -148,20 +146,19 @@ TEST(each_loss_term_gradient) {
     random_brdfs_f64(k, B, 2);
     mlb_brdf_work_f64 w;
     REQUIRE(brdf_work_alloc_f64(&w, &ae, B) == MLB_OK);
-    double weights[5][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0, 1, 0}};
-    for (int t = 0; t < 5; t++) {
+    double weights[4][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    for (int t = 0; t < 4; t++) {
         mlb_brdf_loss_config lc = mlb_brdf_loss_default_config();
         lc.lambda_kl = weights[t][0]; lc.lambda_s = weights[t][1]; lc.lambda_c = weights[t][2];
-        lc.smoothness = t == 4 ? MLB_SMOOTH_BATCH : MLB_SMOOTH_PER_PAIR;
         mlb_brdf_losses_f64 L;
         memset(ae.grads, 0, sizeof(double) * ae.n_params);
-        REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, 1, &L) == MLB_OK);
+        REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, ae.grads, &L) == MLB_OK);
         double h = 1e-6;
         for (size_t i = 0; i < ae.n_params; i++) {
             double keep = ae.params[i];
             mlb_brdf_losses_f64 Lp, Lm;
-            ae.params[i] = keep + h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, 0, &Lp);
-            ae.params[i] = keep - h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, 0, &Lm);
+            ae.params[i] = keep + h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, NULL, &Lp);
+            ae.params[i] = keep - h; brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, NULL, &Lm);
             ae.params[i] = keep;
             CHECK_CLOSE(ae.grads[i], (Lp.total - Lm.total) / (2 * h), 1e-5, 1e-9);
         }
@@ -183,7 +180,7 @@ TEST(smoothness_term_is_derivative_along_alpha) {
     REQUIRE(brdf_work_alloc_f64(&w, &ae, B) == MLB_OK);
     mlb_brdf_loss_config lc = mlb_brdf_loss_default_config();
     mlb_brdf_losses_f64 L;
-    REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 1, 0, 0, &L) == MLB_OK);
+    REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 1, 0, NULL, &L) == MLB_OK);
     double h = 1e-6;
     for (int i = 0; i < B; i++) {
         int j = (i + 1) % B;
@@ -221,8 +218,8 @@ TEST(float_and_double_models_agree) {
     mlb_brdf_losses L; mlb_brdf_losses_f64 L64;
     memset(ae.grads, 0, sizeof(float) * ae.n_params);
     memset(ae64.grads, 0, sizeof(double) * ae64.n_params);
-    REQUIRE(brdf_ae_loss(&ae, &w, k, B, &lc, 3, 1, 1, &L) == MLB_OK);
-    REQUIRE(brdf_ae_loss_f64(&ae64, &w64, k64, B, &lc, 3, 1, 1, &L64) == MLB_OK);
+    REQUIRE(brdf_ae_loss(&ae, &w, k, B, &lc, 3, 1, ae.grads, &L) == MLB_OK);
+    REQUIRE(brdf_ae_loss_f64(&ae64, &w64, k64, B, &lc, 3, 1, ae64.grads, &L64) == MLB_OK);
     CHECK_CLOSE(L.total, L64.total, 1e-4, 1e-7);
     double gmax = 0;
     for (size_t i = 0; i < ae.n_params; i++) gmax = fmax(gmax, fabs(ae64.grads[i]));

@@ -18,18 +18,8 @@ typedef struct {
     mlb_activation act;      // hidden activation (default SiLU: smooth, so the decoder's Jacobian is too)
 } mlb_brdf_ae_config;
 
-// Two readings of the smoothness term L_s, both exact (forward-mode tangent of the decoder):
-//  PER_PAIR  mean over pairs of |dD(z_n)/dalpha|^2 = |J_D(z_n)(z_a - z_b)|^2 (reference.md §1)
-//  BATCH     the form of the code the paper builds on (Neural-PIL): for each interpolation weight,
-//            the derivative along alpha of the decoded batch summed over pairs and channels,
-//            squared, averaged over the weights and divided by the number of pairs.
-// docs/brdf_prior.md measures both: with the paper's weight 0.05, PER_PAIR pulls the decoder
-// toward a linear map and doubles the reconstruction error.
-typedef enum { MLB_SMOOTH_PER_PAIR = 0, MLB_SMOOTH_BATCH = 1 } mlb_smoothness_form;
-
 typedef struct {
     double lambda_kl, lambda_s, lambda_c;   // 2e-4, 0.05, 1e-4 (paper)
-    mlb_smoothness_form smoothness;
     int n_alpha;                            // interpolation weights alpha = j / (n_alpha - 1), j = 0..n_alpha-1
     int sample_latent;                      // 1: z = mu + sigma * eps (training); 0: z = mu
 } mlb_brdf_loss_config;

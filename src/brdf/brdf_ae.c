@@ -105,14 +105,13 @@ static void map_to_ranges(real* k, const real* s, int B) {
             k[i * K_DIM + c] = (real)(range_lo[c] + (range_hi[c] - range_lo[c]) * s[i * K_DIM + c]);
 }
 
-mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
-                            const mlb_brdf_loss_config* lc, uint64_t seed, uint64_t step, int backward,
+mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
+                            const mlb_brdf_loss_config* lc, uint64_t seed, uint64_t step, real* grads,
                             FN(mlb_brdf_losses)* out) {
     if (B < 2 || B > w->capacity)
         return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: batch %d outside 2..%d", B, w->capacity);
     const int nk = B * K_DIM, nz = B * Z_DIM;
     const int A = lc->n_alpha > 1 ? lc->n_alpha : 2;
-    if (A > 64) return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: %d interpolation weights, at most 64", A);
 
     // ---- reconstruction path
     for (int i = 0; i < nk; i++) w->x[i] = 2 * k[i] - 1;
@@ -143,26 +142,10 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
     const real* ts_n = FN(mlp_jvp_forward)(&ae->dec, &w->dec_interp, w->dir, B);
     map_to_ranges(w->k_n, s_n, B);
     for (int i = 0; i < nk; i++) w->tk_n[i] = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]) * ts_n[i];
-    // L_s and its gradient with respect to tk_n (w->g_ts, before lambda_s and the output map)
+    // L_s = mean_n |tk_n|^2; w->g_ts holds dL_s/dtk_n (lambda_s and the output map come in the backward)
     double sum_s = 0;
-    if (lc->smoothness == MLB_SMOOTH_BATCH) {
-        // g_a = sum over the n_a rows with weight index a of sum_c tk_n; L_s = mean_a g_a^2 / n_a
-        double g[64] = {0};
-        int count[64] = {0};
-        for (int i = 0; i < B; i++) {
-            count[i % A]++;
-            for (int c = 0; c < K_DIM; c++) g[i % A] += w->tk_n[i * K_DIM + c];
-        }
-        for (int a = 0; a < A; a++) if (count[a]) sum_s += g[a] * g[a] / count[a];
-        sum_s /= A;
-        for (int i = 0; i < nk; i++) {
-            int a = (i / K_DIM) % A;
-            w->g_ts[i] = (real)(2 * g[a] / ((double)A * count[a]));
-        }
-    } else {
-        for (int i = 0; i < nk; i++) { sum_s += (double)w->tk_n[i] * w->tk_n[i]; w->g_ts[i] = 2 * w->tk_n[i] / B; }
-        sum_s /= B;
-    }
+    for (int i = 0; i < nk; i++) { sum_s += (double)w->tk_n[i] * w->tk_n[i]; w->g_ts[i] = 2 * w->tk_n[i] / B; }
+    sum_s /= B;
     real l_s = (real)sum_s;
     for (int i = 0; i < nk; i++) w->x_n[i] = 2 * w->k_n[i] - 1;
     const real* mulv_n = FN(mlp_forward)(&ae->enc, &w->enc_interp, w->x_n, B);
@@ -171,10 +154,10 @@ mlb_status FN(brdf_ae_loss)(FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const rea
 
     out->l_r = l_r; out->l_kl = l_kl; out->l_s = l_s; out->l_c = l_c;
     out->total = (real)(l_r + lc->lambda_kl * l_kl + lc->lambda_s * l_s + lc->lambda_c * l_c);
-    if (!backward) return MLB_OK;
+    if (!grads) return MLB_OK;
 
-    real* g_enc = ae->grads;
-    real* g_dec = ae->grads + ae->n_enc_params;
+    real* g_enc = grads;
+    real* g_dec = grads + ae->n_enc_params;
     const real lam_c = (real)lc->lambda_c, lam_s = (real)lc->lambda_s;
 
     // ---- cyclic: d/dzhat_n and the direct d/dz_n

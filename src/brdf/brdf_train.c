@@ -6,6 +6,8 @@
 #include <string.h>
 #include "matlaber/brdf_ae.h"
 #include "matlaber/rng.h"
+#include <cblas.h>
+#include <omp.h>
 
 #define STREAM_SHUFFLE 0x3000
 
@@ -26,50 +28,82 @@ mlb_brdf_train_config mlb_brdf_train_default_config(void) {
     return c;
 }
 
+// A batch is split into TRAIN_SHARDS equal shards whose losses and gradients are computed in
+// parallel (one thread each, single-threaded GEMMs: the matrices are far too small for BLAS
+// threads to pay off) and summed in a fixed order. The result is the mean-over-rows gradient of
+// the whole batch (interpolation pairs form within a shard), and it is bitwise the same on any
+// number of threads because the shard count, not the thread count, decides the arithmetic.
+#define TRAIN_SHARDS 2
+
 mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const mlb_brdf_train_config* cfg,
                              mlb_progress* progress, mlb_brdf_epoch_callback on_epoch, void* user) {
-    if (n < 2) return mlb_fail(MLB_ERR_ARG, "BRDF training: %zu samples; need at least 2", n);
+    if (n < 2 * TRAIN_SHARDS) return mlb_fail(MLB_ERR_ARG, "BRDF training: %zu samples; need at least %d", n, 2 * TRAIN_SHARDS);
     if (n > UINT32_MAX) return mlb_fail(MLB_ERR_ARG, "BRDF training: %zu samples; at most 2^32 - 1", n);
-    if (cfg->epochs < 1 || cfg->batch < 2 || !(cfg->lr > 0))
-        return mlb_fail(MLB_ERR_ARG, "BRDF training: epochs %d, batch %d, lr %g (need epochs >= 1, batch >= 2, lr > 0)",
-                        cfg->epochs, cfg->batch, cfg->lr);
+    if (cfg->epochs < 1 || cfg->batch < 2 * TRAIN_SHARDS || !(cfg->lr > 0))
+        return mlb_fail(MLB_ERR_ARG, "BRDF training: epochs %d, batch %d, lr %g (need epochs >= 1, batch >= %d, lr > 0)",
+                        cfg->epochs, cfg->batch, cfg->lr, 2 * TRAIN_SHARDS);
     // the linear baseline of the same training data travels with the prior (see mlb_brdf_ae_evaluate)
     MLB_TRY(mlb_pca_fit(data, n, 4, ae->pca_mean, ae->pca_components, NULL));
     ae->has_pca = 1;
     int B = (size_t)cfg->batch > n ? (int)n : cfg->batch;
+    B -= B % TRAIN_SHARDS;
+    const int Bs = B / TRAIN_SHARDS;
     size_t steps_per_epoch = n / (size_t)B;   // the incomplete last batch is dropped; each epoch reshuffles
-    mlb_brdf_work w;
-    MLB_TRY(brdf_work_alloc(&w, ae, B));
+    mlb_brdf_work w[TRAIN_SHARDS];
+    float* shard_grads[TRAIN_SHARDS] = {0};
+    memset(w, 0, sizeof w);
     float* m = calloc(ae->n_params, sizeof(float));
     float* v = calloc(ae->n_params, sizeof(float));
     float* batch = malloc(sizeof(float) * 7 * (size_t)B);
     uint32_t* perm = malloc(sizeof(uint32_t) * n);
     mlb_status status = MLB_OK;
+    int blas_threads = openblas_get_num_threads();
+    int threads = omp_get_max_threads() < TRAIN_SHARDS ? omp_get_max_threads() : TRAIN_SHARDS;
+    openblas_set_num_threads(1);
     if (!m || !v || !batch || !perm) { status = mlb_fail(MLB_ERR_NOMEM, "BRDF training: out of memory for %zu samples", n); goto done; }
+    for (int sh = 0; sh < TRAIN_SHARDS; sh++) {
+        if ((status = brdf_work_alloc(&w[sh], ae, Bs))) goto done;
+        if (!(shard_grads[sh] = malloc(sizeof(float) * ae->n_params))) { status = mlb_fail(MLB_ERR_NOMEM, "BRDF training: out of memory"); goto done; }
+    }
     mlb_adam_config adam = {.lr = cfg->lr, .beta1 = cfg->beta1, .beta2 = cfg->beta2, .eps = cfg->eps,
                             .weight_decay = cfg->weight_decay, .decoupled = 1};
     long step = 0, total_steps = (long)steps_per_epoch * cfg->epochs;
-    if (progress) {
-        progress->total = total_steps;
-    }
+    if (progress) progress->total = total_steps;
     for (int epoch = 0; epoch < cfg->epochs; epoch++) {
         double t0 = mlb_now_seconds();
         double sum[5] = {0};
         mlb_rng_permutation(perm, (uint32_t)n, cfg->seed, STREAM_SHUFFLE + (uint64_t)epoch);
         for (size_t s = 0; s < steps_per_epoch; s++) {
             for (int i = 0; i < B; i++) memcpy(batch + 7 * i, data + 7 * (size_t)perm[s * B + i], sizeof(float) * 7);
-            memset(ae->grads, 0, sizeof(float) * ae->n_params);
-            mlb_brdf_losses L;
-            status = brdf_ae_loss(ae, &w, batch, B, &cfg->loss, cfg->seed, (uint64_t)step, 1, &L);
-            if (status) goto done;
-            if (!isfinite(L.total)) {
+            mlb_brdf_losses L[TRAIN_SHARDS];
+            mlb_status shard_status[TRAIN_SHARDS];
+#pragma omp parallel for schedule(static, 1) num_threads(threads)
+            for (int sh = 0; sh < TRAIN_SHARDS; sh++) {
+                memset(shard_grads[sh], 0, sizeof(float) * ae->n_params);
+                shard_status[sh] = brdf_ae_loss(ae, &w[sh], batch + 7 * (size_t)sh * Bs, Bs, &cfg->loss, cfg->seed,
+                                                (uint64_t)step * TRAIN_SHARDS + (uint64_t)sh, shard_grads[sh], &L[sh]);
+            }
+            for (int sh = 0; sh < TRAIN_SHARDS; sh++)
+                if (shard_status[sh]) { status = shard_status[sh]; goto done; }
+            double total = 0;
+            for (int sh = 0; sh < TRAIN_SHARDS; sh++) total += L[sh].total;
+            total /= TRAIN_SHARDS;
+            if (!isfinite(total)) {
                 status = mlb_fail(MLB_ERR_NUMERIC, "BRDF training diverged at epoch %d step %zu (loss %g); try a lower --lr",
-                                  epoch + 1, s, (double)L.total);
+                                  epoch + 1, s, total);
                 goto done;
+            }
+            for (size_t i = 0; i < ae->n_params; i++) {
+                float g = 0;
+                for (int sh = 0; sh < TRAIN_SHARDS; sh++) g += shard_grads[sh][i];
+                ae->grads[i] = g / TRAIN_SHARDS;
             }
             step++;
             adam_update(ae->params, ae->grads, m, v, ae->n_params, &adam, step);
-            sum[0] += L.total; sum[1] += L.l_r; sum[2] += L.l_kl; sum[3] += L.l_s; sum[4] += L.l_c;
+            for (int sh = 0; sh < TRAIN_SHARDS; sh++) {
+                sum[0] += L[sh].total / TRAIN_SHARDS; sum[1] += L[sh].l_r / TRAIN_SHARDS; sum[2] += L[sh].l_kl / TRAIN_SHARDS;
+                sum[3] += L[sh].l_s / TRAIN_SHARDS; sum[4] += L[sh].l_c / TRAIN_SHARDS;
+            }
             if (progress) {
                 char text[96];
                 snprintf(text, sizeof text, "epoch %d/%d loss %.5f", epoch + 1, cfg->epochs, sum[0] / (double)(s + 1));
@@ -85,7 +119,8 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
         }
     }
 done:
-    brdf_work_free(&w);
+    openblas_set_num_threads(blas_threads);
+    for (int sh = 0; sh < TRAIN_SHARDS; sh++) { brdf_work_free(&w[sh]); free(shard_grads[sh]); }
     free(m); free(v); free(batch); free(perm);
     return status;
 }

@@ -63,7 +63,6 @@ static const cli_option train_options[] = {
     {"lambda-kl", 1, 'K', "X", "weight of the KL term (default 2e-4)"},
     {"lambda-s", 1, 'S', "X", "weight of the interpolation smoothness term (default 0.05)"},
     {"lambda-c", 1, 'C', "X", "weight of the cyclic term (default 1e-4)"},
-    {"smoothness", 1, 'F', "FORM", "per-pair | batch: reading of the smoothness term (docs/brdf_prior.md)"},
     {"seed", 1, 's', "S", "seed of data, initialisation, shuffling and noise (default 1)"},
     {"out", 1, 'o', "FILE", "output safetensors file (default brdf_prior.safetensors)"},
     {"json", 0, 'j', NULL, "print a JSON summary on stdout"},
@@ -107,11 +106,6 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'K': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-kl: expected >= 0"); tc.loss.lambda_kl = x; break;
         case 'S': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-s: expected >= 0"); tc.loss.lambda_s = x; break;
         case 'C': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-c: expected >= 0"); tc.loss.lambda_c = x; break;
-        case 'F':
-            if (strcmp(optarg, "per-pair") == 0) tc.loss.smoothness = MLB_SMOOTH_PER_PAIR;
-            else if (strcmp(optarg, "batch") == 0) tc.loss.smoothness = MLB_SMOOTH_BATCH;
-            else return cli_usage_error("brdf train", "--smoothness: expected per-pair or batch, got '%s'", optarg);
-            break;
         case 'o': out_path = optarg; break;
         case 'j': json = 1; break;
         case 'h':
@@ -147,10 +141,9 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
     for (int i = 0; i < argc && used < sizeof command; i++) used += snprintf(command + used, sizeof command - used, " %s", argv[i]);
     char settings[512];
     snprintf(settings, sizeof settings,
-             "epochs %d, batch %d, lr %g, weight decay %g, seed %llu, hidden %d, depth %d, %s, lambda_kl %g, lambda_s %g (%s), lambda_c %g",
+             "epochs %d, batch %d, lr %g, weight decay %g, seed %llu, hidden %d, depth %d, %s, lambda_kl %g, lambda_s %g, lambda_c %g",
              tc.epochs, tc.batch, tc.lr, tc.weight_decay, (unsigned long long)tc.seed, mc.hidden, mc.depth,
-             mlb_activation_name(mc.act), tc.loss.lambda_kl, tc.loss.lambda_s,
-             tc.loss.smoothness == MLB_SMOOTH_BATCH ? "batch" : "per-pair", tc.loss.lambda_c);
+             mlb_activation_name(mc.act), tc.loss.lambda_kl, tc.loss.lambda_s, tc.loss.lambda_c);
     mlb_st_meta meta[] = {{"command", command}, {"data", description}, {"training", settings}};
     if (out_path) {
         s = mlb_brdf_ae_save(&ae, out_path, meta, sizeof meta / sizeof *meta);

@@ -54,6 +54,12 @@ if $M brdf decode --z 0,0,0,0 > /dev/null 2>&1; then
   k=$($M brdf decode --z "$z")
   echo "$k" | awk '{d=($1-0.6)^2+($2-0.3)^2+($3-0.2)^2+($4-0.04)^2+($5-0.04)^2+($6-0.04)^2+($7-0.5)^2; exit !(sqrt(d) < 0.1)}' \
     && ok "built-in prior round trip within 0.1" || bad "built-in prior round trip: $k"
+  # gold (a metal at the edge of the distribution): the refined code decodes to it closely
+  gold=0,0,0,1,0.766,0.336,0.3
+  k=$($M brdf decode --z "$($M brdf encode --k $gold | tr ' ' ',')")
+  echo "$k" | awk '{d=$1^2+$2^2+$3^2+($4-1)^2+($5-0.766)^2+($6-0.336)^2+($7-0.3)^2; exit !(sqrt(d) < 0.03)}' \
+    && ok "gold round trip with refinement within 0.03" || bad "gold round trip: $k"
+  expect 2 "refine is for encode" -- $M brdf decode --refine 3 --z 0,0,0,0
   MATLABER_PRIOR="$T/junk.safetensors" $M brdf decode --z 0,0,0,0 > /dev/null 2> "$T/err"
   [ $? = 1 ] && grep -q "MATLABER_PRIOR" "$T/err" && ok "bad \$MATLABER_PRIOR is an error" || bad "bad \$MATLABER_PRIOR"
 else

@@ -77,6 +77,8 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
 typedef struct {
     size_t n;                       // samples evaluated
     double rmse[7], rmse_all;       // auto-encoder reconstruction D(mu(k)), linear units
+    double fit_rmse[7], fit_rmse_all;   // D(z*) with z* refined from mu(k) (brdf_ae_fit_latent): what the
+                                        // decoder can reach, as a material field that picks z does
     double pca_rmse[7], pca_rmse_all;   // best linear 4-d code of the same data (PCA-4 fitted on it)
     double pca_explained;           // share of variance PCA-4 explains
     int has_train_pca;              // the prior carries the PCA-4 of its training data:

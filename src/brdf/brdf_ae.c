@@ -240,3 +240,91 @@ mlb_status FN(brdf_ae_decode)(const FN(mlb_brdf_ae)* ae, const real* z, size_t n
     FN(mlp_cache_free)(&c);
     return MLB_OK;
 }
+
+// Solves the symmetric positive definite 4x4 system A x = b by Cholesky; 0 when A is not SPD.
+static int solve_spd4(const double A[16], const double b[4], double x[4]) {
+    double L[16] = {0};
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j <= i; j++) {
+            double s = A[i * 4 + j];
+            for (int k = 0; k < j; k++) s -= L[i * 4 + k] * L[j * 4 + k];
+            if (i == j) { if (!(s > 0)) return 0; L[i * 4 + i] = sqrt(s); }
+            else L[i * 4 + j] = s / L[j * 4 + j];
+        }
+    double y[4];
+    for (int i = 0; i < 4; i++) { double s = b[i]; for (int k = 0; k < i; k++) s -= L[i * 4 + k] * y[k]; y[i] = s / L[i * 4 + i]; }
+    for (int i = 3; i >= 0; i--) { double s = y[i]; for (int k = i + 1; k < 4; k++) s -= L[k * 4 + i] * x[k]; x[i] = s / L[i * 4 + i]; }
+    return 1;
+}
+
+// Squared distance |map(D(z)) - k|^2 per row; the decoder cache then holds the forward of z.
+static void fit_costs(const FN(mlb_brdf_ae)* ae, FN(mlb_mlp_cache)* c, const real* z, const real* k, int B,
+                      real* k_out, double* cost) {
+    const real* s = FN(mlp_forward)(&ae->dec, c, z, B);
+    map_to_ranges(k_out, s, B);
+    for (int i = 0; i < B; i++) {
+        double e = 0;
+        for (int ch = 0; ch < K_DIM; ch++) { double d = (double)k_out[i * K_DIM + ch] - k[i * K_DIM + ch]; e += d * d; }
+        cost[i] = e;
+    }
+}
+
+mlb_status FN(brdf_ae_fit_latent)(const FN(mlb_brdf_ae)* ae, const real* k, size_t n, real* z, int iters) {
+    enum { CHUNK = 1024 };
+    int chunk = n < CHUNK ? (int)(n ? n : 1) : CHUNK;
+    FN(mlb_mlp_cache) c;
+    MLB_TRY(FN(mlp_cache_alloc)(&c, &ae->dec, chunk));
+    real* tin = malloc(sizeof(real) * Z_DIM * chunk);
+    real* kk = malloc(sizeof(real) * K_DIM * chunk);
+    real* zt = malloc(sizeof(real) * Z_DIM * chunk);
+    double* jac = malloc(sizeof(double) * K_DIM * Z_DIM * chunk);   // [B][7][4]
+    double* cost = malloc(sizeof(double) * 2 * chunk);
+    double* lambda = malloc(sizeof(double) * chunk);
+    mlb_status status = MLB_OK;
+    if (!tin || !kk || !zt || !jac || !cost || !lambda) { status = mlb_fail(MLB_ERR_NOMEM, "BRDF latent fit: out of memory"); goto done; }
+    for (size_t start = 0; start < n; start += chunk) {
+        int B = (int)(n - start < (size_t)chunk ? n - start : (size_t)chunk);
+        real* zb = z + start * Z_DIM;
+        const real* kb = k + start * K_DIM;
+        for (int i = 0; i < B; i++) lambda[i] = 1e-3;
+        for (int it = 0; it < iters; it++) {
+            // residual and Jacobian at z: one forward, then a tangent per latent axis
+            fit_costs(ae, &c, zb, kb, B, kk, cost);
+            for (int d = 0; d < Z_DIM; d++) {
+                for (int i = 0; i < B * Z_DIM; i++) tin[i] = (i % Z_DIM) == d;
+                const real* ts = FN(mlp_jvp_forward)(&ae->dec, &c, tin, B);
+                for (int i = 0; i < B; i++)
+                    for (int ch = 0; ch < K_DIM; ch++)
+                        jac[(i * K_DIM + ch) * Z_DIM + d] = (range_hi[ch] - range_lo[ch]) * ts[i * K_DIM + ch];
+            }
+            // Levenberg-Marquardt step per row: (J^T J + lambda diag) dz = -J^T r
+            for (int i = 0; i < B; i++) {
+                double A[16] = {0}, g[4] = {0}, dz[4];
+                for (int ch = 0; ch < K_DIM; ch++) {
+                    const double* row = jac + (i * K_DIM + ch) * Z_DIM;
+                    double r = (double)kk[i * K_DIM + ch] - kb[i * K_DIM + ch];
+                    for (int a = 0; a < 4; a++) {
+                        g[a] += row[a] * r;
+                        for (int b2 = 0; b2 < 4; b2++) A[a * 4 + b2] += row[a] * row[b2];
+                    }
+                }
+                for (int a = 0; a < 4; a++) { A[a * 4 + a] += lambda[i] * (A[a * 4 + a] + 1e-9); g[a] = -g[a]; }
+                if (!solve_spd4(A, g, dz)) { for (int a = 0; a < 4; a++) dz[a] = 0; }
+                for (int a = 0; a < 4; a++) zt[i * Z_DIM + a] = zb[i * Z_DIM + a] + (real)dz[a];
+            }
+            fit_costs(ae, &c, zt, kb, B, kk, cost + chunk);
+            for (int i = 0; i < B; i++) {
+                if (cost[chunk + i] < cost[i] && isfinite(cost[chunk + i])) {
+                    memcpy(zb + i * Z_DIM, zt + i * Z_DIM, sizeof(real) * Z_DIM);
+                    lambda[i] = fmax(lambda[i] / 3, 1e-9);
+                } else {
+                    lambda[i] = fmin(lambda[i] * 4, 1e9);
+                }
+            }
+        }
+    }
+done:
+    free(tin); free(kk); free(zt); free(jac); free(cost); free(lambda);
+    FN(mlp_cache_free)(&c);
+    return status;
+}

@@ -6,9 +6,12 @@
 #include "matlaber/brdf.h"
 #include "matlaber/brdf_ae.h"
 #include "matlaber/rng.h"
+#include <cblas.h>
+#include <omp.h>
 
 #define STREAM_EVAL_PAIRS 0x4001
 #define STREAM_EVAL_PRIOR 0x4002
+#define FIT_ITERS 12
 
 // LAPACK (in OpenBLAS): symmetric eigen-decomposition, eigenvalues ascending.
 void dsyev_(const char* jobz, const char* uplo, const int* n, double* a, const int* lda, double* w,
@@ -77,6 +80,31 @@ mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t
         for (int c = 0; c < 7; c++) { double d = (double)rec[i * 7 + c] - data[i * 7 + c]; sq[c] += d * d; }
     for (int c = 0; c < 7; c++) { r->rmse[c] = sqrt(sq[c] / (double)n); all += sq[c]; }
     r->rmse_all = sqrt(all / (7.0 * (double)n));
+    // latent codes refined from the encoder's guess, in parallel halves (each call has its own buffers)
+    float* zfit = malloc(sizeof(float) * 4 * n);
+    if (!zfit) { s = mlb_fail(MLB_ERR_NOMEM, "BRDF evaluation: out of memory"); goto done; }
+    memcpy(zfit, mu, sizeof(float) * 4 * n);
+    {
+        enum { PARTS = 2 };
+        mlb_status part_status[PARTS];
+        int blas_threads = openblas_get_num_threads();
+        openblas_set_num_threads(1);
+#pragma omp parallel for schedule(static, 1) num_threads(PARTS)
+        for (int p = 0; p < PARTS; p++) {
+            size_t a = n * p / PARTS, b = n * (p + 1) / PARTS;
+            part_status[p] = brdf_ae_fit_latent(ae, data + 7 * a, b - a, zfit + 4 * a, FIT_ITERS);
+        }
+        openblas_set_num_threads(blas_threads);
+        for (int p = 0; p < PARTS && !s; p++) s = part_status[p];
+    }
+    if (!s) s = brdf_ae_decode(ae, zfit, n, rec);
+    free(zfit);
+    if (s) goto done;
+    double fsq[7] = {0}, fall = 0;
+    for (size_t i = 0; i < n; i++)
+        for (int c = 0; c < 7; c++) { double d = (double)rec[i * 7 + c] - data[i * 7 + c]; fsq[c] += d * d; }
+    for (int c = 0; c < 7; c++) { r->fit_rmse[c] = sqrt(fsq[c] / (double)n); fall += fsq[c]; }
+    r->fit_rmse_all = sqrt(fall / (7.0 * (double)n));
     r->kl = kl_normal_forward(mu, lv, (int)(n > 2147483647 ? 2147483647 : n), 4);
     for (size_t i = 0; i < 4 * n; i++) sigma += exp(0.5 * lv[i]);
     r->mean_sigma = sigma / (4.0 * (double)n);

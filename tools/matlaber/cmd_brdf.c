@@ -51,7 +51,7 @@ static int load_model(const char* path, mlb_brdf_ae* ae, char* source, size_t n)
 
 static const cli_option train_options[] = {
     {"data", 1, 'd', "PATH", "SVBRDF folder, texture set or tile image (repeatable); default: procedural"},
-    {"samples", 1, 'n', "N", "procedural samples (default 400000 without --data, 0 with it)"},
+    {"samples", 1, 'n', "N", "procedural samples (default 1000000 without --data, 0 with it)"},
     {"pixels-per-map", 1, 'p', "N", "sample N pixels per SVBRDF map (default: every pixel)"},
     {"epochs", 1, 'e', "N", "epochs (default 30)"},
     {"batch", 1, 'b', "N", "batch size (default 256)"},
@@ -77,7 +77,7 @@ static void print_epoch(const mlb_brdf_epoch_stats* st, void* user) {
 }
 
 int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae* trained_out) {
-    brdf_data_options data = {.procedural_samples = -1, .default_procedural = 400000, .seed = 1};
+    brdf_data_options data = {.procedural_samples = -1, .default_procedural = 1000000, .seed = 1};
     mlb_brdf_train_config tc = mlb_brdf_train_default_config();
     mlb_brdf_ae_config mc = mlb_brdf_ae_default_config();
     const char* out_path = default_out;
@@ -195,12 +195,14 @@ static const char* fmt_optional(int has, double v) {
 void brdf_print_evaluation(FILE* out, const char* model, const char* data, const mlb_brdf_eval_result* r) {
     fprintf(out, "BRDF prior: %s\n", model);
     fprintf(out, "data: %s\n", data);
-    fprintf(out, "\nreconstruction RMSE (linear units):\n  channel   auto-encoder   PCA-4 of this data   PCA-4 of the training data\n");
+    fprintf(out, "\nreconstruction RMSE (linear units):\n"
+                 "  channel   auto-encoder   refined latent   PCA-4 of this data   PCA-4 of the training data\n");
     for (int c = 0; c < 7; c++)
-        fprintf(out, "  %-8s  %12.5f   %18.5f   %26s\n", channel_names[c], r->rmse[c], r->pca_rmse[c],
-                fmt_optional(r->has_train_pca, r->train_pca_rmse[c]));
-    fprintf(out, "  %-8s  %12.5f   %18.5f   %26s\n\n", "all", r->rmse_all, r->pca_rmse_all,
+        fprintf(out, "  %-8s  %12.5f   %14.5f   %18.5f   %26s\n", channel_names[c], r->rmse[c], r->fit_rmse[c],
+                r->pca_rmse[c], fmt_optional(r->has_train_pca, r->train_pca_rmse[c]));
+    fprintf(out, "  %-8s  %12.5f   %14.5f   %18.5f   %26s\n", "all", r->rmse_all, r->fit_rmse_all, r->pca_rmse_all,
             fmt_optional(r->has_train_pca, r->train_pca_rmse_all));
+    fprintf(out, "  (auto-encoder: D(mu(k)); refined latent: D(z*) with z* = argmin |D(z) - k| found from mu(k))\n\n");
     fprintf(out, "PCA-4 explains %.2f%% of the variance\n", 100 * r->pca_explained);
     fprintf(out, "KL(q(z|k) || N(0,I)): %.3f per sample; mean posterior std %.4f\n", r->kl, r->mean_sigma);
     fprintf(out, "latent interpolations: %ld paths, %ld decoded BRDFs, %.2f%% valid; decoded path length / end distance %.3f\n",
@@ -224,6 +226,9 @@ static cJSON* eval_json(const char* model, const char* data, const mlb_brdf_eval
         cJSON_AddNumberToObject(pca, channel_names[c], r->pca_rmse[c]);
     }
     cJSON_AddNumberToObject(ae, "all", r->rmse_all);
+    cJSON* fit = cJSON_AddObjectToObject(o, "refined_latent_rmse");
+    for (int c = 0; c < 7; c++) cJSON_AddNumberToObject(fit, channel_names[c], r->fit_rmse[c]);
+    cJSON_AddNumberToObject(fit, "all", r->fit_rmse_all);
     cJSON_AddNumberToObject(pca, "all", r->pca_rmse_all);
     cJSON_AddNumberToObject(o, "pca4_explained_variance", r->pca_explained);
     cJSON_AddNumberToObject(o, "kl", r->kl);
@@ -317,12 +322,15 @@ static int code_main(int argc, char** argv, int encode) {
         {"model", 1, 'm', "FILE", "BRDF prior (default: $MATLABER_PRIOR or the built-in prior)"},
         {encode ? "k" : "z", 1, 'v', encode ? "KD_R,KD_G,KD_B,KS_R,KS_G,KS_B,KR" : "Z1,Z2,Z3,Z4",
          encode ? "one BRDF, linear units (else rows of 7 numbers on stdin)" : "one latent code (else rows of 4 numbers on stdin)"},
+        {"refine", 1, 'r', "N", encode ? "Levenberg-Marquardt steps from the encoder's mean toward the code that decodes"
+                                          " closest to k (default 20; 0: the encoder's mean)" : "(encode only)"},
         {"json", 0, 'j', NULL, "print a JSON array"},
         {"help", 0, 'h', NULL, "this help"},
         {0, 0, 0, 0, 0}};
     const char* model = NULL;
     const char* values = NULL;
     int json = 0;
+    long refine = 20;
     const struct option* table = cli_getopt_table(options);
     optind = 1;
     int c;
@@ -330,10 +338,15 @@ static int code_main(int argc, char** argv, int encode) {
         switch (c) {
         case 'm': model = optarg; break;
         case 'v': values = optarg; break;
+        case 'r':
+            if (!encode) return cli_usage_error(cmd, "--refine applies to encode");
+            if (cli_parse_long(optarg, 0, 10000, &refine)) return cli_usage_error(cmd, "--refine: expected 0..10000");
+            break;
         case 'j': json = 1; break;
         case 'h':
             printf("usage: matlaber %s [--model FILE] [--%s VALUES] [--json]\n\n%s\n\n", cmd, encode ? "k" : "z",
-                   encode ? "Encodes BRDFs (kd rgb, ks rgb, kr; linear) to latent means (4 numbers per row)."
+                   encode ? "Encodes BRDFs (kd rgb, ks rgb, kr; linear) to latent codes (4 numbers per row): the encoder's\n"
+                            "mean, refined so that the decoder reproduces the BRDF as closely as it can (--refine)."
                           : "Decodes latent codes to BRDFs (kd rgb, ks rgb, kr; linear; 7 numbers per row).");
             cli_print_options(stdout, options);
             return 0;
@@ -383,6 +396,7 @@ static int code_main(int argc, char** argv, int encode) {
             return 1;
         }
         mlb_status s = encode ? brdf_ae_encode(&ae, in, 1, out, NULL) : brdf_ae_decode(&ae, in, 1, out);
+        if (!s && encode && refine > 0) s = brdf_ae_fit_latent(&ae, in, 1, out, (int)refine);
         if (s) { brdf_ae_free(&ae); return cli_fail(s, cmd); }
         print_row(out, out_dim, json, values != NULL);
         if (values) break;

@@ -1,0 +1,175 @@
+// Core: Philox against Random123's known answers, the distributions it feeds, permutations,
+// error messages, the progress reporter's plain mode, atomic files and small-file reading.
+#include "test.h"
+#include <omp.h>
+#include <unistd.h>
+#include "matlaber/error.h"
+#include "matlaber/fileio.h"
+#include "matlaber/log.h"
+#include "matlaber/progress.h"
+#include "matlaber/rng.h"
+
+TEST(philox_known_answers) {
+    // Random123's kat_vectors for philox4x32_10 (Salmon et al. 2011)
+    struct { uint32_t ctr[4], key[2], out[4]; } kat[3] = {
+        {{0, 0, 0, 0}, {0, 0}, {0x6627e8d5, 0xe169c58d, 0xbc57ac4c, 0x9b00dbd8}},
+        {{0xffffffff, 0xffffffff, 0xffffffff, 0xffffffff}, {0xffffffff, 0xffffffff}, {0x408f276d, 0x41c83b0e, 0xa20bc7c6, 0x6d5451fd}},
+        {{0x243f6a88, 0x85a308d3, 0x13198a2e, 0x03707344}, {0xa4093822, 0x299f31d0}, {0xd16cfe09, 0x94fdcceb, 0x5001e420, 0x24126ea1}},
+    };
+    for (int i = 0; i < 3; i++) {
+        mlb_u32x4 r = mlb_philox4x32_10(kat[i].ctr, kat[i].key);
+        for (int j = 0; j < 4; j++) CHECK_MSG(r.v[j] == kat[i].out[j], "vector %d word %d: %08x", i, j, r.v[j]);
+    }
+}
+
+TEST(uniform_and_normal_moments) {
+    enum { N = 200000 };
+    double su = 0, su2 = 0, sn = 0, sn2 = 0, sn4 = 0, umin = 1, umax = 0;
+    for (int i = 0; i < N; i++) {
+        double u = mlb_rng_uniform(42, 7, i), x = mlb_rng_normal_f64(42, 8, i);
+        su += u; su2 += u * u; umin = fmin(umin, u); umax = fmax(umax, u);
+        sn += x; sn2 += x * x; sn4 += x * x * x * x;
+    }
+    // standard errors: mean 1/sqrt(12 N) ~ 6.5e-4; normal mean 2.2e-3, variance 3.2e-3, kurtosis 0.011
+    CHECK(umin >= 0 && umax < 1);
+    CHECK_CLOSE(su / N, 0.5, 0, 3e-3);
+    CHECK_CLOSE(su2 / N - (su / N) * (su / N), 1.0 / 12, 0, 2e-3);
+    CHECK_CLOSE(sn / N, 0, 0, 1e-2);
+    CHECK_CLOSE(sn2 / N, 1, 0, 1.5e-2);
+    CHECK_CLOSE(sn4 / N, 3, 0, 6e-2);
+}
+
+TEST(streams_and_seeds_differ_and_repeat) {
+    CHECK(mlb_rng_uniform(1, 2, 3) == mlb_rng_uniform(1, 2, 3));
+    CHECK(mlb_rng_uniform(1, 2, 3) != mlb_rng_uniform(1, 2, 4));
+    CHECK(mlb_rng_uniform(1, 2, 3) != mlb_rng_uniform(1, 3, 3));
+    CHECK(mlb_rng_uniform(1, 2, 3) != mlb_rng_uniform(2, 2, 3));
+    // fills are the same on any thread count and equal the scalar draws
+    enum { N = 100000 };
+    static float a[N], b[N];
+    omp_set_num_threads(1);
+    mlb_rng_fill_normal(a, N, 5, 6, 100, 0, 1);
+    omp_set_num_threads(2);
+    mlb_rng_fill_normal(b, N, 5, 6, 100, 0, 1);
+    CHECK(memcmp(a, b, sizeof a) == 0);
+    CHECK(a[17] == mlb_rng_normal(5, 6, 117));
+}
+
+TEST(below_and_permutation) {
+    int counts[5] = {0};
+    for (int i = 0; i < 50000; i++) {
+        uint32_t x = mlb_rng_below(3, 1, i, 5);
+        REQUIRE(x < 5);
+        counts[x]++;
+    }
+    for (int k = 0; k < 5; k++) CHECK_CLOSE(counts[k], 10000, 0, 500);   // 5 sigma ~ 450
+    enum { N = 1000 };
+    uint32_t perm[N], again[N];
+    int seen[N] = {0};
+    mlb_rng_permutation(perm, N, 9, 1);
+    mlb_rng_permutation(again, N, 9, 1);
+    CHECK(memcmp(perm, again, sizeof perm) == 0);
+    int fixed = 0;
+    for (int i = 0; i < N; i++) { REQUIRE(perm[i] < N); seen[perm[i]]++; fixed += perm[i] == (uint32_t)i; }
+    for (int i = 0; i < N; i++) CHECK(seen[i] == 1);
+    CHECK(fixed < 10);   // expected 1 fixed point
+}
+
+TEST(error_messages_and_context) {
+    mlb_clear_error();
+    CHECK(strcmp(mlb_last_error(), "") == 0);
+    CHECK(mlb_fail(MLB_ERR_FORMAT, "%s: bad header", "x.bin") == MLB_ERR_FORMAT);
+    CHECK(strcmp(mlb_last_error(), "x.bin: bad header") == 0);
+    CHECK(mlb_fail_context(MLB_ERR_FORMAT, "loading %s", "model") == MLB_ERR_FORMAT);
+    CHECK(strcmp(mlb_last_error(), "loading model: x.bin: bad header") == 0);
+    CHECK(strcmp(mlb_status_name(MLB_ERR_NOMEM), "out of memory") == 0);
+}
+
+static char log_seen[256];
+static void capture(mlb_log_level level, const char* message, void* user) { snprintf(log_seen, sizeof log_seen, "%d:%s", level, message); }
+
+TEST(log_levels_and_sink) {
+    log_seen[0] = 0;
+    mlb_log(MLB_LOG_WARN, "nobody listens");   // no sink: silent
+    CHECK(log_seen[0] == 0);
+    mlb_log_set_sink(capture, NULL);
+    mlb_log_set_level(MLB_LOG_WARN);
+    mlb_log(MLB_LOG_INFO, "dropped");
+    CHECK(log_seen[0] == 0);
+    mlb_log(MLB_LOG_ERROR, "kept %d", 3);
+    CHECK(strcmp(log_seen, "3:kept 3") == 0);
+    mlb_log_level l;
+    CHECK(mlb_log_level_parse("debug", &l) == 0 && l == MLB_LOG_DEBUG);
+    CHECK(mlb_log_level_parse("loud", &l) != 0);
+    mlb_log_set_sink(NULL, NULL);
+    mlb_log_set_level(MLB_LOG_INFO);
+}
+
+TEST(progress_plain_lines) {
+    const char* dir = test_tmpdir("core_progress");
+    REQUIRE(dir);
+    char path[4200];
+    snprintf(path, sizeof path, "%s/log.txt", dir);
+    FILE* f = fopen(path, "w");
+    REQUIRE(f);
+    mlb_progress p;
+    mlb_progress_begin(&p, f, "work", 10, "step");
+    CHECK(!p.is_tty);
+    p.plain_every = 0;   // every update prints
+    mlb_progress_update(&p, 5, "loss 1.5");
+    mlb_progress_end(&p, NULL);
+    fclose(f);
+    char* text; size_t n;
+    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
+    CHECK(strstr(text, "work: 5/10 (50%)") != NULL);
+    CHECK(strstr(text, "step/s, ETA") != NULL);
+    CHECK(strstr(text, "loss 1.5") != NULL);
+    CHECK(strstr(text, "work: 10/10 (100%)") != NULL && strstr(text, "took") != NULL);
+    free(text);
+    char buf[32];
+    CHECK(strcmp(mlb_format_duration(3725, buf, sizeof buf), "1h02m") == 0);
+    CHECK(strcmp(mlb_format_duration(65, buf, sizeof buf), "1m05s") == 0);
+    mlb_progress_update(NULL, 1, NULL);   // NULL progress is silent
+}
+
+TEST(atomic_files) {
+    const char* dir = test_tmpdir("core_atomic");
+    REQUIRE(dir);
+    char path[4200], cmd[4300];
+    snprintf(path, sizeof path, "%s/out.bin", dir);
+    REQUIRE(mlb_write_file_atomic(path, "first", 5) == MLB_OK);
+    // an aborted write leaves the old file and no temporary behind
+    mlb_atomic_file af;
+    REQUIRE(mlb_atomic_open(&af, path) == MLB_OK);
+    fputs("half-writ", af.f);
+    mlb_atomic_abort(&af);
+    char* text; size_t n;
+    REQUIRE(mlb_read_file(path, &text, &n, 100) == MLB_OK);
+    CHECK(n == 5 && memcmp(text, "first", 5) == 0);
+    free(text);
+    snprintf(cmd, sizeof cmd, "test $(ls '%s' | wc -l) -eq 1", dir);
+    CHECK(system(cmd) == 0);
+    // a folder that does not exist: an error naming the path, nothing written
+    char bad[4200];
+    snprintf(bad, sizeof bad, "%s/missing/out.bin", dir);
+    CHECK(mlb_write_file_atomic(bad, "x", 1) == MLB_ERR_IO);
+    CHECK(strstr(mlb_last_error(), "missing/out.bin") != NULL);
+    // reading: size limit and missing files
+    CHECK(mlb_read_file(path, &text, &n, 4) == MLB_ERR_FORMAT);
+    CHECK(mlb_read_file(bad, &text, &n, 4) == MLB_ERR_NOT_FOUND);
+    snprintf(bad, sizeof bad, "%s/a/b/c", dir);
+    CHECK(mlb_mkdir_p(bad) == MLB_OK);
+    CHECK(mlb_mkdir_p(path) == MLB_ERR_IO);   // exists and is a file
+}
+
+int main(void) {
+    RUN(philox_known_answers);
+    RUN(uniform_and_normal_moments);
+    RUN(streams_and_seeds_differ_and_repeat);
+    RUN(below_and_permutation);
+    RUN(error_messages_and_context);
+    RUN(log_levels_and_sink);
+    RUN(progress_plain_lines);
+    RUN(atomic_files);
+    return test_summary();
+}

@@ -3,6 +3,7 @@
 #include <stdarg.h>
 #include <string.h>
 #include <strings.h>
+#include <unistd.h>
 
 static mlb_log_sink log_sink;
 static void* log_user;
@@ -26,6 +27,7 @@ static const char* level_names[] = {"debug", "info", "warn", "error", "quiet"};
 
 void mlb_log_file_sink(mlb_log_level level, const char* message, void* user) {
     FILE* out = user ? (FILE*)user : stderr;
+    if (isatty(fileno(out))) fputs("\r\033[K", out);   // a progress bar may own the line: clear it first
     if (level == MLB_LOG_INFO) fprintf(out, "%s\n", message);
     else fprintf(out, "[%s] %s\n", level_names[level], message);
     fflush(out);

@@ -40,6 +40,31 @@ int brdf_gather_data(const brdf_data_options* o, mlb_brdf_set* set, char* descri
     return 0;
 }
 
+// The data options 'train' and 'eval' share (--data, --samples, --pixels-per-map, --seed).
+// Returns -1 when `c` is not one of them, 0 when handled, EXIT_USAGE on a bad value.
+static int parse_data_option(int c, const char* arg, brdf_data_options* data, const char* cmd) {
+    long v;
+    switch (c) {
+    case 'd':
+        if (data->n_paths >= BRDF_MAX_DATA_PATHS) return cli_usage_error(cmd, "at most %d --data", BRDF_MAX_DATA_PATHS);
+        data->paths[data->n_paths++] = arg;
+        return 0;
+    case 'n':
+        if (cli_parse_long(arg, 0, 100000000, &v)) return cli_usage_error(cmd, "--samples: expected 0..1e8");
+        data->procedural_samples = v;
+        return 0;
+    case 'p':
+        if (cli_parse_long(arg, 1, 1L << 40, &v)) return cli_usage_error(cmd, "--pixels-per-map: expected a positive count");
+        data->pixels_per_map = (size_t)v;
+        return 0;
+    case 's':
+        if (cli_parse_long(arg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(cmd, "--seed: expected a non-negative integer");
+        data->seed = (uint64_t)v;
+        return 0;
+    }
+    return -1;
+}
+
 static int load_model(const char* path, mlb_brdf_ae* ae, char* source, size_t n) {
     mlb_status s;
     if (path) { snprintf(source, n, "%s", path); s = mlb_brdf_ae_load(ae, path); }
@@ -88,13 +113,9 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
     optind = 1;
     int c;
     while ((c = getopt_long(argc, argv, "h", table, NULL)) != -1) {
+        int rc = parse_data_option(c, optarg, &data, "brdf train");
+        if (rc >= 0) { if (rc) return rc; continue; }
         switch (c) {
-        case 'd':
-            if (data.n_paths >= BRDF_MAX_DATA_PATHS) return cli_usage_error("brdf train", "at most %d --data", BRDF_MAX_DATA_PATHS);
-            data.paths[data.n_paths++] = optarg;
-            break;
-        case 'n': if (cli_parse_long(optarg, 0, 100000000, &v)) return cli_usage_error("brdf train", "--samples: expected 0..1e8"); data.procedural_samples = v; break;
-        case 'p': if (cli_parse_long(optarg, 1, 1L << 40, &v)) return cli_usage_error("brdf train", "--pixels-per-map: expected a positive count"); data.pixels_per_map = (size_t)v; break;
         case 'e': if (cli_parse_long(optarg, 1, 100000, &v)) return cli_usage_error("brdf train", "--epochs: expected 1..100000"); tc.epochs = (int)v; break;
         case 'b': if (cli_parse_long(optarg, 2, 1 << 20, &v)) return cli_usage_error("brdf train", "--batch: expected 2..1048576"); tc.batch = (int)v; break;
         case 'l': if (cli_parse_double(optarg, 1e-12, 10, &x)) return cli_usage_error("brdf train", "--lr: expected a positive number"); tc.lr = x; break;
@@ -102,7 +123,6 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'H': if (cli_parse_long(optarg, 1, 4096, &v)) return cli_usage_error("brdf train", "--hidden: expected 1..4096"); mc.hidden = (int)v; break;
         case 'D': if (cli_parse_long(optarg, 1, MLB_MLP_MAX_LAYERS - 1, &v)) return cli_usage_error("brdf train", "--depth: expected 1..%d", MLB_MLP_MAX_LAYERS - 1); mc.depth = (int)v; break;
         case 'a': if (mlb_activation_parse(optarg, &mc.act)) return cli_usage_error("brdf train", "--activation: unknown '%s'", optarg); break;
-        case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error("brdf train", "--seed: expected a non-negative integer"); tc.seed = data.seed = (uint64_t)v; break;
         case 'K': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-kl: expected >= 0"); tc.loss.lambda_kl = x; break;
         case 'S': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-s: expected >= 0"); tc.loss.lambda_s = x; break;
         case 'C': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-c: expected >= 0"); tc.loss.lambda_c = x; break;
@@ -119,6 +139,7 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         }
     }
     if (optind < argc) return cli_usage_error("brdf train", "unexpected argument '%s'", argv[optind]);
+    tc.seed = data.seed;
 
     mlb_brdf_set set;
     char description[2048];
@@ -272,26 +293,21 @@ static int brdf_eval_main(int argc, char** argv) {
     brdf_data_options data = {.procedural_samples = -1, .default_procedural = 200000, .seed = 1001};
     const char* model = NULL;
     int json = 0;
-    long v;
     const struct option* table = cli_getopt_table(eval_options);
     optind = 1;
     int c;
     while ((c = getopt_long(argc, argv, "h", table, NULL)) != -1) {
+        int rc = parse_data_option(c, optarg, &data, "brdf eval");
+        if (rc >= 0) { if (rc) return rc; continue; }
         switch (c) {
         case 'm': model = optarg; break;
-        case 'd':
-            if (data.n_paths >= BRDF_MAX_DATA_PATHS) return cli_usage_error("brdf eval", "at most %d --data", BRDF_MAX_DATA_PATHS);
-            data.paths[data.n_paths++] = optarg;
-            break;
-        case 'n': if (cli_parse_long(optarg, 0, 100000000, &v)) return cli_usage_error("brdf eval", "--samples: expected 0..1e8"); data.procedural_samples = v; break;
-        case 'p': if (cli_parse_long(optarg, 1, 1L << 40, &v)) return cli_usage_error("brdf eval", "--pixels-per-map: expected a positive count"); data.pixels_per_map = (size_t)v; break;
-        case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error("brdf eval", "--seed: expected a non-negative integer"); data.seed = (uint64_t)v; break;
         case 'j': json = 1; break;
         case 'h':
             printf("usage: matlaber brdf eval [--model FILE] [--data PATH ...] [--json]\n\n"
-                   "Per-channel reconstruction RMSE (linear units) of D(mu(k)) against the best linear 4-d code of\n"
-                   "the same data (PCA-4), the KL term, and the share of decoded BRDFs that stay valid along random\n"
-                   "latent interpolations. Evaluate on data held out from training.\n\n");
+                   "Per-channel reconstruction RMSE (linear units) of the auto-encoder D(mu(k)) and of D(z*) with the\n"
+                   "latent refined toward k, against PCA-4 (fitted on this data, and the training data's PCA-4 stored\n"
+                   "in the prior); the KL term; and the share of decoded BRDFs that stay valid along random latent\n"
+                   "interpolations. Evaluate on data held out from training (docs/brdf_prior.md).\n\n");
             cli_print_options(stdout, eval_options);
             return 0;
         default: return cli_usage_error("brdf eval", "unknown option");

@@ -46,7 +46,8 @@ int cmd_demo(int argc, char** argv) {
     rc = brdf_eval_run(&ae, out_path, &procedural, 0);
     const char* shared = cli_shared_data();
     if (!rc && shared) {
-        static const char* sets[] = {"svbrdf/twoshotbrdf", "svbrdf/deschaintre", "svbrdf/ambientcg_metal", "svbrdf/ambientcg_onyx"};
+        // the pooled real maps (six maps of four sources) and TwoShotBRDF, the paper's data set
+        static const char* sets[] = {"svbrdf", "svbrdf/twoshotbrdf"};
         for (size_t i = 0; i < sizeof sets / sizeof *sets && !rc; i++) {
             char path[4096];
             snprintf(path, sizeof path, "%s/%s", shared, sets[i]);
@@ -54,6 +55,7 @@ int cmd_demo(int argc, char** argv) {
             brdf_data_options real = {.paths = {path}, .n_paths = 1, .procedural_samples = 0, .pixels_per_map = 65536, .seed = 1001};
             rc = brdf_eval_run(&ae, out_path, &real, 0);
         }
+        printf("\n(per-source results and what they mean: docs/brdf_prior.md)\n");
     } else if (!rc) {
         printf("\n(../shared/data not found: skipping the evaluation on real SVBRDF maps)\n");
     }

@@ -1,0 +1,23 @@
+// Triangle meshes: unified vertex arrays (a vertex is one (position, uv, normal) combination, so
+// OBJ corners that differ in uv or normal become separate vertices) and counter-clockwise faces.
+#ifndef MATLABER_MESH_H
+#define MATLABER_MESH_H
+#include <stdint.h>
+#include "matlaber/error.h"
+
+typedef struct {
+    int n_verts, n_faces;
+    float* pos;        // [n_verts, 3]
+    float* normal;     // [n_verts, 3] or NULL
+    float* uv;         // [n_verts, 2] or NULL
+    int32_t* faces;    // [n_faces, 3], counter-clockwise seen from outside
+} mlb_mesh;
+
+void mlb_mesh_free(mlb_mesh* m);   // safe on a zeroed mesh
+// Area-weighted vertex normals (replaces m->normal).
+mlb_status mlb_mesh_compute_normals(mlb_mesh* m);
+// Bounding box, and a uniform scale + offset that maps the mesh into the unit sphere at the origin.
+void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]);
+void mlb_mesh_normalize_unit_sphere(mlb_mesh* m);
+
+#endif

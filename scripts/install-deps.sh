@@ -9,6 +9,7 @@ PACKAGES=(
   libcjson-dev                       # JSON (safetensors headers, configs)
   libstb-dev                         # PNG/JPEG decoding
   libpng-dev zlib1g-dev              # PNG writing, gzip
+  libutf8proc-dev                    # Unicode categories, case mapping, NFC (the CLIP tokenizer)
   libtinyexr-dev                     # OpenEXR reading and writing (environment maps, linear images)
   clang libclang-rt-14-dev           # libFuzzer target for the safetensors reader (scripts/fuzz.sh)
 )

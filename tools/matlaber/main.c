@@ -22,6 +22,7 @@ static void usage(FILE* out) {
             "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
             "  brdf decode     latent code -> BRDF\n"
             "  brdf interp     decoded BRDFs along a latent path\n"
+            "  sd tokenize     text -> the 77 CLIP token ids of the SD text encoders\n"
             "  device          list compute devices\n"
             "  version         print the version\n\n"
             "'matlaber <command> --help' describes each command.\n",
@@ -69,6 +70,7 @@ int main(int argc, char** argv) {
     if (strcmp(cmd, "brdf") == 0) return cmd_brdf(sub_argc, sub_argv);
     if (strcmp(cmd, "demo") == 0) return cmd_demo(sub_argc, sub_argv);
     if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);
+    if (strcmp(cmd, "sd") == 0) return cmd_sd(sub_argc, sub_argv);
     if (strcmp(cmd, "version") == 0) { printf("matlaber %s\n", MATLABER_VERSION); return 0; }
     if (strcmp(cmd, "help") == 0) { usage(stdout); return 0; }
     fprintf(stderr, "matlaber: unknown command '%s'\n\n", cmd);

@@ -2,7 +2,7 @@
 // signature): layer norm forward/backward, multi-head self-attention forward (optionally causal,
 // fused QKV or separate q/k/v), token + position embedding lookup. See docs/text_encoder.md.
 //
-// Every function exists twice from one source (src/nn/transformer_ops.c): float under the plain
+// Every function exists twice from one source (src/nn/transformer_ops.c, an MLB_DUAL_SOURCE): float under the plain
 // name and double under name_f64 (for finite-difference tests and reference computations).
 // Results never depend on the thread count: every output value is computed by one thread in a
 // fixed order. Backward functions ACCUMULATE (+=) into gradient buffers, any of which may be NULL.

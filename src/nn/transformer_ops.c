@@ -1,52 +1,26 @@
 // Transformer ops: layer norm, multi-head self-attention, embedding lookup (transformer_ops.h).
-//
-// Written once over the scalar TREAL and compiled twice in this one translation unit: the file
-// includes itself with TOPS_GENERIC defined, first for float (plain names), then for double
-// (names suffixed _f64). The library's other dual sources do the same through CMake
-// (MLB_DUAL_SOURCES); doing it here keeps the build file untouched.
-#ifndef TOPS_GENERIC
+// Dual-compiled (float / double _f64) like the other MLB_DUAL_SOURCES, see core/real.h.
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/error.h"
 #include "matlaber/transformer_ops.h"
+#include "core/real.h"
 
 // Below this many values an op stays on one thread (the fork/join costs more than the work).
 #define TOPS_PARALLEL_MIN 32768
 // dweight/dbias of the layer norm backward: column blocks, each summed over rows in order.
 #define TOPS_COL_BLOCK 64
 
-#define TOPS_GENERIC 1
-#define TREAL float
-#define TFN(name) name
-#define TSQRT sqrtf
-#define TEXP expf
-#include "transformer_ops.c"
-#undef TREAL
-#undef TFN
-#undef TSQRT
-#undef TEXP
 
-#define TREAL double
-#define TFN(name) name##_f64
-#define TSQRT sqrt
-#define TEXP exp
-#include "transformer_ops.c"
-#undef TREAL
-#undef TFN
-#undef TSQRT
-#undef TEXP
-
-#else   // ---- the generic part, compiled once per TREAL ------------------------------------------
-
-void TFN(layernorm_forward)(TREAL* out, TREAL* mean, TREAL* rstd, const TREAL* in, const TREAL* weight,
-                            const TREAL* bias, int N, int C, TREAL eps) {
+void FN(layernorm_forward)(real* out, real* mean, real* rstd, const real* in, const real* weight,
+                            const real* bias, int N, int C, real eps) {
     if (N <= 0) return;
 #pragma omp parallel for schedule(static) if ((int64_t)N * C >= TOPS_PARALLEL_MIN)
     for (int n = 0; n < N; n++) {
-        const TREAL* x = in + (size_t)n * C;
-        TREAL* o = out + (size_t)n * C;
+        const real* x = in + (size_t)n * C;
+        real* o = out + (size_t)n * C;
         double m = 0, v = 0;
         for (int c = 0; c < C; c++) m += (double)x[c];
         m = C > 0 ? m / C : 0;
@@ -54,35 +28,35 @@ void TFN(layernorm_forward)(TREAL* out, TREAL* mean, TREAL* rstd, const TREAL* i
         v = C > 0 ? v / C : 0;
         double r = 1.0 / sqrt(v + (double)eps);
         for (int c = 0; c < C; c++) {   // x - mean in double: no cancellation for rows far from 0
-            TREAL xh = (TREAL)(((double)x[c] - m) * r);
-            o[c] = xh * (weight ? weight[c] : (TREAL)1) + (bias ? bias[c] : (TREAL)0);
+            real xh = (real)(((double)x[c] - m) * r);
+            o[c] = xh * (weight ? weight[c] : (real)1) + (bias ? bias[c] : (real)0);
         }
-        if (mean) mean[n] = (TREAL)m;
-        if (rstd) rstd[n] = (TREAL)r;
+        if (mean) mean[n] = (real)m;
+        if (rstd) rstd[n] = (real)r;
     }
 }
 
-void TFN(layernorm_backward)(TREAL* din, TREAL* dweight, TREAL* dbias, const TREAL* dout, const TREAL* in,
-                             const TREAL* weight, const TREAL* mean, const TREAL* rstd, int N, int C) {
+void FN(layernorm_backward)(real* din, real* dweight, real* dbias, const real* dout, const real* in,
+                             const real* weight, const real* mean, const real* rstd, int N, int C) {
     if (N <= 0 || C <= 0) return;
     if (din) {
 #pragma omp parallel for schedule(static) if ((int64_t)N * C >= TOPS_PARALLEL_MIN)
         for (int n = 0; n < N; n++) {
-            const TREAL* x = in + (size_t)n * C;
-            const TREAL* d = dout + (size_t)n * C;
-            TREAL* dx = din + (size_t)n * C;
-            TREAL m = mean[n], r = rstd[n];
+            const real* x = in + (size_t)n * C;
+            const real* d = dout + (size_t)n * C;
+            real* dx = din + (size_t)n * C;
+            real m = mean[n], r = rstd[n];
             double sg = 0, sgx = 0;   // sums of g and g * xhat
             for (int c = 0; c < C; c++) {
-                TREAL xh = (x[c] - m) * r;
-                TREAL g = d[c] * (weight ? weight[c] : (TREAL)1);
+                real xh = (x[c] - m) * r;
+                real g = d[c] * (weight ? weight[c] : (real)1);
                 sg += (double)g;
                 sgx += (double)g * (double)xh;
             }
-            TREAL mg = (TREAL)(sg / C), mgx = (TREAL)(sgx / C);
+            real mg = (real)(sg / C), mgx = (real)(sgx / C);
             for (int c = 0; c < C; c++) {
-                TREAL xh = (x[c] - m) * r;
-                TREAL g = d[c] * (weight ? weight[c] : (TREAL)1);
+                real xh = (x[c] - m) * r;
+                real g = d[c] * (weight ? weight[c] : (real)1);
                 dx[c] += r * (g - mg - xh * mgx);
             }
         }
@@ -94,17 +68,17 @@ void TFN(layernorm_backward)(TREAL* din, TREAL* dweight, TREAL* dbias, const TRE
             int c0 = blk * TOPS_COL_BLOCK, c1 = c0 + TOPS_COL_BLOCK < C ? c0 + TOPS_COL_BLOCK : C;
             double aw[TOPS_COL_BLOCK] = {0}, ab[TOPS_COL_BLOCK] = {0};
             for (int n = 0; n < N; n++) {
-                const TREAL* x = in + (size_t)n * C;
-                const TREAL* d = dout + (size_t)n * C;
-                TREAL m = mean[n], r = rstd[n];
+                const real* x = in + (size_t)n * C;
+                const real* d = dout + (size_t)n * C;
+                real m = mean[n], r = rstd[n];
                 for (int c = c0; c < c1; c++) {
                     aw[c - c0] += (double)d[c] * (double)((x[c] - m) * r);
                     ab[c - c0] += (double)d[c];
                 }
             }
             for (int c = c0; c < c1; c++) {
-                if (dweight) dweight[c] += (TREAL)aw[c - c0];
-                if (dbias) dbias[c] += (TREAL)ab[c - c0];
+                if (dweight) dweight[c] += (real)aw[c - c0];
+                if (dbias) dbias[c] += (real)ab[c - c0];
             }
         }
     }
@@ -112,36 +86,36 @@ void TFN(layernorm_backward)(TREAL* din, TREAL* dweight, TREAL* dbias, const TRE
 
 // One (batch, head) pair: rows t = 0..T-1 of the attention, p written to prob (T values per row,
 // stride T; a row buffer reused per query when the caller keeps no probabilities).
-static void TFN(attention_head)(TREAL* out, TREAL* prob, int keep_rows, const TREAL* q, const TREAL* k,
-                                const TREAL* v, int ld, int T, int C, int hd, int causal, TREAL scale) {
+static void FN(attention_head)(real* out, real* prob, int keep_rows, const real* q, const real* k,
+                                const real* v, int ld, int T, int C, int hd, int causal, real scale) {
     for (int t = 0; t < T; t++) {
-        const TREAL* qt = q + (size_t)t * ld;
-        TREAL* p = keep_rows ? prob + (size_t)t * T : prob;
+        const real* qt = q + (size_t)t * ld;
+        real* p = keep_rows ? prob + (size_t)t * T : prob;
         int n = causal ? t + 1 : T;
-        TREAL mx = -INFINITY;
+        real mx = -INFINITY;
         for (int s = 0; s < n; s++) {
-            const TREAL* ks = k + (size_t)s * ld;
-            TREAL dot = 0;
+            const real* ks = k + (size_t)s * ld;
+            real dot = 0;
             for (int i = 0; i < hd; i++) dot += qt[i] * ks[i];
             p[s] = dot * scale;
             if (p[s] > mx) mx = p[s];
         }
         double sum = 0;
-        for (int s = 0; s < n; s++) { p[s] = TEXP(p[s] - mx); sum += (double)p[s]; }
-        TREAL inv = (TREAL)(1.0 / sum);
+        for (int s = 0; s < n; s++) { p[s] = R_EXP(p[s] - mx); sum += (double)p[s]; }
+        real inv = (real)(1.0 / sum);
         for (int s = 0; s < n; s++) p[s] *= inv;
         for (int s = n; s < T && keep_rows; s++) p[s] = 0;
-        TREAL* o = out + (size_t)t * C;
+        real* o = out + (size_t)t * C;
         for (int i = 0; i < hd; i++) o[i] = 0;
         for (int s = 0; s < n; s++) {
-            const TREAL* vs = v + (size_t)s * ld;
-            TREAL ps = p[s];
+            const real* vs = v + (size_t)s * ld;
+            real ps = p[s];
             for (int i = 0; i < hd; i++) o[i] += ps * vs[i];
         }
     }
 }
 
-mlb_status TFN(attention_forward)(TREAL* out, TREAL* att, const TREAL* q, const TREAL* k, const TREAL* v, int ld,
+mlb_status FN(attention_forward)(real* out, real* att, const real* q, const real* k, const real* v, int ld,
                                   int B, int T, int C, int NH, int causal) {
     if (B < 0 || T < 0 || C <= 0 || NH <= 0)
         return mlb_fail(MLB_ERR_ARG, "attention: bad shape B %d, T %d, C %d, %d heads", B, T, C, NH);
@@ -151,11 +125,11 @@ mlb_status TFN(attention_forward)(TREAL* out, TREAL* att, const TREAL* q, const 
     if (B == 0 || T == 0) return MLB_OK;
     if (!out || !q || !k || !v) return mlb_fail(MLB_ERR_ARG, "attention: NULL buffer");
     int hd = C / NH;
-    TREAL scale = (TREAL)(1.0 / sqrt((double)hd));
+    real scale = (real)(1.0 / sqrt((double)hd));
     int n_pairs = B * NH, failed = 0;
 #pragma omp parallel if ((int64_t)n_pairs * T * T * hd >= TOPS_PARALLEL_MIN)
     {
-        TREAL* row = att ? NULL : malloc((size_t)T * sizeof(TREAL));
+        real* row = att ? NULL : malloc((size_t)T * sizeof(real));
         if (!att && !row) {
 #pragma omp atomic write
             failed = 1;
@@ -165,7 +139,7 @@ mlb_status TFN(attention_forward)(TREAL* out, TREAL* att, const TREAL* q, const 
             if (!att && !row) continue;
             int b = bh / NH, h = bh % NH;
             size_t tok0 = (size_t)b * T;
-            TFN(attention_head)(out + tok0 * C + (size_t)h * hd, att ? att + (size_t)bh * T * T : row, att != NULL,
+            FN(attention_head)(out + tok0 * C + (size_t)h * hd, att ? att + (size_t)bh * T * T : row, att != NULL,
                                 q + tok0 * ld + (size_t)h * hd, k + tok0 * ld + (size_t)h * hd,
                                 v + tok0 * ld + (size_t)h * hd, ld, T, C, hd, causal, scale);
         }
@@ -175,7 +149,7 @@ mlb_status TFN(attention_forward)(TREAL* out, TREAL* att, const TREAL* q, const 
     return MLB_OK;
 }
 
-mlb_status TFN(embedding_forward)(TREAL* out, const int* tokens, const TREAL* wte, const TREAL* wpe,
+mlb_status FN(embedding_forward)(real* out, const int* tokens, const real* wte, const real* wpe,
                                   int B, int T, int C, int V) {
     if (B < 0 || T < 0 || C < 0 || V < 0)
         return mlb_fail(MLB_ERR_ARG, "embedding: bad shape B %d, T %d, C %d, vocabulary %d", B, T, C, V);
@@ -187,12 +161,10 @@ mlb_status TFN(embedding_forward)(TREAL* out, const int* tokens, const TREAL* wt
         }
 #pragma omp parallel for schedule(static) if ((int64_t)B * T * C >= TOPS_PARALLEL_MIN)
     for (int bt = 0; bt < B * T; bt++) {
-        const TREAL* e = wte + (size_t)tokens[bt] * C;
-        const TREAL* p = wpe ? wpe + (size_t)(bt % T) * C : NULL;
-        TREAL* o = out + (size_t)bt * C;
+        const real* e = wte + (size_t)tokens[bt] * C;
+        const real* p = wpe ? wpe + (size_t)(bt % T) * C : NULL;
+        real* o = out + (size_t)bt * C;
         for (int c = 0; c < C; c++) o[c] = p ? e[c] + p[c] : e[c];
     }
     return MLB_OK;
 }
-
-#endif

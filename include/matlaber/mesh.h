@@ -19,5 +19,7 @@ mlb_status mlb_mesh_compute_normals(mlb_mesh* m);
 // Bounding box, and a uniform scale + offset that maps the mesh into the unit sphere at the origin.
 void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]);
 void mlb_mesh_normalize_unit_sphere(mlb_mesh* m);
+// A UV sphere at the origin with normals and uvs: `segments` around, `rings` from pole to pole.
+mlb_status mlb_mesh_uv_sphere(mlb_mesh* m, float radius, int segments, int rings);
 
 #endif

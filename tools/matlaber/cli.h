@@ -26,6 +26,8 @@ const struct option* cli_getopt_table(const cli_option* opts);
 int cmd_brdf(int argc, char** argv);
 int cmd_demo(int argc, char** argv);
 int cmd_device(int argc, char** argv);
+int cmd_render(int argc, char** argv);
+int cmd_relight(int argc, char** argv);
 int cmd_sd(int argc, char** argv);
 
 #endif

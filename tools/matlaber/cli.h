@@ -28,6 +28,7 @@ int cmd_demo(int argc, char** argv);
 int cmd_device(int argc, char** argv);
 int cmd_render(int argc, char** argv);
 int cmd_relight(int argc, char** argv);
+int brdf_swatch_main(int argc, char** argv);
 int cmd_sd(int argc, char** argv);
 
 #endif

@@ -502,12 +502,13 @@ static int brdf_interp_main(int argc, char** argv) {
 int cmd_brdf(int argc, char** argv) {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         FILE* out = argc < 2 ? stderr : stdout;
-        fprintf(out, "usage: matlaber brdf <train|eval|encode|decode|interp> [options]\n\n"
+        fprintf(out, "usage: matlaber brdf <train|eval|encode|decode|interp|swatch> [options]\n\n"
                      "  train   train a latent BRDF auto-encoder (the material prior)\n"
                      "  eval    reconstruction error vs PCA-4, KL, validity along interpolations\n"
                      "  encode  BRDF -> latent code\n"
                      "  decode  latent code -> BRDF\n"
-                     "  interp  decoded BRDFs along a latent path\n");
+                     "  interp  decoded BRDFs along a latent path\n"
+                     "  swatch  spheres rendered with a list of materials or a latent interpolation\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }
     const char* sub = argv[1];
@@ -516,5 +517,6 @@ int cmd_brdf(int argc, char** argv) {
     if (strcmp(sub, "encode") == 0) return code_main(argc - 1, argv + 1, 1);
     if (strcmp(sub, "decode") == 0) return code_main(argc - 1, argv + 1, 0);
     if (strcmp(sub, "interp") == 0) return brdf_interp_main(argc - 1, argv + 1);
+    if (strcmp(sub, "swatch") == 0) return brdf_swatch_main(argc - 1, argv + 1);
     return cli_usage_error("brdf", "unknown subcommand '%s'", sub);
 }

@@ -260,3 +260,129 @@ int cmd_relight(int argc, char** argv) {
     }
     return 0;
 }
+
+// ---- matlaber brdf swatch -----------------------------------------------------------------------
+
+int brdf_swatch_main(int argc, char** argv) {
+    static const cli_option options[] = {
+        {"k", 1, 'k', "7 NUMBERS", "a material kd rgb, ks rgb, kr (repeatable, up to 32)"},
+        {"from-k", 1, 'a', "7 NUMBERS", "interpolate in latent space from this BRDF ..."},
+        {"to-k", 1, 'b', "7 NUMBERS", "... to this one"},
+        {"from-z", 1, 'A', "4 NUMBERS", "interpolate from this latent code ..."},
+        {"to-z", 1, 'B', "4 NUMBERS", "... to this one"},
+        {"steps", 1, 'n', "K", "spheres along an interpolation (default 7)"},
+        {"model", 1, 'm', "FILE", "BRDF prior for interpolations (default: the built-in prior)"},
+        {"env", 1, 'e', "NAME|FILE", "environment (default studio)"},
+        {"rotate", 1, 'R', "DEG", "rotate the environment (default 0)"},
+        {"size", 1, 's', "N", "pixels per sphere (default 256)"},
+        {"background", 1, 'g', "env|black|white|R,G,B", "behind the spheres (default env)"},
+        {"out", 1, 'o', "FILE", "output image (.png sRGB, .exr/.hdr linear)"},
+        {"help", 0, 'h', NULL, "this help"},
+        {0, 0, 0, 0, 0}};
+    enum { MAX_K = 32 };
+    float k[MAX_K * 7];
+    int n = 0;
+    const char *ends[4] = {0}, *model = NULL, *env_name = "studio", *out = NULL, *background = "env";
+    long steps = 7, size = 256;
+    double rotate = 0;
+    const struct option* table = cli_getopt_table(options);
+    optind = 1;
+    int c;
+    while ((c = getopt_long(argc, argv, "ho:", table, NULL)) != -1) {
+        switch (c) {
+        case 'k':
+            if (n >= MAX_K) return cli_usage_error("brdf swatch", "at most %d --k", MAX_K);
+            if (cli_parse_floats(optarg, k + 7 * n, 7) || !mlb_brdf_valid(k + 7 * n))
+                return cli_usage_error("brdf swatch", "--k: expected 7 numbers, a valid BRDF (kd, ks in [0,1], kr in [%g,1])", (double)MLB_KR_MIN);
+            n++;
+            break;
+        case 'a': ends[0] = optarg; break;
+        case 'b': ends[1] = optarg; break;
+        case 'A': ends[2] = optarg; break;
+        case 'B': ends[3] = optarg; break;
+        case 'n': if (cli_parse_long(optarg, 2, MAX_K, &steps)) return cli_usage_error("brdf swatch", "--steps: expected 2..%d", MAX_K); break;
+        case 'm': model = optarg; break;
+        case 'e': env_name = optarg; break;
+        case 'R': if (cli_parse_double(optarg, -1e6, 1e6, &rotate)) return cli_usage_error("brdf swatch", "--rotate: expected degrees"); break;
+        case 's': if (cli_parse_long(optarg, 16, 2048, &size)) return cli_usage_error("brdf swatch", "--size: expected 16..2048"); break;
+        case 'g': background = optarg; break;
+        case 'o': out = optarg; break;
+        case 'h':
+            printf("usage: matlaber brdf swatch (--k K [--k K ...] | --from-k K --to-k K | --from-z Z --to-z Z) -o out.png\n\n"
+                   "Spheres in a row under one environment: a list of materials, or the decoded BRDFs along a\n"
+                   "straight latent path (the paper's material interpolation).\n\n");
+            cli_print_options(stdout, options);
+            return 0;
+        default: return cli_usage_error("brdf swatch", "unknown option");
+        }
+    }
+    if (optind < argc) return cli_usage_error("brdf swatch", "unexpected argument '%s'", argv[optind]);
+    if (!out) return cli_usage_error("brdf swatch", "-o/--out is required");
+    int interp_k = ends[0] || ends[1], interp_z = ends[2] || ends[3];
+    if ((n > 0) + interp_k + interp_z != 1 || (interp_k && !(ends[0] && ends[1])) || (interp_z && !(ends[2] && ends[3])))
+        return cli_usage_error("brdf swatch", "give --k materials, or --from-k/--to-k, or --from-z/--to-z");
+    mlb_render_params p;
+    memset(&p, 0, sizeof p);
+    int rc = background_from_options(background, "brdf swatch", &p);
+    if (rc) return rc;
+    if (interp_k || interp_z) {
+        float za[4], zb[4], ka[7], kb[7];
+        if (interp_k && (cli_parse_floats(ends[0], ka, 7) || cli_parse_floats(ends[1], kb, 7) || !mlb_brdf_valid(ka) || !mlb_brdf_valid(kb)))
+            return cli_usage_error("brdf swatch", "--from-k/--to-k: expected 7 numbers, a valid BRDF each");
+        if (interp_z && (cli_parse_floats(ends[2], za, 4) || cli_parse_floats(ends[3], zb, 4)))
+            return cli_usage_error("brdf swatch", "--from-z/--to-z: expected 4 numbers each");
+        mlb_brdf_ae ae;
+        char source[1024];
+        mlb_status st = model ? mlb_brdf_ae_load(&ae, model) : mlb_brdf_ae_load_default(&ae, source, sizeof source);
+        if (st) return cli_fail(st, "loading the BRDF prior");
+        if (interp_k) {   // the codes that decode closest to the end materials
+            st = brdf_ae_encode(&ae, ka, 1, za, NULL);
+            if (!st) st = brdf_ae_fit_latent(&ae, ka, 1, za, 20);
+            if (!st) st = brdf_ae_encode(&ae, kb, 1, zb, NULL);
+            if (!st) st = brdf_ae_fit_latent(&ae, kb, 1, zb, 20);
+        }
+        for (int i = 0; i < steps && !st; i++) {
+            float a = (float)i / (float)(steps - 1), z[4];
+            for (int d = 0; d < 4; d++) z[d] = (1 - a) * za[d] + a * zb[d];
+            st = brdf_ae_decode(&ae, z, 1, k + 7 * i);
+        }
+        brdf_ae_free(&ae);
+        if (st) return cli_fail(st, "brdf swatch");
+        n = (int)steps;
+    }
+    mlb_mesh sphere;
+    mlb_envmap env = {0};
+    mlb_envlight light = {0};
+    float* tile = malloc(sizeof(float) * 4 * (size_t)size * size);
+    float* row = malloc(sizeof(float) * 4 * (size_t)size * size * n);
+    mlb_status st = (!tile || !row) ? mlb_fail(MLB_ERR_NOMEM, "brdf swatch: out of memory") : MLB_OK;
+    if (!st) st = mlb_mesh_uv_sphere(&sphere, 1.0f, 96, 48);
+    if (!st) st = mlb_envmap_open(&env, env_name, 1.0f, 0, NULL);
+    mlb_envlight_options lo = {.face_size = 256};
+    if (!st) st = mlb_envlight_build(&light, &env, &lo);
+    if (!st) {
+        float rad = (float)(rotate * M_PI / 180.0);
+        mlb_envmap_set_rotation(&env, rad);
+        mlb_envlight_set_rotation(&light, rad);
+        p.mesh = &sphere; p.light = &light; p.env = &env;
+        p.width = p.height = (int)size; p.supersample = 2; p.fresnel = MLB_FRESNEL_PAPER;
+        st = mlb_camera_orbit(&p.camera, 0, 0, 3.2, NULL, 40, 1.0, 0.05, 100);
+    }
+    for (int i = 0; i < n && !st; i++) {
+        memcpy(p.k_const, k + 7 * i, sizeof(float) * 7);
+        st = mlb_render_shaded(&p, tile);
+        for (long y = 0; y < size && !st; y++)
+            memcpy(row + 4 * ((size_t)y * size * n + (size_t)i * size), tile + 4 * (size_t)y * size, sizeof(float) * 4 * size);
+    }
+    if (!st) st = write_render(out, row, (int)size * n, (int)size);
+    mlb_mesh_free(&sphere);
+    mlb_envmap_free(&env);
+    mlb_envlight_free(&light);
+    free(tile); free(row);
+    if (st) return cli_fail(st, "brdf swatch");
+    for (int i = 0; i < n; i++)
+        printf("%d: kd %.4f %.4f %.4f  ks %.4f %.4f %.4f  kr %.4f\n", i, k[7 * i], k[7 * i + 1], k[7 * i + 2], k[7 * i + 3],
+               k[7 * i + 4], k[7 * i + 5], k[7 * i + 6]);
+    mlb_log(MLB_LOG_INFO, "wrote %s", out);
+    return 0;
+}

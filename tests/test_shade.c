@@ -523,6 +523,25 @@ TEST(split_sum_under_sharp_light) {
     }
 }
 
+// The gradient to surface positions: through the view direction, checked by central differences.
+TEST(view_direction_backward_to_positions) {
+    enum { N = 5 };
+    double p[3 * N], dv[3 * N], eye[3] = {0.3, 1.1, 3.0}, v[3 * N], dp[3 * N] = {0};
+    for (int i = 0; i < 3 * N; i++) { p[i] = 0.4 * sin(1.7 * i + 0.3); dv[i] = cos(2.3 * i + 0.1); }
+    mlb_view_dirs_f64(v, p, eye, N);
+    for (int i = 0; i < N; i++) CHECK_CLOSE(v[3 * i] * v[3 * i] + v[3 * i + 1] * v[3 * i + 1] + v[3 * i + 2] * v[3 * i + 2], 1, 1e-12, 0);
+    mlb_view_dirs_backward_f64(dp, dv, p, eye, N);
+    double h = 1e-6;
+    for (int i = 0; i < 3 * N; i++) {
+        double keep = p[i], vp[3 * N], vm[3 * N], Lp = 0, Lm = 0;
+        p[i] = keep + h; mlb_view_dirs_f64(vp, p, eye, N);
+        p[i] = keep - h; mlb_view_dirs_f64(vm, p, eye, N);
+        p[i] = keep;
+        for (int j = 0; j < 3 * N; j++) { Lp += dv[j] * vp[j]; Lm += dv[j] * vm[j]; }
+        CHECK_CLOSE(dp[i], (Lp - Lm) / (2 * h), 1e-7, 1e-9);
+    }
+}
+
 int main(void) {
     RUN(lut_check_values);
     RUN(lut_lookup);
@@ -533,5 +552,6 @@ int main(void) {
     RUN(split_sum_exact_for_constant_light);
     RUN(split_sum_vs_monte_carlo);
     RUN(split_sum_under_sharp_light);
+    RUN(view_direction_backward_to_positions);
     return test_summary();
 }

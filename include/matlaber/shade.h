@@ -57,6 +57,13 @@ mlb_status mlb_shade_backward_f64(double* dkd, double* dks, double* dkr, double*
 // ---- linear -> sRGB ----
 // out = x <= 0.0031308 ? 12.92 x : 1.055 x^(1/2.4) - 0.055 (no clamping; out may alias in);
 // backward: din += dout * d out / d x.
+// View directions v = (eye - p) / |eye - p| for N surface points p [N,3], and the backward that
+// turns the shading's dv into the gradient to the positions (accumulated): the split sum depends
+// on position only through v.
+void mlb_view_dirs(float* v, const float* p, const double eye[3], int N);
+void mlb_view_dirs_backward(float* dp, const float* dv, const float* p, const double eye[3], int N);
+void mlb_view_dirs_f64(double* v, const double* p, const double eye[3], int N);
+void mlb_view_dirs_backward_f64(double* dp, const double* dv, const double* p, const double eye[3], int N);
 void mlb_srgb_forward(float* out, const float* in, size_t n);
 void mlb_srgb_backward(float* din, const float* dout, const float* in, size_t n);
 

@@ -267,3 +267,48 @@ mlb_status mlb_shade_reference(double out[3], double stderr_out[3], const float 
     }
     return MLB_OK;
 }
+
+// ---- view directions: how the shading depends on the surface position --------------------------
+// v = (eye - p) / r, r = |eye - p|;  dv/dp = -(I - v v^T) / r, so dp += -(dv - v (v . dv)) / r.
+static void view_point(const double p[3], const double eye[3], double v[3], double* r) {
+    double d[3] = {eye[0] - p[0], eye[1] - p[1], eye[2] - p[2]};
+    *r = sqrt(dot3(d, d));
+    double inv = *r > 0 ? 1.0 / *r : 0;
+    for (int c = 0; c < 3; c++) v[c] = d[c] * inv;
+}
+
+static void view_point_backward(const double p[3], const double eye[3], const double dv[3], double dp[3]) {
+    double v[3], r;
+    view_point(p, eye, v, &r);
+    if (!(r > 0)) { dp[0] = dp[1] = dp[2] = 0; return; }
+    double vd = dot3(v, dv);
+    for (int c = 0; c < 3; c++) dp[c] = -(dv[c] - v[c] * vd) / r;
+}
+
+void mlb_view_dirs(float* v, const float* p, const double eye[3], int N) {
+    for (int i = 0; i < N; i++) {
+        double pp[3] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]}, vv[3], r;
+        view_point(pp, eye, vv, &r);
+        for (int c = 0; c < 3; c++) v[3 * i + c] = (float)vv[c];
+    }
+}
+
+void mlb_view_dirs_backward(float* dp, const float* dv, const float* p, const double eye[3], int N) {
+    for (int i = 0; i < N; i++) {
+        double pp[3] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]}, d[3] = {dv[3 * i], dv[3 * i + 1], dv[3 * i + 2]}, g[3];
+        view_point_backward(pp, eye, d, g);
+        for (int c = 0; c < 3; c++) dp[3 * i + c] += (float)g[c];
+    }
+}
+
+void mlb_view_dirs_f64(double* v, const double* p, const double eye[3], int N) {
+    for (int i = 0; i < N; i++) { double r; view_point(p + 3 * i, eye, v + 3 * i, &r); }
+}
+
+void mlb_view_dirs_backward_f64(double* dp, const double* dv, const double* p, const double eye[3], int N) {
+    for (int i = 0; i < N; i++) {
+        double g[3];
+        view_point_backward(p + 3 * i, eye, dv + 3 * i, g);
+        for (int c = 0; c < 3; c++) dp[3 * i + c] += g[c];
+    }
+}

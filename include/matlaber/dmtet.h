@@ -1,0 +1,84 @@
+// Deformable marching tetrahedra (DMTet; reference.md §3, docs/geometry.md).
+//   - mlb_tetgrid: a conforming tet grid over [−0.5, 0.5]^3 × scale, `cells` cube cells per axis,
+//     each split into the 6 Kuhn tets of reference.md §3 (all share the cell's main diagonal), every
+//     tet positively oriented (det(b−a, c−a, d−a) > 0). Vertex (i, j, k) has index
+//     i + n·(j + n·k), n = cells + 1. The "64" grid of the papers is cells = 32 (grid_res = 64),
+//     "128" is cells = 64. Every grid edge joins a vertex p to p + o for o ∈ {0,1}^3 \ {0}.
+//   - Marching tets over SDF values at the (deformed) grid vertices, negative inside: one output
+//     vertex per grid edge whose ends differ in occupancy (sdf > 0), placed at
+//     v = (p_a·(−s_b) + p_b·s_a) / (s_a − s_b), faces counter-clockwise seen from outside.
+//   - The deformation v = v_grid + tanh(d) / grid_res, the SDF sign regulariser and area-weighted
+//     vertex normals, with backward.
+// Functions over `real` exist as float (plain name) and double (name_f64). Backward functions
+// ACCUMULATE (+=); any gradient buffer may be NULL.
+#ifndef MATLABER_DMTET_H
+#define MATLABER_DMTET_H
+#include <stdint.h>
+#include "matlaber/error.h"
+#include "matlaber/mesh.h"
+
+typedef struct {
+    int cells;          // cube cells per axis
+    float scale;        // grid spans [−0.5, 0.5]^3 × scale
+    int n_verts, n_tets, n_edges;
+    float* verts;       // [n_verts, 3]
+    int32_t* tets;      // [n_tets, 4], positively oriented
+    int32_t* edges;     // [n_edges, 2], every unique grid edge (a < b), ordered by (a, offset code)
+} mlb_tetgrid;
+
+// cells in 1..512, scale > 0. Deterministic.
+mlb_status mlb_tetgrid_create(mlb_tetgrid* g, int cells, float scale);
+void mlb_tetgrid_free(mlb_tetgrid* g);   // safe on a zeroed grid
+// A sparse id in [0, 7·n_verts) of the grid edge (a, b): 7·min(a,b) + code − 1, code = the
+// 3-bit offset between the ends; −1 when (a, b) is not a grid edge.
+int64_t mlb_tetgrid_edge_id(const mlb_tetgrid* g, int32_t a, int32_t b);
+
+// Marching tetrahedra tables (reference.md §3).
+extern const int mlb_mt_num_triangles[16];
+extern const int mlb_mt_triangle_table[16][6];
+extern const int mlb_mt_tet_edges[6][2];
+
+// The surface extracted by marching tets, with what backward needs.
+#define MLB_DMTET_DECLARE(R, N)                                                                      \
+    typedef struct {                                                                                \
+        int n_verts, n_faces;                                                                       \
+        R* pos;              /* [n_verts, 3] */                                                     \
+        int32_t* faces;      /* [n_faces, 3], CCW seen from outside */                              \
+        int32_t* edge;       /* [n_verts, 2] the grid vertices (a, b), a < b, of each vertex */     \
+        R* weight;           /* [n_verts, 2] v = weight0·p_a + weight1·p_b */                       \
+    } N(mlb_mt_surface);                                                                            \
+    void N(mt_surface_free)(N(mlb_mt_surface)* s);                                                  \
+    /* pos[V,3] (deformed) grid positions, sdf[V]; topology from g. Deterministic output order:   \
+       vertices by edge id, faces by tet then table order. */                                     \
+    mlb_status N(marching_tets_forward)(N(mlb_mt_surface)* out, const mlb_tetgrid* g,               \
+                                        const R* pos, const R* sdf);                                \
+    /* dpos[V,3] += ∂v/∂p · dverts, dsdf[V] += ∂v/∂s · dverts for dverts[n_verts,3] */              \
+    void N(marching_tets_backward)(R* dpos, R* dsdf, const N(mlb_mt_surface)* s, const R* pos,     \
+                                   const R* sdf, const R* dverts);                                  \
+    /* A float mesh (positions and faces; no normals or uvs) copied from the surface. */           \
+    mlb_status N(mt_surface_to_mesh)(const N(mlb_mt_surface)* s, mlb_mesh* m);                      \
+    /* out[V,3] = grid[V,3] + tanh(deform[V,3]) / grid_res */                                       \
+    void N(dmtet_deform_forward)(R* out, const R* grid, const R* deform, int n_verts, R grid_res);   \
+    /* ddeform += dout·(1 − tanh²)/grid_res; dgrid += dout */                                      \
+    void N(dmtet_deform_backward)(R* dgrid, R* ddeform, const R* dout, const R* deform, int n_verts, \
+                                  R grid_res);                                                      \
+    /* SDF sign regulariser (nvdiffrec): over grid edges whose ends differ in occupancy (sdf > 0), \
+       mean BCE_logits(s_a, s_b > 0) + mean BCE_logits(s_b, s_a > 0); 0 without such edges. */     \
+    R N(sdf_reg_forward)(const mlb_tetgrid* g, const R* sdf);                                       \
+    void N(sdf_reg_backward)(R* dsdf, const mlb_tetgrid* g, const R* sdf, R dloss);                 \
+    /* Area-weighted vertex normals: m_v = Σ_{faces f ∋ v} (b − a) × (c − a), normal = m/|m|     \
+       ((0, 0, 1) where |m| = 0). sum[V,3] keeps m for backward (may be NULL if unwanted). */     \
+    void N(vertex_normals_forward)(R* normal, R* sum, const R* pos, int n_verts, const int32_t* faces, \
+                                   int n_faces);                                                    \
+    /* dpos[V,3] += ∂normal/∂pos · dnormal, with sum from forward (MLB_ERR_NOMEM: O(V) scratch) */ \
+    mlb_status N(vertex_normals_backward)(R* dpos, const R* dnormal, const R* sum, const R* pos, int n_verts, \
+                                    const int32_t* faces, int n_faces);
+
+#define MLB_DMTET_F32(name) name
+#define MLB_DMTET_F64(name) name##_f64
+MLB_DMTET_DECLARE(float, MLB_DMTET_F32)
+MLB_DMTET_DECLARE(double, MLB_DMTET_F64)
+#undef MLB_DMTET_F32
+#undef MLB_DMTET_F64
+
+#endif

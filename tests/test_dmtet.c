@@ -1,0 +1,368 @@
+// DMTet: the tet grid (orientation, conformity, volume, edges), marching tetrahedra on analytic
+// SDFs (closed manifold meshes, topology, outward faces, distance to the surface), and
+// finite-difference checks (double) of the marching-tets, deformation and regulariser backward.
+#include <stdint.h>
+#include "matlaber/dmtet.h"
+#include "matlaber/rng.h"
+#include "matlaber/threads.h"
+#include "test.h"
+
+static double signed_vol6(const float* a, const float* b, const float* c, const float* d) {
+    double u[3], v[3], w[3];
+    for (int k = 0; k < 3; k++) { u[k] = b[k] - a[k]; v[k] = c[k] - a[k]; w[k] = d[k] - a[k]; }
+    return u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0]) + u[2] * (v[0] * w[1] - v[1] * w[0]);
+}
+
+static int cmp_u64(const void* a, const void* b) {
+    uint64_t x = *(const uint64_t*)a, y = *(const uint64_t*)b;
+    return x < y ? -1 : x > y;
+}
+static void sort3(int32_t* v) {
+    for (int i = 0; i < 2; i++)
+        for (int j = 0; j < 2 - i; j++)
+            if (v[j] > v[j + 1]) { int32_t t = v[j]; v[j] = v[j + 1]; v[j + 1] = t; }
+}
+
+TEST(tetgrid_structure) {
+    const int cells = 4;
+    const float scale = 2.1f;
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, cells, scale) == MLB_OK);
+    CHECK(g.n_verts == 125 && g.n_tets == 6 * 64);
+    // unique edges: 3 axis, 3 face-diagonal and 1 body-diagonal directions
+    CHECK(g.n_edges == 3 * 4 * 25 + 3 * 16 * 5 + 64);
+    double vol = 0, hcell = scale / cells;
+    for (int t = 0; t < g.n_tets; t++) {
+        const int32_t* v = g.tets + 4 * t;
+        double s = signed_vol6(g.verts + 3 * v[0], g.verts + 3 * v[1], g.verts + 3 * v[2], g.verts + 3 * v[3]);
+        CHECK_MSG(s > 0, "tet %d volume*6 = %g", t, s);
+        CHECK_CLOSE(s, hcell * hcell * hcell, 1e-4, 0);   // each Kuhn tet is 1/6 of a cell
+        vol += s / 6;
+    }
+    CHECK_CLOSE(vol, (double)scale * scale * scale, 1e-5, 0);
+    // Faces: interior ones shared by exactly two tets, those on the cube's boundary by one.
+    int64_t nf = 4 * (int64_t)g.n_tets;
+    uint64_t* keys = malloc(sizeof(uint64_t) * nf);
+    const int n = cells + 1;
+    for (int t = 0; t < g.n_tets; t++)
+        for (int f = 0; f < 4; f++) {
+            int32_t tri[3], m = 0;
+            for (int c = 0; c < 4; c++) if (c != f) tri[m++] = g.tets[4 * t + c];
+            sort3(tri);
+            keys[4 * t + f] = ((uint64_t)tri[0] << 42) | ((uint64_t)tri[1] << 21) | (uint64_t)tri[2];
+        }
+    qsort(keys, nf, sizeof *keys, cmp_u64);
+    int bad = 0, n_boundary = 0;
+    for (int64_t i = 0; i < nf;) {
+        int64_t j = i;
+        while (j < nf && keys[j] == keys[i]) j++;
+        int32_t tri[3] = {(int32_t)(keys[i] >> 42), (int32_t)((keys[i] >> 21) & 0x1fffff), (int32_t)(keys[i] & 0x1fffff)};
+        int on_boundary = 0;
+        for (int d = 0; d < 3; d++) {
+            int lo = 1, hi = 1;
+            for (int c = 0; c < 3; c++) {
+                int coord = d == 0 ? tri[c] % n : d == 1 ? (tri[c] / n) % n : tri[c] / (n * n);
+                lo &= coord == 0;
+                hi &= coord == cells;
+            }
+            on_boundary |= lo | hi;
+        }
+        if ((int)(j - i) != (on_boundary ? 1 : 2)) bad++;
+        n_boundary += on_boundary;
+        i = j;
+    }
+    CHECK(bad == 0);
+    CHECK(n_boundary == 6 * cells * cells * 2);
+    free(keys);
+    // Every tet edge is a listed grid edge; the edge list is exactly the set of tet edges.
+    char* seen = calloc(7 * (size_t)g.n_verts, 1);
+    for (int t = 0; t < g.n_tets; t++)
+        for (int e = 0; e < 6; e++) {
+            int64_t id = mlb_tetgrid_edge_id(&g, g.tets[4 * t + mlb_mt_tet_edges[e][0]], g.tets[4 * t + mlb_mt_tet_edges[e][1]]);
+            REQUIRE(id >= 0 && id < 7 * (int64_t)g.n_verts);
+            seen[id] = 1;
+        }
+    int listed = 0, n_seen = 0;
+    for (int e = 0; e < g.n_edges; e++) {
+        CHECK(g.edges[2 * e] < g.edges[2 * e + 1]);
+        int64_t id = mlb_tetgrid_edge_id(&g, g.edges[2 * e], g.edges[2 * e + 1]);
+        listed += id >= 0 && seen[id];
+    }
+    for (int64_t i = 0; i < 7 * (int64_t)g.n_verts; i++) n_seen += seen[i];
+    CHECK(listed == g.n_edges && n_seen == g.n_edges);
+    CHECK(mlb_tetgrid_edge_id(&g, 0, 2) == -1);
+    free(seen);
+    mlb_tetgrid_free(&g);
+    CHECK(mlb_tetgrid_create(&g, 0, 1.f) == MLB_ERR_ARG);
+}
+
+// Closed, consistently oriented 2-manifold: every directed edge once and its reverse once.
+// Returns the Euler characteristic through *chi.
+static int check_closed_manifold(const mlb_mt_surface* s, int* chi) {
+    int64_t m = 3 * (int64_t)s->n_faces;
+    uint64_t* dir = malloc(sizeof(uint64_t) * (m ? m : 1));
+    for (int f = 0; f < s->n_faces; f++)
+        for (int c = 0; c < 3; c++)
+            dir[3 * f + c] = ((uint64_t)s->faces[3 * f + c] << 32) | (uint32_t)s->faces[3 * f + (c + 1) % 3];
+    qsort(dir, m, sizeof *dir, cmp_u64);
+    int ok = 1;
+    for (int64_t i = 0; i < m; i++) {
+        uint32_t a = (uint32_t)(dir[i] >> 32), b = (uint32_t)dir[i];
+        if (a == b || (i + 1 < m && dir[i + 1] == dir[i])) ok = 0;   // degenerate or repeated direction
+        uint64_t rev = ((uint64_t)b << 32) | a;
+        if (!bsearch(&rev, dir, m, sizeof *dir, cmp_u64)) ok = 0;     // open edge or flipped neighbour
+    }
+    free(dir);
+    *chi = s->n_verts - (int)(m / 2) + s->n_faces;
+    return ok;
+}
+
+static void sdf_grid(const mlb_tetgrid* g, float* sdf, int torus) {
+    for (int v = 0; v < g->n_verts; v++) {
+        const float* p = g->verts + 3 * v;
+        if (torus) {
+            float q = sqrtf(p[0] * p[0] + p[2] * p[2]) - 0.5f;
+            sdf[v] = sqrtf(q * q + p[1] * p[1]) - 0.2f;
+        } else {
+            sdf[v] = sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 0.6f;
+        }
+    }
+}
+
+TEST(sphere_closed_outward_close) {
+    const int cells = 24;
+    const float scale = 2.1f, r = 0.6f;
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, cells, scale) == MLB_OK);
+    float* sdf = malloc(sizeof(float) * g.n_verts);
+    sdf_grid(&g, sdf, 0);
+    mlb_mt_surface s;
+    REQUIRE(marching_tets_forward(&s, &g, g.verts, sdf) == MLB_OK);
+    CHECK(s.n_verts > 100 && s.n_faces > 200);
+    int chi;
+    CHECK(check_closed_manifold(&s, &chi));
+    CHECK(chi == 2);
+    // Outward: the enclosed signed volume is positive (≈ the sphere's) and every face normal
+    // points away from the centre.
+    double vol = 0;
+    int inward = 0;
+    for (int f = 0; f < s.n_faces; f++) {
+        const float *a = s.pos + 3 * s.faces[3 * f], *b = s.pos + 3 * s.faces[3 * f + 1], *c = s.pos + 3 * s.faces[3 * f + 2];
+        const float o[3] = {0, 0, 0};
+        double v6 = signed_vol6(o, a, b, c);
+        vol += v6 / 6;
+        if (v6 <= 0) inward++;
+    }
+    CHECK(inward == 0);
+    CHECK_CLOSE(vol, 4.0 / 3.0 * M_PI * r * r * r, 0.05, 0);
+    // Distance: a vertex is the zero of the linear interpolant of f(x) = |x| − r along a grid edge of
+    // length ℓ ≤ √3·h (the body diagonal). f is convex, so its chord lies above it: f(v) ≤ 0. And
+    // f'' ≤ ℓ²/ρ along the edge (ρ = the least |x| on it ≥ r − ℓ), so the chord exceeds f by at most
+    // ℓ²/(8ρ): −ℓ²/(8(r − ℓ)) ≤ |v| − r ≤ 0.
+    double hcell = scale / cells, l = sqrt(3.0) * hcell, bound = l * l / (8 * (r - l)), worst = 0;
+    for (int i = 0; i < s.n_verts; i++) {
+        const float* p = s.pos + 3 * i;
+        double d = sqrt((double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2]) - r;
+        CHECK_MSG(d <= 1e-5 && d >= -bound - 1e-5, "vertex %d at distance %g (bound %g)", i, d, bound);
+        if (-d > worst) worst = -d;
+    }
+    printf("  sphere: %d verts, %d faces, max |v| - r = %.4g (bound %.4g, cell %.4g)\n", s.n_verts, s.n_faces, -worst, -bound, hcell);
+    // Welded: no two vertices at the same place.
+    mlb_mesh mesh;
+    REQUIRE(mt_surface_to_mesh(&s, &mesh) == MLB_OK);
+    CHECK(mesh.n_verts == s.n_verts && mesh.n_faces == s.n_faces && mesh.pos[5] == s.pos[5]);
+    mlb_mesh_free(&mesh);
+    // Same output on 1 and 2 threads.
+    int saved = mlb_get_threads();
+    mlb_set_threads(1);
+    mlb_mt_surface s1;
+    REQUIRE(marching_tets_forward(&s1, &g, g.verts, sdf) == MLB_OK);
+    mlb_set_threads(saved);
+    CHECK(s1.n_faces == s.n_faces && memcmp(s1.faces, s.faces, sizeof(int32_t) * 3 * s.n_faces) == 0);
+    CHECK(memcmp(s1.pos, s.pos, sizeof(float) * 3 * s.n_verts) == 0);
+    mt_surface_free(&s1);
+    mt_surface_free(&s);
+    free(sdf);
+    mlb_tetgrid_free(&g);
+}
+
+TEST(torus_genus_one) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 32, 2.1f) == MLB_OK);
+    float* sdf = malloc(sizeof(float) * g.n_verts);
+    sdf_grid(&g, sdf, 1);
+    mlb_mt_surface s;
+    REQUIRE(marching_tets_forward(&s, &g, g.verts, sdf) == MLB_OK);
+    int chi;
+    CHECK(check_closed_manifold(&s, &chi));
+    CHECK_MSG(chi == 0, "Euler characteristic %d", chi);
+    mt_surface_free(&s);
+    // All outside / all inside: empty surfaces.
+    for (int v = 0; v < g.n_verts; v++) sdf[v] = 1;
+    REQUIRE(marching_tets_forward(&s, &g, g.verts, sdf) == MLB_OK);
+    CHECK(s.n_verts == 0 && s.n_faces == 0);
+    mt_surface_free(&s);
+    free(sdf);
+    mlb_tetgrid_free(&g);
+}
+
+// L = Σ r·v over the marching-tets vertices of the deformed grid: gradients to the SDF values and
+// the deformation, against central differences in double.
+TEST(marching_tets_backward_fd) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 3, 1.0f) == MLB_OK);
+    const int V = g.n_verts;
+    double* grid = malloc(sizeof(double) * 3 * V);
+    double* def = malloc(sizeof(double) * 3 * V);
+    double* pos = malloc(sizeof(double) * 3 * V);
+    double* sdf = malloc(sizeof(double) * V);
+    for (int i = 0; i < 3 * V; i++) { grid[i] = g.verts[i]; def[i] = mlb_rng_normal_f64(1, 1, i); }
+    for (int v = 0; v < V; v++) {
+        const double* p = grid + 3 * v;
+        double s = sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 0.4 + 0.1 * mlb_rng_normal_f64(1, 2, v);
+        if (fabs(s) < 1e-3) s = 1e-3;   // away from 0: the topology is fixed under the FD step
+        sdf[v] = s;
+    }
+    const double res = 6;
+    dmtet_deform_forward_f64(pos, grid, def, V, res);
+    mlb_mt_surface_f64 s;
+    REQUIRE(marching_tets_forward_f64(&s, &g, pos, sdf) == MLB_OK);
+    REQUIRE(s.n_verts > 4);
+    const int M = s.n_verts;
+    double* r = malloc(sizeof(double) * 3 * M);
+    for (int i = 0; i < 3 * M; i++) r[i] = mlb_rng_normal_f64(1, 3, i);
+    double* dpos = calloc(3 * V, sizeof(double));
+    double* dsdf = calloc(V, sizeof(double));
+    double* ddef = calloc(3 * V, sizeof(double));
+    marching_tets_backward_f64(dpos, dsdf, &s, pos, sdf, r);
+    dmtet_deform_backward_f64(NULL, ddef, dpos, def, V, res);
+    mt_surface_free_f64(&s);
+#define LOSS(out) do { mlb_mt_surface_f64 s_; dmtet_deform_forward_f64(pos, grid, def, V, res); \
+    marching_tets_forward_f64(&s_, &g, pos, sdf); REQUIRE(s_.n_verts == M); out = 0; \
+    for (int i_ = 0; i_ < 3 * M; i_++) { out += r[i_] * s_.pos[i_]; } mt_surface_free_f64(&s_); } while (0)
+    const double h = 1e-6;
+    int nonzero = 0;
+    for (int v = 0; v < V; v++) {
+        double keep = sdf[v], lp, lm;
+        sdf[v] = keep + h; LOSS(lp);
+        sdf[v] = keep - h; LOSS(lm);
+        sdf[v] = keep;
+        CHECK_CLOSE(dsdf[v], (lp - lm) / (2 * h), 1e-5, 1e-7);
+        nonzero += dsdf[v] != 0;
+    }
+    for (int i = 0; i < 3 * V; i++) {
+        double keep = def[i], lp, lm;
+        def[i] = keep + h; LOSS(lp);
+        def[i] = keep - h; LOSS(lm);
+        def[i] = keep;
+        CHECK_CLOSE(ddef[i], (lp - lm) / (2 * h), 1e-5, 1e-8);
+    }
+#undef LOSS
+    CHECK(nonzero > 4);
+    free(grid); free(def); free(pos); free(sdf); free(r); free(dpos); free(dsdf); free(ddef);
+    mlb_tetgrid_free(&g);
+}
+
+TEST(sdf_regulariser) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 4, 1.0f) == MLB_OK);
+    const int V = g.n_verts;
+    double* sdf = malloc(sizeof(double) * V);
+    for (int v = 0; v < V; v++) {
+        const float* p = g.verts + 3 * v;
+        sdf[v] = sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 0.3 + 0.2 * mlb_rng_normal_f64(2, 1, v);
+        if (fabs(sdf[v]) < 1e-3) sdf[v] = 1e-3;
+    }
+    // Brute force over the edge list.
+    double sum = 0;
+    int m = 0;
+    for (int e = 0; e < g.n_edges; e++) {
+        double a = sdf[g.edges[2 * e]], b = sdf[g.edges[2 * e + 1]];
+        if ((a > 0) == (b > 0)) continue;
+        m++;
+        sum += fmax(a, 0) - a * (b > 0) + log1p(exp(-fabs(a)));
+        sum += fmax(b, 0) - b * (a > 0) + log1p(exp(-fabs(b)));
+    }
+    REQUIRE(m > 10);
+    CHECK_CLOSE(sdf_reg_forward_f64(&g, sdf), sum / m, 1e-12, 0);
+    double* d = calloc(V, sizeof(double));
+    sdf_reg_backward_f64(d, &g, sdf, 0.7);
+    const double h = 1e-6;
+    for (int v = 0; v < V; v++) {
+        double keep = sdf[v];
+        sdf[v] = keep + h;
+        double lp = sdf_reg_forward_f64(&g, sdf);
+        sdf[v] = keep - h;
+        double lm = sdf_reg_forward_f64(&g, sdf);
+        sdf[v] = keep;
+        CHECK_CLOSE(d[v], 0.7 * (lp - lm) / (2 * h), 1e-6, 1e-9);
+    }
+    for (int v = 0; v < V; v++) sdf[v] = 1;
+    CHECK(sdf_reg_forward_f64(&g, sdf) == 0);
+    free(d);
+    free(sdf);
+    mlb_tetgrid_free(&g);
+}
+
+// Vertex normals of the extracted sphere point away from the centre; the backward against central
+// differences on a small perturbed mesh (double).
+TEST(vertex_normals) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 5, 1.0f) == MLB_OK);
+    const int V = g.n_verts;
+    double* pos = malloc(sizeof(double) * 3 * V);
+    double* sdf = malloc(sizeof(double) * V);
+    for (int i = 0; i < 3 * V; i++) pos[i] = g.verts[i];
+    for (int v = 0; v < V; v++) {
+        const double* p = pos + 3 * v;
+        sdf[v] = sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 0.33;
+    }
+    mlb_mt_surface_f64 s;
+    REQUIRE(marching_tets_forward_f64(&s, &g, pos, sdf) == MLB_OK);
+    const int M = s.n_verts;
+    double* nrm = malloc(sizeof(double) * 3 * M);
+    double* sum = malloc(sizeof(double) * 3 * M);
+    vertex_normals_forward_f64(nrm, sum, s.pos, M, s.faces, s.n_faces);
+    int away = 0;
+    for (int i = 0; i < M; i++) {
+        const double *p = s.pos + 3 * i, *n = nrm + 3 * i;
+        double len = sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+        CHECK_CLOSE(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1.0, 1e-12, 0);
+        away += (n[0] * p[0] + n[1] * p[1] + n[2] * p[2]) / len > 0.8;
+    }
+    CHECK(away == M);
+    double* vp = malloc(sizeof(double) * 3 * M);
+    double* r = malloc(sizeof(double) * 3 * M);
+    double* dp = calloc(3 * M, sizeof(double));
+    for (int i = 0; i < 3 * M; i++) {
+        vp[i] = s.pos[i] + 0.01 * mlb_rng_normal_f64(4, 1, i);
+        r[i] = mlb_rng_normal_f64(4, 2, i);
+    }
+    vertex_normals_forward_f64(nrm, sum, vp, M, s.faces, s.n_faces);
+    CHECK(vertex_normals_backward_f64(dp, r, sum, vp, M, s.faces, s.n_faces) == MLB_OK);
+    const double h = 1e-6;
+    for (int i = 0; i < 3 * M; i++) {
+        double keep = vp[i], lp = 0, lm = 0;
+        vp[i] = keep + h;
+        vertex_normals_forward_f64(nrm, NULL, vp, M, s.faces, s.n_faces);
+        for (int j = 0; j < 3 * M; j++) lp += r[j] * nrm[j];
+        vp[i] = keep - h;
+        vertex_normals_forward_f64(nrm, NULL, vp, M, s.faces, s.n_faces);
+        for (int j = 0; j < 3 * M; j++) lm += r[j] * nrm[j];
+        vp[i] = keep;
+        CHECK_CLOSE(dp[i], (lp - lm) / (2 * h), 1e-5, 1e-6);
+    }
+    free(vp); free(r); free(dp); free(nrm); free(sum); free(pos); free(sdf);
+    mt_surface_free_f64(&s);
+    mlb_tetgrid_free(&g);
+}
+
+int main(void) {
+    RUN(tetgrid_structure);
+    RUN(sphere_closed_outward_close);
+    RUN(torus_genus_one);
+    RUN(marching_tets_backward_fd);
+    RUN(sdf_regulariser);
+    RUN(vertex_normals);
+    return test_summary();
+}

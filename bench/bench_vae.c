@@ -1,0 +1,195 @@
+// SD VAE encoder throughput on this machine: forward, and forward + backward to the image (what
+// score distillation runs per view), for one image at 64², 128² and 256² with the tiny fixture VAE
+// (../shared/data/sd_reference/sd1_diffusers/vae) when present; the same for the real SD VAE
+// architecture with random weights at small sizes; and an estimate for the real VAE at 512² from
+// the GEMM FLOP count and this machine's measured GEMM rate. Prints tables; see docs/vae.md.
+//   build/bench/bench_vae [tiny-vae-path] [--sd512]    (--sd512 also times the real size at 512²)
+#include <cblas.h>
+#include <omp.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include "matlaber/progress.h"
+#include "matlaber/rng.h"
+#include "matlaber/threads.h"
+#include "matlaber/vae.h"
+
+// GEMM FLOPs of the encoder forward and of its backward to the image (weights frozen): every conv
+// 2*OC*C*KH*KW*OH*OW (its data gradient the same), attention 4*T^2*C + 8*T*C^2 forward and
+// 10*T^2*C + 8*T*C^2 backward (scores recomputed). GroupNorm/SiLU/adds are memory-bound, not counted.
+static void encoder_flops(const mlb_vae_config* g, int H, int W, double* fwd, double* bwd) {
+    double f = 0, b = 0;
+#define CONV(C, OC, K, OH, OW) do { double x_ = 2.0 * (OC) * (C) * (K) * (K) * (double)(OH) * (OW); f += x_; b += x_; } while (0)
+    CONV(g->in_channels, g->block_out[0], 3, H, W);
+    for (int l = 0; l < g->n_levels; l++) {
+        for (int j = 0; j < g->layers_per_block; j++) {
+            int cin = j ? g->block_out[l] : g->block_out[l ? l - 1 : 0], c = g->block_out[l];
+            CONV(cin, c, 3, H, W);
+            CONV(c, c, 3, H, W);
+            if (cin != c) CONV(cin, c, 1, H, W);
+        }
+        if (l < g->n_levels - 1) { H /= 2; W /= 2; CONV(g->block_out[l], g->block_out[l], 3, H, W); }
+    }
+    int C = g->block_out[g->n_levels - 1];
+    double T = (double)H * W;
+    for (int k = 0; k < 4; k++) CONV(C, C, 3, H, W);
+    f += 4 * T * T * C + 8 * T * C * C;
+    b += 10 * T * T * C + 8 * T * C * C;
+    CONV(C, 2 * g->latent_channels, 3, H, W);
+    CONV(2 * g->latent_channels, 2 * g->latent_channels, 1, H, W);
+#undef CONV
+    *fwd = f;
+    *bwd = b;
+}
+
+static double gemm_rate(int M, int N, int K) {
+    float* a = malloc((size_t)M * K * sizeof(float));
+    float* b = malloc((size_t)K * N * sizeof(float));
+    float* c = malloc((size_t)M * N * sizeof(float));
+    mlb_rng_fill_uniform(a, (size_t)M * K, 1, 1, 0, -1, 1);
+    mlb_rng_fill_uniform(b, (size_t)K * N, 1, 2, 0, -1, 1);
+    double best = 1e30;
+    for (int r = 0; r < 4; r++) {
+        double t0 = mlb_now_seconds();
+        cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, M, N, K, 1, a, K, b, N, 0, c, N);
+        double dt = mlb_now_seconds() - t0;
+        if (r > 0 && dt < best) best = dt;
+    }
+    free(a); free(b); free(c);
+    return 2.0 * M * N * K / best / 1e9;
+}
+
+// Median-free best-of timing of `reps` runs after one warm-up: forward only, and forward with
+// the cache + backward.
+static int time_encoder(const mlb_vae* v, int S, int reps, double* t_fwd, double* t_both, size_t* cache_bytes) {
+    size_t n = (size_t)v->cfg.in_channels * S * S;
+    int h = mlb_vae_latent_size(&v->cfg, S);
+    size_t nz = (size_t)v->cfg.latent_channels * h * h;
+    float* img = malloc(n * sizeof(float));
+    float* dimg = calloc(n, sizeof(float));
+    float* mean = malloc(nz * sizeof(float));
+    float* g = malloc(nz * sizeof(float));
+    mlb_rng_fill_uniform(img, n, 3, 1, 0, -1, 1);
+    mlb_rng_fill_normal(g, nz, 3, 2, 0, 0, 1);
+    mlb_vae_cache cache = {0};
+    *t_fwd = *t_both = 1e30;
+    for (int r = 0; r <= reps; r++) {
+        double t0 = mlb_now_seconds();
+        if (mlb_vae_encode(v, img, 1, S, S, mean, NULL, NULL)) goto fail;
+        double t1 = mlb_now_seconds();
+        if (mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache)) goto fail;
+        if (mlb_vae_encode_backward(v, &cache, g, NULL, dimg)) goto fail;
+        double t2 = mlb_now_seconds();
+        if (r > 0 || reps == 0) {
+            if (t1 - t0 < *t_fwd) *t_fwd = t1 - t0;
+            if (t2 - t1 < *t_both) *t_both = t2 - t1;
+        }
+    }
+    *cache_bytes = cache.capacity * sizeof(float);
+    mlb_vae_cache_free(&cache);
+    free(img); free(dimg); free(mean); free(g);
+    return 0;
+fail:
+    fprintf(stderr, "bench_vae: %s\n", mlb_last_error());
+    mlb_vae_cache_free(&cache);
+    free(img); free(dimg); free(mean); free(g);
+    return 1;
+}
+
+static const char* find_tiny(int argc, char** argv) {
+    static char p[2048];
+    struct stat s;
+    for (int i = 1; i < argc; i++) if (argv[i][0] != '-') return argv[i];
+    const char* env = getenv("MLB_SHARED_DATA");
+    const char* bases[] = {env, "../shared/data", "../../shared/data", "../../../shared/data"};
+    for (int i = 0; i < 4; i++) {
+        if (!bases[i]) continue;
+        snprintf(p, sizeof p, "%s/sd_reference/sd1_diffusers/vae", bases[i]);
+        if (stat(p, &s) == 0) return p;
+    }
+    return NULL;
+}
+
+int main(int argc, char** argv) {
+    // As the program does for OpenBLAS's kernels: restart once with the right settings. libgomp's
+    // default spin-wait after every OpenMP loop takes the second core from OpenBLAS's GEMM threads
+    // (5-15x slower on 2 cores, docs/vae.md), and both are read only when the runtimes load.
+    const char* core = mlb_blas_better_coretype();
+    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
+    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
+        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
+        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
+        setenv("MATLABER_REEXEC", "1", 1);
+        execv("/proc/self/exe", argv);
+    }
+    int sd512 = 0;
+    for (int i = 1; i < argc; i++) if (!strcmp(argv[i], "--sd512")) sd512 = 1;
+    int threads = omp_get_max_threads();
+    mlb_set_threads(threads);
+    const char* wp = getenv("OMP_WAIT_POLICY");
+    printf("SD VAE encoder, 1 image, %d threads, OpenBLAS kernels %s, OMP_WAIT_POLICY %s\n\n", threads,
+           mlb_blas_corename(), wp ? wp : "(unset)");
+    // GEMM shapes of the dominant convs: 128->128 3x3 at 512² (one im2col band) and 512->512 at 64².
+    double r1 = gemm_rate(128, 3640, 1152), r2 = gemm_rate(512, 896, 4608), r3 = gemm_rate(512, 4096, 512);
+    double rate = (r1 + r2) / 2;
+    printf("sgemm: %.1f GFLOP/s (128x1152 . 1152x3640), %.1f (512x4608 . 4608x896), %.1f (attention 512x512 . 512x4096)\n\n",
+           r1, r2, r3);
+
+    const char* tiny = find_tiny(argc, argv);
+    mlb_vae* v = NULL;
+    if (tiny && mlb_vae_load(tiny, NULL, &v) == MLB_OK) {
+        printf("tiny fixture VAE (%s)\n\n", v->source);
+        printf("| image | latent | forward ms | forward + backward ms | cache MB | GFLOP fwd / fwd+bwd |\n");
+        printf("|------:|-------:|-----------:|----------------------:|---------:|--------------------:|\n");
+        int sizes[] = {64, 128, 256};
+        for (int i = 0; i < 3; i++) {
+            double tf, tb, ff, fb;
+            size_t cb;
+            if (time_encoder(v, sizes[i], 5, &tf, &tb, &cb)) return 1;
+            encoder_flops(&v->cfg, sizes[i], sizes[i], &ff, &fb);
+            printf("| %3d² | %3d² | %10.1f | %21.1f | %8.1f | %8.2f / %.2f |\n", sizes[i], sizes[i] / 8, tf * 1e3, tb * 1e3,
+                   cb / 1e6, ff / 1e9, (ff + fb) / 1e9);
+        }
+        mlb_vae_free(v);
+        printf("\n");
+    } else {
+        printf("tiny fixture VAE not found (pass its folder, or set MLB_SHARED_DATA): skipped\n\n");
+        mlb_clear_error();
+    }
+
+    mlb_vae_config sd = mlb_vae_sd_config();
+    if (mlb_vae_create(&sd, &v) != MLB_OK) { fprintf(stderr, "bench_vae: %s\n", mlb_last_error()); return 1; }
+    mlb_vae_init_random(v, 1, 1.0f);
+    printf("real SD VAE architecture (128, 256, 512, 512), random weights, %zu parameters (%.0f MB float)\n\n",
+           v->n_params, v->n_params * 4.0 / 1e6);
+    printf("| image | forward s | fwd+bwd s | GFLOP fwd / fwd+bwd | achieved GFLOP/s fwd / fwd+bwd | cache MB |\n");
+    printf("|------:|----------:|----------:|--------------------:|-------------------------------:|---------:|\n");
+    int real_sizes[] = {64, 128, 512};
+    double ach_f = 0, ach_b = 0;
+    for (int i = 0; i < (sd512 ? 3 : 2); i++) {
+        int S = real_sizes[i];
+        double tf, tb, ff, fb;
+        size_t cb;
+        if (time_encoder(v, S, S >= 512 ? 0 : 2, &tf, &tb, &cb)) return 1;
+        encoder_flops(&sd, S, S, &ff, &fb);
+        ach_f = ff / tf / 1e9;
+        ach_b = (ff + fb) / tb / 1e9;
+        printf("| %3d² | %9.2f | %9.2f | %7.0f / %.0f | %14.1f / %.1f | %8.0f |\n", S, tf, tb, ff / 1e9, (ff + fb) / 1e9,
+               ach_f, ach_b, cb / 1e6);
+    }
+    double ff, fb;
+    encoder_flops(&sd, 512, 512, &ff, &fb);
+    size_t cache = mlb_vae_cache_size(&sd, 1, 512, 512) * sizeof(float);
+    printf("\nestimate for the real SD VAE encoder at 512² (1 image):\n");
+    printf("  GEMM work: %.0f GFLOP forward, %.0f GFLOP backward to the image\n", ff / 1e9, fb / 1e9);
+    printf("  at the sgemm rate (%.0f GFLOP/s): forward %.1f s, forward + backward %.1f s (lower bound)\n", rate,
+           ff / rate / 1e9, (ff + fb) / rate / 1e9);
+    printf("  at the rate achieved at %d² (%.0f / %.0f GFLOP/s): forward %.1f s, forward + backward %.1f s\n",
+           real_sizes[sd512 ? 2 : 1], ach_f, ach_b, ff / ach_f / 1e9, (ff + fb) / ach_b / 1e9);
+    printf("  memory: weights %.0f MB, backward cache %.0f MB, scratch about %.0f MB (forward) / %.0f MB (backward)\n",
+           v->n_params * 4.0 / 1e6, cache / 1e6, 3 * 128.0 * 512 * 512 * 4 / 1e6, 4 * 128.0 * 512 * 512 * 4 / 1e6);
+    mlb_vae_free(v);
+    return 0;
+}

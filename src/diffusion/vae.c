@@ -1,0 +1,605 @@
+// The SD VAE (vae.h, docs/vae.md): parameter layout, encoder forward (optionally caching what its
+// backward needs), encoder backward to the image, decoder forward. Dual-compiled (float / double
+// _f64) like the other MLB_DUAL_SOURCES (core/real.h); loading lives in vae_load.c (float only).
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/conv_ops.h"
+#include "matlaber/nn.h"
+#include "matlaber/vae.h"
+#include "core/real.h"
+
+#define VAE_PARALLEL_MIN 32768
+#define LOGVAR_MIN (-30.0)
+#define LOGVAR_MAX 20.0
+
+typedef FN(mlb_vae) vae_t;
+typedef FN(mlb_vae_resnet) resnet_t;
+typedef FN(mlb_vae_attn) attn_t;
+
+// ---- parameter layout ------------------------------------------------------------------------------
+typedef struct { real* p; size_t n; } carver;   // p NULL: count only
+static real* FN(take)(carver* c, size_t n) {
+    real* r = c->p ? c->p + c->n : NULL;
+    c->n += n;
+    return r;
+}
+
+static void FN(carve_resnet)(carver* c, resnet_t* r, int cin, int cout) {
+    r->cin = cin;
+    r->cout = cout;
+    r->norm1_w = FN(take)(c, cin); r->norm1_b = FN(take)(c, cin);
+    r->conv1_w = FN(take)(c, (size_t)cout * cin * 9); r->conv1_b = FN(take)(c, cout);
+    r->norm2_w = FN(take)(c, cout); r->norm2_b = FN(take)(c, cout);
+    r->conv2_w = FN(take)(c, (size_t)cout * cout * 9); r->conv2_b = FN(take)(c, cout);
+    r->short_w = r->short_b = NULL;
+    if (cin != cout) { r->short_w = FN(take)(c, (size_t)cout * cin); r->short_b = FN(take)(c, cout); }
+}
+
+static void FN(carve_attn)(carver* c, attn_t* a, int C) {
+    a->C = C;
+    a->norm_w = FN(take)(c, C); a->norm_b = FN(take)(c, C);
+    a->qkv_w = FN(take)(c, (size_t)3 * C * C); a->qkv_b = FN(take)(c, (size_t)3 * C);
+    a->proj_w = FN(take)(c, (size_t)C * C); a->proj_b = FN(take)(c, C);
+}
+
+// Channels of encoder level l's block j (input) and of decoder up block i's block j.
+static int enc_cin(const mlb_vae_config* g, int l, int j) { return j > 0 ? g->block_out[l] : g->block_out[l > 0 ? l - 1 : 0]; }
+static int dec_cout(const mlb_vae_config* g, int i) { return g->block_out[g->n_levels - 1 - i]; }
+static int dec_cin(const mlb_vae_config* g, int i, int j) {
+    return j > 0 ? dec_cout(g, i) : g->block_out[g->n_levels - (i > 0 ? i : 1)];
+}
+
+static size_t FN(carve_all)(vae_t* v, real* base) {
+    const mlb_vae_config* g = &v->cfg;
+    const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
+    carver c = {base, 0};
+    v->enc_conv_in_w = FN(take)(&c, (size_t)g->block_out[0] * g->in_channels * 9);
+    v->enc_conv_in_b = FN(take)(&c, g->block_out[0]);
+    for (int l = 0; l < L; l++) {
+        for (int j = 0; j < R; j++) FN(carve_resnet)(&c, &v->enc_res[l][j], enc_cin(g, l, j), g->block_out[l]);
+        if (l < L - 1) {
+            v->enc_down_w[l] = FN(take)(&c, (size_t)g->block_out[l] * g->block_out[l] * 9);
+            v->enc_down_b[l] = FN(take)(&c, g->block_out[l]);
+        }
+    }
+    FN(carve_resnet)(&c, &v->enc_mid_res[0], top, top);
+    if (g->mid_attention) FN(carve_attn)(&c, &v->enc_mid_attn, top);
+    FN(carve_resnet)(&c, &v->enc_mid_res[1], top, top);
+    v->enc_norm_out_w = FN(take)(&c, top); v->enc_norm_out_b = FN(take)(&c, top);
+    v->enc_conv_out_w = FN(take)(&c, (size_t)2 * z * top * 9); v->enc_conv_out_b = FN(take)(&c, 2 * z);
+    v->quant_w = FN(take)(&c, (size_t)4 * z * z); v->quant_b = FN(take)(&c, 2 * z);
+    v->post_quant_w = FN(take)(&c, (size_t)z * z); v->post_quant_b = FN(take)(&c, z);
+    v->dec_conv_in_w = FN(take)(&c, (size_t)top * z * 9); v->dec_conv_in_b = FN(take)(&c, top);
+    FN(carve_resnet)(&c, &v->dec_mid_res[0], top, top);
+    if (g->mid_attention) FN(carve_attn)(&c, &v->dec_mid_attn, top);
+    FN(carve_resnet)(&c, &v->dec_mid_res[1], top, top);
+    for (int i = 0; i < L; i++) {
+        for (int j = 0; j <= R; j++) FN(carve_resnet)(&c, &v->dec_res[i][j], dec_cin(g, i, j), dec_cout(g, i));
+        if (i < L - 1) {
+            v->dec_up_w[i] = FN(take)(&c, (size_t)dec_cout(g, i) * dec_cout(g, i) * 9);
+            v->dec_up_b[i] = FN(take)(&c, dec_cout(g, i));
+        }
+    }
+    v->dec_norm_out_w = FN(take)(&c, g->block_out[0]); v->dec_norm_out_b = FN(take)(&c, g->block_out[0]);
+    v->dec_conv_out_w = FN(take)(&c, (size_t)g->out_channels * g->block_out[0] * 9);
+    v->dec_conv_out_b = FN(take)(&c, g->out_channels);
+    return c.n;
+}
+
+mlb_status FN(mlb_vae_create)(const mlb_vae_config* cfg, vae_t** out) {
+    if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
+    *out = NULL;
+    MLB_TRY(mlb_vae_config_check(cfg));
+    vae_t* v = calloc(1, sizeof *v);
+    if (!v) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
+    v->cfg = *cfg;
+    v->n_params = FN(carve_all)(v, NULL);
+    v->params = calloc(v->n_params, sizeof(real));
+    if (!v->params) {
+        size_t n = v->n_params;
+        free(v);
+        return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for %zu parameters (%.1f MB)", n,
+                        n * (double)sizeof(real) / 1e6);
+    }
+    FN(carve_all)(v, v->params);
+    *out = v;
+    return MLB_OK;
+}
+
+void FN(mlb_vae_free)(vae_t* v) {
+    if (!v) return;
+    free(v->params);
+    free(v);
+}
+
+// ---- small pieces ----------------------------------------------------------------------------------
+static void FN(add)(real* y, const real* x, size_t n) {
+#pragma omp parallel for schedule(static) if (n >= VAE_PARALLEL_MIN)
+    for (size_t i = 0; i < n; i++) y[i] += x[i];
+}
+
+static void FN(zero)(real* y, size_t n) { memset(y, 0, n * sizeof(real)); }
+
+// 3x3 same conv, 1x1 conv, and the downsample (pad 0,0,1,1 then a stride-2 3x3 conv).
+static mlb_conv2d conv3_desc(int N, int C, int H, int W, int OC) { return mlb_conv2d_make(N, C, H, W, OC, 3, 1, 1); }
+static mlb_conv2d conv1_desc(int N, int C, int H, int W, int OC) { return mlb_conv2d_make(N, C, H, W, OC, 1, 1, 0); }
+static mlb_conv2d down_desc(int N, int C, int H, int W) {
+    mlb_conv2d cv = {N, C, H, W, C, 3, 3, 2, 2, 0, 0, 1, 1};
+    return cv;
+}
+
+static mlb_status FN(conv)(real* out, const real* in, const real* w, const real* b, mlb_conv2d cv, real* ws) {
+    return FN(conv2d_forward)(out, in, w, b, &cv, ws);
+}
+
+static mlb_status FN(conv_bwd)(real* din, const real* dout, const real* w, mlb_conv2d cv, real* ws) {
+    return FN(conv2d_backward)(din, NULL, NULL, dout, NULL, w, &cv, ws);
+}
+
+// Sizes a pass needs: the largest activation (elements for the batch), the largest conv
+// workspace, and the mid block's token count.
+typedef struct { size_t act, ws; int T; } vae_plan;
+
+static void plan_conv(vae_plan* p, mlb_conv2d cv) {
+    size_t w = conv2d_workspace_size(&cv);
+    if (w > p->ws) p->ws = w;
+}
+static void plan_act(vae_plan* p, int N, int C, int H, int W) {
+    size_t a = (size_t)N * C * H * W;
+    if (a > p->act) p->act = a;
+}
+
+static vae_plan enc_plan(const mlb_vae_config* g, int N, int H, int W) {
+    vae_plan p = {0, 0, 0};
+    const int L = g->n_levels;
+    plan_conv(&p, conv3_desc(1, g->in_channels, H, W, g->block_out[0]));
+    for (int l = 0; l < L; l++) {
+        for (int j = 0; j < g->layers_per_block; j++) {
+            int cin = enc_cin(g, l, j), c = g->block_out[l];
+            plan_act(&p, N, cin > c ? cin : c, H, W);
+            plan_conv(&p, conv3_desc(1, cin, H, W, c));
+            plan_conv(&p, conv3_desc(1, c, H, W, c));
+        }
+        if (l < L - 1) { plan_conv(&p, down_desc(1, g->block_out[l], H, W)); H /= 2; W /= 2; }
+    }
+    plan_conv(&p, conv3_desc(1, g->block_out[L - 1], H, W, 2 * g->latent_channels));
+    plan_act(&p, N, 2 * g->latent_channels, H, W);
+    p.T = H * W;
+    return p;
+}
+
+static vae_plan dec_plan(const mlb_vae_config* g, int N, int h, int w) {
+    vae_plan p = {0, 0, h * w};
+    const int L = g->n_levels, top = g->block_out[L - 1];
+    plan_act(&p, N, top > g->latent_channels ? top : g->latent_channels, h, w);
+    plan_conv(&p, conv3_desc(1, g->latent_channels, h, w, top));
+    plan_conv(&p, conv3_desc(1, top, h, w, top));
+    for (int i = 0; i < L; i++) {
+        for (int j = 0; j <= g->layers_per_block; j++) {
+            int cin = dec_cin(g, i, j), c = dec_cout(g, i);
+            plan_act(&p, N, cin > c ? cin : c, h, w);
+            plan_conv(&p, conv3_desc(1, cin, h, w, c));
+            plan_conv(&p, conv3_desc(1, c, h, w, c));
+        }
+        if (i < L - 1) {
+            h *= 2; w *= 2;
+            plan_act(&p, N, dec_cout(g, i), h, w);
+            plan_conv(&p, conv3_desc(1, dec_cout(g, i), h, w, dec_cout(g, i)));
+        }
+    }
+    plan_conv(&p, conv3_desc(1, g->block_out[0], h, w, g->out_channels));
+    return p;
+}
+
+// ---- ResNet block and attention ------------------------------------------------------------------
+// x [N, cin, H, W] -> out [N, cout, H, W]. h1 receives conv1's output, st [4, N, G] the two norms'
+// mean/rstd; t is scratch of the larger channel count.
+static mlb_status FN(resnet_fwd)(const resnet_t* r, const mlb_vae_config* g, const real* x, real* out, real* h1,
+                                 real* t, real* st, int N, int H, int W, real* ws) {
+    const int G = g->norm_groups, HW = H * W;
+    const size_t NG = (size_t)N * G;
+    const real eps = (real)g->norm_eps;
+    MLB_TRY(FN(groupnorm_forward)(t, st, st + NG, x, r->norm1_w, r->norm1_b, N, r->cin, HW, G, eps, MLB_ACT_SILU));
+    MLB_TRY(FN(conv)(h1, t, r->conv1_w, r->conv1_b, conv3_desc(N, r->cin, H, W, r->cout), ws));
+    MLB_TRY(FN(groupnorm_forward)(t, st + 2 * NG, st + 3 * NG, h1, r->norm2_w, r->norm2_b, N, r->cout, HW, G, eps,
+                                  MLB_ACT_SILU));
+    MLB_TRY(FN(conv)(out, t, r->conv2_w, r->conv2_b, conv3_desc(N, r->cout, H, W, r->cout), ws));
+    size_t n = (size_t)N * r->cout * HW;
+    if (r->short_w) {
+        MLB_TRY(FN(conv)(t, x, r->short_w, r->short_b, conv1_desc(N, r->cin, H, W, r->cout), ws));
+        FN(add)(out, t, n);
+    } else {
+        FN(add)(out, x, n);
+    }
+    return MLB_OK;
+}
+
+// dout [N, cout, H, W] -> dx [N, cin, H, W] (overwritten), from the block's input x, h1 and st.
+static mlb_status FN(resnet_bwd)(const resnet_t* r, const mlb_vae_config* g, const real* x, const real* h1,
+                                 const real* st, const real* dout, real* dx, real* t1, real* t2, int N, int H, int W,
+                                 real* ws) {
+    const int G = g->norm_groups, HW = H * W;
+    const size_t NG = (size_t)N * G, nin = (size_t)N * r->cin * HW, nout = (size_t)N * r->cout * HW;
+    FN(zero)(t1, nout);
+    MLB_TRY(FN(conv_bwd)(t1, dout, r->conv2_w, conv3_desc(N, r->cout, H, W, r->cout), ws));
+    FN(zero)(t2, nout);
+    MLB_TRY(FN(groupnorm_backward)(t2, NULL, NULL, t1, h1, r->norm2_w, r->norm2_b, st + 2 * NG, st + 3 * NG, N,
+                                   r->cout, HW, G, MLB_ACT_SILU));
+    FN(zero)(t1, nin);
+    MLB_TRY(FN(conv_bwd)(t1, t2, r->conv1_w, conv3_desc(N, r->cin, H, W, r->cout), ws));
+    FN(zero)(dx, nin);
+    MLB_TRY(FN(groupnorm_backward)(dx, NULL, NULL, t1, x, r->norm1_w, r->norm1_b, st, st + NG, N, r->cin, HW, G,
+                                   MLB_ACT_SILU));
+    if (r->short_w) MLB_TRY(FN(conv_bwd)(dx, dout, r->short_w, conv1_desc(N, r->cin, H, W, r->cout), ws));
+    else FN(add)(dx, dout, nout);
+    return MLB_OK;
+}
+
+// Buffers of the mid attention: tok [N*T, C] scratch; qkv [N*T, 3C], o [N*T, C], lse [N, T] and
+// st [2, N, G] kept for the backward (in the cache or in scratch).
+typedef struct { real *tok, *qkv, *o, *lse, *st, *ws; } att_bufs;
+
+// x [N, C, T] -> out [N, C, T] = x + proj(attn(qkv(gn(x)))); t is scratch [N, C, T].
+static mlb_status FN(attn_fwd)(const attn_t* a, const mlb_vae_config* g, const real* x, real* out, real* t,
+                               att_bufs b, int N, int T) {
+    const int C = a->C, G = g->norm_groups;
+    const size_t NG = (size_t)N * G, n = (size_t)N * C * T;
+    MLB_TRY(FN(groupnorm_forward)(t, b.st, b.st + NG, x, a->norm_w, a->norm_b, N, C, T, G, (real)g->norm_eps,
+                                  MLB_ACT_IDENTITY));
+    FN(transpose_last2)(b.tok, t, N, C, T, 0);
+    FN(linear_forward)(b.qkv, b.tok, a->qkv_w, a->qkv_b, N * T, C, 3 * C);
+    MLB_TRY(FN(sdpa_forward)(b.o, b.lse, b.qkv, b.qkv + C, b.qkv + 2 * C, N, T, T, C, 1, 3 * C, 3 * C, b.ws));
+    FN(linear_forward)(b.tok, b.o, a->proj_w, a->proj_b, N * T, C, C);
+    memcpy(out, x, n * sizeof(real));
+    FN(transpose_last2)(out, b.tok, N, T, C, 1);
+    return MLB_OK;
+}
+
+// dout [N, C, T] -> dx [N, C, T] (overwritten). Scratch: t [N, C, T], tok and tok2 [N*T, C],
+// dqkv [N*T, 3C].
+static mlb_status FN(attn_bwd)(const attn_t* a, const mlb_vae_config* g, const real* x, att_bufs b,
+                               const real* dout, real* dx, real* t, real* tok2, real* dqkv, int N, int T) {
+    const int C = a->C, G = g->norm_groups;
+    const size_t NG = (size_t)N * G, n = (size_t)N * C * T;
+    memcpy(dx, dout, n * sizeof(real));   // the residual
+    FN(transpose_last2)(b.tok, dout, N, C, T, 0);
+    FN(zero)(tok2, n);
+    FN(linear_backward)(tok2, NULL, NULL, b.tok, NULL, a->proj_w, N * T, C, C);
+    FN(zero)(dqkv, 3 * n);
+    MLB_TRY(FN(sdpa_backward)(dqkv, dqkv + C, dqkv + 2 * C, tok2, b.o, b.lse, b.qkv, b.qkv + C, b.qkv + 2 * C, N, T,
+                              T, C, 1, 3 * C, 3 * C, b.ws));
+    FN(zero)(b.tok, n);
+    FN(linear_backward)(b.tok, NULL, NULL, dqkv, NULL, a->qkv_w, N * T, C, 3 * C);
+    FN(transpose_last2)(t, b.tok, N, T, C, 0);
+    return FN(groupnorm_backward)(dx, NULL, NULL, t, x, a->norm_w, a->norm_b, b.st, b.st + NG, N, C, T, G,
+                                  MLB_ACT_IDENTITY);
+}
+
+// ---- the encoder's cache ---------------------------------------------------------------------------
+typedef struct {
+    real *res_x[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS], *res_h1[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
+    real* res_st[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
+    real *mid_x[2], *mid_h1[2], *mid_st[2];
+    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+    real *out_x, *out_st;
+    real* moments;
+} enc_rec;
+
+static size_t FN(enc_layout)(const mlb_vae_config* g, int N, int H, int W, real* buf, enc_rec* r) {
+    carver c = {buf, 0};
+    const int L = g->n_levels, top = g->block_out[L - 1];
+    const size_t NG = (size_t)N * g->norm_groups;
+    for (int l = 0; l < L; l++) {
+        size_t px = (size_t)N * H * W;
+        for (int j = 0; j < g->layers_per_block; j++) {
+            r->res_x[l][j] = FN(take)(&c, px * enc_cin(g, l, j));
+            r->res_h1[l][j] = FN(take)(&c, px * g->block_out[l]);
+            r->res_st[l][j] = FN(take)(&c, 4 * NG);
+        }
+        if (l < L - 1) { H /= 2; W /= 2; }
+    }
+    const size_t T = (size_t)H * W, n = (size_t)N * top * T;
+    for (int k = 0; k < 2; k++) {
+        r->mid_x[k] = FN(take)(&c, n);
+        r->mid_h1[k] = FN(take)(&c, n);
+        r->mid_st[k] = FN(take)(&c, 4 * NG);
+    }
+    r->att_x = r->att_qkv = r->att_o = r->att_lse = r->att_st = NULL;
+    if (g->mid_attention) {
+        r->att_x = FN(take)(&c, n);
+        r->att_qkv = FN(take)(&c, 3 * n);
+        r->att_o = FN(take)(&c, n);
+        r->att_lse = FN(take)(&c, (size_t)N * T);
+        r->att_st = FN(take)(&c, 2 * NG);
+    }
+    r->out_x = FN(take)(&c, n);
+    r->out_st = FN(take)(&c, 2 * NG);
+    r->moments = FN(take)(&c, (size_t)N * 2 * g->latent_channels * T);
+    return c.n;
+}
+
+size_t FN(mlb_vae_cache_size)(const mlb_vae_config* cfg, int N, int H, int W) {
+    if (!cfg || mlb_vae_config_check(cfg) || N < 1 || mlb_vae_latent_size(cfg, H) < 1 || mlb_vae_latent_size(cfg, W) < 1) {
+        mlb_clear_error();
+        return 0;
+    }
+    enc_rec r;
+    return FN(enc_layout)(cfg, N, H, W, NULL, &r);
+}
+
+void FN(mlb_vae_cache_free)(FN(mlb_vae_cache)* cache) {
+    if (!cache) return;
+    free(cache->buf);
+    memset(cache, 0, sizeof *cache);
+}
+
+static mlb_status FN(check_size)(const vae_t* v, const char* what, int N, int H, int W) {
+    if (!v) return mlb_fail(MLB_ERR_ARG, "VAE %s: NULL model", what);
+    int m = 1 << (v->cfg.n_levels - 1);
+    if (N < 1 || H < m || W < m)
+        return mlb_fail(MLB_ERR_ARG, "VAE %s: image [%d, %d, %d, %d] is too small: height and width must be at least %d",
+                        what, N, v->cfg.in_channels, H, W, m);
+    int cmax = 0;
+    for (int l = 0; l < v->cfg.n_levels; l++) if (v->cfg.block_out[l] > cmax) cmax = v->cfg.block_out[l];
+    if ((int64_t)cmax * H * W > INT32_MAX / 2 || (int64_t)N * H * W > INT32_MAX / 2)
+        return mlb_fail(MLB_ERR_ARG, "VAE %s: image [%d, %d, %d, %d] is too large", what, N, v->cfg.in_channels, H, W);
+    return MLB_OK;
+}
+
+// ---- encoder ---------------------------------------------------------------------------------------
+mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, int W, real* mean, real* logvar,
+                              FN(mlb_vae_cache)* cache) {
+    MLB_TRY(FN(check_size)(v, "encoder", N, H, W));
+    if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
+    const mlb_vae_config* g = &v->cfg;
+    const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
+    const size_t NG = (size_t)N * g->norm_groups;
+    enc_rec rec;
+    if (cache) {
+        size_t need = FN(enc_layout)(g, N, H, W, NULL, &rec);
+        cache->N = 0;   // invalid until this forward completes
+        if (cache->capacity < need) {
+            free(cache->buf);
+            cache->capacity = 0;
+            cache->buf = malloc(need * sizeof(real));
+            if (!cache->buf)
+                return mlb_fail(MLB_ERR_NOMEM, "VAE encoder: out of memory for the backward cache (%.1f MB)",
+                                need * (double)sizeof(real) / 1e6);
+            cache->capacity = need;
+        }
+        FN(enc_layout)(g, N, H, W, cache->buf, &rec);
+    }
+    vae_plan p = enc_plan(g, N, H, W);
+    const size_t nT = (size_t)N * p.T * top;
+    size_t att = g->mid_attention ? nT * (cache ? 1 : 5) + (size_t)N * p.T + sdpa_workspace_size(p.T, p.T) : 0;
+    size_t total = p.act * (cache ? 3 : 4) + p.ws + att + 4 * NG;
+    real* scratch = malloc(total * sizeof(real));
+    if (!scratch) return mlb_fail(MLB_ERR_NOMEM, "VAE encoder: out of memory for %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* P0 = scratch;
+    real* P1 = P0 + p.act;
+    real* Tb = P1 + p.act;
+    real* Hs = cache ? NULL : Tb + p.act;
+    real* ws = Tb + p.act * (cache ? 1 : 2);
+    real* st = ws + p.ws;
+    real* ab = st + 4 * NG;
+    att_bufs A = {ab, NULL, NULL, NULL, NULL, NULL};
+    if (g->mid_attention) {
+        A.qkv = cache ? rec.att_qkv : ab + nT;
+        A.o = cache ? rec.att_o : ab + 4 * nT;
+        A.lse = cache ? rec.att_lse : ab + 5 * nT;
+        A.st = cache ? rec.att_st : st;
+        A.ws = ab + (cache ? nT : 5 * nT) + (size_t)N * p.T;
+    }
+#define OTHER(x) ((x) == P0 ? P1 : P0)
+    mlb_status s = MLB_OK;
+    real* cur = cache ? rec.res_x[0][0] : P0;
+    int h = H, w = W;
+    s = FN(conv)(cur, image, v->enc_conv_in_w, v->enc_conv_in_b, conv3_desc(N, g->in_channels, H, W, g->block_out[0]), ws);
+    for (int l = 0; l < L && !s; l++) {
+        for (int j = 0; j < R && !s; j++) {
+            real* nxt;
+            if (j < R - 1) nxt = cache ? rec.res_x[l][j + 1] : OTHER(cur);
+            else if (l < L - 1) nxt = OTHER(cur);
+            else nxt = cache ? rec.mid_x[0] : OTHER(cur);
+            s = FN(resnet_fwd)(&v->enc_res[l][j], g, cur, nxt, cache ? rec.res_h1[l][j] : Hs, Tb,
+                               cache ? rec.res_st[l][j] : st, N, h, w, ws);
+            cur = nxt;
+        }
+        if (l < L - 1 && !s) {
+            real* nxt = cache ? rec.res_x[l + 1][0] : OTHER(cur);
+            s = FN(conv)(nxt, cur, v->enc_down_w[l], v->enc_down_b[l], down_desc(N, g->block_out[l], h, w), ws);
+            cur = nxt;
+            h /= 2;
+            w /= 2;
+        }
+    }
+    const int T = h * w;
+    if (!s) {   // mid: ResNet, attention, ResNet
+        real* nxt = g->mid_attention ? (cache ? rec.att_x : OTHER(cur)) : (cache ? rec.mid_x[1] : OTHER(cur));
+        s = FN(resnet_fwd)(&v->enc_mid_res[0], g, cur, nxt, cache ? rec.mid_h1[0] : Hs, Tb, cache ? rec.mid_st[0] : st,
+                           N, h, w, ws);
+        cur = nxt;
+    }
+    if (!s && g->mid_attention) {
+        real* nxt = cache ? rec.mid_x[1] : OTHER(cur);
+        s = FN(attn_fwd)(&v->enc_mid_attn, g, cur, nxt, Tb, A, N, T);
+        cur = nxt;
+    }
+    if (!s) {
+        real* nxt = cache ? rec.out_x : OTHER(cur);
+        s = FN(resnet_fwd)(&v->enc_mid_res[1], g, cur, nxt, cache ? rec.mid_h1[1] : Hs, Tb, cache ? rec.mid_st[1] : st,
+                           N, h, w, ws);
+        cur = nxt;
+    }
+    if (!s) {
+        real* ost = cache ? rec.out_st : st;
+        s = FN(groupnorm_forward)(Tb, ost, ost + NG, cur, v->enc_norm_out_w, v->enc_norm_out_b, N, top, T,
+                                  g->norm_groups, (real)g->norm_eps, MLB_ACT_SILU);
+    }
+    real* moments = cache ? rec.moments : Tb;
+    if (!s) s = FN(conv)(OTHER(cur), Tb, v->enc_conv_out_w, v->enc_conv_out_b, conv3_desc(N, top, h, w, 2 * z), ws);
+    if (!s) s = FN(conv)(moments, OTHER(cur), v->quant_w, v->quant_b, conv1_desc(N, 2 * z, h, w, 2 * z), ws);
+#undef OTHER
+    if (!s) {
+        const size_t zn = (size_t)z * T;
+        for (int n = 0; n < N; n++) {
+            const real* m = moments + (size_t)n * 2 * zn;
+            if (mean) memcpy(mean + (size_t)n * zn, m, zn * sizeof(real));
+            if (logvar)
+                for (size_t i = 0; i < zn; i++) {
+                    real lv = m[zn + i];
+                    logvar[(size_t)n * zn + i] = lv < (real)LOGVAR_MIN ? (real)LOGVAR_MIN : lv > (real)LOGVAR_MAX ? (real)LOGVAR_MAX : lv;
+                }
+        }
+        if (cache) { cache->N = N; cache->H = H; cache->W = W; }
+    }
+    free(scratch);
+    return s;
+}
+
+mlb_status FN(mlb_vae_encode_backward)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
+                                       const real* dlogvar, real* dimage) {
+    if (!v || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL model or cache");
+    if (cache->N < 1 || !cache->buf)
+        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward (run mlb_vae_encode with this "
+                        "cache first)");
+    if (!dimage) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL image gradient");
+    const mlb_vae_config* g = &v->cfg;
+    const int N = cache->N, H = cache->H, W = cache->W;
+    const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
+    const size_t NG = (size_t)N * g->norm_groups;
+    enc_rec rec;
+    if (FN(enc_layout)(g, N, H, W, NULL, &rec) > cache->capacity)
+        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache is smaller than its forward needed (another "
+                        "model's cache?)");
+    FN(enc_layout)(g, N, H, W, cache->buf, &rec);
+    vae_plan p = enc_plan(g, N, H, W);
+    const size_t nT = (size_t)N * p.T * top;
+    size_t att = g->mid_attention ? nT * 5 + sdpa_workspace_size(p.T, p.T) : 0;
+    size_t total = p.act * 4 + p.ws + att;
+    real* scratch = malloc(total * sizeof(real));
+    if (!scratch)
+        return mlb_fail(MLB_ERR_NOMEM, "VAE encoder backward: out of memory for %.1f MB of scratch",
+                        total * (double)sizeof(real) / 1e6);
+    real* D0 = scratch;
+    real* D1 = D0 + p.act;
+    real* T1 = D1 + p.act;
+    real* T2 = T1 + p.act;
+    real* ws = T2 + p.act;
+    real* ab = ws + p.ws;
+    att_bufs A = {ab, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st, ab + 5 * nT};
+    int hs[MLB_VAE_MAX_LEVELS], wsz[MLB_VAE_MAX_LEVELS];
+    hs[0] = H; wsz[0] = W;
+    for (int l = 1; l < L; l++) { hs[l] = hs[l - 1] / 2; wsz[l] = wsz[l - 1] / 2; }
+    const int h = hs[L - 1], w = wsz[L - 1], T = h * w;
+    const size_t zn = (size_t)z * T;
+    // d(moments): the mean half, and the logvar half where the clamp passes it
+    for (int n = 0; n < N; n++) {
+        real* d = T1 + (size_t)n * 2 * zn;
+        const real* m = rec.moments + (size_t)n * 2 * zn;
+        for (size_t i = 0; i < zn; i++) {
+            d[i] = dmean ? dmean[(size_t)n * zn + i] : 0;
+            real lv = m[zn + i];
+            d[zn + i] = dlogvar && lv >= (real)LOGVAR_MIN && lv <= (real)LOGVAR_MAX ? dlogvar[(size_t)n * zn + i] : 0;
+        }
+    }
+#define OTHER(x) ((x) == D0 ? D1 : D0)
+    mlb_status s;
+    FN(zero)(D0, (size_t)N * 2 * zn);
+    s = FN(conv_bwd)(D0, T1, v->quant_w, conv1_desc(N, 2 * z, h, w, 2 * z), ws);
+    if (!s) { FN(zero)(T2, nT); s = FN(conv_bwd)(T2, D0, v->enc_conv_out_w, conv3_desc(N, top, h, w, 2 * z), ws); }
+    real* cur = D1;
+    if (!s) {
+        FN(zero)(D1, nT);
+        s = FN(groupnorm_backward)(D1, NULL, NULL, T2, rec.out_x, v->enc_norm_out_w, v->enc_norm_out_b, rec.out_st,
+                                   rec.out_st + NG, N, top, T, g->norm_groups, MLB_ACT_SILU);
+    }
+    if (!s) {
+        s = FN(resnet_bwd)(&v->enc_mid_res[1], g, rec.mid_x[1], rec.mid_h1[1], rec.mid_st[1], cur, OTHER(cur), T1, T2,
+                           N, h, w, ws);
+        cur = OTHER(cur);
+    }
+    if (!s && g->mid_attention) {
+        s = FN(attn_bwd)(&v->enc_mid_attn, g, rec.att_x, A, cur, OTHER(cur), T1, ab + nT, ab + 2 * nT, N, T);
+        cur = OTHER(cur);
+    }
+    if (!s) {
+        s = FN(resnet_bwd)(&v->enc_mid_res[0], g, rec.mid_x[0], rec.mid_h1[0], rec.mid_st[0], cur, OTHER(cur), T1, T2,
+                           N, h, w, ws);
+        cur = OTHER(cur);
+    }
+    for (int l = L - 1; l >= 0 && !s; l--) {
+        if (l < L - 1) {
+            real* nxt = OTHER(cur);
+            FN(zero)(nxt, (size_t)N * g->block_out[l] * hs[l] * wsz[l]);
+            s = FN(conv_bwd)(nxt, cur, v->enc_down_w[l], down_desc(N, g->block_out[l], hs[l], wsz[l]), ws);
+            cur = nxt;
+        }
+        for (int j = R - 1; j >= 0 && !s; j--) {
+            s = FN(resnet_bwd)(&v->enc_res[l][j], g, rec.res_x[l][j], rec.res_h1[l][j], rec.res_st[l][j], cur,
+                               OTHER(cur), T1, T2, N, hs[l], wsz[l], ws);
+            cur = OTHER(cur);
+        }
+    }
+#undef OTHER
+    if (!s) s = FN(conv_bwd)(dimage, cur, v->enc_conv_in_w, conv3_desc(N, g->in_channels, H, W, g->block_out[0]), ws);
+    free(scratch);
+    return s;
+}
+
+// ---- decoder ---------------------------------------------------------------------------------------
+mlb_status FN(mlb_vae_decode)(const vae_t* v, const real* zin, int N, int h, int w, real* image) {
+    if (!v) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL model");
+    const mlb_vae_config* g = &v->cfg;
+    const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
+    if (N < 1 || h < 1 || w < 1 || (int64_t)h << (L - 1) > 65536 || (int64_t)w << (L - 1) > 65536)
+        return mlb_fail(MLB_ERR_ARG, "VAE decoder: bad latent shape [%d, %d, %d, %d]", N, z, h, w);
+    MLB_TRY(FN(check_size)(v, "decoder", N, h << (L - 1), w << (L - 1)));
+    if (!zin || !image) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL latent or image");
+    const size_t NG = (size_t)N * g->norm_groups;
+    vae_plan p = dec_plan(g, N, h, w);
+    const size_t nT = (size_t)N * p.T * top;
+    size_t att = g->mid_attention ? nT * 5 + (size_t)N * p.T + sdpa_workspace_size(p.T, p.T) : 0;
+    size_t total = p.act * 4 + p.ws + att + 4 * NG;
+    real* scratch = malloc(total * sizeof(real));
+    if (!scratch) return mlb_fail(MLB_ERR_NOMEM, "VAE decoder: out of memory for %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* P0 = scratch;
+    real* P1 = P0 + p.act;
+    real* Tb = P1 + p.act;
+    real* Hs = Tb + p.act;
+    real* ws = Hs + p.act;
+    real* st = ws + p.ws;
+    real* ab = st + 4 * NG;
+    att_bufs A = {ab, ab + nT, ab + 4 * nT, ab + 5 * nT, st, ab + 5 * nT + (size_t)N * p.T};
+#define OTHER(x) ((x) == P0 ? P1 : P0)
+    mlb_status s = FN(conv)(P0, zin, v->post_quant_w, v->post_quant_b, conv1_desc(N, z, h, w, z), ws);
+    if (!s) s = FN(conv)(P1, P0, v->dec_conv_in_w, v->dec_conv_in_b, conv3_desc(N, z, h, w, top), ws);
+    real* cur = P1;
+    if (!s) { s = FN(resnet_fwd)(&v->dec_mid_res[0], g, cur, OTHER(cur), Hs, Tb, st, N, h, w, ws); cur = OTHER(cur); }
+    if (!s && g->mid_attention) { s = FN(attn_fwd)(&v->dec_mid_attn, g, cur, OTHER(cur), Tb, A, N, h * w); cur = OTHER(cur); }
+    if (!s) { s = FN(resnet_fwd)(&v->dec_mid_res[1], g, cur, OTHER(cur), Hs, Tb, st, N, h, w, ws); cur = OTHER(cur); }
+    for (int i = 0; i < L && !s; i++) {
+        for (int j = 0; j <= R && !s; j++) {
+            s = FN(resnet_fwd)(&v->dec_res[i][j], g, cur, OTHER(cur), Hs, Tb, st, N, h, w, ws);
+            cur = OTHER(cur);
+        }
+        if (i < L - 1 && !s) {
+            int c = dec_cout(g, i);
+            FN(upsample_nearest2x_forward)(Tb, cur, N, c, h, w);
+            h *= 2;
+            w *= 2;
+            s = FN(conv)(OTHER(cur), Tb, v->dec_up_w[i], v->dec_up_b[i], conv3_desc(N, c, h, w, c), ws);
+            cur = OTHER(cur);
+        }
+    }
+#undef OTHER
+    if (!s)
+        s = FN(groupnorm_forward)(Tb, NULL, NULL, cur, v->dec_norm_out_w, v->dec_norm_out_b, N, g->block_out[0], h * w,
+                                  g->norm_groups, (real)g->norm_eps, MLB_ACT_SILU);
+    if (!s)
+        s = FN(conv)(image, Tb, v->dec_conv_out_w, v->dec_conv_out_b, conv3_desc(N, g->block_out[0], h, w, g->out_channels),
+                     ws);
+    free(scratch);
+    return s;
+}

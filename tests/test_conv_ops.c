@@ -1,0 +1,437 @@
+// Convolution-family ops (conv_ops.h): conv2d against a naive loop (1x1, 3x3, stride 2, asymmetric
+// padding, rectangular kernels, several im2col bands), every backward by finite differences in
+// double (conv2d, group norm with and without SiLU, upsample, attention), float vs double
+// agreement, accumulation, thread-count independence and the error messages.
+#include <omp.h>
+#include <stdint.h>
+#include "matlaber/conv_ops.h"
+#include "matlaber/error.h"
+#include "matlaber/threads.h"
+#include "test.h"
+
+static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
+static double urand(void) {   // xorshift64*, uniform in [-1, 1)
+    rng_state ^= rng_state >> 12; rng_state ^= rng_state << 25; rng_state ^= rng_state >> 27;
+    return (double)((rng_state * 0x2545f4914f6cdd1dull) >> 11) / 9007199254740992.0 * 2.0 - 1.0;
+}
+// d = random values; f (if given) = the same rounded to float, and d then holds exactly f.
+static void fill(float* f, double* d, size_t n, double scale, double offset) {
+    for (size_t i = 0; i < n; i++) {
+        double v = offset + scale * urand();
+        if (f) f[i] = (float)v;
+        if (d) d[i] = f ? (double)f[i] : v;
+    }
+}
+static double* dalloc(size_t n) { return calloc(n ? n : 1, sizeof(double)); }
+static float* falloc(size_t n) { return calloc(n ? n : 1, sizeof(float)); }
+static double max_abs_fd(const float* a, const double* b, size_t n) {
+    double m = 0;
+    for (size_t i = 0; i < n; i++) { double d = fabs((double)a[i] - b[i]); if (!(d <= m)) m = d; }
+    return m;
+}
+static double max_abs(const double* a, size_t n) {
+    double m = 0;
+    for (size_t i = 0; i < n; i++) if (fabs(a[i]) > m) m = fabs(a[i]);
+    return m;
+}
+static double dot(const double* a, const double* b, size_t n) {
+    double s = 0;
+    for (size_t i = 0; i < n; i++) s += a[i] * b[i];
+    return s;
+}
+
+// ---- naive conv ----------------------------------------------------------------------------------
+static void naive_conv(double* out, const double* in, const double* w, const double* b, const mlb_conv2d* cv) {
+    int OH = mlb_conv2d_out_h(cv), OW = mlb_conv2d_out_w(cv);
+    for (int n = 0; n < cv->N; n++)
+        for (int o = 0; o < cv->OC; o++)
+            for (int y = 0; y < OH; y++)
+                for (int x = 0; x < OW; x++) {
+                    double s = b ? b[o] : 0;
+                    for (int c = 0; c < cv->C; c++)
+                        for (int i = 0; i < cv->KH; i++)
+                            for (int j = 0; j < cv->KW; j++) {
+                                int iy = y * cv->stride_h - cv->pad_top + i, ix = x * cv->stride_w - cv->pad_left + j;
+                                if (iy < 0 || iy >= cv->H || ix < 0 || ix >= cv->W) continue;
+                                s += w[((size_t)(o * cv->C + c) * cv->KH + i) * cv->KW + j] *
+                                     in[(((size_t)n * cv->C + c) * cv->H + iy) * cv->W + ix];
+                            }
+                    out[(((size_t)n * cv->OC + o) * OH + y) * OW + x] = s;
+                }
+}
+
+static mlb_conv2d conv_case(int N, int C, int H, int W, int OC, int KH, int KW, int sh, int sw, int pt, int pl, int pb,
+                            int pr) {
+    mlb_conv2d cv = {N, C, H, W, OC, KH, KW, sh, sw, pt, pl, pb, pr};
+    return cv;
+}
+
+static const mlb_conv2d* conv_cases(int* n) {
+    static mlb_conv2d cases[7];
+    cases[0] = conv_case(2, 5, 7, 6, 4, 1, 1, 1, 1, 0, 0, 0, 0);   // 1x1 pointwise (plain GEMM)
+    cases[1] = conv_case(2, 3, 8, 7, 5, 3, 3, 1, 1, 1, 1, 1, 1);   // 3x3 same
+    cases[2] = conv_case(1, 4, 9, 8, 3, 3, 3, 2, 2, 1, 1, 1, 1);   // stride 2, odd height
+    cases[3] = conv_case(2, 3, 8, 6, 4, 3, 3, 2, 2, 0, 0, 1, 1);   // the VAE downsample: pad (0,1,0,1)
+    cases[4] = conv_case(1, 2, 6, 9, 3, 2, 3, 1, 2, 0, 2, 1, 0);   // rectangular kernel, mixed strides/padding
+    cases[5] = conv_case(1, 3, 5, 5, 2, 1, 1, 2, 2, 0, 0, 0, 0);   // 1x1 with stride (im2col path)
+    cases[6] = conv_case(1, 2, 4, 4, 3, 5, 5, 1, 1, 2, 2, 2, 2);   // kernel larger than the image
+    *n = 7;
+    return cases;
+}
+
+TEST(conv2d_forward_matches_naive) {
+    int nc;
+    const mlb_conv2d* cases = conv_cases(&nc);
+    double worst_f = 0, worst_d = 0;
+    for (int t = 0; t < nc; t++) {
+        const mlb_conv2d* cv = &cases[t];
+        REQUIRE(mlb_conv2d_check(cv) == MLB_OK);
+        size_t ni = (size_t)cv->N * cv->C * cv->H * cv->W, nw = (size_t)cv->OC * cv->C * cv->KH * cv->KW;
+        size_t no = (size_t)cv->N * cv->OC * mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
+        float *x = falloc(ni), *w = falloc(nw), *b = falloc(cv->OC), *o = falloc(no);
+        double *xd = dalloc(ni), *wd = dalloc(nw), *bd = dalloc(cv->OC), *od = dalloc(no), *ref = dalloc(no);
+        fill(x, xd, ni, 1, 0); fill(w, wd, nw, 0.5, 0); fill(b, bd, cv->OC, 0.5, 0);
+        naive_conv(ref, xd, wd, bd, cv);
+        REQUIRE(conv2d_forward(o, x, w, b, cv, NULL) == MLB_OK);
+        REQUIRE(conv2d_forward_f64(od, xd, wd, bd, cv, NULL) == MLB_OK);
+        double ef = max_abs_fd(o, ref, no), ed = 0;
+        for (size_t i = 0; i < no; i++) ed = fmax(ed, fabs(od[i] - ref[i]));
+        CHECK_MSG(ef < 1e-5 && ed < 1e-13, "case %d: float %.3g double %.3g", t, ef, ed);
+        worst_f = fmax(worst_f, ef); worst_d = fmax(worst_d, ed);
+        // caller workspace and no bias
+        float* ws = falloc(conv2d_workspace_size(cv));
+        REQUIRE(conv2d_forward(o, x, w, NULL, cv, ws) == MLB_OK);
+        naive_conv(ref, xd, wd, NULL, cv);
+        CHECK(max_abs_fd(o, ref, no) < 1e-5);
+        free(ws); free(x); free(w); free(b); free(o); free(xd); free(wd); free(bd); free(od); free(ref);
+    }
+    printf("  conv2d vs naive over %d shapes: float max abs %.3g, double %.3g\n", nc, worst_f, worst_d);
+}
+
+// Several im2col bands (the band holds ~4M elements): 64 channels, 3x3, 96 columns -> 75 rows per band.
+TEST(conv2d_many_bands_and_threads) {
+    mlb_conv2d cv = conv_case(1, 64, 160, 96, 8, 3, 3, 1, 1, 1, 1, 1, 1);
+    size_t ni = (size_t)64 * 160 * 96, nw = (size_t)8 * 64 * 9, no = (size_t)8 * 160 * 96;
+    CHECK(conv2d_workspace_size(&cv) < (size_t)64 * 9 * 160 * 96);   // banded, not the whole image
+    float *x = falloc(ni), *w = falloc(nw), *o1 = falloc(no), *o2 = falloc(no);
+    double *xd = dalloc(ni), *wd = dalloc(nw), *ref = dalloc(no);
+    fill(x, xd, ni, 1, 0); fill(w, wd, nw, 0.1, 0);
+    naive_conv(ref, xd, wd, NULL, &cv);
+    int threads = mlb_get_threads();
+    mlb_set_threads(1);
+    REQUIRE(conv2d_forward(o1, x, w, NULL, &cv, NULL) == MLB_OK);
+    float *dx1 = falloc(ni), *dw1 = falloc(nw), *dx2 = falloc(ni), *dw2 = falloc(nw);
+    REQUIRE(conv2d_backward(dx1, dw1, NULL, o1, x, w, &cv, NULL) == MLB_OK);
+    mlb_set_threads(2);
+    REQUIRE(conv2d_forward(o2, x, w, NULL, &cv, NULL) == MLB_OK);
+    REQUIRE(conv2d_backward(dx2, dw2, NULL, o1, x, w, &cv, NULL) == MLB_OK);
+    mlb_set_threads(threads);
+    double e = max_abs_fd(o1, ref, no);
+    printf("  3 bands: float vs naive max abs %.3g (|ref| max %.3g)\n", e, max_abs(ref, no));
+    CHECK(e < 1e-4);
+    CHECK(memcmp(o1, o2, no * sizeof(float)) == 0);
+    CHECK(memcmp(dx1, dx2, ni * sizeof(float)) == 0);
+    CHECK(memcmp(dw1, dw2, nw * sizeof(float)) == 0);
+    free(x); free(w); free(o1); free(o2); free(xd); free(wd); free(ref); free(dx1); free(dw1); free(dx2); free(dw2);
+}
+
+// L = sum(out * R); gradients by central differences in double.
+TEST(conv2d_backward_fd) {
+    int nc;
+    const mlb_conv2d* cases = conv_cases(&nc);
+    double worst = 0;
+    for (int t = 0; t < nc; t++) {
+        const mlb_conv2d* cv = &cases[t];
+        size_t ni = (size_t)cv->N * cv->C * cv->H * cv->W, nw = (size_t)cv->OC * cv->C * cv->KH * cv->KW;
+        size_t no = (size_t)cv->N * cv->OC * mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
+        double *x = dalloc(ni), *w = dalloc(nw), *b = dalloc(cv->OC), *R = dalloc(no), *o = dalloc(no);
+        double *dx = dalloc(ni), *dw = dalloc(nw), *db = dalloc(cv->OC);
+        fill(NULL, x, ni, 1, 0); fill(NULL, w, nw, 0.5, 0); fill(NULL, b, cv->OC, 0.5, 0); fill(NULL, R, no, 1, 0);
+        // accumulation: start from 1 and subtract it afterwards
+        for (size_t i = 0; i < ni; i++) dx[i] = 1;
+        for (size_t i = 0; i < nw; i++) dw[i] = 1;
+        for (int i = 0; i < cv->OC; i++) db[i] = 1;
+        REQUIRE(conv2d_backward_f64(dx, dw, db, R, x, w, cv, NULL) == MLB_OK);
+        const double h = 1e-6;
+        double err = 0;
+        struct { double* p; double* g; size_t n; } groups[3] = {{x, dx, ni}, {w, dw, nw}, {b, db, (size_t)cv->OC}};
+        for (int gi = 0; gi < 3; gi++)
+            for (size_t i = 0; i < groups[gi].n; i++) {
+                double keep = groups[gi].p[i];
+                groups[gi].p[i] = keep + h;
+                conv2d_forward_f64(o, x, w, b, cv, NULL);
+                double lp = dot(o, R, no);
+                groups[gi].p[i] = keep - h;
+                conv2d_forward_f64(o, x, w, b, cv, NULL);
+                double lm = dot(o, R, no);
+                groups[gi].p[i] = keep;
+                double fd = (lp - lm) / (2 * h), an = groups[gi].g[i] - 1;
+                err = fmax(err, fabs(fd - an) / (1 + fabs(fd)));
+            }
+        CHECK_MSG(err < 1e-7, "case %d: relative error %.3g", t, err);
+        worst = fmax(worst, err);
+        free(x); free(w); free(b); free(R); free(o); free(dx); free(dw); free(db);
+    }
+    printf("  conv2d backward vs finite differences (double), %d shapes: max rel %.3g\n", nc, worst);
+}
+
+TEST(conv2d_float_vs_double_backward) {
+    mlb_conv2d cv = conv_case(2, 6, 10, 9, 7, 3, 3, 2, 2, 0, 0, 1, 1);
+    size_t ni = (size_t)2 * 6 * 10 * 9, nw = (size_t)7 * 6 * 9, no = (size_t)2 * 7 * 5 * 5;
+    float *x = falloc(ni), *w = falloc(nw), *R = falloc(no), *dx = falloc(ni), *dw = falloc(nw), *db = falloc(7);
+    double *xd = dalloc(ni), *wd = dalloc(nw), *Rd = dalloc(no), *dxd = dalloc(ni), *dwd = dalloc(nw), *dbd = dalloc(7);
+    fill(x, xd, ni, 1, 0); fill(w, wd, nw, 0.5, 0); fill(R, Rd, no, 1, 0);
+    REQUIRE(conv2d_backward(dx, dw, db, R, x, w, &cv, NULL) == MLB_OK);
+    REQUIRE(conv2d_backward_f64(dxd, dwd, dbd, Rd, xd, wd, &cv, NULL) == MLB_OK);
+    double ex = max_abs_fd(dx, dxd, ni), ew = max_abs_fd(dw, dwd, nw), eb = max_abs_fd(db, dbd, 7);
+    printf("  conv2d backward float vs double: din %.3g, dweight %.3g, dbias %.3g\n", ex, ew, eb);
+    CHECK(ex < 1e-5 && ew < 1e-4 && eb < 1e-5);
+    free(x); free(w); free(R); free(dx); free(dw); free(db); free(xd); free(wd); free(Rd); free(dxd); free(dwd); free(dbd);
+}
+
+// ---- group norm ----------------------------------------------------------------------------------
+static void naive_groupnorm(double* out, const double* in, const double* w, const double* b, int N, int C, int HW,
+                            int G, double eps, int silu) {
+    int Cg = C / G;
+    for (int n = 0; n < N; n++)
+        for (int g = 0; g < G; g++) {
+            const double* x = in + ((size_t)n * C + (size_t)g * Cg) * HW;
+            double m = 0, v = 0;
+            size_t M = (size_t)Cg * HW;
+            for (size_t i = 0; i < M; i++) m += x[i];
+            m /= M;
+            for (size_t i = 0; i < M; i++) v += (x[i] - m) * (x[i] - m);
+            v /= M;
+            for (int cc = 0; cc < Cg; cc++)
+                for (int p = 0; p < HW; p++) {
+                    int c = g * Cg + cc;
+                    double y = (x[(size_t)cc * HW + p] - m) / sqrt(v + eps) * (w ? w[c] : 1) + (b ? b[c] : 0);
+                    out[((size_t)n * C + c) * HW + p] = silu ? y / (1 + exp(-y)) : y;
+                }
+        }
+}
+
+TEST(groupnorm_forward_and_fd) {
+    enum { N = 2, C = 12, HW = 10, G = 4 };
+    const size_t n = (size_t)N * C * HW;
+    double worst_fd = 0, worst_fwd = 0;
+    for (int silu = 0; silu <= 1; silu++)
+        for (int affine = 0; affine <= 1; affine++) {
+            mlb_activation act = silu ? MLB_ACT_SILU : MLB_ACT_IDENTITY;
+            double x[n], w[C], b[C], R[n], o[n], ref[n], dx[n], dw[C], db[C], mean[N * G], rstd[N * G];
+            float xf[n], of[n];
+            fill(xf, x, n, 2, 5); fill(NULL, w, C, 0.5, 1); fill(NULL, b, C, 0.5, 0); fill(NULL, R, n, 1, 0);
+            const double* wp = affine ? w : NULL;
+            const double* bp = affine ? b : NULL;
+            REQUIRE(groupnorm_forward_f64(o, mean, rstd, x, wp, bp, N, C, HW, G, 1e-6, act) == MLB_OK);
+            naive_groupnorm(ref, x, wp, bp, N, C, HW, G, 1e-6, silu);
+            for (size_t i = 0; i < n; i++) worst_fwd = fmax(worst_fwd, fabs(o[i] - ref[i]));
+            float wf[C], bf[C];
+            for (int c = 0; c < C; c++) { wf[c] = (float)w[c]; bf[c] = (float)b[c]; }
+            REQUIRE(groupnorm_forward(of, NULL, NULL, xf, affine ? wf : NULL, affine ? bf : NULL, N, C, HW, G, 1e-6f,
+                                      act) == MLB_OK);
+            CHECK(max_abs_fd(of, ref, n) < 2e-5);
+            for (size_t i = 0; i < n; i++) dx[i] = 0.5;
+            for (int c = 0; c < C; c++) dw[c] = db[c] = 0.5;
+            REQUIRE(groupnorm_backward_f64(dx, affine ? dw : NULL, affine ? db : NULL, R, x, wp, bp, mean, rstd, N, C,
+                                           HW, G, act) == MLB_OK);
+            const double h = 1e-6;
+            double err = 0;
+            for (int gi = 0; gi < (affine ? 3 : 1); gi++) {
+                double* p = gi == 0 ? x : gi == 1 ? w : b;
+                double* g = gi == 0 ? dx : gi == 1 ? dw : db;
+                size_t cnt = gi == 0 ? n : C;
+                for (size_t i = 0; i < cnt; i++) {
+                    double keep = p[i];
+                    p[i] = keep + h;
+                    groupnorm_forward_f64(o, NULL, NULL, x, wp, bp, N, C, HW, G, 1e-6, act);
+                    double lp = dot(o, R, n);
+                    p[i] = keep - h;
+                    groupnorm_forward_f64(o, NULL, NULL, x, wp, bp, N, C, HW, G, 1e-6, act);
+                    double lm = dot(o, R, n);
+                    p[i] = keep;
+                    double fd = (lp - lm) / (2 * h);
+                    err = fmax(err, fabs(fd - (g[i] - 0.5)) / (1 + fabs(fd)));
+                }
+            }
+            CHECK_MSG(err < 1e-7, "silu %d affine %d: relative error %.3g", silu, affine, err);
+            worst_fd = fmax(worst_fd, err);
+        }
+    printf("  group norm: forward vs naive %.3g (double); backward vs FD max rel %.3g\n", worst_fwd, worst_fd);
+    CHECK(worst_fwd < 1e-12);
+}
+
+// ---- upsample and transpose ----------------------------------------------------------------------
+TEST(upsample_and_transpose) {
+    enum { N = 2, C = 3, H = 4, W = 5 };
+    const size_t n = (size_t)N * C * H * W;
+    double x[n], up[4 * n], R[4 * n], dx[n];
+    fill(NULL, x, n, 1, 0); fill(NULL, R, 4 * n, 1, 0);
+    upsample_nearest2x_forward_f64(up, x, N, C, H, W);
+    int ok = 1;
+    for (int nc = 0; nc < N * C; nc++)
+        for (int y = 0; y < 2 * H; y++)
+            for (int xx = 0; xx < 2 * W; xx++)
+                ok &= up[((size_t)nc * 2 * H + y) * 2 * W + xx] == x[((size_t)nc * H + y / 2) * W + xx / 2];
+    CHECK(ok);
+    for (size_t i = 0; i < n; i++) dx[i] = 0.25;
+    upsample_nearest2x_backward_f64(dx, R, N, C, H, W);   // linear: the gradient is exact
+    double err = 0;
+    for (size_t i = 0; i < n; i++) {
+        double e = 0;   // d(sum up*R)/dx_i = the sum of R over the 2x2 block that copies x_i
+        int nc = (int)(i / (H * W)), y = (int)(i / W % H), xx = (int)(i % W);
+        for (int a = 0; a < 2; a++)
+            for (int c = 0; c < 2; c++) e += R[((size_t)nc * 2 * H + 2 * y + a) * 2 * W + 2 * xx + c];
+        err = fmax(err, fabs(dx[i] - 0.25 - e));
+    }
+    CHECK(err < 1e-14);
+    float xf[n], upf[4 * n];
+    fill(xf, NULL, n, 1, 0);
+    upsample_nearest2x_forward(upf, xf, N, C, H, W);
+    CHECK(upf[2 * W * 2 + 1] == xf[W]);
+    // transpose [N, R, S] -> [N, S, R], then add back
+    enum { TR = 37, TS = 45 };
+    static float a[2 * TR * TS], bt[2 * TR * TS], c2[2 * TR * TS];
+    fill(a, NULL, 2 * TR * TS, 1, 0);
+    transpose_last2(bt, a, 2, TR, TS, 0);
+    ok = 1;
+    for (int nn = 0; nn < 2; nn++)
+        for (int r = 0; r < TR; r++)
+            for (int s = 0; s < TS; s++) ok &= bt[((size_t)nn * TS + s) * TR + r] == a[((size_t)nn * TR + r) * TS + s];
+    CHECK(ok);
+    for (int i = 0; i < 2 * TR * TS; i++) c2[i] = 1;
+    transpose_last2(c2, bt, 2, TS, TR, 1);
+    ok = 1;
+    for (int i = 0; i < 2 * TR * TS; i++) ok &= c2[i] == 1 + a[i];
+    CHECK(ok);
+}
+
+// ---- attention -----------------------------------------------------------------------------------
+static void naive_sdpa(double* out, const double* q, const double* k, const double* v, int B, int Tq, int Tk, int C,
+                       int NH, int ldq, int ldkv) {
+    int hd = C / NH;
+    double* s = dalloc(Tk);
+    for (int b = 0; b < B; b++)
+        for (int h = 0; h < NH; h++)
+            for (int t = 0; t < Tq; t++) {
+                double mx = -1e300, sum = 0;
+                for (int u = 0; u < Tk; u++) {
+                    double d = 0;
+                    for (int i = 0; i < hd; i++)
+                        d += q[((size_t)b * Tq + t) * ldq + h * hd + i] * k[((size_t)b * Tk + u) * ldkv + h * hd + i];
+                    s[u] = d / sqrt((double)hd);
+                    mx = fmax(mx, s[u]);
+                }
+                for (int u = 0; u < Tk; u++) { s[u] = exp(s[u] - mx); sum += s[u]; }
+                for (int i = 0; i < hd; i++) {
+                    double o = 0;
+                    for (int u = 0; u < Tk; u++) o += s[u] / sum * v[((size_t)b * Tk + u) * ldkv + h * hd + i];
+                    out[((size_t)b * Tq + t) * C + h * hd + i] = o;
+                }
+            }
+    free(s);
+}
+
+// Self-attention with a fused qkv (stride 3C) and cross-attention with separate buffers; one case
+// with more queries than fit one score block (Tk = 1100 -> 953 rows per block).
+TEST(sdpa_forward_backward) {
+    struct { int B, Tq, Tk, C, NH, fused; } cases[] = {{2, 7, 7, 8, 2, 1}, {1, 5, 9, 12, 3, 0}, {1, 1100, 1100, 4, 1, 1}};
+    for (int ci = 0; ci < 3; ci++) {
+        int B = cases[ci].B, Tq = cases[ci].Tq, Tk = cases[ci].Tk, C = cases[ci].C, NH = cases[ci].NH;
+        int fused = cases[ci].fused;
+        int ldq = fused ? 3 * C : C, ldkv = fused ? 3 * C : C;
+        size_t nq = (size_t)B * Tq * ldq, nkv = fused ? 0 : (size_t)B * Tk * ldkv, no = (size_t)B * Tq * C;
+        double* qbuf = dalloc(nq);
+        double* kvbuf = fused ? NULL : dalloc(2 * nkv);
+        fill(NULL, qbuf, nq, 1.5, 0);
+        if (!fused) fill(NULL, kvbuf, 2 * nkv, 1.5, 0);
+        double* q = qbuf;
+        double* k = fused ? qbuf + C : kvbuf;
+        double* v = fused ? qbuf + 2 * C : kvbuf + nkv;
+        double *o = dalloc(no), *ref = dalloc(no), *lse = dalloc((size_t)B * NH * Tq), *R = dalloc(no);
+        REQUIRE(sdpa_forward_f64(o, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
+        naive_sdpa(ref, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv);
+        double ef = 0;
+        for (size_t i = 0; i < no; i++) ef = fmax(ef, fabs(o[i] - ref[i]));
+        CHECK_MSG(ef < 1e-13, "case %d forward: %.3g", ci, ef);
+        // float agreement
+        float* qf = falloc(nq + 2 * nkv);
+        float* of = falloc(no);
+        for (size_t i = 0; i < nq; i++) qf[i] = (float)qbuf[i];
+        for (size_t i = 0; i < 2 * nkv; i++) qf[nq + i] = (float)kvbuf[i];
+        REQUIRE(sdpa_forward(of, NULL, qf, fused ? qf + C : qf + nq, fused ? qf + 2 * C : qf + nq + nkv, B, Tq, Tk,
+                             C, NH, ldq, ldkv, NULL) == MLB_OK);
+        double eff = max_abs_fd(of, ref, no);
+        CHECK_MSG(eff < 1e-5, "case %d float forward: %.3g", ci, eff);
+        // backward: L = sum(out * R)
+        fill(NULL, R, no, 1, 0);
+        double* dqbuf = dalloc(nq);
+        double* dkvbuf = fused ? NULL : dalloc(2 * nkv);
+        double* dq = dqbuf;
+        double* dk = fused ? dqbuf + C : dkvbuf;
+        double* dv = fused ? dqbuf + 2 * C : dkvbuf + nkv;
+        REQUIRE(sdpa_backward_f64(dq, dk, dv, R, o, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
+        const double h = 1e-6;
+        double err = 0;
+        int checks = 0;
+        for (int which = 0; which < 3; which++) {   // q, k, v entries
+            int T = which == 0 ? Tq : Tk, ld = which == 0 ? ldq : ldkv;
+            double* base = which == 0 ? q : which == 1 ? k : v;
+            double* grad = which == 0 ? dq : which == 1 ? dk : dv;
+            int n_try = ci == 2 ? 12 : B * T * C;
+            for (int e = 0; e < n_try; e++) {
+                int idx = ci == 2 ? (int)((urand() + 1) * 0.5 * (B * T * C)) % (B * T * C) : e;
+                size_t at = (size_t)(idx / C) * ld + idx % C;
+                double keep = base[at];
+                base[at] = keep + h;
+                sdpa_forward_f64(o, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+                double lp = dot(o, R, no);
+                base[at] = keep - h;
+                sdpa_forward_f64(o, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+                double lm = dot(o, R, no);
+                base[at] = keep;
+                double fd = (lp - lm) / (2 * h);
+                err = fmax(err, fabs(fd - grad[at]) / (1 + fabs(fd)));
+                checks++;
+            }
+        }
+        printf("  attention case %d (B %d, Tq %d, Tk %d, C %d, %d heads%s): forward %.3g (float %.3g), backward vs FD "
+               "max rel %.3g over %d entries\n", ci, B, Tq, Tk, C, NH, fused ? ", fused qkv" : "", ef, eff, err, checks);
+        CHECK_MSG(err < 1e-7, "case %d backward: %.3g", ci, err);
+        free(qbuf); free(kvbuf); free(o); free(ref); free(lse); free(R); free(qf); free(of); free(dqbuf); free(dkvbuf);
+    }
+}
+
+TEST(error_messages) {
+    mlb_conv2d cv = conv_case(1, 2, 1, 1, 3, 3, 3, 1, 1, 0, 0, 0, 0);
+    float x[2] = {0}, w[54] = {0}, o[27];
+    CHECK(conv2d_forward(o, x, w, NULL, &cv, NULL) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "conv2d: kernel 3x3 does not fit the padded input 1x1 (pad 0,0,0,0)"));
+    cv = conv_case(1, 2, 4, 4, 3, 3, 3, 0, 1, 1, 1, 1, 1);
+    CHECK(mlb_conv2d_check(&cv) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "conv2d: stride 0x1 must be at least 1"));
+    cv = conv_case(1, 2, 4, 4, 3, 3, 3, 1, 1, -1, 1, 1, 1);
+    CHECK(mlb_conv2d_check(&cv) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "conv2d: negative padding -1,1,1,1 (top, left, bottom, right)"));
+    CHECK(conv2d_workspace_size(&cv) == 0);
+    CHECK(groupnorm_forward(o, NULL, NULL, x, NULL, NULL, 1, 6, 1, 4, 1e-6f, MLB_ACT_IDENTITY) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "group norm: 6 channels are not a multiple of the 4 groups"));
+    CHECK(sdpa_forward(o, NULL, x, x, x, 1, 1, 1, 6, 4, 6, 6, NULL) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "attention: width 6 is not a multiple of the 4 heads"));
+    CHECK(sdpa_forward(o, NULL, x, x, x, 1, 2, 0, 4, 1, 4, 4, NULL) == MLB_ERR_ARG);
+    CHECK(!strcmp(mlb_last_error(), "attention: 2 queries but no keys"));
+    mlb_conv2d m = mlb_conv2d_make(2, 3, 8, 8, 4, 3, 2, 1);
+    CHECK(m.KH == 3 && m.KW == 3 && m.stride_h == 2 && m.pad_right == 1 && mlb_conv2d_out_h(&m) == 4);
+}
+
+int main(void) {
+    RUN(conv2d_forward_matches_naive);
+    RUN(conv2d_many_bands_and_threads);
+    RUN(conv2d_backward_fd);
+    RUN(conv2d_float_vs_double_backward);
+    RUN(groupnorm_forward_and_fd);
+    RUN(upsample_and_transpose);
+    RUN(sdpa_forward_backward);
+    RUN(error_messages);
+    return test_summary();
+}

@@ -1,0 +1,464 @@
+// UNet loading: layout detection, diffusers -> ldm name translation, configuration from config.json
+// or the ldm_config metadata, and the float32 parameters (see unet.h, docs/unet.md).
+#include "matlaber/unet.h"
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include "matlaber/fileio.h"
+
+#define UNET_PATH_MAX 4096
+#define UNET_CONFIG_MAX (1 << 20)
+#define LDM_PREFIX "model.diffusion_model."
+
+static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
+static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
+static int ends_with(const char* s, const char* suf) {
+    size_t a = strlen(s), b = strlen(suf);
+    return a >= b && !strcmp(s + a - b, suf);
+}
+
+// ---- names ----------------------------------------------------------------------------------------
+static const char* res_part(const char* rest, char* buf, size_t cap) {   // ResNet member, diffusers -> ldm
+    static const char* map[][2] = {{"norm1.", "in_layers.0."}, {"conv1.", "in_layers.2."},
+                                   {"time_emb_proj.", "emb_layers.1."}, {"norm2.", "out_layers.0."},
+                                   {"conv2.", "out_layers.3."}, {"conv_shortcut.", "skip_connection."}};
+    for (size_t i = 0; i < sizeof map / sizeof map[0]; i++) {
+        size_t n = strlen(map[i][0]);
+        if (!strncmp(rest, map[i][0], n)) { snprintf(buf, cap, "%s%s", map[i][1], rest + n); return buf; }
+    }
+    snprintf(buf, cap, "%s", rest);
+    return buf;
+}
+
+// The file's name for a diffusers-layout name.
+static void tensor_name(char* out, size_t cap, const mlb_unet* u, const char* d) {
+    if (u->cfg.layout != MLB_UNET_LAYOUT_LDM) { snprintf(out, cap, "%s", d); return; }
+    const mlb_unet_config* c = &u->cfg;
+    int L = c->layers_per_block, i, j, n = 0;
+    char r[256];
+    if (!strncmp(d, "time_embedding.linear_1.", 24)) snprintf(out, cap, LDM_PREFIX "time_embed.0.%s", d + 24);
+    else if (!strncmp(d, "time_embedding.linear_2.", 24)) snprintf(out, cap, LDM_PREFIX "time_embed.2.%s", d + 24);
+    else if (!strncmp(d, "conv_in.", 8)) snprintf(out, cap, LDM_PREFIX "input_blocks.0.0.%s", d + 8);
+    else if (!strncmp(d, "conv_norm_out.", 14)) snprintf(out, cap, LDM_PREFIX "out.0.%s", d + 14);
+    else if (!strncmp(d, "conv_out.", 9)) snprintf(out, cap, LDM_PREFIX "out.2.%s", d + 9);
+    else if (sscanf(d, "down_blocks.%d.resnets.%d.%n", &i, &j, &n) == 2 && n)
+        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.0.%s", 1 + i * (L + 1) + j, res_part(d + n, r, sizeof r));
+    else if (sscanf(d, "down_blocks.%d.attentions.%d.%n", &i, &j, &n) == 2 && n)
+        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.1.%s", 1 + i * (L + 1) + j, d + n);
+    else if (sscanf(d, "down_blocks.%d.downsamplers.0.conv.%n", &i, &n) == 1 && n)
+        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.0.op.%s", 1 + i * (L + 1) + L, d + n);
+    else if (sscanf(d, "mid_block.resnets.%d.%n", &i, &n) == 1 && n)
+        snprintf(out, cap, LDM_PREFIX "middle_block.%d.%s", i ? 2 : 0, res_part(d + n, r, sizeof r));
+    else if (!strncmp(d, "mid_block.attentions.0.", 23)) snprintf(out, cap, LDM_PREFIX "middle_block.1.%s", d + 23);
+    else if (sscanf(d, "up_blocks.%d.resnets.%d.%n", &i, &j, &n) == 2 && n)
+        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.0.%s", i * (L + 1) + j, res_part(d + n, r, sizeof r));
+    else if (sscanf(d, "up_blocks.%d.attentions.%d.%n", &i, &j, &n) == 2 && n)
+        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.1.%s", i * (L + 1) + j, d + n);
+    else if (sscanf(d, "up_blocks.%d.upsamplers.0.conv.%n", &i, &n) == 1 && n) {
+        int lvl = c->n_levels - 1 - i;
+        int has_attn = lvl >= 0 && lvl < MLB_UNET_MAX_LEVELS && c->attn[lvl];
+        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.%d.conv.%s", i * (L + 1) + L, has_attn ? 2 : 1, d + n);
+    } else snprintf(out, cap, LDM_PREFIX "%s", d);
+}
+
+static const mlb_st_tensor* find_d(const mlb_safetensors* st, const mlb_unet* u, const char* d) {
+    char name[512];
+    tensor_name(name, sizeof name, u, d);
+    return mlb_st_find(st, name);
+}
+
+static mlb_status need(const mlb_safetensors* st, const mlb_unet* u, const char* d, const mlb_st_tensor** t) {
+    *t = find_d(st, u, d);
+    if (*t) return MLB_OK;
+    char name[512];
+    tensor_name(name, sizeof name, u, d);
+    return mlb_fail(MLB_ERR_NOT_FOUND, "%s: UNet tensor '%s' is missing", mlb_st_path(st), name);
+}
+
+// ---- structure from the tensor shapes ----------------------------------------------------------------
+static mlb_status infer_structure(const mlb_safetensors* st, mlb_unet* u) {
+    mlb_unet_config* c = &u->cfg;
+    const char* path = mlb_st_path(st);
+    const mlb_st_tensor* t;
+    if (c->layout == MLB_UNET_LAYOUT_LDM) {   // layers_per_block: the first input block with a downsampler
+        int k = 1;
+        char name[128];
+        for (; k < 64; k++) {
+            snprintf(name, sizeof name, LDM_PREFIX "input_blocks.%d.0.op.weight", k);
+            if (mlb_st_find(st, name)) break;
+        }
+        if (k == 64 || k < 2)
+            return mlb_fail(MLB_ERR_FORMAT, "%s: no UNet downsampler (" LDM_PREFIX "input_blocks.N.0.op) found", path);
+        c->layers_per_block = k - 1;
+    }
+    MLB_TRY(need(st, u, "conv_in.weight", &t));
+    if (t->ndim != 4) return mlb_fail(MLB_ERR_FORMAT, "%s: UNet conv_in weight is not 4-D", path);
+    c->in_channels = (int)t->shape[1];
+    MLB_TRY(need(st, u, "conv_out.weight", &t));
+    c->out_channels = (int)t->shape[0];
+    MLB_TRY(need(st, u, "time_embedding.linear_1.weight", &t));
+    c->time_embed_dim = (int)t->shape[0];
+    char d[256];
+    if (c->layout != MLB_UNET_LAYOUT_LDM) {
+        int L = 0;
+        for (; L <= MLB_UNET_MAX_LAYERS; L++) {
+            snprintf(d, sizeof d, "down_blocks.0.resnets.%d.conv1.weight", L);
+            if (!find_d(st, u, d)) break;
+        }
+        if (L < 1 || L > MLB_UNET_MAX_LAYERS)
+            return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %d ResNets in down_blocks.0 (1..%d supported)", path, L,
+                            MLB_UNET_MAX_LAYERS);
+        c->layers_per_block = L;
+    }
+    if (c->layers_per_block > MLB_UNET_MAX_LAYERS)
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %d ResNets per level (at most %d supported)", path,
+                        c->layers_per_block, MLB_UNET_MAX_LAYERS);
+    int n = 0;
+    for (; n < MLB_UNET_MAX_LEVELS + 1; n++) {
+        snprintf(d, sizeof d, "down_blocks.%d.resnets.0.conv1.weight", n);
+        t = find_d(st, u, d);
+        if (!t) break;
+        if (n == MLB_UNET_MAX_LEVELS)
+            return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: more than %d UNet levels", path, MLB_UNET_MAX_LEVELS);
+        c->block_out[n] = (int)t->shape[0];
+        snprintf(d, sizeof d, "down_blocks.%d.attentions.0.norm.weight", n);
+        c->attn[n] = find_d(st, u, d) != NULL;
+    }
+    if (n < 2) return mlb_fail(MLB_ERR_FORMAT, "%s: found %d UNet levels (need at least 2)", path, n);
+    c->n_levels = n;
+    MLB_TRY(need(st, u, "mid_block.attentions.0.transformer_blocks.0.attn2.to_k.weight", &t));
+    if (t->ndim != 2) return mlb_fail(MLB_ERR_FORMAT, "%s: the mid block's attn2.to_k weight is not 2-D", path);
+    c->context_dim = (int)t->shape[1];
+    MLB_TRY(need(st, u, "mid_block.attentions.0.proj_in.weight", &t));
+    c->linear_projection = t->ndim == 2;
+    c->sd2 = c->context_dim == 1024 || c->linear_projection;
+    return MLB_OK;
+}
+
+// ---- configuration --------------------------------------------------------------------------------
+typedef struct {
+    int heads[MLB_UNET_MAX_LEVELS], n_heads;   // heads per level (diffusers semantics), count given
+    int head_channels;                        // ldm num_head_channels (> 0: heads = C / it)
+    int groups, v_pred, flip, has_flip;
+    double eps, shift;
+} unet_cfg_file;
+
+static const cJSON* json_find(const cJSON* node, const char* key) {   // depth first, first match
+    for (const cJSON* c = node ? node->child : NULL; c; c = c->next) {
+        if (c->string && !strcmp(c->string, key)) return c;
+        const cJSON* r = json_find(c, key);
+        if (r) return r;
+    }
+    return NULL;
+}
+
+static int pos_int(const cJSON* v) { return cJSON_IsNumber(v) && v->valuedouble >= 1 && v->valuedouble < 1e9 && v->valuedouble == floor(v->valuedouble); }
+
+static mlb_status read_heads(const cJSON* v, unet_cfg_file* f, const char* src, const char* key) {
+    if (pos_int(v)) { f->heads[0] = (int)v->valuedouble; f->n_heads = 1; return MLB_OK; }
+    if (cJSON_IsArray(v)) {
+        int n = 0;
+        for (const cJSON* e = v->child; e; e = e->next) {
+            if (!pos_int(e) || n >= MLB_UNET_MAX_LEVELS) return mlb_fail(MLB_ERR_FORMAT, "%s: '%s' is not a list of up to %d positive integers", src, key, MLB_UNET_MAX_LEVELS);
+            f->heads[n++] = (int)e->valuedouble;
+        }
+        f->n_heads = n;
+        return MLB_OK;
+    }
+    return mlb_fail(MLB_ERR_FORMAT, "%s: '%s' is not a positive integer or a list of them", src, key);
+}
+
+static mlb_status parse_config_json(const char* path, unet_cfg_file* f) {
+    char* text = NULL;
+    size_t n = 0;
+    MLB_TRY(mlb_read_file(path, &text, &n, UNET_CONFIG_MAX));
+    cJSON* root = cJSON_ParseWithLength(text, n);
+    free(text);
+    if (!root || !cJSON_IsObject(root)) { cJSON_Delete(root); return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path); }
+    mlb_status s = MLB_OK;
+    const cJSON* v = cJSON_GetObjectItemCaseSensitive(root, "num_attention_heads");
+    const char* key = "num_attention_heads";
+    if (!v || cJSON_IsNull(v)) { v = cJSON_GetObjectItemCaseSensitive(root, "attention_head_dim"); key = "attention_head_dim"; }
+    if (v && !cJSON_IsNull(v)) s = read_heads(v, f, path, key);   // diffusers: attention_head_dim = heads
+    if (s == MLB_OK && (v = cJSON_GetObjectItemCaseSensitive(root, "norm_num_groups")) != NULL) {
+        if (!pos_int(v)) s = mlb_fail(MLB_ERR_FORMAT, "%s: 'norm_num_groups' is not a positive integer", path);
+        else f->groups = (int)v->valuedouble;
+    }
+    if (s == MLB_OK && (v = cJSON_GetObjectItemCaseSensitive(root, "norm_eps")) != NULL) {
+        if (!cJSON_IsNumber(v) || !(v->valuedouble > 0 && v->valuedouble < 1)) s = mlb_fail(MLB_ERR_FORMAT, "%s: 'norm_eps' is not a number in (0, 1)", path);
+        else f->eps = v->valuedouble;
+    }
+    if (s == MLB_OK && (v = cJSON_GetObjectItemCaseSensitive(root, "flip_sin_to_cos")) != NULL && cJSON_IsBool(v)) {
+        f->flip = cJSON_IsTrue(v);
+        f->has_flip = 1;
+    }
+    if (s == MLB_OK && (v = cJSON_GetObjectItemCaseSensitive(root, "freq_shift")) != NULL && cJSON_IsNumber(v)) f->shift = v->valuedouble;
+    if (s == MLB_OK && (v = cJSON_GetObjectItemCaseSensitive(root, "prediction_type")) != NULL && cJSON_IsString(v))
+        f->v_pred = !strcmp(v->valuestring, "v_prediction");
+    cJSON_Delete(root);
+    return s;
+}
+
+static mlb_status parse_ldm_config(const mlb_safetensors* st, unet_cfg_file* f) {
+    const char* meta = mlb_st_metadata(st, "ldm_config");
+    if (!meta) return MLB_OK;
+    cJSON* root = cJSON_Parse(meta);
+    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: ldm_config metadata is not valid JSON", mlb_st_path(st));
+    mlb_status s = MLB_OK;
+    const cJSON* un = json_find(root, "unet_config");
+    const cJSON* p = un ? cJSON_GetObjectItemCaseSensitive(un, "params") : NULL;
+    const cJSON* v;
+    if (p && (v = cJSON_GetObjectItemCaseSensitive(p, "num_head_channels")) != NULL && pos_int(v))
+        f->head_channels = (int)v->valuedouble;
+    else if (p && (v = cJSON_GetObjectItemCaseSensitive(p, "num_heads")) != NULL && pos_int(v))
+        s = read_heads(v, f, mlb_st_path(st), "ldm_config num_heads");
+    const cJSON* par = json_find(root, "parameterization");
+    if (cJSON_IsString(par)) f->v_pred = !strcmp(par->valuestring, "v");
+    cJSON_Delete(root);
+    return s;
+}
+
+// ---- parameters -------------------------------------------------------------------------------------
+typedef struct {
+    mlb_unet* u;
+    const mlb_safetensors* st;
+    int pass;   // 0: count, 1: carve and read
+    size_t n;
+    float* p;
+} loader;
+
+static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a, int64_t b, int64_t c, int64_t e) {
+    int64_t shape[4] = {a, b, c, e};
+    size_t n = 1;
+    for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
+    if (L->pass == 0) { L->n += n; return MLB_OK; }
+    char name[512];
+    tensor_name(name, sizeof name, L->u, d);
+    MLB_TRY(mlb_st_expect(L->st, name, ndim, shape));
+    *dst = L->p;
+    L->p += n;
+    return mlb_st_read_f32(L->st, name, *dst, n);
+}
+
+static mlb_status reg_resnet(loader* L, mlb_unet_resnet* r, const char* pre, int cin, int cout) {
+    char d[256];
+    int TE = L->u->cfg.time_embed_dim;
+    r->cin = cin;
+    r->cout = cout;
+#define R(field, suffix, nd, a, b, c, e) \
+    snprintf(d, sizeof d, "%s.%s", pre, suffix); MLB_TRY(reg(L, &r->field, d, nd, a, b, c, e))
+    R(norm1_w, "norm1.weight", 1, cin, 0, 0, 0); R(norm1_b, "norm1.bias", 1, cin, 0, 0, 0);
+    R(conv1_w, "conv1.weight", 4, cout, cin, 3, 3); R(conv1_b, "conv1.bias", 1, cout, 0, 0, 0);
+    R(temb_w, "time_emb_proj.weight", 2, cout, TE, 0, 0); R(temb_b, "time_emb_proj.bias", 1, cout, 0, 0, 0);
+    R(norm2_w, "norm2.weight", 1, cout, 0, 0, 0); R(norm2_b, "norm2.bias", 1, cout, 0, 0, 0);
+    R(conv2_w, "conv2.weight", 4, cout, cout, 3, 3); R(conv2_b, "conv2.bias", 1, cout, 0, 0, 0);
+    if (cin != cout) {
+        R(skip_w, "conv_shortcut.weight", 4, cout, cin, 1, 1); R(skip_b, "conv_shortcut.bias", 1, cout, 0, 0, 0);
+    } else {
+        r->skip_w = r->skip_b = NULL;
+    }
+#undef R
+    return MLB_OK;
+}
+
+static mlb_status reg_attn(loader* L, mlb_unet_transformer* a, const char* pre, int C, int heads) {
+    char d[256];
+    int D = L->u->cfg.context_dim, lin = L->u->cfg.linear_projection;
+    a->C = C;
+    a->heads = heads;
+#define R(field, suffix, nd, x, y, z, w) \
+    snprintf(d, sizeof d, "%s.%s", pre, suffix); MLB_TRY(reg(L, &a->field, d, nd, x, y, z, w))
+    R(norm_w, "norm.weight", 1, C, 0, 0, 0); R(norm_b, "norm.bias", 1, C, 0, 0, 0);
+    R(proj_in_w, "proj_in.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_in_b, "proj_in.bias", 1, C, 0, 0, 0);
+    R(proj_out_w, "proj_out.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_out_b, "proj_out.bias", 1, C, 0, 0, 0);
+    const char* tb = "transformer_blocks.0.";
+    char s[160];
+#define T(field, suffix, nd, x, y) snprintf(s, sizeof s, "%s%s", tb, suffix); R(field, s, nd, x, y, 0, 0)
+    T(ln1_w, "norm1.weight", 1, C, 0); T(ln1_b, "norm1.bias", 1, C, 0);
+    T(q1, "attn1.to_q.weight", 2, C, C); T(k1, "attn1.to_k.weight", 2, C, C); T(v1, "attn1.to_v.weight", 2, C, C);
+    T(o1_w, "attn1.to_out.0.weight", 2, C, C); T(o1_b, "attn1.to_out.0.bias", 1, C, 0);
+    T(ln2_w, "norm2.weight", 1, C, 0); T(ln2_b, "norm2.bias", 1, C, 0);
+    T(q2, "attn2.to_q.weight", 2, C, C); T(k2, "attn2.to_k.weight", 2, C, D); T(v2, "attn2.to_v.weight", 2, C, D);
+    T(o2_w, "attn2.to_out.0.weight", 2, C, C); T(o2_b, "attn2.to_out.0.bias", 1, C, 0);
+    T(ln3_w, "norm3.weight", 1, C, 0); T(ln3_b, "norm3.bias", 1, C, 0);
+    T(ff1_w, "ff.net.0.proj.weight", 2, 8 * C, C); T(ff1_b, "ff.net.0.proj.bias", 1, 8 * C, 0);
+    T(ff2_w, "ff.net.2.weight", 2, C, 4 * C); T(ff2_b, "ff.net.2.bias", 1, C, 0);
+#undef T
+#undef R
+    return MLB_OK;
+}
+
+static mlb_status walk(loader* L) {
+    mlb_unet* u = L->u;
+    const mlb_unet_config* c = &u->cfg;
+    int n = c->n_levels, NL = c->layers_per_block, C0 = c->block_out[0], TE = c->time_embed_dim;
+    char d[256];
+    MLB_TRY(reg(L, &u->time1_w, "time_embedding.linear_1.weight", 2, TE, C0, 0, 0));
+    MLB_TRY(reg(L, &u->time1_b, "time_embedding.linear_1.bias", 1, TE, 0, 0, 0));
+    MLB_TRY(reg(L, &u->time2_w, "time_embedding.linear_2.weight", 2, TE, TE, 0, 0));
+    MLB_TRY(reg(L, &u->time2_b, "time_embedding.linear_2.bias", 1, TE, 0, 0, 0));
+    MLB_TRY(reg(L, &u->conv_in_w, "conv_in.weight", 4, C0, c->in_channels, 3, 3));
+    MLB_TRY(reg(L, &u->conv_in_b, "conv_in.bias", 1, C0, 0, 0, 0));
+    int skip_ch[1 + MLB_UNET_MAX_LEVELS * (MLB_UNET_MAX_LAYERS + 1)], ns = 0;
+    skip_ch[ns++] = C0;
+    int ch = C0;
+    for (int i = 0; i < n; i++) {
+        int co = c->block_out[i];
+        for (int j = 0; j < NL; j++) {
+            snprintf(d, sizeof d, "down_blocks.%d.resnets.%d", i, j);
+            MLB_TRY(reg_resnet(L, &u->down_res[i][j], d, ch, co));
+            ch = co;
+            if (c->attn[i]) {
+                snprintf(d, sizeof d, "down_blocks.%d.attentions.%d", i, j);
+                MLB_TRY(reg_attn(L, &u->down_attn[i][j], d, co, c->heads[i]));
+            }
+            skip_ch[ns++] = co;
+        }
+        if (i < n - 1) {
+            snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv.weight", i);
+            MLB_TRY(reg(L, &u->down_conv[i].w, d, 4, co, co, 3, 3));
+            snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv.bias", i);
+            MLB_TRY(reg(L, &u->down_conv[i].b, d, 1, co, 0, 0, 0));
+            skip_ch[ns++] = co;
+        }
+    }
+    MLB_TRY(reg_resnet(L, &u->mid_res[0], "mid_block.resnets.0", ch, ch));
+    MLB_TRY(reg_attn(L, &u->mid_attn, "mid_block.attentions.0", ch, c->mid_heads));
+    MLB_TRY(reg_resnet(L, &u->mid_res[1], "mid_block.resnets.1", ch, ch));
+    for (int i = 0; i < n; i++) {
+        int lvl = n - 1 - i, co = c->block_out[lvl];
+        for (int j = 0; j <= NL; j++) {
+            int cin = ch + skip_ch[--ns];
+            snprintf(d, sizeof d, "up_blocks.%d.resnets.%d", i, j);
+            MLB_TRY(reg_resnet(L, &u->up_res[i][j], d, cin, co));
+            ch = co;
+            if (c->attn[lvl]) {
+                snprintf(d, sizeof d, "up_blocks.%d.attentions.%d", i, j);
+                MLB_TRY(reg_attn(L, &u->up_attn[i][j], d, co, c->heads[lvl]));
+            }
+        }
+        if (i < n - 1) {
+            snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv.weight", i);
+            MLB_TRY(reg(L, &u->up_conv[i].w, d, 4, co, co, 3, 3));
+            snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv.bias", i);
+            MLB_TRY(reg(L, &u->up_conv[i].b, d, 1, co, 0, 0, 0));
+        }
+    }
+    MLB_TRY(reg(L, &u->norm_out_w, "conv_norm_out.weight", 1, ch, 0, 0, 0));
+    MLB_TRY(reg(L, &u->norm_out_b, "conv_norm_out.bias", 1, ch, 0, 0, 0));
+    MLB_TRY(reg(L, &u->conv_out_w, "conv_out.weight", 4, c->out_channels, ch, 3, 3));
+    MLB_TRY(reg(L, &u->conv_out_b, "conv_out.bias", 1, c->out_channels, 0, 0, 0));
+    return MLB_OK;
+}
+
+static mlb_status heads_for(const mlb_unet_config* c, const unet_cfg_file* f, int level, int C, int* out,
+                            const char* path) {
+    int h;
+    if (f->head_channels > 0) h = C / f->head_channels;
+    else if (f->n_heads > 0) h = f->heads[f->n_heads == 1 ? 0 : (level < f->n_heads ? level : f->n_heads - 1)];
+    else h = c->context_dim == 1024 ? C / 64 : 8;   // the real models: SD2 head width 64, SD1 8 heads
+    if (h < 1 || C % h)
+        return mlb_fail(MLB_ERR_FORMAT, "%s: %d attention heads do not divide the %d channels of UNet level %d",
+                        path, h, C, level);
+    *out = h;
+    return MLB_OK;
+}
+
+mlb_status mlb_unet_from_st(const mlb_safetensors* st, const char* config_path, mlb_unet** out) {
+    if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_from_st: NULL output");
+    *out = NULL;
+    mlb_unet* u = calloc(1, sizeof *u);
+    if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
+    mlb_unet_config* c = &u->cfg;
+    mlb_status s = MLB_OK;
+    if (mlb_st_find(st, LDM_PREFIX "input_blocks.0.0.weight")) c->layout = MLB_UNET_LAYOUT_LDM;
+    else if (mlb_st_find(st, "conv_in.weight")) c->layout = MLB_UNET_LAYOUT_DIFFUSERS;
+    else { s = mlb_fail(MLB_ERR_FORMAT, "%s: no UNet found (neither 'conv_in.weight' nor '" LDM_PREFIX "input_blocks.0.0.weight')", mlb_st_path(st)); goto fail; }
+    if ((s = infer_structure(st, u)) != MLB_OK) goto fail;
+    unet_cfg_file f;
+    memset(&f, 0, sizeof f);
+    f.flip = 1;
+    if (config_path) s = parse_config_json(config_path, &f);
+    else if (c->layout == MLB_UNET_LAYOUT_LDM) s = parse_ldm_config(st, &f);
+    if (s != MLB_OK) goto fail;
+    const char* cfg_src = config_path ? config_path : mlb_st_path(st);
+    c->norm_groups = f.groups ? f.groups : 32;
+    c->norm_eps = f.eps > 0 ? (float)f.eps : 1e-5f;
+    c->transformer_norm_eps = 1e-6f;
+    c->layer_norm_eps = 1e-5f;
+    c->flip_sin_to_cos = f.flip;
+    c->freq_shift = (float)f.shift;
+    c->v_prediction = f.v_pred;
+    for (int i = 0; i < c->n_levels; i++) {
+        if (c->block_out[i] % c->norm_groups) { s = mlb_fail(MLB_ERR_FORMAT, "%s: UNet level %d has %d channels, not a multiple of %d groups", cfg_src, i, c->block_out[i], c->norm_groups); goto fail; }
+        if (c->attn[i] && (s = heads_for(c, &f, i, c->block_out[i], &c->heads[i], cfg_src)) != MLB_OK) goto fail;
+    }
+    if ((s = heads_for(c, &f, c->n_levels - 1, c->block_out[c->n_levels - 1], &c->mid_heads, cfg_src)) != MLB_OK) goto fail;
+    if (c->block_out[0] % 2) { s = mlb_fail(MLB_ERR_FORMAT, "%s: odd time-projection width %d", cfg_src, c->block_out[0]); goto fail; }
+    loader L = {u, st, 0, 0, NULL};
+    if ((s = walk(&L)) != MLB_OK) goto fail;
+    u->n_params = L.n;
+    u->params = malloc(L.n * sizeof(float));
+    if (!u->params) { s = mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the UNet's %zu parameters", mlb_st_path(st), L.n); goto fail; }
+    L.pass = 1;
+    L.p = u->params;
+    if ((s = walk(&L)) != MLB_OK) goto fail;
+    *out = u;
+    return MLB_OK;
+fail:
+    mlb_unet_free(u);
+    return s;
+}
+
+mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet** out) {
+    if (!out || !path) return mlb_fail(MLB_ERR_ARG, "mlb_unet_load: NULL argument");
+    *out = NULL;
+    if (strlen(path) > UNET_PATH_MAX - 64) return mlb_fail(MLB_ERR_ARG, "UNet path too long");
+    char weights[UNET_PATH_MAX], cfg[UNET_PATH_MAX];
+    cfg[0] = 0;
+    if (is_dir(path)) {
+        snprintf(weights, sizeof weights, "%s/unet/diffusion_pytorch_model.safetensors", path);
+        if (is_file(weights)) snprintf(cfg, sizeof cfg, "%s/unet/config.json", path);
+        else {
+            snprintf(weights, sizeof weights, "%s/diffusion_pytorch_model.safetensors", path);
+            if (!is_file(weights))
+                return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no diffusion_pytorch_model.safetensors in the folder or in unet/", path);
+            snprintf(cfg, sizeof cfg, "%s/config.json", path);
+        }
+        if (!is_file(cfg)) cfg[0] = 0;
+    } else {
+        if (ends_with(path, ".ckpt") || ends_with(path, ".bin") || ends_with(path, ".pt") || ends_with(path, ".pth"))
+            return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: pickle checkpoints are not read; convert it to .safetensors", path);
+        snprintf(weights, sizeof weights, "%s", path);
+    }
+    mlb_safetensors* st = NULL;
+    MLB_TRY(mlb_st_open(&st, weights));
+    if (!cfg[0] && mlb_st_find(st, "conv_in.weight")) {   // a diffusers file: a config beside it
+        char p[UNET_PATH_MAX + 32];
+        if (ends_with(weights, ".safetensors")) {
+            snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
+            if (is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
+        }
+        const char* slash = strrchr(weights, '/');
+        if (!cfg[0] && slash) {
+            snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
+            if (is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
+        }
+    }
+    const char* cp = opt && opt->config_path ? opt->config_path : (cfg[0] ? cfg : NULL);
+    mlb_status s = mlb_unet_from_st(st, cp, out);
+    mlb_st_close(st);
+    return s;
+}
+
+void mlb_unet_free(mlb_unet* u) {
+    if (!u) return;
+    free(u->params);
+    free(u);
+}
+
+const mlb_unet_config* mlb_unet_get_config(const mlb_unet* u) { return u ? &u->cfg : NULL; }
+size_t mlb_unet_param_count(const mlb_unet* u) { return u ? u->n_params : 0; }

@@ -31,17 +31,24 @@ static void usage(FILE* out) {
             MATLABER_VERSION);
 }
 
-// See mlb_blas_better_coretype: restart once with OpenBLAS pointed at the kernels this CPU can run.
-static void choose_blas_kernels(char** argv) {
+// Two settings that the OpenMP and OpenBLAS runtimes read only when they load, so the program
+// restarts itself once with them: OpenBLAS pointed at the kernels this CPU can run (see
+// mlb_blas_better_coretype), and OMP_WAIT_POLICY=passive, without which libgomp's idle threads
+// spin after every loop and take the cores OpenBLAS's GEMM threads need (the VAE ran 8-35x slower
+// on 2 cores; docs/vae.md). The user's own settings are kept.
+static void choose_runtime_settings(char** argv) {
+    if (getenv("MATLABER_REEXEC")) return;
     const char* core = mlb_blas_better_coretype();
-    if (!core || getenv("MATLABER_REEXEC")) return;
-    setenv("OPENBLAS_CORETYPE", core, 1);
+    int set_wait = getenv("OMP_WAIT_POLICY") == NULL;
+    if (!core && !set_wait) return;
+    if (core) setenv("OPENBLAS_CORETYPE", core, 1);
+    if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);
     setenv("MATLABER_REEXEC", "1", 1);
-    execv("/proc/self/exe", argv);   // returns only on failure: carry on with the slow kernels
+    execv("/proc/self/exe", argv);   // returns only on failure: carry on as we are
 }
 
 int main(int argc, char** argv) {
-    choose_blas_kernels(argv);
+    choose_runtime_settings(argv);
     mlb_log_set_sink(mlb_log_file_sink, stderr);
     int i = 1;
     // global options before the command

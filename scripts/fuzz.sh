@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
-# Fuzz the safetensors reader with libFuzzer + AddressSanitizer + UndefinedBehaviorSanitizer.
-#   scripts/fuzz.sh [SECONDS]      (default 600)
-# Builds fuzz/corpus-run/fuzz_safetensors with clang straight from the sources it needs (not part
+# Fuzz a file reader with libFuzzer + AddressSanitizer + UndefinedBehaviorSanitizer.
+#   scripts/fuzz.sh [safetensors|obj] [SECONDS]      (default: safetensors, 600 s)
+# Builds fuzz/corpus-run[-obj]/fuzz_TARGET with clang straight from the sources it needs (not part
 # of the CMake build), writes seed files with the same source built as a seeder, then fuzzes for
 # SECONDS. The corpus grows in fuzz/corpus-run/corpus (gitignored, kept between runs); crashes
 # land in fuzz/crash-* (gitignored). The log is fuzz/corpus-run/fuzz.log. Exit status 0 = no crash.
 set -euo pipefail
+target=safetensors
+case "${1:-}" in safetensors|obj) target="$1"; shift ;; esac
 secs="${1:-600}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 run=fuzz/corpus-run
+[ "$target" = obj ] && run=fuzz/corpus-run-obj
 mkdir -p "$run/corpus"
 
 cc=""
@@ -18,20 +21,27 @@ for c in clang-14 clang; do
 done
 if [ -z "$cc" ]; then echo "fuzz.sh: clang not found (apt-get install clang-14 libclang-rt-14-dev)" >&2; exit 1; fi
 
-srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"
+if [ "$target" = obj ]; then
+  srcs="src/io/obj.c src/geometry/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
+else
+  srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"; libs="-lcjson -lm"
+fi
 flags="-std=c11 -D_GNU_SOURCE -g -O1 -Iinclude -fno-omit-frame-pointer"
 san="-fsanitize=address,undefined -fno-sanitize-recover=all"
 
 echo "fuzz.sh: building with $cc"
 # shellcheck disable=SC2086
-"$cc" $flags $san -fsanitize=fuzzer fuzz/fuzz_safetensors.c $srcs -lcjson -lm -o "$run/fuzz_safetensors"
+"$cc" $flags $san -fsanitize=fuzzer "fuzz/fuzz_$target.c" $srcs $libs -o "$run/fuzz_$target"
 # shellcheck disable=SC2086
-"$cc" $flags $san -DMLB_FUZZ_SEED fuzz/fuzz_safetensors.c $srcs -lcjson -lm -o "$run/seed_safetensors"
-"$run/seed_safetensors" "$run/corpus"
+"$cc" $flags $san -DMLB_FUZZ_SEED "fuzz/fuzz_$target.c" $srcs $libs -o "$run/seed_$target"
+"$run/seed_$target" "$run/corpus"
 echo "fuzz.sh: $(find "$run/corpus" -type f | wc -l) files in the corpus"
 
 # Tokens that steer mutations towards the header grammar.
-cat > "$run/safetensors.dict" <<'EOF'
+if [ "$target" = obj ]; then
+  printf '%s\n' '"v "' '"vt "' '"vn "' '"f "' '"/"' '"//"' '"-1"' '"1e38"' '"nan"' '"# "' '"mtllib "' > "$run/$target.dict"
+else
+cat > "$run/$target.dict" <<'EOF'
 "__metadata__"
 "dtype"
 "shape"
@@ -64,12 +74,13 @@ cat > "$run/safetensors.dict" <<'EOF'
 "[]"
 "{}"
 EOF
+fi
 
 before=$(ls fuzz/crash-* fuzz/leak-* fuzz/timeout-* fuzz/oom-* 2>/dev/null | wc -l || true)
 start=$(date +%s)
 set +e
-"$run/fuzz_safetensors" -max_total_time="$secs" -max_len=4096 -timeout=10 -rss_limit_mb=2048 \
-  -dict="$run/safetensors.dict" -artifact_prefix=fuzz/ -print_final_stats=1 "$run/corpus" >"$run/fuzz.log" 2>&1
+"$run/fuzz_$target" -max_total_time="$secs" -max_len=4096 -timeout=10 -rss_limit_mb=2048 \
+  -dict="$run/$target.dict" -artifact_prefix=fuzz/ -print_final_stats=1 "$run/corpus" >"$run/fuzz.log" 2>&1
 rc=$?
 set -e
 end=$(date +%s)

@@ -26,6 +26,7 @@ const struct option* cli_getopt_table(const cli_option* opts);
 int cmd_brdf(int argc, char** argv);
 int cmd_demo(int argc, char** argv);
 int cmd_device(int argc, char** argv);
+int cmd_geometry(int argc, char** argv);
 int cmd_render(int argc, char** argv);
 int cmd_relight(int argc, char** argv);
 int brdf_swatch_main(int argc, char** argv);

@@ -1,0 +1,153 @@
+// The geometry network of MATLABER / Fantasia3D (reference.md §3, docs/geometry_init.md): a
+// multiresolution hash encoding of the point (the grid box [−0.5, 0.5]^3 × scale mapped to [0,1]^3)
+// feeds an MLP (32 wide, 2 hidden layers, ReLU, no bias) with 4 outputs: the SDF (negative inside)
+// and a deformation (xyz, applied as tanh(d)/grid_res by dmtet_deform_forward). Its SDF is
+// initialised by 400 Adam steps of MSE against an analytic or mesh signed distance
+// (mlb_geometry_fit_shape), then extracted with marching tets (mlb_geometry_extract).
+//
+// The network exists as float (plain names) and double (name_f64, for the finite-difference tests).
+// Parameters live in one allocation: [hash table | MLP weights]; grads/Adam moments the same layout.
+// Backward ACCUMULATES into net->grads (zero them with geometry_net_zero_grad once per step).
+#ifndef MATLABER_GEOMETRY_H
+#define MATLABER_GEOMETRY_H
+#include <stddef.h>
+#include <stdint.h>
+#include "matlaber/dmtet.h"
+#include "matlaber/error.h"
+#include "matlaber/hashgrid.h"
+#include "matlaber/mesh.h"
+#include "matlaber/nn.h"
+#include "matlaber/progress.h"
+#include "matlaber/safetensors.h"
+
+typedef struct {
+    mlb_hashgrid_config enc;   // default mlb_hashgrid_default(): 16 levels × 2, T = 2^19, base 16
+    int hidden;                // MLP width, default 32
+    int n_hidden;              // hidden layers, default 2 (so n_hidden + 1 linear layers)
+    float scale;               // the grid box is [−0.5, 0.5]^3 × scale (mesh_scale), default 2.1
+    uint64_t seed;             // initialisation seed, default 1
+} mlb_geometry_config;
+
+mlb_geometry_config mlb_geometry_default(void);
+// Adam for hash-grid networks (reference.md §4): betas (0.9, 0.99), eps 1e-15, no weight decay.
+mlb_adam_config mlb_geometry_adam(double lr);
+
+#define MLB_GEOMETRY_DECLARE(R, N)                                                                   \
+    typedef struct {                                                                                \
+        mlb_geometry_config cfg;                                                                    \
+        N(mlb_hashgrid) enc;                                                                        \
+        N(mlb_mlp) mlp;                                                                             \
+        size_t n_enc, n_mlp, n_params;  /* table values, MLP values, their sum */                   \
+        R* params;                      /* [n_params]: table then MLP */                            \
+        R* grads;                       /* [n_params] */                                            \
+        R* adam_m;                      /* [n_params] */                                            \
+        R* adam_v;                      /* [n_params] */                                            \
+        long step;                      /* Adam steps taken */                                      \
+        /* forward cache (the last forward's points) */                                             \
+        int n, capacity;                                                                            \
+        R* x;                           /* [n, 3] in [0,1]^3 */                                     \
+        R* feat;                        /* [n, L·F] encoding */                                     \
+        R* dout;                        /* [n, 4] scratch for backward */                           \
+        R* dfeat;                       /* [n, L·F] scratch for backward */                         \
+        N(mlb_mlp_cache) cache;                                                                     \
+    } N(mlb_geometry_net);                                                                          \
+    /* Allocates and initialises (table U(±1e-4), Glorot MLP weights) from cfg->seed. */            \
+    mlb_status N(geometry_net_init)(N(mlb_geometry_net)* net, const mlb_geometry_config* cfg);      \
+    void N(geometry_net_free)(N(mlb_geometry_net)* net);   /* safe on a zeroed net */              \
+    void N(geometry_net_zero_grad)(N(mlb_geometry_net)* net);                                       \
+    /* pos[n,3] in world units (the grid box); sdf[n] and deform[n,3] (either may be NULL).         \
+       Caches what backward needs (MLB_ERR_NOMEM when the cache cannot grow). */                   \
+    mlb_status N(geometry_net_forward)(N(mlb_geometry_net)* net, R* sdf, R* deform, const R* pos, int n); \
+    /* grads += ∂(Σ dsdf·sdf + Σ ddeform·deform)/∂params over the last forward's n points;          \
+       dsdf[n], ddeform[n,3] (either may be NULL = zero). */                                        \
+    void N(geometry_net_backward)(N(mlb_geometry_net)* net, const R* dsdf, const R* ddeform);       \
+    /* One Adam step over all parameters with net->grads (net->step += 1). */                       \
+    void N(geometry_net_update)(N(mlb_geometry_net)* net, const mlb_adam_config* adam);
+
+#define MLB_GEOMETRY_F32(name) name
+#define MLB_GEOMETRY_F64(name) name##_f64
+MLB_GEOMETRY_DECLARE(float, MLB_GEOMETRY_F32)
+MLB_GEOMETRY_DECLARE(double, MLB_GEOMETRY_F64)
+#undef MLB_GEOMETRY_F32
+#undef MLB_GEOMETRY_F64
+
+// ---- files (float network) -------------------------------------------------------------------
+// Tensors "encoding.table" [entries, F] and "mlp.N.weight" [out, in]; metadata holds the config
+// ("geometry.levels", ".features", ".table_size", ".base_res", ".per_level_scale", ".hidden",
+// ".n_hidden", ".scale") plus the caller's extra entries (NULL/0 for none).
+mlb_status mlb_geometry_save(const mlb_geometry_net* net, const char* path, const mlb_st_meta* extra, size_t n_extra);
+// Reads the config from the metadata, then the weights; *net is overwritten (zeroed on failure).
+mlb_status mlb_geometry_load(mlb_geometry_net* net, const char* path);
+
+// SDF and deformation at the grid vertices, v = v_grid + tanh(d)/(2·cells), marching tets: a float
+// mesh with faces and positions (no normals). An empty surface is an MLB_ERR_ARG error ("no surface").
+mlb_status mlb_geometry_extract(mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out);
+
+// ---- shapes and their signed distance (shape_init.c) ---------------------------------------
+typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH } mlb_shape_kind;
+typedef struct {
+    mlb_shape_kind kind;
+    float radii[3];        // ellipsoid semi-axes
+    float cyl_radius;      // capped cylinder about the y axis, y ∈ [−h/2, h/2]
+    float cyl_height;
+    mlb_mesh mesh;         // MLB_SHAPE_MESH: owned copy (positions + faces), already placed
+    double mesh_area;      // total area (for sampling)
+} mlb_shape;
+
+// Ellipsoid with semi-axes scale·(1, 1, 1)·axes (axes NULL = 1, 1, 1); reference: radius 1 × scale.
+void mlb_shape_ellipsoid(mlb_shape* s, float scale, const float* axes);
+// Capped cylinder of radius 0.75·scale and height 0.8·scale about y (reference.md §3).
+void mlb_shape_cylinder(mlb_shape* s, float scale);
+// A copy of m normalised to the unit sphere (mlb_mesh_normalize_unit_sphere), times scale.
+mlb_status mlb_shape_from_mesh(mlb_shape* s, const mlb_mesh* m, float scale);
+void mlb_shape_free(mlb_shape* s);   // safe on a zeroed shape
+// Signed distance (negative inside) at p[n,3]. Analytic shapes: exact for the cylinder; for the
+// ellipsoid the first-order estimate (|q|−1)·|q|/|∇|q|| with q = p/radii (exact for a sphere,
+// vanishes on the surface, sign always right). Meshes: brute-force unsigned distance (O(n·F),
+// triangles skipped by their bounding boxes) with the sign of the generalised winding number.
+// Parallel over points.
+void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n);
+// n points on the surface (Philox (seed, stream)): area-uniform for meshes and the cylinder,
+// direction-uniform on the ellipsoid (area-uniform for a sphere).
+void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t seed, uint64_t stream);
+
+// Generalised winding number of a triangle soup at p[n,3]: Σ_f Ω_f(p)/(4π), Ω the signed solid
+// angle (Van Oosterom–Strackee). 1 inside, 0 outside a closed CCW mesh; degrades gracefully near
+// holes. O(n·F).
+void mlb_mesh_winding_number(const mlb_mesh* m, const float* p, double* out, int n);
+// Unsigned distance from p[n,3] to the triangles. O(n·F) with bounding-box culling.
+void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n);
+// Squared distance from p to triangle (a, b, c) (Ericson's closest-point regions), in double.
+double mlb_point_triangle_dist2(const double p[3], const float* a, const float* b, const float* c);
+// n area-uniform points on the mesh's triangles (Philox (seed, stream)); MLB_ERR_ARG for zero area.
+mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t seed, uint64_t stream);
+
+// ---- the SDF initialisation ------------------------------------------------------------------
+typedef struct {
+    int iters;          // Adam steps, default 400
+    int batch;          // points per step, default 12288 (a third each: surface, jittered, uniform)
+    double lr;          // default 1e-2
+    float jitter;       // std of the surface jitter, default 0.05
+    int pool;           // points drawn (and their SDF computed) once per kind, default 32768
+    uint64_t seed;      // sampling seed, default 1
+} mlb_shape_fit_config;
+
+mlb_shape_fit_config mlb_shape_fit_default(void);
+// Fits the network's SDF output to the shape's signed distance by MSE (deformation untouched).
+// final_loss (may be NULL) receives the mean MSE of the last 10 steps. progress may be NULL.
+mlb_status mlb_geometry_fit_shape(mlb_geometry_net* net, const mlb_shape* shape, const mlb_shape_fit_config* cfg,
+                                  mlb_progress* progress, double* final_loss);
+
+// ---- Chamfer distance (chamfer.c) ------------------------------------------------------------
+typedef struct {
+    double a_to_b, b_to_a;   // mean point-to-surface distance of samples on a to b's triangles, and back
+    double chamfer;          // (a_to_b + b_to_a) / 2
+    double diag;             // the target's (b's) bounding-box diagonal
+    double relative;         // chamfer / diag
+    double max_a_to_b, max_b_to_a;   // the largest sample distances (one-sided Hausdorff estimates)
+} mlb_chamfer_result;
+// Symmetric Chamfer distance between meshes a and b (the target): n samples on each, area-uniform
+// (Philox seed), distances to the other mesh's triangles (brute force O(n·F)).
+mlb_status mlb_chamfer(const mlb_mesh* a, const mlb_mesh* b, int n, uint64_t seed, mlb_chamfer_result* r);
+
+#endif

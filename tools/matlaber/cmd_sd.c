@@ -1,10 +1,17 @@
-// matlaber sd tokenize: the Stable Diffusion side of the program (for now the CLIP tokenizer).
+// matlaber sd tokenize | txt2img: the Stable Diffusion side of the program (docs/tokenizer.md,
+// docs/sds.md).
 #include <cjson/cJSON.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include "cli.h"
+#include "matlaber/image_write.h"
 #include "matlaber/log.h"
+#include "matlaber/progress.h"
+#include "matlaber/rng.h"
+#include "matlaber/sd_model.h"
 #include "matlaber/tokenizer.h"
 
 static const cli_option tokenize_options[] = {
@@ -103,14 +110,135 @@ static int tokenize_main(int argc, char** argv) {
     return 0;
 }
 
+
+// ---- txt2img ------------------------------------------------------------------------------------
+static const cli_option txt2img_options[] = {
+    {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint"},
+    {"prompt", 1, 'p', "TEXT", "the prompt"},
+    {"negative", 1, 'n', "TEXT", "negative prompt (replaces the empty unconditional prompt)"},
+    {"steps", 1, 'S', "N", "DDIM steps (default 30)"},
+    {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5)"},
+    {"seed", 1, 's', "N", "seed of the initial noise (default 0)"},
+    {"size", 1, 'z', "N", "image width and height, a multiple of 64 (default 512)"},
+    {"tokenizer", 1, 't', "PATH", "CLIP tokenizer (default: the model folder's tokenizer/, else $MATLABER_TOKENIZER)"},
+    {"v-prediction", 1, 'v', "auto|on|off", "the UNet predicts v (default auto: from the configs)"},
+    {"output", 1, 'o', "FILE", "output PNG"},
+    {"help", 0, 'h', NULL, "this help"},
+    {0, 0, 0, 0, 0}};
+
+#define TXT2IMG_NOISE_STREAM 0x7E1700000000ull
+
+static int txt2img_main(int argc, char** argv) {
+    const char *model_path = NULL, *prompt = NULL, *negative = "", *out_path = NULL;
+    const char* tok_path = NULL;
+    long steps = 30, seed = 0, size = 512;
+    double cfg = 7.5;
+    int vpred = -1;
+    const struct option* table = cli_getopt_table(txt2img_options);
+    optind = 1;
+    int c;
+    while ((c = getopt_long(argc, argv, "hm:p:n:o:s:t:", table, NULL)) != -1) {
+        switch (c) {
+        case 'm': model_path = optarg; break;
+        case 'p': prompt = optarg; break;
+        case 'n': negative = optarg; break;
+        case 'o': out_path = optarg; break;
+        case 't': tok_path = optarg; break;
+        case 'S':
+            if (cli_parse_long(optarg, 1, 1000, &steps)) return cli_usage_error("sd txt2img", "--steps: expected 1..1000");
+            break;
+        case 'c':
+            if (cli_parse_double(optarg, -1000, 1000, &cfg)) return cli_usage_error("sd txt2img", "--cfg: expected a number in [-1000, 1000]");
+            break;
+        case 's':
+            if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &seed)) return cli_usage_error("sd txt2img", "--seed: expected a non-negative integer");
+            break;
+        case 'z':
+            if (cli_parse_long(optarg, 64, 4096, &size) || size % 64)
+                return cli_usage_error("sd txt2img", "--size: expected a multiple of 64 in 64..4096");
+            break;
+        case 'v':
+            if (!strcmp(optarg, "auto")) vpred = -1;
+            else if (!strcmp(optarg, "on")) vpred = 1;
+            else if (!strcmp(optarg, "off")) vpred = 0;
+            else return cli_usage_error("sd txt2img", "--v-prediction: expected auto, on or off");
+            break;
+        case 'h':
+            printf("usage: matlaber sd txt2img -m MODEL -p PROMPT [--negative TEXT] [--steps 30] [--cfg 7.5] [--seed S]\n"
+                   "                           [--size 512] [--tokenizer PATH] -o out.png\n\n"
+                   "Samples an image with Stable Diffusion: DDIM (eta 0) with classifier-free guidance, then the VAE\n"
+                   "decoder. MODEL is a diffusers folder or a single-file .safetensors checkpoint (F32/F16/BF16;\n"
+                   "pickle .ckpt files must be converted first). docs/sds.md.\n\n");
+            cli_print_options(stdout, txt2img_options);
+            return 0;
+        default: return cli_usage_error("sd txt2img", "unknown option");
+        }
+    }
+    if (optind < argc) return cli_usage_error("sd txt2img", "unexpected argument '%s'", argv[optind]);
+    if (!model_path) return cli_usage_error("sd txt2img", "-m MODEL is needed");
+    if (!prompt) return cli_usage_error("sd txt2img", "-p PROMPT is needed");
+    if (!out_path) return cli_usage_error("sd txt2img", "-o out.png is needed");
+    if (!tok_path) {
+        char probe[4200];
+        snprintf(probe, sizeof probe, "%s/tokenizer", model_path);
+        struct stat st;
+        if (stat(probe, &st) != 0) tok_path = getenv("MATLABER_TOKENIZER");
+    }
+    mlb_sd_model_options mo = mlb_sd_model_default_options();
+    mo.tokenizer_path = tok_path;
+    mo.v_prediction = vpred;
+    double t0 = mlb_now_seconds();
+    mlb_sd_model* m;
+    mlb_status s = mlb_sd_model_load(model_path, &mo, &m);
+    if (s) return cli_fail(s, "loading the model");
+    mlb_log(MLB_LOG_INFO, "model: %s (%.1fs)", m->source, mlb_now_seconds() - t0);
+    const int Dc = mlb_sd_model_context_width(m), T = MLB_CLIP_CONTEXT;
+    const int h = (int)size / 8;
+    const size_t n = (size_t)m->unet->cfg.in_channels * h * h;
+    float* ctx = malloc(2 * (size_t)T * Dc * sizeof(float));
+    float* latent = malloc(n * sizeof(float));
+    float* img = malloc(3 * (size_t)size * size * sizeof(float));
+    float* rgb = malloc(3 * (size_t)size * size * sizeof(float));
+    int rc = 0;
+    if (!ctx || !latent || !img || !rgb) { rc = cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), "txt2img"); goto done; }
+    if ((s = mlb_sd_model_encode_prompt(m, negative, ctx)) || (s = mlb_sd_model_encode_prompt(m, prompt, ctx + (size_t)T * Dc))) {
+        rc = cli_fail(s, "encoding the prompt");
+        goto done;
+    }
+    mlb_sd_model_drop_text(m);
+    mlb_rng_fill_normal(latent, n, (uint64_t)seed, TXT2IMG_NOISE_STREAM, 0, 0.0f, 1.0f);
+    mlb_progress pr;
+    mlb_progress_begin(&pr, mlb_log_get_level() <= MLB_LOG_INFO ? stderr : NULL, "txt2img", steps, "step");
+    s = mlb_sd_ddim_sample(m->unet, m->alphas_cumprod, m->v_prediction, ctx, ctx + (size_t)T * Dc, T, latent, h, h, (int)steps,
+                           (float)cfg, NULL, NULL, &pr);
+    mlb_progress_end(&pr, NULL);
+    if (s) { rc = cli_fail(s, "sampling"); goto done; }
+    if ((s = mlb_sd_decode_latent(m->vae, m->scaling_factor, latent, h, h, img))) { rc = cli_fail(s, "decoding the latent"); goto done; }
+    const size_t hw = (size_t)size * size;
+    for (size_t i = 0; i < hw; i++)
+        for (int ch = 0; ch < 3; ch++) {
+            float v = 0.5f * img[ch * hw + i] + 0.5f;
+            rgb[3 * i + ch] = v < 0 ? 0 : v > 1 ? 1 : v;
+        }
+    if ((s = mlb_image_write_png(out_path, rgb, (int)size, (int)size, 3, NULL))) { rc = cli_fail(s, "writing the image"); goto done; }
+    mlb_log(MLB_LOG_INFO, "wrote %s (%ldx%ld, %ld steps, cfg %g, seed %ld) in %.1fs", out_path, size, size, steps, cfg, seed,
+            mlb_now_seconds() - t0);
+done:
+    free(ctx); free(latent); free(img); free(rgb);
+    mlb_sd_model_free(m);
+    return rc;
+}
+
 int cmd_sd(int argc, char** argv) {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         FILE* out = argc < 2 ? stderr : stdout;
-        fprintf(out, "usage: matlaber sd <tokenize> [options]\n\n"
-                     "  tokenize  text -> the 77 CLIP token ids of the SD text encoders\n");
+        fprintf(out, "usage: matlaber sd <tokenize|txt2img> [options]\n\n"
+                     "  tokenize  text -> the 77 CLIP token ids of the SD text encoders\n"
+                     "  txt2img   text -> image: DDIM sampling with classifier-free guidance\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }
     const char* sub = argv[1];
     if (strcmp(sub, "tokenize") == 0) return tokenize_main(argc - 1, argv + 1);
+    if (strcmp(sub, "txt2img") == 0) return txt2img_main(argc - 1, argv + 1);
     return cli_usage_error("sd", "unknown subcommand '%s'", sub);
 }

@@ -1,0 +1,173 @@
+// A whole Stable Diffusion model: loading the four parts, prompt encoding, DDIM sampling with
+// classifier-free guidance and decoding (sd_model.h, docs/sds.md).
+#include "matlaber/sd_model.h"
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include "matlaber/fileio.h"
+#include "matlaber/schedule.h"
+
+static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
+static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
+static int ends_with(const char* s, const char* suf) {
+    size_t a = strlen(s), b = strlen(suf);
+    return a >= b && strcmp(s + a - b, suf) == 0;
+}
+
+mlb_sd_model_options mlb_sd_model_default_options(void) {
+    mlb_sd_model_options o = {NULL, -1, 1, 1};
+    return o;
+}
+
+void mlb_sd_model_drop_text(mlb_sd_model* m) {
+    if (!m) return;
+    mlb_tokenizer_free(m->tokenizer);
+    mlb_text_encoder_free(m->text);
+    m->tokenizer = NULL;
+    m->text = NULL;
+}
+
+void mlb_sd_model_free(mlb_sd_model* m) {
+    if (!m) return;
+    mlb_sd_model_drop_text(m);
+    mlb_unet_free(m->unet);
+    mlb_vae_free(m->vae);
+    free(m);
+}
+
+// scheduler/scheduler_config.json's prediction_type: 1 v_prediction, 0 epsilon, -1 absent.
+static int scheduler_prediction(const char* folder) {
+    char p[4200];
+    snprintf(p, sizeof p, "%s/scheduler/scheduler_config.json", folder);
+    if (!is_file(p)) return -1;
+    char* text = NULL;
+    size_t n = 0;
+    if (mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) { return -1; }
+    int r = -1;
+    cJSON* root = cJSON_ParseWithLength(text, n);
+    if (root) {
+        const cJSON* v = cJSON_GetObjectItemCaseSensitive(root, "prediction_type");
+        if (cJSON_IsString(v)) r = strcmp(v->valuestring, "v_prediction") == 0;
+        cJSON_Delete(root);
+    }
+    free(text);
+    return r;
+}
+
+mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_in, mlb_sd_model** out) {
+    if (!path || !out) return mlb_fail(MLB_ERR_ARG, "mlb_sd_model_load: NULL argument");
+    *out = NULL;
+    mlb_sd_model_options opt = opt_in ? *opt_in : mlb_sd_model_default_options();
+    if (strlen(path) > 4000) return mlb_fail(MLB_ERR_ARG, "model path too long");
+    int folder = is_dir(path);
+    if (!folder) {
+        if (ends_with(path, ".ckpt") || ends_with(path, ".bin") || ends_with(path, ".pt") || ends_with(path, ".pth"))
+            return mlb_fail(MLB_ERR_UNSUPPORTED,
+                            "%s: pickle checkpoints are not read; convert it to .safetensors first (e.g. with "
+                            "safetensors' convert script or diffusers' convert_original_stable_diffusion_to_diffusers.py)",
+                            path);
+        if (!is_file(path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such model file or folder", path);
+    }
+    mlb_sd_model* m = calloc(1, sizeof *m);
+    if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    mlb_status s;
+    if ((s = mlb_unet_load(path, NULL, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }
+    if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
+    if (opt.load_text_encoder) {
+        if ((s = mlb_text_encoder_load(path, NULL, &m->text)) != MLB_OK) { mlb_fail_context(s, "loading the text encoder"); goto fail; }
+        char tp[4200];
+        const char* tpath = opt.tokenizer_path;
+        if (!tpath && folder) { snprintf(tp, sizeof tp, "%s/tokenizer", path); tpath = tp; }
+        if (!tpath) {
+            s = mlb_fail(MLB_ERR_ARG, "%s is a single file: the CLIP tokenizer path is needed (--tokenizer: the merges "
+                                      ".gz, a tokenizer/ folder or a diffusers model folder)", path);
+            goto fail;
+        }
+        if ((s = mlb_tokenizer_load(tpath, &m->tokenizer)) != MLB_OK) { mlb_fail_context(s, "loading the tokenizer"); goto fail; }
+        m->pad_id = mlb_text_encoder_pad_id(m->text);
+        if (m->text->width != m->unet->cfg.context_dim) {
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: the text encoder is %d wide but the UNet's cross-attention expects %d", path,
+                         m->text->width, m->unet->cfg.context_dim);
+            goto fail;
+        }
+    }
+    m->v_prediction = m->unet->cfg.v_prediction;
+    if (folder) { int p = scheduler_prediction(path); if (p >= 0) m->v_prediction = p; }
+    if (opt.v_prediction >= 0) m->v_prediction = opt.v_prediction;
+    m->scaling_factor = m->vae ? m->vae->cfg.scaling_factor : 0.18215f;
+    if (!(m->scaling_factor > 0)) m->scaling_factor = 0.18215f;
+    if ((s = mlb_schedule_alphas_cumprod_f32(m->alphas_cumprod, 1000, MLB_SD_BETA_START, MLB_SD_BETA_END)) != MLB_OK) goto fail;
+    snprintf(m->source, sizeof m->source, "%s (%s, UNet %zu params, %s%s)", path, folder ? "diffusers folder" : "single file",
+             m->unet->n_params, m->unet->cfg.sd2 ? "SD2-style" : "SD1-style", m->v_prediction ? ", v-prediction" : "");
+    *out = m;
+    return MLB_OK;
+fail:
+    mlb_sd_model_free(m);
+    return s;
+}
+
+int mlb_sd_model_context_width(const mlb_sd_model* m) { return m && m->unet ? m->unet->cfg.context_dim : 0; }
+
+mlb_status mlb_sd_model_encode_prompt(const mlb_sd_model* m, const char* prompt, float* out) {
+    if (!m || !prompt || !out) return mlb_fail(MLB_ERR_ARG, "mlb_sd_model_encode_prompt: NULL argument");
+    if (!m->text || !m->tokenizer) return mlb_fail(MLB_ERR_ARG, "the model's text encoder is not loaded");
+    int ids[MLB_CLIP_CONTEXT];
+    MLB_TRY(mlb_tokenizer_encode(m->tokenizer, prompt, ids, MLB_CLIP_CONTEXT, m->pad_id, NULL));
+    return mlb_text_encoder_forward(m->text, ids, 1, MLB_CLIP_CONTEXT, out);
+}
+
+mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_prediction, const float* ctx_uncond,
+                              const float* ctx_cond, int Tc, float* latent, int h, int w, int steps, float cfg,
+                              float* trace_eps, float* trace_latents, mlb_progress* progress) {
+    if (!unet || !ac || !ctx_uncond || !ctx_cond || !latent) return mlb_fail(MLB_ERR_ARG, "mlb_sd_ddim_sample: NULL argument");
+    if (steps < 1 || steps > 1000) return mlb_fail(MLB_ERR_ARG, "DDIM steps %d outside 1..1000", steps);
+    if (!isfinite(cfg)) return mlb_fail(MLB_ERR_ARG, "guidance scale is not finite");
+    const int C = unet->cfg.in_channels, Dc = unet->cfg.context_dim;
+    const size_t n = (size_t)C * h * w, nc = (size_t)Tc * Dc;
+    int* ts = malloc((size_t)steps * sizeof *ts);
+    float* ctx = malloc(2 * nc * sizeof(float));
+    float* x2 = malloc(2 * n * sizeof(float));
+    float* e2 = malloc(2 * n * sizeof(float));
+    mlb_status s = MLB_OK;
+    if (!ts || !ctx || !x2 || !e2) { s = mlb_fail(MLB_ERR_NOMEM, "out of memory for DDIM sampling"); goto done; }
+    if ((s = mlb_ddim_timesteps(ts, steps, 1000, 1)) != MLB_OK) goto done;
+    memcpy(ctx, ctx_uncond, nc * sizeof(float));
+    memcpy(ctx + nc, ctx_cond, nc * sizeof(float));
+    for (int i = 0; i < steps; i++) {
+        int t = ts[i];
+        float tt[2] = {(float)t, (float)t};
+        memcpy(x2, latent, n * sizeof(float));
+        memcpy(x2 + n, latent, n * sizeof(float));
+        if ((s = mlb_unet_forward(unet, e2, x2, tt, ctx, 2, h, w, Tc, NULL, NULL)) != MLB_OK) goto done;
+        if (v_prediction) {
+            mlb_v_to_eps(e2, e2, x2, n, ac[t]);
+            mlb_v_to_eps(e2 + n, e2 + n, x2 + n, n, ac[t]);
+        }
+        mlb_cfg_combine(e2, e2, e2 + n, n, cfg);
+        if (trace_eps) memcpy(trace_eps + (size_t)i * n, e2, n * sizeof(float));
+        int tp = mlb_ddim_prev_timestep(t, steps, 1000);
+        double ac_prev = tp >= 0 ? ac[tp] : ac[0];   // set_alpha_to_one False: the final alpha is ac[0]
+        if ((s = mlb_ddim_step(latent, NULL, latent, e2, n, ac[t], ac_prev)) != MLB_OK) goto done;
+        if (trace_latents) memcpy(trace_latents + (size_t)i * n, latent, n * sizeof(float));
+        if (progress) mlb_progress_update(progress, i + 1, NULL);
+    }
+    for (size_t k = 0; k < n; k++)
+        if (!isfinite(latent[k])) { s = mlb_fail(MLB_ERR_NUMERIC, "DDIM sampling produced a non-finite latent"); break; }
+done:
+    free(ts); free(ctx); free(x2); free(e2);
+    return s;
+}
+
+mlb_status mlb_sd_decode_latent(const mlb_vae* vae, float scaling_factor, const float* latent, int h, int w, float* image) {
+    if (!vae || !latent || !image || !(scaling_factor > 0)) return mlb_fail(MLB_ERR_ARG, "mlb_sd_decode_latent: bad argument");
+    size_t n = (size_t)vae->cfg.latent_channels * h * w;
+    float* z = malloc(n * sizeof(float));
+    if (!z) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    for (size_t i = 0; i < n; i++) z[i] = latent[i] / scaling_factor;
+    mlb_status s = mlb_vae_decode(vae, z, 1, h, w, image);
+    free(z);
+    return s;
+}

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# 'matlaber sd txt2img' end to end: help, usage and load errors with their exit codes, and (with
+# ../shared/data) a 128x128 PNG from the tiny SD1 fixture in both layouts.
+set -u
+M=${1:?usage: cli_txt2img.sh path/to/matlaber}
+T=$(mktemp -d)
+trap 'rm -rf "$T"' EXIT
+pass=0; fail=0
+ok() { pass=$((pass+1)); echo "ok   $1"; }
+bad() { fail=$((fail+1)); echo "FAIL $1"; }
+expect() { local code=$1 name=$2; shift 3; "$@" > "$T/out" 2> "$T/err"; local rc=$?
+  if [ "$rc" = "$code" ]; then ok "$name"; else bad "$name (exit $rc, expected $code)"; cat "$T/err"; fi; }
+err_has() { if grep -q -- "$2" "$T/err"; then ok "$1"; else bad "$1: stderr lacks '$2'"; cat "$T/err"; fi; }
+png_size() { od -An -tu1 -j16 -N8 "$1" | awk '{print ($1*16777216+$2*65536+$3*256+$4) "x" ($5*16777216+$6*65536+$7*256+$8)}'; }
+
+expect 0 "help" -- $M sd txt2img --help
+expect 0 "sd help lists txt2img" -- $M sd --help
+grep -q txt2img "$T/out" && ok "txt2img in sd --help" || bad "txt2img missing from sd --help"
+expect 2 "missing -m" -- $M sd txt2img -p x -o "$T/a.png"
+expect 2 "missing -p" -- $M sd txt2img -m /x -o "$T/a.png"
+expect 2 "missing -o" -- $M sd txt2img -m /x -p x
+expect 2 "bad --size" -- $M sd txt2img -m /x -p x -o "$T/a.png" --size 100
+expect 2 "bad --steps" -- $M sd txt2img -m /x -p x -o "$T/a.png" --steps 0
+expect 1 "pickle refused" -- $M sd txt2img -m "$T/model.ckpt" -p x -o "$T/a.png"
+err_has "pickle hint" "convert it to .safetensors"
+expect 1 "missing model" -- $M sd txt2img -m /nonexistent/sd.safetensors -p x -o "$T/a.png"
+err_has "missing model named" "/nonexistent/sd.safetensors"
+# a safetensors file without the model's tensors: the missing tensor is named
+printf '\x10\x00\x00\x00\x00\x00\x00\x00{}              ' > "$T/empty.safetensors"
+expect 1 "empty checkpoint" -- $M sd txt2img -m "$T/empty.safetensors" -p x -o "$T/a.png"
+err_has "empty checkpoint names the file" "empty.safetensors"
+[ -e "$T/a.png" ] && bad "no output after errors" || ok "no output after errors"
+
+D=${MLB_SHARED_DATA:-$(dirname "$0")/../../shared/data}
+R="$D/sd_reference"
+if [ -d "$R/sd1_diffusers" ]; then
+  expect 0 "tiny diffusers folder, 128x128" -- $M sd txt2img -m "$R/sd1_diffusers" -p "a golden goblet" --steps 4 --cfg 7.5 --size 128 --seed 3 -o "$T/a.png"
+  [ "$(png_size "$T/a.png")" = "128x128" ] && ok "128x128 PNG" || bad "PNG size $(png_size "$T/a.png" 2>/dev/null)"
+  expect 0 "same seed again" -- $M sd txt2img -m "$R/sd1_diffusers" -p "a golden goblet" --steps 4 --size 128 --seed 3 -o "$T/b.png"
+  cmp -s "$T/a.png" "$T/b.png" && ok "deterministic" || bad "same seed gave a different image"
+  expect 1 "single file without a tokenizer" -- env -u MATLABER_TOKENIZER $M sd txt2img -m "$R/sd1_tiny.safetensors" -p x --size 64 --steps 1 -o "$T/c.png"
+  err_has "tokenizer hint" "tokenizer"
+  expect 0 "single file + tokenizer folder" -- $M sd txt2img -m "$R/sd1_tiny.f16.safetensors" --tokenizer "$R/sd1_diffusers/tokenizer" -p "a golden goblet" --negative "low quality" --steps 2 --size 64 -o "$T/c.png"
+  [ "$(png_size "$T/c.png")" = "64x64" ] && ok "64x64 PNG" || bad "PNG size"
+else
+  echo "skip: no shared sd_reference fixtures"
+fi
+echo "$pass passed, $fail failed"
+[ "$fail" = 0 ]

@@ -23,6 +23,7 @@ static void usage(FILE* out) {
             "  brdf decode     latent code -> BRDF\n"
             "  brdf interp     decoded BRDFs along a latent path\n"
             "  sd tokenize     text -> the 77 CLIP token ids of the SD text encoders\n"
+            "  geometry        init the DMTet geometry network from a shape; extract its surface\n"
             "  render          a mesh with one material under an environment light\n"
             "  relight         the same while the light turns (PNG frames, MP4 with ffmpeg)\n"
             "  device          list compute devices\n"
@@ -78,6 +79,7 @@ int main(int argc, char** argv) {
     char** sub_argv = argv + i;
     if (strcmp(cmd, "brdf") == 0) return cmd_brdf(sub_argc, sub_argv);
     if (strcmp(cmd, "demo") == 0) return cmd_demo(sub_argc, sub_argv);
+    if (strcmp(cmd, "geometry") == 0) return cmd_geometry(sub_argc, sub_argv);
     if (strcmp(cmd, "render") == 0) return cmd_render(sub_argc, sub_argv);
     if (strcmp(cmd, "relight") == 0) return cmd_relight(sub_argc, sub_argv);
     if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);

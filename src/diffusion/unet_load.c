@@ -1,6 +1,7 @@
 // UNet loading: layout detection, diffusers -> ldm name translation, configuration from config.json
 // or the ldm_config metadata, and the float32 parameters (see unet.h, docs/unet.md).
 #include "matlaber/unet.h"
+#include "matlaber/unet_random.h"
 #include <cjson/cJSON.h>
 #include <math.h>
 #include <stdio.h>
@@ -21,47 +22,11 @@ static int ends_with(const char* s, const char* suf) {
 }
 
 // ---- names ----------------------------------------------------------------------------------------
-static const char* res_part(const char* rest, char* buf, size_t cap) {   // ResNet member, diffusers -> ldm
-    static const char* map[][2] = {{"norm1.", "in_layers.0."}, {"conv1.", "in_layers.2."},
-                                   {"time_emb_proj.", "emb_layers.1."}, {"norm2.", "out_layers.0."},
-                                   {"conv2.", "out_layers.3."}, {"conv_shortcut.", "skip_connection."}};
-    for (size_t i = 0; i < sizeof map / sizeof map[0]; i++) {
-        size_t n = strlen(map[i][0]);
-        if (!strncmp(rest, map[i][0], n)) { snprintf(buf, cap, "%s%s", map[i][1], rest + n); return buf; }
-    }
-    snprintf(buf, cap, "%s", rest);
-    return buf;
-}
-
-// The file's name for a diffusers-layout name.
+// The file's name for a diffusers-layout name: mlb_unet_ldm_name (unet_random.c) is the one mapping
+// to the original layout, shared by the loader and the writer of random models.
 static void tensor_name(char* out, size_t cap, const mlb_unet* u, const char* d) {
     if (u->cfg.layout != MLB_UNET_LAYOUT_LDM) { snprintf(out, cap, "%s", d); return; }
-    const mlb_unet_config* c = &u->cfg;
-    int L = c->layers_per_block, i, j, n = 0;
-    char r[256];
-    if (!strncmp(d, "time_embedding.linear_1.", 24)) snprintf(out, cap, LDM_PREFIX "time_embed.0.%s", d + 24);
-    else if (!strncmp(d, "time_embedding.linear_2.", 24)) snprintf(out, cap, LDM_PREFIX "time_embed.2.%s", d + 24);
-    else if (!strncmp(d, "conv_in.", 8)) snprintf(out, cap, LDM_PREFIX "input_blocks.0.0.%s", d + 8);
-    else if (!strncmp(d, "conv_norm_out.", 14)) snprintf(out, cap, LDM_PREFIX "out.0.%s", d + 14);
-    else if (!strncmp(d, "conv_out.", 9)) snprintf(out, cap, LDM_PREFIX "out.2.%s", d + 9);
-    else if (sscanf(d, "down_blocks.%d.resnets.%d.%n", &i, &j, &n) == 2 && n)
-        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.0.%s", 1 + i * (L + 1) + j, res_part(d + n, r, sizeof r));
-    else if (sscanf(d, "down_blocks.%d.attentions.%d.%n", &i, &j, &n) == 2 && n)
-        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.1.%s", 1 + i * (L + 1) + j, d + n);
-    else if (sscanf(d, "down_blocks.%d.downsamplers.0.conv.%n", &i, &n) == 1 && n)
-        snprintf(out, cap, LDM_PREFIX "input_blocks.%d.0.op.%s", 1 + i * (L + 1) + L, d + n);
-    else if (sscanf(d, "mid_block.resnets.%d.%n", &i, &n) == 1 && n)
-        snprintf(out, cap, LDM_PREFIX "middle_block.%d.%s", i ? 2 : 0, res_part(d + n, r, sizeof r));
-    else if (!strncmp(d, "mid_block.attentions.0.", 23)) snprintf(out, cap, LDM_PREFIX "middle_block.1.%s", d + 23);
-    else if (sscanf(d, "up_blocks.%d.resnets.%d.%n", &i, &j, &n) == 2 && n)
-        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.0.%s", i * (L + 1) + j, res_part(d + n, r, sizeof r));
-    else if (sscanf(d, "up_blocks.%d.attentions.%d.%n", &i, &j, &n) == 2 && n)
-        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.1.%s", i * (L + 1) + j, d + n);
-    else if (sscanf(d, "up_blocks.%d.upsamplers.0.conv.%n", &i, &n) == 1 && n) {
-        int lvl = c->n_levels - 1 - i;
-        int has_attn = lvl >= 0 && lvl < MLB_UNET_MAX_LEVELS && c->attn[lvl];
-        snprintf(out, cap, LDM_PREFIX "output_blocks.%d.%d.conv.%s", i * (L + 1) + L, has_attn ? 2 : 1, d + n);
-    } else snprintf(out, cap, LDM_PREFIX "%s", d);
+    mlb_unet_ldm_name(&u->cfg, d, out, cap);
 }
 
 static const mlb_st_tensor* find_d(const mlb_safetensors* st, const mlb_unet* u, const char* d) {

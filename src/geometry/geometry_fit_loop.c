@@ -1,0 +1,100 @@
+// End-to-end geometry fit to silhouettes and normal maps (include/matlaber/geometry_fit.h,
+// docs/geometry_fit.md): defaults, cameras and the fit loop; the differentiable step is
+// geometry_fit.c.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/geometry_fit.h"
+#include "matlaber/rng.h"
+
+enum { STREAM_GEOFIT_CAMERA = 0x6F17 };
+
+
+mlb_geofit_config mlb_geofit_default(void) {
+    mlb_geofit_config c;
+    memset(&c, 0, sizeof c);
+    c.iters = 300;
+    c.views = 2;
+    c.res = 64;
+    c.ss = 1;
+    c.cells = 32;
+    c.lr = 1e-2;
+    c.w_normal = 1.0;
+    c.w_mask = 1.0;
+    c.reg_start = 0.2;
+    c.reg_end = 0.01;
+    c.reg_frac = 0.25;
+    c.radius = 3.0;
+    c.fovy_deg = 45.0;
+    c.el_min = -10.0;
+    c.el_max = 45.0;
+    c.seed = 1;
+    return c;
+}
+
+double mlb_geofit_reg_weight(const mlb_geofit_config* c, int it) {
+    double span = c->reg_frac * c->iters;
+    double t = span > 0 ? it / span : 1.0;
+    if (t > 1) t = 1;
+    return c->reg_start + (c->reg_end - c->reg_start) * t;
+}
+
+mlb_status mlb_geofit_camera(mlb_camera* cam, const mlb_geofit_config* c, int it, int view) {
+    mlb_u32x4 w = mlb_rng_words(c->seed, STREAM_GEOFIT_CAMERA, (uint64_t)it * (uint64_t)c->views + (uint64_t)view);
+    double az = -180.0 + 360.0 * mlb_u32_to_unit(w.v[0]);
+    double el = c->el_min + (c->el_max - c->el_min) * mlb_u32_to_unit(w.v[1]);
+    return mlb_camera_orbit(cam, az, el, c->radius, NULL, c->fovy_deg, 1.0, 0.1, 100.0);
+}
+
+static mlb_status check_config(const mlb_geofit_config* c) {
+    if (c->iters < 0 || c->views < 1 || c->views > 64 || c->res < 4 || c->ss < 1 || c->ss > 8 ||
+        c->res * c->ss > MLB_RASTER_MAX_SIZE || c->cells < 1 || c->cells > 512 || !(c->lr > 0) ||
+        !(c->reg_frac >= 0) || !(c->radius > 0))
+        return mlb_fail(MLB_ERR_ARG, "geometry fit: bad config (iters %d, views %d, res %d, ss %d, cells %d, lr %g)",
+                        c->iters, c->views, c->res, c->ss, c->cells, c->lr);
+    return MLB_OK;
+}
+
+mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target, const mlb_geofit_config* c,
+                                   mlb_progress* progress, mlb_geofit_step_fn step_fn, void* user,
+                                   mlb_geofit_stats* last) {
+    mlb_status s = check_config(c);
+    if (s) return s;
+    if (!target || target->n_faces < 1 || target->n_verts < 3) return mlb_fail(MLB_ERR_ARG, "geometry fit: empty target mesh");
+    size_t img = (size_t)c->res * c->res * 4;
+    float* targets = malloc(sizeof(float) * img * (size_t)c->views);
+    mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)c->views);
+    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
+    mlb_tetgrid g = {0};
+    if (!targets || !cams || !ctx) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
+    if (!s) s = mlb_tetgrid_create(&g, c->cells, net->cfg.scale);
+    mlb_adam_config adam = mlb_geometry_adam(c->lr);
+    mlb_geofit_stats st;
+    memset(&st, 0, sizeof st);
+    for (int it = 0; !s && it < c->iters; it++) {
+        for (int v = 0; !s && v < c->views; v++) {
+            s = mlb_geofit_camera(&cams[v], c, it, v);
+            if (!s) s = mlb_geofit_render_mesh(ctx, targets + img * (size_t)v, target, &cams[v], c->res, c->ss);
+        }
+        if (s) break;
+        geometry_net_zero_grad(net);
+        s = mlb_geofit_loss(net, &g, ctx, cams, c->views, targets, c->res, c->ss, c->w_normal, c->w_mask,
+                            mlb_geofit_reg_weight(c, it), 1, &st);
+        if (s) { s = mlb_fail_context(s, "geometry fit, step %d", it); break; }
+        geometry_net_update(net, &adam);
+        if (progress) {
+            char buf[64];
+            snprintf(buf, sizeof buf, "loss %.4g, %d faces", st.loss, st.n_faces);
+            mlb_progress_update(progress, it + 1, buf);
+        }
+        if (step_fn && step_fn(user, it, &st)) break;
+    }
+    if (last) *last = st;
+    mlb_tetgrid_free(&g);
+    mlb_raster_ctx_free(ctx);
+    free(cams);
+    free(targets);
+    return s;
+}
+

@@ -21,5 +21,9 @@ mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n);
 // Reads a whole file (for small text files); *data is malloc'd and NUL-terminated.
 mlb_status mlb_read_file(const char* path, char** data, size_t* n, size_t max_bytes);
 mlb_status mlb_mkdir_p(const char* path);
+// Path tests the loaders share: a regular file, a folder (both follow links), a name's suffix.
+int mlb_is_file(const char* path);
+int mlb_is_dir(const char* path);
+int mlb_ends_with(const char* s, const char* suffix);
 
 #endif

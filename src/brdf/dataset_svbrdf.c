@@ -2,6 +2,7 @@
 // texture folders, Deschaintre 4-tile images, and folders holding any of them at any depth.
 // Every pixel of a map is one 7-d sample (the paper trains its auto-encoder that way).
 #include "matlaber/brdf.h"
+#include "matlaber/fileio.h"
 #include "matlaber/image.h"
 #include "matlaber/rng.h"
 #include <ctype.h>
@@ -24,16 +25,6 @@
 #define MAX_DEPTH 32
 
 static const mlb_brdf_load_options default_options = {0, 0, 0.0f};
-
-static int is_file(const char* p) {
-    struct stat st;
-    return stat(p, &st) == 0 && S_ISREG(st.st_mode);
-}
-
-static int is_dir(const char* p) {
-    struct stat st;
-    return stat(p, &st) == 0 && S_ISDIR(st.st_mode);
-}
 
 static char* join(const char* a, const char* b) {
     size_t na = strlen(a), nb = strlen(b);
@@ -126,13 +117,13 @@ mlb_status mlb_brdf_load_twoshot(mlb_brdf_set* out, const char* folder, const ml
     for (int i = 0; i < 4; i++)
         if (!(paths[i] = join(folder, names[i]))) { s = mlb_fail(MLB_ERR_NOMEM, "%s: path too long", folder); goto done; }
     for (int i = 0; i < 3; i++)
-        if (!is_file(paths[i])) {
+        if (!mlb_is_file(paths[i])) {
             s = mlb_fail(MLB_ERR_NOT_FOUND,
                          "%s: missing (a TwoShotBRDF sample folder needs diffuse.png, specular.png and roughness.png; "
                          "mask.png is optional)", paths[i]);
             goto done;
         }
-    int has_mask = is_file(paths[3]);
+    int has_mask = mlb_is_file(paths[3]);
     static const int chans[4] = {3, 3, 0, 0};
     for (int i = 0; i < (has_mask ? 4 : 3); i++) {
         if ((s = mlb_image_load(&im[i], paths[i], chans[i])) != MLB_OK) goto done;
@@ -244,7 +235,7 @@ static mlb_status pbr_files(const char* folder, const name_list* l, char* found[
         if (role == ROLE_NONE) continue;
         char* p = join(folder, l->names[i]);
         if (!p) return mlb_fail(MLB_ERR_NOMEM, "%s: path too long", folder);
-        if (!is_file(p)) { free(p); continue; }
+        if (!mlb_is_file(p)) { free(p); continue; }
         if (found[role]) {
             static const char* const what[4] = {"", "base colour", "roughness", "metallic"};
             mlb_status s = mlb_fail(MLB_ERR_FORMAT, "%s: ambiguous: both %s and %s look like the %s map", folder,
@@ -409,7 +400,7 @@ static mlb_status discover(const char* path, int depth, job_list* jl) {
         if (!has_dirs) {
             char* p = join(path, l.names[i]);
             if (!p) { name_list_free(&l); return mlb_fail(MLB_ERR_NOMEM, "%s: path too long", path); }
-            has_dirs = is_dir(p);
+            has_dirs = mlb_is_dir(p);
             free(p);
         }
     }
@@ -421,9 +412,9 @@ static mlb_status discover(const char* path, int depth, job_list* jl) {
     for (size_t i = 0; i < l.n && s == MLB_OK; i++) {
         char* p = join(path, l.names[i]);
         if (!p) { s = mlb_fail(MLB_ERR_NOMEM, "%s: path too long", path); break; }
-        if (is_dir(p)) {
+        if (mlb_is_dir(p)) {
             s = discover(p, depth + 1, jl);
-        } else if (has_image_ext(l.names[i]) && is_file(p)) {
+        } else if (has_image_ext(l.names[i]) && mlb_is_file(p)) {
             int w = 0, h = 0;
             // Only the header is read here; a broken file is reported when it is loaded.
             if (mlb_image_info(p, &w, &h, NULL, NULL) != MLB_OK || w == 4 * h) s = add_job(jl, JOB_TILES, p);

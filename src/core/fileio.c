@@ -125,3 +125,10 @@ mlb_status mlb_mkdir_p(const char* path) {
     if (stat(path, &st) != 0 || !S_ISDIR(st.st_mode)) return mlb_fail(MLB_ERR_IO, "%s: exists and is not a folder", path);
     return MLB_OK;
 }
+
+int mlb_is_file(const char* path) { struct stat st; return stat(path, &st) == 0 && S_ISREG(st.st_mode); }
+int mlb_is_dir(const char* path) { struct stat st; return stat(path, &st) == 0 && S_ISDIR(st.st_mode); }
+int mlb_ends_with(const char* s, const char* suffix) {
+    size_t a = strlen(s), b = strlen(suffix);
+    return a >= b && memcmp(s + a - b, suffix, b) == 0;
+}

@@ -10,12 +10,6 @@
 #include "matlaber/fileio.h"
 #include "matlaber/schedule.h"
 
-static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
-static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
-static int ends_with(const char* s, const char* suf) {
-    size_t a = strlen(s), b = strlen(suf);
-    return a >= b && strcmp(s + a - b, suf) == 0;
-}
 
 mlb_sd_model_options mlb_sd_model_default_options(void) {
     mlb_sd_model_options o = {NULL, -1, 1, 1};
@@ -42,7 +36,7 @@ void mlb_sd_model_free(mlb_sd_model* m) {
 static int scheduler_prediction(const char* folder) {
     char p[4200];
     snprintf(p, sizeof p, "%s/scheduler/scheduler_config.json", folder);
-    if (!is_file(p)) return -1;
+    if (!mlb_is_file(p)) return -1;
     char* text = NULL;
     size_t n = 0;
     if (mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) { return -1; }
@@ -62,14 +56,14 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     *out = NULL;
     mlb_sd_model_options opt = opt_in ? *opt_in : mlb_sd_model_default_options();
     if (strlen(path) > 4000) return mlb_fail(MLB_ERR_ARG, "model path too long");
-    int folder = is_dir(path);
+    int folder = mlb_is_dir(path);
     if (!folder) {
-        if (ends_with(path, ".ckpt") || ends_with(path, ".bin") || ends_with(path, ".pt") || ends_with(path, ".pth"))
+        if (mlb_ends_with(path, ".ckpt") || mlb_ends_with(path, ".bin") || mlb_ends_with(path, ".pt") || mlb_ends_with(path, ".pth"))
             return mlb_fail(MLB_ERR_UNSUPPORTED,
                             "%s: pickle checkpoints are not read; convert it to .safetensors first (e.g. with "
                             "safetensors' convert script or diffusers' convert_original_stable_diffusion_to_diffusers.py)",
                             path);
-        if (!is_file(path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such model file or folder", path);
+        if (!mlb_is_file(path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such model file or folder", path);
     }
     mlb_sd_model* m = calloc(1, sizeof *m);
     if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");

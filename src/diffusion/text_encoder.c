@@ -17,12 +17,6 @@
 #define TE_CONFIG_MAX (1 << 20)   // bytes of config.json / ldm_config accepted
 
 // ---- small helpers ------------------------------------------------------------------------------
-static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
-static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
-static int ends_with(const char* s, const char* suffix) {
-    size_t n = strlen(s), m = strlen(suffix);
-    return n >= m && strcmp(s + n - m, suffix) == 0;
-}
 
 static void fmt_shape(char* buf, size_t cap, const mlb_st_tensor* t) {
     size_t n = (size_t)snprintf(buf, cap, "[");
@@ -254,16 +248,16 @@ static int count_layers(const mlb_safetensors* st, const te_names* nm) {
 // config.json in its folder. Empty when neither exists.
 static void config_beside(const char* weights, char* out, size_t cap) {
     out[0] = 0;
-    if (!weights || strlen(weights) >= TE_PATH_MAX - 32 || !is_file(weights)) return;   // not "<memory>"
+    if (!weights || strlen(weights) >= TE_PATH_MAX - 32 || !mlb_is_file(weights)) return;   // not "<memory>"
     char p[TE_PATH_MAX];
-    if (ends_with(weights, ".safetensors")) {
+    if (mlb_ends_with(weights, ".safetensors")) {
         snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-        if (is_file(p)) { snprintf(out, cap, "%s", p); return; }
+        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
     }
     const char* slash = strrchr(weights, '/');
     if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
     else snprintf(p, sizeof p, "config.json");
-    if (is_file(p)) snprintf(out, cap, "%s", p);
+    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
 }
 
 static mlb_status check_config_size(const char* cfg_path, const char* key, int cfg_value, int weights_value,
@@ -458,7 +452,7 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
 }
 
 static int is_pickle_name(const char* p) {
-    return ends_with(p, ".ckpt") || ends_with(p, ".bin") || ends_with(p, ".pt") || ends_with(p, ".pth");
+    return mlb_ends_with(p, ".ckpt") || mlb_ends_with(p, ".bin") || mlb_ends_with(p, ".pt") || mlb_ends_with(p, ".pth");
 }
 
 static mlb_status pickle_error(const char* p) {
@@ -479,17 +473,17 @@ mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_option
     if (S_ISDIR(sb.st_mode)) {
         char dir[TE_PATH_MAX];
         snprintf(dir, sizeof dir, "%s/text_encoder", path);
-        if (!is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
+        if (!mlb_is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
         snprintf(weights, sizeof weights, "%s/model.safetensors", dir);
-        if (!is_file(weights)) snprintf(weights, sizeof weights, "%s/model.fp16.safetensors", dir);
-        if (!is_file(weights)) {
+        if (!mlb_is_file(weights)) snprintf(weights, sizeof weights, "%s/model.fp16.safetensors", dir);
+        if (!mlb_is_file(weights)) {
             snprintf(weights, sizeof weights, "%s/pytorch_model.bin", dir);
-            if (is_file(weights)) return pickle_error(weights);
+            if (mlb_is_file(weights)) return pickle_error(weights);
             return mlb_fail(MLB_ERR_NOT_FOUND, "text encoder %s: no model.safetensors in it or in text_encoder/ "
                             "(expected a diffusers text_encoder folder or a diffusers model folder)", path);
         }
         snprintf(config, sizeof config, "%s/config.json", dir);
-        if (!is_file(config)) config[0] = 0;
+        if (!mlb_is_file(config)) config[0] = 0;
     } else {
         if (is_pickle_name(path)) return pickle_error(path);
         snprintf(weights, sizeof weights, "%s", path);

@@ -274,10 +274,6 @@ static mlb_status build_from_merges(mlb_tokenizer* t, const char* text, size_t n
 
 // ---- reading the files ----------------------------------------------------------------------------
 
-static int ends_with(const char* s, const char* suffix) {
-    size_t a = strlen(s), b = strlen(suffix);
-    return a >= b && strcmp(s + a - b, suffix) == 0;
-}
 
 // A whole gzip file into memory, checking the stream to its end (CRC and length included).
 static mlb_status read_gzip(const char* path, char** data, size_t* n) {
@@ -380,8 +376,6 @@ done:
     return s;
 }
 
-static int is_dir(const char* p) { struct stat st; return stat(p, &st) == 0 && S_ISDIR(st.st_mode); }
-static int is_file(const char* p) { struct stat st; return stat(p, &st) == 0 && S_ISREG(st.st_mode); }
 
 // A folder with merges.txt (and vocab.json when present).
 static mlb_status load_folder(mlb_tokenizer* t, const char* dir) {
@@ -394,7 +388,7 @@ static mlb_status load_folder(mlb_tokenizer* t, const char* dir) {
     mlb_status s = load_merges_text(t, merges, text, n);
     free(text);
     if (s) return s;
-    int has_vocab = is_file(vocab);
+    int has_vocab = mlb_is_file(vocab);
     if (has_vocab) MLB_TRY(check_vocab_json(t, vocab));
     snprintf(t->source, sizeof t->source, "%s (merges.txt%s, %d merges)", dir, has_vocab ? " + vocab.json" : "", t->n_merges);
     return MLB_OK;
@@ -416,10 +410,10 @@ static mlb_status load_file(mlb_tokenizer* t, const char* path) {
         snprintf(t->source, sizeof t->source, "%s (gzipped merges, %d merges)", path, t->n_merges);
         return MLB_OK;
     }
-    if (ends_with(path, ".gz"))
+    if (mlb_ends_with(path, ".gz"))
         return mlb_fail(MLB_ERR_FORMAT, "%s: not gzip-compressed (no gzip signature); expected the gzipped CLIP merges "
                         "file bpe_simple_vocab_16e6.txt.gz", path);
-    if (ends_with(path, ".json"))
+    if (mlb_ends_with(path, ".json"))
         return mlb_fail(MLB_ERR_ARG, "%s: a JSON file; pass the tokenizer folder (merges.txt + vocab.json) instead", path);
     MLB_TRY(mlb_read_file(path, &text, &n, MAX_MERGES_BYTES));
     mlb_status s = load_merges_text(t, path, text, n);
@@ -437,17 +431,17 @@ static mlb_status load_path(mlb_tokenizer* t, const char* path) {
     if (!S_ISDIR(st.st_mode)) return mlb_fail(MLB_ERR_ARG, "tokenizer %s: neither a file nor a folder", path);
     char p[1100];
     snprintf(p, sizeof p, "%s/merges.txt", path);
-    if (is_file(p)) return load_folder(t, path);
+    if (mlb_is_file(p)) return load_folder(t, path);
     snprintf(p, sizeof p, "%s/tokenizer/merges.txt", path);
-    if (is_file(p)) { snprintf(p, sizeof p, "%s/tokenizer", path); return load_folder(t, p); }
+    if (mlb_is_file(p)) { snprintf(p, sizeof p, "%s/tokenizer", path); return load_folder(t, p); }
     snprintf(p, sizeof p, "%s/bpe_simple_vocab_16e6.txt.gz", path);
-    if (is_file(p)) return load_file(t, p);
+    if (mlb_is_file(p)) return load_file(t, p);
     snprintf(p, sizeof p, "%s/vocab.json", path);
     char q[1100];
     snprintf(q, sizeof q, "%s/tokenizer", path);
-    if (is_file(p) || is_dir(q))
+    if (mlb_is_file(p) || mlb_is_dir(q))
         return mlb_fail(MLB_ERR_NOT_FOUND, "tokenizer %s: has %s but no merges.txt beside it; the BPE merges are needed",
-                        path, is_file(p) ? "vocab.json" : "tokenizer/");
+                        path, mlb_is_file(p) ? "vocab.json" : "tokenizer/");
     return mlb_fail(MLB_ERR_NOT_FOUND,
                     "tokenizer %s: no tokenizer found; expected the gzipped merges file bpe_simple_vocab_16e6.txt.gz, "
                     "a folder with merges.txt (and vocab.json), or a model folder with tokenizer/merges.txt", path);

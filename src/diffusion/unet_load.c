@@ -14,12 +14,6 @@
 #define UNET_CONFIG_MAX (1 << 20)
 #define LDM_PREFIX "model.diffusion_model."
 
-static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
-static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
-static int ends_with(const char* s, const char* suf) {
-    size_t a = strlen(s), b = strlen(suf);
-    return a >= b && !strcmp(s + a - b, suf);
-}
 
 // ---- names ----------------------------------------------------------------------------------------
 // The file's name for a diffusers-layout name: mlb_unet_ldm_name (unet_random.c) is the one mapping
@@ -384,18 +378,18 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
     if (strlen(path) > UNET_PATH_MAX - 64) return mlb_fail(MLB_ERR_ARG, "UNet path too long");
     char weights[UNET_PATH_MAX], cfg[UNET_PATH_MAX];
     cfg[0] = 0;
-    if (is_dir(path)) {
+    if (mlb_is_dir(path)) {
         snprintf(weights, sizeof weights, "%s/unet/diffusion_pytorch_model.safetensors", path);
-        if (is_file(weights)) snprintf(cfg, sizeof cfg, "%s/unet/config.json", path);
+        if (mlb_is_file(weights)) snprintf(cfg, sizeof cfg, "%s/unet/config.json", path);
         else {
             snprintf(weights, sizeof weights, "%s/diffusion_pytorch_model.safetensors", path);
-            if (!is_file(weights))
+            if (!mlb_is_file(weights))
                 return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no diffusion_pytorch_model.safetensors in the folder or in unet/", path);
             snprintf(cfg, sizeof cfg, "%s/config.json", path);
         }
-        if (!is_file(cfg)) cfg[0] = 0;
+        if (!mlb_is_file(cfg)) cfg[0] = 0;
     } else {
-        if (ends_with(path, ".ckpt") || ends_with(path, ".bin") || ends_with(path, ".pt") || ends_with(path, ".pth"))
+        if (mlb_ends_with(path, ".ckpt") || mlb_ends_with(path, ".bin") || mlb_ends_with(path, ".pt") || mlb_ends_with(path, ".pth"))
             return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: pickle checkpoints are not read; convert it to .safetensors", path);
         snprintf(weights, sizeof weights, "%s", path);
     }
@@ -403,14 +397,14 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
     MLB_TRY(mlb_st_open(&st, weights));
     if (!cfg[0] && mlb_st_find(st, "conv_in.weight")) {   // a diffusers file: a config beside it
         char p[UNET_PATH_MAX + 32];
-        if (ends_with(weights, ".safetensors")) {
+        if (mlb_ends_with(weights, ".safetensors")) {
             snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-            if (is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
+            if (mlb_is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
         }
         const char* slash = strrchr(weights, '/');
         if (!cfg[0] && slash) {
             snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
-            if (is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
+            if (mlb_is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
         }
     }
     const char* cp = opt && opt->config_path ? opt->config_path : (cfg[0] ? cfg : NULL);

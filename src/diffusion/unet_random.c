@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/fileio.h"
 #include "matlaber/half.h"
 #include "matlaber/rng.h"
 
@@ -257,10 +258,6 @@ void mlb_unet_ldm_name(const mlb_unet_config* c, const char* d, char* out, size_
 }
 
 // ---- values -----------------------------------------------------------------------------------------------
-static int ends_with(const char* s, const char* suf) {
-    size_t a = strlen(s), b = strlen(suf);
-    return a >= b && !strcmp(s + a - b, suf);
-}
 
 void mlb_unet_random_values(const mlb_unet_tensor_spec* s, size_t i, uint64_t seed, float gain, float* out) {
     uint64_t stream = UNET_RANDOM_STREAM + i;
@@ -272,7 +269,7 @@ void mlb_unet_random_values(const mlb_unet_tensor_spec* s, size_t i, uint64_t se
         mlb_rng_fill_normal(out, s->n, seed, stream, 0, 0.0f, (float)(gain / sqrt(fan_in)));
     } else {
         mlb_rng_fill_normal(out, s->n, seed, stream, 0, 0.0f, 0.05f);
-        if (is_norm && last && ends_with(s->name, ".weight"))
+        if (is_norm && last && mlb_ends_with(s->name, ".weight"))
             for (size_t k = 0; k < s->n; k++) out[k] += 1.0f;
     }
 }

@@ -455,25 +455,19 @@ static mlb_status apply_config(const vae_cfg_file* f, const char* cfg_name, mlb_
 }
 
 // ---- loading ---------------------------------------------------------------------------------------
-static int is_file(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISREG(s.st_mode); }
-static int is_dir(const char* p) { struct stat s; return stat(p, &s) == 0 && S_ISDIR(s.st_mode); }
-static int ends_with(const char* s, const char* suffix) {
-    size_t n = strlen(s), m = strlen(suffix);
-    return n >= m && strcmp(s + n - m, suffix) == 0;
-}
 
 static void config_beside(const char* weights, char* out, size_t cap) {
     out[0] = 0;
-    if (!weights || strlen(weights) >= VAE_PATH_MAX - 32 || !is_file(weights)) return;
+    if (!weights || strlen(weights) >= VAE_PATH_MAX - 32 || !mlb_is_file(weights)) return;
     char p[VAE_PATH_MAX];
-    if (ends_with(weights, ".safetensors")) {
+    if (mlb_ends_with(weights, ".safetensors")) {
         snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-        if (is_file(p)) { snprintf(out, cap, "%s", p); return; }
+        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
     }
     const char* slash = strrchr(weights, '/');
     if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
     else snprintf(p, sizeof p, "config.json");
-    if (is_file(p)) snprintf(out, cap, "%s", p);
+    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
 }
 
 static void fmt_shape(char* buf, size_t cap, int ndim, const int64_t* shape) {
@@ -571,7 +565,7 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
 }
 
 static int is_pickle_name(const char* p) {
-    return ends_with(p, ".ckpt") || ends_with(p, ".bin") || ends_with(p, ".pt") || ends_with(p, ".pth");
+    return mlb_ends_with(p, ".ckpt") || mlb_ends_with(p, ".bin") || mlb_ends_with(p, ".pt") || mlb_ends_with(p, ".pth");
 }
 
 static mlb_status pickle_error(const char* p) {
@@ -592,21 +586,21 @@ mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** 
     if (S_ISDIR(sb.st_mode)) {
         char dir[VAE_PATH_MAX];
         snprintf(dir, sizeof dir, "%s/vae", path);
-        if (!is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
+        if (!mlb_is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
         static const char* names[] = {"diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"};
         int found = 0;
         for (int i = 0; i < 2 && !found; i++) {
             snprintf(weights, sizeof weights, "%s/%s", dir, names[i]);
-            found = is_file(weights);
+            found = mlb_is_file(weights);
         }
         if (!found) {
             snprintf(weights, sizeof weights, "%s/diffusion_pytorch_model.bin", dir);
-            if (is_file(weights)) return pickle_error(weights);
+            if (mlb_is_file(weights)) return pickle_error(weights);
             return mlb_fail(MLB_ERR_NOT_FOUND, "VAE %s: no diffusion_pytorch_model.safetensors in it or in vae/ "
                             "(expected a diffusers vae folder or a diffusers model folder)", path);
         }
         snprintf(config, sizeof config, "%s/config.json", dir);
-        if (!is_file(config)) config[0] = 0;
+        if (!mlb_is_file(config)) config[0] = 0;
     } else {
         if (is_pickle_name(path)) return pickle_error(path);
         snprintf(weights, sizeof weights, "%s", path);

@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "matlaber/fileio.h"
+#include "matlaber/sd_files.h"
 #include "matlaber/text_encoder.h"
 #include "matlaber/tokenizer.h"
 #include "matlaber/transformer_ops.h"
@@ -451,43 +452,14 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
     return MLB_OK;
 }
 
-static int is_pickle_name(const char* p) {
-    return mlb_ends_with(p, ".ckpt") || mlb_ends_with(p, ".bin") || mlb_ends_with(p, ".pt") || mlb_ends_with(p, ".pth");
-}
-
-static mlb_status pickle_error(const char* p) {
-    return mlb_fail(MLB_ERR_UNSUPPORTED, "text encoder %s: pickle checkpoints run code when loaded and are not read; "
-                    "convert it to .safetensors (e.g. safetensors.torch.save_file of its state dict) and pass that", p);
-}
 
 mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_options* opt, mlb_text_encoder** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL output");
     *out = NULL;
     if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "text encoder: empty path");
     if (strlen(path) > TE_PATH_MAX - 100) return mlb_fail(MLB_ERR_ARG, "text encoder: path longer than 1000 bytes");
-    struct stat sb;
-    if (stat(path, &sb) != 0)
-        return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "text encoder %s: %s", path, strerror(errno));
     char weights[TE_PATH_MAX], config[TE_PATH_MAX];
-    config[0] = 0;
-    if (S_ISDIR(sb.st_mode)) {
-        char dir[TE_PATH_MAX];
-        snprintf(dir, sizeof dir, "%s/text_encoder", path);
-        if (!mlb_is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
-        snprintf(weights, sizeof weights, "%s/model.safetensors", dir);
-        if (!mlb_is_file(weights)) snprintf(weights, sizeof weights, "%s/model.fp16.safetensors", dir);
-        if (!mlb_is_file(weights)) {
-            snprintf(weights, sizeof weights, "%s/pytorch_model.bin", dir);
-            if (mlb_is_file(weights)) return pickle_error(weights);
-            return mlb_fail(MLB_ERR_NOT_FOUND, "text encoder %s: no model.safetensors in it or in text_encoder/ "
-                            "(expected a diffusers text_encoder folder or a diffusers model folder)", path);
-        }
-        snprintf(config, sizeof config, "%s/config.json", dir);
-        if (!mlb_is_file(config)) config[0] = 0;
-    } else {
-        if (is_pickle_name(path)) return pickle_error(path);
-        snprintf(weights, sizeof weights, "%s", path);
-    }
+    MLB_TRY(mlb_sd_component_files("text encoder", path, "text_encoder", "model", weights, config, sizeof weights));
     if (opt && opt->config_path) config[0] = 0;   // the caller's config wins (from_st uses it)
     mlb_safetensors* st = NULL;
     MLB_TRY(mlb_st_open(&st, weights));

@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "matlaber/fileio.h"
+#include "matlaber/sd_files.h"
 #include "matlaber/rng.h"
 #include "matlaber/vae.h"
 
@@ -564,47 +565,14 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     return MLB_OK;
 }
 
-static int is_pickle_name(const char* p) {
-    return mlb_ends_with(p, ".ckpt") || mlb_ends_with(p, ".bin") || mlb_ends_with(p, ".pt") || mlb_ends_with(p, ".pth");
-}
-
-static mlb_status pickle_error(const char* p) {
-    return mlb_fail(MLB_ERR_UNSUPPORTED, "VAE %s: pickle checkpoints run code when loaded and are not read; convert "
-                    "it to .safetensors (e.g. safetensors.torch.save_file of its state dict) and pass that", p);
-}
 
 mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
     if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "VAE: empty path");
     if (strlen(path) > VAE_PATH_MAX - 100) return mlb_fail(MLB_ERR_ARG, "VAE: path longer than 1000 bytes");
-    struct stat sb;
-    if (stat(path, &sb) != 0)
-        return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "VAE %s: %s", path, strerror(errno));
     char weights[VAE_PATH_MAX], config[VAE_PATH_MAX];
-    config[0] = 0;
-    if (S_ISDIR(sb.st_mode)) {
-        char dir[VAE_PATH_MAX];
-        snprintf(dir, sizeof dir, "%s/vae", path);
-        if (!mlb_is_dir(dir)) snprintf(dir, sizeof dir, "%s", path);
-        static const char* names[] = {"diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"};
-        int found = 0;
-        for (int i = 0; i < 2 && !found; i++) {
-            snprintf(weights, sizeof weights, "%s/%s", dir, names[i]);
-            found = mlb_is_file(weights);
-        }
-        if (!found) {
-            snprintf(weights, sizeof weights, "%s/diffusion_pytorch_model.bin", dir);
-            if (mlb_is_file(weights)) return pickle_error(weights);
-            return mlb_fail(MLB_ERR_NOT_FOUND, "VAE %s: no diffusion_pytorch_model.safetensors in it or in vae/ "
-                            "(expected a diffusers vae folder or a diffusers model folder)", path);
-        }
-        snprintf(config, sizeof config, "%s/config.json", dir);
-        if (!mlb_is_file(config)) config[0] = 0;
-    } else {
-        if (is_pickle_name(path)) return pickle_error(path);
-        snprintf(weights, sizeof weights, "%s", path);
-    }
+    MLB_TRY(mlb_sd_component_files("VAE", path, "vae", "diffusion_pytorch_model", weights, config, sizeof weights));
     if (opt && opt->config_path) config[0] = 0;   // the caller's config wins (from_st uses it)
     mlb_safetensors* st = NULL;
     MLB_TRY(mlb_st_open(&st, weights));

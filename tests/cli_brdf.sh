@@ -3,16 +3,7 @@
 # a file round trip, encode/decode, interp and the JSON output.
 set -u
 M=${1:?usage: cli_brdf.sh path/to/matlaber}
-T=$(mktemp -d)
-trap 'rm -rf "$T"' EXIT
-pass=0; fail=0
-ok() { pass=$((pass+1)); echo "ok   $1"; }
-bad() { fail=$((fail+1)); echo "FAIL $1"; }
-# expect CODE NAME -- command...: exit status CODE
-expect() { local code=$1 name=$2; shift 3; "$@" > "$T/out" 2> "$T/err"; local rc=$?
-  if [ "$rc" = "$code" ]; then ok "$name"; else bad "$name (exit $rc, expected $code)"; cat "$T/err"; fi; }
-# stderr of the last command contains TEXT
-err_has() { if grep -q -- "$2" "$T/err"; then ok "$1"; else bad "$1: stderr lacks '$2'"; cat "$T/err"; fi; }
+. "$(dirname "$0")/lib_cli.sh"
 
 for c in "" "brdf" "brdf train" "brdf eval" "brdf encode" "brdf decode" "brdf interp" "demo" "device"; do
   expect 0 "help: $c" -- $M $c --help

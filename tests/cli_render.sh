@@ -3,16 +3,7 @@
 # exit codes, and errors that name the bad file.
 set -u
 M=${1:?usage: cli_render.sh path/to/matlaber}
-T=$(mktemp -d)
-trap 'rm -rf "$T"' EXIT
-pass=0; fail=0
-ok() { pass=$((pass+1)); echo "ok   $1"; }
-bad() { fail=$((fail+1)); echo "FAIL $1"; }
-expect() { local code=$1 name=$2; shift 3; "$@" > "$T/out" 2> "$T/err"; local rc=$?
-  if [ "$rc" = "$code" ]; then ok "$name"; else bad "$name (exit $rc, expected $code)"; cat "$T/err"; fi; }
-err_has() { if grep -q -- "$2" "$T/err"; then ok "$1"; else bad "$1: stderr lacks '$2'"; cat "$T/err"; fi; }
-# width and height of a PNG from its IHDR chunk
-png_size() { od -An -tu1 -j16 -N8 "$1" | awk '{print ($1*16777216+$2*65536+$3*256+$4) "x" ($5*16777216+$6*65536+$7*256+$8)}'; }
+. "$(dirname "$0")/lib_cli.sh"
 
 # a tetrahedron, CCW from outside
 cat > "$T/tet.obj" <<'OBJ'

@@ -2,9 +2,7 @@
 # 'matlaber sd tokenize' end to end: help, exit codes, known ids with the real CLIP files.
 set -u
 M=${1:?usage: cli_sd.sh path/to/matlaber}
-pass=0; fail=0
-ok() { pass=$((pass+1)); echo "ok   $1"; }
-bad() { fail=$((fail+1)); echo "FAIL $1"; }
+. "$(dirname "$0")/lib_cli.sh"
 $M sd tokenize --help > /dev/null && ok "help" || bad "help"
 $M sd tokenize -p "x" > /dev/null 2>&1; [ $? = 2 ] && ok "missing --tokenizer is a usage error" || bad "missing --tokenizer"
 $M sd tokenize --tokenizer /nonexistent/tok -p "x" > /dev/null 2> /tmp/cli_sd_err.$$; rc=$?

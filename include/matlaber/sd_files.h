@@ -16,4 +16,9 @@ mlb_status mlb_pickle_refusal(const char* what, const char* path);
 mlb_status mlb_sd_component_files(const char* what, const char* path, const char* subdir, const char* base,
                                   char* weights, char* config, size_t cap);
 
+// The first member named `key` in a JSON tree, depth first (diffusers configs and the ldm_config
+// metadata of single files nest the fields the loaders need); NULL when absent.
+struct cJSON;
+const struct cJSON* mlb_json_find(const struct cJSON* node, const char* key);
+
 #endif

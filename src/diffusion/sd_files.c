@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <cjson/cJSON.h>
 #include "matlaber/fileio.h"
 #include "matlaber/sd_files.h"
 
@@ -42,4 +43,13 @@ mlb_status mlb_sd_component_files(const char* what, const char* path, const char
     if (mlb_is_file(weights)) return mlb_pickle_refusal(what, weights);
     return mlb_fail(MLB_ERR_NOT_FOUND, "%s %s: no %s.safetensors in it or in %s/ (expected a diffusers %s folder or a "
                     "diffusers model folder)", what, path, base, subdir, subdir);
+}
+
+const cJSON* mlb_json_find(const cJSON* node, const char* key) {
+    for (const cJSON* c = node ? node->child : NULL; c; c = c->next) {
+        if (c->string && !strcmp(c->string, key)) return c;
+        const cJSON* r = mlb_json_find(c, key);
+        if (r) return r;
+    }
+    return NULL;
 }

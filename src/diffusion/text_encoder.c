@@ -119,15 +119,6 @@ done:
     return s;
 }
 
-static const cJSON* json_find(const cJSON* node, const char* key) {   // depth first, first match
-    for (const cJSON* c = node ? node->child : NULL; c; c = c->next) {
-        if (c->string && !strcmp(c->string, key)) return c;
-        const cJSON* r = json_find(c, key);
-        if (r) return r;
-    }
-    return NULL;
-}
-
 // The ldm_config metadata of single files (the inference yaml as JSON): heads and the output layer
 // of cond_stage_config. Absent or unparsable metadata leaves cfg untouched (published checkpoints
 // carry none); a present but malformed heads entry is an error.
@@ -137,17 +128,17 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, te_config* cfg) {
     cJSON* root = cJSON_Parse(meta);
     if (!root) return MLB_OK;
     mlb_status s = MLB_OK;
-    const cJSON* cond = json_find(root, "cond_stage_config");
+    const cJSON* cond = mlb_json_find(root, "cond_stage_config");
     if (cond) {
-        const cJSON* h = json_find(cond, "num_attention_heads");
-        if (!h) h = json_find(cond, "heads");
+        const cJSON* h = mlb_json_find(cond, "num_attention_heads");
+        if (!h) h = mlb_json_find(cond, "heads");
         if (h) {
             if (!is_count(h))
                 s = mlb_fail(MLB_ERR_FORMAT, "%s: ldm_config metadata: '%s' of cond_stage_config is not a positive "
                              "integer", mlb_st_path(st), h->string);
             else cfg->heads = (int)h->valuedouble;
         }
-        const cJSON* l = json_find(cond, "layer");
+        const cJSON* l = mlb_json_find(cond, "layer");
         if (!s && cJSON_IsString(l) && strlen(l->valuestring) < sizeof cfg->layer) strcpy(cfg->layer, l->valuestring);
     }
     cJSON_Delete(root);

@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "matlaber/fileio.h"
+#include "matlaber/sd_files.h"
 
 #define UNET_PATH_MAX 4096
 #define UNET_CONFIG_MAX (1 << 20)
@@ -105,15 +106,6 @@ typedef struct {
     double eps, shift;
 } unet_cfg_file;
 
-static const cJSON* json_find(const cJSON* node, const char* key) {   // depth first, first match
-    for (const cJSON* c = node ? node->child : NULL; c; c = c->next) {
-        if (c->string && !strcmp(c->string, key)) return c;
-        const cJSON* r = json_find(c, key);
-        if (r) return r;
-    }
-    return NULL;
-}
-
 static int pos_int(const cJSON* v) { return cJSON_IsNumber(v) && v->valuedouble >= 1 && v->valuedouble < 1e9 && v->valuedouble == floor(v->valuedouble); }
 
 static mlb_status read_heads(const cJSON* v, unet_cfg_file* f, const char* src, const char* key) {
@@ -167,14 +159,14 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, unet_cfg_file* f) 
     cJSON* root = cJSON_Parse(meta);
     if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: ldm_config metadata is not valid JSON", mlb_st_path(st));
     mlb_status s = MLB_OK;
-    const cJSON* un = json_find(root, "unet_config");
+    const cJSON* un = mlb_json_find(root, "unet_config");
     const cJSON* p = un ? cJSON_GetObjectItemCaseSensitive(un, "params") : NULL;
     const cJSON* v;
     if (p && (v = cJSON_GetObjectItemCaseSensitive(p, "num_head_channels")) != NULL && pos_int(v))
         f->head_channels = (int)v->valuedouble;
     else if (p && (v = cJSON_GetObjectItemCaseSensitive(p, "num_heads")) != NULL && pos_int(v))
         s = read_heads(v, f, mlb_st_path(st), "ldm_config num_heads");
-    const cJSON* par = json_find(root, "parameterization");
+    const cJSON* par = mlb_json_find(root, "parameterization");
     if (cJSON_IsString(par)) f->v_pred = !strcmp(par->valuestring, "v");
     cJSON_Delete(root);
     return s;

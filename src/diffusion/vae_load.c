@@ -312,15 +312,6 @@ static mlb_status parse_config_json(const char* path, vae_cfg_file* c) {
     return s;
 }
 
-static const cJSON* json_find(const cJSON* node, const char* key) {   // depth first, first match
-    for (const cJSON* ch = node ? node->child : NULL; ch; ch = ch->next) {
-        if (ch->string && !strcmp(ch->string, key)) return ch;
-        const cJSON* r = json_find(ch, key);
-        if (r) return r;
-    }
-    return NULL;
-}
-
 // The ldm_config metadata: first_stage_config.params.{embed_dim, ddconfig{ch, ch_mult, ...}} and
 // the LatentDiffusion scale_factor. Unparsable or absent metadata is ignored (published files
 // carry none); present but wrong values are errors.
@@ -331,8 +322,8 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, vae_cfg_file* c) {
     if (!root) return MLB_OK;
     const char* file = mlb_st_path(st);
     mlb_status s = MLB_OK;
-    const cJSON* fs = json_find(root, "first_stage_config");
-    const cJSON* dd = fs ? json_find(fs, "ddconfig") : NULL;
+    const cJSON* fs = mlb_json_find(root, "first_stage_config");
+    const cJSON* dd = fs ? mlb_json_find(fs, "ddconfig") : NULL;
     if (dd) {
         int ch = 0;
         s = json_int(dd, "ch", &ch, file);
@@ -346,7 +337,7 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, vae_cfg_file* c) {
             s = mlb_fail(MLB_ERR_UNSUPPORTED, "%s: ldm_config asks for attention in the VAE's down/up blocks "
                          "(attn_resolutions); only the mid-block attention of the SD VAE is supported", file);
     }
-    const cJSON* sf = json_find(root, "scale_factor");
+    const cJSON* sf = mlb_json_find(root, "scale_factor");
     if (!s && cJSON_IsNumber(sf) && sf->valuedouble > 0) c->scaling = sf->valuedouble;
     cJSON_Delete(root);
     snprintf(c->from, sizeof c->from, "ldm_config");

@@ -1,0 +1,206 @@
+// Baking a material field into kd / ks / roughness textures over a UV atlas: UV-space
+// rasterisation with conservative coverage, one batched material evaluation, breadth-first
+// dilation. See bake.h.
+#include "matlaber/bake.h"
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+// NaN-free min/max without libm calls (the inputs here are finite or ±INFINITY)
+#define MIN2(a, b) ((a) < (b) ? (a) : (b))
+#define MAX2(a, b) ((a) > (b) ? (a) : (b))
+
+void mlb_baked_free(mlb_baked* b) {
+    if (!b) return;
+    free(b->kd);
+    free(b->ks);
+    free(b->roughness);
+    free(b->mask);
+    free(b->face);
+    memset(b, 0, sizeof *b);
+}
+
+// Closest point of segment p→q to c: returns squared distance, *t the parameter in [0,1].
+static double seg_closest(const double* p, const double* q, const double* c, double* t) {
+    double dx = q[0] - p[0], dy = q[1] - p[1];
+    double l2 = dx * dx + dy * dy;
+    double s = l2 > 0 ? ((c[0] - p[0]) * dx + (c[1] - p[1]) * dy) / l2 : 0;
+    s = s < 0 ? 0 : s > 1 ? 1 : s;
+    double ex = p[0] + s * dx - c[0], ey = p[1] + s * dy - c[1];
+    *t = s;
+    return ex * ex + ey * ey;
+}
+
+#define CONSERVATIVE_R 0.7072   // half a texel diagonal (sqrt(2)/2, rounded up)
+
+mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out) {
+    if (out) memset(out, 0, sizeof *out);
+    if (!m || !out || !fn) return mlb_fail(MLB_ERR_ARG, "mlb_bake: NULL mesh, output or material function");
+    const mlb_mesh* M = &m->mesh;
+    if (!M->pos || !M->uv || !M->faces || M->n_verts <= 0 || M->n_faces <= 0)
+        return mlb_fail(MLB_ERR_ARG, "mlb_bake: the mesh needs positions, uvs and faces (%d vertices, %d faces)",
+                        M->n_verts, M->n_faces);
+    if (size < 1 || size > 16384) return mlb_fail(MLB_ERR_ARG, "mlb_bake: texture size %d (need 1..16384)", size);
+    for (size_t i = 0; i < 3 * (size_t)M->n_faces; i++)
+        if (M->faces[i] < 0 || M->faces[i] >= M->n_verts)
+            return mlb_fail(MLB_ERR_ARG, "mlb_bake: face %zu uses vertex %d, mesh has %d", i / 3, (int)M->faces[i], M->n_verts);
+    for (size_t i = 0; i < 2 * (size_t)M->n_verts; i++)
+        if (!isfinite(M->uv[i])) return mlb_fail(MLB_ERR_ARG, "mlb_bake: vertex %zu has a non-finite uv", i / 2);
+
+    const size_t N = (size_t)size * size;
+    mlb_status st = MLB_OK;
+    float* best = malloc(sizeof *best * N);      // [N] distance (texels) of the texel's face, 0 = centre inside
+    float* bary = malloc(sizeof *bary * 3 * N);  // [N,3]
+    int32_t* cov = NULL;
+    float *pos = NULL, *k = NULL;
+    int32_t* queue = NULL;
+    int32_t* dist = NULL;
+    out->size = size;
+    out->kd = malloc(sizeof(float) * 3 * N);
+    out->ks = malloc(sizeof(float) * 3 * N);
+    out->roughness = malloc(sizeof(float) * N);
+    out->mask = calloc(N, 1);
+    out->face = malloc(sizeof(int32_t) * N);
+    if (!best || !bary || !out->kd || !out->ks || !out->roughness || !out->mask || !out->face) goto nomem;
+    for (size_t i = 0; i < N; i++) { best[i] = INFINITY; out->face[i] = -1; }
+
+    // rasterise in texel coordinates: x = u·size, y = (1 − v)·size
+    for (int f = 0; f < M->n_faces; f++) {
+        double P[3][2];
+        for (int i = 0; i < 3; i++) {
+            int v = M->faces[3 * (size_t)f + i];
+            P[i][0] = (double)M->uv[2 * (size_t)v] * size;
+            P[i][1] = (1.0 - (double)M->uv[2 * (size_t)v + 1]) * size;
+        }
+        double area2 = (P[1][0] - P[0][0]) * (P[2][1] - P[0][1]) - (P[2][0] - P[0][0]) * (P[1][1] - P[0][1]);
+        double x0 = MIN2(P[0][0], MIN2(P[1][0], P[2][0])) - CONSERVATIVE_R, x1 = MAX2(P[0][0], MAX2(P[1][0], P[2][0])) + CONSERVATIVE_R;
+        double y0 = MIN2(P[0][1], MIN2(P[1][1], P[2][1])) - CONSERVATIVE_R, y1 = MAX2(P[0][1], MAX2(P[1][1], P[2][1])) + CONSERVATIVE_R;
+        int ix0 = (int)floor(x0 - 0.5), ix1 = (int)ceil(x1 - 0.5), iy0 = (int)floor(y0 - 0.5), iy1 = (int)ceil(y1 - 0.5);
+        if (ix0 < 0) ix0 = 0;
+        if (iy0 < 0) iy0 = 0;
+        if (ix1 > size - 1) ix1 = size - 1;
+        if (iy1 > size - 1) iy1 = size - 1;
+        for (int y = iy0; y <= iy1; y++)
+            for (int x = ix0; x <= ix1; x++) {
+                double c[2] = {x + 0.5, y + 0.5};
+                size_t t = (size_t)y * size + x;
+                double b[3];
+                int inside = 0;
+                if (area2 != 0) {
+                    for (int i = 0; i < 3; i++) {
+                        const double *p = P[(i + 1) % 3], *q = P[(i + 2) % 3];
+                        b[i] = ((q[0] - p[0]) * (c[1] - p[1]) - (q[1] - p[1]) * (c[0] - p[0])) / area2;
+                    }
+                    inside = b[0] >= 0 && b[1] >= 0 && b[2] >= 0;
+                }
+                if (inside) {
+                    if (best[t] > 0) {
+                        best[t] = 0;
+                        out->face[t] = f;
+                        for (int i = 0; i < 3; i++) bary[3 * t + i] = (float)b[i];
+                    }
+                    continue;
+                }
+                // outside: the closest point on the boundary
+                double dmin = INFINITY, bb[3] = {0, 0, 0};
+                for (int i = 0; i < 3; i++) {
+                    double s;
+                    double d = seg_closest(P[i], P[(i + 1) % 3], c, &s);
+                    if (d < dmin) {
+                        dmin = d;
+                        bb[0] = bb[1] = bb[2] = 0;
+                        bb[i] = 1 - s;
+                        bb[(i + 1) % 3] = s;
+                    }
+                }
+                double d = sqrt(dmin);
+                if (d <= CONSERVATIVE_R && d < best[t]) {
+                    best[t] = (float)d;
+                    out->face[t] = f;
+                    for (int i = 0; i < 3; i++) bary[3 * t + i] = (float)bb[i];
+                }
+            }
+    }
+
+    // gather the covered texels (row-major order), evaluate the material once
+    size_t n = 0;
+    for (size_t t = 0; t < N; t++) n += out->face[t] >= 0;
+    cov = malloc(sizeof *cov * (n ? n : 1));
+    pos = malloc(sizeof *pos * 3 * (n ? n : 1));
+    k = malloc(sizeof *k * 7 * (n ? n : 1));
+    if (!cov || !pos || !k) goto nomem;
+    n = 0;
+    for (size_t t = 0; t < N; t++) {
+        if (out->face[t] < 0) continue;
+        const int32_t* fc = M->faces + 3 * (size_t)out->face[t];
+        for (int c = 0; c < 3; c++) {
+            double p = 0;
+            for (int i = 0; i < 3; i++) p += (double)bary[3 * t + i] * M->pos[3 * (size_t)fc[i] + c];
+            pos[3 * n + c] = (float)p;
+        }
+        out->mask[t] = 1;
+        cov[n++] = (int32_t)t;
+    }
+    out->n_covered = (int)n;
+    if (n) {
+        st = fn(user, pos, n, k);
+        if (st != MLB_OK) { mlb_fail_context(st, "baking"); goto fail; }
+    }
+    double mean[7] = {0};
+    for (size_t i = 0; i < n; i++) {
+        for (int c = 0; c < 7; c++) {
+            if (!isfinite(k[7 * i + c])) {
+                st = mlb_fail(MLB_ERR_NUMERIC, "mlb_bake: the material is not finite at texel %d (position %g %g %g)",
+                              (int)cov[i], (double)pos[3 * i], (double)pos[3 * i + 1], (double)pos[3 * i + 2]);
+                goto fail;
+            }
+            mean[c] += k[7 * i + c];
+        }
+        size_t t = (size_t)cov[i];
+        for (int c = 0; c < 3; c++) { out->kd[3 * t + c] = k[7 * i + c]; out->ks[3 * t + c] = k[7 * i + 3 + c]; }
+        out->roughness[t] = k[7 * i + 6];
+    }
+    for (int c = 0; c < 7; c++) mean[c] = n ? mean[c] / n : 0;
+
+    // breadth-first dilation from the covered texels
+    queue = malloc(sizeof *queue * N);
+    dist = malloc(sizeof *dist * N);
+    if (!queue || !dist) goto nomem;
+    size_t qn = 0;
+    for (size_t t = 0; t < N; t++) dist[t] = out->mask[t] ? 0 : -1;
+    for (size_t i = 0; i < n; i++) queue[qn++] = cov[i];
+    static const int dx[8] = {-1, 1, 0, 0, -1, 1, -1, 1}, dy[8] = {0, 0, -1, 1, -1, -1, 1, 1};
+    int n_dil = 0;
+    if (dilate != 0)
+        for (size_t qi = 0; qi < qn; qi++) {
+            int t = queue[qi], x = t % size, y = t / size;
+            if (dilate > 0 && dist[t] >= dilate) continue;
+            for (int j = 0; j < 8; j++) {
+                int xx = x + dx[j], yy = y + dy[j];
+                if (xx < 0 || yy < 0 || xx >= size || yy >= size) continue;
+                size_t u = (size_t)yy * size + xx;
+                if (dist[u] >= 0) continue;
+                dist[u] = dist[t] + 1;
+                for (int c = 0; c < 3; c++) { out->kd[3 * u + c] = out->kd[3 * (size_t)t + c]; out->ks[3 * u + c] = out->ks[3 * (size_t)t + c]; }
+                out->roughness[u] = out->roughness[t];
+                out->face[u] = out->face[t];
+                queue[qn++] = (int32_t)u;
+                n_dil++;
+            }
+        }
+    out->n_dilated = n_dil;
+    for (size_t t = 0; t < N; t++) {
+        if (dist[t] >= 0) continue;
+        for (int c = 0; c < 3; c++) { out->kd[3 * t + c] = (float)mean[c]; out->ks[3 * t + c] = (float)mean[3 + c]; }
+        out->roughness[t] = (float)mean[6];
+    }
+    goto done;
+
+nomem:
+    st = mlb_fail(MLB_ERR_NOMEM, "mlb_bake: out of memory for a %d² texture", size);
+fail:
+done:
+    if (st != MLB_OK) mlb_baked_free(out);
+    free(best); free(bary); free(cov); free(pos); free(k); free(queue); free(dist);
+    return st;
+}

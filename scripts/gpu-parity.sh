@@ -1,8 +1,146 @@
 #!/usr/bin/env bash
-# On a machine with an NVIDIA GPU and the CUDA toolkit: builds with the CUDA part and runs the
-# GPU parity tests (CUDA kernels against the CPU code). Used through the device tool.
-set -euo pipefail
+# The CUDA parity tests (tests/test_cuda_*: CUDA kernels against the CPU code) and, with --bench,
+# bench/bench_cuda, in one call on a machine with an NVIDIA GPU. docs/cuda.md.
+#
+#   scripts/gpu-parity.sh --fetch-debs   HERE (Debian 12, with network): downloads the -dev packages the
+#                                        build needs into build-gpu-debs/ (ignored by git), for a GPU
+#                                        machine that cannot install anything
+#   scripts/gpu-parity.sh [--bench] [--memcheck]
+#                                        ON THE GPU MACHINE, in the repository root: configures
+#                                        build-gpu/ (CUDA on, sm_90 unless MLB_CUDA_ARCH says otherwise),
+#                                        unpacks build-gpu-debs/*.deb into a private prefix when a
+#                                        dependency is missing, builds the CUDA tests (and bench_cuda),
+#                                        runs them and prints a table. Logs go to $OUT when set.
+#                                        --memcheck runs each test under compute-sanitizer memcheck.
+# Through the device tool:  run(command="bash scripts/gpu-parity.sh --bench", carry=["build-gpu-debs"])
+# Exit status: 0 when every test passed, 1 when one failed or did not run, 2 for a setup error.
+set -uo pipefail
 cd "$(dirname "$0")/.."
-nvidia-smi -L || { echo "gpu-parity: no GPU visible" >&2; exit 1; }
-bash scripts/build.sh
-ctest --test-dir build --output-on-failure -R cuda
+root=$(pwd)
+debs=$root/build-gpu-debs
+PKGS=(libopenblas-dev libopenblas-pthread-dev libopenblas0-pthread libopenblas0 libgfortran5 libcjson-dev libcjson1
+      libstb-dev libstb0 libutf8proc-dev libutf8proc2 libtinyexr-dev libtinyexr1d libpng-dev libpng16-16 zlib1g-dev
+      pkgconf pkgconf-bin libpkgconf3)
+
+if [ "${1:-}" = "--fetch-debs" ]; then
+  mkdir -p "$debs"
+  (cd "$debs" && apt-get download "${PKGS[@]}") || { echo "gpu-parity: apt-get download failed" >&2; exit 2; }
+  du -sh "$debs"
+  echo "gpu-parity: now run(command=\"bash scripts/gpu-parity.sh --bench\", carry=[\"build-gpu-debs\"])"
+  exit 0
+fi
+bench=0
+memcheck=0
+for a in "$@"; do
+  case $a in
+    --bench) bench=1 ;;
+    --memcheck) memcheck=1 ;;   # every test under compute-sanitizer (out-of-bounds, races: slower)
+    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench] [--memcheck]]" >&2; exit 2 ;;
+  esac
+done
+
+# Per-step logs in build-gpu/logs; the summary log (every test's output, the bench table) and the
+# error table are copied to $OUT when set (the device tool brings back at most 8 files).
+out=$root/build-gpu/logs
+mkdir -p "$out"
+log=$out/gpu-parity.log
+finish() {
+  if [ -n "${OUT:-}" ]; then
+    cp "$log" "$OUT/" 2> /dev/null
+    [ -f "$out/parity-errors.txt" ] && cp "$out/parity-errors.txt" "$OUT/"
+    [ -f "$out/build.log" ] && cp "$out/build.log" "$OUT/"
+    [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
+  fi
+}
+trap finish EXIT
+: > "$log"
+say() { echo "$@" | tee -a "$log"; }
+
+say "gpu-parity: $(date -u '+%Y-%m-%d %H:%M UTC') on $(hostname)"
+if command -v nvidia-smi > /dev/null; then
+  nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>&1 | tee -a "$log"
+else
+  say "gpu-parity: nvidia-smi not found: the tests will skip (no CUDA device)"
+fi
+nvcc=${CUDACXX:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
+[ -x "$nvcc" ] || { say "gpu-parity: nvcc not found (set CUDACXX)"; exit 2; }
+"$nvcc" --version | tail -1 | tee -a "$log"
+
+# ---- dependencies: the system's when present, else the carried Debian packages in a private prefix
+need_debs=0
+command -v pkg-config > /dev/null || { say "gpu-parity: pkg-config missing"; need_debs=1; }
+for p in openblas libcjson stb libpng zlib libutf8proc; do
+  pkg-config --exists "$p" 2> /dev/null || { say "gpu-parity: $p missing"; need_debs=1; }
+done
+[ -e /usr/lib/x86_64-linux-gnu/libtinyexr.so ] || [ -e /usr/lib/libtinyexr.so ] || [ -e /usr/local/lib/libtinyexr.so ] \
+  || { say "gpu-parity: tinyexr missing"; need_debs=1; }
+if [ $need_debs = 1 ]; then
+  ls "$debs"/*.deb > /dev/null 2>&1 || {
+    say "gpu-parity: dependencies missing and no build-gpu-debs/: run 'bash scripts/gpu-parity.sh --fetch-debs' where apt works, then carry build-gpu-debs"
+    exit 2
+  }
+  prefix=/tmp/mlb-deps
+  rm -rf "$prefix" && mkdir -p "$prefix"
+  for f in "$debs"/*.deb; do dpkg-deb -x "$f" "$prefix" || { say "gpu-parity: cannot unpack $f"; exit 2; }; done
+  # .pc files say /usr: point them into the prefix, and put every folder holding one on the path
+  pcdirs=$(find "$prefix" -name '*.pc' -exec sed -i "s#=/usr#=$prefix/usr#g; s# /usr/# $prefix/usr/#g" {} \; -printf '%h\n' | sort -u | tr '\n' ':')
+  export PKG_CONFIG_PATH="${pcdirs}${PKG_CONFIG_PATH:-}"
+  libdirs=$(find "$prefix" -name '*.so*' -printf '%h\n' | sort -u | tr '\n' ':')
+  export LD_LIBRARY_PATH="${libdirs}${LD_LIBRARY_PATH:-}"
+  export LIBRARY_PATH="${libdirs}${LIBRARY_PATH:-}"
+  export CPATH="$prefix/usr/include:${CPATH:-}"
+  command -v pkg-config > /dev/null || export PATH="$prefix/usr/bin:$PATH"
+  extra_cmake=(-DCMAKE_PREFIX_PATH="$prefix/usr" -DCMAKE_LIBRARY_PATH="$prefix/usr/lib/x86_64-linux-gnu")
+  say "gpu-parity: using the carried packages in $prefix"
+else
+  extra_cmake=()
+fi
+
+# ---- configure and build only what runs here
+build=$root/build-gpu
+rm -f "$build/CMakeCache.txt"   # a fresh configure: cached pkg-config paths may point at a removed prefix
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DMLB_CUDA=ON -DCMAKE_CUDA_COMPILER="$nvcc" \
+  -DCMAKE_CUDA_ARCHITECTURES="${MLB_CUDA_ARCH:-90}" "${extra_cmake[@]}" > "$out/configure.log" 2>&1 \
+  || { tail -30 "$out/configure.log"; say "gpu-parity: configure failed ($out/configure.log)"; exit 2; }
+grep -E "matlaber: CUDA part" "$out/configure.log" | tee -a "$log"
+grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
+tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
+targets=$tests
+[ $bench = 1 ] && targets="$targets bench_cuda"
+jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
+# shellcheck disable=SC2086
+cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
+  || { grep -E "error" "$out/build.log" | head -30; say "gpu-parity: build failed ($out/build.log)"; exit 2; }
+
+# ---- run: a fresh random seed per run, printed so a failure can be replayed with MLB_TEST_SEED
+export MLB_TEST_SEED=${MLB_TEST_SEED:-$(( $(date +%s) % 1000000 + 1 ))}
+say "gpu-parity: MLB_TEST_SEED=$MLB_TEST_SEED"
+fail=0
+summary=""
+for t in $tests; do
+  start=$(date +%s.%N)
+  runner=()
+  if [ $memcheck = 1 ]; then
+    cs=$(command -v compute-sanitizer || echo /usr/local/cuda/bin/compute-sanitizer)
+    runner=("$cs" --tool memcheck --error-exitcode 9)
+  fi
+  (cd "$build" && MLB_CUDA_SYNC=1 timeout 600 "${runner[@]}" "./tests/$t") > "$out/$t.log" 2>&1
+  rc=$?
+  secs=$(echo "$(date +%s.%N) - $start" | bc 2> /dev/null || echo "?")
+  case $rc in
+    0) status=PASS ;;
+    77) status=SKIP; fail=1 ;;   # on the GPU machine a skip means the GPU was not usable
+    *) status="FAIL($rc)"; fail=1 ;;
+  esac
+  cat "$out/$t.log" >> "$log"
+  summary+=$(printf '%-24s %-9s %6.1f s' "$t" "$status" "$secs" 2> /dev/null || echo "$t $status")$'\n'
+done
+if [ $bench = 1 ]; then
+  (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
+fi
+echo
+echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="
+printf '%s' "$summary" | tee -a "$log"
+grep -hE "rel-L2" "$out"/test_cuda_*.log > "$out/parity-errors.txt" 2> /dev/null
+echo "(per-check errors: $out/parity-errors.txt; full log: $log)"
+exit $fail

@@ -1,5 +1,6 @@
 // Compute devices. The CPU is always there; CUDA when the build found nvcc (MLB_HAVE_CUDA) and the
-// machine has a GPU. Ops take a device and dispatch to the implementation with the same contract.
+// machine has a GPU. Ops take a device and dispatch to the implementation with the same contract
+// (the CUDA ops: matlaber/cuda_ops.h).
 #ifndef MATLABER_DEVICE_H
 #define MATLABER_DEVICE_H
 #include <stddef.h>
@@ -9,13 +10,29 @@
 typedef enum { MLB_DEVICE_CPU = 0, MLB_DEVICE_CUDA = 1 } mlb_device;
 
 int mlb_cuda_compiled(void);          // 1 when the CUDA part was built
-int mlb_cuda_device_count(void);      // 0 when none (or not compiled)
+int mlb_cuda_device_count(void);      // 0 when none (or not compiled, or no driver)
+// The number of GPUs, or MLB_ERR_DEVICE with the reason there are none: "built without CUDA", or
+// CUDA's own error string (no driver, driver older than the runtime, no device).
+mlb_status mlb_cuda_probe(int* count);
 // "NVIDIA H100 80GB HBM3, 80.0 GiB, sm_90" or the reason there is none
 mlb_status mlb_cuda_describe(int index, char* buf, size_t n);
 // "cpu" | "cuda" | "auto" (cuda when present). A GPU asked for and missing is MLB_ERR_DEVICE.
+// Only parses and probes; mlb_device_select also makes the device current.
 mlb_status mlb_device_parse(const char* name, mlb_device* out);
+// "cpu" | "cuda" | "cuda:N" | "auto": parses, and for CUDA makes GPU N (default 0) current and
+// creates its context (mlb_cuda_init). Errors: MLB_ERR_ARG for an unknown name; MLB_ERR_DEVICE
+// "--device cuda: this build has no CUDA part (built without CUDA) ..." or "--device cuda: <CUDA's
+// error string>" when the driver or GPU is missing. "auto" falls back to the CPU silently.
+mlb_status mlb_device_select(const char* name, mlb_device* out);
+// The device the last successful mlb_device_select chose (MLB_DEVICE_CPU before any).
+mlb_device mlb_device_current(void);
+const char* mlb_device_name(mlb_device d);   // "cpu" / "cuda"
+// For the program's --device option: arg is the option's value, or NULL when the option was not
+// given, which means $MATLABER_DEVICE if set, else "auto". Selects as mlb_device_select does.
+mlb_status mlb_device_option(const char* arg, mlb_device* out);
+#define MLB_DEVICE_OPTION_HELP "  --device D      cpu, cuda, cuda:N or auto (default: $MATLABER_DEVICE, else auto = cuda when a GPU is present)\n"
 
-// AdamW on device buffers (same contract as adam_update); the first CUDA op, used by the parity test.
+// AdamW on device buffers (same contract as adam_update); used by the parity test.
 mlb_status mlb_cuda_adam_update(float* params, const float* grads, float* m, float* v, size_t n,
                                 const mlb_adam_config* cfg, long t);
 // Host <-> device helpers for tests and tools.

@@ -1,0 +1,129 @@
+// The CUDA ops (src/cuda/*.cu): the same contracts as the CPU ops they mirror (nn_api.inc,
+// transformer_ops.h, conv_ops.h, hashgrid.h, shade.h), over DEVICE buffers (mlb_cuda_malloc).
+// Float32 in and out; GEMMs may run on fp16/bf16 tensor cores with fp32 accumulation when the
+// caller asks (mlb_gemm_precision). Every op returns mlb_status: MLB_ERR_DEVICE names the file,
+// line, CUDA call and CUDA's message; MLB_ERR_ARG a bad shape. Ops are asynchronous on the default
+// stream (the data stays on the GPU): mlb_cuda_sync() waits and reports an execution error;
+// MLB_CUDA_SYNC=1 in the environment synchronises after every launch (debugging).
+// A build without the CUDA part has the same functions, each failing with "built without CUDA"
+// (src/core/device.c), so callers need no #ifdef. docs/cuda.md: what is parity-tested where.
+#ifndef MATLABER_CUDA_OPS_H
+#define MATLABER_CUDA_OPS_H
+#include <stddef.h>
+#include <stdint.h>
+#include "matlaber/envmap.h"
+#include "matlaber/error.h"
+#include "matlaber/hashgrid.h"
+#include "matlaber/nn.h"
+#include "matlaber/shade.h"
+
+// ---- context ----
+// Makes GPU `index` current and creates its context (cudaSetDevice + cudaFree(0)): the first
+// call that can fail on a machine without a driver, so its error is the CUDA error string.
+mlb_status mlb_cuda_init(int index);
+mlb_status mlb_cuda_sync(void);                  // cudaDeviceSynchronize, checked
+mlb_status mlb_cuda_memset(void* dst, int value, size_t bytes);
+mlb_status mlb_cuda_copy_d2d(void* dst, const void* src, size_t bytes);
+// Fills n floats with lo + (hi - lo) u, u uniform in [0,1) from a counter hash of (seed, i): test
+// and benchmark inputs drawn on the device (never zeros).
+mlb_status mlb_cuda_fill_uniform(float* dst, size_t n, uint64_t seed, float lo, float hi);
+// Device events around a region: begin records, end records, synchronises and returns ms.
+mlb_status mlb_cuda_timer_begin(void);
+mlb_status mlb_cuda_timer_end(double* ms);
+// Free/total device memory in bytes.
+mlb_status mlb_cuda_mem_info(size_t* free_bytes, size_t* total_bytes);
+
+// ---- GEMM (cuBLAS) ----
+typedef enum {
+    MLB_GEMM_FP32 = 0,   // plain fp32 (CUDA cores): matches the CPU to ~1e-6 relative
+    MLB_GEMM_TF32,       // fp32 operands rounded to tf32 on tensor cores, fp32 accumulation (~3e-4)
+    MLB_GEMM_FP16,       // operands converted to fp16, fp32 accumulation (~1e-3; |x| < 65504)
+    MLB_GEMM_BF16,       // operands converted to bf16, fp32 accumulation (~5e-3)
+} mlb_gemm_precision;
+const char* mlb_gemm_precision_name(mlb_gemm_precision p);
+typedef enum { MLB_DTYPE_F32 = 0, MLB_DTYPE_F16, MLB_DTYPE_BF16 } mlb_cuda_dtype;
+// Row-major C[M,N] = alpha op(A)[M,K] op(B)[K,N] + beta C with A, B of `ab_type` (C float, fp32
+// accumulation; tf32 only when ab_type is F32 and prec is MLB_GEMM_TF32). trans_a: A is stored
+// [K,M]; trans_b: B is stored [N,K]. lda/ldb/ldc are row strides in elements.
+mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
+                         const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
+                         mlb_gemm_precision prec);
+// float -> fp16 / bf16 (round to nearest even) on the device, n values.
+mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n);
+
+// ---- linear (nn_api.inc) ----
+// out[B,OC] = in[B,C] . weight[OC,C]^T + bias[OC] (bias may be NULL)
+mlb_status mlb_cuda_linear_forward(float* out, const float* in, const float* weight, const float* bias, int B, int C,
+                                   int OC, mlb_gemm_precision prec);
+// din[B,C] += dout . weight; dweight[OC,C] += dout^T . in; dbias[OC] += sum_b dout (any may be NULL;
+// dbias sums over b in order: deterministic)
+mlb_status mlb_cuda_linear_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                    const float* weight, int B, int C, int OC, mlb_gemm_precision prec);
+
+// ---- activations (nn_api.inc): the CPU's formulas in float ----
+mlb_status mlb_cuda_activation_forward(float* out, const float* in, size_t n, mlb_activation act);   // out may alias in
+// out = f(in), d1 = f'(in) (d1 may be NULL)
+mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act);
+// din += dout * f'(in)
+mlb_status mlb_cuda_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act);
+
+// ---- normalisation (transformer_ops.h, conv_ops.h) ----
+// Layer norm over the last dimension; statistics two-pass in double like the CPU. One warp per row.
+mlb_status mlb_cuda_layernorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
+                                      const float* bias, int N, int C, float eps);
+// Group norm [N, C, HW], G groups, fused activation (IDENTITY or any mlb_activation); one block
+// per (n, g), statistics two-pass in double.
+mlb_status mlb_cuda_groupnorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
+                                      const float* bias, int N, int C, int HW, int G, float eps, mlb_activation act);
+// Backward (+=), the CPU's formulas: layer norm din by a warp per row, dweight/dbias by a thread per
+// column summing rows in order; group norm by a block per (n, g), dweight/dbias from per-image
+// channel sums (double, in scratch) added in order of n. Deterministic. mean/rstd from the forward.
+mlb_status mlb_cuda_layernorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                       const float* weight, const float* mean, const float* rstd, int N, int C);
+mlb_status mlb_cuda_groupnorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                       const float* weight, const float* bias, const float* mean, const float* rstd,
+                                       int N, int C, int HW, int G, mlb_activation act);
+
+// ---- attention (transformer_ops.h attention_forward, without `att`) ----
+// Flash-style: tiles of 32 keys in shared memory, an online softmax per query row (running max and
+// sum in float), never the T x T matrix. Head width hd = C / NH up to 512. Same q/k/v/ld layout
+// and causal flag as attention_forward; out [B,T,C].
+mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
+                                      int C, int NH, int causal);
+
+// ---- hash-grid encoding (hashgrid.h) ----
+// g gives the layout (g->params is ignored: params is the device copy of the table).
+// out[N, L*F] (level-major) for x[N,3]: the same float arithmetic as the CPU (no FMA contraction),
+// so corner indices and weights agree bitwise; the sums agree to rounding.
+mlb_status mlb_cuda_hashgrid_forward(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N);
+// dparams += (atomicAdd scatter: the order of the float additions varies from run to run, so
+// dparams is NOT bitwise reproducible, unlike the CPU's; relative differences ~1e-6);
+// dx += (one thread per point, levels in order: deterministic). Either may be NULL.
+mlb_status mlb_cuda_hashgrid_backward(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
+                                      const float* dout, const float* x, int N);
+
+// ---- split-sum shading (shade.h) ----
+// The pre-integrated light on the device: every specular level, the irradiance cube and the
+// split-sum LUT in global memory, the rotation as cos/sin.
+typedef struct {
+    int n_levels;
+    int size[MLB_CUBE_MAX_LEVELS];
+    float* spec[MLB_CUBE_MAX_LEVELS];   // device [6][size][size][3]
+    int irr_size;
+    float* irr;                         // device [6][irr][irr][3]
+    float* lut;                         // device [256][256][2]
+    float rot_cos, rot_sin;             // of light->rotation at upload
+} mlb_cuda_envlight;
+mlb_status mlb_cuda_envlight_upload(mlb_cuda_envlight* out, const mlb_envlight* light);
+void mlb_cuda_envlight_free(mlb_cuda_envlight* l);
+// mlb_shade_forward on the device, computed in float (the CPU computes in double from the same
+// float texels): kd, ks, n, v [N,3], kr [N], out [N,3].
+mlb_status mlb_cuda_shade_forward(float* out, const float* kd, const float* ks, const float* kr, const float* n,
+                                  const float* v, int N, const mlb_cuda_envlight* light, mlb_fresnel fresnel);
+// mlb_shade_backward on the device (float): accumulates (+=) into the non-NULL dkd, dks [N,3],
+// dkr [N], dn, dv [N,3] from dout [N,3]; one thread per point (deterministic, no atomics).
+mlb_status mlb_cuda_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
+                                   const float* kd, const float* ks, const float* kr, const float* n, const float* v,
+                                   int N, const mlb_cuda_envlight* light, mlb_fresnel fresnel);
+
+#endif

@@ -1,0 +1,51 @@
+// Guidance (paper §3.1, design.md): what turns the renders of one optimisation step into a loss
+// and its gradient. One interface, two implementations:
+//   - score distillation with a Stable Diffusion model (src/pipeline/guidance_sds.c), and
+//   - image guidance: renders compared with target images by an image loss
+//     (src/pipeline/guidance_image.c), for photographs / renders and for tests without weights.
+// The guidance also decides where the cameras and lights of a step are: random orbit cameras and
+// a random environment of the pool for SDS, the target images' own cameras and lights for images.
+//
+// Images crossing this interface are channels-last float [n, H, W, 4], background 0:
+//   geometry stage:   [normal (world space, interpolated vertex normals · coverage), coverage]
+//   appearance stage: [sRGB colour · coverage (composited over black), coverage]
+// so both stages hand the guidance premultiplied colour and an antialiased mask.
+#ifndef MATLABER_GUIDANCE_H
+#define MATLABER_GUIDANCE_H
+#include <stdint.h>
+#include "matlaber/error.h"
+#include "matlaber/raster.h"
+
+typedef enum { MLB_STAGE_GEOMETRY = 0, MLB_STAGE_APPEARANCE = 1 } mlb_stage;
+
+// One view of a step.
+typedef struct {
+    mlb_camera cam;            // aspect 1 (square renders)
+    double azimuth_deg;        // orbit azimuth (view-dependent prompts), elevation, radius
+    double elevation_deg;
+    double radius;
+    int env;                   // index into the run's environment pool (appearance stage)
+    float env_rotation_deg;    // rotation of that environment about +y
+    int target;                // image guidance: index of the target image; −1 otherwise
+} mlb_view;
+
+typedef struct mlb_guidance mlb_guidance;
+struct mlb_guidance {
+    const char* kind;          // "sds" or "images"
+    int n_views;               // views per step
+    // Fills views[n_views] for iteration `step` of `stage`: a pure function of (seed, stage, step),
+    // so a resumed run sees the same cameras.
+    mlb_status (*sample_views)(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views);
+    // images [n, H, W, 4] of the views above → *loss (the step's guidance loss) and, when dimages is
+    // not NULL, dimages [n, H, W, 4] += ∂loss/∂images.
+    mlb_status (*loss)(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
+                       int H, int W, float* dimages, double* loss);
+    void (*destroy)(mlb_guidance* g);
+    void* impl;
+};
+
+static inline void mlb_guidance_free(mlb_guidance* g) {
+    if (g && g->destroy) g->destroy(g);
+}
+
+#endif

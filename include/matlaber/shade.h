@@ -10,6 +10,7 @@
 #define MATLABER_SHADE_H
 #include <stddef.h>
 #include <stdint.h>
+#include <math.h>
 #include "matlaber/envmap.h"
 #include "matlaber/error.h"
 
@@ -65,6 +66,11 @@ void mlb_view_dirs_backward(float* dp, const float* dv, const float* p, const do
 void mlb_view_dirs_f64(double* v, const double* p, const double eye[3], int N);
 void mlb_view_dirs_backward_f64(double* dp, const double* dv, const double* p, const double eye[3], int N);
 void mlb_srgb_forward(float* out, const float* in, size_t n);
+// One linear value clamped to [0, 1], then encoded (what an 8-bit sRGB image shows).
+static inline float mlb_srgb_encode(float x) {
+    x = x < 0 ? 0 : x > 1 ? 1 : x;
+    return x <= 0.0031308f ? 12.92f * x : 1.055f * powf(x, 1.0f / 2.4f) - 0.055f;
+}
 void mlb_srgb_backward(float* din, const float* dout, const float* in, size_t n);
 
 // ---- Monte-Carlo ground truth ----

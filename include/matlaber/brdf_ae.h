@@ -6,9 +6,15 @@
 #ifndef MATLABER_BRDF_AE_H
 #define MATLABER_BRDF_AE_H
 #include <stdint.h>
+#include "matlaber/brdf.h"
 #include "matlaber/nn.h"
 #include "matlaber/progress.h"
 #include "matlaber/safetensors.h"
+
+// The decoder's output map k = lo + (hi − lo)·sigmoid(·): kd, ks ∈ [0, 1], kr ∈ [MLB_KR_MIN, 1]
+// (shared by the auto-encoder and the material network's direct mode).
+static const double mlb_brdf_range_lo[7] = {0, 0, 0, 0, 0, 0, MLB_KR_MIN};
+static const double mlb_brdf_range_hi[7] = {1, 1, 1, 1, 1, 1, 1};
 
 #define MLB_LATENT_DIM 4
 

@@ -24,9 +24,6 @@
 #define STREAM_INIT_DEC 0x1002
 #define STREAM_EPS 0x2001
 
-// Output range of each BRDF channel: kd and ks in [0, 1], kr in [MLB_KR_MIN, 1].
-static const double range_lo[K_DIM] = {0, 0, 0, 0, 0, 0, MLB_KR_MIN};
-static const double range_hi[K_DIM] = {1, 1, 1, 1, 1, 1, 1};
 
 mlb_status FN(brdf_ae_init)(FN(mlb_brdf_ae)* ae, const mlb_brdf_ae_config* cfg, uint64_t seed) {
     memset(ae, 0, sizeof *ae);
@@ -102,7 +99,7 @@ static void split_mu_logvar(const real* mulv, real* mu, real* logvar, int B) {
 static void map_to_ranges(real* k, const real* s, int B) {
     for (int i = 0; i < B; i++)
         for (int c = 0; c < K_DIM; c++)
-            k[i * K_DIM + c] = (real)(range_lo[c] + (range_hi[c] - range_lo[c]) * s[i * K_DIM + c]);
+            k[i * K_DIM + c] = (real)(mlb_brdf_range_lo[c] + (mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]) * s[i * K_DIM + c]);
 }
 
 mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
@@ -141,7 +138,7 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     const real* s_n = FN(mlp_forward)(&ae->dec, &w->dec_interp, w->z_n, B);
     const real* ts_n = FN(mlp_jvp_forward)(&ae->dec, &w->dec_interp, w->dir, B);
     map_to_ranges(w->k_n, s_n, B);
-    for (int i = 0; i < nk; i++) w->tk_n[i] = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]) * ts_n[i];
+    for (int i = 0; i < nk; i++) w->tk_n[i] = (real)(mlb_brdf_range_hi[i % K_DIM] - mlb_brdf_range_lo[i % K_DIM]) * ts_n[i];
     // L_s = mean_n |tk_n|^2; w->g_ts holds dL_s/dtk_n (lambda_s and the output map come in the backward)
     double sum_s = 0;
     for (int i = 0; i < nk; i++) { sum_s += (double)w->tk_n[i] * w->tk_n[i]; w->g_ts[i] = 2 * w->tk_n[i] / B; }
@@ -172,7 +169,7 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     FN(mlp_backward)(&ae->enc, &w->enc_interp, g_enc, w->g_x_n, w->g_encout, w->x_n, B);
     // x_n = 2 k_n - 1, k_n = lo + (hi - lo) s_n; the smoothness term acts on tk_n = (hi - lo) ts_n
     for (int i = 0; i < nk; i++) {
-        real scale = (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]);
+        real scale = (real)(mlb_brdf_range_hi[i % K_DIM] - mlb_brdf_range_lo[i % K_DIM]);
         w->g_s[i] = 2 * w->g_x_n[i] * scale;
         w->g_ts[i] *= lam_s * scale;
     }
@@ -192,7 +189,7 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     // ---- reconstruction: d/dk_hat -> d/ds -> decoder -> d/dz
     memset(w->g_s, 0, sizeof(real) * nk);
     FN(mse_backward)(w->g_s, w->k_hat, k, (size_t)nk, K_DIM);
-    for (int i = 0; i < nk; i++) w->g_s[i] *= (real)(range_hi[i % K_DIM] - range_lo[i % K_DIM]);
+    for (int i = 0; i < nk; i++) w->g_s[i] *= (real)(mlb_brdf_range_hi[i % K_DIM] - mlb_brdf_range_lo[i % K_DIM]);
     FN(mlp_backward)(&ae->dec, &w->dec_data, g_dec, w->g_z, w->g_s, w->z, B);
     // ---- z = mu + exp(logvar/2) eps, plus the KL term
     for (int i = 0; i < nz; i++) {
@@ -295,7 +292,7 @@ mlb_status FN(brdf_ae_fit_latent)(const FN(mlb_brdf_ae)* ae, const real* k, size
                 const real* ts = FN(mlp_jvp_forward)(&ae->dec, &c, tin, B);
                 for (int i = 0; i < B; i++)
                     for (int ch = 0; ch < K_DIM; ch++)
-                        jac[(i * K_DIM + ch) * Z_DIM + d] = (range_hi[ch] - range_lo[ch]) * ts[i * K_DIM + ch];
+                        jac[(i * K_DIM + ch) * Z_DIM + d] = (mlb_brdf_range_hi[ch] - mlb_brdf_range_lo[ch]) * ts[i * K_DIM + ch];
             }
             // Levenberg-Marquardt step per row: (J^T J + lambda diag) dz = -J^T r
             for (int i = 0; i < B; i++) {

@@ -1,0 +1,77 @@
+// The differentiable appearance renderer of the appearance stage (paper §3.4, docs/appearance.md):
+// a FIXED mesh (the geometry stage's surface) shaded with the material network's BRDF under a
+// rotated environment light of the run's pool, and the material smoothness regulariser.
+//
+// One render of n views (one optimisation step):
+//   per view: clip = view_proj · pos → rasterize at S = res·ss → interpolate world position and
+//             vertex normal per pixel → normalise the normal and turn it towards the camera (two-
+//             sided, as mlb_render_shaded) → v = (eye − p)/|eye − p|
+//   all views at once: k = material_net(p) at every covered pixel of every view (ONE batch)
+//   per view: split-sum shading (shade.h, Fresnel a->fresnel) under lights[view.env] rotated about
+//             +y by view.env_rotation_deg (absolute: the light's own rotation is replaced) →
+//             c = sRGB(clamp(L, 0, 1)) → [c·m, m] with m the 0/1 coverage (composite over black)
+//             → antialias (colour and coverage together) → box downsample by ss
+//   images [n, res, res, 4] = [sRGB colour · coverage, coverage]: the guidance.h convention.
+// The clamp before sRGB: a displayed or VAE-encoded image cannot be brighter than white; pixels
+// brighter than 1 in linear radiance (sun highlights) pass no gradient, as torch.clamp.
+// Only the material receives gradients: the mesh, the cameras and the lights are constants.
+//
+// Exists as float (plain names) and double (_f64: the finite-difference tests run the whole
+// chain in double; the envlight's texels stay float). Results do not depend on the thread count.
+#ifndef MATLABER_APPEARANCE_H
+#define MATLABER_APPEARANCE_H
+#include <stdint.h>
+#include "matlaber/envmap.h"
+#include "matlaber/error.h"
+#include "matlaber/guidance.h"
+#include "matlaber/material_net.h"
+#include "matlaber/mesh.h"
+#include "matlaber/shade.h"
+
+#define MLB_APPEARANCE_DECLARE(R, N)                                                                  \
+    /* The renderer's buffers, reused from step to step. Zero-initialise; mlb_appearance_free. */     \
+    typedef struct {                                                                                 \
+        mlb_fresnel fresnel;                     /* 0 = MLB_FRESNEL_PAPER (the paper's Fresnel) */     \
+        struct N(mlb_appearance_state)* state;   /* private: the last render, kept for backward */    \
+    } N(mlb_appearance);                                                                             \
+    void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
+    /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \
+       material net: images [n, res, res, 4] (above). lights[views[i].env] must exist for every i.     \
+       keep_for_backward: the net's forward cache holds this render's points (material_net_forward) \
+       and mlb_appearance_backward may follow; 0: the net is evaluated without touching its cache.    \
+       The mesh and the lights must stay unchanged until the backward. */                           \
+    mlb_status N(mlb_appearance_render)(N(mlb_appearance)* a, N(mlb_material_net)* net, const mlb_mesh* mesh, \
+                                        const mlb_envlight* const* lights, const mlb_view* views, int n, int res, \
+                                        int ss, R* images, int keep_for_backward);                  \
+    /* dimages [n, res, res, 4] (of the last render, kept) → net->grads += ∂(Σ dimages·images)/∂params. \
+       The net's cache must still be the render's (no material_net_forward in between). */          \
+    mlb_status N(mlb_appearance_backward)(N(mlb_appearance)* a, N(mlb_material_net)* net, const R* dimages); \
+    /* The last render's surface points [*n, 3] (covered samples of all views, view-major; NULL when  \
+       none): e.g. where to evaluate the smoothness regulariser. Valid until the next render. */      \
+    const R* N(mlb_appearance_points)(const N(mlb_appearance)* a, int* n);                           \
+    /* Material smoothness (paper §3.4, nvdiffrec):                                                   \
+         L = weight · mean_i (1/3) Σ_c |kd_c(x_i) − kd_c(x_i + ε_i)|,  ε_i ~ N(0, sigma² I)             \
+       over pts [n,3] (world units), ε from Philox (seed, stream 0x5A17, index step·2^32 + 3i + c).    \
+       kd only, as the paper: specular colour and roughness may change sharply (inlays, trims).       \
+       nvdiffrec's weight is 0.03 with sigma 0.01 (0.5% of the default 2.1 grid box). backward != 0: \
+       net->grads += ∂L/∂params. Runs material_net_forward on 2n points, so it REPLACES the net's     \
+       forward cache: call it after mlb_appearance_backward. *loss (may be NULL) receives L. */      \
+    mlb_status N(mlb_material_smoothness)(N(mlb_material_net)* net, const R* pts, int n, double sigma,      \
+                                          double weight, uint64_t seed, long step, int backward, double* loss);
+
+#define MLB_APPEARANCE_F32(name) name
+#define MLB_APPEARANCE_F64(name) name##_f64
+MLB_APPEARANCE_DECLARE(float, MLB_APPEARANCE_F32)
+MLB_APPEARANCE_DECLARE(double, MLB_APPEARANCE_F64)
+#undef MLB_APPEARANCE_F32
+#undef MLB_APPEARANCE_F64
+
+// Per-pixel material maps of one view for previews and evaluation (float, no gradients, the net's
+// cache untouched): rasterize at res, evaluate the net at the covered pixels, antialias, and write
+// (each may be NULL) kd [res,res,3], ks [res,res,3], kr [res,res] and the shading normal
+// [res,res,3] (world space, unit, turned towards the camera), all linear and premultiplied by the
+// antialiased coverage (background 0).
+mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh, const mlb_view* view, int res,
+                               float* kd_img, float* ks_img, float* kr_img, float* normal_img);
+
+#endif

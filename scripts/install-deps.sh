@@ -12,7 +12,13 @@ PACKAGES=(
   libutf8proc-dev                    # Unicode categories, case mapping, NFC (the CLIP tokenizer)
   libtinyexr-dev                     # OpenEXR reading and writing (environment maps, linear images)
   clang libclang-rt-14-dev           # libFuzzer target for the safetensors reader (scripts/fuzz.sh)
+  chromium                           # headless browser for the viewer test (tests/cli_viewer.sh)
 )
+# node and npm (three.js for `matlaber view`, the glTF-Validator and playwright-core for the tests;
+# scripts/build.sh runs npm ci in viewer/): Debian's packages only when the commands are missing, so
+# that a NodeSource nodejs (which ships npm itself and conflicts with Debian's npm) is left alone.
+command -v node > /dev/null 2>&1 || PACKAGES+=(nodejs)
+command -v npm > /dev/null 2>&1 || PACKAGES+=(npm)
 
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -1,8 +1,10 @@
 // Shared helpers of the command-line program.
 #include "cli.h"
+#include "matlaber/log.h"
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -81,4 +83,16 @@ const struct option* cli_getopt_table(const cli_option* opts) {
         table[n] = (struct option){opts[n].name, opts[n].has_arg, NULL, opts[n].val};
     table[n] = (struct option){0, 0, 0, 0};
     return table;
+}
+
+void cli_frames_to_mp4(const char* dir, const char* name) {
+    if (system("command -v ffmpeg > /dev/null 2>&1") != 0) {
+        mlb_log(MLB_LOG_INFO, "PNG frames in %s (install ffmpeg for an MP4)", dir);
+        return;
+    }
+    char cmdline[9000];
+    snprintf(cmdline, sizeof cmdline, "ffmpeg -loglevel error -y -framerate 24 -i '%s/frame_%%04d.png' -pix_fmt yuv420p '%s/%s'",
+             dir, dir, name);
+    if (system(cmdline) == 0) mlb_log(MLB_LOG_INFO, "wrote %s/%s", dir, name);
+    else mlb_log(MLB_LOG_WARN, "ffmpeg failed; the PNG frames are in %s", dir);
 }

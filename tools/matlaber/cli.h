@@ -31,5 +31,13 @@ int cmd_render(int argc, char** argv);
 int cmd_relight(int argc, char** argv);
 int brdf_swatch_main(int argc, char** argv);
 int cmd_sd(int argc, char** argv);
+int cmd_generate(int argc, char** argv);
+int cmd_fit(int argc, char** argv);
+int cmd_relight_run(int argc, char** argv);
+int cmd_interp(int argc, char** argv);
+int cmd_export(int argc, char** argv);
+int cmd_view(int argc, char** argv);
+// DIR/frame_%04d.png → DIR/<name> with ffmpeg when it is installed (a log line either way).
+void cli_frames_to_mp4(const char* dir, const char* name);
 
 #endif

@@ -26,6 +26,8 @@ static void usage(FILE* out) {
             "  geometry        init the DMTet geometry network from a shape; extract its surface\n"
             "  render          a mesh with one material under an environment light\n"
             "  relight         the same while the light turns (PNG frames, MP4 with ffmpeg)\n"
+            "  export          a finished run as glTF (.glb) or OBJ + MTL with baked PBR textures\n"
+            "  view            a static three.js page of a run (environments, light rotation, map toggles)\n"
             "  device          list compute devices\n"
             "  version         print the version\n\n"
             "'matlaber <command> --help' describes each command.\n",
@@ -82,6 +84,8 @@ int main(int argc, char** argv) {
     if (strcmp(cmd, "geometry") == 0) return cmd_geometry(sub_argc, sub_argv);
     if (strcmp(cmd, "render") == 0) return cmd_render(sub_argc, sub_argv);
     if (strcmp(cmd, "relight") == 0) return cmd_relight(sub_argc, sub_argv);
+    if (strcmp(cmd, "export") == 0) return cmd_export(sub_argc, sub_argv);
+    if (strcmp(cmd, "view") == 0) return cmd_view(sub_argc, sub_argv);
     if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);
     if (strcmp(cmd, "sd") == 0) return cmd_sd(sub_argc, sub_argv);
     if (strcmp(cmd, "version") == 0) { printf("matlaber %s\n", MATLABER_VERSION); return 0; }

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The static viewer end to end: test_export writes a viewer folder for a textured sphere
+# (mlb_viewer_write_asset), then tests/viewer_check.mjs serves it on 127.0.0.1 and opens it in
+# headless Chromium (playwright-core): no console errors, the asset is drawn, the light slider
+# and the map toggles change the picture, nothing is fetched from outside the folder.
+# Skipped (77) without node, Chromium, or viewer/node_modules (scripts/build.sh runs npm ci).
+set -u
+M=${1:?usage: cli_viewer.sh path/to/matlaber}
+. "$(dirname "$0")/lib_cli.sh"
+HERE=$(cd "$(dirname "$0")" && pwd)
+W="$(dirname "$M")/tests/test_export"
+[ -x "$W" ] || { echo "skip: $W not built"; exit 77; }
+command -v node > /dev/null || { echo "skip: node not installed (scripts/install-deps.sh)"; exit 77; }
+for p in three playwright-core; do
+  [ -f "$HERE/../viewer/node_modules/$p/package.json" ] \
+    || { echo "skip: viewer/node_modules/$p missing (scripts/build.sh runs npm ci)"; exit 77; }
+done
+[ -x /usr/bin/chromium ] || [ -n "${CHROMIUM:-}" ] || { echo "skip: no /usr/bin/chromium (scripts/install-deps.sh)"; exit 77; }
+
+expect 0 "write the viewer folder" -- "$W" --write-viewer "$T/view"
+for f in index.html viewer.js viewer.json asset.glb env/sky.hdr env/studio.hdr env/overcast.hdr \
+         lib/three/build/three.module.js lib/three/examples/jsm/loaders/GLTFLoader.js; do
+  [ -s "$T/view/$f" ] && ok "$f" || bad "$f missing"
+done
+grep -Eq '(src|href)="(https?:)?//' "$T/view/index.html" "$T/view/viewer.js" && bad "the page links to the network" \
+  || ok "the page links nothing on the network"
+node "$HERE/viewer_check.mjs" "$T/view" "${MLB_VIEWER_SHOTS:-}" > "$T/out" 2>&1
+rc=$?
+cat "$T/out"
+[ "$rc" = 77 ] && { echo "skip: $(tail -1 "$T/out")"; exit 77; }
+[ "$rc" = 0 ] && ok "headless Chromium checks" || bad "headless Chromium checks (exit $rc)"
+finish

@@ -8,22 +8,25 @@
 #include "matlaber/brdf.h"
 #include "matlaber/brdf_ae.h"
 #include "matlaber/fileio.h"
+#include "matlaber/goblet.h"
 #include "matlaber/image_write.h"
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
 #include "matlaber/progress.h"
 #include "matlaber/render.h"
+#include "matlaber/views.h"
 
 // Options render and relight share.
 typedef struct {
-    const char *mesh, *env, *model, *out, *latent, *kd, *ks, *kr, *background;
-    double rotate, az, el, radius, fov, env_scale;
-    long size, ss, frames, cube;
-    int fresnel_schlick, keep_scale;
+    const char *mesh, *env, *model, *out, *latent, *kd, *ks, *kr, *background, *views_out;
+    double rotate, az, el, radius, fov, env_scale, el_min, el_max;
+    long size, ss, frames, cube, views, seed;
+    int fresnel_schlick, keep_scale, goblet;
 } render_opts;
 
 static const cli_option render_options[] = {
     {"mesh", 1, 'm', "FILE.obj", "the mesh (normalised into the unit sphere unless --keep-scale)"},
+    {"goblet", 0, 'G', NULL, "the procedural goblet of the demo with its own materials (instead of --mesh)"},
     {"kd", 1, 'd', "R,G,B", "diffuse albedo, linear (default 0.5,0.5,0.5)"},
     {"ks", 1, 's', "R,G,B", "specular albedo F0, linear (default 0.04,0.04,0.04)"},
     {"kr", 1, 'r', "X", "roughness in [0.08, 1] (default 0.5)"},
@@ -43,12 +46,18 @@ static const cli_option render_options[] = {
     {"frames", 1, 'k', "N", "relight: frames of a full turn of the light (default 36)"},
     {"keep-scale", 0, 'K', NULL, "do not normalise the mesh"},
     {"out", 1, 'o', "FILE|DIR", "render: .png (sRGB), .exr or .hdr (linear); relight: a folder"},
+    {"views-out", 1, 'O', "DIR", "render: a multi-view data set instead of one image (docs/views.md)"},
+    {"views", 1, 'V', "N", "--views-out: number of views (default 24)"},
+    {"res", 1, 'n', "N", "same as --size"},
+    {"elevation", 1, 'E', "MIN,MAX", "--views-out: elevation band of the cameras in degrees (default -30,75)"},
+    {"seed", 1, 'Q', "S", "--views-out: seed of the azimuths, environments and rotations (default 1)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 
 static int parse_render_options(int argc, char** argv, const char* cmd, render_opts* o) {
     *o = (render_opts){.env = "studio", .az = 30, .el = 20, .radius = 3, .fov = 40, .env_scale = 1, .size = 512,
-                       .ss = 2, .frames = 36, .cube = 512, .background = "env"};
+                       .ss = 2, .frames = 36, .cube = 512, .background = "env", .views = 24,
+                       .seed = 1, .el_min = -30, .el_max = 75};
     const struct option* table = cli_getopt_table(render_options);
     optind = 1;
     int c;
@@ -84,15 +93,28 @@ static int parse_render_options(int argc, char** argv, const char* cmd, render_o
             break;
         case 'k': if (cli_parse_long(optarg, 1, 100000, &o->frames)) return cli_usage_error(cmd, "--frames: expected >= 1"); break;
         case 'K': o->keep_scale = 1; break;
+        case 'G': o->goblet = 1; break;
+        case 'O': o->views_out = optarg; break;
+        case 'V': if (cli_parse_long(optarg, 1, 1000, &o->views)) return cli_usage_error(cmd, "--views: expected 1..1000"); break;
+        case 'Q': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &o->seed)) return cli_usage_error(cmd, "--seed: expected an integer >= 0"); break;
+        case 'E':
+            if (cli_parse_floats(optarg, two, 2) || two[0] < -90 || two[1] > 90 || two[0] > two[1])
+                return cli_usage_error(cmd, "--elevation: expected MIN,MAX with -90 <= MIN <= MAX <= 90");
+            o->el_min = two[0]; o->el_max = two[1];
+            break;
         case 'o': o->out = optarg; break;
         case 'h': return -1;
         default: return cli_usage_error(cmd, "unknown option");
         }
     }
     if (optind < argc) return cli_usage_error(cmd, "unexpected argument '%s'", argv[optind]);
-    if (!o->mesh) return cli_usage_error(cmd, "--mesh FILE.obj is required");
-    if (!o->out) return cli_usage_error(cmd, "-o/--out is required");
+    if (!o->mesh && !o->goblet) return cli_usage_error(cmd, "--mesh FILE.obj (or --goblet) is required");
+    if (o->mesh && o->goblet) return cli_usage_error(cmd, "give either --mesh or --goblet");
+    if (o->views_out && strcmp(cmd, "render") != 0) return cli_usage_error(cmd, "--views-out belongs to 'matlaber render'");
+    if (o->views_out && o->out) return cli_usage_error(cmd, "give either -o/--out or --views-out");
+    if (!o->out && !o->views_out) return cli_usage_error(cmd, "-o/--out is required");
     if (o->latent && (o->kd || o->ks || o->kr)) return cli_usage_error(cmd, "give either --latent or --kd/--ks/--kr");
+    if (o->goblet && (o->latent || o->kd || o->ks || o->kr)) return cli_usage_error(cmd, "--goblet has its own materials");
     return 0;
 }
 
@@ -151,6 +173,7 @@ typedef struct {
     mlb_envlight light;
     mlb_render_params p;
     float* image;
+    float* k;   // per-vertex materials [V, 7] (--goblet), or NULL
 } render_setup;
 
 static void setup_free(render_setup* r) {
@@ -158,6 +181,24 @@ static void setup_free(render_setup* r) {
     mlb_envmap_free(&r->env);
     mlb_envlight_free(&r->light);
     free(r->image);
+    free(r->k);
+}
+
+// The mesh of --mesh (normalised unless --keep-scale) or --goblet (with its per-vertex materials).
+static int load_mesh(const render_opts* o, mlb_mesh* mesh, float** k) {
+    *k = NULL;
+    if (o->goblet) {
+        mlb_status st = mlb_goblet_mesh(mesh, 96);
+        if (st) return cli_fail(st, "building the goblet");
+        *k = malloc(sizeof(float) * 7 * (size_t)mesh->n_verts);
+        if (!*k) { mlb_mesh_free(mesh); return cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), "goblet"); }
+        mlb_goblet_materials(mesh, *k);
+        return 0;
+    }
+    mlb_status st = mlb_obj_load(o->mesh, mesh);
+    if (st) return cli_fail(st, "loading the mesh");
+    if (!o->keep_scale) mlb_mesh_normalize_unit_sphere(mesh);
+    return 0;
 }
 
 static int setup(render_setup* r, const render_opts* o, const char* cmd) {
@@ -166,9 +207,9 @@ static int setup(render_setup* r, const render_opts* o, const char* cmd) {
     int rc = material_from_options(o, cmd, p->k_const);
     if (!rc) rc = background_from_options(o->background, cmd, p);
     if (rc) return rc;
-    mlb_status st = mlb_obj_load(o->mesh, &r->mesh);
-    if (st) return cli_fail(st, "loading the mesh");
-    if (!o->keep_scale) mlb_mesh_normalize_unit_sphere(&r->mesh);
+    if ((rc = load_mesh(o, &r->mesh, &r->k))) return rc;
+    p->k = r->k;
+    mlb_status st;
     mlb_envmap_info info;
     if ((st = mlb_envmap_open(&r->env, o->env, (float)o->env_scale, 0, &info))) { setup_free(r); return cli_fail(st, "loading the environment"); }
     mlb_log(MLB_LOG_INFO, "pre-integrating the environment '%s' (%ldx%ld cube faces)", r->env.name, o->cube, o->cube);
@@ -200,17 +241,72 @@ static void print_help(const char* usage, const char* text) {
     cli_print_options(stdout, render_options);
 }
 
+// --views-out DIR: a multi-view data set (views.h) of the mesh under random environments of --env
+// (comma-separated), cameras on a golden-angle spiral over the elevation band.
+static int render_views(const render_opts* o) {
+    enum { MAX_ENVS = 16 };
+    char list[4096];
+    if (strlen(o->env) >= sizeof list) return cli_usage_error("render", "--env: list too long");
+    snprintf(list, sizeof list, "%s", o->env);
+    const char* envs[MAX_ENVS];
+    int n_envs = 0;
+    for (char* save = NULL, *t = strtok_r(list, ",", &save); t; t = strtok_r(NULL, ",", &save)) {
+        if (n_envs == MAX_ENVS) return cli_usage_error("render", "--env: at most %d environments", MAX_ENVS);
+        envs[n_envs++] = t;
+    }
+    if (n_envs == 0) return cli_usage_error("render", "--env: expected NAME|FILE[,NAME|FILE...]");
+    if (strcmp(o->background, "env") != 0) mlb_log(MLB_LOG_WARN, "--views-out: the background is always transparent black");
+    mlb_views_render_config c = mlb_views_render_default();
+    int rc = 0;
+    if (!o->goblet) rc = material_from_options(o, "render", c.k_const);
+    if (rc) return rc;
+    mlb_mesh mesh;
+    float* k = NULL;
+    if ((rc = load_mesh(o, &mesh, &k))) return rc;
+    c.mesh = &mesh;
+    c.k = k;
+    c.n_views = (int)o->views;
+    c.res = (int)o->size;
+    c.supersample = (int)o->ss;
+    c.cube = (int)o->cube;
+    c.envs = envs;
+    c.n_envs = n_envs;
+    c.env_scale = (float)o->env_scale;
+    c.radius = o->radius;
+    c.fovy_deg = o->fov;
+    c.el_min = o->el_min;
+    c.el_max = o->el_max;
+    c.seed = (uint64_t)o->seed;
+    c.fresnel = o->fresnel_schlick ? MLB_FRESNEL_SCHLICK : MLB_FRESNEL_PAPER;
+    mlb_progress progress;
+    mlb_progress_begin(&progress, mlb_log_get_level() <= MLB_LOG_INFO ? stderr : NULL, "views", c.n_views, "view");
+    mlb_status st = mlb_views_render(o->views_out, &c, &progress);
+    mlb_mesh_free(&mesh);
+    free(k);
+    if (st) return cli_fail(st, "render --views-out");
+    mlb_progress_end(&progress, NULL);
+    mlb_log(MLB_LOG_INFO, "wrote %d views to %s (cameras.json, view_XXX.png, normal_XXX.png)", c.n_views, o->views_out);
+    return 0;
+}
+
 int cmd_render(int argc, char** argv) {
     render_opts o;
     int rc = parse_render_options(argc, argv, "render", &o);
     if (rc < 0) {
-        print_help("usage: matlaber render --mesh FILE.obj [--kd R,G,B --ks R,G,B --kr X | --latent Z] --env NAME|FILE "
-                   "[--rotate DEG] [--view AZ,EL] [--size N] -o out.png",
+        print_help("usage: matlaber render (--mesh FILE.obj [--kd R,G,B --ks R,G,B --kr X | --latent Z] | --goblet)\n"
+                   "                       --env NAME|FILE [--rotate DEG] [--view AZ,EL] [--size N] -o out.png\n"
+                   "       matlaber render (--mesh FILE.obj [material] | --goblet) --views-out DIR [--views N] [--res N]\n"
+                   "                       [--env NAME|FILE[,NAME|FILE...]] [--elevation MIN,MAX] [--seed S]",
                    "Renders the mesh with one material under an environment light: split-sum GGX shading\n"
-                   "(paper §3.4), antialiased, supersampled. PNG output is sRGB; EXR/HDR output is linear.");
+                   "(paper §3.4), antialiased, supersampled. PNG output is sRGB; EXR/HDR output is linear.\n"
+                   "With --views-out, writes a multi-view data set instead (docs/views.md): DIR/cameras.json,\n"
+                   "view_XXX.png (sRGB RGBA, alpha = coverage) and normal_XXX.png, cameras on a golden-angle spiral\n"
+                   "over the elevation band at --radius, each view under a random environment of the --env list\n"
+                   "with a random rotation.");
         return 0;
     }
     if (rc) return rc;
+    if (o.views_out) return render_views(&o);
     render_setup r;
     if ((rc = setup(&r, &o, "render"))) return rc;
     set_rotation(&r, o.rotate);
@@ -249,15 +345,7 @@ int cmd_relight(int argc, char** argv) {
     setup_free(&r);
     if (st) return cli_fail(st, "relight");
     mlb_progress_end(&progress, NULL);
-    if (system("command -v ffmpeg > /dev/null 2>&1") == 0) {
-        char cmdline[9000];
-        snprintf(cmdline, sizeof cmdline,
-                 "ffmpeg -loglevel error -y -framerate 24 -i '%s/frame_%%04d.png' -pix_fmt yuv420p '%s/relight.mp4'", o.out, o.out);
-        if (system(cmdline) == 0) mlb_log(MLB_LOG_INFO, "wrote %s/relight.mp4", o.out);
-        else mlb_log(MLB_LOG_WARN, "ffmpeg failed; the PNG frames are in %s", o.out);
-    } else {
-        mlb_log(MLB_LOG_INFO, "wrote %ld frames to %s (install ffmpeg for an MP4)", o.frames, o.out);
-    }
+    cli_frames_to_mp4(o.out, "relight.mp4");
     return 0;
 }
 

@@ -4,6 +4,8 @@
 #include "matlaber/geometry.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/obj.h"
+#include "matlaber/rng.h"
+#include "matlaber/threads.h"
 #include "test.h"
 
 // A closed, welded lat-long mesh of the star-shaped surface r(d)·d: three lobes around y, a bulge
@@ -336,7 +338,7 @@ TEST(fit_to_target) {
     mlb_mesh_free(&t);
 }
 
-// Same seed → bitwise the same parameters (same thread count); another camera seed differs.
+// Same seed → bitwise the same parameters; another camera seed differs.
 TEST(determinism) {
     mlb_mesh t;
     const char* name;
@@ -347,8 +349,7 @@ TEST(determinism) {
     REQUIRE(memcmp(a.params, b.params, sizeof(float) * a.n_params) == 0);
     mlb_geofit_config c = fit_config();
     c.iters = 8;
-    // Same thread count, twice: bitwise equal. (1 vs 2 threads is not bitwise equal: the hash
-    // encoding is, but the MLP's OpenBLAS GEMMs round differently with 2 threads; see the doc.)
+    // Same thread count, twice: bitwise equal (1 vs 2 threads: threads_bitwise).
     REQUIRE(mlb_geometry_fit_images(&a, &t, &c, NULL, NULL, NULL, NULL) == MLB_OK);
     REQUIRE(mlb_geometry_fit_images(&b, &t, &c, NULL, NULL, NULL, NULL) == MLB_OK);
     CHECK(memcmp(a.params, b.params, sizeof(float) * a.n_params) == 0);
@@ -362,11 +363,234 @@ TEST(determinism) {
     mlb_mesh_free(&t);
 }
 
+// The tiny double setup of the FD tests: an ellipsoid-initialised 4-level network copied to double.
+static int tiny_net_f64(mlb_geometry_net_f64* nd) {
+    mlb_geometry_config c = mlb_geometry_default();
+    c.enc = (mlb_hashgrid_config){4, 2, 256, 4, 1.5};
+    c.hidden = 8;
+    mlb_geometry_net net = {0};
+    if (geometry_net_init(&net, &c) != MLB_OK || geometry_net_init_f64(nd, &c) != MLB_OK) return 0;
+    mlb_shape s;
+    mlb_shape_ellipsoid(&s, SHAPE_SCALE, INIT_AXES);
+    mlb_shape_fit_config fc = mlb_shape_fit_default();
+    fc.iters = 150; fc.batch = 1536; fc.pool = 2048;
+    int ok = mlb_geometry_fit_shape(&net, &s, &fc, NULL, NULL) == MLB_OK;
+    mlb_shape_free(&s);
+    for (size_t i = 0; i < net.n_params; i++) nd->params[i] = net.params[i];
+    geometry_net_free(&net);
+    return ok;
+}
+
+// L = Σ R·images + λ·reg for the split forward / backward: an external image gradient R (random,
+// fixed) through the whole chain, against central differences in double.
+static double ext_loss(mlb_geofit_state_f64* st, mlb_geometry_net_f64* nd, const mlb_tetgrid* g, const mlb_camera* cams,
+                       int n, int res, int ss, const double* R, double lambda, mlb_geofit_stats* stats) {
+    if (mlb_geofit_forward_f64(st, nd, g, NULL, cams, n, res, ss, NULL, stats) != MLB_OK) return NAN;
+    double L = 0;
+    for (size_t i = 0; i < (size_t)n * res * res * 4; i++) L += R[i] * st->images[i];
+    return L + lambda * stats->reg;
+}
+
+TEST(fd_external_gradient_f64) {
+    mlb_geometry_net_f64 nd = {0};
+    REQUIRE(tiny_net_f64(&nd));
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 6, nd.cfg.scale) == MLB_OK);
+    enum { RES = 20, SS = 2, VIEWS = 3 };
+    mlb_geofit_config fcfg = mlb_geofit_default();
+    fcfg.views = VIEWS;
+    mlb_camera cams[VIEWS];
+    for (int v = 0; v < VIEWS; v++) REQUIRE(mlb_geofit_camera(&cams[v], &fcfg, 5, v) == MLB_OK);
+    size_t N = (size_t)VIEWS * RES * RES * 4;
+    double* R = malloc(sizeof(double) * N);
+    double* imgs = malloc(sizeof(double) * N);
+    REQUIRE(R && imgs);
+    for (size_t i = 0; i < N; i++) R[i] = mlb_rng_normal_f64(11, 1, i) / (double)(RES * RES);
+    const double lambda = 0.05;
+    mlb_geofit_state_f64 st = {0};
+    mlb_geofit_stats s0, sp, sm;
+    geometry_net_zero_grad_f64(&nd);
+    REQUIRE(mlb_geofit_forward_f64(&st, &nd, &g, NULL, cams, VIEWS, RES, SS, imgs, &s0) == MLB_OK);
+    CHECK(memcmp(imgs, st.images, sizeof(double) * N) == 0);
+    CHECK(s0.n_faces == st.surf.n_faces && s0.n_faces > 20 && s0.img == 0 && s0.reg > 0);
+    REQUIRE(mlb_geofit_backward_f64(&st, &nd, R, lambda) == MLB_OK);
+    double* grad = malloc(sizeof(double) * nd.n_params);
+    REQUIRE(grad);
+    memcpy(grad, nd.grads, sizeof(double) * nd.n_params);
+    // the renders equal mlb_geofit_loss's (the L2 loss is built on the same forward)
+    int pick[12], np = 0;
+    for (int part = 0; part < 2; part++) {
+        size_t lo = part ? nd.n_enc : 0, hi = part ? nd.n_params : nd.n_enc;
+        for (int k = 0; k < 6; k++) {
+            size_t best = lo;
+            double bv = -1;
+            for (size_t i = lo; i < hi; i++) {
+                int taken = 0;
+                for (int q = 0; q < np; q++) taken |= pick[q] == (int)i;
+                if (!taken && fabs(grad[i]) > bv) { bv = fabs(grad[i]); best = i; }
+            }
+            pick[np++] = (int)best;
+        }
+    }
+    int checked = 0, skipped = 0;
+    double worst = 0;
+    for (int q = 0; q < np; q++) {
+        size_t i = (size_t)pick[q];
+        double x0 = nd.params[i], h = 1e-6 * fmax(1.0, fabs(x0));
+        nd.params[i] = x0 + h;
+        double Lp = ext_loss(&st, &nd, &g, cams, VIEWS, RES, SS, R, lambda, &sp);
+        nd.params[i] = x0 - h;
+        double Lm = ext_loss(&st, &nd, &g, cams, VIEWS, RES, SS, R, lambda, &sm);
+        nd.params[i] = x0;
+        REQUIRE(isfinite(Lp) && isfinite(Lm));
+        if (sp.coverage != s0.coverage || sm.coverage != s0.coverage || sp.n_faces != s0.n_faces || sm.n_faces != s0.n_faces) {
+            skipped++;
+            continue;
+        }
+        double fd = (Lp - Lm) / (2 * h);
+        double err = fabs(fd - grad[i]) / (1e-8 + 1e-4 * fabs(fd) + 1e-4 * fabs(grad[i]));
+        if (err > 1) printf("  param %zu (%s): analytic %.9g, fd %.9g\n", i, i < nd.n_enc ? "table" : "mlp", grad[i], fd);
+        worst = fmax(worst, err);
+        checked++;
+    }
+    printf("  %d faces; %d parameters checked (%d skipped), worst error / tolerance %.3g\n", s0.n_faces, checked, skipped, worst);
+    CHECK(checked >= 9);
+    CHECK(worst <= 1);
+    // a backward with no image gradient is the regulariser's alone; without a forward it is an error
+    mlb_geofit_state_f64 fresh = {0};
+    CHECK(mlb_geofit_backward_f64(&fresh, &nd, R, 0) == MLB_ERR_ARG);
+    mlb_geofit_state_free_f64(&st);
+    mlb_geofit_state_free_f64(&st);   // safe twice
+    free(grad); free(R); free(imgs);
+    mlb_tetgrid_free(&g);
+    geometry_net_free_f64(&nd);
+}
+
+// dst = a copy of src: parameters and Adam state (moments and step count).
+static int clone_net(mlb_geometry_net* dst, const mlb_geometry_net* src) {
+    if (geometry_net_init(dst, &src->cfg) != MLB_OK) return 0;
+    memcpy(dst->params, src->params, sizeof(float) * src->n_params);
+    memcpy(dst->adam_m, src->adam_m, sizeof(float) * src->n_params);
+    memcpy(dst->adam_v, src->adam_v, sizeof(float) * src->n_params);
+    dst->step = src->step;
+    return 1;
+}
+
+// A guidance that is the fit's own L2 loss (w 1, 1) against fixed targets: the guided step must give
+// exactly the gradient of mlb_geofit_loss, and report the same losses.
+typedef struct { const float* targets; int calls; } l2_guidance;
+static mlb_status l2_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
+                          int H, int W, float* dimages, double* loss) {
+    l2_guidance* u = g->impl;
+    u->calls++;
+    if (stage != MLB_STAGE_GEOMETRY) return mlb_fail(MLB_ERR_ARG, "wrong stage");
+    size_t p = (size_t)H * W;
+    double norm = 1.0 / ((double)n * p), L = 0;
+    for (int v = 0; v < n; v++) {
+        double sum = 0;
+        for (size_t i = (size_t)v * p * 4; i < (size_t)(v + 1) * p * 4; i++) {
+            double d = (double)images[i] - u->targets[i];
+            sum += d * d;
+            if (dimages) dimages[i] += (float)(2.0 * d * norm);
+        }
+        L += sum * norm;
+    }
+    *loss = L;
+    return MLB_OK;
+}
+
+TEST(guided_step_equals_fit_loss) {
+    mlb_mesh t;
+    const char* name;
+    REQUIRE(make_target(&t, &name));
+    mlb_geometry_net a = {0}, b = {0};
+    REQUIRE(init_ellipsoid(&a));
+    REQUIRE(clone_net(&b, &a));
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 16, a.cfg.scale) == MLB_OK);
+    enum { RES = 48, VIEWS = 2 };
+    mlb_geofit_config c = fit_config();
+    c.views = VIEWS;
+    mlb_view views[VIEWS];
+    mlb_camera cams[VIEWS];
+    float* targets = malloc(sizeof(float) * RES * RES * 4 * VIEWS);
+    float* shown = malloc(sizeof(float) * RES * RES * 4 * VIEWS);
+    REQUIRE(targets && shown);
+    for (int v = 0; v < VIEWS; v++) {
+        memset(&views[v], 0, sizeof views[v]);
+        REQUIRE(mlb_geofit_camera(&cams[v], &c, 7, v) == MLB_OK);
+        views[v].cam = cams[v];
+        REQUIRE(mlb_geofit_render_mesh(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
+    }
+    l2_guidance u = {targets, 0};
+    mlb_guidance gd = {"l2", VIEWS, NULL, l2_loss, NULL, &u};
+    mlb_geofit_state st = {0};
+    mlb_geofit_stats s1, s2;
+    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
+    REQUIRE(ctx);
+    REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 3, views, RES, 1, 0.1, &s1, shown) == MLB_OK);
+    CHECK(u.calls == 1);
+    geometry_net_zero_grad(&b);
+    REQUIRE(mlb_geofit_loss(&b, &g, ctx, cams, VIEWS, targets, RES, 1, 1.0, 1.0, 0.1, 1, &s2) == MLB_OK);
+    CHECK(memcmp(a.grads, b.grads, sizeof(float) * a.n_params) == 0);
+    CHECK(s1.img == s2.img && s1.reg == s2.reg && s1.loss == s2.loss && s1.n_faces == s2.n_faces && s1.coverage == s2.coverage);
+    CHECK(memcmp(shown, st.images, sizeof(float) * RES * RES * 4 * VIEWS) == 0);
+    printf("  loss %.6f (img %.6f, reg %.4f), %d faces\n", s1.loss, s1.img, s1.reg, s1.n_faces);
+    // the step's surface is the extracted mesh of the network
+    mlb_mesh m, e;
+    REQUIRE(mlb_geofit_state_mesh(&st, &m) == MLB_OK);
+    REQUIRE(mlb_geometry_extract(&a, &g, &e) == MLB_OK);
+    CHECK(m.n_faces == s1.n_faces && m.n_faces == e.n_faces && m.n_verts == e.n_verts);
+    CHECK(memcmp(m.faces, e.faces, sizeof(int32_t) * 3 * (size_t)m.n_faces) == 0);
+    double dmax = 0;
+    for (int i = 0; i < 3 * m.n_verts; i++) dmax = fmax(dmax, fabs(m.pos[i] - e.pos[i]));
+    CHECK(dmax < 1e-5);
+    // a second step reuses the state
+    REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 4, views, RES, 1, 0.1, &s1, NULL) == MLB_OK);
+    mlb_mesh_free(&m);
+    mlb_mesh_free(&e);
+    mlb_geofit_state_free(&st);
+    mlb_raster_ctx_free(ctx);
+    free(targets); free(shown);
+    mlb_tetgrid_free(&g);
+    geometry_net_free(&a);
+    geometry_net_free(&b);
+    mlb_mesh_free(&t);
+}
+
+// 1 and 2 threads give bitwise the same parameters after a few fit steps (the network's GEMMs run
+// on one OpenBLAS thread; everything else is thread-count independent).
+TEST(threads_bitwise) {
+    mlb_mesh t;
+    const char* name;
+    REQUIRE(make_target(&t, &name));
+    mlb_geometry_net a = {0}, b = {0};
+    REQUIRE(init_ellipsoid(&a));
+    REQUIRE(clone_net(&b, &a));
+    mlb_geofit_config c = fit_config();
+    c.iters = 4;
+    int keep = mlb_get_threads();
+    mlb_set_threads(1);
+    REQUIRE(mlb_geometry_fit_images(&a, &t, &c, NULL, NULL, NULL, NULL) == MLB_OK);
+    mlb_set_threads(2);
+    REQUIRE(mlb_geometry_fit_images(&b, &t, &c, NULL, NULL, NULL, NULL) == MLB_OK);
+    mlb_set_threads(keep);
+    size_t diff = 0;
+    for (size_t i = 0; i < a.n_params; i++) diff += a.params[i] != b.params[i];
+    CHECK_MSG(diff == 0, "%zu of %zu parameters differ between 1 and 2 threads", diff, a.n_params);
+    geometry_net_free(&a);
+    geometry_net_free(&b);
+    mlb_mesh_free(&t);
+}
+
 int main(void) {
     RUN(target_mesh);
     RUN(schedule_and_cameras);
     RUN(fd_full_chain_f64);
     RUN(fit_to_target);
     RUN(determinism);
+    RUN(fd_external_gradient_f64);
+    RUN(guided_step_equals_fit_loss);
+    RUN(threads_bitwise);
     return test_summary();
 }

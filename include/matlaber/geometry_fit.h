@@ -12,6 +12,10 @@
 //       + λ(it) · sdf_reg.
 // Cameras: orbit (radius 3, fovy 45°, azimuth U(−180, 180), elevation U(−10, 45)) drawn from the
 // counter RNG (seed, stream 0x6F17, index it·views + v): the same on any thread count.
+// The step is split into a forward (renders every view, keeps the buffers) and a backward from
+// any image gradient (mlb_geofit_forward / _backward): the guided geometry stage drives it with a
+// guidance (mlb_geometry_guided_step). The network's GEMMs run on one OpenBLAS thread, so a step
+// is bitwise the same on any thread count.
 // The step functions exist in float (plain names) and double (_f64, for finite-difference tests).
 #ifndef MATLABER_GEOMETRY_FIT_H
 #define MATLABER_GEOMETRY_FIT_H
@@ -19,6 +23,7 @@
 #include "matlaber/dmtet.h"
 #include "matlaber/error.h"
 #include "matlaber/geometry.h"
+#include "matlaber/guidance.h"
 #include "matlaber/mesh.h"
 #include "matlaber/progress.h"
 #include "matlaber/raster.h"
@@ -60,12 +65,48 @@ typedef struct {
 typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st);
 
 #define MLB_GEOFIT_DECLARE(R, N)                                                                     \
+    /* What one forward keeps for its backward (and for previews / the final mesh). Zero-initialise \
+       it ({0}), pass it to every forward and backward, free it with mlb_geofit_state_free. The  \
+       fields are the step's internals: read surf (the extracted surface), images, n, res, ss.  */ \
+    typedef struct {                                                                                \
+        int ok;                      /* a forward is held: backward may run */                      \
+        int n, res, ss, S;           /* views, output size, supersampling, S = res·ss */             \
+        int n_grid;                  /* grid vertices of the last forward */                        \
+        const mlb_tetgrid* grid;     /* borrowed from the forward */                               \
+        mlb_raster_ctx* ctx;         /* borrowed from the forward (may be NULL) */                 \
+        N(mlb_mt_surface) surf;      /* the extracted surface of the last forward */               \
+        mlb_mat4* vp;                /* [n] the views' world → clip matrices */                    \
+        R* images;                   /* [n, res, res, 4] the renders of the last forward */        \
+        R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3] */                                 \
+        R *nrm, *nsum, *attr, *clip; /* [M,3], [M,3], [M,4], [n,M,4] */                             \
+        int32_t* adj;                /* [F,3] */                                                    \
+        int32_t* tri;                /* [n,S,S] */                                                  \
+        R *bary, *depth, *img, *weights; /* [n,S,S,2], [n,S,S], [n,S,S,4], [n,S,S,2] */             \
+        R *aa, *daa, *dimg, *dbary;  /* per-view scratch [S,S,4], [S,S,4], [S,S,4], [S,S,2] */      \
+        R *dattr, *dclip, *dverts, *dnrm;    /* [M,4], [M,4], [M,3], [M,3] */                       \
+        R *dgpos, *dsdf, *ddeform;   /* [G,3], [G], [G,3] */                                        \
+        size_t cap_grid, cap_surf, cap_px, cap_views;   /* allocated sizes */                      \
+    } N(mlb_geofit_state);                                                                          \
+    void N(mlb_geofit_state_free)(N(mlb_geofit_state)* st);   /* safe on a zeroed state */          \
+    /* The network's surface (on grid g, deformation tanh(d)/(2·cells)) seen by cams[v], v < n:      \
+       images[v·res·res·4 ...] (may be NULL; the renders are in st->images either way) = [normal,    \
+       mask] as mlb_geofit_render_mesh draws them. Keeps every view's buffers in st, and the        \
+       network's forward cache (run nothing else on net before the backward). g and ctx are        \
+       borrowed until the backward. stats: n_verts, n_faces, coverage, reg (the unweighted SDF     \
+       regulariser); img = loss = 0 (the caller's loss). An empty surface is an MLB_ERR_ARG error. */ \
+    mlb_status N(mlb_geofit_forward)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, const mlb_tetgrid* g, \
+                                     mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, \
+                                     R* images, mlb_geofit_stats* stats);                           \
+    /* net->grads += ∂(Σ dimages·images + reg_weight·sdf_reg)/∂params for the last forward;          \
+       dimages [n, res, res, 4] may be NULL (regulariser only). May repeat (gradients add).       */ \
+    mlb_status N(mlb_geofit_backward)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, const R* dimages, \
+                                      double reg_weight);                                           \
     /* out[res, res, 4] = [normal, mask] of a float mesh (normals: area-weighted vertex normals)  \
        seen by cam: rasterize at res·ss, interpolate, antialias, downsample. ctx may be NULL. */   \
     mlb_status N(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, R* out, const mlb_mesh* m,            \
                                          const mlb_camera* cam, int res, int ss);                   \
-    /* The loss of the network's surface (on grid g, deformation tanh(d)/(2·cells)) against        \
-       targets[v·res·res·4] seen by cams[v], v < n_views, with regulariser weight reg_weight.     \
+    /* The L2 loss of the network's surface against targets[v·res·res·4] seen by cams[v],          \
+       v < n_views, with regulariser weight reg_weight (forward + loss + backward above).          \
        backward != 0: net->grads += ∂L/∂params (zero them first). An empty surface is an error.  */ \
     mlb_status N(mlb_geofit_loss)(N(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx, \
                                   const mlb_camera* cams, int n_views, const R* targets, int res, int ss, \
@@ -86,5 +127,18 @@ MLB_GEOFIT_DECLARE(double, MLB_GEOFIT_F64)
 mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target, const mlb_geofit_config* c,
                                    mlb_progress* progress, mlb_geofit_step_fn step_fn, void* user,
                                    mlb_geofit_stats* last);
+
+// One step of the geometry stage with any guidance (float): geometry_net_zero_grad → forward of
+// the n = g->n_views views (views[v].cam) at res·ss → g->loss(MLB_STAGE_GEOMETRY, step) on the
+// [n, res, res, 4] renders → backward (guidance gradient + reg_weight·sdf_reg). The caller then
+// updates (geometry_net_update). stats: img = the guidance loss, reg, loss = img + reg_weight·reg,
+// surface size, coverage hash. images_out (may be NULL) [n, res, res, 4] receives the renders
+// (previews); the surface of this step stays in st->surf (mlb_geofit_state_mesh).
+mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* grid,
+                                    mlb_raster_ctx* ctx, mlb_guidance* g, long step, const mlb_view* views, int res,
+                                    int ss, double reg_weight, mlb_geofit_stats* stats, float* images_out);
+// The surface of the state's last forward as a float mesh (positions and faces; MLB_ERR_ARG when
+// no forward is held).
+mlb_status mlb_geofit_state_mesh(const mlb_geofit_state* st, mlb_mesh* out);
 
 #endif

@@ -1,5 +1,10 @@
 // End-to-end geometry fit: one step's render + loss + backward (include/matlaber/geometry_fit.h,
 // docs/geometry_fit.md). Dual-compiled (float / double _f64), see core/real.h.
+//   forward:  network at the grid vertices → deform → marching tets → vertex normals → per view:
+//             transform → rasterize → interpolate [normal, 1] → antialias → (downsample); every
+//             view's buffers are kept in the state.
+//   backward: dimages (any image loss) → per view the chain in reverse → surface-vertex and normal
+//             gradients → normals → marching tets → deform (+ regulariser) → network.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -8,6 +13,22 @@
 #include "matlaber/rng.h"
 #include "core/real.h"
 
+// The network's MLP runs its GEMMs on one OpenBLAS thread: OpenBLAS rounds differently with 1 and
+// 2 threads, the hash grid and everything else here do not depend on the thread count, so the
+// step is bitwise the same on any thread count. (The matrices are [grid vertices, 32]: small.)
+static mlb_status FN(net_forward_1t)(FN(mlb_geometry_net)* net, real* sdf, real* deform, const real* pos, int n) {
+    int t = openblas_get_num_threads();
+    openblas_set_num_threads(1);
+    mlb_status s = FN(geometry_net_forward)(net, sdf, deform, pos, n);
+    openblas_set_num_threads(t);
+    return s;
+}
+static void FN(net_backward_1t)(FN(mlb_geometry_net)* net, const real* dsdf, const real* ddeform) {
+    int t = openblas_get_num_threads();
+    openblas_set_num_threads(1);
+    FN(geometry_net_backward)(net, dsdf, ddeform);
+    openblas_set_num_threads(t);
+}
 
 // One view's buffers at the render size S = res·ss (forward kept for the backward).
 typedef struct {
@@ -89,128 +110,211 @@ mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_
     return s;
 }
 
-mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx,
-                              const mlb_camera* cams, int n_views, const real* targets, int res, int ss, double w_normal,
-                              double w_mask, double reg_weight, int backward, mlb_geofit_stats* st) {
+
+void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
+    if (!st) return;
+    FN(mt_surface_free)(&st->surf);
+    free(st->vp); free(st->images);
+    free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
+    free(st->nrm); free(st->nsum); free(st->attr); free(st->clip); free(st->adj);
+    free(st->tri); free(st->bary); free(st->depth); free(st->img); free(st->weights);
+    free(st->aa); free(st->daa); free(st->dimg); free(st->dbary);
+    free(st->dattr); free(st->dclip); free(st->dverts); free(st->dnrm);
+    free(st->dgpos); free(st->dsdf); free(st->ddeform);
     memset(st, 0, sizeof *st);
-    size_t G = (size_t)g->n_verts;
-    real grid_res = (real)(2 * g->cells);
-    real* gv = malloc(sizeof(real) * G * 3);      // grid vertices in real
-    real* sdf = malloc(sizeof(real) * G);
-    real* deform = malloc(sizeof(real) * G * 3);
-    real* gpos = malloc(sizeof(real) * G * 3);    // deformed grid vertices
-    real *nrm = NULL, *nsum = NULL, *attr = NULL, *clip = NULL, *dattr = NULL, *dclip = NULL, *dverts = NULL, *dnrm = NULL;
-    real *dgpos = NULL, *dsdf = NULL, *ddeform = NULL;
-    int32_t* adj = NULL;
-    FN(mlb_mt_surface) surf;
-    memset(&surf, 0, sizeof surf);
-    FN(geofit_view) v;
-    memset(&v, 0, sizeof v);
-    mlb_status s = (gv && sdf && deform && gpos) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
-    if (!s) {
-        for (size_t i = 0; i < 3 * G; i++) gv[i] = (real)g->verts[i];
-        s = FN(geometry_net_forward)(net, sdf, deform, gv, g->n_verts);
-    }
-    if (!s) {
-        FN(dmtet_deform_forward)(gpos, gv, deform, g->n_verts, grid_res);
-        s = FN(marching_tets_forward)(&surf, g, gpos, sdf);
-    }
-    if (!s && surf.n_faces == 0) s = mlb_fail(MLB_ERR_ARG, "geometry fit: no surface (the SDF has one sign everywhere)");
-    int M = surf.n_verts, F = surf.n_faces;
-    if (!s) {
-        st->n_verts = M;
-        st->n_faces = F;
-        nrm = malloc(sizeof(real) * (size_t)M * 3);
-        nsum = malloc(sizeof(real) * (size_t)M * 3);
-        attr = malloc(sizeof(real) * (size_t)M * 4);
-        clip = malloc(sizeof(real) * (size_t)M * 4);
-        adj = malloc(sizeof(int32_t) * (size_t)F * 3);
-        if (!nrm || !nsum || !attr || !clip || !adj) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory (%d faces)", F);
-    }
-    if (!s && backward) {
-        dattr = malloc(sizeof(real) * (size_t)M * 4);
-        dclip = malloc(sizeof(real) * (size_t)M * 4);
-        dverts = calloc((size_t)M * 3, sizeof(real));
-        dnrm = calloc((size_t)M * 3, sizeof(real));
-        if (!dattr || !dclip || !dverts || !dnrm) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory (%d faces)", F);
-    }
-    if (!s) {
-        FN(vertex_normals_forward)(nrm, nsum, surf.pos, M, surf.faces, F);
-        for (int i = 0; i < M; i++) {
-            for (int k = 0; k < 3; k++) attr[4 * i + k] = nrm[3 * i + k];
-            attr[4 * i + 3] = 1;
-        }
-        s = mlb_edge_topology(adj, surf.faces, F, M);
-    }
-    if (!s) s = FN(geofit_view_alloc)(&v, res, ss, backward);
-    size_t p = (size_t)res * res, S = (size_t)res * ss, P = S * S;
-    double img_loss = 0, norm = 1.0 / ((double)n_views * (double)p);
-    uint64_t hash = 1469598103934665603ull;
-    for (int view = 0; !s && view < n_views; view++) {
-        const mlb_mat4* vp = &cams[view].view_proj;
-        FN(mlb_transform_points)(clip, surf.pos, M, vp);
-        s = FN(geofit_view_forward)(ctx, &v, attr, clip, M, surf.faces, adj, F, res, ss);
-        if (s) break;
-        hash = FN(geofit_hash)(hash, v.tri, P);
-        const real* t = targets + (size_t)view * p * 4;
-        double sum = 0;
-        for (size_t i = 0; i < p; i++) {
-            for (int c = 0; c < 4; c++) {
-                double d = (double)v.out[4 * i + c] - (double)t[4 * i + c];
-                double w = c < 3 ? w_normal : w_mask;
-                sum += w * d * d;
-                if (backward) v.dout[4 * i + c] = (real)(2.0 * w * d * norm);
-            }
-        }
-        img_loss += sum * norm;
-        if (!backward) continue;
-        const real* daa = v.dout;
-        if (ss > 1) {
-            memset(v.daa, 0, sizeof(real) * P * 4);
-            FN(mlb_downsample_box_backward)(v.daa, v.dout, res, res, 4, ss);
-            daa = v.daa;
-        }
-        memset(v.dimg, 0, sizeof(real) * P * 4);
-        memset(v.dbary, 0, sizeof(real) * P * 2);
-        memset(dclip, 0, sizeof(real) * (size_t)M * 4);
-        memset(dattr, 0, sizeof(real) * (size_t)M * 4);
-        int Si = (int)S;
-        s = FN(mlb_antialias_backward)(ctx, v.dimg, dclip, daa, v.weights, v.img, 4, v.tri, v.depth, clip, M, surf.faces,
-                                      adj, F, Si, Si);
-        if (!s) s = FN(mlb_interpolate_backward)(ctx, dattr, v.dbary, v.dimg, attr, M, 4, v.tri, v.bary, surf.faces, F, Si, Si);
-        if (!s) s = FN(mlb_rasterize_backward)(ctx, dclip, v.dbary, NULL, v.tri, clip, M, surf.faces, F, Si, Si);
-        if (s) break;
-        FN(mlb_transform_points_backward)(dverts, dclip, M, vp);
-        for (int i = 0; i < M; i++)
-            for (int k = 0; k < 3; k++) dnrm[3 * i + k] += dattr[4 * i + k];
-    }
-    double reg = 0;
-    if (!s) {
-        reg = (double)FN(sdf_reg_forward)(g, sdf);
-        st->img = img_loss;
-        st->reg = reg;
-        st->loss = img_loss + reg_weight * reg;
-        st->coverage = hash;
-    }
-    if (!s && backward) {
-        s = FN(vertex_normals_backward)(dverts, dnrm, nsum, surf.pos, M, surf.faces, F);
-        dgpos = calloc(G * 3, sizeof(real));
-        dsdf = calloc(G, sizeof(real));
-        ddeform = calloc(G * 3, sizeof(real));
-        if (!s && (!dgpos || !dsdf || !ddeform)) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
-        if (!s) {
-            FN(marching_tets_backward)(dgpos, dsdf, &surf, gpos, sdf, dverts);
-            FN(dmtet_deform_backward)(NULL, ddeform, dgpos, deform, g->n_verts, grid_res);
-            if (reg_weight != 0) FN(sdf_reg_backward)(dsdf, g, sdf, (real)reg_weight);
-            FN(geometry_net_backward)(net, dsdf, ddeform);
-        }
-    }
-    FN(geofit_view_free)(&v);
-    FN(mt_surface_free)(&surf);
-    free(gv); free(sdf); free(deform); free(gpos);
-    free(nrm); free(nsum); free(attr); free(clip); free(adj);
-    free(dattr); free(dclip); free(dverts); free(dnrm);
-    free(dgpos); free(dsdf); free(ddeform);
-    return s;
 }
 
+// Frees *p and allocates n elements of size sz (contents lost). 1 on success.
+static int FN(grow)(void** p, size_t n, size_t sz) {
+    free(*p);
+    *p = malloc(n * sz + 1);
+    return *p != NULL;
+}
+
+// Buffers for this forward: the grid group when the grid size changed, the pixel group when
+// (views, size) changed, the surface group every time (M and F change every step).
+static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, int F, int n, int res, int ss) {
+    int ok = 1;
+    if (G != st->cap_grid) {
+        st->cap_grid = 0;
+        ok &= FN(grow)((void**)&st->gv, G * 3, sizeof(real)) & FN(grow)((void**)&st->sdf, G, sizeof(real)) &
+              FN(grow)((void**)&st->deform, G * 3, sizeof(real)) & FN(grow)((void**)&st->gpos, G * 3, sizeof(real)) &
+              FN(grow)((void**)&st->dgpos, G * 3, sizeof(real)) & FN(grow)((void**)&st->dsdf, G, sizeof(real)) &
+              FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
+        if (ok) st->cap_grid = G;
+    }
+    size_t S = (size_t)res * ss, P = S * S, px = P * (size_t)n;
+    if (ok && (S != st->cap_px || (size_t)n != st->cap_views || res != st->res)) {
+        st->cap_px = 0;
+        st->cap_views = 0;
+        size_t p = (size_t)res * res * (size_t)n;
+        ok &= FN(grow)((void**)&st->vp, (size_t)n, sizeof(mlb_mat4)) & FN(grow)((void**)&st->images, p * 4, sizeof(real)) &
+              FN(grow)((void**)&st->tri, px, sizeof(int32_t)) & FN(grow)((void**)&st->bary, px * 2, sizeof(real)) &
+              FN(grow)((void**)&st->depth, px, sizeof(real)) & FN(grow)((void**)&st->img, px * 4, sizeof(real)) &
+              FN(grow)((void**)&st->weights, px * 2, sizeof(real)) & FN(grow)((void**)&st->aa, P * 4, sizeof(real)) &
+              FN(grow)((void**)&st->daa, P * 4, sizeof(real)) & FN(grow)((void**)&st->dimg, P * 4, sizeof(real)) &
+              FN(grow)((void**)&st->dbary, P * 2, sizeof(real));
+        if (ok) { st->cap_px = S; st->cap_views = (size_t)n; st->res = res; }
+    }
+    if (ok && M > 0) {   // (M = 0: grid and pixel groups only)
+        size_t m = (size_t)M;
+        ok &= FN(grow)((void**)&st->nrm, m * 3, sizeof(real)) & FN(grow)((void**)&st->nsum, m * 3, sizeof(real)) &
+              FN(grow)((void**)&st->attr, m * 4, sizeof(real)) & FN(grow)((void**)&st->clip, m * 4 * (size_t)n, sizeof(real)) &
+              FN(grow)((void**)&st->dattr, m * 4, sizeof(real)) & FN(grow)((void**)&st->dclip, m * 4, sizeof(real)) &
+              FN(grow)((void**)&st->dverts, m * 3, sizeof(real)) & FN(grow)((void**)&st->dnrm, m * 3, sizeof(real)) &
+              FN(grow)((void**)&st->adj, (size_t)F * 3, sizeof(int32_t));
+        st->cap_surf = ok ? m : 0;
+    }
+    if (!ok) {
+        FN(mlb_geofit_state_free)(st);
+        return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d px, %d surface vertices)", n, res * ss, M);
+    }
+    return MLB_OK;
+}
+
+mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
+                                 mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, real* images,
+                                 mlb_geofit_stats* stats) {
+    mlb_geofit_stats local;
+    if (!stats) stats = &local;
+    memset(stats, 0, sizeof *stats);
+    if (st) st->ok = 0;
+    if (!st || !net || !g || !cams || n < 1 || res < 1 || ss < 1 || (size_t)res * ss > MLB_RASTER_MAX_SIZE)
+        return mlb_fail(MLB_ERR_ARG, "geometry step: bad arguments (%d views, res %d, ss %d)", n, res, ss);
+    size_t G = (size_t)g->n_verts;
+    real grid_res = (real)(2 * g->cells);
+    // 1. the network at the grid vertices → deformed grid → marching tets
+    FN(mt_surface_free)(&st->surf);
+    mlb_status s = FN(state_reserve)(st, G, 0, 0, n, res, ss);
+    if (s) return s;
+    for (size_t i = 0; i < 3 * G; i++) st->gv[i] = (real)g->verts[i];
+    s = FN(net_forward_1t)(net, st->sdf, st->deform, st->gv, g->n_verts);
+    if (s) return s;
+    FN(dmtet_deform_forward)(st->gpos, st->gv, st->deform, g->n_verts, grid_res);
+    s = FN(marching_tets_forward)(&st->surf, g, st->gpos, st->sdf);
+    if (s) return s;
+    if (st->surf.n_faces == 0) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface (the SDF has one sign everywhere)");
+    int M = st->surf.n_verts, F = st->surf.n_faces;
+    s = FN(state_reserve)(st, G, M, F, n, res, ss);
+    if (s) return s;
+    st->n = n;
+    st->res = res;
+    st->ss = ss;
+    st->S = res * ss;
+    st->n_grid = g->n_verts;
+    st->grid = g;
+    st->ctx = ctx;
+    stats->n_verts = M;
+    stats->n_faces = F;
+    // 2. normals as the attribute [normal, 1]; topology for antialias
+    FN(vertex_normals_forward)(st->nrm, st->nsum, st->surf.pos, M, st->surf.faces, F);
+    for (int i = 0; i < M; i++) {
+        for (int k = 0; k < 3; k++) st->attr[4 * i + k] = st->nrm[3 * i + k];
+        st->attr[4 * i + 3] = 1;
+    }
+    s = mlb_edge_topology(st->adj, st->surf.faces, F, M);
+    if (s) return s;
+    // 3. every view, buffers kept
+    size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
+    uint64_t hash = 1469598103934665603ull;
+    for (int v = 0; v < n; v++) {
+        st->vp[v] = cams[v].view_proj;
+        real* clip = st->clip + (size_t)v * M * 4;
+        FN(mlb_transform_points)(clip, st->surf.pos, M, &st->vp[v]);
+        int32_t* tri = st->tri + (size_t)v * P;
+        real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
+        real *weights = st->weights + (size_t)v * P * 2, *out = st->images + (size_t)v * p * 4;
+        real* aa = ss == 1 ? out : st->aa;
+        int Si = st->S;
+        s = FN(mlb_rasterize)(ctx, tri, bary, depth, NULL, clip, M, st->surf.faces, F, Si, Si);
+        if (!s) s = FN(mlb_interpolate)(img, st->attr, M, 4, tri, bary, st->surf.faces, F, Si, Si);
+        if (!s) s = FN(mlb_antialias)(ctx, aa, weights, img, 4, tri, depth, clip, M, st->surf.faces, st->adj, F, Si, Si);
+        if (s) return s;
+        if (ss > 1) FN(mlb_downsample_box)(out, aa, res, res, 4, ss);
+        hash = FN(geofit_hash)(hash, tri, P);
+    }
+    if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
+    stats->reg = (double)FN(sdf_reg_forward)(g, st->sdf);
+    stats->coverage = hash;
+    st->ok = 1;
+    return MLB_OK;
+}
+
+mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const real* dimages,
+                                  double reg_weight) {
+    if (!st || !st->ok || !net) return mlb_fail(MLB_ERR_ARG, "geometry step: backward without a forward");
+    const mlb_tetgrid* g = st->grid;
+    int M = st->surf.n_verts, F = st->surf.n_faces, n = st->n, res = st->res, ss = st->ss, Si = st->S;
+    size_t G = (size_t)st->n_grid, p = (size_t)res * res, P = (size_t)Si * Si;
+    const int32_t* faces = st->surf.faces;
+    mlb_status s = MLB_OK;
+    memset(st->dverts, 0, sizeof(real) * (size_t)M * 3);
+    memset(st->dnrm, 0, sizeof(real) * (size_t)M * 3);
+    for (int v = 0; dimages && v < n; v++) {
+        const real* dout = dimages + (size_t)v * p * 4;
+        const real* daa = dout;
+        if (ss > 1) {
+            memset(st->daa, 0, sizeof(real) * P * 4);
+            FN(mlb_downsample_box_backward)(st->daa, dout, res, res, 4, ss);
+            daa = st->daa;
+        }
+        const real* clip = st->clip + (size_t)v * M * 4;
+        const int32_t* tri = st->tri + (size_t)v * P;
+        const real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
+        const real* weights = st->weights + (size_t)v * P * 2;
+        memset(st->dimg, 0, sizeof(real) * P * 4);
+        memset(st->dbary, 0, sizeof(real) * P * 2);
+        memset(st->dclip, 0, sizeof(real) * (size_t)M * 4);
+        memset(st->dattr, 0, sizeof(real) * (size_t)M * 4);
+        s = FN(mlb_antialias_backward)(st->ctx, st->dimg, st->dclip, daa, weights, img, 4, tri, depth, clip, M, faces,
+                                      st->adj, F, Si, Si);
+        if (!s) s = FN(mlb_interpolate_backward)(st->ctx, st->dattr, st->dbary, st->dimg, st->attr, M, 4, tri, bary, faces, F, Si, Si);
+        if (!s) s = FN(mlb_rasterize_backward)(st->ctx, st->dclip, st->dbary, NULL, tri, clip, M, faces, F, Si, Si);
+        if (s) return s;
+        FN(mlb_transform_points_backward)(st->dverts, st->dclip, M, &st->vp[v]);
+        for (int i = 0; i < M; i++)
+            for (int k = 0; k < 3; k++) st->dnrm[3 * i + k] += st->dattr[4 * i + k];
+    }
+    s = FN(vertex_normals_backward)(st->dverts, st->dnrm, st->nsum, st->surf.pos, M, faces, F);
+    if (s) return s;
+    memset(st->dgpos, 0, sizeof(real) * G * 3);
+    memset(st->dsdf, 0, sizeof(real) * G);
+    memset(st->ddeform, 0, sizeof(real) * G * 3);
+    FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, st->dverts);
+    FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
+    if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
+    FN(net_backward_1t)(net, st->dsdf, st->ddeform);
+    return MLB_OK;
+}
+
+mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx,
+                              const mlb_camera* cams, int n_views, const real* targets, int res, int ss, double w_normal,
+                              double w_mask, double reg_weight, int backward, mlb_geofit_stats* stats) {
+    mlb_geofit_stats local;
+    if (!stats) stats = &local;
+    FN(mlb_geofit_state) st;
+    memset(&st, 0, sizeof st);
+    mlb_status s = FN(mlb_geofit_forward)(&st, net, g, ctx, cams, n_views, res, ss, NULL, stats);
+    size_t p = (size_t)res * res, N = p * 4 * (size_t)n_views;
+    real* dimages = NULL;
+    if (!s && backward && !(dimages = malloc(sizeof(real) * N))) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
+    if (!s) {
+        double img_loss = 0, norm = 1.0 / ((double)n_views * (double)p);
+        for (int v = 0; v < n_views; v++) {   // per view in double, in order (as before)
+            double sum = 0;
+            for (size_t i = (size_t)v * p * 4; i < (size_t)(v + 1) * p * 4; i++) {
+                double d = (double)st.images[i] - (double)targets[i];
+                double w = (i & 3) < 3 ? w_normal : w_mask;
+                sum += w * d * d;
+                if (dimages) dimages[i] = (real)(2.0 * w * d * norm);
+            }
+            img_loss += sum * norm;
+        }
+        stats->img = img_loss;
+        stats->loss = img_loss + reg_weight * stats->reg;
+        if (backward) s = FN(mlb_geofit_backward)(&st, net, dimages, reg_weight);
+    }
+    free(dimages);
+    FN(mlb_geofit_state_free)(&st);
+    return s;
+}

@@ -98,3 +98,39 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
     return s;
 }
 
+
+mlb_status mlb_geofit_state_mesh(const mlb_geofit_state* st, mlb_mesh* out) {
+    if (!st || !st->ok || !out) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface held (run a forward first)");
+    return mt_surface_to_mesh(&st->surf, out);
+}
+
+mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* grid,
+                                    mlb_raster_ctx* ctx, mlb_guidance* g, long step, const mlb_view* views, int res,
+                                    int ss, double reg_weight, mlb_geofit_stats* stats, float* images_out) {
+    mlb_geofit_stats local;
+    if (!stats) stats = &local;
+    memset(stats, 0, sizeof *stats);
+    if (!st || !net || !grid || !g || !g->loss || !views || g->n_views < 1)
+        return mlb_fail(MLB_ERR_ARG, "geometry step: bad arguments (NULL state, network, grid, guidance or views)");
+    int n = g->n_views;
+    mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)n);
+    size_t N = (size_t)n * res * res * 4;
+    float* dimages = calloc(N ? N : 1, sizeof(float));
+    mlb_status s = cams && dimages ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory");
+    if (!s) {
+        for (int v = 0; v < n; v++) cams[v] = views[v].cam;
+        geometry_net_zero_grad(net);
+        s = mlb_geofit_forward(st, net, grid, ctx, cams, n, res, ss, images_out, stats);
+    }
+    double loss = 0;
+    if (!s) s = g->loss(g, MLB_STAGE_GEOMETRY, step, views, n, st->images, res, res, dimages, &loss);
+    if (!s) s = mlb_geofit_backward(st, net, dimages, reg_weight);
+    if (!s) {
+        stats->img = loss;
+        stats->loss = loss + reg_weight * stats->reg;
+    } else
+        s = mlb_fail_context(s, "geometry step %ld", step);
+    free(cams);
+    free(dimages);
+    return s;
+}

@@ -1,0 +1,57 @@
+// Score-distillation guidance (guidance.h's interface over sds.h; docs/guidance.md, reference.md §7,
+// paper §3.1/§3.4): random orbit cameras (cameras.h) and Stable Diffusion's score on the renders.
+//
+// loss(stage, step, views, images [n, H, W, 4] channels-last):
+//   geometry, step < latent_iters: images → area resize to 64×64 → channels-first [n, 4, 64, 64]
+//       used directly as the latent (Fantasia3D's [normal, mask] latent), weighting DreamFusion;
+//   geometry, later: the normal map as a colour, (normal + 1)/2 composited over black =
+//       (normal·mask + mask)/2 → [n, 3, H, W] → VAE encoder → SDS (geometry_opt's weighting);
+//   appearance: channels 0..2 (sRGB premultiplied, over black) → [n, 3, H, W] → VAE → SDS.
+// Prompts: "<prompt>, front / side / back view" by each view's azimuth (mlb_sds_view_for_azimuth);
+// unconditional embedding = the stage's negative prompt. The SDS noise / t seed is
+// seed·2 + stage (geometry 0, appearance 1) and the step. dimages += ∂loss/∂images (channels-last);
+// loss = the SDS loss (0.5 Σ grad² / n).
+#ifndef MATLABER_GUIDANCE_SDS_H
+#define MATLABER_GUIDANCE_SDS_H
+#include <stdint.h>
+#include "matlaber/cameras.h"
+#include "matlaber/error.h"
+#include "matlaber/guidance.h"
+#include "matlaber/sd_model.h"
+#include "matlaber/sds.h"
+
+#define MLB_GUIDANCE_LATENT_SIZE 64   // the geometry stage's early latent: 64×64
+
+typedef struct {
+    const char* prompt;
+    const char* negative_geometry;     // "low quality"
+    const char* negative_appearance;   // "shadow, oversaturated, low quality, unrealistic"
+    int views;                         // views per step, 9
+    int latent_iters;                  // geometry steps fed as 64² [normal, mask] latents, 1000
+    mlb_sds_options geometry_opt;      // scale 100, t 20..500, weighting fantasia0 (its seed is ignored)
+    mlb_sds_options appearance_opt;    // scale 100, t 20..980, weighting fantasia0 (its seed is ignored)
+    mlb_orbit_config orbit;            // mlb_orbit_default()
+    int n_envs;                        // > 0: overrides orbit.n_envs (the environment pool size)
+    uint64_t seed;                     // cameras and SDS noise, 0
+} mlb_guidance_sds_config;
+
+mlb_guidance_sds_config mlb_guidance_sds_default(void);
+// Encodes the prompts with the model's text encoder (view-dependent prompts, both negatives); the
+// model's UNet and VAE are borrowed (they must outlive the guidance; the text encoder may be
+// dropped afterwards). The strings are copied.
+mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance_sds_config* c, mlb_guidance** out);
+// From two SDS objects whose embeddings are already set (tests, callers with their own
+// embeddings): geometry and appearance are OWNED by the guidance from the call on (freed on
+// failure too); their options are replaced by c's geometry_opt / appearance_opt (seeds as above).
+// c->prompt and the negatives are not used.
+mlb_status mlb_guidance_sds_create_from(mlb_sds* geometry, mlb_sds* appearance, const mlb_guidance_sds_config* c,
+                                        mlb_guidance** out);
+
+// Area (box-average) resize of channels-last src [n, H, W, C] to channels-first dst [n, C, h, w]:
+// dst pixel (y, x) averages src rows [⌊yH/h⌋, ⌈(y+1)H/h⌉) × columns [⌊xW/w⌋, ⌈(x+1)W/w⌉)
+// (PyTorch's "area" / adaptive average pooling); exact box averages for integer factors.
+void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, int W, int C, int h, int w);
+// Its adjoint: dsrc [n, H, W, C] += the transpose applied to ddst [n, C, h, w].
+void mlb_area_resize_nhwc_to_nchw_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w);
+
+#endif

@@ -6,17 +6,31 @@
 #include <string.h>
 #include <unistd.h>
 #include "cli.h"
+#include "matlaber/device.h"
+#include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/threads.h"
 
 #define MATLABER_VERSION "0.1.0"
 
+// relight takes a mesh (--mesh FILE.obj) or a finished run (RUN_DIR, a folder with config.json).
+static int names_run_dir(int argc, char** argv) {
+    for (int i = 1; i < argc; i++) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/config.json", argv[i]);
+        if (argv[i][0] != '-' && mlb_is_dir(argv[i]) && mlb_is_file(path)) return 1;
+    }
+    return 0;
+}
+
 static void usage(FILE* out) {
     fprintf(out,
             "matlaber %s: material-aware text-to-3D with a latent BRDF auto-encoder\n\n"
-            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] <command> [options]\n\n"
+            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] [--device D] <command> [options]\n\n"
             "commands:\n"
-            "  demo            train the default BRDF prior and print its evaluation\n"
+            "  demo            fit a procedural goblet (two real materials) from an ellipsoid, and report\n"
+            "  generate        text to 3D with materials: -p PROMPT -m SD_MODEL -o RUN_DIR (the paper)\n"
+            "  fit             the same two stages fitted to multi-view images (no weights): --views DIR\n"
             "  brdf train      train a latent BRDF auto-encoder (the material prior)\n"
             "  brdf eval       reconstruction error vs PCA-4, KL, validity along interpolations\n"
             "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
@@ -25,11 +39,16 @@ static void usage(FILE* out) {
             "  sd tokenize     text -> the 77 CLIP token ids of the SD text encoders\n"
             "  geometry        init the DMTet geometry network from a shape; extract its surface\n"
             "  render          a mesh with one material under an environment light\n"
-            "  relight         the same while the light turns (PNG frames, MP4 with ffmpeg)\n"
+            "  relight         a mesh or a finished run while the light turns (PNG frames, MP4 with ffmpeg)\n"
+            "  interp          on run A's geometry, A's material field to B's in latent space\n"
             "  export          a finished run as glTF (.glb) or OBJ + MTL with baked PBR textures\n"
             "  view            a static three.js page of a run (environments, light rotation, map toggles)\n"
             "  device          list compute devices\n"
             "  version         print the version\n\n"
+            "global options:\n"
+            MLB_DEVICE_OPTION_HELP
+            "                  (the CUDA kernels exist with parity tests; the pipeline's ops still run on\n"
+            "                  the CPU in this version: docs/cuda.md)\n\n"
             "'matlaber <command> --help' describes each command.\n",
             MATLABER_VERSION);
 }
@@ -53,7 +72,7 @@ static void choose_runtime_settings(char** argv) {
 int main(int argc, char** argv) {
     choose_runtime_settings(argv);
     mlb_log_set_sink(mlb_log_file_sink, stderr);
-    int i = 1;
+    int i = 1, device_given = 0;
     // global options before the command
     while (i < argc && strncmp(argv[i], "--", 2) == 0) {
         if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) { usage(stdout); return 0; }
@@ -64,6 +83,12 @@ int main(int argc, char** argv) {
             if (mlb_log_level_parse(argv[i + 1], &level) != 0)
                 return cli_usage_error("", "unknown log level '%s' (debug, info, warn, error, quiet)", argv[i + 1]);
             mlb_log_set_level(level);
+        } else if (strcmp(argv[i], "--device") == 0) {
+            mlb_device d;
+            mlb_status s = mlb_device_option(argv[i + 1], &d);
+            if (s == MLB_ERR_ARG) return cli_usage_error("", "%s", mlb_last_error());
+            if (s != MLB_OK) return cli_fail(s, "--device");
+            device_given = 1;
         } else if (strcmp(argv[i], "--threads") == 0) {
             long n;
             if (cli_parse_long(argv[i + 1], 1, 1024, &n) != 0) return cli_usage_error("", "--threads: expected 1..1024");
@@ -76,6 +101,11 @@ int main(int argc, char** argv) {
         i += 2;
     }
     if (i >= argc) { usage(stderr); return EXIT_USAGE; }
+    if (!device_given) {
+        mlb_device d;
+        mlb_status s = mlb_device_option(NULL, &d);   // $MATLABER_DEVICE, else auto
+        if (s) return cli_fail(s, "$MATLABER_DEVICE");
+    }
     const char* cmd = argv[i];
     int sub_argc = argc - i;
     char** sub_argv = argv + i;
@@ -83,7 +113,11 @@ int main(int argc, char** argv) {
     if (strcmp(cmd, "demo") == 0) return cmd_demo(sub_argc, sub_argv);
     if (strcmp(cmd, "geometry") == 0) return cmd_geometry(sub_argc, sub_argv);
     if (strcmp(cmd, "render") == 0) return cmd_render(sub_argc, sub_argv);
-    if (strcmp(cmd, "relight") == 0) return cmd_relight(sub_argc, sub_argv);
+    if (strcmp(cmd, "relight") == 0)
+        return names_run_dir(sub_argc, sub_argv) ? cmd_relight_run(sub_argc, sub_argv) : cmd_relight(sub_argc, sub_argv);
+    if (strcmp(cmd, "generate") == 0) return cmd_generate(sub_argc, sub_argv);
+    if (strcmp(cmd, "fit") == 0) return cmd_fit(sub_argc, sub_argv);
+    if (strcmp(cmd, "interp") == 0) return cmd_interp(sub_argc, sub_argv);
     if (strcmp(cmd, "export") == 0) return cmd_export(sub_argc, sub_argv);
     if (strcmp(cmd, "view") == 0) return cmd_view(sub_argc, sub_argv);
     if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);

@@ -1,0 +1,100 @@
+// The two-stage material-aware pipeline (paper §3.4, §4; docs/pipeline.md):
+//   shape init (ellipsoid / cylinder / mesh) → geometry stage (DMTet, guidance on [normal, mask]
+//   renders) → fixed mesh → appearance stage (hash-grid material network → latent z → frozen BRDF
+//   decoder → split-sum shading under a pool of environments, one drawn and rotated per view and
+//   step; guidance on the sRGB renders; material smoothness) → the asset.
+// The guidance (guidance.h) is either score distillation with Stable Diffusion or image guidance.
+// A run lives in a directory (docs/runs.md): config.json, checkpoints/, loss.csv + loss.png,
+// previews/, final/. Every random draw is a counter-based function of (seed, stage, step), and the
+// checkpoints hold the optimiser state, so a resumed run ends bitwise where an uninterrupted one does
+// (on the same machine and thread count).
+#ifndef MATLABER_PIPELINE_H
+#define MATLABER_PIPELINE_H
+#include <stdint.h>
+#include "matlaber/error.h"
+#include "matlaber/guidance.h"
+#include "matlaber/material_net.h"
+#include "matlaber/mesh.h"
+#include "matlaber/progress.h"
+#include "matlaber/views.h"
+
+#define MLB_PIPELINE_MAX_ENVS 8
+#define MLB_PIPELINE_PATH 1024
+
+typedef struct {
+    char guidance[16];            // "sds" or "images"
+    char prompt[MLB_PIPELINE_PATH];     // sds
+    char negative[MLB_PIPELINE_PATH];   // sds: replaces both stages' default negative prompts when set
+    char model[MLB_PIPELINE_PATH];      // sds: the Stable Diffusion checkpoint (file or folder)
+    char views_dir[MLB_PIPELINE_PATH];  // images: the views folder (docs/views.md)
+    double guidance_scale;        // sds: 100
+    int latent_iters;             // sds geometry: steps fed as 64² [normal, mask] latents (default: iters / 3)
+    uint64_t seed;                // 0
+    int views;                    // views per step: 9
+    int res;                      // render size: 512
+    int ss;                       // supersampling: 1
+    // geometry stage
+    int geometry_iters;           // 3000
+    double geometry_lr;           // 1e-3 (AdamW, betas 0.9/0.99, eps 1e-15)
+    int grid;                     // DMTet grid as Fantasia3D names it (128 → 64 cells per axis)
+    char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder" or an OBJ file
+    int init_iters;               // SDF initialisation steps: 400
+    double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
+    // appearance stage
+    int appearance_iters;         // 2000
+    double appearance_lr;         // 1e-2
+    mlb_material_mode material;   // latent (the paper) or direct (ablation)
+    double w_mat;                 // material smoothness weight: 0.03
+    double mat_sigma;             // its offset std in world units: 0.01
+    int n_envs;                   // the environment pool (sds; image guidance uses the views' own)
+    char envs[MLB_PIPELINE_MAX_ENVS][MLB_PIPELINE_PATH];
+    int fixed_env;                // 1: environment 0 only, never rotated (Fantasia3D's setting)
+    int env_height;               // lat-long height of built-in environments: 256
+    int cube_size;                // pre-integrated cube face size: 128
+    // run
+    int checkpoint_every;         // steps between checkpoints: 100
+    int preview_every;            // steps between preview renders: 100 (0 = none)
+    long stop_after;              // stop (without a final checkpoint, as if killed) after this many steps
+                                  // of this invocation; 0 = run to the end. Not saved in config.json.
+    int overwrite;                // a new run may replace an earlier run in the same folder (not saved)
+} mlb_pipeline_config;
+
+mlb_pipeline_config mlb_pipeline_default(void);
+// The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
+int mlb_pipeline_cells(const mlb_pipeline_config* c);
+mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
+// config.json of a run (every field but stop_after); reading checks types and ranges.
+mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
+mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
+
+typedef struct {
+    double geometry_loss, appearance_loss;   // the last step's guidance losses
+    long geometry_steps, appearance_steps;   // steps done by this invocation
+    int n_verts, n_faces;                    // the final mesh
+    int finished;                            // 1 when both stages are complete and final/ is written
+} mlb_pipeline_result;
+
+// Runs (or, resume != 0, continues) the run in dir. The guidance is created by the caller from the
+// config (or by mlb_pipeline_make_guidance) and borrowed. views: image guidance's data set (its
+// environments are the appearance stage's lights), NULL for SDS (the config's pool). progress may
+// be NULL.
+mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_guidance* g, const mlb_views* views,
+                            int resume, mlb_progress* progress, mlb_pipeline_result* result);
+// Creates the guidance a config asks for: SDS (loads the model; the guidance owns it) or images
+// (loads the views folder at c->res into *views_out, which the caller frees with
+// mlb_pipeline_free_views after the guidance).
+mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, mlb_guidance** out, mlb_views** views_out);
+void mlb_pipeline_free_views(mlb_views* v);
+
+// ---- a finished run (final/) -----------------------------------------------------------------
+typedef struct {
+    mlb_mesh mesh;                  // final/mesh.obj (positions, faces, normals)
+    mlb_material_net material;      // final/material.safetensors
+    mlb_pipeline_config config;
+} mlb_run_asset;
+mlb_status mlb_run_asset_load(mlb_run_asset* a, const char* dir);
+void mlb_run_asset_free(mlb_run_asset* a);
+// Per-vertex BRDF [V,7] of the asset's mesh (the material field at the vertices).
+mlb_status mlb_run_asset_vertex_brdf(const mlb_run_asset* a, float* k);
+
+#endif

@@ -1,0 +1,330 @@
+// The two-stage pipeline's loop (include/matlaber/pipeline.h, docs/pipeline.md): shape init,
+// geometry stage, appearance stage, checkpoints and resume. Outputs: pipeline_output.c.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/brdf_ae.h"
+#include "matlaber/dmtet.h"
+#include "matlaber/envmap.h"
+#include "matlaber/fileio.h"
+#include "matlaber/geometry.h"
+#include "matlaber/geometry_fit.h"
+#include "matlaber/log.h"
+#include "matlaber/obj.h"
+#include "matlaber/pipeline.h"
+#include "matlaber/run.h"
+#include "matlaber/safetensors.h"
+#include "pipeline/pipeline_internal.h"
+
+// ---- optimiser state: one safetensors file per stage -----------------------------------------
+// "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken in the metadata. Exact floats, so
+// a resumed run continues bitwise from where the checkpoint was taken.
+mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
+                               const char* stage) {
+    mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
+                            {"adam_m", m, 1, {(int64_t)n}},
+                            {"adam_v", v, 1, {(int64_t)n}}};
+    mlb_ckpt_meta meta = {0};
+    mlb_status s = mlb_ckpt_meta_set_i64(&meta, "step", step);
+    if (!s) s = mlb_ckpt_meta_set(&meta, "stage", stage);
+    if (!s) s = mlb_checkpoint_save(path, t, 3, &meta);
+    mlb_ckpt_meta_free(&meta);
+    return s;
+}
+
+mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
+                               const char* stage) {
+    mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
+                            {"adam_m", m, 1, {(int64_t)n}},
+                            {"adam_v", v, 1, {(int64_t)n}}};
+    mlb_ckpt_meta meta = {0};
+    mlb_status s = mlb_checkpoint_load(path, t, 3, &meta);
+    int64_t k = 0;
+    const char* st = s ? NULL : mlb_ckpt_meta_get(&meta, "stage");
+    if (!s && (!st || strcmp(st, stage) != 0)) s = mlb_fail(MLB_ERR_FORMAT, "%s: not a %s checkpoint", path, stage);
+    if (!s) s = mlb_ckpt_meta_get_i64(&meta, "step", &k);
+    if (!s && k < 0) s = mlb_fail(MLB_ERR_FORMAT, "%s: negative step %lld", path, (long long)k);
+    mlb_ckpt_meta_free(&meta);
+    if (!s) *step = (long)k;
+    return s;
+}
+
+// ---- shared helpers ----------------------------------------------------------------------------
+void pipeline_path(char* out, size_t cap, const char* dir, const char* rel) { snprintf(out, cap, "%s/%s", dir, rel); }
+
+// The appearance stage's lights: the views' own environments (image guidance) or the config's pool.
+mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views) {
+    memset(sc, 0, sizeof *sc);
+    mlb_envlight_options opt;
+    memset(&opt, 0, sizeof opt);   // zero fields take the defaults
+    opt.face_size = c->cube_size;
+    int from_views = views && views->meta.n_envs > 0;
+    int n = from_views ? views->meta.n_envs : c->n_envs;
+    if (n > MLB_PIPELINE_MAX_ENVS)
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %d environments (at most %d)", views->dir, n, MLB_PIPELINE_MAX_ENVS);
+    mlb_status s = MLB_OK;
+    for (int i = 0; !s && i < n; i++) {
+        s = from_views ? mlb_views_open_env(views, i, &sc->maps[i], c->env_height)
+                       : mlb_envmap_open(&sc->maps[i], c->envs[i], 1.0f, c->env_height, NULL);
+        if (!s) s = mlb_envlight_build(&sc->lights[i], &sc->maps[i], &opt);
+        if (s) s = mlb_fail_context(s, "environment %d (%s)", i, from_views ? "of the views" : c->envs[i]);
+        sc->n_envs = i + 1;
+        sc->light_ptrs[i] = &sc->lights[i];
+    }
+    return s;
+}
+
+void pipeline_scene_free(pipeline_scene* sc) {
+    for (int i = 0; i < sc->n_envs; i++) {
+        mlb_envlight_free(&sc->lights[i]);
+        mlb_envmap_free(&sc->maps[i]);
+    }
+    mlb_mesh_free(&sc->mesh);
+    memset(sc, 0, sizeof *sc);
+}
+
+static mlb_status init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, mlb_progress* progress) {
+    mlb_shape shape;
+    memset(&shape, 0, sizeof shape);
+    mlb_status s = MLB_OK;
+    if (!strcmp(c->init, "ellipsoid")) {
+        // Fantasia3D's default ellipsoid: a sphere of the box's radius scale, flattened a little
+        const float axes[3] = {0.5f, 0.5f, 0.5f};
+        mlb_shape_ellipsoid(&shape, 1.0f, axes);
+    } else if (!strcmp(c->init, "cylinder")) {
+        mlb_shape_cylinder(&shape, 1.0f);
+    } else {
+        mlb_mesh m;
+        memset(&m, 0, sizeof m);
+        s = mlb_obj_load(c->init, &m);
+        if (!s) s = mlb_shape_from_mesh(&shape, &m, 0.8f);
+        mlb_mesh_free(&m);
+        if (s) return mlb_fail_context(s, "--init %s", c->init);
+    }
+    mlb_shape_fit_config fc = mlb_shape_fit_default();
+    fc.iters = c->init_iters;
+    fc.seed = c->seed + 1;
+    double final_loss = 0;
+    s = mlb_geometry_fit_shape(net, &shape, &fc, progress, &final_loss);
+    mlb_shape_free(&shape);
+    if (!s) mlb_log(MLB_LOG_INFO, "shape init (%s): SDF MSE %.3g after %d steps", c->init, final_loss, fc.iters);
+    return s;
+}
+
+static double reg_weight(const mlb_pipeline_config* c, long it) {
+    double span = c->reg_frac * c->geometry_iters;
+    double t = span > 0 ? it / span : 1.0;
+    if (t > 1) t = 1;
+    return c->reg_start + (c->reg_end - c->reg_start) * t;
+}
+
+static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
+
+// ---- geometry stage ----------------------------------------------------------------------------
+static mlb_status geometry_stage(pipeline_run* r) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_geometry_net* net = &r->geo;
+    char ckpt[MLB_PIPELINE_PATH + 64];
+    pipeline_path(ckpt, sizeof ckpt, r->dir, "checkpoints/geometry.safetensors");
+    long start = 0;
+    mlb_status s = MLB_OK;
+    if (r->resume && mlb_is_file(ckpt)) {
+        s = pipeline_state_load(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, &start, "geometry");
+        if (s) return s;
+        net->step = start;
+        mlb_log(MLB_LOG_INFO, "resuming the geometry stage at step %ld", start);
+    } else {
+        s = init_shape(net, c, NULL);
+        if (s) return s;
+        // the optimiser starts fresh after the initialisation
+        memset(net->adam_m, 0, sizeof(float) * net->n_params);
+        memset(net->adam_v, 0, sizeof(float) * net->n_params);
+        net->step = 0;
+        s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, 0, "geometry");
+        if (s) return s;
+    }
+    r->geometry_start = start;
+    if (start >= c->geometry_iters) return MLB_OK;
+
+    mlb_adam_config adam = mlb_geometry_adam(c->geometry_lr);
+    int n = r->g->n_views;
+    size_t img = (size_t)c->res * c->res * 4;
+    mlb_view* views = calloc((size_t)n, sizeof *views);
+    float* images = malloc(sizeof(float) * img * (size_t)n);
+    mlb_geofit_state st;
+    memset(&st, 0, sizeof st);
+    if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
+    for (long it = start; !s && it < c->geometry_iters; it++) {
+        s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
+        mlb_geofit_stats stats;
+        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it),
+                                             &stats, images);
+        if (s) { s = mlb_fail_context(s, "geometry stage, step %ld", it); break; }
+        geometry_net_update(net, &adam);
+        double row[3] = {stats.img, stats.reg, stats.n_faces};
+        s = mlb_losslog_append(r->log, MLB_STAGE_GEOMETRY, it, row);
+        r->result.geometry_loss = stats.img;
+        r->result.geometry_steps++;
+        if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0)
+            s = pipeline_preview(r, MLB_STAGE_GEOMETRY, it, images, n);
+        if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == c->geometry_iters))
+            s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, it + 1, "geometry");
+        pipeline_progress(r, it + 1, stats.img, stats.n_faces);
+        if (!s && pipeline_should_stop(r)) break;
+    }
+    mlb_geofit_state_free(&st);
+    free(views);
+    free(images);
+    return s;
+}
+
+// ---- appearance stage --------------------------------------------------------------------------
+static mlb_status appearance_stage(pipeline_run* r) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_material_net* net = &r->mat;
+    char ckpt[MLB_PIPELINE_PATH + 64];
+    pipeline_path(ckpt, sizeof ckpt, r->dir, "checkpoints/appearance.safetensors");
+    long start = 0;
+    mlb_status s = MLB_OK;
+    if (r->resume && mlb_is_file(ckpt)) {
+        s = pipeline_state_load(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, &start, "appearance");
+        if (s) return s;
+        net->step = start;
+        mlb_log(MLB_LOG_INFO, "resuming the appearance stage at step %ld", start);
+    }
+    if (start >= c->appearance_iters) return MLB_OK;
+
+    mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
+    int n = r->g->n_views;
+    size_t img = (size_t)c->res * c->res * 4;
+    mlb_view* views = calloc((size_t)n, sizeof *views);
+    float* images = malloc(sizeof(float) * img * (size_t)n);
+    float* dimages = malloc(sizeof(float) * img * (size_t)n);
+    enum { SMOOTH_POINTS = 4096 };
+    float* pts = malloc(sizeof(float) * 3 * SMOOTH_POINTS);
+    mlb_appearance app;
+    memset(&app, 0, sizeof app);
+    if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    for (long it = start; !s && it < c->appearance_iters; it++) {
+        s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
+        if (!s) s = pipeline_fix_env(r, views, n);
+        material_net_zero_grad(net);
+        if (!s) s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
+        double loss = 0, smooth = 0;
+        if (!s) {
+            memset(dimages, 0, sizeof(float) * img * (size_t)n);
+            s = r->g->loss(r->g, MLB_STAGE_APPEARANCE, it, views, n, images, c->res, c->res, dimages, &loss);
+        }
+        if (!s) s = mlb_appearance_backward(&app, net, dimages);
+        if (!s && c->w_mat > 0) {
+            s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
+            if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->seed, it, 1, &smooth);
+        }
+        if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
+        material_net_update(net, &adam);
+        double row[3] = {loss, smooth, r->scene.mesh.n_faces};
+        s = mlb_losslog_append(r->log, MLB_STAGE_APPEARANCE, it, row);
+        r->result.appearance_loss = loss;
+        r->result.appearance_steps++;
+        if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0)
+            s = pipeline_preview(r, MLB_STAGE_APPEARANCE, it, images, n);
+        if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == c->appearance_iters))
+            s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, it + 1, "appearance");
+        pipeline_progress(r, c->geometry_iters + it + 1, loss, r->scene.mesh.n_faces);
+        if (!s && pipeline_should_stop(r)) break;
+    }
+    mlb_appearance_free(&app);
+    free(views);
+    free(images);
+    free(dimages);
+    free(pts);
+    return s;
+}
+
+// ---- the run -----------------------------------------------------------------------------------
+mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_guidance* g, const mlb_views* views,
+                            int resume, mlb_progress* progress, mlb_pipeline_result* result) {
+    mlb_status s = mlb_pipeline_validate(c);
+    if (s) return s;
+    pipeline_run r;
+    memset(&r, 0, sizeof r);
+    r.dir = dir;
+    r.c = c;
+    r.g = g;
+    r.views = views;
+    r.resume = resume;
+    r.progress = progress;
+    char path[MLB_PIPELINE_PATH + 64];
+    if (resume) s = mlb_run_check_resume(dir);
+    else {
+        s = mlb_run_create(dir, c->overwrite);
+        if (!s) {
+            pipeline_path(path, sizeof path, dir, "config.json");
+            s = mlb_pipeline_config_save(c, path);
+        }
+    }
+    const char* subdirs[] = {"checkpoints", "previews", "final"};
+    for (int i = 0; !s && i < 3; i++) {
+        pipeline_path(path, sizeof path, dir, subdirs[i]);
+        s = mlb_mkdir_p(path);
+    }
+    // where a resumed run restarts: the loss log drops the rows after it
+    int resume_stage = -1;   // a fresh log
+    long resume_step = 0;
+    if (!s && resume) s = pipeline_resume_point(dir, &resume_stage, &resume_step);
+    if (!s) {
+        pipeline_path(path, sizeof path, dir, "loss.csv");
+        s = mlb_losslog_open(&r.log, path, LOG_COLUMNS, 3, resume_stage, resume_step);
+    }
+    mlb_geometry_config gc = mlb_geometry_default();
+    gc.seed = c->seed + 1;
+    if (!s) s = geometry_net_init(&r.geo, &gc);
+    if (!s) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
+    r.ctx = mlb_raster_ctx_create();
+    if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
+    if (!s && progress)
+        mlb_progress_begin(progress, stderr, strcmp(c->guidance, "images") ? "generate" : "fit",
+                           (long)c->geometry_iters + c->appearance_iters, "it");
+
+    if (!s) s = geometry_stage(&r);
+    int geometry_done = !s && !r.stopped;
+    // the fixed mesh of the appearance stage: the geometry network's surface, extracted
+    if (geometry_done) s = pipeline_scene_init(&r.scene, c, r.views);
+    if (!s && geometry_done) s = mlb_geometry_extract(&r.geo, &r.grid, &r.scene.mesh);
+    if (!s && geometry_done) s = mlb_mesh_compute_normals(&r.scene.mesh);
+    mlb_brdf_ae prior;
+    memset(&prior, 0, sizeof prior);
+    if (!s && geometry_done) {
+        char source[256];
+        s = mlb_brdf_ae_load_default(&prior, source, sizeof source);
+        mlb_material_config mc = mlb_material_default();
+        mc.mode = c->material;
+        mc.seed = c->seed + 2;
+        mc.scale = gc.scale;
+        if (!s) s = material_net_init(&r.mat, &mc, &prior);
+        if (!s) s = appearance_stage(&r);
+    }
+    if (!s && geometry_done && !r.stopped) {
+        s = pipeline_write_final(&r);
+        if (!s) r.result.finished = 1;
+    }
+    if (progress && !s) mlb_progress_end(progress, r.result.finished ? "done" : "stopped");
+    r.result.n_verts = r.scene.mesh.n_verts;
+    r.result.n_faces = r.scene.mesh.n_faces;
+    if (result) *result = r.result;
+    brdf_ae_free(&prior);
+    material_net_free(&r.mat);
+    pipeline_scene_free(&r.scene);
+    mlb_raster_ctx_free(r.ctx);
+    mlb_tetgrid_free(&r.grid);
+    geometry_net_free(&r.geo);
+    if (r.log) mlb_losslog_close(r.log);
+    if (!s) {
+        pipeline_path(path, sizeof path, dir, "loss.csv");
+        char png[MLB_PIPELINE_PATH + 64];
+        pipeline_path(png, sizeof png, dir, "loss.png");
+        s = mlb_losslog_plot(path, png);
+    }
+    return s;
+}

@@ -1,0 +1,207 @@
+// The pipeline's settings: defaults (paper §4, reference.md §7), validation and config.json.
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/fileio.h"
+#include "matlaber/pipeline.h"
+
+mlb_pipeline_config mlb_pipeline_default(void) {
+    mlb_pipeline_config c;
+    memset(&c, 0, sizeof c);
+    snprintf(c.guidance, sizeof c.guidance, "sds");
+    c.guidance_scale = 100.0;
+    c.latent_iters = -1;   // → geometry_iters / 3
+    c.seed = 0;
+    c.views = 9;
+    c.res = 512;
+    c.ss = 1;
+    c.geometry_iters = 3000;
+    c.geometry_lr = 1e-3;
+    c.grid = 128;
+    snprintf(c.init, sizeof c.init, "ellipsoid");
+    c.init_iters = 400;
+    c.reg_start = 0.2;
+    c.reg_end = 0.01;
+    c.reg_frac = 0.25;
+    c.appearance_iters = 2000;
+    c.appearance_lr = 1e-2;
+    c.material = MLB_MATERIAL_LATENT;
+    c.w_mat = 0.03;
+    c.mat_sigma = 0.01;
+    c.n_envs = 3;
+    snprintf(c.envs[0], sizeof c.envs[0], "sky");
+    snprintf(c.envs[1], sizeof c.envs[1], "studio");
+    snprintf(c.envs[2], sizeof c.envs[2], "overcast");
+    c.fixed_env = 0;
+    c.env_height = 256;
+    c.cube_size = 128;
+    c.checkpoint_every = 100;
+    c.preview_every = 100;
+    c.stop_after = 0;
+    return c;
+}
+
+int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? c->grid / 2 : 1; }
+
+mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
+    const char* bad = NULL;
+    if (strcmp(c->guidance, "sds") && strcmp(c->guidance, "images")) bad = "guidance must be \"sds\" or \"images\"";
+    else if (!strcmp(c->guidance, "sds") && !c->model[0]) bad = "score distillation needs a model (-m)";
+    else if (!strcmp(c->guidance, "sds") && !c->prompt[0]) bad = "score distillation needs a prompt (-p)";
+    else if (!strcmp(c->guidance, "images") && !c->views_dir[0]) bad = "image guidance needs a views folder (--views)";
+    else if (c->views < 1 || c->views > 64) bad = "views per step must be in 1..64";
+    else if (c->res < 16 || c->res > 2048 || c->res % 8) bad = "--res must be a multiple of 8 in 16..2048";
+    else if (c->ss < 1 || c->ss > 4 || c->res * c->ss > 4096) bad = "supersampling must be 1..4 (res x ss <= 4096)";
+    else if (c->geometry_iters < 0 || c->appearance_iters < 0) bad = "iteration counts must be >= 0";
+    else if (c->grid < 8 || c->grid > 512) bad = "--grid must be in 8..512";
+    else if (!(c->geometry_lr > 0) || !(c->appearance_lr > 0)) bad = "learning rates must be > 0";
+    else if (c->init_iters < 0) bad = "init iterations must be >= 0";
+    else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
+    else if (!(c->w_mat >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weight >= 0 and sigma > 0";
+    else if (c->n_envs < 1 || c->n_envs > MLB_PIPELINE_MAX_ENVS) bad = "the environment pool needs 1..8 entries";
+    else if (c->env_height < 16 || c->env_height > 4096) bad = "environment height must be in 16..4096";
+    else if (c->cube_size < 64 || c->cube_size > 1024 || (c->cube_size & (c->cube_size - 1)))
+        bad = "cube size must be a power of two in 64..1024";
+    else if (c->checkpoint_every < 1) bad = "checkpoint interval must be >= 1";
+    else if (c->preview_every < 0) bad = "preview interval must be >= 0";
+    else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
+    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
+    if (bad) return mlb_fail(MLB_ERR_ARG, "pipeline config: %s", bad);
+    for (int i = 0; i < c->n_envs; i++)
+        if (!c->envs[i][0]) return mlb_fail(MLB_ERR_ARG, "pipeline config: environment %d is empty", i);
+    return MLB_OK;
+}
+
+// ---- config.json -------------------------------------------------------------------------------
+// One table drives both directions so that a field cannot be saved and forgotten on load.
+typedef enum { F_STR, F_INT, F_LONG_U64, F_DOUBLE, F_MATERIAL } field_kind;
+typedef struct { const char* key; field_kind kind; size_t offset; size_t size; } field;
+#define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member)}
+static const field FIELDS[] = {
+    FLD("guidance", F_STR, guidance),           FLD("prompt", F_STR, prompt),
+    FLD("negative", F_STR, negative),           FLD("model", F_STR, model),
+    FLD("views_dir", F_STR, views_dir),         FLD("guidance_scale", F_DOUBLE, guidance_scale),
+    FLD("latent_iters", F_INT, latent_iters),   FLD("seed", F_LONG_U64, seed),
+    FLD("views", F_INT, views),                 FLD("res", F_INT, res),
+    FLD("supersample", F_INT, ss),              FLD("geometry_iters", F_INT, geometry_iters),
+    FLD("geometry_lr", F_DOUBLE, geometry_lr),  FLD("grid", F_INT, grid),
+    FLD("init", F_STR, init),                   FLD("init_iters", F_INT, init_iters),
+    FLD("sdf_reg_start", F_DOUBLE, reg_start),  FLD("sdf_reg_end", F_DOUBLE, reg_end),
+    FLD("sdf_reg_frac", F_DOUBLE, reg_frac),    FLD("appearance_iters", F_INT, appearance_iters),
+    FLD("appearance_lr", F_DOUBLE, appearance_lr), FLD("material", F_MATERIAL, material),
+    FLD("material_smoothness", F_DOUBLE, w_mat), FLD("material_smoothness_sigma", F_DOUBLE, mat_sigma),
+    FLD("fixed_env", F_INT, fixed_env),         FLD("env_height", F_INT, env_height),
+    FLD("cube_size", F_INT, cube_size),         FLD("checkpoint_every", F_INT, checkpoint_every),
+    FLD("preview_every", F_INT, preview_every),
+};
+#undef FLD
+#define N_FIELDS (sizeof FIELDS / sizeof *FIELDS)
+
+mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
+    cJSON* root = cJSON_CreateObject();
+    if (!root) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    cJSON_AddStringToObject(root, "format", "matlaber-run");
+    cJSON_AddNumberToObject(root, "version", 1);
+    for (size_t i = 0; i < N_FIELDS; i++) {
+        const field* f = &FIELDS[i];
+        const char* p = (const char*)c + f->offset;
+        switch (f->kind) {
+        case F_STR: cJSON_AddStringToObject(root, f->key, p); break;
+        case F_INT: cJSON_AddNumberToObject(root, f->key, *(const int*)p); break;
+        case F_LONG_U64: {   // JSON numbers are doubles: a 64-bit seed goes as a decimal string
+            char buf[32];
+            snprintf(buf, sizeof buf, "%llu", (unsigned long long)*(const uint64_t*)p);
+            cJSON_AddStringToObject(root, f->key, buf);
+            break;
+        }
+        case F_DOUBLE: cJSON_AddNumberToObject(root, f->key, *(const double*)p); break;
+        case F_MATERIAL: cJSON_AddStringToObject(root, f->key, mlb_material_mode_name(*(const mlb_material_mode*)p)); break;
+        }
+    }
+    cJSON* envs = cJSON_AddArrayToObject(root, "envs");
+    for (int i = 0; envs && i < c->n_envs; i++) cJSON_AddItemToArray(envs, cJSON_CreateString(c->envs[i]));
+    char* text = cJSON_Print(root);
+    cJSON_Delete(root);
+    if (!text) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    size_t n = strlen(text);
+    text[n] = '\n';   // cJSON_Print's buffer ends in NUL: replace it, write n + 1 bytes
+    mlb_status s = mlb_write_file_atomic(path, text, n + 1);
+    cJSON_free(text);
+    return s;
+}
+
+mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) {
+    char* text = NULL;
+    size_t n = 0;
+    mlb_status s = mlb_read_file(path, &text, &n, 1 << 20);
+    if (s) return s;
+    cJSON* root = cJSON_ParseWithLength(text, n);
+    free(text);
+    if (!root || !cJSON_IsObject(root)) {
+        cJSON_Delete(root);
+        return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path);
+    }
+    mlb_pipeline_config c = mlb_pipeline_default();
+    const cJSON* fmt = cJSON_GetObjectItemCaseSensitive(root, "format");
+    if (!cJSON_IsString(fmt) || strcmp(fmt->valuestring, "matlaber-run") != 0)
+        s = mlb_fail(MLB_ERR_FORMAT, "%s: \"format\" is not \"matlaber-run\"", path);
+    for (size_t i = 0; !s && i < N_FIELDS; i++) {
+        const field* f = &FIELDS[i];
+        const cJSON* it = cJSON_GetObjectItemCaseSensitive(root, f->key);
+        char* p = (char*)&c + f->offset;
+        if (!it) { s = mlb_fail(MLB_ERR_FORMAT, "%s: missing \"%s\"", path, f->key); break; }
+        int want_string = f->kind == F_STR || f->kind == F_LONG_U64 || f->kind == F_MATERIAL;
+        if (want_string ? !cJSON_IsString(it) : !cJSON_IsNumber(it)) {
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a %s", path, f->key, want_string ? "string" : "number");
+            break;
+        }
+        switch (f->kind) {
+        case F_STR:
+            if (strlen(it->valuestring) >= f->size) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is too long", path, f->key);
+            else snprintf(p, f->size, "%s", it->valuestring);
+            break;
+        case F_INT:
+            if (!(fabs(it->valuedouble) < 2e9) || it->valuedouble != floor(it->valuedouble))
+                s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be an integer", path, f->key);
+            else *(int*)p = (int)it->valuedouble;
+            break;
+        case F_LONG_U64: {
+            char* end = NULL;
+            unsigned long long v = strtoull(it->valuestring, &end, 10);
+            if (!it->valuestring[0] || *end || it->valuestring[0] == '-')
+                s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a decimal integer string", path, f->key);
+            else *(uint64_t*)p = (uint64_t)v;
+            break;
+        }
+        case F_DOUBLE:
+            if (!isfinite(it->valuedouble)) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is not finite", path, f->key);
+            else *(double*)p = it->valuedouble;
+            break;
+        case F_MATERIAL:
+            s = mlb_material_mode_parse(it->valuestring, (mlb_material_mode*)p);
+            if (s) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\": unknown material mode \"%s\"", path, f->key, it->valuestring);
+            break;
+        }
+    }
+    const cJSON* envs = cJSON_GetObjectItemCaseSensitive(root, "envs");
+    if (!s && !cJSON_IsArray(envs)) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"envs\" must be an array of strings", path);
+    if (!s) {
+        int n_envs = cJSON_GetArraySize(envs);
+        if (n_envs < 1 || n_envs > MLB_PIPELINE_MAX_ENVS)
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: \"envs\" must hold 1..%d names", path, MLB_PIPELINE_MAX_ENVS);
+        c.n_envs = n_envs;
+        for (int i = 0; !s && i < n_envs; i++) {
+            const cJSON* e = cJSON_GetArrayItem(envs, i);
+            if (!cJSON_IsString(e) || strlen(e->valuestring) >= sizeof c.envs[i])
+                s = mlb_fail(MLB_ERR_FORMAT, "%s: envs[%d] must be a string (name or file)", path, i);
+            else snprintf(c.envs[i], sizeof c.envs[i], "%s", e->valuestring);
+        }
+    }
+    cJSON_Delete(root);
+    if (!s) s = mlb_pipeline_validate(&c);
+    if (s) return mlb_fail_context(s, "%s", path);
+    *out = c;
+    return MLB_OK;
+}

@@ -1,0 +1,100 @@
+// The guidance a run's config asks for (include/matlaber/pipeline.h): score distillation with a
+// Stable Diffusion checkpoint, or image guidance from a views folder.
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/guidance_image.h"
+#include "matlaber/guidance_sds.h"
+#include "matlaber/log.h"
+#include "matlaber/pipeline.h"
+#include "matlaber/sd_model.h"
+
+// SDS keeps the model alive beside the guidance: wrap the guidance's destroy.
+typedef struct {
+    mlb_guidance* inner;
+    mlb_sd_model* model;
+} sds_owner;
+
+static mlb_status owner_sample(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
+    sds_owner* o = g->impl;
+    return o->inner->sample_views(o->inner, stage, step, views);
+}
+
+static mlb_status owner_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n,
+                             const float* images, int H, int W, float* dimages, double* loss) {
+    sds_owner* o = g->impl;
+    return o->inner->loss(o->inner, stage, step, views, n, images, H, W, dimages, loss);
+}
+
+static void owner_destroy(mlb_guidance* g) {
+    sds_owner* o = g->impl;
+    mlb_guidance_free(o->inner);
+    mlb_sd_model_free(o->model);
+    free(o);
+    free(g);
+}
+
+static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
+    mlb_sd_model* model = NULL;
+    mlb_sd_model_options mo = mlb_sd_model_default_options();
+    mlb_log(MLB_LOG_INFO, "loading %s", c->model);
+    mlb_status s = mlb_sd_model_load(c->model, &mo, &model);
+    if (s) return s;
+    mlb_guidance_sds_config gc = mlb_guidance_sds_default();
+    gc.prompt = c->prompt;
+    if (c->negative[0]) gc.negative_geometry = gc.negative_appearance = c->negative;
+    gc.views = c->views;
+    gc.latent_iters = c->latent_iters >= 0 ? c->latent_iters : c->geometry_iters / 3;
+    gc.geometry_opt.guidance_scale = gc.appearance_opt.guidance_scale = (float)c->guidance_scale;
+    gc.n_envs = c->n_envs;
+    gc.orbit.fixed_env = c->fixed_env;
+    gc.seed = c->seed;
+    mlb_guidance* inner = NULL;
+    s = mlb_guidance_sds_create(model, &gc, &inner);
+    if (s) { mlb_sd_model_free(model); return s; }
+    mlb_sd_model_drop_text(model);   // the embeddings are cached: free the text encoder's memory
+    mlb_guidance* g = calloc(1, sizeof *g);
+    sds_owner* o = calloc(1, sizeof *o);
+    if (!g || !o) {
+        free(g); free(o);
+        mlb_guidance_free(inner);
+        mlb_sd_model_free(model);
+        return mlb_fail(MLB_ERR_NOMEM, "guidance: out of memory");
+    }
+    o->inner = inner;
+    o->model = model;
+    *g = *inner;   // kind, n_views
+    g->sample_views = owner_sample;
+    g->loss = owner_loss;
+    g->destroy = owner_destroy;
+    g->impl = o;
+    *out = g;
+    return MLB_OK;
+}
+
+mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, mlb_guidance** out, mlb_views** views_out) {
+    *out = NULL;
+    if (views_out) *views_out = NULL;
+    if (!strcmp(c->guidance, "sds")) return make_sds(c, out);
+    if (!views_out) return mlb_fail(MLB_ERR_ARG, "image guidance: the caller must keep the views");
+    mlb_views* v = calloc(1, sizeof *v);
+    if (!v) return mlb_fail(MLB_ERR_NOMEM, "guidance: out of memory");
+    mlb_status s = mlb_views_load(v, c->views_dir, c->res);
+    mlb_guidance_images_config ic = mlb_guidance_images_default();
+    ic.views_per_step = c->views;
+    ic.seed = c->seed;
+    if (!s) s = mlb_guidance_images_create(v, &ic, out);
+    if (s) {
+        mlb_views_free(v);
+        free(v);
+        return s;
+    }
+    *views_out = v;
+    return MLB_OK;
+}
+
+void mlb_pipeline_free_views(mlb_views* v) {
+    if (!v) return;
+    mlb_views_free(v);
+    free(v);
+}

@@ -1,0 +1,64 @@
+// Shared between the pipeline's loop (pipeline.c) and its outputs (pipeline_output.c).
+#ifndef MATLABER_PIPELINE_INTERNAL_H
+#define MATLABER_PIPELINE_INTERNAL_H
+#include "matlaber/appearance.h"
+#include "matlaber/dmtet.h"
+#include "matlaber/envmap.h"
+#include "matlaber/geometry.h"
+#include "matlaber/pipeline.h"
+#include "matlaber/raster.h"
+#include "matlaber/run.h"
+
+// The appearance stage's fixed scene: the extracted mesh (with normals) and the environment pool.
+typedef struct {
+    mlb_mesh mesh;
+    int n_envs;
+    mlb_envmap maps[MLB_PIPELINE_MAX_ENVS];
+    mlb_envlight lights[MLB_PIPELINE_MAX_ENVS];
+    const mlb_envlight* light_ptrs[MLB_PIPELINE_MAX_ENVS];
+} pipeline_scene;
+
+typedef struct {
+    const char* dir;
+    const mlb_pipeline_config* c;
+    mlb_guidance* g;
+    const mlb_views* views;   // image guidance's data set, or NULL
+    int resume;
+    mlb_progress* progress;
+    mlb_losslog* log;
+    mlb_geometry_net geo;
+    mlb_tetgrid grid;
+    mlb_raster_ctx* ctx;
+    mlb_material_net mat;
+    pipeline_scene scene;
+    long geometry_start;
+    long steps_this_run;   // for stop_after
+    int stopped;           // stop_after reached
+    mlb_pipeline_result result;
+} pipeline_run;
+
+void pipeline_path(char* out, size_t cap, const char* dir, const char* rel);
+mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
+                               const char* stage);
+mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
+                               const char* stage);
+mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views);
+void pipeline_scene_free(pipeline_scene* sc);
+
+// pipeline_output.c
+// The (stage, step) a resumed run restarts from, read from its checkpoints.
+mlb_status pipeline_resume_point(const char* dir, int* stage, long* step);
+// SDS with --fixed-env: environment 0, never rotated (image guidance keeps the targets' lights);
+// a view without an environment (−1) is lit by environment 0.
+mlb_status pipeline_fix_env(pipeline_run* r, mlb_view* views, int n);
+// previews/<stage>_<step>.png: the step's renders side by side.
+mlb_status pipeline_preview(pipeline_run* r, mlb_stage stage, long step, const float* images, int n);
+void pipeline_progress(pipeline_run* r, long done, double loss, int faces);
+// Counts a step against stop_after; 1 when the run must stop now (as if killed: no checkpoint).
+int pipeline_should_stop(pipeline_run* r);
+// final/: mesh.obj (+ kd, ks, roughness as vertex colours), geometry and material networks, renders.
+mlb_status pipeline_write_final(pipeline_run* r);
+// An OBJ with optional per-vertex colours [V,3] ("v x y z r g b"), written atomically.
+mlb_status pipeline_write_obj(const char* path, const mlb_mesh* m, const float* colors, const char* comment);
+
+#endif

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The pipeline's commands end to end: fit (weights-free) on a rendered views folder, resume after a
+# stop, relight and interp on finished runs, export, and (with ../shared/data) generate with the
+# tiny SD fixture for 2 steps per stage. Usage errors and their exit codes.
+set -u
+M=${1:?usage: cli_pipeline.sh path/to/matlaber}
+. "$(dirname "$0")/lib_cli.sh"
+Q="$M --log-level warn"
+
+for c in generate fit interp "relight" demo; do expect 0 "$c --help" -- $M $c --help; done
+expect 2 "generate without -p" -- $M generate -m /x -o "$T/r"
+expect 2 "generate without -m" -- $M generate -p x -o "$T/r"
+expect 2 "fit without --views" -- $M fit -o "$T/r"
+expect 2 "fit bad --res" -- $M fit --views "$T/v" -o "$T/r" --res 100
+expect 2 "fit bad --material" -- $M fit --views "$T/v" -o "$T/r" --material shiny
+expect 1 "fit on a missing folder" -- $M fit --views "$T/nothing" -o "$T/r"
+err_has "missing folder named" "nothing"
+[ -e "$T/r" ] && bad "no run folder after errors" || ok "no run folder after errors"
+expect 1 "resume of a non-run" -- $M fit --resume "$T"
+expect 1 "interp of non-runs" -- $M interp "$T/a" "$T/b"
+
+# a small data set of the goblet, and small fits of it
+expect 0 "render a views folder" -- $Q render --goblet --views-out "$T/v" --views 8 --res 32 --env sky,studio --seed 2
+small="--res 32 --grid 24 --geometry-iters 6 --appearance-iters 6 --views-per-step 2 --checkpoint-every 2 --preview-every 3"
+expect 0 "fit (uninterrupted)" -- $Q fit --views "$T/v" $small -o "$T/a"
+for f in config.json loss.csv loss.png final/mesh.obj final/mesh_ks.obj final/mesh_roughness.obj final/material.safetensors \
+         final/views.png previews/geometry_000003.png previews/appearance_000006.png; do
+  [ -s "$T/a/$f" ] && ok "run has $f" || bad "run lacks $f"
+done
+expect 1 "fit into an existing run" -- $Q fit --views "$T/v" $small -o "$T/a"
+err_has "suggests resume" "resume"
+expect 0 "fit stopped after 5 steps" -- $Q fit --views "$T/v" $small -o "$T/b" --stop-after 5
+grep -q "resume" "$T/out" && ok "stop says how to resume" || bad "stop message lacks resume"
+[ -e "$T/b/final/mesh.obj" ] && bad "stopped run has final/" || ok "stopped run has no final/"
+expect 0 "resume" -- $Q fit --resume "$T/b"
+for f in final/material.safetensors final/mesh.obj loss.csv; do
+  cmp -s "$T/a/$f" "$T/b/$f" && ok "resumed $f identical" || bad "resumed $f differs"
+done
+expect 2 "generate --resume of a fit run" -- $Q generate --resume "$T/a"
+
+# downstream
+expect 0 "relight RUN_DIR" -- $Q relight "$T/a" --env overcast --frames 3 --res 48 -o "$T/rl"
+[ "$(png_size "$T/rl/frame_0002.png")" = "48x48" ] && ok "relight frames" || bad "relight frame size"
+expect 0 "second run (direct)" -- $Q fit --views "$T/v" $small --material direct -o "$T/c"
+expect 1 "interp needs latent runs" -- $Q interp "$T/a" "$T/c"
+err_has "interp names the direct run" "direct"
+expect 0 "interp A B" -- $Q interp "$T/a" "$T/b" --steps 3 --res 48 -o "$T/ip"
+[ -s "$T/ip/interp.png" ] && [ -s "$T/ip/step_02.png" ] && ok "interp images" || bad "interp images missing"
+expect 0 "export glb" -- $Q export "$T/a" --format glb --texture-size 128 -o "$T/a.glb"
+[ "$(head -c 4 "$T/a.glb")" = "glTF" ] && ok "glb magic" || bad "not a glb"
+
+# generate with the tiny SD fixture (random weights; only the plumbing is checked)
+D=${MLB_SHARED_DATA:-$(dirname "$0")/../../shared/data}
+R="$D/sd_reference/sd1_diffusers"
+if [ -d "$R" ]; then
+  expect 0 "generate, 2 steps per stage, tiny SD" -- $Q generate -p "a golden goblet" -m "$R" --res 64 --grid 16 \
+    --geometry-iters 2 --appearance-iters 2 --views 2 --preview-every 1 -o "$T/g"
+  [ -s "$T/g/final/mesh.obj" ] && ok "generate wrote the asset" || bad "generate: no asset"
+  [ -s "$T/g/previews/geometry_000001.png" ] && ok "geometry preview" || bad "no geometry preview"
+  grep -q '"prompt":[[:space:]]*"a golden goblet"' "$T/g/config.json" && ok "config records the prompt" || bad "config lacks the prompt"
+else
+  echo "skip: no shared sd_reference fixture for generate"
+fi
+finish

@@ -1,0 +1,187 @@
+// matlaber generate | fit: the two-stage pipeline (docs/pipeline.md) with score distillation from a
+// Stable Diffusion checkpoint, or with image guidance from a views folder (no weights).
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "cli.h"
+#include "matlaber/fileio.h"
+#include "matlaber/log.h"
+#include "matlaber/pipeline.h"
+#include "matlaber/views.h"
+
+static const cli_option options[] = {
+    {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
+    {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder)"},
+    {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
+    {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
+    {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
+    {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder or FILE.obj (default ellipsoid)"},
+    {"geometry-iters", 1, 'G', "N", "geometry stage steps (generate 3000, fit 400)"},
+    {"appearance-iters", 1, 'A', "N", "appearance stage steps (generate 2000, fit 400)"},
+    {"res", 1, 'r', "N", "render size (generate 512, fit 128)"},
+    {"grid", 1, 'g', "N", "DMTet grid, Fantasia3D's naming: 128 = 64 cells per axis (generate 128, fit 64)"},
+    {"geometry-lr", 1, 'L', "X", "geometry stage learning rate (generate 1e-3, fit 1e-2)"},
+    {"appearance-lr", 1, 'l', "X", "appearance stage learning rate (1e-2)"},
+    {"env", 1, 'e', "NAME|FILE", "generate: environment of the pool (repeat or comma-separate; default sky,studio,overcast)"},
+    {"fixed-env", 0, 'F', NULL, "generate: the first environment only, never rotated (Fantasia3D's setting)"},
+    {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
+    {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
+    {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
+    {"checkpoint-every", 1, 'c', "N", "steps between checkpoints (default 100)"},
+    {"preview-every", 1, 'P', "N", "steps between preview renders, 0 = none (default 100)"},
+    {"resume", 1, 'R', "RUN_DIR", "continue a run that was stopped (its config.json is used)"},
+    {"stop-after", 1, 'X', "N", "stop after N steps of this invocation, as if killed (testing resume)"},
+    {"out", 1, 'o', "RUN_DIR", "the run directory (must not exist or be empty)"},
+    {"help", 0, 'h', NULL, "this help"},
+    {0, 0, 0, 0, 0}};
+
+static int add_envs(mlb_pipeline_config* c, const char* text, int* reset) {
+    if (*reset) { c->n_envs = 0; *reset = 0; }
+    char buf[4096];
+    snprintf(buf, sizeof buf, "%s", text);
+    for (char* tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+        if (c->n_envs >= MLB_PIPELINE_MAX_ENVS) return -1;
+        snprintf(c->envs[c->n_envs++], sizeof c->envs[0], "%s", tok);
+    }
+    return 0;
+}
+
+// fit: config.json names the views folder's environments (the run's lights are the folder's own).
+static int envs_from_views(mlb_pipeline_config* c) {
+    mlb_views_meta m;
+    mlb_status s = mlb_views_meta_read(&m, c->views_dir);
+    if (s) return cli_fail(s, "fit");
+    if (m.n_envs > MLB_PIPELINE_MAX_ENVS) {
+        mlb_views_meta_free(&m);
+        return cli_fail(mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %d environments (at most %d)", c->views_dir, m.n_envs,
+                                 MLB_PIPELINE_MAX_ENVS), "fit");
+    }
+    if (m.n_envs > 0) c->n_envs = m.n_envs;
+    for (int i = 0; i < m.n_envs; i++)
+        snprintf(c->envs[i], sizeof c->envs[i], "%s", m.envs[i].name[0] ? m.envs[i].name : m.envs[i].file);
+    mlb_views_meta_free(&m);
+    return 0;
+}
+
+static int run_pipeline(const char* command, int argc, char** argv, int is_fit) {
+    mlb_pipeline_config c = mlb_pipeline_default();
+    if (is_fit) {
+        snprintf(c.guidance, sizeof c.guidance, "images");
+        c.geometry_iters = 400;
+        c.appearance_iters = 400;
+        c.res = 128;
+        c.grid = 64;
+        c.views = 4;
+        c.geometry_lr = 1e-2;
+        c.preview_every = 50;
+        c.checkpoint_every = 50;
+    }
+    const char *out = NULL, *resume = NULL;
+    long stop_after = 0, v;
+    double x;
+    int env_reset = 1;
+    const struct option* table = cli_getopt_table(options);
+    optind = 1;
+    int opt;
+    while ((opt = getopt_long(argc, argv, "hp:m:n:o:", table, NULL)) != -1) {
+        switch (opt) {
+        case 'p': snprintf(c.prompt, sizeof c.prompt, "%s", optarg); break;
+        case 'm': snprintf(c.model, sizeof c.model, "%s", optarg); break;
+        case 'n': snprintf(c.negative, sizeof c.negative, "%s", optarg); break;
+        case 'V':
+            if (is_fit) snprintf(c.views_dir, sizeof c.views_dir, "%s", optarg);
+            else if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views: expected 1..64");
+            else c.views = (int)v;
+            break;
+        case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
+        case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
+        case 'G': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--geometry-iters: expected >= 0"); c.geometry_iters = (int)v; break;
+        case 'A': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--appearance-iters: expected >= 0"); c.appearance_iters = (int)v; break;
+        case 'r': if (cli_parse_long(optarg, 16, 2048, &v) || v % 8) return cli_usage_error(command, "--res: expected a multiple of 8 in 16..2048"); c.res = (int)v; break;
+        case 'g': if (cli_parse_long(optarg, 8, 512, &v)) return cli_usage_error(command, "--grid: expected 8..512"); c.grid = (int)v; break;
+        case 'L': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--geometry-lr: expected a positive number"); c.geometry_lr = x; break;
+        case 'l': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--appearance-lr: expected a positive number"); c.appearance_lr = x; break;
+        case 'e': if (add_envs(&c, optarg, &env_reset)) return cli_usage_error(command, "--env: at most %d environments", MLB_PIPELINE_MAX_ENVS); break;
+        case 'F': c.fixed_env = 1; break;
+        case 'M':
+            if (mlb_material_mode_parse(optarg, &c.material)) return cli_usage_error(command, "--material: expected latent or direct");
+            break;
+        case 'S': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000"); c.guidance_scale = x; break;
+        case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
+        case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;
+        case 'P': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--preview-every: expected >= 0"); c.preview_every = (int)v; break;
+        case 'R': resume = optarg; break;
+        case 'X': if (cli_parse_long(optarg, 1, 100000000, &v)) return cli_usage_error(command, "--stop-after: expected >= 1"); stop_after = v; break;
+        case 'o': out = optarg; break;
+        case 'h':
+            if (is_fit)
+                printf("usage: matlaber fit --views DIR -o RUN_DIR [options]\n"
+                       "       matlaber fit --resume RUN_DIR\n\n"
+                       "Fits a mesh and its material field to multi-view images (no diffusion weights): the two stages\n"
+                       "of the paper with image guidance: silhouettes and normal maps for the geometry, colour under the\n"
+                       "views' known environments for the appearance. `matlaber render --views-out DIR` makes such a\n"
+                       "folder. Outputs: RUN_DIR/final (mesh.obj with kd/ks/roughness vertex colours, networks, renders),\n"
+                       "loss.csv + loss.png, previews/, checkpoints/ (docs/pipeline.md, docs/runs.md).\n\n");
+            else
+                printf("usage: matlaber generate -p PROMPT -m MODEL -o RUN_DIR [options]\n"
+                       "       matlaber generate --resume RUN_DIR\n\n"
+                       "Text to 3D with materials (the paper): DMTet geometry by score distillation on normal maps, then\n"
+                       "a hash-grid material network predicting latent BRDF codes, decoded by the frozen BRDF prior and\n"
+                       "shaded under rotating environments, again by score distillation. Defaults are the paper's\n"
+                       "(docs/pipeline.md); on a CPU, lower --res, --grid and the iteration counts.\n\n");
+            cli_print_options(stdout, options);
+            return 0;
+        default: return cli_usage_error(command, "unknown option");
+        }
+    }
+    if (optind < argc) return cli_usage_error(command, "unexpected argument '%s'", argv[optind]);
+    mlb_status s;
+    const char* dir = resume ? resume : out;
+    if (resume) {
+        if (out && strcmp(out, resume) != 0) return cli_usage_error(command, "--resume continues RUN_DIR in place: drop -o");
+        char path[4096];
+        snprintf(path, sizeof path, "%s/config.json", resume);
+        s = mlb_pipeline_config_load(&c, path);
+        if (s) return cli_fail(s, "--resume");
+        if (strcmp(c.guidance, is_fit ? "images" : "sds") != 0)
+            return cli_usage_error(command, "%s was made by `matlaber %s`: resume it with that command", resume,
+                                   is_fit ? "generate" : "fit");
+    } else {
+        if (!out) return cli_usage_error(command, "-o RUN_DIR is required");
+        if (is_fit && !c.views_dir[0]) return cli_usage_error(command, "--views DIR is required");
+        if (!is_fit && !c.prompt[0]) return cli_usage_error(command, "-p PROMPT is required");
+        if (!is_fit && !c.model[0]) return cli_usage_error(command, "-m MODEL is required (Stable Diffusion weights you supply)");
+        if (is_fit) {
+            int rc = envs_from_views(&c);
+            if (rc) return rc;
+        }
+        if (c.latent_iters < 0) c.latent_iters = c.geometry_iters / 3;
+    }
+    c.stop_after = stop_after;
+    s = mlb_pipeline_validate(&c);
+    if (s) return cli_fail(s, command);
+    mlb_guidance* g = NULL;
+    mlb_views* views = NULL;
+    s = mlb_pipeline_make_guidance(&c, &g, &views);
+    if (s) return cli_fail(s, command);
+    mlb_progress progress;
+    mlb_pipeline_result result;
+    double t0 = mlb_now_seconds();
+    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL, mlb_log_get_level() <= MLB_LOG_INFO ? &progress : NULL,
+                         &result);
+    mlb_guidance_free(g);
+    mlb_pipeline_free_views(views);
+    if (s) return cli_fail(s, command);
+    double seconds = mlb_now_seconds() - t0;
+    if (result.finished)
+        printf("%s: done in %.1f s: %d vertices, %d faces; last losses geometry %.4g, appearance %.4g\n"
+               "outputs in %s/final (mesh.obj, material.safetensors, renders), loss curves in %s/loss.png\n",
+               command, seconds, result.n_verts, result.n_faces, result.geometry_loss, result.appearance_loss, dir, dir);
+    else
+        printf("%s: stopped after %ld + %ld steps (%.1f s); continue with: matlaber %s --resume %s\n", command,
+               result.geometry_steps, result.appearance_steps, seconds, command, dir);
+    return 0;
+}
+
+int cmd_generate(int argc, char** argv) { return run_pipeline("generate", argc, argv, 0); }
+int cmd_fit(int argc, char** argv) { return run_pipeline("fit", argc, argv, 1); }

@@ -1,0 +1,232 @@
+// matlaber relight RUN_DIR | interp RUN_A RUN_B: the paper's downstream tasks on finished runs
+// (docs/pipeline.md): the asset under a turning light, and material interpolation in latent space.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "cli.h"
+#include "matlaber/envmap.h"
+#include "matlaber/fileio.h"
+#include "matlaber/image_write.h"
+#include "matlaber/log.h"
+#include "matlaber/pipeline.h"
+#include "matlaber/plot.h"
+#include "matlaber/render.h"
+#include "matlaber/shade.h"
+
+typedef struct {
+    mlb_envmap env;
+    mlb_envlight light;
+} run_light;
+
+static mlb_status light_open(run_light* l, const char* name) {
+    memset(l, 0, sizeof *l);
+    mlb_status s = mlb_envmap_open(&l->env, name, 1.0f, 512, NULL);
+    if (!s) s = mlb_envlight_build(&l->light, &l->env, NULL);
+    return s;
+}
+
+static void light_free(run_light* l) {
+    mlb_envlight_free(&l->light);
+    mlb_envmap_free(&l->env);
+}
+
+static void light_rotate(run_light* l, double deg) {
+    float rad = (float)(deg * M_PI / 180.0);
+    mlb_envmap_set_rotation(&l->env, rad);
+    mlb_envlight_set_rotation(&l->light, rad);
+}
+
+static mlb_status render_asset(const mlb_mesh* m, const float* k, run_light* l, int env_background, double az,
+                               double el, int res, float* rgba) {
+    mlb_render_params p;
+    memset(&p, 0, sizeof p);
+    p.mesh = m;
+    p.k = k;
+    p.light = &l->light;
+    p.env = &l->env;
+    p.background = env_background ? MLB_BG_ENV : MLB_BG_COLOR;
+    p.width = p.height = res;
+    p.supersample = 2;
+    p.fresnel = MLB_FRESNEL_PAPER;
+    mlb_status s = mlb_camera_orbit(&p.camera, az, el, 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
+    return s ? s : mlb_render_shaded(&p, rgba);
+}
+
+static const cli_option relight_options[] = {
+    {"env", 1, 'e', "NAME|FILE", "environment (built-in sky, overcast, studio, white, or an .hdr/.exr; default studio)"},
+    {"frames", 1, 'k', "N", "frames of a full turn of the light (default 36)"},
+    {"res", 1, 'r', "N", "image size (default 512)"},
+    {"azimuth", 1, 'a', "DEG", "camera azimuth (default 30)"},
+    {"elevation", 1, 'E', "DEG", "camera elevation (default 20)"},
+    {"background", 1, 'b', "env|black", "behind the asset (default env)"},
+    {"out", 1, 'o', "DIR", "output folder (default RUN_DIR/relight_<env>)"},
+    {"help", 0, 'h', NULL, "this help"},
+    {0, 0, 0, 0, 0}};
+
+// matlaber relight RUN_DIR ...
+int cmd_relight_run(int argc, char** argv) {
+    const char *env = "studio", *out = NULL, *background = "env";
+    long frames = 36, res = 512;
+    double az = 30, el = 20;
+    const struct option* table = cli_getopt_table(relight_options);
+    optind = 1;
+    int c;
+    while ((c = getopt_long(argc, argv, "ho:", table, NULL)) != -1) {
+        switch (c) {
+        case 'e': env = optarg; break;
+        case 'k': if (cli_parse_long(optarg, 1, 100000, &frames)) return cli_usage_error("relight", "--frames: expected 1..100000"); break;
+        case 'r': if (cli_parse_long(optarg, 16, 4096, &res)) return cli_usage_error("relight", "--res: expected 16..4096"); break;
+        case 'a': if (cli_parse_double(optarg, -1e4, 1e4, &az)) return cli_usage_error("relight", "--azimuth: expected degrees"); break;
+        case 'E': if (cli_parse_double(optarg, -89, 89, &el)) return cli_usage_error("relight", "--elevation: expected -89..89"); break;
+        case 'b':
+            if (strcmp(optarg, "env") && strcmp(optarg, "black")) return cli_usage_error("relight", "--background: env or black");
+            background = optarg;
+            break;
+        case 'o': out = optarg; break;
+        case 'h':
+            printf("usage: matlaber relight RUN_DIR [--env NAME|FILE] [--frames N] [-o DIR]\n\n"
+                   "The finished run's asset (final/mesh.obj with its material field at the vertices) while the\n"
+                   "environment turns once about the vertical axis: DIR/frame_0000.png ..., and DIR/relight.mp4 when\n"
+                   "ffmpeg is installed. (For a plain mesh: matlaber relight --mesh FILE.obj ...)\n\n");
+            cli_print_options(stdout, relight_options);
+            return 0;
+        default: return cli_usage_error("relight", "unknown option");
+        }
+    }
+    if (optind != argc - 1) return cli_usage_error("relight", "expected one RUN_DIR");
+    const char* dir = argv[optind];
+    char out_buf[4096];
+    if (!out) {
+        const char* base = strrchr(env, '/');
+        snprintf(out_buf, sizeof out_buf, "%s/relight_%s", dir, base ? base + 1 : env);
+        out = out_buf;
+    }
+    mlb_run_asset a;
+    mlb_status s = mlb_run_asset_load(&a, dir);
+    if (s) return cli_fail(s, "relight");
+    float* k = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts);
+    float* rgba = malloc(sizeof(float) * 4 * (size_t)res * res);
+    run_light l;
+    memset(&l, 0, sizeof l);
+    if (!k || !rgba) s = mlb_fail(MLB_ERR_NOMEM, "relight: out of memory");
+    if (!s) s = mlb_run_asset_vertex_brdf(&a, k);
+    if (!s) s = light_open(&l, env);
+    if (!s) s = mlb_mkdir_p(out);
+    mlb_progress progress;
+    mlb_progress_begin(&progress, mlb_log_get_level() <= MLB_LOG_INFO ? stderr : NULL, "relight", frames, "frame");
+    for (long f = 0; !s && f < frames; f++) {
+        light_rotate(&l, 360.0 * (double)f / (double)frames);
+        s = render_asset(&a.mesh, k, &l, strcmp(background, "env") == 0, az, el, (int)res, rgba);
+        char path[4200];
+        snprintf(path, sizeof path, "%s/frame_%04ld.png", out, f);
+        mlb_png_options po = {8, MLB_PNG_SRGB};
+        if (!s) s = mlb_image_write_png(path, rgba, (int)res, (int)res, 4, &po);
+        mlb_progress_update(&progress, f + 1, NULL);
+    }
+    light_free(&l);
+    free(k);
+    free(rgba);
+    mlb_run_asset_free(&a);
+    if (s) return cli_fail(s, "relight");
+    mlb_progress_end(&progress, NULL);
+    cli_frames_to_mp4(out, "relight.mp4");
+    printf("relight: %ld frames in %s\n", frames, out);
+    return 0;
+}
+
+static const cli_option interp_options[] = {
+    {"steps", 1, 'k', "K", "materials from A's to B's, both included (default 5)"},
+    {"env", 1, 'e', "NAME|FILE", "environment (default studio)"},
+    {"res", 1, 'r', "N", "image size per step (default 384)"},
+    {"azimuth", 1, 'a', "DEG", "camera azimuth (default 30)"},
+    {"elevation", 1, 'E', "DEG", "camera elevation (default 20)"},
+    {"out", 1, 'o', "DIR", "output folder (default RUN_A/interp)"},
+    {"help", 0, 'h', NULL, "this help"},
+    {0, 0, 0, 0, 0}};
+
+// matlaber interp RUN_A RUN_B: on A's geometry, z(t) = (1 − t) z_A(x) + t z_B(x) at every vertex x,
+// decoded by the frozen BRDF decoder (the paper's golden → silver goblet).
+int cmd_interp(int argc, char** argv) {
+    const char *env = "studio", *out = NULL;
+    long steps = 5, res = 384;
+    double az = 30, el = 20;
+    const struct option* table = cli_getopt_table(interp_options);
+    optind = 1;
+    int c;
+    while ((c = getopt_long(argc, argv, "ho:", table, NULL)) != -1) {
+        switch (c) {
+        case 'k': if (cli_parse_long(optarg, 2, 64, &steps)) return cli_usage_error("interp", "--steps: expected 2..64"); break;
+        case 'e': env = optarg; break;
+        case 'r': if (cli_parse_long(optarg, 16, 2048, &res)) return cli_usage_error("interp", "--res: expected 16..2048"); break;
+        case 'a': if (cli_parse_double(optarg, -1e4, 1e4, &az)) return cli_usage_error("interp", "--azimuth: expected degrees"); break;
+        case 'E': if (cli_parse_double(optarg, -89, 89, &el)) return cli_usage_error("interp", "--elevation: expected -89..89"); break;
+        case 'o': out = optarg; break;
+        case 'h':
+            printf("usage: matlaber interp RUN_A RUN_B [--steps K] [--env NAME|FILE] [-o DIR]\n\n"
+                   "On A's geometry, interpolates the two runs' material fields in the latent space of the BRDF\n"
+                   "prior (both runs made with --material latent) and renders each step: DIR/step_00.png ... and\n"
+                   "DIR/interp.png (all steps in a row). Every step is a valid BRDF: the decoder maps any code to one.\n\n");
+            cli_print_options(stdout, interp_options);
+            return 0;
+        default: return cli_usage_error("interp", "unknown option");
+        }
+    }
+    if (optind != argc - 2) return cli_usage_error("interp", "expected RUN_A and RUN_B");
+    const char *dir_a = argv[optind], *dir_b = argv[optind + 1];
+    char out_buf[4096];
+    if (!out) {
+        snprintf(out_buf, sizeof out_buf, "%s/interp", dir_a);
+        out = out_buf;
+    }
+    mlb_run_asset a, b;
+    mlb_status s = mlb_run_asset_load(&a, dir_a);
+    if (s) return cli_fail(s, "interp");
+    s = mlb_run_asset_load(&b, dir_b);
+    if (s) { mlb_run_asset_free(&a); return cli_fail(s, "interp"); }
+    if (a.material.cfg.mode != MLB_MATERIAL_LATENT || b.material.cfg.mode != MLB_MATERIAL_LATENT)
+        s = mlb_fail(MLB_ERR_UNSUPPORTED, "%s: made with --material direct: latent interpolation needs two latent runs",
+                     a.material.cfg.mode != MLB_MATERIAL_LATENT ? dir_a : dir_b);
+    size_t V = (size_t)a.mesh.n_verts, p = (size_t)res * res;
+    float* za = malloc(sizeof(float) * 4 * V);
+    float* zb = malloc(sizeof(float) * 4 * V);
+    float* z = malloc(sizeof(float) * 4 * V);
+    float* k = malloc(sizeof(float) * 7 * V);
+    float* rgba = malloc(sizeof(float) * 4 * p);
+    float* strip = malloc(sizeof(float) * 3 * p * (size_t)steps);
+    run_light l;
+    memset(&l, 0, sizeof l);
+    if (!s && (!za || !zb || !z || !k || !rgba || !strip)) s = mlb_fail(MLB_ERR_NOMEM, "interp: out of memory");
+    if (!s) s = mlb_material_eval_latent(&a.material, a.mesh.pos, V, za);
+    if (!s) s = mlb_material_eval_latent(&b.material, a.mesh.pos, V, zb);   // B's field on A's surface
+    if (!s) s = light_open(&l, env);
+    if (!s) s = mlb_mkdir_p(out);
+    char labels[64][16];
+    const char* label_ptrs[64];
+    for (long i = 0; !s && i < steps; i++) {
+        double t = (double)i / (double)(steps - 1);
+        for (size_t j = 0; j < 4 * V; j++) z[j] = (float)((1 - t) * za[j] + t * zb[j]);
+        s = mlb_material_decode(&a.material, z, V, k);
+        if (!s) s = render_asset(&a.mesh, k, &l, 1, az, el, (int)res, rgba);
+        char path[4200];
+        snprintf(path, sizeof path, "%s/step_%02ld.png", out, i);
+        mlb_png_options po = {8, MLB_PNG_SRGB};
+        if (!s) s = mlb_image_write_png(path, rgba, (int)res, (int)res, 4, &po);
+        for (size_t q = 0; !s && q < p; q++)
+            for (int ch = 0; ch < 3; ch++) strip[3 * p * i + 3 * q + ch] = mlb_srgb_encode(rgba[4 * q + ch]);
+        snprintf(labels[i], sizeof labels[i], "t = %.2f", t);
+        label_ptrs[i] = labels[i];
+    }
+    if (!s) {
+        char path[4200];
+        snprintf(path, sizeof path, "%s/interp.png", out);
+        s = mlb_image_grid_write(path, strip, (int)steps, (int)res, (int)res, 3, (int)steps, label_ptrs);
+    }
+    light_free(&l);
+    free(za); free(zb); free(z); free(k); free(rgba); free(strip);
+    mlb_run_asset_free(&a);
+    mlb_run_asset_free(&b);
+    if (s) return cli_fail(s, "interp");
+    printf("interp: %ld steps from %s to %s on %s's geometry in %s\n", steps, dir_a, dir_b, dir_a, out);
+    return 0;
+}

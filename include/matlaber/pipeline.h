@@ -90,7 +90,7 @@ void mlb_pipeline_free_views(mlb_views* v);
 typedef struct {
     mlb_mesh mesh;                  // final/mesh.obj (positions, faces, normals)
     mlb_material_net material;      // final/material.safetensors
-    mlb_pipeline_config config;
+    mlb_pipeline_config config;     // config.json when present, else the defaults
 } mlb_run_asset;
 mlb_status mlb_run_asset_load(mlb_run_asset* a, const char* dir);
 void mlb_run_asset_free(mlb_run_asset* a);

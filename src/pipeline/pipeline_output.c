@@ -232,12 +232,15 @@ mlb_status pipeline_write_final(pipeline_run* r) {
 mlb_status mlb_run_asset_load(mlb_run_asset* a, const char* dir) {
     memset(a, 0, sizeof *a);
     char path[MLB_PIPELINE_PATH + 64];
+    mlb_status s = MLB_OK;
+    a->config = mlb_pipeline_default();
     pipeline_path(path, sizeof path, dir, "config.json");
-    if (!mlb_is_file(path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: not a run directory (no config.json)", dir);
-    mlb_status s = mlb_pipeline_config_load(&a->config, path);
+    int has_config = mlb_is_file(path);
+    if (has_config) s = mlb_pipeline_config_load(&a->config, path);   // optional: the asset is final/
     pipeline_path(path, sizeof path, dir, "final/mesh.obj");
     if (!s && !mlb_is_file(path))
-        s = mlb_fail(MLB_ERR_NOT_FOUND, "%s: the run has not finished (no final/mesh.obj); continue it with --resume", dir);
+        s = has_config ? mlb_fail(MLB_ERR_NOT_FOUND, "%s: the run has not finished (no final/mesh.obj); continue it with --resume", dir)
+                       : mlb_fail(MLB_ERR_NOT_FOUND, "%s: not a run folder (no config.json, no final/mesh.obj)", dir);
     if (!s) s = mlb_obj_load(path, &a->mesh);
     if (!s && !a->mesh.normal) s = mlb_mesh_compute_normals(&a->mesh);
     pipeline_path(path, sizeof path, dir, "final/material.safetensors");

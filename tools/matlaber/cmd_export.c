@@ -11,12 +11,12 @@
 #include "matlaber/fileio.h"
 #include "matlaber/material_net.h"
 #include "matlaber/obj.h"
+#include "matlaber/pipeline.h"
 #include "matlaber/uv_atlas.h"
 
 // A run's asset: its storage and the view the writers take.
 typedef struct {
-    mlb_mesh mesh;
-    mlb_material_net net;
+    mlb_run_asset run;        // final/mesh.obj and final/material.safetensors
     mlb_uv_mesh uv;
     mlb_baked baked;
     mlb_asset asset;
@@ -25,8 +25,7 @@ typedef struct {
 static void run_asset_free(run_asset* r) {
     mlb_baked_free(&r->baked);
     mlb_uv_mesh_free(&r->uv);
-    material_net_free(&r->net);
-    mlb_mesh_free(&r->mesh);
+    mlb_run_asset_free(&r->run);
 }
 
 static mlb_status eval_material(void* user, const float* pos, size_t n, float* k) {
@@ -36,20 +35,18 @@ static mlb_status eval_material(void* user, const float* pos, size_t n, float* k
 // RUN_DIR/final/mesh.obj + RUN_DIR/final/material.safetensors -> unwrap -> bake at size x size.
 static int load_run(const char* run_dir, int size, run_asset* r) {
     memset(r, 0, sizeof *r);
-    char mesh_path[4096], mat_path[4096];
-    snprintf(mesh_path, sizeof mesh_path, "%s/final/mesh.obj", run_dir);
-    snprintf(mat_path, sizeof mat_path, "%s/final/material.safetensors", run_dir);
     if (!mlb_is_dir(run_dir)) return cli_fail(mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such run folder", run_dir), "export");
-    mlb_status s = mlb_obj_load(mesh_path, &r->mesh);
-    if (s != MLB_OK) return cli_fail(s, "reading the run's mesh");
-    if ((s = mlb_material_load(&r->net, mat_path)) != MLB_OK) { run_asset_free(r); return cli_fail(s, "reading the run's material"); }
+    mlb_status s = mlb_run_asset_load(&r->run, run_dir);
+    if (s != MLB_OK) return cli_fail(s, "reading the run");
     mlb_uv_options uo = mlb_uv_default();
     uo.texture_size = size;
+    // the default 4-texel gutter is for 1024² textures; small textures get a proportional one
+    if (uo.gutter > size / 64) uo.gutter = size >= 128 ? size / 64 : 1;
     mlb_uv_stats st;
-    if ((s = mlb_uv_unwrap(&r->mesh, &uo, &r->uv, &st)) != MLB_OK) { run_asset_free(r); return cli_fail(s, "UV atlas"); }
+    if ((s = mlb_uv_unwrap(&r->run.mesh, &uo, &r->uv, &st)) != MLB_OK) { run_asset_free(r); return cli_fail(s, "UV atlas"); }
     fprintf(stderr, "matlaber: UV atlas: %d charts, %d vertices, %d faces, utilisation %.1f%%, stretch L2 %.3f\n",
             st.n_charts, st.n_verts, st.n_faces, 100 * st.utilisation, st.stretch_l2);
-    if ((s = mlb_bake(&r->uv, size, eval_material, &r->net, MLB_BAKE_DEFAULT_DILATE, &r->baked)) != MLB_OK) {
+    if ((s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked)) != MLB_OK) {
         run_asset_free(r);
         return cli_fail(s, "baking the material");
     }

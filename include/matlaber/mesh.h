@@ -17,6 +17,9 @@ void mlb_mesh_free(mlb_mesh* m);   // safe on a zeroed mesh
 // Area-weighted vertex normals (replaces m->normal).
 mlb_status mlb_mesh_compute_normals(mlb_mesh* m);
 // Bounding box, and a uniform scale + offset that maps the mesh into the unit sphere at the origin.
+// first[i] = the lowest index j with pos[j] bitwise equal to pos[i] (−0 = +0): welds vertices that
+// seams or per-face attributes split. A hash map over the position bits, O(n).
+mlb_status mlb_mesh_weld_map(const float* pos, int n, int32_t* first);
 void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]);
 void mlb_mesh_normalize_unit_sphere(mlb_mesh* m);
 // A UV sphere at the origin with normals and uvs: `segments` around, `rings` from pole to pole.

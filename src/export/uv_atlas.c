@@ -26,27 +26,6 @@ void mlb_uv_mesh_free(mlb_uv_mesh* m) {
 
 // ---- small helpers -------------------------------------------------------------------------------
 
-static uint32_t float_key(float f) {
-    if (f == 0.0f) f = 0.0f;
-    uint32_t u;
-    memcpy(&u, &f, sizeof u);
-    return u;
-}
-
-static uint64_t hash_pos(const float* p) {
-    uint64_t h = 0x9E3779B97F4A7C15ull;
-    for (int k = 0; k < 3; k++) {
-        h ^= float_key(p[k]);
-        h *= 0xBF58476D1CE4E5B9ull;
-        h ^= h >> 31;
-    }
-    return h;
-}
-
-static int same_pos(const float* a, const float* b) {
-    return float_key(a[0]) == float_key(b[0]) && float_key(a[1]) == float_key(b[1]) && float_key(a[2]) == float_key(b[2]);
-}
-
 static void cross3(const double* a, const double* b, double* o) {
     o[0] = a[1] * b[2] - a[2] * b[1];
     o[1] = a[2] * b[0] - a[0] * b[2];
@@ -259,10 +238,7 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
 
     mlb_status st = MLB_OK;
     const double cos_max = cos(opt.max_angle_deg * M_PI / 180.0);
-    size_t cap = 16;
-    while (cap < 2 * (size_t)V) cap *= 2;
     int32_t* weld = malloc(sizeof *weld * (size_t)V);           // [V] first vertex at the same position
-    int32_t* table = malloc(sizeof *table * cap);
     double* fn = malloc(sizeof *fn * 3 * (size_t)F);            // [F,3] unit normals
     double* farea = malloc(sizeof *farea * (size_t)F);          // [F] 3D area
     uint8_t* degen = calloc((size_t)F, 1);
@@ -282,19 +258,10 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
     double* ltri = NULL;
     int32_t* last_chart = NULL;
     int32_t* newid = NULL;
-    if (!weld || !table || !fn || !farea || !degen || !er || !adj || !fchart || !mark || !queue) goto nomem;
+    if (!weld || !fn || !farea || !degen || !er || !adj || !fchart || !mark || !queue) goto nomem;
 
     // weld by exact position (the mesh may come with seams already split)
-    memset(table, 0xff, sizeof *table * cap);
-    for (int i = 0; i < V; i++) {
-        const float* p = in->pos + 3 * (size_t)i;
-        size_t h = (size_t)hash_pos(p) & (cap - 1);
-        while (table[h] >= 0 && !same_pos(in->pos + 3 * (size_t)table[h], p)) h = (h + 1) & (cap - 1);
-        if (table[h] < 0) table[h] = i;
-        weld[i] = table[h];
-    }
-    free(table);
-    table = NULL;
+    if (mlb_mesh_weld_map(in->pos, V, weld)) goto nomem;
 
     float lo[3], hi[3];
     mlb_mesh_bounds(in, lo, hi);
@@ -716,7 +683,7 @@ done:
         mlb_uv_mesh_free(out);
         if (stats) memset(stats, 0, sizeof *stats);
     }
-    free(weld); free(table); free(fn); free(farea); free(degen); free(er); free(adj); free(fchart);
+    free(weld); free(fn); free(farea); free(degen); free(er); free(adj); free(fchart);
     free(mark); free(queue); free(fr); free(ord); free(cuv); free(last_chart); free(newid); free(sky); free(wh);
     free(pl); free(pl_try); free(pc); free(ltri);
     chart_list_free(&L);

@@ -34,6 +34,23 @@ static int same_pos(const float* a, const float* b) {
     return float_key(a[0]) == float_key(b[0]) && float_key(a[1]) == float_key(b[1]) && float_key(a[2]) == float_key(b[2]);
 }
 
+mlb_status mlb_mesh_weld_map(const float* pos, int n, int32_t* first) {
+    size_t cap = 16;
+    while (cap < 2 * (size_t)n) cap *= 2;
+    int32_t* table = malloc(cap * sizeof *table);
+    if (!table) return mlb_fail(MLB_ERR_NOMEM, "weld map: out of memory for %d vertices", n);
+    memset(table, 0xff, cap * sizeof *table);
+    for (int i = 0; i < n; i++) {
+        const float* p = pos + 3 * (size_t)i;
+        size_t h = (size_t)hash_pos(p) & (cap - 1);
+        while (table[h] >= 0 && !same_pos(pos + 3 * (size_t)table[h], p)) h = (h + 1) & (cap - 1);
+        if (table[h] < 0) table[h] = i;
+        first[i] = table[h];
+    }
+    free(table);
+    return MLB_OK;
+}
+
 // Area-weighted normals: every triangle adds its un-normalised cross product (length = twice its
 // area) to its three corners. Unified vertices that sit at exactly the same position (the copies
 // a uv seam makes) are summed together and share the result, so seams do not crease the shading.
@@ -54,26 +71,16 @@ mlb_status mlb_mesh_compute_normals(mlb_mesh* m) {
             return mlb_fail(MLB_ERR_NUMERIC, "mlb_mesh_compute_normals: vertex %zu has a non-finite position", i / 3);
     if (nv == 0) return MLB_OK;
 
-    // group[i]: the first vertex at the same position as i (a hash map over position bits)
-    size_t cap = 16;
-    while (cap < 2 * nv) cap *= 2;
-    int32_t* table = malloc(cap * sizeof *table);
+    // group[i]: the first vertex at the same position as i
     int32_t* group = malloc(nv * sizeof *group);
     double* acc = calloc(3 * nv, sizeof *acc);
     float* out = malloc(3 * nv * sizeof *out);
-    if (!table || !group || !acc || !out) {
-        free(table); free(group); free(acc); free(out);
-        return mlb_fail(MLB_ERR_NOMEM, "mlb_mesh_compute_normals: out of memory for %zu vertices", nv);
+    mlb_status st = (group && acc && out) ? mlb_mesh_weld_map(m->pos, (int)nv, group)
+                                          : mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    if (st) {
+        free(group); free(acc); free(out);
+        return mlb_fail_context(st, "mlb_mesh_compute_normals (%zu vertices)", nv);
     }
-    memset(table, 0xff, cap * sizeof *table);
-    for (size_t i = 0; i < nv; i++) {
-        const float* p = m->pos + 3 * i;
-        size_t h = (size_t)hash_pos(p) & (cap - 1);
-        while (table[h] >= 0 && !same_pos(m->pos + 3 * (size_t)table[h], p)) h = (h + 1) & (cap - 1);
-        if (table[h] < 0) table[h] = (int32_t)i;
-        group[i] = table[h];
-    }
-    free(table);
 
     for (size_t f = 0; f < nf; f++) {
         const int32_t* t = m->faces + 3 * f;

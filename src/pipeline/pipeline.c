@@ -121,27 +121,83 @@ static double reg_weight(const mlb_pipeline_config* c, long it) {
 
 static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
 
+// ---- what both stages share: their optimiser state, resume and the end of a step ----------------
+typedef struct {
+    mlb_stage stage;
+    const char* name;            // "geometry" / "appearance": checkpoint file and metadata
+    float *params, *m, *v;       // the trained parameters and their Adam moments
+    size_t n;
+    long* step;                  // the optimiser's step counter
+    long iters;                  // the stage's length
+    long progress_offset;        // steps of the stages before this one
+    char ckpt[MLB_PIPELINE_PATH + 64];
+} stage_state;
+
+static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
+    stage_state ss;
+    if (stage == MLB_STAGE_GEOMETRY) {
+        ss = (stage_state){stage, "geometry", r->geo.params, r->geo.adam_m, r->geo.adam_v, r->geo.n_params, &r->geo.step,
+                           r->c->geometry_iters, 0, {0}};
+    } else {
+        ss = (stage_state){stage, "appearance", r->mat.params, r->mat.adam_m, r->mat.adam_v, r->mat.n_params, &r->mat.step,
+                           r->c->appearance_iters, r->c->geometry_iters, {0}};
+    }
+    char rel[64];
+    snprintf(rel, sizeof rel, "checkpoints/%s.safetensors", ss.name);
+    pipeline_path(ss.ckpt, sizeof ss.ckpt, r->dir, rel);
+    return ss;
+}
+
+// On resume with a checkpoint: loads it, *start = its step, *found = 1.
+static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, int* found) {
+    *start = 0;
+    *found = r->resume && mlb_is_file(ss->ckpt);
+    if (!*found) return MLB_OK;
+    mlb_status s = pipeline_state_load(ss->ckpt, ss->params, ss->m, ss->v, ss->n, start, ss->name);
+    if (s) return s;
+    *ss->step = *start;
+    mlb_log(MLB_LOG_INFO, "resuming the %s stage at step %ld", ss->name, *start);
+    return MLB_OK;
+}
+
+// After the optimiser step of iteration it: log row, preview, checkpoint (every checkpoint_every
+// steps and at the stage's end), progress. *stop = 1 when stop_after is reached.
+static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, const double row[3], const float* images,
+                                    int n_views, int* stop) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_status s = mlb_losslog_append(r->log, ss->stage, it, row);
+    if (ss->stage == MLB_STAGE_GEOMETRY) {
+        r->result.geometry_loss = row[0];
+        r->result.geometry_steps++;
+    } else {
+        r->result.appearance_loss = row[0];
+        r->result.appearance_steps++;
+    }
+    if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0) s = pipeline_preview(r, ss->stage, it, images, n_views);
+    if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters))
+        s = pipeline_state_save(ss->ckpt, ss->params, ss->m, ss->v, ss->n, it + 1, ss->name);
+    pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
+    *stop = !s && pipeline_should_stop(r);
+    return s;
+}
+
 // ---- geometry stage ----------------------------------------------------------------------------
 static mlb_status geometry_stage(pipeline_run* r) {
     const mlb_pipeline_config* c = r->c;
     mlb_geometry_net* net = &r->geo;
-    char ckpt[MLB_PIPELINE_PATH + 64];
-    pipeline_path(ckpt, sizeof ckpt, r->dir, "checkpoints/geometry.safetensors");
+    stage_state ss = stage_of(r, MLB_STAGE_GEOMETRY);
     long start = 0;
-    mlb_status s = MLB_OK;
-    if (r->resume && mlb_is_file(ckpt)) {
-        s = pipeline_state_load(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, &start, "geometry");
-        if (s) return s;
-        net->step = start;
-        mlb_log(MLB_LOG_INFO, "resuming the geometry stage at step %ld", start);
-    } else {
+    int found = 0;
+    mlb_status s = stage_resume(r, &ss, &start, &found);
+    if (s) return s;
+    if (!found) {
         s = init_shape(net, c, NULL);
         if (s) return s;
-        // the optimiser starts fresh after the initialisation
+        // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
         memset(net->adam_m, 0, sizeof(float) * net->n_params);
         memset(net->adam_v, 0, sizeof(float) * net->n_params);
         net->step = 0;
-        s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, 0, "geometry");
+        s = pipeline_state_save(ss.ckpt, net->params, net->adam_m, net->adam_v, net->n_params, 0, ss.name);
         if (s) return s;
     }
     r->geometry_start = start;
@@ -163,15 +219,9 @@ static mlb_status geometry_stage(pipeline_run* r) {
         if (s) { s = mlb_fail_context(s, "geometry stage, step %ld", it); break; }
         geometry_net_update(net, &adam);
         double row[3] = {stats.img, stats.reg, stats.n_faces};
-        s = mlb_losslog_append(r->log, MLB_STAGE_GEOMETRY, it, row);
-        r->result.geometry_loss = stats.img;
-        r->result.geometry_steps++;
-        if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0)
-            s = pipeline_preview(r, MLB_STAGE_GEOMETRY, it, images, n);
-        if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == c->geometry_iters))
-            s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, it + 1, "geometry");
-        pipeline_progress(r, it + 1, stats.img, stats.n_faces);
-        if (!s && pipeline_should_stop(r)) break;
+        int stop = 0;
+        s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
+        if (stop) break;
     }
     mlb_geofit_state_free(&st);
     free(views);
@@ -183,16 +233,11 @@ static mlb_status geometry_stage(pipeline_run* r) {
 static mlb_status appearance_stage(pipeline_run* r) {
     const mlb_pipeline_config* c = r->c;
     mlb_material_net* net = &r->mat;
-    char ckpt[MLB_PIPELINE_PATH + 64];
-    pipeline_path(ckpt, sizeof ckpt, r->dir, "checkpoints/appearance.safetensors");
+    stage_state ss = stage_of(r, MLB_STAGE_APPEARANCE);
     long start = 0;
-    mlb_status s = MLB_OK;
-    if (r->resume && mlb_is_file(ckpt)) {
-        s = pipeline_state_load(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, &start, "appearance");
-        if (s) return s;
-        net->step = start;
-        mlb_log(MLB_LOG_INFO, "resuming the appearance stage at step %ld", start);
-    }
+    int found = 0;
+    mlb_status s = stage_resume(r, &ss, &start, &found);
+    if (s) return s;
     if (start >= c->appearance_iters) return MLB_OK;
 
     mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
@@ -224,15 +269,9 @@ static mlb_status appearance_stage(pipeline_run* r) {
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
         material_net_update(net, &adam);
         double row[3] = {loss, smooth, r->scene.mesh.n_faces};
-        s = mlb_losslog_append(r->log, MLB_STAGE_APPEARANCE, it, row);
-        r->result.appearance_loss = loss;
-        r->result.appearance_steps++;
-        if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0)
-            s = pipeline_preview(r, MLB_STAGE_APPEARANCE, it, images, n);
-        if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == c->appearance_iters))
-            s = pipeline_state_save(ckpt, net->params, net->adam_m, net->adam_v, net->n_params, it + 1, "appearance");
-        pipeline_progress(r, c->geometry_iters + it + 1, loss, r->scene.mesh.n_faces);
-        if (!s && pipeline_should_stop(r)) break;
+        int stop = 0;
+        s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
+        if (stop) break;
     }
     mlb_appearance_free(&app);
     free(views);

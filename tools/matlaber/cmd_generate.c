@@ -22,7 +22,8 @@ static const cli_option options[] = {
     {"grid", 1, 'g', "N", "DMTet grid, Fantasia3D's naming: 128 = 64 cells per axis (generate 128, fit 64)"},
     {"geometry-lr", 1, 'L', "X", "geometry stage learning rate (generate 1e-3, fit 1e-2)"},
     {"appearance-lr", 1, 'l', "X", "appearance stage learning rate (1e-2)"},
-    {"env", 1, 'e', "NAME|FILE", "generate: environment of the pool (repeat or comma-separate; default sky,studio,overcast)"},
+    {"env", 1, 'e', "NAME|FILE", "generate: the environment pool (repeat or comma-separate; default sky,studio,overcast);\n"
+                                 "                           fit: the light of views that name none (default sky)"},
     {"fixed-env", 0, 'F', NULL, "generate: the first environment only, never rotated (Fantasia3D's setting)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},

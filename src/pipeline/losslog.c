@@ -251,7 +251,9 @@ mlb_status mlb_losslog_plot(const char* csv_path, const char* png_path) {
             double* y = ys + (size_t)ns * (rows ? rows : 1);
             size_t cnt = 0;
             for (size_t r = 0; r < rows; r++) { y[r] = stage[r] == k ? val[r * nc + c] : NAN; cnt += stage[r] == k; }
-            snprintf(lab[ns], sizeof lab[ns], "stage %d", k);
+            // the pipeline's stages by name (guidance.h: 0 geometry, 1 appearance)
+            if (k <= 1) snprintf(lab[ns], sizeof lab[ns], "%s", k == 0 ? "geometry" : "appearance");
+            else snprintf(lab[ns], sizeof lab[ns], "stage %d", k);
             int sm = (int)(cnt / 50);
             ser[ns] = (mlb_plot_series){xs, y, (int)rows, {0, 0, 0}, lab[ns], sm > 1 ? (sm > 100 ? 100 : sm) : 0};
             mlb_plot_color(k, ser[ns].rgb);

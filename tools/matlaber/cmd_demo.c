@@ -176,7 +176,7 @@ int cmd_demo(int argc, char** argv) {
                    "both stages (geometry from silhouettes and normal maps, materials from colour) and measured:\n"
                    "Chamfer distance, albedo PSNR on the surface, and relighting PSNR under the overcast sky, which\n"
                    "the fit never saw. Writes DIR/report.md, side-by-side images and the run (DIR/fit_latent).\n"
-                   "About 5 minutes on 2 cores; --ablation adds a --material direct fit and a fixed-environment fit.\n\n");
+                   "About 2 minutes on 2 cores; --ablation (5 minutes) adds a --material direct fit and a fixed-environment fit.\n\n");
             cli_print_options(stdout, options);
             return 0;
         default: return cli_usage_error("demo", "unknown option");

@@ -46,6 +46,25 @@ static inline int test_summary(void) {
     return 0;
 }
 
+// For finite-difference checks of a hash grid + MLP: pick[0..t) the t table entries (index < n_enc)
+// of largest |g|, pick[t..2t) the t MLP parameters (n_enc <= index < n_params) of largest |g|.
+static inline void test_top_grads(const double* g, size_t n_enc, size_t n_params, int t, size_t* pick) {
+    int np = 0;
+    for (int part = 0; part < 2; part++) {
+        size_t lo = part ? n_enc : 0, hi = part ? n_params : n_enc;
+        for (int q = 0; q < t; q++) {
+            size_t best = lo;
+            double bg = -1;
+            for (size_t i = lo; i < hi; i++) {
+                int taken = 0;
+                for (int r = 0; r < np; r++) taken |= pick[r] == i;
+                if (!taken && fabs(g[i]) > bg) { bg = fabs(g[i]); best = i; }
+            }
+            pick[np++] = best;
+        }
+    }
+}
+
 // ../shared/data (or $MLB_SHARED_DATA) when present, else NULL: tests that need it SKIP.
 static inline const char* test_shared_data(void) {
     static char path[4096];

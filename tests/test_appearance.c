@@ -10,6 +10,7 @@
 #include "matlaber/render.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
+#include "material_test_util.h"
 #include "test.h"
 
 typedef struct {
@@ -81,13 +82,6 @@ static mlb_material_config small_config(mlb_material_mode mode) {
     return c;
 }
 
-static int random_prior(mlb_brdf_ae* ae) { return brdf_ae_init(ae, &(mlb_brdf_ae_config){16, 2, MLB_ACT_SILU}, 3) == MLB_OK; }
-
-static void randomize_f64(mlb_material_net_f64* net, uint64_t seed) {
-    for (size_t i = 0; i < net->n_enc; i++) net->params[i] = 0.5 * mlb_rng_normal_f64(seed, 1, i);
-    for (int l = 0; l < net->mlp.n_layers; l++)
-        for (int j = 0; j < net->mlp.dims[l + 1]; j++) net->mlp.bias[l][j] = 0.3 * mlb_rng_normal_f64(seed, 2, 100 * l + j);
-}
 
 // Direct-mode net whose output is the constant material k (last layer: zero weights, bias logit).
 static void set_constant(mlb_material_net* net, const float k[7]) {
@@ -102,24 +96,6 @@ static void set_constant(mlb_material_net* net, const float k[7]) {
 static double srgb1(double x) {
     x = x < 0 ? 0 : x > 1 ? 1 : x;
     return x <= 0.0031308 ? 12.92 * x : 1.055 * pow(x, 1 / 2.4) - 0.055;
-}
-
-// pick[0..t) the t table entries (index < n_enc) of largest |gradient|, pick[t..2t) the t MLP values.
-static void top_grads(const double* g, size_t n_enc, size_t n_params, int t, size_t* pick) {
-    int np = 0;
-    for (int part = 0; part < 2; part++) {
-        size_t lo = part ? n_enc : 0, hi = part ? n_params : n_enc;
-        for (int q = 0; q < t; q++) {
-            size_t best = lo;
-            double bg = -1;
-            for (size_t i = lo; i < hi; i++) {
-                int taken = 0;
-                for (int r = 0; r < np; r++) taken |= pick[r] == i;
-                if (!taken && fabs(g[i]) > bg) { bg = fabs(g[i]); best = i; }
-            }
-            pick[np++] = best;
-        }
-    }
 }
 
 TEST(fd_whole_chain_f64) {
@@ -156,7 +132,7 @@ TEST(fd_whole_chain_f64) {
         // the 6 table entries and 6 MLP values of largest gradient
         size_t pick[12];
         int np2 = 12;
-        top_grads(net.grads, net.n_enc, net.n_params, 6, pick);
+        test_top_grads(net.grads, net.n_enc, net.n_params, 6, pick);
         const double h = 1e-6;
         double worst = 0;
         for (int q = 0; q < np2; q++) {
@@ -428,7 +404,7 @@ TEST(smoothness) {
     REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 7, 1, &L) == MLB_OK);
     const double h = 1e-7;
     size_t pick[8];
-    top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
+    test_top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
     for (int q = 0; q < 8; q++) {
         size_t i = pick[q];
         double keep = net.params[i], Lp, Lm;

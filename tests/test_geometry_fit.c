@@ -257,24 +257,13 @@ TEST(fd_full_chain_f64) {
     for (size_t i = 0; i < nd.n_params; i++) acc = fmax(acc, fabs(nd.grads[i] - 2 * grad[i]) / (1e-300 + fabs(grad[i]) + 1e-12));
     CHECK(acc < 1e-9);
     // the parameters with the largest gradients: 8 from the table, 8 from the MLP
-    int pick[16], np = 0;
-    for (int part = 0; part < 2; part++) {
-        size_t lo = part ? nd.n_enc : 0, hi = part ? nd.n_params : nd.n_enc;
-        for (int k = 0; k < 8; k++) {
-            size_t best = lo;
-            double bv = -1;
-            for (size_t i = lo; i < hi; i++) {
-                int taken = 0;
-                for (int q = 0; q < np; q++) taken |= pick[q] == (int)i;
-                if (!taken && fabs(grad[i]) > bv) { bv = fabs(grad[i]); best = i; }
-            }
-            pick[np++] = (int)best;
-        }
-    }
+    size_t pick[16];
+    int np = 16;
+    test_top_grads(grad, nd.n_enc, nd.n_params, 8, pick);
     int checked = 0, skipped = 0;
     double worst = 0;
     for (int q = 0; q < np; q++) {
-        size_t i = (size_t)pick[q];
+        size_t i = pick[q];
         double x0 = nd.params[i], h = 1e-6 * fmax(1.0, fabs(x0));
         nd.params[i] = x0 + h;
         REQUIRE(mlb_geofit_loss_f64(&nd, &g, NULL, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 0, &sp) == MLB_OK);
@@ -418,24 +407,13 @@ TEST(fd_external_gradient_f64) {
     REQUIRE(grad);
     memcpy(grad, nd.grads, sizeof(double) * nd.n_params);
     // the renders equal mlb_geofit_loss's (the L2 loss is built on the same forward)
-    int pick[12], np = 0;
-    for (int part = 0; part < 2; part++) {
-        size_t lo = part ? nd.n_enc : 0, hi = part ? nd.n_params : nd.n_enc;
-        for (int k = 0; k < 6; k++) {
-            size_t best = lo;
-            double bv = -1;
-            for (size_t i = lo; i < hi; i++) {
-                int taken = 0;
-                for (int q = 0; q < np; q++) taken |= pick[q] == (int)i;
-                if (!taken && fabs(grad[i]) > bv) { bv = fabs(grad[i]); best = i; }
-            }
-            pick[np++] = (int)best;
-        }
-    }
+    size_t pick[12];
+    int np = 12;
+    test_top_grads(grad, nd.n_enc, nd.n_params, 6, pick);
     int checked = 0, skipped = 0;
     double worst = 0;
     for (int q = 0; q < np; q++) {
-        size_t i = (size_t)pick[q];
+        size_t i = pick[q];
         double x0 = nd.params[i], h = 1e-6 * fmax(1.0, fabs(x0));
         nd.params[i] = x0 + h;
         double Lp = ext_loss(&st, &nd, &g, cams, VIEWS, RES, SS, R, lambda, &sp);

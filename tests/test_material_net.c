@@ -6,6 +6,7 @@
 #include "matlaber/brdf.h"
 #include "matlaber/material_net.h"
 #include "matlaber/rng.h"
+#include "material_test_util.h"
 #include "test.h"
 
 static mlb_material_config small_config(mlb_material_mode mode) {
@@ -18,15 +19,6 @@ static mlb_material_config small_config(mlb_material_mode mode) {
     return c;
 }
 
-// A randomly initialised prior of the default shape (the trained one is not needed for gradients).
-static int random_prior(mlb_brdf_ae* ae) { return brdf_ae_init(ae, &(mlb_brdf_ae_config){16, 2, MLB_ACT_SILU}, 3) == MLB_OK; }
-
-// Table values of order 1 and random biases, so that every part of the chain carries gradient.
-static void randomize_f64(mlb_material_net_f64* net, uint64_t seed) {
-    for (size_t i = 0; i < net->n_enc; i++) net->params[i] = 0.5 * mlb_rng_normal_f64(seed, 1, i);
-    for (int l = 0; l < net->mlp.n_layers; l++)
-        for (int j = 0; j < net->mlp.dims[l + 1]; j++) net->mlp.bias[l][j] = 0.3 * mlb_rng_normal_f64(seed, 2, 100 * l + j);
-}
 
 static double loss_f64(mlb_material_net_f64* net, const double* pos, const double* w, int n, double* k) {
     if (material_net_forward_f64(net, k, NULL, pos, n) != MLB_OK) return NAN;
@@ -55,25 +47,14 @@ static void fd_check(mlb_material_mode mode) {
     material_net_zero_grad_f64(&net);
     material_net_backward_f64(&net, w, dpos);
     // parameters: the 6 table entries and 6 MLP values of largest gradient, plus 4 fixed MLP ones
-    int pick[16], np = 0;
-    for (int part = 0; part < 2; part++) {
-        size_t lo = part ? net.n_enc : 0, hi = part ? net.n_params : net.n_enc;
-        for (int t = 0; t < 6; t++) {
-            size_t best = lo;
-            double bg = -1;
-            for (size_t i = lo; i < hi; i++) {
-                int taken = 0;
-                for (int q = 0; q < np; q++) taken |= pick[q] == (int)i;
-                if (!taken && fabs(net.grads[i]) > bg) { bg = fabs(net.grads[i]); best = i; }
-            }
-            pick[np++] = (int)best;
-        }
-    }
-    for (int t = 0; t < 4; t++) pick[np++] = (int)(net.n_enc + (net.n_mlp * (2 * t + 1)) / 9);
+    size_t pick[16];
+    int np = 12;
+    test_top_grads(net.grads, net.n_enc, net.n_params, 6, pick);
+    for (int t = 0; t < 4; t++) pick[np++] = net.n_enc + (net.n_mlp * (2 * t + 1)) / 9;
     const double h = 1e-6;
     double worst = 0;
     for (int q = 0; q < np; q++) {
-        size_t i = (size_t)pick[q];
+        size_t i = pick[q];
         double keep = net.params[i];
         net.params[i] = keep + h;
         double Lp = loss_f64(&net, pos, w, n, k);

@@ -34,6 +34,7 @@
 #include <string.h>
 #include <sys/resource.h>
 #include <unistd.h>
+#include "bench_util.h"
 #include "matlaber/appearance.h"
 #include "matlaber/brdf_ae.h"
 #include "matlaber/dmtet.h"
@@ -56,28 +57,6 @@
 #define SMOOTH_POINTS 4096      // as the pipeline's appearance stage
 
 static const char* const ENV_NAMES[N_ENVS] = {"sky", "studio", "overcast"};
-
-static double peak_gb(void) {
-    struct rusage r;
-    getrusage(RUSAGE_SELF, &r);
-    return r.ru_maxrss / (1024.0 * 1024.0);   // Linux: kilobytes
-}
-
-static double sgemm_rate(int M, int N, int K) {
-    float *a = malloc((size_t)M * K * 4), *b = malloc((size_t)K * N * 4), *c = malloc((size_t)M * N * 4);
-    if (!a || !b || !c) { free(a); free(b); free(c); return 0; }
-    mlb_rng_fill_uniform(a, (size_t)M * K, 1, 1, 0, -1, 1);
-    mlb_rng_fill_uniform(b, (size_t)K * N, 1, 2, 0, -1, 1);
-    double best = 1e30;
-    for (int r = 0; r < 4; r++) {
-        double t0 = mlb_now_seconds();
-        cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, M, N, K, 1, a, K, b, N, 0, c, N);
-        double dt = mlb_now_seconds() - t0;
-        if (r && dt < best) best = dt;
-    }
-    free(a); free(b); free(c);
-    return 2.0 * M * N * K / best / 1e9;
-}
 
 // ---- a guidance under test ------------------------------------------------------------------
 typedef struct {
@@ -506,7 +485,7 @@ int main(int argc, char** argv) {
     const char* wp = getenv("OMP_WAIT_POLICY");
     printf("pipeline stages, s/iteration: %d threads, OpenBLAS kernels %s, OMP_WAIT_POLICY %s; 1 warm-up + %d timed "
            "iterations (mean)\n", threads, mlb_blas_corename(), wp ? wp : "(unset)", iters);
-    printf("sgemm 4096x2880 . 2880x320: %.1f GFLOP/s\n", sgemm_rate(4096, 320, 2880));
+    printf("sgemm 4096x2880 . 2880x320: %.1f GFLOP/s\n", bench_sgemm_rate(4096, 320, 2880));
 
     char dir[512], views_dir[600], pu[600], pv[600], cj[600];
     snprintf(dir, sizeof dir, "%s/mlb_bench_pipeline_XXXXXX", base);
@@ -592,7 +571,7 @@ int main(int argc, char** argv) {
             goto out;
         }
     }
-    printf("\npeak resident memory: %.2f GB (getrusage ru_maxrss)\n", peak_gb());
+    printf("\npeak resident memory: %.2f GB (getrusage ru_maxrss)\n", bench_peak_mb() / 1024.0);
 out:
     guide_free(&tg);
     mlb_unet_free(tu);

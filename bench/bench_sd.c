@@ -15,6 +15,7 @@
 #include <string.h>
 #include <sys/resource.h>
 #include <unistd.h>
+#include "bench_util.h"
 #include "matlaber/half.h"
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
@@ -23,27 +24,6 @@
 #include "matlaber/unet.h"
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
-
-static double peak_mb(void) {
-    struct rusage r;
-    getrusage(RUSAGE_SELF, &r);
-    return r.ru_maxrss / 1024.0;   // Linux: kilobytes
-}
-
-static double sgemm_rate(int M, int N, int K) {
-    float *a = malloc((size_t)M * K * 4), *b = malloc((size_t)K * N * 4), *c = malloc((size_t)M * N * 4);
-    mlb_rng_fill_uniform(a, (size_t)M * K, 1, 1, 0, -1, 1);
-    mlb_rng_fill_uniform(b, (size_t)K * N, 1, 2, 0, -1, 1);
-    double best = 1e30;
-    for (int r = 0; r < 4; r++) {
-        double t0 = mlb_now_seconds();
-        cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, M, N, K, 1, a, K, b, N, 0, c, N);
-        double dt = mlb_now_seconds() - t0;
-        if (r && dt < best) best = dt;
-    }
-    free(a); free(b); free(c);
-    return 2.0 * M * N * K / best / 1e9;
-}
 
 // ---- CLIP ViT-L/14 text encoder, HF CLIP names inside an SD 1.x single file --------------------------
 #define TXT_PREFIX "cond_stage_model.transformer.text_model."
@@ -183,7 +163,7 @@ int main(int argc, char** argv) {
     const char* wp = getenv("OMP_WAIT_POLICY");
     printf("SD 1.5 full size, random weights; %d threads, OpenBLAS kernels %s, OMP_WAIT_POLICY %s\n", threads,
            mlb_blas_corename(), wp ? wp : "(unset)");
-    double rate = sgemm_rate(4096, 320, 2880);
+    double rate = bench_sgemm_rate(4096, 320, 2880);
     printf("sgemm 4096x2880 . 2880x320: %.1f GFLOP/s\n", rate);
     char dir[512];
     snprintf(dir, sizeof dir, "%s/mlb_bench_sd_XXXXXX", base);
@@ -219,7 +199,7 @@ int main(int argc, char** argv) {
         }
         double layer = 2.0 * (4.0 * 768 * 768 + 2.0 * 768 * 3072) * 77 + 4.0 * 77 * 77 * 768;
         snprintf(r->what, sizeof r->what, "text encoder, 2 x 77 tokens");
-        r->gen_s = t1 - t0; r->load_s = t2 - t1; r->run_s = best; r->gflop = 2 * 12 * layer / 1e9; r->mb = peak_mb();
+        r->gen_s = t1 - t0; r->load_s = t2 - t1; r->run_s = best; r->gflop = 2 * 12 * layer / 1e9; r->mb = bench_peak_mb();
         snprintf(r->note, sizeof r->note, "%zu M params (%s heads %d)", np / 1000000, te->heads_from, te->n_heads);
         free(out);
         mlb_text_encoder_free(te);
@@ -252,7 +232,7 @@ int main(int argc, char** argv) {
         }
         snprintf(r->what, sizeof r->what, "UNet forward, %d x %d², s/step", batch, latent);
         r->gen_s = t1 - t0; r->load_s = t2 - t1; r->run_s = best; r->gflop = unet_flops(&u->cfg, batch, latent, latent, 77) / 1e9;
-        r->mb = peak_mb();
+        r->mb = bench_peak_mb();
         snprintf(r->note, sizeof r->note, "%.1f M params, F16 file, best of %d", u->n_params / 1e6, steps);
         free(x); free(y); free(ctx); free(tt);
         mlb_unet_free(u);
@@ -285,7 +265,7 @@ int main(int argc, char** argv) {
         double ff, fb;
         vae_flops(&g, S, S, &ff, &fb);
         snprintf(r->what, sizeof r->what, "VAE encode fwd + bwd, 1 x %d²", S);
-        r->gen_s = t1 - t0; r->load_s = t2 - t1; r->run_s = d; r->gflop = (ff + fb) / 1e9; r->mb = peak_mb();
+        r->gen_s = t1 - t0; r->load_s = t2 - t1; r->run_s = d; r->gflop = (ff + fb) / 1e9; r->mb = bench_peak_mb();
         snprintf(r->note, sizeof r->note, "%.1f M params, F32 file, cache %.0f MB", v->n_params / 1e6, cache.capacity * 4.0 / 1e6);
         mlb_vae_cache_free(&cache);
         free(img); free(dimg); free(mean); free(dm);
@@ -300,7 +280,7 @@ out:
         printf("| %s | %.1f | %.1f | %.2f | %.0f | %.1f | %.0f%% | %.0f | %s |\n", rows[i].what, rows[i].gen_s, rows[i].load_s,
                rows[i].run_s, rows[i].gflop, g, 100 * g / rate, rows[i].mb, rows[i].note);
     }
-    printf("\npeak resident memory: %.0f MB (getrusage ru_maxrss)\n", peak_mb());
+    printf("\npeak resident memory: %.0f MB (getrusage ru_maxrss)\n", bench_peak_mb());
     if (!keep) {
         unlink(pu); unlink(pt); unlink(pv);
         char cj[620];

@@ -11,6 +11,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include "bench_util.h"
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
@@ -42,23 +43,6 @@ static void encoder_flops(const mlb_vae_config* g, int H, int W, double* fwd, do
 #undef CONV
     *fwd = f;
     *bwd = b;
-}
-
-static double gemm_rate(int M, int N, int K) {
-    float* a = malloc((size_t)M * K * sizeof(float));
-    float* b = malloc((size_t)K * N * sizeof(float));
-    float* c = malloc((size_t)M * N * sizeof(float));
-    mlb_rng_fill_uniform(a, (size_t)M * K, 1, 1, 0, -1, 1);
-    mlb_rng_fill_uniform(b, (size_t)K * N, 1, 2, 0, -1, 1);
-    double best = 1e30;
-    for (int r = 0; r < 4; r++) {
-        double t0 = mlb_now_seconds();
-        cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, M, N, K, 1, a, K, b, N, 0, c, N);
-        double dt = mlb_now_seconds() - t0;
-        if (r > 0 && dt < best) best = dt;
-    }
-    free(a); free(b); free(c);
-    return 2.0 * M * N * K / best / 1e9;
 }
 
 // Median-free best-of timing of `reps` runs after one warm-up: forward only, and forward with
@@ -132,7 +116,7 @@ int main(int argc, char** argv) {
     printf("SD VAE encoder, 1 image, %d threads, OpenBLAS kernels %s, OMP_WAIT_POLICY %s\n\n", threads,
            mlb_blas_corename(), wp ? wp : "(unset)");
     // GEMM shapes of the dominant convs: 128->128 3x3 at 512² (one im2col band) and 512->512 at 64².
-    double r1 = gemm_rate(128, 3640, 1152), r2 = gemm_rate(512, 896, 4608), r3 = gemm_rate(512, 4096, 512);
+    double r1 = bench_sgemm_rate(128, 3640, 1152), r2 = bench_sgemm_rate(512, 896, 4608), r3 = bench_sgemm_rate(512, 4096, 512);
     double rate = (r1 + r2) / 2;
     printf("sgemm: %.1f GFLOP/s (128x1152 . 1152x3640), %.1f (512x4608 . 4608x896), %.1f (attention 512x512 . 512x4096)\n\n",
            r1, r2, r3);

@@ -89,7 +89,8 @@ static mlb_status init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c
     memset(&shape, 0, sizeof shape);
     mlb_status s = MLB_OK;
     if (!strcmp(c->init, "ellipsoid")) {
-        // Fantasia3D's default ellipsoid: a sphere of the box's radius scale, flattened a little
+        // a sphere of radius 0.5 (semi-axes 0.5): inside every target placed in the unit sphere, so
+        // the geometry stage grows it outward (docs/pipeline.md, Init)
         const float axes[3] = {0.5f, 0.5f, 0.5f};
         mlb_shape_ellipsoid(&shape, 1.0f, axes);
     } else if (!strcmp(c->init, "cylinder")) {

@@ -1,8 +1,9 @@
-// Core: Philox against Random123's known answers, the distributions it feeds, permutations,
+// Core: CPU feature detection against the kernel's /proc/cpuinfo and the BLAS kernel choice, Philox against Random123's known answers, the distributions it feeds, permutations,
 // error messages, the progress reporter's plain mode, atomic files and small-file reading.
 #include "test.h"
 #include <omp.h>
 #include <unistd.h>
+#include "matlaber/cpu.h"
 #include "matlaber/error.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
@@ -162,7 +163,63 @@ TEST(atomic_files) {
     CHECK(mlb_mkdir_p(path) == MLB_ERR_IO);   // exists and is a file
 }
 
+// The features read from cpuid + XCR0 agree with the kernel's flags in /proc/cpuinfo (which also
+// hides what the OS does not save); skipped where there is no such file or no x86 CPU.
+TEST(cpu_features_match_proc_cpuinfo) {
+    mlb_cpu_info c;
+    mlb_cpu_detect(&c);
+    CHECK(c.model[0] != 0);
+    FILE* f = fopen("/proc/cpuinfo", "r");
+    if (!f) SKIP("no /proc/cpuinfo");
+    static char line[16384];
+    char flags[16384] = "";
+    while (fgets(line, sizeof line, f))
+        if (strncmp(line, "flags", 5) == 0) { snprintf(flags, sizeof flags, " %s", strchr(line, ':') + 1); break; }
+    fclose(f);
+    if (!flags[0]) SKIP("/proc/cpuinfo has no flags line (not x86)");
+    char* nl = strchr(flags, '\n');
+    if (nl) *nl = ' ';
+    const struct { int ours; const char* flag; } pairs[] = {
+        {c.avx2, "avx2"}, {c.fma, "fma"}, {c.avx512f, "avx512f"}, {c.avx512bw, "avx512bw"}, {c.avx512vl, "avx512vl"},
+        {c.avx512dq, "avx512dq"}, {c.avx512cd, "avx512cd"}, {c.avx512_bf16, "avx512_bf16"},
+        {c.avx512_fp16, "avx512_fp16"}, {c.amx_tile, "amx_tile"}, {c.amx_bf16, "amx_bf16"}};
+    for (size_t i = 0; i < sizeof pairs / sizeof pairs[0]; i++) {
+        char want[40];
+        snprintf(want, sizeof want, " %s ", pairs[i].flag);
+        int listed = strstr(flags, want) != NULL;
+        CHECK_MSG(pairs[i].ours == listed, "%s: cpuid says %d, /proc/cpuinfo says %d", pairs[i].flag, pairs[i].ours, listed);
+    }
+    char buf[256];
+    mlb_cpu_feature_string(&c, buf, sizeof buf);
+    printf("  %s (family %d model %d): %s\n", c.model, c.family, c.model_id, buf);
+}
+
+// The OpenBLAS kernel family follows the features: AMD Zen 5 (AVX-512 with BF16), on which
+// OpenBLAS 0.3.21 picks Haswell or Zen kernels, gets Cooperlake's; nothing is ever downgraded.
+TEST(blas_coretype_follows_features) {
+    mlb_cpu_info avx2 = {.avx2 = 1, .fma = 1};
+    mlb_cpu_info avx512 = avx2;
+    avx512.avx512f = avx512.avx512bw = avx512.avx512vl = avx512.avx512dq = avx512.avx512cd = 1;
+    mlb_cpu_info bf16 = avx512;
+    bf16.avx512_bf16 = 1;
+    mlb_cpu_info none = {0};
+    const struct { const char* current; const mlb_cpu_info* cpu; const char* want; } cases[] = {
+        {"Haswell", &bf16, "Cooperlake"}, {"Zen", &bf16, "Cooperlake"}, {"Prescott", &bf16, "Cooperlake"},
+        {"SkylakeX", &bf16, "Cooperlake"}, {"Cooperlake", &bf16, NULL}, {"SapphireRapids", &bf16, NULL},
+        {"Zen", &avx512, "SkylakeX"}, {"Sandybridge", &avx512, "SkylakeX"}, {"SkylakeX", &avx512, NULL},
+        {"Prescott", &avx2, "Haswell"}, {"Nehalem", &avx2, "Haswell"}, {"Zen", &avx2, NULL},
+        {"Haswell", &avx2, NULL}, {"Prescott", &none, NULL}, {"SomethingNew", &bf16, NULL}, {NULL, &bf16, NULL}};
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        const char* got = mlb_blas_coretype_for(cases[i].current, cases[i].cpu);
+        int ok = (got == NULL && cases[i].want == NULL) || (got && cases[i].want && strcmp(got, cases[i].want) == 0);
+        CHECK_MSG(ok, "case %zu: current %s: got %s, want %s", i, cases[i].current ? cases[i].current : "(null)",
+                  got ? got : "NULL", cases[i].want ? cases[i].want : "NULL");
+    }
+}
+
 int main(void) {
+    RUN(cpu_features_match_proc_cpuinfo);
+    RUN(blas_coretype_follows_features);
     RUN(philox_known_answers);
     RUN(uniform_and_normal_moments);
     RUN(streams_and_seeds_differ_and_repeat);

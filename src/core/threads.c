@@ -1,6 +1,7 @@
 // OpenBLAS (Debian's pthread build) keeps its own pool, which omp_set_num_threads does not
 // reach; setting both keeps "--threads N" true for GEMMs as well as for our loops.
 #include "matlaber/threads.h"
+#include "matlaber/cpu.h"
 #include <cblas.h>
 #include <omp.h>
 #include <stdlib.h>
@@ -15,17 +16,12 @@ void mlb_set_threads(int n) {
 int mlb_get_threads(void) { return omp_get_max_threads(); }
 
 const char* mlb_blas_corename(void) { return openblas_get_corename(); }
+const char* mlb_blas_config(void) { return openblas_get_config(); }
 
 const char* mlb_blas_better_coretype(void) {
     const char* env = getenv("OPENBLAS_CORETYPE");
     if (env && *env) return NULL;   // the user chose
-    const char* core = openblas_get_corename();
-    if (!core || (strcmp(core, "Prescott") != 0 && strcmp(core, "Core2") != 0 && strcmp(core, "Nehalem") != 0 &&
-                  strcmp(core, "Sandybridge") != 0))
-        return NULL;
-    __builtin_cpu_init();
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl"))
-        return "SkylakeX";
-    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return "Haswell";
-    return NULL;
+    mlb_cpu_info cpu;
+    mlb_cpu_detect(&cpu);
+    return mlb_blas_coretype_for(openblas_get_corename(), &cpu);
 }

@@ -63,7 +63,7 @@ static void choose_runtime_settings(char** argv) {
     const char* core = mlb_blas_better_coretype();
     int set_wait = getenv("OMP_WAIT_POLICY") == NULL;
     if (!core && !set_wait) return;
-    if (core) setenv("OPENBLAS_CORETYPE", core, 1);
+    if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);
     if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);
     setenv("MATLABER_REEXEC", "1", 1);
     execv("/proc/self/exe", argv);   // returns only on failure: carry on as we are

@@ -536,8 +536,8 @@ TEST(guided_step_equals_fit_loss) {
     mlb_mesh_free(&t);
 }
 
-// 1 and 2 threads give bitwise the same parameters after a few fit steps (the network's GEMMs run
-// on one OpenBLAS thread; everything else is thread-count independent).
+// 1 and 2 threads give bitwise the same parameters after a few fit steps (mlb_gemm and every
+// reduction are thread-count independent).
 TEST(threads_bitwise) {
     mlb_mesh t;
     const char* name;

@@ -10,12 +10,14 @@
 #include "matlaber/fileio.h"
 #include "matlaber/guidance_sds.h"
 #include "matlaber/pipeline.h"
+#include "matlaber/threads.h"
 #include "matlaber/rng.h"
 #include "matlaber/schedule.h"
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
 #include "matlaber/views.h"
 #include "test.h"
+#include "matlaber/threads.h"
 
 static char tmpdir[256];
 
@@ -171,7 +173,8 @@ TEST(image_fit_recovers_a_known_albedo) {
 }
 
 // Killed (stop_after: no checkpoint at the stop) in the geometry stage and again in the appearance
-// stage, resumed each time: the same bytes as an uninterrupted run.
+// stage, resumed each time: the same bytes as an uninterrupted run. The pieces run on 1 and 2
+// threads in turn, against the uninterrupted run on 2: the thread count never changes a bit.
 TEST(resume_reaches_the_uninterrupted_result) {
     char views[512], a[512], b[512], pa[700], pb[700];
     tmp_path(views, sizeof views, "sphere_views");
@@ -181,17 +184,23 @@ TEST(resume_reaches_the_uninterrupted_result) {
     mlb_pipeline_config c = small_fit(views, 7, 7);
     c.init_iters = 20;
     mlb_pipeline_result r;
+    int threads = mlb_get_threads();
+    mlb_set_threads(2);
     REQUIRE(run_fit(a, &c, 0, &r) == MLB_OK);
     REQUIRE(r.finished);
+    mlb_set_threads(1);
     c.stop_after = 5;   // geometry steps 0..4; the last checkpoint is after step 4 (every 2 steps → 4)
     REQUIRE(run_fit(b, &c, 0, &r) == MLB_OK);
     CHECK(!r.finished && r.geometry_steps == 5);
+    mlb_set_threads(2);
     c.stop_after = 6;   // resumes at 4: geometry 4..6, appearance 0..2 (checkpoint at 2)
     REQUIRE(run_fit(b, &c, 1, &r) == MLB_OK);
     CHECK(!r.finished && r.geometry_steps == 3 && r.appearance_steps == 3);
+    mlb_set_threads(1);
     c.stop_after = 0;
     REQUIRE(run_fit(b, &c, 1, &r) == MLB_OK);
     CHECK(r.finished && r.appearance_steps == 5);
+    mlb_set_threads(threads);
     const char* files[] = {"final/material.safetensors", "final/geometry.safetensors", "final/mesh.obj", "loss.csv"};
     for (size_t i = 0; i < sizeof files / sizeof *files; i++) {
         snprintf(pa, sizeof pa, "%s/%s", a, files[i]);

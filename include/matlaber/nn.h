@@ -25,6 +25,9 @@ typedef enum {
 const char* mlb_activation_name(mlb_activation act);
 int mlb_activation_parse(const char* name, mlb_activation* out);   // 0 on success
 
+// Transpose flags of mlb_gemm.
+enum { MLB_NOTRANS = 0, MLB_TRANS = 1 };
+
 // Adam / AdamW. decoupled = 0: Adam with L2 (g += wd * p); decoupled = 1: AdamW (p -= lr * wd * p).
 typedef struct {
     double lr, beta1, beta2, eps, weight_decay;

@@ -7,7 +7,7 @@
 // A run lives in a directory (docs/runs.md): config.json, checkpoints/, loss.csv + loss.png,
 // previews/, final/. Every random draw is a counter-based function of (seed, stage, step), and the
 // checkpoints hold the optimiser state, so a resumed run ends bitwise where an uninterrupted one does
-// (on the same machine and thread count).
+// (on any thread count; with the same BLAS kernels, i.e. on the same kind of CPU).
 #ifndef MATLABER_PIPELINE_H
 #define MATLABER_PIPELINE_H
 #include <stdint.h>

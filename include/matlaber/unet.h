@@ -113,10 +113,9 @@ size_t mlb_unet_param_count(const mlb_unet* u);
 typedef void (*mlb_unet_debug_fn)(void* user, const char* name, const float* data, size_t n);
 
 // out [N, out_channels, H, W] = unet(x [N, in_channels, H, W], t [N] (timesteps, may be fractional),
-// context [N, Tc, context_dim]). H and W must be multiples of 2^(n_levels - 1). Deterministic for a
-// given thread count; 1 and 2 threads currently differ by ~1e-6 (tests/test_sd_tiny.c measures it;
-// the cause, in the GEMM path or an op's reduction, is not yet found). MLB_ERR_ARG for bad shapes,
-// MLB_ERR_NOMEM.
+// context [N, Tc, context_dim]). H and W must be multiples of 2^(n_levels - 1). The same bits on any
+// thread count (every GEMM is mlb_gemm, every reduction runs in a fixed order; tests/test_sd_tiny.c).
+// MLB_ERR_ARG for bad shapes, MLB_ERR_NOMEM.
 mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
                             int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user);
 

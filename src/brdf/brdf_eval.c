@@ -6,7 +6,6 @@
 #include "matlaber/brdf.h"
 #include "matlaber/brdf_ae.h"
 #include "matlaber/rng.h"
-#include <cblas.h>
 #include <omp.h>
 
 #define STREAM_EVAL_PAIRS 0x4001
@@ -87,14 +86,11 @@ mlb_status mlb_brdf_ae_evaluate(const mlb_brdf_ae* ae, const float* data, size_t
     {
         enum { PARTS = 2 };
         mlb_status part_status[PARTS];
-        int blas_threads = openblas_get_num_threads();
-        openblas_set_num_threads(1);
 #pragma omp parallel for schedule(static, 1) num_threads(PARTS)
         for (int p = 0; p < PARTS; p++) {
             size_t a = n * p / PARTS, b = n * (p + 1) / PARTS;
             part_status[p] = brdf_ae_fit_latent(ae, data + 7 * a, b - a, zfit + 4 * a, FIT_ITERS);
         }
-        openblas_set_num_threads(blas_threads);
         for (int p = 0; p < PARTS && !s; p++) s = part_status[p];
     }
     if (!s) s = brdf_ae_decode(ae, zfit, n, rec);

@@ -6,7 +6,6 @@
 #include <string.h>
 #include "matlaber/brdf_ae.h"
 #include "matlaber/rng.h"
-#include <cblas.h>
 #include <omp.h>
 
 #define STREAM_SHUFFLE 0x3000
@@ -29,8 +28,7 @@ mlb_brdf_train_config mlb_brdf_train_default_config(void) {
 }
 
 // A batch is split into TRAIN_SHARDS equal shards whose losses and gradients are computed in
-// parallel (one thread each, single-threaded GEMMs: the matrices are far too small for BLAS
-// threads to pay off) and summed in a fixed order. The result is the mean-over-rows gradient of
+// parallel (one thread each; a shard's GEMMs run on its thread) and summed in a fixed order. The result is the mean-over-rows gradient of
 // the whole batch (interpolation pairs form within a shard), and it is bitwise the same on any
 // number of threads because the shard count, not the thread count, decides the arithmetic.
 #define TRAIN_SHARDS 2
@@ -57,9 +55,7 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
     float* batch = malloc(sizeof(float) * 7 * (size_t)B);
     uint32_t* perm = malloc(sizeof(uint32_t) * n);
     mlb_status status = MLB_OK;
-    int blas_threads = openblas_get_num_threads();
     int threads = omp_get_max_threads() < TRAIN_SHARDS ? omp_get_max_threads() : TRAIN_SHARDS;
-    openblas_set_num_threads(1);
     if (!m || !v || !batch || !perm) { status = mlb_fail(MLB_ERR_NOMEM, "BRDF training: out of memory for %zu samples", n); goto done; }
     for (int sh = 0; sh < TRAIN_SHARDS; sh++) {
         if ((status = brdf_work_alloc(&w[sh], ae, Bs))) goto done;
@@ -119,7 +115,6 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
         }
     }
 done:
-    openblas_set_num_threads(blas_threads);
     for (int sh = 0; sh < TRAIN_SHARDS; sh++) { brdf_work_free(&w[sh]); free(shard_grads[sh]); }
     free(m); free(v); free(batch); free(perm);
     return status;

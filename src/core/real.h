@@ -9,7 +9,6 @@
 #ifdef MLB_F64
 typedef double real;
 #define FN(name) name##_f64
-#define GEMM cblas_dgemm
 #define R_EXP exp
 #define R_LOG log
 #define R_LOG1P log1p
@@ -21,7 +20,6 @@ typedef double real;
 #else
 typedef float real;
 #define FN(name) name
-#define GEMM cblas_sgemm
 #define R_EXP expf
 #define R_LOG logf
 #define R_LOG1P log1pf
@@ -31,5 +29,8 @@ typedef float real;
 #define R_ERF erff
 #define R_POW powf
 #endif
+
+// Every GEMM of the dual sources goes through the thread-count independent one (src/nn/gemm.c).
+#define GEMM FN(mlb_gemm)
 
 #endif

@@ -1,5 +1,6 @@
-// OpenBLAS (Debian's pthread build) keeps its own pool, which omp_set_num_threads does not
-// reach; setting both keeps "--threads N" true for GEMMs as well as for our loops.
+// "--threads N" is the OpenMP thread count. OpenBLAS (Debian's pthread build) keeps a pool of its
+// own, which stays at one thread: mlb_gemm (src/nn/gemm.c) shares a GEMM out over OpenMP in
+// shards fixed by the shape, so that the thread count never changes a result.
 #include "matlaber/threads.h"
 #include "matlaber/cpu.h"
 #include <cblas.h>
@@ -10,7 +11,7 @@
 void mlb_set_threads(int n) {
     if (n < 1) n = 1;
     omp_set_num_threads(n);
-    openblas_set_num_threads(n);
+    openblas_set_num_threads(1);
 }
 
 int mlb_get_threads(void) { return omp_get_max_threads(); }

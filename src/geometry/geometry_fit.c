@@ -13,22 +13,6 @@
 #include "matlaber/rng.h"
 #include "core/real.h"
 
-// The network's MLP runs its GEMMs on one OpenBLAS thread: OpenBLAS rounds differently with 1 and
-// 2 threads, the hash grid and everything else here do not depend on the thread count, so the
-// step is bitwise the same on any thread count. (The matrices are [grid vertices, 32]: small.)
-static mlb_status FN(net_forward_1t)(FN(mlb_geometry_net)* net, real* sdf, real* deform, const real* pos, int n) {
-    int t = openblas_get_num_threads();
-    openblas_set_num_threads(1);
-    mlb_status s = FN(geometry_net_forward)(net, sdf, deform, pos, n);
-    openblas_set_num_threads(t);
-    return s;
-}
-static void FN(net_backward_1t)(FN(mlb_geometry_net)* net, const real* dsdf, const real* ddeform) {
-    int t = openblas_get_num_threads();
-    openblas_set_num_threads(1);
-    FN(geometry_net_backward)(net, dsdf, ddeform);
-    openblas_set_num_threads(t);
-}
 
 // One view's buffers at the render size S = res·ss (forward kept for the backward).
 typedef struct {
@@ -188,7 +172,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     mlb_status s = FN(state_reserve)(st, G, 0, 0, n, res, ss);
     if (s) return s;
     for (size_t i = 0; i < 3 * G; i++) st->gv[i] = (real)g->verts[i];
-    s = FN(net_forward_1t)(net, st->sdf, st->deform, st->gv, g->n_verts);
+    s = FN(geometry_net_forward)(net, st->sdf, st->deform, st->gv, g->n_verts);
     if (s) return s;
     FN(dmtet_deform_forward)(st->gpos, st->gv, st->deform, g->n_verts, grid_res);
     s = FN(marching_tets_forward)(&st->surf, g, st->gpos, st->sdf);
@@ -283,7 +267,7 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, st->dverts);
     FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
     if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
-    FN(net_backward_1t)(net, st->dsdf, st->ddeform);
+    FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
     return MLB_OK;
 }
 

@@ -188,7 +188,7 @@ mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, con
         }
         const real* x = in + (size_t)n * in_n;
         if (FN(pointwise)(cv)) {   // out[OC, HW] += weight[OC, C] . in[C, HW]
-            GEMM(CblasRowMajor, CblasNoTrans, CblasNoTrans, cv->OC, (int)plane, cv->C, (real)1, weight, cv->C, x,
+            GEMM(MLB_NOTRANS, MLB_NOTRANS, cv->OC, (int)plane, cv->C, (real)1, weight, cv->C, x,
                  (int)plane, (real)1, o, (int)plane);
             continue;
         }
@@ -197,7 +197,7 @@ mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, con
             int rows = y0 + band <= OH ? band : OH - y0;
             int P = rows * OW;
             FN(im2col)(ws, x, cv, OW, y0, rows);
-            GEMM(CblasRowMajor, CblasNoTrans, CblasNoTrans, cv->OC, P, K, (real)1, weight, K, ws, P, (real)1,
+            GEMM(MLB_NOTRANS, MLB_NOTRANS, cv->OC, P, K, (real)1, weight, K, ws, P, (real)1,
                  o + (size_t)y0 * OW, (int)plane);
         }
     }
@@ -229,10 +229,10 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
         const real* d = dout + (size_t)n * out_n;
         if (FN(pointwise)(cv)) {
             if (din)   // din[C, HW] += weight^T[C, OC] . dout[OC, HW]
-                GEMM(CblasRowMajor, CblasTrans, CblasNoTrans, cv->C, (int)plane, cv->OC, (real)1, weight, cv->C, d,
+                GEMM(MLB_TRANS, MLB_NOTRANS, cv->C, (int)plane, cv->OC, (real)1, weight, cv->C, d,
                      (int)plane, (real)1, din + (size_t)n * in_n, (int)plane);
             if (dweight)   // dweight[OC, C] += dout[OC, HW] . in^T[HW, C]
-                GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, cv->OC, cv->C, (int)plane, (real)1, d, (int)plane,
+                GEMM(MLB_NOTRANS, MLB_TRANS, cv->OC, cv->C, (int)plane, (real)1, d, (int)plane,
                      in + (size_t)n * in_n, (int)plane, (real)1, dweight, cv->C);
             continue;
         }
@@ -243,11 +243,11 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
             const real* db = d + (size_t)y0 * OW;
             if (dweight) {   // dweight[OC, K] += dout_band[OC, P] . col^T[P, K]
                 FN(im2col)(ws, in + (size_t)n * in_n, cv, OW, y0, rows);
-                GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, cv->OC, K, P, (real)1, db, (int)plane, ws, P, (real)1,
+                GEMM(MLB_NOTRANS, MLB_TRANS, cv->OC, K, P, (real)1, db, (int)plane, ws, P, (real)1,
                      dweight, K);
             }
             if (din) {   // dcol[K, P] = weight^T[K, OC] . dout_band[OC, P], then scattered into din
-                GEMM(CblasRowMajor, CblasTrans, CblasNoTrans, K, P, cv->OC, (real)1, weight, K, db, (int)plane,
+                GEMM(MLB_TRANS, MLB_NOTRANS, K, P, cv->OC, (real)1, weight, K, db, (int)plane,
                      (real)0, ws, P);
                 FN(col2im_add)(din + (size_t)n * in_n, ws, cv, OW, y0, rows);
             }
@@ -466,7 +466,7 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
             for (int t0 = 0; t0 < Tq; t0 += (int)rows) {
                 int nr = t0 + (int)rows <= Tq ? (int)rows : Tq - t0;
                 const real* qb = q + ((size_t)b * Tq + t0) * ldq + (size_t)h * hd;
-                GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, S, Tk);
+                GEMM(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, S, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     real* p = S + (size_t)i * Tk;
@@ -478,7 +478,7 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
                     for (int s = 0; s < Tk; s++) p[s] *= inv;
                     if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = (real)((double)mx + log(sum));
                 }
-                GEMM(CblasRowMajor, CblasNoTrans, CblasNoTrans, nr, hd, Tk, (real)1, S, Tk, vb, ldkv, (real)0,
+                GEMM(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, S, Tk, vb, ldkv, (real)0,
                      out + ((size_t)b * Tq + t0) * C + (size_t)h * hd, C);
             }
         }
@@ -515,18 +515,18 @@ mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, con
                 const real* dob = dout + tok * C + (size_t)h * hd;
                 const real* ob = out + tok * C + (size_t)h * hd;
                 const real* lb = lse + ((size_t)b * NH + h) * Tq + t0;
-                GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
+                GEMM(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     real* p = P + (size_t)i * Tk;
                     for (int s = 0; s < Tk; s++) p[s] = R_EXP(p[s] - lb[i]);
                 }
                 if (dv)   // dv[Tk, hd] += P^T . dout_block
-                    GEMM(CblasRowMajor, CblasTrans, CblasNoTrans, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
+                    GEMM(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
                          dv + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
                 if (!dq && !dk) continue;
                 // dP = dout_block . v^T; dS = P * (dP - rowsum(dout * out)) * scale
-                GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, nr, Tk, hd, (real)1, dob, C, vb, ldkv, (real)0, dP, Tk);
+                GEMM(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, (real)1, dob, C, vb, ldkv, (real)0, dP, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     double di = 0;
@@ -539,10 +539,10 @@ mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, con
                     for (int s = 0; s < Tk; s++) g[s] = p[s] * (g[s] - dr) * scale;
                 }
                 if (dq)   // dq_block += dS . k
-                    GEMM(CblasRowMajor, CblasNoTrans, CblasNoTrans, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,
+                    GEMM(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,
                          dq + tok * ldq + (size_t)h * hd, ldq);
                 if (dk)   // dk += dS^T . q_block
-                    GEMM(CblasRowMajor, CblasTrans, CblasNoTrans, Tk, hd, nr, (real)1, dP, Tk, qb, ldq, (real)1,
+                    GEMM(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, dP, Tk, qb, ldq, (real)1,
                          dk + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
             }
         }

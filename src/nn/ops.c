@@ -37,7 +37,7 @@ void FN(linear_forward)(real* out, const real* in, const real* weight, const rea
     }
     // C == 0 is a valid empty product, but BLAS rejects lda = 0, so skip the call.
     if (C <= 0) return;
-    GEMM(CblasRowMajor, CblasNoTrans, CblasTrans, B, OC, C,
+    GEMM(MLB_NOTRANS, MLB_TRANS, B, OC, C,
          (real)1, in, C, weight, C, (real)1, out, OC);
 }
 
@@ -67,10 +67,10 @@ void FN(linear_backward)(real* din, real* dweight, real* dbias, const real* dout
     if (B <= 0 || OC <= 0) return;
     if (C > 0) {
         if (din)
-            GEMM(CblasRowMajor, CblasNoTrans, CblasNoTrans, B, C, OC,
+            GEMM(MLB_NOTRANS, MLB_NOTRANS, B, C, OC,
                  (real)1, dout, OC, weight, C, (real)1, din, C);
         if (dweight)
-            GEMM(CblasRowMajor, CblasTrans, CblasNoTrans, OC, C, B,
+            GEMM(MLB_TRANS, MLB_NOTRANS, OC, C, B,
                  (real)1, dout, OC, in, C, (real)1, dweight, C);
     }
     if (dbias) dbias_accumulate(dbias, dout, B, OC);

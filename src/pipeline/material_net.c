@@ -13,10 +13,10 @@
 #define Z_DIM MLB_LATENT_DIM
 #define STREAM_INIT_MLP 0x3A7
 #define EVAL_CHUNK 4096
-// The MLPs run over fixed shards of SHARD rows with single-threaded GEMMs, in parallel over the
-// shards: the shard boundaries, not the thread count, decide the arithmetic, so forward, backward
-// and eval are bitwise the same on any number of threads (OpenBLAS's own threading splits a GEMM
-// differently per thread count). EVAL_CHUNK is a multiple of SHARD, so eval matches forward.
+// The MLPs run over fixed shards of SHARD rows, in parallel over the shards (a shard's GEMMs run on
+// its own thread): the shard boundaries, not the thread count, decide the arithmetic, so forward,
+// backward and eval are bitwise the same on any number of threads. EVAL_CHUNK is a multiple of
+// SHARD, so eval matches forward.
 #define SHARD 1024
 
 // The BRDF auto-encoder's output map k = lo + (hi − lo)·s (brdf_ae.h) applied to sigmoid outputs s.
@@ -140,15 +140,13 @@ static void FN(mlp_forward_lean)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, c
 
 // The MLP over shards; returns the output [n, dims[L]] (the cache's last post).
 static const real* FN(mlp_forward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, const real* in, int n, int need_d1) {
-    int ns = (n + SHARD - 1) / SHARD, blas = openblas_get_num_threads();
-    openblas_set_num_threads(1);
+    int ns = (n + SHARD - 1) / SHARD;
 #pragma omp parallel for schedule(static) if (ns > 1)
     for (int sh = 0; sh < ns; sh++) {
         int start = sh * SHARD, B = n - start < SHARD ? n - start : SHARD;
         FN(mlb_mlp_cache) v = FN(cache_rows)(c, mlp, start, B);
         FN(mlp_forward_lean)(mlp, &v, in + (size_t)start * mlp->dims[0], B, need_d1);
     }
-    openblas_set_num_threads(blas);
     c->B = n;
     return c->post[mlp->n_layers - 1];
 }
@@ -173,9 +171,8 @@ static void FN(mlp_backward_input)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c,
 // unless frozen, dparams += the shards' gradients summed in shard order.
 static void FN(mlp_backward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* dparams, real* shard_grads,
                                      size_t n_mlp, real* din, const real* dout, const real* in, int n, int frozen) {
-    int ns = (n + SHARD - 1) / SHARD, blas = openblas_get_num_threads();
+    int ns = (n + SHARD - 1) / SHARD;
     int in_dim = mlp->dims[0], out_dim = mlp->dims[mlp->n_layers];
-    openblas_set_num_threads(1);
 #pragma omp parallel for schedule(static) if (ns > 1)
     for (int sh = 0; sh < ns; sh++) {
         int start = sh * SHARD, B = n - start < SHARD ? n - start : SHARD;
@@ -190,7 +187,6 @@ static void FN(mlp_backward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* 
             FN(mlp_backward)(mlp, &v, g, dx, dy, in + (size_t)start * in_dim, B);
         }
     }
-    openblas_set_num_threads(blas);
     if (frozen) return;
 #pragma omp parallel for schedule(static) if (n_mlp > 4096)
     for (size_t i = 0; i < n_mlp; i++) {

@@ -1,0 +1,123 @@
+// The one GEMM of the CPU code: C = alpha·op(A)·op(B) + beta·C (row-major), whose result does not
+// depend on the thread count, on any CPU and any BLAS build, by construction.
+//
+// Why: OpenBLAS splits a GEMM over its threads, and on some kernel families (Haswell, Zen) the
+// pieces round differently from the whole, so 1 and 2 threads gave different bits (issue 14). Here
+// the output is cut into shards whose boundaries depend on (M, N, K) only; each shard is one BLAS
+// call on one thread (OpenBLAS is kept single-threaded), and OpenMP threads take whole shards. The
+// threads change who computes a shard, never what it computes. A shard cut along K (the outputs are
+// too few to share) writes its partial product to scratch, and the partials are added in shard
+// order. Dual-compiled (float / double _f64) like ops.c.
+#include <stdint.h>
+#include <stdlib.h>
+#include <omp.h>
+#include "matlaber/nn.h"
+#include "core/real.h"
+
+#ifdef MLB_F64
+#define BLAS_GEMM cblas_dgemm
+#else
+#define BLAS_GEMM cblas_sgemm
+#endif
+
+// A shard is worth a thread hand-off above this many multiply-adds (~50 µs on one core).
+#define GEMM_SHARD_MIN_WORK ((int64_t)1 << 22)
+// At most this many shards (a power of two: an even split over 1, 2, 4, 8, 16 threads).
+#define GEMM_MAX_SHARDS 32
+// Shards cut along M or N are at least this wide (and a multiple of GEMM_ALIGN) so that each one's
+// repacking of the other operand stays a few percent of its work.
+#define GEMM_MIN_BLOCK 256
+#define GEMM_ALIGN 16
+// The K cut is used only while the partial products stay this small (values of M·N per shard).
+#define GEMM_MAX_PARTIAL ((int64_t)1 << 16)
+
+typedef enum { CUT_NONE, CUT_M, CUT_N, CUT_K } gemm_cut;
+
+// Shards for a shape: how to cut, the block length and the shard count. Shape only.
+static gemm_cut FN(gemm_plan)(int M, int N, int K, int* block, int* count) {
+    int64_t work = (int64_t)M * N * K;
+    int64_t want = work / GEMM_SHARD_MIN_WORK;
+    int shards = 1;
+    while (shards * 2 <= GEMM_MAX_SHARDS && shards * 2 <= want) shards *= 2;
+    *block = 0;
+    *count = 1;
+    if (shards < 2) return CUT_NONE;
+    // Cut the longer of M and N (the shard repacks the other operand once: the longer its own
+    // side, the smaller that share); K only when both are too short to share.
+    int along = M >= N ? M : N;
+    gemm_cut cut = M >= N ? CUT_M : CUT_N;
+    if (along < 2 * GEMM_MIN_BLOCK) {
+        if ((int64_t)M * N > GEMM_MAX_PARTIAL || K < 2 * GEMM_MIN_BLOCK) return CUT_NONE;
+        along = K;
+        cut = CUT_K;
+    }
+    while (shards > 1 && along / shards < GEMM_MIN_BLOCK) shards /= 2;
+    if (shards < 2) return CUT_NONE;
+    int b = (along + shards - 1) / shards;
+    b = (b + GEMM_ALIGN - 1) / GEMM_ALIGN * GEMM_ALIGN;
+    *block = b;
+    *count = (along + b - 1) / b;
+    return *count > 1 ? cut : CUT_NONE;
+}
+
+static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B,
+                          int ldb, real beta, real* C, int ldc) {
+    if (M <= 0 || N <= 0) return;
+    BLAS_GEMM(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
+              lda, B, ldb, beta, C, ldc);
+}
+
+void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B, int ldb,
+                  real beta, real* C, int ldc) {
+    if (M <= 0 || N <= 0) return;
+    // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. Only
+    // outside a parallel region, where no other thread is inside OpenBLAS.
+    if (!omp_in_parallel() && openblas_get_num_threads() != 1) openblas_set_num_threads(1);
+    if (K <= 0 || alpha == 0) {   // no product: C = beta·C (BLAS rejects lda = 0 for K = 0)
+        for (int i = 0; i < M; i++)
+            for (int j = 0; j < N; j++) C[(size_t)i * ldc + j] = beta == 0 ? (real)0 : beta * C[(size_t)i * ldc + j];
+        return;
+    }
+    int block, count;
+    gemm_cut cut = FN(gemm_plan)(M, N, K, &block, &count);
+    real* partial = NULL;
+    if (cut == CUT_K) {
+        partial = malloc(sizeof(real) * (size_t)count * M * N);
+        if (!partial) cut = CUT_NONE;   // a few hundred KB at most; never seen, and still thread-independent
+    }
+    if (cut == CUT_NONE) {
+        FN(blas_call)(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+        return;
+    }
+#pragma omp parallel for schedule(static)
+    for (int s = 0; s < count; s++) {
+        int lo = s * block;
+        if (cut == CUT_M) {
+            int m = M - lo < block ? M - lo : block;
+            const real* a = ta ? A + lo : A + (size_t)lo * lda;
+            FN(blas_call)(ta, tb, m, N, K, alpha, a, lda, B, ldb, beta, C + (size_t)lo * ldc, ldc);
+        } else if (cut == CUT_N) {
+            int n = N - lo < block ? N - lo : block;
+            const real* b = tb ? B + (size_t)lo * ldb : B + lo;
+            FN(blas_call)(ta, tb, M, n, K, alpha, A, lda, b, ldb, beta, C + lo, ldc);
+        } else {
+            int k = K - lo < block ? K - lo : block;
+            const real* a = ta ? A + (size_t)lo * lda : A + lo;
+            const real* b = tb ? B + lo : B + (size_t)lo * ldb;
+            FN(blas_call)(ta, tb, M, N, k, (real)1, a, lda, b, ldb, (real)0, partial + (size_t)s * M * N, N);
+        }
+    }
+    if (cut != CUT_K) return;
+    // C = beta·C + alpha·(P_0 + P_1 + ...), each element summed in shard order.
+    int64_t mn = (int64_t)M * N;
+#pragma omp parallel for schedule(static) if (mn * count >= 65536)
+    for (int i = 0; i < M; i++)
+        for (int j = 0; j < N; j++) {
+            size_t e = (size_t)i * N + j;
+            real sum = partial[e];
+            for (int s = 1; s < count; s++) sum += partial[(size_t)s * mn + e];
+            real* c = C + (size_t)i * ldc + j;
+            *c = beta == 0 ? alpha * sum : beta * *c + alpha * sum;
+        }
+    free(partial);
+}

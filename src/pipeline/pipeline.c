@@ -20,7 +20,7 @@
 // ---- optimiser state: one safetensors file per stage -----------------------------------------
 // "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken in the metadata. Exact floats, so
 // a resumed run continues bitwise from where the checkpoint was taken.
-mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
+static mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
                                const char* stage) {
     mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
                             {"adam_m", m, 1, {(int64_t)n}},
@@ -33,7 +33,7 @@ mlb_status pipeline_state_save(const char* path, float* params, float* m, float*
     return s;
 }
 
-mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
+static mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
                                const char* stage) {
     mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
                             {"adam_m", m, 1, {(int64_t)n}},
@@ -51,10 +51,8 @@ mlb_status pipeline_state_load(const char* path, float* params, float* m, float*
 }
 
 // ---- shared helpers ----------------------------------------------------------------------------
-void pipeline_path(char* out, size_t cap, const char* dir, const char* rel) { snprintf(out, cap, "%s/%s", dir, rel); }
-
 // The appearance stage's lights: the views' own environments (image guidance) or the config's pool.
-mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views) {
+static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views) {
     memset(sc, 0, sizeof *sc);
     mlb_envlight_options opt;
     memset(&opt, 0, sizeof opt);   // zero fields take the defaults
@@ -75,7 +73,7 @@ mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c,
     return s;
 }
 
-void pipeline_scene_free(pipeline_scene* sc) {
+static void pipeline_scene_free(pipeline_scene* sc) {
     for (int i = 0; i < sc->n_envs; i++) {
         mlb_envlight_free(&sc->lights[i]);
         mlb_envmap_free(&sc->maps[i]);

@@ -1,4 +1,5 @@
-// Shared between the pipeline's loop (pipeline.c) and its outputs (pipeline_output.c).
+// The pipeline's run state and its outputs (pipeline_output.c), used by the loop (pipeline.c). The
+// dependency goes one way: pipeline_output.c calls nothing in pipeline.c.
 #ifndef MATLABER_PIPELINE_INTERNAL_H
 #define MATLABER_PIPELINE_INTERNAL_H
 #include "matlaber/appearance.h"
@@ -37,15 +38,9 @@ typedef struct {
     mlb_pipeline_result result;
 } pipeline_run;
 
-void pipeline_path(char* out, size_t cap, const char* dir, const char* rel);
-mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
-                               const char* stage);
-mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
-                               const char* stage);
-mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views);
-void pipeline_scene_free(pipeline_scene* sc);
-
 // pipeline_output.c
+// out = dir/rel
+void pipeline_path(char* out, size_t cap, const char* dir, const char* rel);
 // The (stage, step) a resumed run restarts from, read from its checkpoints.
 mlb_status pipeline_resume_point(const char* dir, int* stage, long* step);
 // SDS with --fixed-env: environment 0, never rotated (image guidance keeps the targets' lights);

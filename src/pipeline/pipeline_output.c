@@ -13,6 +13,8 @@
 #include "matlaber/shade.h"
 #include "pipeline/pipeline_internal.h"
 
+void pipeline_path(char* out, size_t cap, const char* dir, const char* rel) { snprintf(out, cap, "%s/%s", dir, rel); }
+
 static long checkpoint_step(const char* path) {
     mlb_safetensors* st = NULL;
     if (mlb_st_open(&st, path)) return -1;

@@ -56,8 +56,10 @@ static void usage(FILE* out) {
 // Two settings that the OpenMP and OpenBLAS runtimes read only when they load, so the program
 // restarts itself once with them: OpenBLAS pointed at the kernels this CPU can run (see
 // mlb_blas_better_coretype), and OMP_WAIT_POLICY=passive, without which libgomp's idle threads
-// spin after every loop and take the cores OpenBLAS's GEMM threads need (the VAE ran 8-35x slower
-// on 2 cores; docs/vae.md). The user's own settings are kept.
+// spin after every loop. That took the cores OpenBLAS's own GEMM threads needed (the VAE ran 8-35x
+// slower on 2 cores; docs/vae.md); GEMMs now run on OpenMP threads (mlb_gemm) and no longer care
+// (docs/benchmarks.md), but passive still leaves idle cores to other processes. The user's own
+// settings are kept.
 static void choose_runtime_settings(char** argv) {
     if (getenv("MATLABER_REEXEC")) return;
     const char* core = mlb_blas_better_coretype();

@@ -1,5 +1,5 @@
 // Measuring a fitted asset against a known truth (the demo's report, docs/pipeline.md): geometry by
-// Chamfer distance (geometry.h), albedo by the PSNR of kd on the fitted surface, and relighting by
+// Chamfer distance (geometry.h) and the angle between normals, albedo by the PSNR of kd on the fitted surface, and relighting by
 // the PSNR of renders under an environment the fit never saw.
 #ifndef MATLABER_EVALUATE_H
 #define MATLABER_EVALUATE_H
@@ -22,6 +22,13 @@ typedef void (*mlb_brdf_truth_fn)(const float* pos, float k[7]);
 // underside of a foot, is not measured). psnr and rmse may be NULL.
 mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb_brdf_truth_fn truth, int n_views,
                            int res, double* psnr, double* rmse);
+
+// Mean angle (degrees) between the fit's and the truth's shading normals (vertex normals interpolated
+// and normalised; a mesh without normals gets area-weighted ones) over the pixels both cover, seen
+// from the albedo measure's n_views views at res × res. What the relit images show of a bumpy
+// surface that Chamfer, a distance, hardly sees. *covered (may be NULL): pixels measured.
+mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_views, int res, double* mean_deg,
+                            size_t* covered);
 
 // Renders truth (mesh + per-vertex BRDF [V,7]) and fit (the same for the fit) under `light` from
 // n_views orbit views (azimuths spread evenly from azimuth0_deg, elevations −15°, 20°, 50° in turn,

@@ -14,8 +14,8 @@
 // counter RNG (seed, stream 0x6F17, index it·views + v): the same on any thread count.
 // The step is split into a forward (renders every view, keeps the buffers) and a backward from
 // any image gradient (mlb_geofit_forward / _backward): the guided geometry stage drives it with a
-// guidance (mlb_geometry_guided_step). The network's GEMMs run on one OpenBLAS thread, so a step
-// is bitwise the same on any thread count.
+// guidance (mlb_geometry_guided_step). Every GEMM is mlb_gemm and every sum runs in a fixed
+// order, so a step is bitwise the same on any thread count.
 // The step functions exist in float (plain names) and double (_f64, for finite-difference tests).
 #ifndef MATLABER_GEOMETRY_FIT_H
 #define MATLABER_GEOMETRY_FIT_H

@@ -71,6 +71,86 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
     return s;
 }
 
+// Area-weighted vertex normals of m into nrm [V,3] (unnormalised sums of face cross products).
+static void area_normals(float* nrm, const mlb_mesh* m) {
+    memset(nrm, 0, sizeof(float) * 3 * (size_t)m->n_verts);
+    for (int f = 0; f < m->n_faces; f++) {
+        const int32_t* t = m->faces + 3 * (size_t)f;
+        const float *a = m->pos + 3 * (size_t)t[0], *b = m->pos + 3 * (size_t)t[1], *c = m->pos + 3 * (size_t)t[2];
+        float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+        for (int k = 0; k < 3; k++)
+            for (int j = 0; j < 3; j++) nrm[3 * (size_t)t[k] + j] += n[j];
+    }
+}
+
+// Per pixel of one view: the unit shading normal, or zeros where the mesh does not cover it.
+static mlb_status view_normals(mlb_raster_ctx* ctx, float* out, const mlb_mesh* m, const float* nrm,
+                               const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary, float* depth) {
+    size_t P = (size_t)res * res;
+    mlb_transform_points(clip, m->pos, m->n_verts, &cam->view_proj);
+    mlb_status s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, m->n_verts, m->faces, m->n_faces, res, res);
+    if (!s) s = mlb_interpolate(out, nrm, m->n_verts, 3, tri, bary, m->faces, m->n_faces, res, res);
+    for (size_t p = 0; !s && p < P; p++) {
+        float* n = out + 3 * p;
+        double len = sqrt((double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2]);
+        if (tri[p] < 0 || !(len > 0)) { n[0] = n[1] = n[2] = 0; continue; }
+        for (int c = 0; c < 3; c++) n[c] = (float)(n[c] / len);
+    }
+    return s;
+}
+
+mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_views, int res, double* mean_deg,
+                            size_t* covered) {
+    if (n_views < 1 || res < 8) return mlb_fail(MLB_ERR_ARG, "normal evaluation: %d views at %d px", n_views, res);
+    const mlb_mesh* meshes[2] = {truth, fit};
+    size_t P = (size_t)res * res, vmax = 0;
+    for (int i = 0; i < 2; i++)
+        if ((size_t)meshes[i]->n_verts > vmax) vmax = (size_t)meshes[i]->n_verts;
+    float* own[2] = {NULL, NULL};
+    const float* nrm[2];
+    float* clip = malloc(sizeof(float) * 4 * vmax);
+    int32_t* tri = malloc(sizeof(int32_t) * P);
+    float* bary = malloc(sizeof(float) * 2 * P);
+    float* depth = malloc(sizeof(float) * P);
+    float* n2 = malloc(sizeof(float) * 6 * P);
+    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
+    mlb_status s = (clip && tri && bary && depth && n2 && ctx) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "normal evaluation: out of memory");
+    for (int i = 0; !s && i < 2; i++) {
+        nrm[i] = meshes[i]->normal;
+        if (nrm[i]) continue;
+        if (!(own[i] = malloc(sizeof(float) * 3 * (size_t)meshes[i]->n_verts))) {
+            s = mlb_fail(MLB_ERR_NOMEM, "normal evaluation: out of memory");
+            break;
+        }
+        area_normals(own[i], meshes[i]);
+        nrm[i] = own[i];
+    }
+    double sum = 0;
+    size_t count = 0;
+    for (int v = 0; !s && v < n_views; v++) {
+        mlb_camera cam;
+        s = mlb_camera_orbit(&cam, 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
+        for (int i = 0; !s && i < 2; i++)
+            s = view_normals(ctx, n2 + 3 * P * i, meshes[i], nrm[i], &cam, res, clip, tri, bary, depth);
+        for (size_t p = 0; !s && p < P; p++) {
+            const float *a = n2 + 3 * p, *b = n2 + 3 * (P + p);
+            double la = (double)a[0] * a[0] + (double)a[1] * a[1] + (double)a[2] * a[2];
+            double lb = (double)b[0] * b[0] + (double)b[1] * b[1] + (double)b[2] * b[2];
+            if (la == 0 || lb == 0) continue;
+            double d = ((double)a[0] * b[0] + (double)a[1] * b[1] + (double)a[2] * b[2]) / sqrt(la * lb);
+            sum += acos(d > 1 ? 1 : d < -1 ? -1 : d) * (180.0 / M_PI);
+            count++;
+        }
+    }
+    if (!s && count == 0) s = mlb_fail(MLB_ERR_ARG, "normal evaluation: no pixel is covered by both meshes");
+    if (!s && mean_deg) *mean_deg = sum / (double)count;
+    if (!s && covered) *covered = count;
+    mlb_raster_ctx_free(ctx);
+    free(own[0]); free(own[1]); free(clip); free(tri); free(bary); free(depth); free(n2);
+    return s;
+}
+
 static void to_srgb_rgb(float* rgb, const float* rgba, size_t pixels) {
     for (size_t i = 0; i < pixels; i++) {
         for (int c = 0; c < 3; c++) {

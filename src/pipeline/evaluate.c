@@ -71,19 +71,6 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
     return s;
 }
 
-// Area-weighted vertex normals of m into nrm [V,3] (unnormalised sums of face cross products).
-static void area_normals(float* nrm, const mlb_mesh* m) {
-    memset(nrm, 0, sizeof(float) * 3 * (size_t)m->n_verts);
-    for (int f = 0; f < m->n_faces; f++) {
-        const int32_t* t = m->faces + 3 * (size_t)f;
-        const float *a = m->pos + 3 * (size_t)t[0], *b = m->pos + 3 * (size_t)t[1], *c = m->pos + 3 * (size_t)t[2];
-        float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
-        for (int k = 0; k < 3; k++)
-            for (int j = 0; j < 3; j++) nrm[3 * (size_t)t[k] + j] += n[j];
-    }
-}
-
 // Per pixel of one view: the unit shading normal, or zeros where the mesh does not cover it.
 static mlb_status view_normals(mlb_raster_ctx* ctx, float* out, const mlb_mesh* m, const float* nrm,
                                const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary, float* depth) {
@@ -107,8 +94,8 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
     size_t P = (size_t)res * res, vmax = 0;
     for (int i = 0; i < 2; i++)
         if ((size_t)meshes[i]->n_verts > vmax) vmax = (size_t)meshes[i]->n_verts;
-    float* own[2] = {NULL, NULL};
-    const float* nrm[2];
+    float* own[2] = {NULL, NULL};   // area-weighted normals of a mesh that has none
+    const float* nrm[2] = {NULL, NULL};
     float* clip = malloc(sizeof(float) * 4 * vmax);
     int32_t* tri = malloc(sizeof(int32_t) * P);
     float* bary = malloc(sizeof(float) * 2 * P);
@@ -119,12 +106,10 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
     for (int i = 0; !s && i < 2; i++) {
         nrm[i] = meshes[i]->normal;
         if (nrm[i]) continue;
-        if (!(own[i] = malloc(sizeof(float) * 3 * (size_t)meshes[i]->n_verts))) {
-            s = mlb_fail(MLB_ERR_NOMEM, "normal evaluation: out of memory");
-            break;
-        }
-        area_normals(own[i], meshes[i]);
-        nrm[i] = own[i];
+        mlb_mesh view = *meshes[i];   // shares pos and faces; gets normals of its own
+        view.normal = NULL;
+        s = mlb_mesh_compute_normals(&view);
+        nrm[i] = own[i] = view.normal;
     }
     double sum = 0;
     size_t count = 0;

@@ -2,9 +2,10 @@
 # The thread-count independence of the results must not rest on the BLAS kernels this machine
 # happens to pick (issue 14: Haswell kernels on an AMD EPYC broke it). This runs the test programs
 # that compare 1, 2 (and 3) threads bitwise again under every OpenBLAS kernel family this CPU can
-# execute, forced through $OPENBLAS_CORETYPE. Usage: blas_kernels.sh TESTS_DIR
+# execute, forced through $OPENBLAS_CORETYPE. Usage: blas_kernels.sh TESTS_DIR [quick]
+# (quick: only the GEMM-level programs, for the sanitizer build, which runs every program anyway).
 set -uo pipefail
-dir=${1:?usage: blas_kernels.sh TESTS_DIR}
+dir=${1:?usage: blas_kernels.sh TESTS_DIR [quick]}
 flags=$(grep -m1 '^flags' /proc/cpuinfo 2>/dev/null || true)
 if [ -z "$flags" ] || [ "$(uname -m)" != x86_64 ]; then echo "skip: not an x86-64 Linux machine"; exit 77; fi
 has() { for f in "$@"; do [[ " ${flags#*:} " == *" $f "* ]] || return 1; done; }
@@ -14,6 +15,7 @@ has avx2 fma && families+=(Haswell Zen)
 has avx512f avx512bw avx512vl avx512dq avx512cd && families+=(SkylakeX)
 has avx512f avx512bw avx512vl avx512dq avx512cd avx512_bf16 && families+=(Cooperlake)
 programs=(test_gemm test_ops test_conv_ops test_sd_tiny test_vae test_appearance test_hashgrid)
+[ "${2:-}" = quick ] && programs=(test_gemm test_ops test_conv_ops)
 
 fail=0 pass=0
 for fam in "${families[@]}"; do

@@ -58,6 +58,10 @@ if [ -d "$R" ]; then
   [ -s "$T/g/final/mesh.obj" ] && ok "generate wrote the asset" || bad "generate: no asset"
   [ -s "$T/g/previews/geometry_000001.png" ] && ok "geometry preview" || bad "no geometry preview"
   grep -q '"prompt":[[:space:]]*"a golden goblet"' "$T/g/config.json" && ok "config records the prompt" || bad "config lacks the prompt"
+  grep -q '"view_prompts":[[:space:]]*1' "$T/g/config.json" && ok "view prompts on by default" || bad "config: view_prompts not 1"
+  expect 0 "generate --no-view-prompts, stopped after its first step" -- $Q generate -p "a golden goblet" -m "$R" \
+    --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 2 --no-view-prompts --stop-after 1 -o "$T/g2"
+  grep -q '"view_prompts":[[:space:]]*0' "$T/g2/config.json" && ok "--no-view-prompts recorded" || bad "config: view_prompts not 0"
 else
   echo "skip: no shared sd_reference fixture for generate"
 fi

@@ -272,11 +272,13 @@ TEST(sds_guidance_matches_direct_step) {
         CHECK(memcmp(&w, &views[v], sizeof w) == 0);
         CHECK(views[v].env >= 0 && views[v].env < 2);
     }
-    // fixed azimuths: front, side, back prompts
+    // fixed azimuths and elevations: front, side, back prompts (the third view overhead in phase 1)
     views[0].azimuth_deg = 10;
     views[1].azimuth_deg = -100;
     views[2].azimuth_deg = 170;
-    const int vids[3] = {MLB_SDS_VIEW_FRONT, MLB_SDS_VIEW_SIDE, MLB_SDS_VIEW_BACK};
+    views[0].elevation_deg = 30;
+    views[1].elevation_deg = -5;
+    int vids[3] = {MLB_SDS_VIEW_FRONT, MLB_SDS_VIEW_SIDE, MLB_SDS_VIEW_BACK};
     const int wrong[3] = {MLB_SDS_VIEW_BACK, MLB_SDS_VIEW_SIDE, MLB_SDS_VIEW_FRONT};
 
     // [n, 128, 128, 4] for the latent phase, [n, 64, 64, 4] for the VAE phases: masks in [0, 1],
@@ -301,6 +303,8 @@ TEST(sds_guidance_matches_direct_step) {
             }
             img[4 * i + 3] = m;
         }
+        views[2].elevation_deg = k == 1 ? 70 : 40;
+        vids[2] = k == 1 ? MLB_SDS_VIEW_OVERHEAD : MLB_SDS_VIEW_BACK;
         double loss = -1, loss2 = -1;
         float want_loss = -2, wrong_loss = -3;
         REQUIRE(g->loss(g, ph[k].stage, ph[k].step, views, n, img, H, H, dg, &loss) == MLB_OK);
@@ -338,6 +342,27 @@ TEST(sds_guidance_matches_direct_step) {
     CHECK(g->loss(g, MLB_STAGE_APPEARANCE, 0, views, 65, img, 40, 40, NULL, &l) == MLB_ERR_ARG);
     free(img);
     mlb_guidance_free(g);
+    // view prompts off: every view gets the plain prompt's embedding (view NONE), whatever its camera
+    {
+        mlb_guidance_sds_config plain = c;
+        plain.view_prompts = 0;
+        REQUIRE(mlb_guidance_sds_create_from(make_sds(&f, 0, NULL), make_sds(&f, 1, NULL), &plain, &g) == MLB_OK);
+        const int H = 64, none[3] = {MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE};
+        size_t N = (size_t)3 * H * H * 4;
+        float *im = malloc(N * 4), *dg = calloc(N, 4), *dd = malloc(N * 4);
+        REQUIRE(im && dg && dd);
+        for (size_t i = 0; i < N; i++) im[i] = (i & 3) == 3 ? 1.0f : mlb_rng_uniform(8, 40, i);
+        double loss = -1;
+        float want = -2;
+        REQUIRE(g->loss(g, MLB_STAGE_APPEARANCE, 5, views, 3, im, H, H, dg, &loss) == MLB_OK);
+        REQUIRE(direct(&f, &plain, MLB_STAGE_APPEARANCE, 0, 5, none, im, 3, H, dd, &want));
+        CHECK(max_rel_diff(dg, dd, N) <= 1e-6);
+        CHECK_CLOSE(loss, want, 1e-6, 0);
+        REQUIRE(direct(&f, &plain, MLB_STAGE_APPEARANCE, 0, 5, vids, im, 3, H, dd, &want));
+        CHECK(max_rel_diff(dg, dd, N) > 1e-3);   // the view prompts would have differed
+        free(im); free(dg); free(dd);
+        mlb_guidance_free(g);
+    }
     mlb_guidance_sds_config bad = c;
     bad.views = 0;
     g = (mlb_guidance*)1;

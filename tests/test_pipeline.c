@@ -74,6 +74,26 @@ TEST(config_round_trip_and_errors) {
     REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
     CHECK(mlb_pipeline_config_load(&back, path) != MLB_OK);
     CHECK(strstr(mlb_last_error(), "\"res\"") != NULL);
+    // a run written before "view_prompts" existed loads with them on (what it ran with); a saved 0
+    // comes back as 0; anything else is refused
+    mlb_pipeline_config off = c;
+    off.view_prompts = 0;
+    REQUIRE(mlb_pipeline_config_save(&off, path) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.view_prompts == 0);
+    free(text);
+    text = NULL;
+    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
+    char* vp = strstr(text, "\"view_prompts\":\t0");
+    REQUIRE(vp);
+    memcpy(vp, "\"view_prompts\":\t7", 17);
+    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
+    CHECK(mlb_pipeline_config_load(&back, path) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "view_prompts") != NULL);
+    memcpy(vp, "\"view_prompt_\":\t0", 17);   // the key gone (renamed to one the loader ignores)
+    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.view_prompts == 1);
     free(text);
     mlb_clear_error();
 }

@@ -70,6 +70,19 @@ TEST(weights_and_views) {
     CHECK(mlb_sds_view_for_azimuth(90) == MLB_SDS_VIEW_SIDE && mlb_sds_view_for_azimuth(-100) == MLB_SDS_VIEW_SIDE);
     CHECK(mlb_sds_view_for_azimuth(180) == MLB_SDS_VIEW_BACK && mlb_sds_view_for_azimuth(-150) == MLB_SDS_VIEW_BACK);
     CHECK(mlb_sds_view_for_azimuth(370) == MLB_SDS_VIEW_FRONT);
+    // every range and its boundaries: front |az| <= 45, back |az| >= 135, side between; overhead
+    // above 60 degrees of elevation whatever the azimuth
+    const struct { double az, el; int want; } cases[] = {
+        {45, 0, MLB_SDS_VIEW_FRONT}, {45.001, 0, MLB_SDS_VIEW_SIDE}, {-45, 30, MLB_SDS_VIEW_FRONT},
+        {-45.001, 30, MLB_SDS_VIEW_SIDE}, {134.999, -10, MLB_SDS_VIEW_SIDE}, {135, -10, MLB_SDS_VIEW_BACK},
+        {-135, 20, MLB_SDS_VIEW_BACK}, {-134.999, 20, MLB_SDS_VIEW_SIDE}, {180, 45, MLB_SDS_VIEW_BACK},
+        {10, 60, MLB_SDS_VIEW_FRONT}, {10, 60.001, MLB_SDS_VIEW_OVERHEAD}, {180, 89, MLB_SDS_VIEW_OVERHEAD},
+        {-90, 75, MLB_SDS_VIEW_OVERHEAD}, {-90, -75, MLB_SDS_VIEW_SIDE}, {720 + 30, 0, MLB_SDS_VIEW_FRONT}};
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        CHECK_MSG(mlb_sds_view_for(cases[i].az, cases[i].el) == cases[i].want, "azimuth %g, elevation %g: %d, want %d",
+                  cases[i].az, cases[i].el, mlb_sds_view_for(cases[i].az, cases[i].el), cases[i].want);
+    CHECK(!strcmp(mlb_sds_view_suffix(MLB_SDS_VIEW_OVERHEAD), ", overhead view"));
+    CHECK(!strcmp(mlb_sds_view_suffix(MLB_SDS_VIEW_NONE), "") && !strcmp(mlb_sds_view_suffix(99), ""));
     mlb_sds_weighting w;
     CHECK(mlb_sds_weighting_parse("fantasia1", &w) == MLB_OK && w == MLB_SDS_W_FANTASIA1);
     CHECK(mlb_sds_weighting_parse("bogus", &w) == MLB_ERR_ARG && strstr(mlb_last_error(), "bogus"));
@@ -214,6 +227,30 @@ TEST(sds_sampling_and_latent_input) {
     in.step = 6;
     REQUIRE(mlb_sds_step(s, &in, NULL, &l2, &tr) == MLB_OK);
     CHECK(l2 != l1);
+    // each view's embedding is the suffixed prompt's: the same step through an SDS object holding
+    // only "a golden goblet, <view> view" as its plain prompt gives the same bits
+    float* emb = malloc(sizeof(float) * MLB_CLIP_CONTEXT * (size_t)mlb_sd_model_context_width(m));
+    float *ga = calloc(n, 4), *gb = calloc(n, 4);
+    REQUIRE(emb && ga && gb);
+    for (int v = MLB_SDS_VIEW_FRONT; v < MLB_SDS_N_VIEWS; v++) {
+        char text[128];
+        snprintf(text, sizeof text, "a golden goblet%s", mlb_sds_view_suffix(v));
+        mlb_sds* one = NULL;
+        REQUIRE(mlb_sds_create(m->unet, m->vae, m->scaling_factor, m->alphas_cumprod, m->v_prediction, &o, &one) == MLB_OK);
+        REQUIRE(mlb_sd_model_encode_prompt(m, text, emb) == MLB_OK);
+        REQUIRE(mlb_sds_set_cond(one, MLB_SDS_VIEW_NONE, emb, MLB_CLIP_CONTEXT) == MLB_OK);
+        REQUIRE(mlb_sd_model_encode_prompt(m, "low quality", emb) == MLB_OK);
+        REQUIRE(mlb_sds_set_uncond(one, emb, MLB_CLIP_CONTEXT) == MLB_OK);
+        int vv[3] = {v, v, v}, nn[3] = {MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE};
+        mlb_sds_input a = {z, B, 4, h, h, vv, 5, NULL, NULL}, b = {z, B, 4, h, h, nn, 5, NULL, NULL};
+        memset(ga, 0, n * 4);
+        memset(gb, 0, n * 4);
+        REQUIRE(mlb_sds_step(s, &a, ga, NULL, NULL) == MLB_OK);
+        REQUIRE(mlb_sds_step(one, &b, gb, NULL, NULL) == MLB_OK);
+        CHECK_MSG(memcmp(ga, gb, n * 4) == 0, "view %d: not the embedding of \"%s\"", v, text);
+        mlb_sds_free(one);
+    }
+    free(emb); free(ga); free(gb);
     // errors
     in.C = 5;
     CHECK(mlb_sds_step(s, &in, NULL, NULL, NULL) == MLB_ERR_ARG && strstr(mlb_last_error(), "channels"));

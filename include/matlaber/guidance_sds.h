@@ -7,7 +7,8 @@
 //   geometry, later: the normal map as a colour, (normal + 1)/2 composited over black =
 //       (normal·mask + mask)/2 → [n, 3, H, W] → VAE encoder → SDS (geometry_opt's weighting);
 //   appearance: channels 0..2 (sRGB premultiplied, over black) → [n, 3, H, W] → VAE → SDS.
-// Prompts: "<prompt>, front / side / back view" by each view's azimuth (mlb_sds_view_for_azimuth);
+// Prompts (view_prompts, default on): "<prompt>, front / side / back / overhead view" by each view's
+// azimuth and elevation (mlb_sds_view_for), one embedding per direction; off: the plain prompt;
 // unconditional embedding = the stage's negative prompt. The SDS noise / t seed is
 // seed·2 + stage (geometry 0, appearance 1) and the step. dimages += ∂loss/∂images (channels-last);
 // loss = the SDS loss (0.5 Σ grad² / n).
@@ -28,6 +29,7 @@ typedef struct {
     const char* negative_appearance;   // "shadow, oversaturated, low quality, unrealistic"
     int views;                         // views per step, 9
     int latent_iters;                  // geometry steps fed as 64² [normal, mask] latents, 1000
+    int view_prompts;                  // 1: the prompt's view-dependent variants (default); 0: plain
     mlb_sds_options geometry_opt;      // scale 100, t 20..500, weighting fantasia0 (its seed is ignored)
     mlb_sds_options appearance_opt;    // scale 100, t 20..980, weighting fantasia0 (its seed is ignored)
     mlb_orbit_config orbit;            // mlb_orbit_default()

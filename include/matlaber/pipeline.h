@@ -29,6 +29,7 @@ typedef struct {
     char views_dir[MLB_PIPELINE_PATH];  // images: the views folder (docs/views.md)
     double guidance_scale;        // sds: 100
     int latent_iters;             // sds geometry: steps fed as 64² [normal, mask] latents (default: iters / 3)
+    int view_prompts;             // sds: ", front view" etc. by the camera (1, default); 0: one prompt
     uint64_t seed;                // 0
     int views;                    // views per step: 9
     int res;                      // render size: 512

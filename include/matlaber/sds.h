@@ -13,7 +13,8 @@
 //
 // Weights: DreamFusion 1 - ac_t; Fantasia3D strategy 0: sqrt(ac_t) (1 - ac_t), strategy 1:
 // 1 / (1 - ac_t), strategy 2: 0 while step < coarse_iter, then 1.
-// View-dependent prompts: "<prompt>, front view" / "side view" / "back view" (mlb_sds_view_for_azimuth).
+// View-dependent prompts: "<prompt>, front view" / "side view" / "back view" / "overhead view"
+// (mlb_sds_view_for).
 #ifndef MATLABER_SDS_H
 #define MATLABER_SDS_H
 #include <stdint.h>
@@ -27,7 +28,10 @@ typedef enum {
     MLB_SDS_W_FANTASIA2,         // 0 before coarse_iter, 1 after
 } mlb_sds_weighting;
 
-enum { MLB_SDS_VIEW_NONE = 0, MLB_SDS_VIEW_FRONT, MLB_SDS_VIEW_SIDE, MLB_SDS_VIEW_BACK, MLB_SDS_N_VIEWS };
+enum { MLB_SDS_VIEW_NONE = 0, MLB_SDS_VIEW_FRONT, MLB_SDS_VIEW_SIDE, MLB_SDS_VIEW_BACK, MLB_SDS_VIEW_OVERHEAD,
+       MLB_SDS_N_VIEWS };
+// Above this elevation (degrees) a view is "overhead" whatever its azimuth (threestudio's 60°).
+#define MLB_SDS_OVERHEAD_ELEVATION 60.0
 #define MLB_SDS_MAX_BATCH 64
 
 typedef struct {
@@ -45,6 +49,10 @@ mlb_status mlb_sds_weighting_parse(const char* name, mlb_sds_weighting* out);
 float mlb_sds_weight(mlb_sds_weighting w, float ac, long step, long coarse_iter);
 // front within +-45 deg of azimuth 0, back beyond +-135 deg, else side (degrees, any range).
 int mlb_sds_view_for_azimuth(double azimuth_deg);
+// The same, but overhead above MLB_SDS_OVERHEAD_ELEVATION (elevation in degrees, 90 = from above).
+int mlb_sds_view_for(double azimuth_deg, double elevation_deg);
+// The prompt suffix of a view: "", ", front view", ", side view", ", back view", ", overhead view".
+const char* mlb_sds_view_suffix(int view);
 
 typedef struct mlb_sds mlb_sds;
 
@@ -53,7 +61,7 @@ typedef struct mlb_sds mlb_sds;
 mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scaling_factor, const float* alphas_cumprod,
                           int v_prediction, const mlb_sds_options* opt, mlb_sds** out);
 // From a loaded model: encodes `prompt` (cond) and `negative` (uncond; NULL or "" = the empty
-// prompt) and, when view_dependent, "<prompt>, front view" etc. The model's text encoder may be
+// prompt) and, when view_dependent, "<prompt>, front view" etc. (every mlb_sds_view_suffix). The model's text encoder may be
 // dropped afterwards (mlb_sd_model_drop_text); UNet and VAE stay borrowed.
 mlb_status mlb_sds_create_from_model(const mlb_sd_model* m, const char* prompt, const char* negative, int view_dependent,
                                      const mlb_sds_options* opt, mlb_sds** out);

@@ -59,6 +59,16 @@ int mlb_sds_view_for_azimuth(double az) {
     return MLB_SDS_VIEW_SIDE;
 }
 
+int mlb_sds_view_for(double az, double el) {
+    return el > MLB_SDS_OVERHEAD_ELEVATION ? MLB_SDS_VIEW_OVERHEAD : mlb_sds_view_for_azimuth(az);
+}
+
+const char* mlb_sds_view_suffix(int view) {
+    static const char* const suffix[MLB_SDS_N_VIEWS] = {"", ", front view", ", side view", ", back view",
+                                                        ", overhead view"};
+    return view >= 0 && view < MLB_SDS_N_VIEWS ? suffix[view] : "";
+}
+
 mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scaling_factor, const float* ac, int v_prediction,
                           const mlb_sds_options* opt, mlb_sds** out) {
     if (!out || !unet || !ac) return mlb_fail(MLB_ERR_ARG, "mlb_sds_create: NULL argument");
@@ -123,9 +133,8 @@ mlb_status mlb_sds_create_from_model(const mlb_sd_model* m, const char* prompt, 
     char* text = malloc(strlen(prompt) + 32);
     mlb_status st = MLB_OK;
     if (!emb || !text) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory"); goto done; }
-    static const char* const suffix[MLB_SDS_N_VIEWS] = {"", ", front view", ", side view", ", back view"};
     for (int v = 0; v < (view_dependent ? MLB_SDS_N_VIEWS : 1); v++) {
-        sprintf(text, "%s%s", prompt, suffix[v]);
+        sprintf(text, "%s%s", prompt, mlb_sds_view_suffix(v));
         if ((st = mlb_sd_model_encode_prompt(m, text, emb)) != MLB_OK) goto done;
         if ((st = mlb_sds_set_cond(s, v, emb, MLB_CLIP_CONTEXT)) != MLB_OK) goto done;
     }

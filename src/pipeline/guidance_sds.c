@@ -22,6 +22,7 @@ mlb_guidance_sds_config mlb_guidance_sds_default(void) {
     c.negative_appearance = "shadow, oversaturated, low quality, unrealistic";
     c.views = 9;
     c.latent_iters = 1000;
+    c.view_prompts = 1;
     c.geometry_opt = mlb_sds_default_options();
     c.geometry_opt.t_min = 20;
     c.geometry_opt.t_max = 500;
@@ -96,7 +97,8 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
         if (!s->cap) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory (%d views of %dx%d)", n, W, H);
     }
     int vids[MLB_SDS_MAX_BATCH];
-    for (int b = 0; b < n; b++) vids[b] = mlb_sds_view_for_azimuth(views[b].azimuth_deg);
+    for (int b = 0; b < n; b++)
+        vids[b] = s->c.view_prompts ? mlb_sds_view_for(views[b].azimuth_deg, views[b].elevation_deg) : MLB_SDS_VIEW_NONE;
     // images [n, H, W, 4] → x [n, C, h, w]
     if (latent) mlb_area_resize_nhwc_to_nchw(s->x, images, n, H, W, 4, L, L);
     else
@@ -209,8 +211,9 @@ mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance
     if (!c->prompt || !c->prompt[0]) return mlb_fail(MLB_ERR_ARG, "SDS guidance: no prompt");
     MLB_TRY(check_config(c));
     mlb_sds *geo = NULL, *app = NULL;
-    mlb_status st = mlb_sds_create_from_model(model, c->prompt, c->negative_geometry, 1, &c->geometry_opt, &geo);
-    if (!st) st = mlb_sds_create_from_model(model, c->prompt, c->negative_appearance, 1, &c->appearance_opt, &app);
+    int vp = c->view_prompts != 0;
+    mlb_status st = mlb_sds_create_from_model(model, c->prompt, c->negative_geometry, vp, &c->geometry_opt, &geo);
+    if (!st) st = mlb_sds_create_from_model(model, c->prompt, c->negative_appearance, vp, &c->appearance_opt, &app);
     if (st) {
         mlb_sds_free(geo);
         mlb_sds_free(app);

@@ -13,6 +13,7 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     snprintf(c.guidance, sizeof c.guidance, "sds");
     c.guidance_scale = 100.0;
     c.latent_iters = -1;   // → geometry_iters / 3
+    c.view_prompts = 1;
     c.seed = 0;
     c.views = 9;
     c.res = 512;
@@ -66,6 +67,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "cube size must be a power of two in 64..1024";
     else if (c->checkpoint_every < 1) bad = "checkpoint interval must be >= 1";
     else if (c->preview_every < 0) bad = "preview interval must be >= 0";
+    else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
     if (bad) return mlb_fail(MLB_ERR_ARG, "pipeline config: %s", bad);
@@ -77,8 +79,12 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
 // ---- config.json -------------------------------------------------------------------------------
 // One table drives both directions so that a field cannot be saved and forgotten on load.
 typedef enum { F_STR, F_INT, F_LONG_U64, F_DOUBLE, F_MATERIAL } field_kind;
-typedef struct { const char* key; field_kind kind; size_t offset; size_t size; } field;
-#define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member)}
+// optional: a key added after runs were already written; missing, it keeps the default, which is
+// what the program did before the key existed (so an old run resumes as it started).
+typedef struct { const char* key; field_kind kind; size_t offset; size_t size; int optional; } field;
+#define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 0}
+#define FLD_OPT(k, kind, member) \
+    {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 1}
 static const field FIELDS[] = {
     FLD("guidance", F_STR, guidance),           FLD("prompt", F_STR, prompt),
     FLD("negative", F_STR, negative),           FLD("model", F_STR, model),
@@ -95,8 +101,10 @@ static const field FIELDS[] = {
     FLD("fixed_env", F_INT, fixed_env),         FLD("env_height", F_INT, env_height),
     FLD("cube_size", F_INT, cube_size),         FLD("checkpoint_every", F_INT, checkpoint_every),
     FLD("preview_every", F_INT, preview_every),
+    FLD_OPT("view_prompts", F_INT, view_prompts),   // added 2026-11-25; before: always on
 };
 #undef FLD
+#undef FLD_OPT
 #define N_FIELDS (sizeof FIELDS / sizeof *FIELDS)
 
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
@@ -151,6 +159,7 @@ mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) 
         const field* f = &FIELDS[i];
         const cJSON* it = cJSON_GetObjectItemCaseSensitive(root, f->key);
         char* p = (char*)&c + f->offset;
+        if (!it && f->optional) continue;
         if (!it) { s = mlb_fail(MLB_ERR_FORMAT, "%s: missing \"%s\"", path, f->key); break; }
         int want_string = f->kind == F_STR || f->kind == F_LONG_U64 || f->kind == F_MATERIAL;
         if (want_string ? !cJSON_IsString(it) : !cJSON_IsNumber(it)) {

@@ -25,6 +25,7 @@ static const cli_option options[] = {
     {"env", 1, 'e', "NAME|FILE", "generate: the environment pool (repeat or comma-separate; default sky,studio,overcast);\n"
                                  "                           fit: the light of views that name none (default sky)"},
     {"fixed-env", 0, 'F', NULL, "generate: the first environment only, never rotated (Fantasia3D's setting)"},
+    {"no-view-prompts", 0, 'W', NULL, "generate: one prompt for every view (default: \", front view\" etc. by the camera)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
@@ -104,6 +105,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         case 'l': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--appearance-lr: expected a positive number"); c.appearance_lr = x; break;
         case 'e': if (add_envs(&c, optarg, &env_reset)) return cli_usage_error(command, "--env: at most %d environments", MLB_PIPELINE_MAX_ENVS); break;
         case 'F': c.fixed_env = 1; break;
+        case 'W': c.view_prompts = 0; break;
         case 'M':
             if (mlb_material_mode_parse(optarg, &c.material)) return cli_usage_error(command, "--material: expected latent or direct");
             break;

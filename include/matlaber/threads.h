@@ -1,4 +1,4 @@
-// Thread count of the CPU code: OpenMP loops and OpenBLAS's own threads together.
+// Thread count of the CPU code: OpenMP threads (OpenBLAS stays on one; every GEMM is mlb_gemm).
 #ifndef MATLABER_THREADS_H
 #define MATLABER_THREADS_H
 void mlb_set_threads(int n);   // n >= 1

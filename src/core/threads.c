@@ -6,7 +6,6 @@
 #include <cblas.h>
 #include <omp.h>
 #include <stdlib.h>
-#include <string.h>
 
 void mlb_set_threads(int n) {
     if (n < 1) n = 1;

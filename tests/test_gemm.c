@@ -13,15 +13,16 @@
 
 #define SEED 20261125u
 
-typedef struct { int M, N, K; const char* what; } shape;
-// Work above 2^23 multiply-adds gets at least two shards (GEMM_SHARD_MIN_WORK in gemm.c).
+typedef struct { int M, N, K; char along; const char* what; } shape;
+// Work above 2^23 multiply-adds gets at least two shards (GEMM_SHARD_MIN_WORK in gemm.c); `along`
+// is checked against mlb_gemm_shards, so a change of the plan cannot leave a cut untested.
 static const shape shapes[] = {
-    {7, 5, 3, "tiny (one call)"},
-    {1000, 96, 300, "cut along M"},
-    {60, 1500, 300, "cut along N"},
-    {32, 48, 24000, "cut along K"},
-    {517, 259, 333, "odd sizes, cut along M"},
-    {33, 31, 9000, "odd sizes, cut along K"},
+    {7, 5, 3, '-', "tiny (one call)"},
+    {1000, 96, 300, 'M', "cut along M"},
+    {60, 1500, 300, 'N', "cut along N"},
+    {32, 48, 24000, 'K', "cut along K"},
+    {517, 259, 333, 'M', "odd sizes, cut along M"},
+    {33, 31, 9000, 'K', "odd sizes, cut along K"},
 };
 #define N_SHAPES (sizeof shapes / sizeof shapes[0])
 
@@ -104,6 +105,13 @@ static void run_case(const shape* s, int ta, int tb, double alpha, double beta, 
 TEST(values_and_threads_every_cut) {
     int max_threads = omp_get_max_threads();
     double worst = 0;
+    for (size_t s = 0; s < N_SHAPES; s++) {
+        char along = '?';
+        int n = mlb_gemm_shards(shapes[s].M, shapes[s].N, shapes[s].K, &along);
+        CHECK_MSG(along == shapes[s].along && (n > 1) == (along != '-'), "%s: %d shards along %c", shapes[s].what, n,
+                  along);
+        CHECK(mlb_gemm_shards_f64(shapes[s].M, shapes[s].N, shapes[s].K, NULL) == n);
+    }
     for (size_t s = 0; s < N_SHAPES; s++)
         for (int t = 0; t < 4; t++) {
             run_case(&shapes[s], t & 1, t >> 1, 0.7, 1.3, &worst);

@@ -20,7 +20,7 @@
 #define BLAS_GEMM cblas_sgemm
 #endif
 
-// A shard is worth a thread hand-off above this many multiply-adds (~50 µs on one core).
+// A shard is worth a thread hand-off above this many multiply-adds (~0.1 ms on one core).
 #define GEMM_SHARD_MIN_WORK ((int64_t)1 << 22)
 // At most this many shards (a power of two: an even split over 1, 2, 4, 8, 16 threads).
 #define GEMM_MAX_SHARDS 32
@@ -60,9 +60,15 @@ static gemm_cut FN(gemm_plan)(int M, int N, int K, int* block, int* count) {
     return *count > 1 ? cut : CUT_NONE;
 }
 
+int FN(mlb_gemm_shards)(int M, int N, int K, char* along) {
+    int block, count;
+    gemm_cut cut = M > 0 && N > 0 && K > 0 ? FN(gemm_plan)(M, N, K, &block, &count) : CUT_NONE;
+    if (along) *along = "-MNK"[cut];
+    return cut == CUT_NONE ? 1 : count;
+}
+
 static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B,
                           int ldb, real beta, real* C, int ldc) {
-    if (M <= 0 || N <= 0) return;
     BLAS_GEMM(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
               lda, B, ldb, beta, C, ldc);
 }

@@ -11,6 +11,23 @@
 // Evaluation views: azimuths all round, elevations −15°, 20°, 50° in turn (what target views show).
 static const double EVAL_ELEVATIONS[3] = {-15, 20, 50};
 
+// View v of n_views: azimuth azimuth0_deg + 360°·v/n, the elevations in turn, radius 3, fovy 45°.
+static mlb_status eval_camera(mlb_camera* cam, double azimuth0_deg, int v, int n_views) {
+    return mlb_camera_orbit(cam, azimuth0_deg + 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0, 1.0,
+                            0.1, 100.0);
+}
+
+// out [res², D] = the vertex attribute attr [V, D] of mesh m seen by cam, per pixel; tri [res²] gets
+// each pixel's face (−1: background). clip [V, 4], bary [res², 2], depth [res²]: scratch.
+static mlb_status eval_interpolate(mlb_raster_ctx* ctx, float* out, const float* attr, int D, const mlb_mesh* m,
+                                   const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary,
+                                   float* depth) {
+    mlb_transform_points(clip, m->pos, m->n_verts, &cam->view_proj);
+    mlb_status s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, m->n_verts, m->faces, m->n_faces, res, res);
+    if (!s) s = mlb_interpolate(out, attr, m->n_verts, D, tri, bary, m->faces, m->n_faces, res, res);
+    return s;
+}
+
 double mlb_psnr(const float* a, const float* b, size_t n) {
     double se = 0;
     for (size_t i = 0; i < n; i++) {
@@ -39,11 +56,8 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
     size_t count = 0;
     for (int v = 0; !s && v < n_views; v++) {
         mlb_camera cam;
-        s = mlb_camera_orbit(&cam, 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
-        if (s) break;
-        mlb_transform_points(clip, fit->pos, fit->n_verts, &cam.view_proj);
-        s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, fit->n_verts, fit->faces, fit->n_faces, res, res);
-        if (!s) s = mlb_interpolate(pos, fit->pos, fit->n_verts, 3, tri, bary, fit->faces, fit->n_faces, res, res);
+        s = eval_camera(&cam, 0, v, n_views);
+        if (!s) s = eval_interpolate(ctx, pos, fit->pos, 3, fit, &cam, res, clip, tri, bary, depth);
         if (s) break;
         size_t m = 0;
         for (size_t p = 0; p < P; p++)
@@ -68,22 +82,6 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
     }
     mlb_raster_ctx_free(ctx);
     free(clip); free(tri); free(bary); free(depth); free(pos); free(pts); free(k);
-    return s;
-}
-
-// Per pixel of one view: the unit shading normal, or zeros where the mesh does not cover it.
-static mlb_status view_normals(mlb_raster_ctx* ctx, float* out, const mlb_mesh* m, const float* nrm,
-                               const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary, float* depth) {
-    size_t P = (size_t)res * res;
-    mlb_transform_points(clip, m->pos, m->n_verts, &cam->view_proj);
-    mlb_status s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, m->n_verts, m->faces, m->n_faces, res, res);
-    if (!s) s = mlb_interpolate(out, nrm, m->n_verts, 3, tri, bary, m->faces, m->n_faces, res, res);
-    for (size_t p = 0; !s && p < P; p++) {
-        float* n = out + 3 * p;
-        double len = sqrt((double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2]);
-        if (tri[p] < 0 || !(len > 0)) { n[0] = n[1] = n[2] = 0; continue; }
-        for (int c = 0; c < 3; c++) n[c] = (float)(n[c] / len);
-    }
     return s;
 }
 
@@ -115,14 +113,19 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
     size_t count = 0;
     for (int v = 0; !s && v < n_views; v++) {
         mlb_camera cam;
-        s = mlb_camera_orbit(&cam, 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
-        for (int i = 0; !s && i < 2; i++)
-            s = view_normals(ctx, n2 + 3 * P * i, meshes[i], nrm[i], &cam, res, clip, tri, bary, depth);
+        s = eval_camera(&cam, 0, v, n_views);
+        // both meshes' interpolated normals; a pixel counts where both cover it (the background
+        // interpolates to zero, and so may a degenerate blend: both are left out)
+        for (int i = 0; !s && i < 2; i++) {
+            s = eval_interpolate(ctx, n2 + 3 * P * i, nrm[i], 3, meshes[i], &cam, res, clip, tri, bary, depth);
+            for (size_t p = 0; !s && p < P; p++)
+                if (tri[p] < 0) memset(n2 + 3 * (P * i + p), 0, sizeof(float) * 3);
+        }
         for (size_t p = 0; !s && p < P; p++) {
             const float *a = n2 + 3 * p, *b = n2 + 3 * (P + p);
             double la = (double)a[0] * a[0] + (double)a[1] * a[1] + (double)a[2] * a[2];
             double lb = (double)b[0] * b[0] + (double)b[1] * b[1] + (double)b[2] * b[2];
-            if (la == 0 || lb == 0) continue;
+            if (!(la > 0) || !(lb > 0)) continue;
             double d = ((double)a[0] * b[0] + (double)a[1] * b[1] + (double)a[2] * b[2]) / sqrt(la * lb);
             sum += acos(d > 1 ? 1 : d < -1 ? -1 : d) * (180.0 / M_PI);
             count++;
@@ -164,8 +167,7 @@ mlb_status mlb_eval_relight(const mlb_mesh* truth, const float* truth_k, const m
             rp.width = rp.height = res;
             rp.supersample = 2;
             rp.fresnel = MLB_FRESNEL_PAPER;
-            s = mlb_camera_orbit(&rp.camera, azimuth0_deg + 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0,
-                                 1.0, 0.1, 100.0);
+            s = eval_camera(&rp.camera, azimuth0_deg, v, n_views);
             if (!s) s = mlb_render_shaded(&rp, rgba);
             if (!s) to_srgb_rgb(rgb + p * 3 * ((size_t)which * n_views + v), rgba, p);
         }

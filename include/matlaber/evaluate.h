@@ -1,6 +1,6 @@
 // Measuring a fitted asset against a known truth (the demo's report, docs/pipeline.md): geometry by
-// Chamfer distance (geometry.h) and the angle between normals, albedo by the PSNR of kd on the fitted surface, and relighting by
-// the PSNR of renders under an environment the fit never saw.
+// Chamfer distance (geometry.h) and the angle between normals, albedo by the PSNR of kd on the
+// fitted surface, and relighting by the PSNR of renders under an environment the fit never saw.
 #ifndef MATLABER_EVALUATE_H
 #define MATLABER_EVALUATE_H
 #include <stddef.h>

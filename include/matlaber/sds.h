@@ -61,8 +61,8 @@ typedef struct mlb_sds mlb_sds;
 mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scaling_factor, const float* alphas_cumprod,
                           int v_prediction, const mlb_sds_options* opt, mlb_sds** out);
 // From a loaded model: encodes `prompt` (cond) and `negative` (uncond; NULL or "" = the empty
-// prompt) and, when view_dependent, "<prompt>, front view" etc. (every mlb_sds_view_suffix). The model's text encoder may be
-// dropped afterwards (mlb_sd_model_drop_text); UNet and VAE stay borrowed.
+// prompt) and, when view_dependent, "<prompt>, front view" etc. (every mlb_sds_view_suffix). The
+// model's text encoder may be dropped afterwards (mlb_sd_model_drop_text); UNet and VAE stay borrowed.
 mlb_status mlb_sds_create_from_model(const mlb_sd_model* m, const char* prompt, const char* negative, int view_dependent,
                                      const mlb_sds_options* opt, mlb_sds** out);
 void mlb_sds_free(mlb_sds* s);

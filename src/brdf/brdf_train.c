@@ -28,9 +28,10 @@ mlb_brdf_train_config mlb_brdf_train_default_config(void) {
 }
 
 // A batch is split into TRAIN_SHARDS equal shards whose losses and gradients are computed in
-// parallel (one thread each; a shard's GEMMs run on its thread) and summed in a fixed order. The result is the mean-over-rows gradient of
-// the whole batch (interpolation pairs form within a shard), and it is bitwise the same on any
-// number of threads because the shard count, not the thread count, decides the arithmetic.
+// parallel (one thread each; a shard's GEMMs run on its thread) and summed in a fixed order. The
+// result is the mean-over-rows gradient of the whole batch (interpolation pairs form within a
+// shard), and it is bitwise the same on any number of threads because the shard count, not the
+// thread count, decides the arithmetic.
 #define TRAIN_SHARDS 2
 
 mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const mlb_brdf_train_config* cfg,

@@ -50,6 +50,7 @@ finish() {
     [ -f "$out/parity-errors.txt" ] && cp "$out/parity-errors.txt" "$OUT/"
     [ -f "$out/build.log" ] && cp "$out/build.log" "$OUT/"
     [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
+    [ -f "$out/bench_cuda_unet.log" ] && cp "$out/bench_cuda_unet.log" "$OUT/"
   fi
 }
 trap finish EXIT
@@ -106,7 +107,7 @@ grep -E "matlaber: CUDA part" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
 tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
 targets=$tests
-[ $bench = 1 ] && targets="$targets bench_cuda"
+[ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet"
 jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
 # shellcheck disable=SC2086
 cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
@@ -118,7 +119,7 @@ say "gpu-parity: MLB_TEST_SEED=$MLB_TEST_SEED"
 fail=0
 summary=""
 for t in $tests; do
-  start=$(date +%s.%N)
+  start=$(date +%s%N)
   runner=()
   if [ $memcheck = 1 ]; then
     cs=$(command -v compute-sanitizer || echo /usr/local/cuda/bin/compute-sanitizer)
@@ -126,17 +127,18 @@ for t in $tests; do
   fi
   (cd "$build" && MLB_CUDA_SYNC=1 timeout 600 "${runner[@]}" "./tests/$t") > "$out/$t.log" 2>&1
   rc=$?
-  secs=$(echo "$(date +%s.%N) - $start" | bc 2> /dev/null || echo "?")
+  ms=$(( ($(date +%s%N) - start) / 1000000 ))   # bash arithmetic: the GPU image has no bc
   case $rc in
     0) status=PASS ;;
     77) status=SKIP; fail=1 ;;   # on the GPU machine a skip means the GPU was not usable
     *) status="FAIL($rc)"; fail=1 ;;
   esac
   cat "$out/$t.log" >> "$log"
-  summary+=$(printf '%-24s %-9s %6.1f s' "$t" "$status" "$secs" 2> /dev/null || echo "$t $status")$'\n'
+  summary+=$(printf '%-24s %-9s %4d.%01d s' "$t" "$status" $((ms / 1000)) $((ms % 1000 / 100)))$'\n'
 done
 if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
+  (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
 fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="

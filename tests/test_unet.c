@@ -5,6 +5,9 @@
 #include "matlaber/safetensors.h"
 #include "matlaber/schedule.h"
 #include "matlaber/unet.h"
+#include "matlaber/backend.h"
+#include "matlaber/rng.h"
+#include "matlaber/unet_random.h"
 
 static const char* ref_path(const char* file) {   // 4 rotating buffers: several may be live at once
     static char bufs[4][4096];
@@ -273,6 +276,44 @@ TEST(ddim_sd1_cfg) {
     mlb_unet_free(u);
 }
 
+// The forward written once against backend.h: on the CPU table, with a UNet made by
+// mlb_unet_create + mlb_unet_to_device, it gives exactly the bits of mlb_unet_forward on the loaded
+// UNet (the carve order is the loader's: the copied parameters land on the same tensors). Needs no
+// shared data. The GPU side of the same forward: tests/test_cuda_unet.c.
+TEST(forward_on_cpu_table_is_bitwise) {
+    mlb_unet_config cfg = mlb_unet_tiny_config(0);
+    char path[600];
+    snprintf(path, sizeof path, "%s/random_sd1.safetensors", test_tmpdir("unet"));
+    mlb_unet_random_options o = mlb_unet_random_default_options();
+    o.seed = 5;
+    mlb_unet *u = NULL, *c = NULL;
+    CHECK_MSG(mlb_unet_write_random(&cfg, &o, path) == MLB_OK, "%s", mlb_last_error());
+    CHECK_MSG(mlb_unet_load(path, NULL, &u) == MLB_OK, "%s", mlb_last_error());
+    if (!u) return;
+    CHECK_MSG(mlb_unet_to_device(u, MLB_DEVICE_CPU, &c) == MLB_OK, "%s", mlb_last_error());
+    if (!c) { mlb_unet_free(u); return; }
+    CHECK(c->device == MLB_DEVICE_CPU && c->n_params == u->n_params);
+    CHECK(c->down_attn[1][1].ff2_w - c->params == u->down_attn[1][1].ff2_w - u->params);
+    CHECK(c->conv_out_b - c->params == u->conv_out_b - u->params);
+    const int N = 2, H = 16, W = 8, Tc = 5;
+    size_t nx = (size_t)N * 4 * H * W, nc = (size_t)N * Tc * cfg.context_dim;
+    float *x = malloc(nx * 4), *ctx = malloc(nc * 4), *a = malloc(nx * 4), *b = malloc(nx * 4), t[2] = {1.0f, 640.0f};
+    for (size_t i = 0; i < nx; i++) x[i] = (float)mlb_rng_uniform_f64(9, 1, i) * 2 - 1;
+    for (size_t i = 0; i < nc; i++) ctx[i] = (float)mlb_rng_uniform_f64(9, 2, i) * 2 - 1;
+    CHECK(mlb_unet_forward(u, a, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward_on(mlb_backend_cpu(), c, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK_MSG(!memcmp(a, b, nx * 4), "the CPU table's forward differs from mlb_unet_forward");
+    double s = 0;
+    for (size_t i = 0; i < nx; i++) s += fabs(a[i]);
+    CHECK(isfinite(s) && s > 0);
+    // the CUDA table with CPU weights is refused (either device mismatch, or no GPU in this build)
+    CHECK(mlb_unet_forward_on(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), c, b, x, t, ctx, N, H, W, Tc, NULL,
+                              NULL) != MLB_OK);
+    free(x); free(ctx); free(a); free(b);
+    mlb_unet_free(c);
+    mlb_unet_free(u);
+}
+
 int main(void) {
     RUN(sd1_diffusers_folder);
     RUN(sd1_single_file);
@@ -281,5 +322,6 @@ int main(void) {
     RUN(sd1_f16_weights);
     RUN(errors);
     RUN(ddim_sd1_cfg);
+    RUN(forward_on_cpu_table_is_bitwise);
     return test_summary();
 }

@@ -11,6 +11,7 @@
 #define MATLABER_CUDA_OPS_H
 #include <stddef.h>
 #include <stdint.h>
+#include "matlaber/conv_ops.h"
 #include "matlaber/envmap.h"
 #include "matlaber/error.h"
 #include "matlaber/hashgrid.h"
@@ -48,6 +49,12 @@ typedef enum { MLB_DTYPE_F32 = 0, MLB_DTYPE_F16, MLB_DTYPE_BF16 } mlb_cuda_dtype
 mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
                          const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
                          mlb_gemm_precision prec);
+// The strided batched form: matrix i of A at A + i stride_a (elements), likewise B and C; a stride
+// of 0 reuses one matrix for every i. batch 1 is mlb_cuda_gemm.
+mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
+                                 long long stride_a, const void* B, int ldb, long long stride_b, float beta, float* C,
+                                 int ldc, long long stride_c, int batch, mlb_cuda_dtype ab_type,
+                                 mlb_gemm_precision prec);
 // float -> fp16 / bf16 (round to nearest even) on the device, n values.
 mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n);
 
@@ -90,6 +97,24 @@ mlb_status mlb_cuda_groupnorm_backward(float* din, float* dweight, float* dbias,
 // and causal flag as attention_forward; out [B,T,C].
 mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
                                       int C, int NH, int causal);
+
+// ---- convolution and attention as tensor-core GEMMs (conv_ops.h; src/cuda/conv.cu) ----
+// conv2d_forward's contract (bias may be NULL; out must not overlap in), GEMM operands at `prec`.
+mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
+                                   const mlb_conv2d* cv, mlb_gemm_precision prec);
+// sdpa_forward's contract without lse (q/k/v strides ldq/ldkv, Tq may differ from Tk), the scores
+// held for a chunk of images at a time (at most 1 GiB), softmax in float.
+mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const float* k, const float* v, int B, int Tq, int Tk,
+                                 int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
+
+// ---- layout and elementwise glue (src/cuda/tensor.cu; the CPU's in src/nn/backend.c) ----
+mlb_status mlb_cuda_add(float* y, const float* x, size_t n);                        // y += x
+mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW);     // x[n,c,:] += v[n,c]
+mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate);
+mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4);   // out[t,j] = in[t,j] gelu(in[t,C4+j])
+mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W);
+// rows x width floats from src (row pitch spitch) to dst (pitch dpitch)
+mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows);
 
 // ---- hash-grid encoding (hashgrid.h) ----
 // g gives the layout (g->params is ignored: params is the device copy of the table).

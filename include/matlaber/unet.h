@@ -22,6 +22,7 @@
 #ifndef MATLABER_UNET_H
 #define MATLABER_UNET_H
 #include <stddef.h>
+#include "matlaber/device.h"
 #include "matlaber/error.h"
 #include "matlaber/safetensors.h"
 
@@ -77,6 +78,7 @@ typedef struct {
 
 struct mlb_unet {
     mlb_unet_config cfg;
+    mlb_device device;                              // where params live (CPU unless mlb_unet_to_device)
     float* params;
     size_t n_params;
     float *time1_w, *time1_b, *time2_w, *time2_b;   // [TE, block_out[0]], [TE, TE]
@@ -103,7 +105,13 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
 // The same from an open file (diffusers or ldm names, detected); config_path a config.json or NULL
 // (then the ldm_config metadata when present).
 mlb_status mlb_unet_from_st(const mlb_safetensors* st, const char* config_path, mlb_unet** out);
-void mlb_unet_free(mlb_unet* u);   // NULL is fine
+void mlb_unet_free(mlb_unet* u);   // NULL is fine; frees device weights on their device
+// A UNet of configuration c with its parameters allocated (not initialised) on device d, the
+// pointers carved in the loader's order (so params matches a loaded UNet's params element for
+// element). MLB_ERR_ARG for a bad configuration, MLB_ERR_NOMEM / MLB_ERR_DEVICE.
+mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** out);
+// A copy of the CPU UNet src with its weights on device d (one upload of params).
+mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out);
 const mlb_unet_config* mlb_unet_get_config(const mlb_unet* u);
 size_t mlb_unet_param_count(const mlb_unet* u);
 
@@ -118,5 +126,13 @@ typedef void (*mlb_unet_debug_fn)(void* user, const char* name, const float* dat
 // MLB_ERR_ARG for bad shapes, MLB_ERR_NOMEM.
 mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
                             int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user);
+
+// The same forward on the ops of `be` (backend.h): u must be on be->device (mlb_unet_to_device), and
+// out, x and context in that device's memory; t stays on the host. mlb_unet_forward is this with
+// the CPU table. The observer receives host copies.
+struct mlb_backend;
+mlb_status mlb_unet_forward_on(const struct mlb_backend* be, const mlb_unet* u, float* out, const float* x,
+                               const float* t, const float* context, int N, int H, int W, int Tc,
+                               mlb_unet_debug_fn debug, void* debug_user);
 
 #endif

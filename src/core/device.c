@@ -112,6 +112,22 @@ mlb_status mlb_cuda_mem_info(size_t* free_bytes, size_t* total_bytes) { *free_by
 mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
                          const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
                          mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
+                                 long long stride_a, const void* B, int ldb, long long stride_b, float beta, float* C,
+                                 int ldc, long long stride_c, int batch, mlb_cuda_dtype ab_type,
+                                 mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
+                                   const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const float* k, const float* v, int B, int Tq, int Tk,
+                                 int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_add(float* y, const float* x, size_t n) { NO_CUDA; }
+mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW) { NO_CUDA; }
+mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) { NO_CUDA; }
+mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4) { NO_CUDA; }
+mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) { NO_CUDA; }
+mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
+    NO_CUDA;
+}
 mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n) { NO_CUDA; }
 mlb_status mlb_cuda_linear_forward(float* out, const float* in, const float* weight, const float* bias, int B, int C,
                                    int OC, mlb_gemm_precision prec) { NO_CUDA; }

@@ -32,26 +32,42 @@ static cudaDataType_t cuda_type(mlb_cuda_dtype t) {
 }
 
 // Row-major C = alpha op(A) op(B) + beta C is column-major C^T = alpha op(B)^T op(A)^T + beta C^T:
-// cuBLAS sees B first, with the same transpose flags, and the sizes N x M.
-extern "C" mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
-                                    const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
-                                    mlb_gemm_precision prec) {
-    if (M < 0 || N < 0 || K < 0) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_gemm: negative size %d x %d x %d", M, N, K);
-    if (M == 0 || N == 0) return MLB_OK;
+// cuBLAS sees B first, with the same transpose flags, and the sizes N x M. batch > 1: the strided
+// batched form (matrix i at A + i stride_a, ...; a stride of 0 reuses one matrix for every i).
+extern "C" mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A,
+                                            int lda, long long stride_a, const void* B, int ldb, long long stride_b,
+                                            float beta, float* C, int ldc, long long stride_c, int batch,
+                                            mlb_cuda_dtype ab_type, mlb_gemm_precision prec) {
+    if (M < 0 || N < 0 || K < 0 || batch < 0)
+        return mlb_fail(MLB_ERR_ARG, "mlb_cuda_gemm: negative size %d x %d x %d (batch %d)", M, N, K, batch);
+    if (M == 0 || N == 0 || batch == 0) return MLB_OK;
     cublasHandle_t h;
     MLB_TRY(mlb_cuda_cublas(&h));
     cublasComputeType_t compute = CUBLAS_COMPUTE_32F;
     if (ab_type == MLB_DTYPE_F32 && prec == MLB_GEMM_TF32) compute = CUBLAS_COMPUTE_32F_FAST_TF32;
-    if (K == 0) {   // cuBLAS treats K = 0 as C = beta C; make that explicit for beta = 0 too
-        if (beta == 0.0f) {
-            for (int r = 0; r < M; r++) MLB_CUDA_CHECK(cudaMemsetAsync(C + (size_t)r * ldc, 0, sizeof(float) * N, 0));
-            return MLB_OK;
-        }
+    if (K == 0 && beta == 0.0f) {   // cuBLAS treats K = 0 as C = beta C; make that explicit for beta = 0 too
+        for (int i = 0; i < batch; i++)
+            MLB_CUDA_CHECK(cudaMemset2DAsync(C + (size_t)i * stride_c, (size_t)ldc * sizeof(float), 0,
+                                             (size_t)N * sizeof(float), (size_t)M, 0));
+        return MLB_OK;
     }
-    MLB_CUBLAS_CHECK(cublasGemmEx(h, trans_b ? CUBLAS_OP_T : CUBLAS_OP_N, trans_a ? CUBLAS_OP_T : CUBLAS_OP_N, N, M, K,
-                                  &alpha, B, cuda_type(ab_type), ldb, A, cuda_type(ab_type), lda, &beta, C, CUDA_R_32F,
-                                  ldc, compute, CUBLAS_GEMM_DEFAULT));
+    cublasOperation_t opb = trans_b ? CUBLAS_OP_T : CUBLAS_OP_N, opa = trans_a ? CUBLAS_OP_T : CUBLAS_OP_N;
+    cudaDataType_t t = cuda_type(ab_type);
+    if (batch == 1)
+        MLB_CUBLAS_CHECK(cublasGemmEx(h, opb, opa, N, M, K, &alpha, B, t, ldb, A, t, lda, &beta, C, CUDA_R_32F, ldc,
+                                      compute, CUBLAS_GEMM_DEFAULT));
+    else
+        MLB_CUBLAS_CHECK(cublasGemmStridedBatchedEx(h, opb, opa, N, M, K, &alpha, B, t, ldb, stride_b, A, t, lda,
+                                                    stride_a, &beta, C, CUDA_R_32F, ldc, stride_c, batch, compute,
+                                                    CUBLAS_GEMM_DEFAULT));
     return MLB_OK;
+}
+
+extern "C" mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
+                                    const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
+                                    mlb_gemm_precision prec) {
+    return mlb_cuda_gemm_batched(trans_a, trans_b, M, N, K, alpha, A, lda, 0, B, ldb, 0, beta, C, ldc, 0, 1, ab_type,
+                                 prec);
 }
 
 // A GEMM on float operands at precision prec: fp16/bf16 convert both operands into the scratch

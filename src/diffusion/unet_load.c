@@ -1,6 +1,7 @@
 // UNet loading: layout detection, diffusers -> ldm name translation, configuration from config.json
 // or the ldm_config metadata, and the float32 parameters (see unet.h, docs/unet.md).
 #include "matlaber/unet.h"
+#include "matlaber/backend.h"
 #include "matlaber/unet_random.h"
 #include <cjson/cJSON.h>
 #include <math.h>
@@ -176,7 +177,7 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, unet_cfg_file* f) 
 typedef struct {
     mlb_unet* u;
     const mlb_safetensors* st;
-    int pass;   // 0: count, 1: carve and read
+    int pass;   // 0: count, 1: carve and read, 2: carve only
     size_t n;
     float* p;
 } loader;
@@ -186,6 +187,7 @@ static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a
     size_t n = 1;
     for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
     if (L->pass == 0) { L->n += n; return MLB_OK; }
+    if (L->pass == 2) { *dst = L->p; L->p += n; return MLB_OK; }
     char name[512];
     tensor_name(name, sizeof name, L->u, d);
     MLB_TRY(mlb_st_expect(L->st, name, ndim, shape));
@@ -407,8 +409,47 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
 
 void mlb_unet_free(mlb_unet* u) {
     if (!u) return;
-    free(u->params);
+    mlb_backend_for(u->device, MLB_GEMM_FP32)->release(u->params);
     free(u);
+}
+
+mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** out) {
+    if (!c || !out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_create: NULL argument");
+    *out = NULL;
+    MLB_TRY(mlb_unet_config_check(c));
+    mlb_unet* u = calloc(1, sizeof *u);
+    if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
+    u->cfg = *c;
+    u->device = d;
+    loader L = {u, NULL, 0, 0, NULL};
+    mlb_status s = walk(&L);
+    if (s == MLB_OK) {
+        u->n_params = L.n;
+        s = mlb_backend_for(d, MLB_GEMM_FP32)->alloc(&u->params, L.n);
+    }
+    if (s == MLB_OK) {
+        L.pass = 2;
+        L.p = u->params;
+        s = walk(&L);
+    }
+    if (s != MLB_OK) {
+        mlb_unet_free(u);
+        return mlb_fail_context(s, "UNet of %zu parameters on the %s", L.n, mlb_device_name(d));
+    }
+    *out = u;
+    return MLB_OK;
+}
+
+mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out) {
+    if (!src || !out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_to_device: NULL argument");
+    if (src->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_unet_to_device: the source must be on the CPU");
+    MLB_TRY(mlb_unet_create(&src->cfg, d, out));
+    mlb_status s = mlb_backend_for(d, MLB_GEMM_FP32)->upload((*out)->params, src->params, src->n_params);
+    if (s != MLB_OK) {
+        mlb_unet_free(*out);
+        *out = NULL;
+    }
+    return s;
 }
 
 const mlb_unet_config* mlb_unet_get_config(const mlb_unet* u) { return u ? &u->cfg : NULL; }

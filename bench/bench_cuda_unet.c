@@ -1,0 +1,155 @@
+// The SD 1.5 UNet forward on the GPU (issue 12): a full-size UNet (859.5 M parameters, random
+// weights: the time does not depend on them) at a 64^2 latent (512^2 images), context 77 x 768,
+// batch 2 (one CFG step) and 18 (9 views x CFG), at each GEMM precision. Median of `reps` forwards
+// after 2 warm-ups, device events. Then one profiled forward per batch (bf16): every op timed on
+// its own (synchronised) and its FLOPs counted, against the GEMM rate bench_cuda measures.
+// Usage: bench_cuda_unet [reps] (default 5). Exits 0 with a message without a GPU. docs/cuda.md.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/backend.h"
+#include "matlaber/unet.h"
+#include "matlaber/unet_random.h"
+
+#define TRY(x) do { if ((x) != MLB_OK) { fprintf(stderr, "bench_cuda_unet: %s\n", mlb_last_error()); exit(1); } } while (0)
+
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return x < y ? -1 : x > y;
+}
+
+// ---- the profiling table: the CUDA table's ops, each timed with events and its FLOPs counted ----
+enum { P_CONV, P_LINEAR, P_SDPA, P_NORM, P_GLUE, P_COUNT };
+static const char* p_names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (GEMM+softmax)",
+                                       "group/layer norm", "glue (add, transpose, GEGLU, copies)"};
+static double p_ms[P_COUNT], p_flop[P_COUNT];
+static long p_calls[P_COUNT];
+static const mlb_backend* inner;
+
+static size_t p_arena;
+#define PROF(cat, flop, call) do { double ms_; MLB_TRY(mlb_cuda_timer_begin()); MLB_TRY(call); \
+    MLB_TRY(mlb_cuda_timer_end(&ms_)); p_ms[cat] += ms_; p_flop[cat] += (flop); p_calls[cat]++; \
+    return MLB_OK; } while (0)
+
+static mlb_status w_alloc(float** out, size_t n) {
+    if (n > p_arena) p_arena = n;
+    return inner->alloc(out, n);
+}
+static mlb_status w_linear(const mlb_backend* be, float* o, const float* i, const float* w, const float* b, int B, int C,
+                           int OC) {
+    (void)be;
+    PROF(P_LINEAR, 2.0 * B * C * OC, inner->linear(inner, o, i, w, b, B, C, OC));
+}
+static mlb_status w_conv(const mlb_backend* be, float* o, const float* i, const float* w, const float* b,
+                         const mlb_conv2d* cv) {
+    (void)be;
+    double f = 2.0 * cv->N * cv->OC * mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv) * cv->C * cv->KH * cv->KW;
+    PROF(P_CONV, f, inner->conv2d(inner, o, i, w, b, cv));
+}
+static mlb_status w_sdpa(const mlb_backend* be, float* o, const float* q, const float* k, const float* v, int B, int Tq,
+                         int Tk, int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    PROF(P_SDPA, 4.0 * B * Tq * Tk * C, inner->sdpa(inner, o, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv));
+}
+static mlb_status w_gn(float* o, const float* i, const float* w, const float* b, int N, int C, int HW, int G, float eps,
+                       mlb_activation a) {
+    PROF(P_NORM, 0, inner->groupnorm(o, i, w, b, N, C, HW, G, eps, a));
+}
+static mlb_status w_ln(float* o, const float* i, const float* w, const float* b, int N, int C, float eps) {
+    PROF(P_NORM, 0, inner->layernorm(o, i, w, b, N, C, eps));
+}
+static mlb_status w_act(float* o, const float* i, size_t n, mlb_activation a) { PROF(P_GLUE, 0, inner->activation(o, i, n, a)); }
+static mlb_status w_add(float* y, const float* x, size_t n) { PROF(P_GLUE, 0, inner->add(y, x, n)); }
+static mlb_status w_addc(float* x, const float* v, int N, int C, int HW) { PROF(P_GLUE, 0, inner->add_channel(x, v, N, C, HW)); }
+static mlb_status w_tr(float* o, const float* i, int N, int R, int S, int acc) {
+    PROF(P_GLUE, 0, inner->transpose_last2(o, i, N, R, S, acc));
+}
+static mlb_status w_geglu(float* o, const float* i, int rows, int C4) { PROF(P_GLUE, 0, inner->geglu(o, i, rows, C4)); }
+static mlb_status w_up(float* o, const float* i, int N, int C, int H, int W) {
+    PROF(P_GLUE, 0, inner->upsample_nearest2x(o, i, N, C, H, W));
+}
+static mlb_status w_rows(float* d, size_t dp, const float* s, size_t sp, size_t w, size_t r) {
+    PROF(P_GLUE, 0, inner->copy_rows(d, dp, s, sp, w, r));
+}
+
+static void profile(const mlb_unet* u, float* out, const float* x, const float* t, const float* ctx, int N, int H, int W,
+                    mlb_gemm_precision prec, double total_ms) {
+    inner = mlb_backend_for(MLB_DEVICE_CUDA, prec);
+    mlb_backend w = *inner;
+    w.linear = w_linear; w.conv2d = w_conv; w.sdpa = w_sdpa; w.groupnorm = w_gn; w.layernorm = w_ln;
+    w.activation = w_act; w.add = w_add; w.add_channel = w_addc; w.transpose_last2 = w_tr; w.geglu = w_geglu;
+    w.upsample_nearest2x = w_up; w.copy_rows = w_rows; w.alloc = w_alloc;
+    p_arena = 0;
+    memset(p_ms, 0, sizeof p_ms); memset(p_flop, 0, sizeof p_flop); memset(p_calls, 0, sizeof p_calls);
+    TRY(mlb_unet_forward_on(&w, u, out, x, t, ctx, N, H, W, 77, NULL, NULL));
+    double sum = 0, flop = 0;
+    for (int c = 0; c < P_COUNT; c++) { sum += p_ms[c]; flop += p_flop[c]; }
+    printf("\nprofile, batch %d, %s (each op synchronised; un-profiled forward %.2f ms; activations %.2f GiB):\n", N,
+           mlb_gemm_precision_name(prec), total_ms, p_arena * 4.0 / 1073741824.0);
+    printf("%-38s %7s %10s %7s %10s %10s\n", "op", "calls", "ms", "share", "GFLOP", "TFLOP/s");
+    for (int c = 0; c < P_COUNT; c++)
+        printf("%-38s %7ld %10.2f %6.1f%% %10.1f %10.1f\n", p_names[c], p_calls[c], p_ms[c], 100 * p_ms[c] / sum,
+               p_flop[c] / 1e9, p_ms[c] > 0 && p_flop[c] > 0 ? p_flop[c] / (p_ms[c] * 1e9) : 0.0);
+    printf("%-38s %7s %10.2f %6.1f%% %10.1f %10.1f\n", "total", "", sum, 100.0, flop / 1e9, flop / (sum * 1e9));
+}
+
+int main(int argc, char** argv) {
+    int reps = argc > 1 ? atoi(argv[1]) : 5;
+    if (reps < 1 || reps > 100) reps = 5;
+    int n_gpu = 0;
+    if (mlb_cuda_probe(&n_gpu) != MLB_OK || mlb_cuda_init(0) != MLB_OK) {
+        printf("bench_cuda_unet: no CUDA device, nothing to measure (%s)\n", mlb_last_error());
+        return 0;
+    }
+    char desc[256];
+    TRY(mlb_cuda_describe(0, desc, sizeof desc));
+    mlb_unet_config cfg = mlb_unet_sd15_config();
+    mlb_unet* u;
+    TRY(mlb_unet_create(&cfg, MLB_DEVICE_CUDA, &u));
+    // weights uniform in [-0.02, 0.02] (norm weights included): finite activations, the real sizes
+    TRY(mlb_cuda_fill_uniform(u->params, u->n_params, 7, -0.02f, 0.02f));
+    printf("bench_cuda_unet: %s; SD 1.5 UNet, %.1f M parameters (fp32 on the device), latent 64x64, context 77x768; "
+           "median of %d after 2 warm-ups\n\n", desc, u->n_params / 1e6, reps);
+    printf("%-6s %-6s %10s %10s %14s\n", "batch", "prec", "ms", "img/s", "held GiB");
+    const int H = 64, W = 64, Tc = 77, batches[2] = {2, 18};
+    for (int bi = 0; bi < 2; bi++) {
+        int N = batches[bi];
+        size_t nx = (size_t)N * 4 * H * W, nc = (size_t)N * Tc * 768;
+        float *x, *ctx, *out, t[18];
+        for (int i = 0; i < N; i++) t[i] = 20.0f + 50.0f * i;
+        TRY(mlb_cuda_malloc((void**)&x, nx * 4));
+        TRY(mlb_cuda_malloc((void**)&ctx, nc * 4));
+        TRY(mlb_cuda_malloc((void**)&out, nx * 4));
+        TRY(mlb_cuda_fill_uniform(x, nx, 1, -1, 1));
+        TRY(mlb_cuda_fill_uniform(ctx, nc, 2, -1, 1));
+        double bf16_ms = 0;
+        for (int p = 0; p < 4; p++) {
+            const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p);
+            double ms[100];
+            for (int i = 0; i < 2; i++) TRY(mlb_unet_forward_on(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
+            TRY(mlb_cuda_sync());
+            for (int i = 0; i < reps; i++) {
+                TRY(mlb_cuda_timer_begin());
+                TRY(mlb_unet_forward_on(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
+                TRY(mlb_cuda_timer_end(&ms[i]));
+            }
+            qsort(ms, reps, sizeof ms[0], cmp_double);
+            size_t fr, tot;
+            TRY(mlb_cuda_mem_info(&fr, &tot));
+            float probe[4];
+            TRY(be->download(probe, out, 4));
+            for (int i = 0; i < 4; i++)
+                if (!isfinite(probe[i])) { fprintf(stderr, "bench_cuda_unet: non-finite output\n"); return 1; }
+            printf("%-6d %-6s %10.2f %10.1f %14.1f\n", N, mlb_gemm_precision_name((mlb_gemm_precision)p), ms[reps / 2],
+                   N * 1000.0 / ms[reps / 2], (tot - fr) / 1073741824.0);
+            fflush(stdout);
+            if (p == MLB_GEMM_BF16) bf16_ms = ms[reps / 2];
+        }
+        profile(u, out, x, t, ctx, N, H, W, MLB_GEMM_BF16, bf16_ms);
+        printf("\n");
+        mlb_cuda_free(x); mlb_cuda_free(ctx); mlb_cuda_free(out);
+    }
+    mlb_unet_free(u);
+    return 0;
+}

@@ -1,0 +1,57 @@
+// One dispatch point per op. A model's forward is written once against this table and runs on the
+// device whose table it is given (docs/cuda.md "Dispatch"): every buffer it passes lives on that
+// device, allocated through the table, so the data stays there from the first op to the last.
+//
+//   const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_TF32);
+//   float* x;  MLB_TRY(be->alloc(&x, n));  MLB_TRY(be->upload(x, host, n));
+//   MLB_TRY(be->conv2d(be, y, x, w, b, &cv));  ...  MLB_TRY(be->download(host, y, m));
+//
+// The CPU table calls the CPU ops of nn_api.inc, transformer_ops.h and conv_ops.h, in the order
+// and with the arithmetic the models used before the table existed, so CPU results are bitwise
+// unchanged. The CUDA table calls cuda_ops.h (in a build without the CUDA part each of its ops
+// fails with "built without CUDA", so callers need no #ifdef); its GEMMs (linear, conv, attention)
+// run at be->precision. Ops are asynchronous on the device: download synchronises.
+#ifndef MATLABER_BACKEND_H
+#define MATLABER_BACKEND_H
+#include <stddef.h>
+#include "matlaber/conv_ops.h"
+#include "matlaber/cuda_ops.h"
+#include "matlaber/device.h"
+#include "matlaber/error.h"
+#include "matlaber/nn.h"
+
+typedef struct mlb_backend mlb_backend;
+struct mlb_backend {
+    mlb_device device;
+    mlb_gemm_precision precision;   // the GEMMs' operands on CUDA; the CPU is always fp32
+    // memory: n floats
+    mlb_status (*alloc)(float** out, size_t n);
+    void (*release)(void* p);
+    mlb_status (*upload)(float* dst, const float* host, size_t n);
+    mlb_status (*download)(float* host, const float* src, size_t n);
+    // rows x width floats, row pitches in floats (a channel concatenation is one such copy per image)
+    mlb_status (*copy_rows)(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows);
+    // ops (the CPU contracts of the same names)
+    mlb_status (*linear)(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
+                         int C, int OC);
+    mlb_status (*conv2d)(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
+                         const mlb_conv2d* cv);
+    mlb_status (*groupnorm)(float* out, const float* in, const float* w, const float* b, int N, int C, int HW, int G,
+                            float eps, mlb_activation act);
+    mlb_status (*layernorm)(float* out, const float* in, const float* w, const float* b, int N, int C, float eps);
+    mlb_status (*activation)(float* out, const float* in, size_t n, mlb_activation act);
+    mlb_status (*sdpa)(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
+                       int Tq, int Tk, int C, int NH, int ldq, int ldkv);
+    mlb_status (*add)(float* y, const float* x, size_t n);                       // y += x
+    mlb_status (*add_channel)(float* x, const float* v, int N, int C, int HW);    // x[n,c,:] += v[n,c]
+    mlb_status (*transpose_last2)(float* out, const float* in, int N, int R, int S, int accumulate);
+    mlb_status (*geglu)(float* out, const float* in, int rows, int C4);           // out[t,j] = in[t,j] gelu(in[t,C4+j])
+    mlb_status (*upsample_nearest2x)(float* out, const float* in, int N, int C, int H, int W);
+};
+
+// The table of device d (CUDA ops at GEMM precision prec; the CPU ignores prec). Never NULL; the
+// CUDA table's ops fail cleanly when the build or the machine has no GPU.
+const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec);
+const mlb_backend* mlb_backend_cpu(void);
+
+#endif

@@ -1,0 +1,132 @@
+// The two op tables of backend.h: the CPU's over host memory and CUDA's over device memory.
+#include "matlaber/backend.h"
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/transformer_ops.h"
+
+// ---- CPU -----------------------------------------------------------------------------------------
+static mlb_status cpu_alloc(float** out, size_t n) {
+    *out = malloc((n ? n : 1) * sizeof(float));
+    if (!*out) return mlb_fail(MLB_ERR_NOMEM, "out of memory for %.1f MB", n * 4.0 / 1e6);
+    return MLB_OK;
+}
+static void cpu_release(void* p) { free(p); }
+static mlb_status cpu_copy(float* dst, const float* src, size_t n) {
+    if (n) memcpy(dst, src, n * sizeof(float));
+    return MLB_OK;
+}
+static mlb_status cpu_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
+    for (size_t r = 0; r < rows; r++) memcpy(dst + r * dpitch, src + r * spitch, width * sizeof(float));
+    return MLB_OK;
+}
+static mlb_status cpu_linear(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
+                             int C, int OC) {
+    (void)be;
+    linear_forward(out, in, w, b, B, C, OC);
+    return MLB_OK;
+}
+static mlb_status cpu_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
+                             const mlb_conv2d* cv) {
+    (void)be;
+    return conv2d_forward(out, in, w, b, cv, NULL);
+}
+static mlb_status cpu_groupnorm(float* out, const float* in, const float* w, const float* b, int N, int C, int HW, int G,
+                                float eps, mlb_activation act) {
+    return groupnorm_forward(out, NULL, NULL, in, w, b, N, C, HW, G, eps, act);
+}
+static mlb_status cpu_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
+    layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
+    return MLB_OK;
+}
+static mlb_status cpu_activation(float* out, const float* in, size_t n, mlb_activation act) {
+    activation_forward(out, in, n, act);
+    return MLB_OK;
+}
+static mlb_status cpu_sdpa(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
+                           int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    return sdpa_forward(out, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+}
+static mlb_status cpu_add(float* y, const float* x, size_t n) {
+    for (size_t i = 0; i < n; i++) y[i] += x[i];
+    return MLB_OK;
+}
+static mlb_status cpu_add_channel(float* x, const float* v, int N, int C, int HW) {
+    for (size_t r = 0; r < (size_t)N * C; r++) {
+        float t = v[r], *p = x + r * HW;
+        for (int i = 0; i < HW; i++) p[i] += t;
+    }
+    return MLB_OK;
+}
+static mlb_status cpu_transpose(float* out, const float* in, int N, int R, int S, int accumulate) {
+    transpose_last2(out, in, N, R, S, accumulate);
+    return MLB_OK;
+}
+static mlb_status cpu_geglu(float* out, const float* in, int rows, int C4) {
+#pragma omp parallel for schedule(static)
+    for (int t = 0; t < rows; t++) {
+        const float* row = in + (size_t)t * 2 * C4;
+        float* g = out + (size_t)t * C4;
+        for (int j = 0; j < C4; j++) g[j] = row[j] * mlb_act(MLB_ACT_GELU, row[C4 + j]);
+    }
+    return MLB_OK;
+}
+static mlb_status cpu_upsample(float* out, const float* in, int N, int C, int H, int W) {
+    upsample_nearest2x_forward(out, in, N, C, H, W);
+    return MLB_OK;
+}
+
+static const mlb_backend cpu_table = {
+    MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_linear,
+    cpu_conv2d, cpu_groupnorm, cpu_layernorm, cpu_activation, cpu_sdpa, cpu_add, cpu_add_channel, cpu_transpose,
+    cpu_geglu, cpu_upsample,
+};
+
+// ---- CUDA ----------------------------------------------------------------------------------------
+static mlb_status cuda_alloc(float** out, size_t n) {
+    void* p = NULL;
+    mlb_status s = mlb_cuda_malloc(&p, (n ? n : 1) * sizeof(float));
+    *out = p;
+    return s;
+}
+static void cuda_release(void* p) { mlb_cuda_free(p); }
+static mlb_status cuda_upload(float* dst, const float* host, size_t n) {
+    return mlb_cuda_copy_to_device(dst, host, n * sizeof(float));
+}
+static mlb_status cuda_download(float* host, const float* src, size_t n) {
+    MLB_TRY(mlb_cuda_sync());
+    return mlb_cuda_copy_to_host(host, src, n * sizeof(float));
+}
+static mlb_status cuda_linear(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
+                              int C, int OC) {
+    return mlb_cuda_linear_forward(out, in, w, b, B, C, OC, be->precision);
+}
+static mlb_status cuda_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
+                              const mlb_conv2d* cv) {
+    return mlb_cuda_conv2d_forward(out, in, w, b, cv, be->precision);
+}
+static mlb_status cuda_groupnorm(float* out, const float* in, const float* w, const float* b, int N, int C, int HW,
+                                 int G, float eps, mlb_activation act) {
+    return mlb_cuda_groupnorm_forward(out, NULL, NULL, in, w, b, N, C, HW, G, eps, act);
+}
+static mlb_status cuda_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
+    return mlb_cuda_layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
+}
+static mlb_status cuda_sdpa(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
+                            int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    return mlb_cuda_sdpa_forward(out, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
+}
+
+#define CUDA_TABLE(prec)                                                                                          \
+    {MLB_DEVICE_CUDA, prec, cuda_alloc, cuda_release, cuda_upload, cuda_download, mlb_cuda_copy_rows, cuda_linear, \
+     cuda_conv2d, cuda_groupnorm, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, mlb_cuda_add,          \
+     mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x}
+static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE(MLB_GEMM_TF32),
+                                           CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
+
+const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
+
+const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec) {
+    if (d != MLB_DEVICE_CUDA) return &cpu_table;
+    return &cuda_tables[prec >= MLB_GEMM_FP32 && prec <= MLB_GEMM_BF16 ? prec : MLB_GEMM_FP32];
+}

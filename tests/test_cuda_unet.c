@@ -174,6 +174,15 @@ static void unet_case(int sd2, uint64_t seed) {
         if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, unet_bound[p]);
         mlb_cuda_free(dout);
     }
+    // mlb_unet_use_device: the host-buffer forward staged through the GPU copy
+    if (ud) {
+        CHECK_MSG(mlb_unet_use_device(u, MLB_DEVICE_CUDA, MLB_GEMM_FP32) == MLB_OK, "%s", mlb_last_error());
+        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK_PARITY("UNet mlb_unet_use_device(cuda) host buffers", got, ref, no, unet_bound[0]);
+        CHECK(mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK && !u->mirror);
+        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK_MSG(!memcmp(got, ref, no * sizeof(float)), "back on the CPU: not the CPU's bits");
+    }
     mlb_cuda_free(dx); mlb_cuda_free(dc); mlb_cuda_free(dummy);
     mlb_unet_free(ud);
     mlb_unet_free(u);

@@ -309,6 +309,11 @@ TEST(forward_on_cpu_table_is_bitwise) {
     // the CUDA table with CPU weights is refused (either device mismatch, or no GPU in this build)
     CHECK(mlb_unet_forward_on(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), c, b, x, t, ctx, N, H, W, Tc, NULL,
                               NULL) != MLB_OK);
+    // without a GPU, use_device fails cleanly and the UNet stays on the CPU
+    if (mlb_cuda_device_count() == 0) {
+        CHECK(mlb_unet_use_device(u, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_DEVICE && !u->mirror);
+        CHECK(mlb_unet_forward(u, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(a, b, nx * 4));
+    }
     free(x); free(ctx); free(a); free(b);
     mlb_unet_free(c);
     mlb_unet_free(u);

@@ -12,6 +12,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "matlaber/conv_ops.h"
+#include "matlaber/device.h"
 #include "matlaber/envmap.h"
 #include "matlaber/error.h"
 #include "matlaber/hashgrid.h"
@@ -35,13 +36,7 @@ mlb_status mlb_cuda_timer_end(double* ms);
 mlb_status mlb_cuda_mem_info(size_t* free_bytes, size_t* total_bytes);
 
 // ---- GEMM (cuBLAS) ----
-typedef enum {
-    MLB_GEMM_FP32 = 0,   // plain fp32 (CUDA cores): matches the CPU to ~1e-6 relative
-    MLB_GEMM_TF32,       // fp32 operands rounded to tf32 on tensor cores, fp32 accumulation (~3e-4)
-    MLB_GEMM_FP16,       // operands converted to fp16, fp32 accumulation (~1e-3; |x| < 65504)
-    MLB_GEMM_BF16,       // operands converted to bf16, fp32 accumulation (~5e-3)
-} mlb_gemm_precision;
-const char* mlb_gemm_precision_name(mlb_gemm_precision p);
+// mlb_gemm_precision and its names: device.h
 typedef enum { MLB_DTYPE_F32 = 0, MLB_DTYPE_F16, MLB_DTYPE_BF16 } mlb_cuda_dtype;
 // Row-major C[M,N] = alpha op(A)[M,K] op(B)[K,N] + beta C with A, B of `ab_type` (C float, fp32
 // accumulation; tf32 only when ab_type is F32 and prec is MLB_GEMM_TF32). trans_a: A is stored

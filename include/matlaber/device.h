@@ -9,6 +9,22 @@
 
 typedef enum { MLB_DEVICE_CPU = 0, MLB_DEVICE_CUDA = 1 } mlb_device;
 
+// The operands of a GPU's GEMMs (linear, conv, attention); the CPU computes in fp32 whatever this says.
+typedef enum {
+    MLB_GEMM_FP32 = 0,   // plain fp32 (CUDA cores): matches the CPU to ~1e-6 relative
+    MLB_GEMM_TF32,       // fp32 operands rounded to tf32 on tensor cores, fp32 accumulation (~3e-4)
+    MLB_GEMM_FP16,       // operands converted to fp16, fp32 accumulation (~1e-3; |x| < 65504)
+    MLB_GEMM_BF16,       // operands converted to bf16, fp32 accumulation (~5e-3)
+} mlb_gemm_precision;
+const char* mlb_gemm_precision_name(mlb_gemm_precision p);   // "fp32", "tf32", "fp16", "bf16"
+// "fp32" | "tf32" | "fp16" | "bf16" -> *out; MLB_ERR_ARG naming the accepted values otherwise.
+mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out);
+// The precision the program's SD models run their GPU GEMMs at: --precision, default fp16 (as
+// Stable Diffusion is usually run on GPUs; fp32 accumulation throughout).
+void mlb_set_gemm_precision(mlb_gemm_precision p);
+mlb_gemm_precision mlb_gemm_precision_current(void);
+#define MLB_PRECISION_OPTION_HELP "  --precision P   GPU GEMM operands: fp16 (default), bf16, tf32 or fp32 (fp32 accumulation always)\n"
+
 int mlb_cuda_compiled(void);          // 1 when the CUDA part was built
 int mlb_cuda_device_count(void);      // 0 when none (or not compiled, or no driver)
 // The number of GPUs, or MLB_ERR_DEVICE with the reason there are none: "built without CUDA", or

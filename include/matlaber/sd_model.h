@@ -12,6 +12,7 @@
 #define MATLABER_SD_MODEL_H
 #include <stddef.h>
 #include <stdint.h>
+#include "matlaber/device.h"
 #include "matlaber/error.h"
 #include "matlaber/progress.h"
 #include "matlaber/text_encoder.h"
@@ -24,6 +25,8 @@ typedef struct {
     int v_prediction;             // -1: from the configs (default), 0: epsilon, 1: v-prediction
     int load_text_encoder;        // 1 (default); 0 to skip it (and the tokenizer)
     int load_vae;                 // 1 (default)
+    mlb_device unet_device;       // where the UNet runs (default: mlb_device_current(), the program's --device)
+    mlb_gemm_precision unet_precision;   // its GPU GEMMs (default: mlb_gemm_precision_current(), --precision)
 } mlb_sd_model_options;
 
 typedef struct {
@@ -38,7 +41,7 @@ typedef struct {
     char source[600];             // what was loaded
 } mlb_sd_model;
 
-mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1
+mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1, current device and precision
 // *out is NULL on failure; the message names the file and the tensor or key.
 mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt, mlb_sd_model** out);
 void mlb_sd_model_free(mlb_sd_model* m);   // NULL is fine

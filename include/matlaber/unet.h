@@ -93,6 +93,9 @@ struct mlb_unet {
     mlb_unet_transformer up_attn[MLB_UNET_MAX_LEVELS][MLB_UNET_MAX_LAYERS + 1];
     mlb_unet_conv up_conv[MLB_UNET_MAX_LEVELS];     // after a nearest 2x upsample (all but the last)
     float *norm_out_w, *norm_out_b, *conv_out_w, *conv_out_b;
+    // mlb_unet_use_device: a copy on the GPU that mlb_unet_forward runs on (NULL: the CPU)
+    struct mlb_unet* mirror;
+    const struct mlb_backend* mirror_ops;
 };
 typedef struct mlb_unet mlb_unet;
 
@@ -110,6 +113,10 @@ void mlb_unet_free(mlb_unet* u);   // NULL is fine; frees device weights on thei
 // pointers carved in the loader's order (so params matches a loaded UNet's params element for
 // element). MLB_ERR_ARG for a bad configuration, MLB_ERR_NOMEM / MLB_ERR_DEVICE.
 mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** out);
+// From now on mlb_unet_forward (host buffers) runs on device d with GEMM operands at precision
+// prec: the weights are copied there once, the inputs and
+// the output cross per call (a few hundred KB for SD's latents). MLB_DEVICE_CPU undoes it.
+mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision prec);
 // A copy of the CPU UNet src with its weights on device d (one upload of params).
 mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out);
 const mlb_unet_config* mlb_unet_get_config(const mlb_unet* u);
@@ -123,6 +130,7 @@ typedef void (*mlb_unet_debug_fn)(void* user, const char* name, const float* dat
 // out [N, out_channels, H, W] = unet(x [N, in_channels, H, W], t [N] (timesteps, may be fractional),
 // context [N, Tc, context_dim]). H and W must be multiples of 2^(n_levels - 1). The same bits on any
 // thread count (every GEMM is mlb_gemm, every reduction runs in a fixed order; tests/test_sd_tiny.c).
+// After mlb_unet_use_device it runs on that device (the buffers stay on the host).
 // MLB_ERR_ARG for bad shapes, MLB_ERR_NOMEM.
 mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
                             int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user);

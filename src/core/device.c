@@ -85,6 +85,19 @@ const char* mlb_gemm_precision_name(mlb_gemm_precision p) {
     return "?";
 }
 
+mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out) {
+    for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++)
+        if (name && !strcmp(name, mlb_gemm_precision_name((mlb_gemm_precision)p))) {
+            *out = (mlb_gemm_precision)p;
+            return MLB_OK;
+        }
+    return mlb_fail(MLB_ERR_ARG, "--precision: expected fp16, bf16, tf32 or fp32, not '%s'", name ? name : "");
+}
+
+static mlb_gemm_precision current_precision = MLB_GEMM_FP16;
+void mlb_set_gemm_precision(mlb_gemm_precision p) { current_precision = p; }
+mlb_gemm_precision mlb_gemm_precision_current(void) { return current_precision; }
+
 #ifndef MLB_HAVE_CUDA
 static mlb_status no_cuda(const char* fn) {
     return mlb_fail(MLB_ERR_DEVICE, "%s: this build has no CUDA part (built without CUDA: nvcc was not found at build time)",

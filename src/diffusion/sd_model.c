@@ -8,11 +8,12 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "matlaber/fileio.h"
+#include "matlaber/log.h"
 #include "matlaber/schedule.h"
 
 
 mlb_sd_model_options mlb_sd_model_default_options(void) {
-    mlb_sd_model_options o = {NULL, -1, 1, 1};
+    mlb_sd_model_options o = {NULL, -1, 1, 1, mlb_device_current(), mlb_gemm_precision_current()};
     return o;
 }
 
@@ -69,6 +70,14 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     mlb_status s;
     if ((s = mlb_unet_load(path, NULL, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }
+    if (opt.unet_device != MLB_DEVICE_CPU) {
+        if ((s = mlb_unet_use_device(m->unet, opt.unet_device, opt.unet_precision)) != MLB_OK) {
+            mlb_fail_context(s, "moving the UNet to the %s", mlb_device_name(opt.unet_device));
+            goto fail;
+        }
+        mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands", mlb_device_name(opt.unet_device),
+                mlb_gemm_precision_name(opt.unet_precision));
+    }
     if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
     if (opt.load_text_encoder) {
         if ((s = mlb_text_encoder_load(path, NULL, &m->text)) != MLB_OK) { mlb_fail_context(s, "loading the text encoder"); goto fail; }

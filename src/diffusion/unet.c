@@ -94,7 +94,25 @@ static mlb_status report(const mlb_backend* be, mlb_unet_debug_fn fn, void* user
 
 mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
                             int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user) {
-    return mlb_unet_forward_on(mlb_backend_cpu(), u, out, x, t, context, N, H, W, Tc, debug, debug_user);
+    if (!u || !u->mirror)
+        return mlb_unet_forward_on(mlb_backend_cpu(), u, out, x, t, context, N, H, W, Tc, debug, debug_user);
+    // on the mirror's device: x, context and out staged in one device buffer (allocated per call,
+    // as the activations are: small beside them)
+    if (!out || !x || !t || !context || N < 1 || H < 1 || W < 1 || Tc < 1)
+        return mlb_fail(MLB_ERR_ARG, "UNet forward: NULL argument or empty shape");
+    const mlb_unet* du = u->mirror;
+    const mlb_backend* be = u->mirror_ops;
+    size_t nx = (size_t)N * du->cfg.in_channels * H * W, nc = (size_t)N * Tc * du->cfg.context_dim;
+    size_t no = (size_t)N * du->cfg.out_channels * H * W;
+    float* stage;
+    MLB_TRY(be->alloc(&stage, nx + nc + no));
+    float *dx = stage, *dc = dx + nx, *dout = dc + nc;
+    mlb_status s = be->upload(dx, x, nx);
+    if (s == MLB_OK) s = be->upload(dc, context, nc);
+    if (s == MLB_OK) s = mlb_unet_forward_on(be, du, dout, dx, t, dc, N, H, W, Tc, debug, debug_user);
+    if (s == MLB_OK) s = be->download(out, dout, no);
+    be->release(stage);
+    return s;
 }
 
 mlb_status mlb_unet_forward_on(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,

@@ -409,6 +409,7 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
 
 void mlb_unet_free(mlb_unet* u) {
     if (!u) return;
+    mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_FP32);
     mlb_backend_for(u->device, MLB_GEMM_FP32)->release(u->params);
     free(u);
 }
@@ -454,3 +455,14 @@ mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out)
 
 const mlb_unet_config* mlb_unet_get_config(const mlb_unet* u) { return u ? &u->cfg : NULL; }
 size_t mlb_unet_param_count(const mlb_unet* u) { return u ? u->n_params : 0; }
+
+mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision prec) {
+    if (!u) return mlb_fail(MLB_ERR_ARG, "mlb_unet_use_device: NULL UNet");
+    mlb_unet_free(u->mirror);
+    u->mirror = NULL;
+    if (d == MLB_DEVICE_CPU) return MLB_OK;
+    if (u->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_unet_use_device: the UNet must be on the CPU");
+    MLB_TRY(mlb_unet_to_device(u, d, &u->mirror));
+    u->mirror_ops = mlb_backend_for(d, prec);
+    return MLB_OK;
+}

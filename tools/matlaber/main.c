@@ -26,7 +26,7 @@ static int names_run_dir(int argc, char** argv) {
 static void usage(FILE* out) {
     fprintf(out,
             "matlaber %s: material-aware text-to-3D with a latent BRDF auto-encoder\n\n"
-            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] [--device D] <command> [options]\n\n"
+            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] [--device D] [--precision P] <command> [options]\n\n"
             "commands:\n"
             "  demo            fit a procedural goblet (two real materials) from an ellipsoid, and report\n"
             "  generate        text to 3D with materials: -p PROMPT -m SD_MODEL -o RUN_DIR (the paper)\n"
@@ -47,8 +47,9 @@ static void usage(FILE* out) {
             "  version         print the version\n\n"
             "global options:\n"
             MLB_DEVICE_OPTION_HELP
-            "                  (the CUDA kernels exist with parity tests; the pipeline's ops still run on\n"
-            "                  the CPU in this version: docs/cuda.md)\n\n"
+            "                  (on a GPU the Stable Diffusion UNet runs there, in 'sd txt2img' and\n"
+            "                  'generate'; the rest still runs on the CPU in this version: docs/cuda.md)\n"
+            MLB_PRECISION_OPTION_HELP "\n"
             "'matlaber <command> --help' describes each command.\n",
             MATLABER_VERSION);
 }
@@ -91,6 +92,10 @@ int main(int argc, char** argv) {
             if (s == MLB_ERR_ARG) return cli_usage_error("", "%s", mlb_last_error());
             if (s != MLB_OK) return cli_fail(s, "--device");
             device_given = 1;
+        } else if (strcmp(argv[i], "--precision") == 0) {
+            mlb_gemm_precision p;
+            if (mlb_gemm_precision_parse(argv[i + 1], &p) != MLB_OK) return cli_usage_error("", "%s", mlb_last_error());
+            mlb_set_gemm_precision(p);
         } else if (strcmp(argv[i], "--threads") == 0) {
             long n;
             if (cli_parse_long(argv[i + 1], 1, 1024, &n) != 0) return cli_usage_error("", "--threads: expected 1..1024");

@@ -70,7 +70,7 @@ static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t 
         char what[160];
         snprintf(what, sizeof what, "sdpa B%d Tq%d Tk%d C%d NH%d%s %s", B, Tq, Tk, C, NH, fused ? " fused" : "",
                  prec_names[p]);
-        mlb_status st = mlb_cuda_sdpa_forward(dout, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
+        mlb_status st = mlb_cuda_sdpa_forward(dout, NULL, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
         CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
         if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, op_bound[p]);
         mlb_cuda_free(dout);
@@ -88,8 +88,8 @@ TEST(sdpa_matches_cpu) {
     sdpa_case(3, 50, 50, 96, 3, 1, s + 13);      // fused qkv, odd T
     sdpa_case(1, 64, 7, 64, 1, 0, s + 14);       // one wide head, short context
     float* d = dev_floats(NULL, 64);
-    CHECK(mlb_cuda_sdpa_forward(d, d, d, d, 1, 2, 2, 30, 4, 30, 30, MLB_GEMM_FP32) == MLB_ERR_ARG);   // 4 does not divide 30
-    CHECK(mlb_cuda_sdpa_forward(d, d, d, d, 1, 2, 2, 32, 4, 16, 32, MLB_GEMM_FP32) == MLB_ERR_ARG);   // ldq < C
+    CHECK(mlb_cuda_sdpa_forward(d, NULL, d, d, d, 1, 2, 2, 30, 4, 30, 30, MLB_GEMM_FP32) == MLB_ERR_ARG);   // 4 does not divide 30
+    CHECK(mlb_cuda_sdpa_forward(d, NULL, d, d, d, 1, 2, 2, 32, 4, 16, 32, MLB_GEMM_FP32) == MLB_ERR_ARG);   // ldq < C
     mlb_cuda_free(d);
 }
 

@@ -97,10 +97,17 @@ mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k
 // conv2d_forward's contract (bias may be NULL; out must not overlap in), GEMM operands at `prec`.
 mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
                                    const mlb_conv2d* cv, mlb_gemm_precision prec);
-// sdpa_forward's contract without lse (q/k/v strides ldq/ldkv, Tq may differ from Tk), the scores
-// held for a chunk of images at a time (at most 1 GiB), softmax in float.
-mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const float* k, const float* v, int B, int Tq, int Tk,
-                                 int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
+// sdpa_forward's contract (q/k/v strides ldq/ldkv, Tq may differ from Tk; lse [B, NH, Tq] may be
+// NULL), the scores held for a chunk of images at a time (at most 1 GiB), softmax in float.
+mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
+                                 int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
+// The backwards (src/cuda/conv_backward.cu): conv2d_backward's and sdpa_backward's contracts (+=,
+// any gradient may be NULL; sdpa needs the forward's out and lse).
+mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                    const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec);
+mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
+                                  const float* lse, const float* q, const float* k, const float* v, int B, int Tq,
+                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
 
 // ---- layout and elementwise glue (src/cuda/tensor.cu; the CPU's in src/nn/backend.c) ----
 mlb_status mlb_cuda_add(float* y, const float* x, size_t n);                        // y += x

@@ -131,8 +131,13 @@ mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, 
                                  mlb_gemm_precision prec) { NO_CUDA; }
 mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
                                    const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const float* k, const float* v, int B, int Tq, int Tk,
-                                 int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
+                                 int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                    const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
+mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
+                                  const float* lse, const float* q, const float* k, const float* v, int B, int Tq,
+                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
 mlb_status mlb_cuda_add(float* y, const float* x, size_t n) { NO_CUDA; }
 mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW) { NO_CUDA; }
 mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) { NO_CUDA; }

@@ -16,40 +16,7 @@ extern "C" {
 #include "matlaber/conv_ops.h"
 }
 
-#define CHUNK_BYTES ((size_t)1 << 30)
-
-template <typename T> __device__ __forceinline__ T to_operand(float x);
-template <> __device__ __forceinline__ float to_operand<float>(float x) { return x; }
-template <> __device__ __forceinline__ __half to_operand<__half>(float x) { return __float2half_rn(x); }
-template <> __device__ __forceinline__ __nv_bfloat16 to_operand<__nv_bfloat16>(float x) { return __float2bfloat16_rn(x); }
-
-static size_t round_up(size_t bytes) { return (bytes + 255) / 256 * 256; }
-static int is_half(mlb_gemm_precision p) { return p == MLB_GEMM_FP16 || p == MLB_GEMM_BF16; }
-static mlb_cuda_dtype operand_type(mlb_gemm_precision p) {
-    return p == MLB_GEMM_FP16 ? MLB_DTYPE_F16 : p == MLB_GEMM_BF16 ? MLB_DTYPE_BF16 : MLB_DTYPE_F32;
-}
-
-// ---- conv2d ------------------------------------------------------------------------------------
-struct conv_geom {
-    int C, H, W, KH, KW, sh, sw, pt, pl, OH, OW;
-};
-
-// cols[b][r][p] = in[b, c, oy*sh - pt + i, ox*sw - pl + j] (0 outside), r = (c*KH + i)*KW + j,
-// p = oy*OW + ox: consecutive threads take consecutive output columns, so writes coalesce.
-template <typename T>
-__global__ void im2col_kernel(T* cols, const float* in, int nb, conv_geom g) {
-    const size_t KK = (size_t)g.KH * g.KW, CKK = g.C * KK, OHW = (size_t)g.OH * g.OW;
-    const size_t n = (size_t)nb * CKK * OHW;
-    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
-        size_t p = i % OHW, rr = i / OHW, r = rr % CKK, b = rr / CKK;
-        int oy = (int)(p / g.OW), ox = (int)(p % g.OW);
-        int c = (int)(r / KK), ij = (int)(r % KK), ki = ij / g.KW, kj = ij % g.KW;
-        int iy = oy * g.sh - g.pt + ki, ix = ox * g.sw - g.pl + kj;
-        float v = 0.0f;
-        if (iy >= 0 && iy < g.H && ix >= 0 && ix < g.W) v = in[((b * g.C + c) * g.H + iy) * g.W + ix];
-        cols[i] = to_operand<T>(v);
-    }
-}
+#include "gemm_ops.cuh"
 
 // out[row, i] = bias[row % OC] for rows = N*OC planes of HW values
 __global__ void fill_channel_kernel(float* out, const float* bias, size_t rows, int OC, int HW) {
@@ -65,13 +32,17 @@ static mlb_status launch_im2col(void* cols, const float* in, int nb, const conv_
     MLB_CUDA_LAUNCHED("im2col_kernel");
     return MLB_OK;
 }
+mlb_status mlb_cuda_im2col(mlb_cuda_dtype dt, void* cols, const float* in, int nb, const conv_geom& g) {
+    if (dt == MLB_DTYPE_F16) return launch_im2col<__half>(cols, in, nb, g);
+    if (dt == MLB_DTYPE_BF16) return launch_im2col<__nv_bfloat16>(cols, in, nb, g);
+    return launch_im2col<float>(cols, in, nb, g);
+}
 
 extern "C" mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
                                               const mlb_conv2d* cv, mlb_gemm_precision prec) {
     if (!out || !in || !weight || !cv) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_conv2d_forward: NULL argument");
     MLB_TRY(mlb_conv2d_check(cv));
-    conv_geom g = {cv->C, cv->H, cv->W, cv->KH, cv->KW, cv->stride_h, cv->stride_w, cv->pad_top, cv->pad_left,
-                   mlb_conv2d_out_h(cv), mlb_conv2d_out_w(cv)};
+    conv_geom g = conv_geom_of(cv);
     const int N = cv->N, OC = cv->OC, OHW = g.OH * g.OW, CKK = g.C * g.KH * g.KW;
     float beta = 0.0f;
     if (bias) {
@@ -101,9 +72,7 @@ extern "C" mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const
     for (int n0 = 0; n0 < N; n0 += (int)nb) {
         int m = N - n0 < (int)nb ? N - n0 : (int)nb;
         const float* src = in + (size_t)n0 * g.C * g.H * g.W;
-        if (dt == MLB_DTYPE_F16) MLB_TRY(launch_im2col<__half>(cols, src, m, g));
-        else if (dt == MLB_DTYPE_BF16) MLB_TRY(launch_im2col<__nv_bfloat16>(cols, src, m, g));
-        else MLB_TRY(launch_im2col<float>(cols, src, m, g));
+        MLB_TRY(mlb_cuda_im2col(dt, cols, src, m, g));
         MLB_TRY(mlb_cuda_gemm_batched(0, 0, OC, OHW, CKK, 1.0f, w_op, CKK, 0, cols, OHW, (long long)CKK * OHW, beta,
                                       out + (size_t)n0 * OC * OHW, OHW, (long long)OC * OHW, m, dt, prec));
     }
@@ -131,10 +100,10 @@ __global__ void merge_heads_kernel(float* out, const float* o, int B, int T_, in
     }
 }
 
-// p[row] = softmax(s[row]) over Tk columns, a warp per row: max, sum of exp, then the quotient.
-// p may alias s when T is float.
+// p[row] = softmax(s[row]) over Tk columns, a warp per row: max, sum of exp, then the quotient;
+// lse[row] = max + log(sum) when lse is not NULL. p may alias s when T is float.
 template <typename T>
-__global__ void softmax_rows_kernel(T* p, const float* s, size_t rows, int Tk) {
+__global__ void softmax_rows_kernel(T* p, float* lse, const float* s, size_t rows, int Tk) {
     size_t row = ((size_t)blockIdx.x * blockDim.x + threadIdx.x) >> 5;
     const int lane = threadIdx.x & 31;
     if (row >= rows) return;
@@ -146,6 +115,7 @@ __global__ void softmax_rows_kernel(T* p, const float* s, size_t rows, int Tk) {
     for (int j = lane; j < Tk; j += 32) sum += expf(sr[j] - m);
     for (int o = 16; o; o >>= 1) sum += __shfl_xor_sync(0xffffffffu, sum, o);
     const float inv = 1.0f / sum;
+    if (lse && lane == 0) lse[row] = m + logf(sum);
     T* pr = p + row * Tk;
     for (int j = lane; j < Tk; j += 32) pr[j] = to_operand<T>(expf(sr[j] - m) * inv);
 }
@@ -158,19 +128,19 @@ static mlb_status launch_split(void* out, const float* in, int B, int T_, int NH
     return MLB_OK;
 }
 template <typename T>
-static mlb_status launch_softmax(void* p, const float* s, size_t rows, int Tk) {
-    softmax_rows_kernel<T><<<mlb_blocks(rows * 32, 256), 256>>>((T*)p, s, rows, Tk);
+static mlb_status launch_softmax(void* p, float* lse, const float* s, size_t rows, int Tk) {
+    softmax_rows_kernel<T><<<mlb_blocks(rows * 32, 256), 256>>>((T*)p, lse, s, rows, Tk);
     MLB_CUDA_LAUNCHED("softmax_rows_kernel");
     return MLB_OK;
 }
-static mlb_status split(mlb_cuda_dtype dt, void* out, const float* in, int B, int T_, int NH, int hd, int ld) {
+mlb_status mlb_cuda_split_heads(mlb_cuda_dtype dt, void* out, const float* in, int B, int T_, int NH, int hd, int ld) {
     if (dt == MLB_DTYPE_F16) return launch_split<__half>(out, in, B, T_, NH, hd, ld);
     if (dt == MLB_DTYPE_BF16) return launch_split<__nv_bfloat16>(out, in, B, T_, NH, hd, ld);
     return launch_split<float>(out, in, B, T_, NH, hd, ld);
 }
 
-extern "C" mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const float* k, const float* v, int B, int Tq,
-                                            int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) {
+extern "C" mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B,
+                                            int Tq, int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) {
     if (!out || !q || !k || !v) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_sdpa_forward: NULL argument");
     if (B < 0 || Tq < 0 || Tk < 1 || NH < 1 || C < NH || C % NH || ldq < C || ldkv < C)
         return mlb_fail(MLB_ERR_ARG, "mlb_cuda_sdpa_forward: bad shape B %d Tq %d Tk %d C %d heads %d ldq %d ldkv %d", B,
@@ -193,9 +163,9 @@ extern "C" mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const fl
     float* o = (float*)(vh + kv_bytes);
     float* s = (float*)((char*)o + o_bytes);
     void* p = esz == 4 ? (void*)s : (void*)((char*)s + s_bytes);
-    MLB_TRY(split(dt, qh, q, B, Tq, NH, hd, ldq));
-    MLB_TRY(split(dt, kh, k, B, Tk, NH, hd, ldkv));
-    MLB_TRY(split(dt, vh, v, B, Tk, NH, hd, ldkv));
+    MLB_TRY(mlb_cuda_split_heads(dt, qh, q, B, Tq, NH, hd, ldq));
+    MLB_TRY(mlb_cuda_split_heads(dt, kh, k, B, Tk, NH, hd, ldkv));
+    MLB_TRY(mlb_cuda_split_heads(dt, vh, v, B, Tk, NH, hd, ldkv));
     const float scale = 1.0f / sqrtf((float)hd);
     for (int b0 = 0; b0 < B; b0 += (int)nb) {
         int m = B - b0 < (int)nb ? B - b0 : (int)nb, batch = m * NH;
@@ -206,9 +176,10 @@ extern "C" mlb_status mlb_cuda_sdpa_forward(float* out, const float* q, const fl
         MLB_TRY(mlb_cuda_gemm_batched(0, 1, Tq, Tk, hd, scale, qb, hd, (long long)Tq * hd, kb, hd, (long long)Tk * hd,
                                       0.0f, s, Tk, (long long)Tq * Tk, batch, dt, prec));
         size_t rows = (size_t)batch * Tq;
-        if (dt == MLB_DTYPE_F16) MLB_TRY(launch_softmax<__half>(p, s, rows, Tk));
-        else if (dt == MLB_DTYPE_BF16) MLB_TRY(launch_softmax<__nv_bfloat16>(p, s, rows, Tk));
-        else MLB_TRY(launch_softmax<float>(p, s, rows, Tk));
+        float* lse_b = lse ? lse + (size_t)b0 * NH * Tq : NULL;   // [B, NH, Tq], the CPU's layout
+        if (dt == MLB_DTYPE_F16) MLB_TRY(launch_softmax<__half>(p, lse_b, s, rows, Tk));
+        else if (dt == MLB_DTYPE_BF16) MLB_TRY(launch_softmax<__nv_bfloat16>(p, lse_b, s, rows, Tk));
+        else MLB_TRY(launch_softmax<float>(p, lse_b, s, rows, Tk));
         // O_i [Tq, hd] = P_i [Tq, Tk] v_i [Tk, hd]
         MLB_TRY(mlb_cuda_gemm_batched(0, 0, Tq, hd, Tk, 1.0f, p, Tk, (long long)Tq * Tk, vb, hd, (long long)Tk * hd,
                                       0.0f, o + (size_t)b0 * Tq * C, hd, (long long)Tq * hd, batch, dt, prec));

@@ -114,7 +114,7 @@ static mlb_status cuda_layernorm(float* out, const float* in, const float* w, co
 }
 static mlb_status cuda_sdpa(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
                             int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    return mlb_cuda_sdpa_forward(out, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
+    return mlb_cuda_sdpa_forward(out, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
 }
 
 #define CUDA_TABLE(prec)                                                                                          \

@@ -47,14 +47,14 @@ static mlb_status w_conv(const mlb_backend* be, float* o, const float* i, const 
     double f = 2.0 * cv->N * cv->OC * mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv) * cv->C * cv->KH * cv->KW;
     PROF(P_CONV, f, inner->conv2d(inner, o, i, w, b, cv));
 }
-static mlb_status w_sdpa(const mlb_backend* be, float* o, const float* q, const float* k, const float* v, int B, int Tq,
-                         int Tk, int C, int NH, int ldq, int ldkv) {
+static mlb_status w_sdpa(const mlb_backend* be, float* o, float* lse, const float* q, const float* k, const float* v,
+                         int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
     (void)be;
-    PROF(P_SDPA, 4.0 * B * Tq * Tk * C, inner->sdpa(inner, o, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv));
+    PROF(P_SDPA, 4.0 * B * Tq * Tk * C, inner->sdpa(inner, o, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv));
 }
-static mlb_status w_gn(float* o, const float* i, const float* w, const float* b, int N, int C, int HW, int G, float eps,
-                       mlb_activation a) {
-    PROF(P_NORM, 0, inner->groupnorm(o, i, w, b, N, C, HW, G, eps, a));
+static mlb_status w_gn(float* o, float* mean, float* rstd, const float* i, const float* w, const float* b, int N, int C,
+                       int HW, int G, float eps, mlb_activation a) {
+    PROF(P_NORM, 0, inner->groupnorm(o, mean, rstd, i, w, b, N, C, HW, G, eps, a));
 }
 static mlb_status w_ln(float* o, const float* i, const float* w, const float* b, int N, int C, float eps) {
     PROF(P_NORM, 0, inner->layernorm(o, i, w, b, N, C, eps));

@@ -51,6 +51,8 @@ finish() {
     [ -f "$out/build.log" ] && cp "$out/build.log" "$OUT/"
     [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
     [ -f "$out/bench_cuda_unet.log" ] && cp "$out/bench_cuda_unet.log" "$OUT/"
+    [ -f "$out/bench_cuda_vae.log" ] && cp "$out/bench_cuda_vae.log" "$OUT/"
+    for f in "$out"/test_cuda_*.log; do grep -q "FAIL" "$f" 2> /dev/null && cp "$f" "$OUT/"; done
   fi
 }
 trap finish EXIT
@@ -107,7 +109,7 @@ grep -E "matlaber: CUDA part" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
 tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
 targets=$tests
-[ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet"
+[ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
 jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
 # shellcheck disable=SC2086
 cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
@@ -139,6 +141,7 @@ done
 if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
+  (cd "$build" && ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae.log" | tee -a "$log"
 fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="

@@ -1,10 +1,13 @@
 // The backward ops the VAE encoder needs on the GPU (conv2d and attention), against the CPU's, at
-// every GEMM precision. Gradients accumulate onto random values on both sides; the comparison is of
+// every GEMM precision; then a whole random VAE (4 levels, 32..64 channels, mid attention) moved
+// with mlb_vae_use_device: encoder forward with its cache, encoder backward, decoder, against the
+// CPU (bounds: fp32 1e-4, bf16 5e-2, like the UNet's: ~30 layers, each normalised). Gradients accumulate onto random values on both sides; the comparison is of
 // the increments (result - start), so the bound speaks of the gradient itself. Skips without a GPU.
 // Bounds (relative L2), as test_cuda_unet: fp32 1e-5 (sums of up to N*OH*OW = 2000 products in
 // another order), tf32 / fp16 3e-3, bf16 2e-2 (the attention backward chains three GEMMs through
 // bf16 copies of P and dS: 3e-2).
 #include "cuda_test_util.h"
+#include "matlaber/vae.h"
 
 static const char* prec_names[] = {"fp32", "tf32", "fp16", "bf16"};
 static const double bound[] = {1e-5, 3e-3, 3e-3, 2e-2};
@@ -143,8 +146,68 @@ TEST(sdpa_backward_matches_cpu) {
     sdpa_bwd_case(3, 33, 45, 96, 3, 0, s + 3);     // odd sizes, Tq != Tk
 }
 
+static void vae_case(mlb_gemm_precision prec, double tol, uint64_t seed) {
+    mlb_vae_config c = mlb_vae_sd_config();
+    c.n_levels = 4;
+    c.block_out[0] = 32; c.block_out[1] = 32; c.block_out[2] = 64; c.block_out[3] = 64;
+    c.layers_per_block = 2;
+    mlb_vae* v = NULL;
+    CHECK_MSG(mlb_vae_create(&c, &v) == MLB_OK, "%s", mlb_last_error());
+    if (!v) return;
+    mlb_vae_init_random(v, seed, 1.0f);
+    const int N = 2, H = 64, W = 48, h = H / 8, w = W / 8, z = c.latent_channels;
+    size_t ni = (size_t)N * 3 * H * W, nz = (size_t)N * z * h * w;
+    float *img = host_alloc(ni), *g = host_alloc(nz), *lat = host_alloc(nz), *d0 = host_alloc(ni);
+    fill_uniform(img, ni, seed, 1, -1, 1);
+    fill_uniform(g, nz, seed, 2, -1, 1);
+    fill_uniform(lat, nz, seed, 3, -2, 2);
+    fill_uniform(d0, ni, seed, 4, -1, 1);
+    float *mc = host_alloc(nz), *lc = host_alloc(nz), *dc = host_alloc(ni), *oc = host_alloc(ni);
+    float *mg = host_alloc(nz), *lg = host_alloc(nz), *dg = host_alloc(ni), *og = host_alloc(ni);
+    memcpy(dc, d0, ni * 4);
+    memcpy(dg, d0, ni * 4);
+    mlb_vae_cache cc = {0}, cg = {0};
+    CHECK(mlb_vae_encode(v, img, N, H, W, mc, lc, &cc) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(v, &cc, g, g, dc) == MLB_OK);
+    CHECK(mlb_vae_decode(v, lat, N, h, w, oc) == MLB_OK);
+    CHECK_MSG(mlb_vae_use_device(v, MLB_DEVICE_CUDA, prec) == MLB_OK, "%s", mlb_last_error());
+    char what[120];
+    mlb_status st = mlb_vae_encode(v, img, N, H, W, mg, lg, &cg);
+    CHECK_MSG(st == MLB_OK, "encode: %s", mlb_last_error());
+    CHECK(cg.device == MLB_DEVICE_CUDA);
+    if (st == MLB_OK) {
+        snprintf(what, sizeof what, "VAE encode mean %s", prec_names[prec]);
+        CHECK_PARITY(what, mg, mc, nz, tol);
+        snprintf(what, sizeof what, "VAE encode logvar %s", prec_names[prec]);
+        CHECK_PARITY(what, lg, lc, nz, tol);
+        st = mlb_vae_encode_backward(v, &cg, g, g, dg);
+        CHECK_MSG(st == MLB_OK, "backward: %s", mlb_last_error());
+        snprintf(what, sizeof what, "VAE encode backward dimage %s", prec_names[prec]);
+        if (st == MLB_OK) check_increment(what, dg, dc, d0, ni, tol);
+    }
+    st = mlb_vae_decode(v, lat, N, h, w, og);
+    CHECK_MSG(st == MLB_OK, "decode: %s", mlb_last_error());
+    snprintf(what, sizeof what, "VAE decode %s", prec_names[prec]);
+    if (st == MLB_OK) CHECK_PARITY(what, og, oc, ni, tol);
+    // a CPU cache handed to the GPU model is refused; back on the CPU the bits are the CPU's again
+    CHECK(mlb_vae_encode_backward(v, &cc, g, g, dg) == MLB_ERR_ARG);
+    CHECK(mlb_vae_use_device(v, MLB_DEVICE_CPU, prec) == MLB_OK && !v->mirror);
+    CHECK(mlb_vae_decode(v, lat, N, h, w, og) == MLB_OK && !memcmp(og, oc, ni * 4));
+    mlb_vae_cache_free(&cc);
+    mlb_vae_cache_free(&cg);
+    mlb_vae_free(v);
+    free(img); free(g); free(lat); free(d0); free(mc); free(lc); free(dc); free(oc); free(mg); free(lg); free(dg); free(og);
+}
+
+TEST(vae_matches_cpu) {
+    REQUIRE_GPU();
+    vae_case(MLB_GEMM_FP32, 1e-4, test_seed() + 200);
+    vae_case(MLB_GEMM_BF16, 5e-2, test_seed() + 201);
+}
+
 int main(void) {
     RUN(conv2d_backward_matches_cpu);
     RUN(sdpa_backward_matches_cpu);
+    RUN(vae_matches_cpu);
     return test_summary();
 }

@@ -12,6 +12,8 @@
 #include "matlaber/safetensors.h"
 #include "matlaber/threads.h"
 #include "matlaber/vae.h"
+#include "matlaber/device.h"
+#include "matlaber/rng.h"
 #include "test.h"
 
 #define TOL 1e-4   // README: "VAE mean/logvar/decoded/grad_image ... to about 1e-4 absolute"
@@ -501,7 +503,25 @@ TEST(error_messages) {
     mlb_vae_free(v);
 }
 
+// mlb_vae_use_device without a GPU: a clear error, and the model stays on the CPU with its bits.
+// (With a GPU, tests/test_cuda_vae.c runs the same calls on the device.)
+TEST(use_device_without_gpu) {
+    if (mlb_cuda_device_count() > 0) SKIP("a GPU is present: tests/test_cuda_vae.c covers it");
+    mlb_vae* v = tiny_vae();
+    REQUIRE(v);
+    const int N = 1, h = 4, w = 6;
+    float z[1 * 2 * 4 * 6], a[3 * 8 * 12], b[3 * 8 * 12];
+    for (int i = 0; i < N * 2 * h * w; i++) z[i] = (float)mlb_rng_uniform_f64(4, 0, i) * 2 - 1;
+    REQUIRE(mlb_vae_decode(v, z, N, h, w, a) == MLB_OK);
+    CHECK(mlb_vae_use_device(v, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_DEVICE);
+    CHECK(v->mirror == NULL && v->device == MLB_DEVICE_CPU);
+    CHECK(mlb_vae_decode(v, z, N, h, w, b) == MLB_OK && !memcmp(a, b, sizeof a));
+    CHECK(mlb_vae_use_device(NULL, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_ERR_ARG);
+    mlb_vae_free(v);
+}
+
 int main(void) {
+    RUN(use_device_without_gpu);
     RUN(layouts_load_identically);
     RUN(names_match_name_map);
     RUN(encoder_decoder_match_reference);

@@ -31,17 +31,31 @@ struct mlb_backend {
     mlb_status (*download)(float* host, const float* src, size_t n);
     // rows x width floats, row pitches in floats (a channel concatenation is one such copy per image)
     mlb_status (*copy_rows)(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows);
-    // ops (the CPU contracts of the same names)
+    mlb_status (*zero)(float* p, size_t n);
+    mlb_status (*copy)(float* dst, const float* src, size_t n);   // same device, no overlap
+    // ops (the CPU contracts of the same names; backward ops accumulate, any gradient may be NULL)
     mlb_status (*linear)(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
                          int C, int OC);
+    mlb_status (*linear_backward)(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                  const float* in, const float* w, int B, int C, int OC);
     mlb_status (*conv2d)(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
                          const mlb_conv2d* cv);
-    mlb_status (*groupnorm)(float* out, const float* in, const float* w, const float* b, int N, int C, int HW, int G,
-                            float eps, mlb_activation act);
+    mlb_status (*conv2d_backward)(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                  const float* in, const float* w, const mlb_conv2d* cv);
+    // mean/rstd [N, G] may be NULL (not kept)
+    mlb_status (*groupnorm)(float* out, float* mean, float* rstd, const float* in, const float* w, const float* b,
+                            int N, int C, int HW, int G, float eps, mlb_activation act);
+    mlb_status (*groupnorm_backward)(float* din, float* dw, float* db, const float* dout, const float* in,
+                                     const float* w, const float* b, const float* mean, const float* rstd, int N,
+                                     int C, int HW, int G, mlb_activation act);
     mlb_status (*layernorm)(float* out, const float* in, const float* w, const float* b, int N, int C, float eps);
     mlb_status (*activation)(float* out, const float* in, size_t n, mlb_activation act);
-    mlb_status (*sdpa)(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
-                       int Tq, int Tk, int C, int NH, int ldq, int ldkv);
+    // lse [B, NH, Tq] may be NULL (not kept)
+    mlb_status (*sdpa)(const mlb_backend* be, float* out, float* lse, const float* q, const float* k, const float* v,
+                       int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv);
+    mlb_status (*sdpa_backward)(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
+                                const float* out, const float* lse, const float* q, const float* k, const float* v,
+                                int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv);
     mlb_status (*add)(float* y, const float* x, size_t n);                       // y += x
     mlb_status (*add_channel)(float* x, const float* v, int N, int C, int HW);    // x[n,c,:] += v[n,c]
     mlb_status (*transpose_last2)(float* out, const float* in, int N, int R, int S, int accumulate);

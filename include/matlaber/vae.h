@@ -25,6 +25,7 @@
 #define MATLABER_VAE_H
 #include <stddef.h>
 #include <stdint.h>
+#include "matlaber/device.h"
 #include "matlaber/error.h"
 #include "matlaber/safetensors.h"
 
@@ -74,6 +75,11 @@ typedef struct {
 #include "matlaber/vae_api.inc"
 #undef MLB_REAL
 #undef MLB_FN
+
+// From now on mlb_vae_encode / _encode_backward / _decode (host buffers) run on device d with GEMM
+// operands at prec: the weights are copied there once; the encoder's cache stays there; images,
+// latents and gradients cross per call. MLB_DEVICE_CPU undoes it. Float models only.
+mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec);
 
 // ---- loading (float) ------------------------------------------------------------------------------
 // `path`: a diffusers vae/ folder, a diffusers model folder (vae/ inside), a single-file checkpoint

@@ -79,6 +79,11 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
                 mlb_gemm_precision_name(opt.unet_precision));
     }
     if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
+    if (m->vae && opt.unet_device != MLB_DEVICE_CPU &&
+        (s = mlb_vae_use_device(m->vae, opt.unet_device, opt.unet_precision)) != MLB_OK) {
+        mlb_fail_context(s, "moving the VAE to the %s", mlb_device_name(opt.unet_device));
+        goto fail;
+    }
     if (opt.load_text_encoder) {
         if ((s = mlb_text_encoder_load(path, NULL, &m->text)) != MLB_OK) { mlb_fail_context(s, "loading the text encoder"); goto fail; }
         char tp[4200];

@@ -25,11 +25,11 @@ static mlb_status resnet_fwd(const mlb_backend* be, const mlb_unet* u, const mlb
                              const float* x, int N, int H, int W, unet_ws* ws) {
     const mlb_unet_config* c = &u->cfg;
     int HW = H * W, G = c->norm_groups;
-    MLB_TRY(be->groupnorm(ws->ta, x, r->norm1_w, r->norm1_b, N, r->cin, HW, G, c->norm_eps, MLB_ACT_SILU));
+    MLB_TRY(be->groupnorm(ws->ta, NULL, NULL, x, r->norm1_w, r->norm1_b, N, r->cin, HW, G, c->norm_eps, MLB_ACT_SILU));
     MLB_TRY(conv(be, ws->tb, ws->ta, r->conv1_w, r->conv1_b, N, r->cin, H, W, r->cout, 3, 1, 1));
     MLB_TRY(be->linear(be, ws->tvec, ws->emb_silu, r->temb_w, r->temb_b, N, c->time_embed_dim, r->cout));
     MLB_TRY(be->add_channel(ws->tb, ws->tvec, N, r->cout, HW));
-    MLB_TRY(be->groupnorm(ws->tb, ws->tb, r->norm2_w, r->norm2_b, N, r->cout, HW, G, c->norm_eps, MLB_ACT_SILU));
+    MLB_TRY(be->groupnorm(ws->tb, NULL, NULL, ws->tb, r->norm2_w, r->norm2_b, N, r->cout, HW, G, c->norm_eps, MLB_ACT_SILU));
     MLB_TRY(conv(be, out, ws->tb, r->conv2_w, r->conv2_b, N, r->cout, H, W, r->cout, 3, 1, 1));
     size_t n = (size_t)N * r->cout * HW;
     if (r->skip_w) {
@@ -45,7 +45,7 @@ static mlb_status attn_fwd(const mlb_backend* be, const mlb_unet* u, const mlb_u
     const mlb_unet_config* c = &u->cfg;
     int C = a->C, T = H * W, D = c->context_dim, NT = N * T;
     size_t nt = (size_t)NT * C;
-    MLB_TRY(be->groupnorm(ws->ta, x, a->norm_w, a->norm_b, N, C, T, c->norm_groups, c->transformer_norm_eps,
+    MLB_TRY(be->groupnorm(ws->ta, NULL, NULL, x, a->norm_w, a->norm_b, N, C, T, c->norm_groups, c->transformer_norm_eps,
                           MLB_ACT_IDENTITY));
     MLB_TRY(be->transpose_last2(ws->ln, ws->ta, N, C, T, 0));                        // [N, T, C]
     MLB_TRY(be->linear(be, ws->tok, ws->ln, a->proj_in_w, a->proj_in_b, NT, C, C));
@@ -54,7 +54,7 @@ static mlb_status attn_fwd(const mlb_backend* be, const mlb_unet* u, const mlb_u
     MLB_TRY(be->linear(be, ws->q, ws->ln, a->q1, NULL, NT, C, C));
     MLB_TRY(be->linear(be, ws->k, ws->ln, a->k1, NULL, NT, C, C));
     MLB_TRY(be->linear(be, ws->v, ws->ln, a->v1, NULL, NT, C, C));
-    MLB_TRY(be->sdpa(be, ws->att, ws->q, ws->k, ws->v, N, T, T, C, a->heads, C, C));
+    MLB_TRY(be->sdpa(be, ws->att, NULL, ws->q, ws->k, ws->v, N, T, T, C, a->heads, C, C));
     MLB_TRY(be->linear(be, ws->tmp, ws->att, a->o1_w, a->o1_b, NT, C, C));
     MLB_TRY(be->add(ws->tok, ws->tmp, nt));
     // cross-attention
@@ -62,7 +62,7 @@ static mlb_status attn_fwd(const mlb_backend* be, const mlb_unet* u, const mlb_u
     MLB_TRY(be->linear(be, ws->q, ws->ln, a->q2, NULL, NT, C, C));
     MLB_TRY(be->linear(be, ws->k, ctx, a->k2, NULL, N * Tc, D, C));
     MLB_TRY(be->linear(be, ws->v, ctx, a->v2, NULL, N * Tc, D, C));
-    MLB_TRY(be->sdpa(be, ws->att, ws->q, ws->k, ws->v, N, T, Tc, C, a->heads, C, C));
+    MLB_TRY(be->sdpa(be, ws->att, NULL, ws->q, ws->k, ws->v, N, T, Tc, C, a->heads, C, C));
     MLB_TRY(be->linear(be, ws->tmp, ws->att, a->o2_w, a->o2_b, NT, C, C));
     MLB_TRY(be->add(ws->tok, ws->tmp, nt));
     // GEGLU feed-forward: [h | gate] = W1 ln3(x); x += W2 (h * gelu(gate))
@@ -250,7 +250,7 @@ mlb_status mlb_unet_forward_on(const mlb_backend* be, const mlb_unet* u, float* 
         snprintf(name, sizeof name, "up_blocks.%d", i);
         CK(report(be, debug, debug_user, name, h, (size_t)N * ch * hh * ww));
     }
-    CK(be->groupnorm(h2, h, u->norm_out_w, u->norm_out_b, N, ch, H * W, c->norm_groups, c->norm_eps,
+    CK(be->groupnorm(h2, NULL, NULL, h, u->norm_out_w, u->norm_out_b, N, ch, H * W, c->norm_groups, c->norm_eps,
                      MLB_ACT_IDENTITY));
     CK(report(be, debug, debug_user, "conv_norm_out", h2, (size_t)N * ch * H * W));
     CK(be->activation(h2, h2, (size_t)N * ch * H * W, MLB_ACT_SILU));

@@ -15,6 +15,10 @@ static mlb_status cpu_copy(float* dst, const float* src, size_t n) {
     if (n) memcpy(dst, src, n * sizeof(float));
     return MLB_OK;
 }
+static mlb_status cpu_zero(float* p, size_t n) {
+    if (n) memset(p, 0, n * sizeof(float));
+    return MLB_OK;
+}
 static mlb_status cpu_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
     for (size_t r = 0; r < rows; r++) memcpy(dst + r * dpitch, src + r * spitch, width * sizeof(float));
     return MLB_OK;
@@ -25,14 +29,25 @@ static mlb_status cpu_linear(const mlb_backend* be, float* out, const float* in,
     linear_forward(out, in, w, b, B, C, OC);
     return MLB_OK;
 }
+static mlb_status cpu_linear_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                      const float* in, const float* w, int B, int C, int OC) {
+    (void)be;
+    linear_backward(din, dw, db, dout, in, w, B, C, OC);
+    return MLB_OK;
+}
+static mlb_status cpu_conv2d_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                      const float* in, const float* w, const mlb_conv2d* cv) {
+    (void)be;
+    return conv2d_backward(din, dw, db, dout, in, w, cv, NULL);
+}
 static mlb_status cpu_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
                              const mlb_conv2d* cv) {
     (void)be;
     return conv2d_forward(out, in, w, b, cv, NULL);
 }
-static mlb_status cpu_groupnorm(float* out, const float* in, const float* w, const float* b, int N, int C, int HW, int G,
-                                float eps, mlb_activation act) {
-    return groupnorm_forward(out, NULL, NULL, in, w, b, N, C, HW, G, eps, act);
+static mlb_status cpu_groupnorm(float* out, float* mean, float* rstd, const float* in, const float* w, const float* b,
+                                int N, int C, int HW, int G, float eps, mlb_activation act) {
+    return groupnorm_forward(out, mean, rstd, in, w, b, N, C, HW, G, eps, act);
 }
 static mlb_status cpu_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
     layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
@@ -42,10 +57,16 @@ static mlb_status cpu_activation(float* out, const float* in, size_t n, mlb_acti
     activation_forward(out, in, n, act);
     return MLB_OK;
 }
-static mlb_status cpu_sdpa(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
-                           int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+static mlb_status cpu_sdpa(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
+                           const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
     (void)be;
-    return sdpa_forward(out, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+    return sdpa_forward(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+}
+static mlb_status cpu_sdpa_backward(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
+                                    const float* out, const float* lse, const float* q, const float* k, const float* v,
+                                    int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    return sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
 }
 static mlb_status cpu_add(float* y, const float* x, size_t n) {
     for (size_t i = 0; i < n; i++) y[i] += x[i];
@@ -77,9 +98,10 @@ static mlb_status cpu_upsample(float* out, const float* in, int N, int C, int H,
 }
 
 static const mlb_backend cpu_table = {
-    MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_linear,
-    cpu_conv2d, cpu_groupnorm, cpu_layernorm, cpu_activation, cpu_sdpa, cpu_add, cpu_add_channel, cpu_transpose,
-    cpu_geglu, cpu_upsample,
+    MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
+    cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_groupnorm, groupnorm_backward,
+    cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu,
+    cpu_upsample,
 };
 
 // ---- CUDA ----------------------------------------------------------------------------------------
@@ -101,26 +123,39 @@ static mlb_status cuda_linear(const mlb_backend* be, float* out, const float* in
                               int C, int OC) {
     return mlb_cuda_linear_forward(out, in, w, b, B, C, OC, be->precision);
 }
+static mlb_status cuda_zero(float* p, size_t n) { return mlb_cuda_memset(p, 0, n * sizeof(float)); }
+static mlb_status cuda_copy(float* dst, const float* src, size_t n) { return mlb_cuda_copy_d2d(dst, src, n * sizeof(float)); }
+static mlb_status cuda_linear_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                       const float* in, const float* w, int B, int C, int OC) {
+    return mlb_cuda_linear_backward(din, dw, db, dout, in, w, B, C, OC, be->precision);
+}
+static mlb_status cuda_conv2d_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                       const float* in, const float* w, const mlb_conv2d* cv) {
+    return mlb_cuda_conv2d_backward(din, dw, db, dout, in, w, cv, be->precision);
+}
 static mlb_status cuda_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
                               const mlb_conv2d* cv) {
     return mlb_cuda_conv2d_forward(out, in, w, b, cv, be->precision);
 }
-static mlb_status cuda_groupnorm(float* out, const float* in, const float* w, const float* b, int N, int C, int HW,
-                                 int G, float eps, mlb_activation act) {
-    return mlb_cuda_groupnorm_forward(out, NULL, NULL, in, w, b, N, C, HW, G, eps, act);
-}
+
 static mlb_status cuda_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
     return mlb_cuda_layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
 }
-static mlb_status cuda_sdpa(const mlb_backend* be, float* out, const float* q, const float* k, const float* v, int B,
-                            int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    return mlb_cuda_sdpa_forward(out, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
+static mlb_status cuda_sdpa(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
+                            const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    return mlb_cuda_sdpa_forward(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
+}
+static mlb_status cuda_sdpa_backward(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
+                                     const float* out, const float* lse, const float* q, const float* k,
+                                     const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    return mlb_cuda_sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
 }
 
-#define CUDA_TABLE(prec)                                                                                          \
-    {MLB_DEVICE_CUDA, prec, cuda_alloc, cuda_release, cuda_upload, cuda_download, mlb_cuda_copy_rows, cuda_linear, \
-     cuda_conv2d, cuda_groupnorm, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, mlb_cuda_add,          \
-     mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x}
+#define CUDA_TABLE(prec)                                                                                         \
+    {MLB_DEVICE_CUDA, prec, cuda_alloc, cuda_release, cuda_upload, cuda_download, mlb_cuda_copy_rows, cuda_zero,  \
+     cuda_copy, cuda_linear, cuda_linear_backward, cuda_conv2d, cuda_conv2d_backward, mlb_cuda_groupnorm_forward, \
+     mlb_cuda_groupnorm_backward, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, cuda_sdpa_backward,     \
+     mlb_cuda_add, mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x}
 static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE(MLB_GEMM_TF32),
                                            CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
 

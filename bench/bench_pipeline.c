@@ -26,7 +26,10 @@
 // UNet at 64² latents; --sd15 --no-images --no-tiny: 3 min (docs/benchmarks.md).
 //   build/bench/bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512]
 //                              [--no-images] [--no-tiny] [--stage both|geometry|appearance]
-//                              [--init-iters 100] [--dir /tmp]
+//                              [--init-iters 100] [--dir /tmp] [--sd15-views 1] [--device cpu|cuda]
+//                              [--precision fp16]
+// --device cuda moves the SD 1.5 UNet and VAE to the GPU (mlb_unet_use_device, mlb_vae_use_device) at
+// --precision; the render, the networks and Adam stay on the CPU (docs/cuda.md).
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -37,6 +40,7 @@
 #include "bench_util.h"
 #include "matlaber/appearance.h"
 #include "matlaber/brdf_ae.h"
+#include "matlaber/device.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/envmap.h"
 #include "matlaber/geometry.h"
@@ -401,7 +405,8 @@ static int parse_sizes(const char* arg, int* out, int cap) {
 
 static int usage(void) {
     fprintf(stderr, "usage: bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512] [--no-images] "
-                    "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp]\n");
+                    "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp] [--sd15-views 1] "
+                    "[--device cpu|cuda] [--precision fp16]\n");
     return 2;
 }
 
@@ -460,6 +465,9 @@ int main(int argc, char** argv) {
     int iters = 1, sd15 = 0, images = 1, tiny = 1, do_geo = 1, do_app = 1, init_iters = 100;
     int sizes[8] = {64, 128, 512}, n_sizes = 3, sd_sizes[8] = {512}, n_sd_sizes = 1;
     const char* base = "/tmp";
+    int sd_views = 1;
+    mlb_device device = MLB_DEVICE_CPU;
+    mlb_gemm_precision precision = MLB_GEMM_FP16;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--sd15")) sd15 = 1;
         else if (!strcmp(argv[i], "--no-images")) images = 0;
@@ -467,6 +475,12 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--iters")) iters = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--init-iters")) init_iters = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--dir")) base = argv[++i];
+        else if (i + 1 < argc && !strcmp(argv[i], "--sd15-views")) sd_views = atoi(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--device")) {
+            if (mlb_device_select(argv[++i], &device) != MLB_OK) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
+        } else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
+            if (mlb_gemm_precision_parse(argv[++i], &precision) != MLB_OK) return usage();
+        }
         else if (i + 1 < argc && !strcmp(argv[i], "--sizes")) {
             if ((n_sizes = parse_sizes(argv[++i], sizes, 8)) < 0) return usage();
         } else if (i + 1 < argc && !strcmp(argv[i], "--sd15-sizes")) {
@@ -564,7 +578,14 @@ int main(int argc, char** argv) {
         unlink(pv);
         if (s) { fprintf(stderr, "bench_pipeline: SD 1.5: %s\n", mlb_last_error()); rc = 1; goto out; }
         fprintf(stderr, "SD 1.5 random weights written and loaded in %.1f s\n", mlb_now_seconds() - t0);
-        if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, 1) ||
+        if (device != MLB_DEVICE_CPU) {
+            s = mlb_unet_use_device(tu, device, precision);
+            if (!s) s = mlb_vae_use_device(tv, device, precision);
+            if (s) { fprintf(stderr, "bench_pipeline: --device: %s\n", mlb_last_error()); rc = 1; goto out; }
+            printf("SD 1.5 UNet and VAE on the %s, %s GEMMs; %d views per step\n", mlb_device_name(device),
+                   mlb_gemm_precision_name(precision), sd_views);
+        }
+        if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views) ||
             run_guidance(&sc, "sds SD 1.5", &tg, NULL, sd_sizes, n_sd_sizes, iters, do_geo, do_app)) {
             fprintf(stderr, "bench_pipeline: SD 1.5 SDS: %s\n", mlb_last_error());
             rc = 1;

@@ -5,7 +5,7 @@
 #   scripts/gpu-parity.sh --fetch-debs   HERE (Debian 12, with network): downloads the -dev packages the
 #                                        build needs into build-gpu-debs/ (ignored by git), for a GPU
 #                                        machine that cannot install anything
-#   scripts/gpu-parity.sh [--bench] [--memcheck]
+#   scripts/gpu-parity.sh [--bench] [--memcheck] [--pipeline]
 #                                        ON THE GPU MACHINE, in the repository root: configures
 #                                        build-gpu/ (CUDA on, sm_90 unless MLB_CUDA_ARCH says otherwise),
 #                                        unpacks build-gpu-debs/*.deb into a private prefix when a
@@ -31,11 +31,13 @@ if [ "${1:-}" = "--fetch-debs" ]; then
 fi
 bench=0
 memcheck=0
+pipeline=0
 for a in "$@"; do
   case $a in
     --bench) bench=1 ;;
     --memcheck) memcheck=1 ;;   # every test under compute-sanitizer (out-of-bounds, races: slower)
-    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench] [--memcheck]]" >&2; exit 2 ;;
+    --pipeline) pipeline=1 ;;   # bench_pipeline with full-size random SD 1.5 on the GPU, 9 views at 512² (~2 min)
+    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench] [--memcheck] [--pipeline]]" >&2; exit 2 ;;
   esac
 done
 
@@ -52,6 +54,7 @@ finish() {
     [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
     [ -f "$out/bench_cuda_unet.log" ] && cp "$out/bench_cuda_unet.log" "$OUT/"
     [ -f "$out/bench_cuda_vae.log" ] && cp "$out/bench_cuda_vae.log" "$OUT/"
+    [ -f "$out/bench_pipeline.log" ] && cp "$out/bench_pipeline.log" "$OUT/"
     for f in "$out"/test_cuda_*.log; do grep -q "FAIL" "$f" 2> /dev/null && cp "$f" "$OUT/"; done
   fi
 }
@@ -110,6 +113,7 @@ grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the 
 tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
 targets=$tests
 [ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
+[ $pipeline = 1 ] && targets="$targets bench_pipeline"
 jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
 # shellcheck disable=SC2086
 cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
@@ -142,6 +146,10 @@ if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae.log" | tee -a "$log"
+fi
+if [ $pipeline = 1 ]; then
+  (cd "$build" && ./bench/bench_pipeline --sd15 --no-images --no-tiny --device cuda --precision "${MLB_PRECISION:-fp16}" \
+     --sd15-views 9 --sd15-sizes 512 --iters 1 --dir /tmp) 2>&1 | tee "$out/bench_pipeline.log" | tee -a "$log"
 fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="

@@ -263,7 +263,7 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
         if (!s) s = mlb_appearance_backward(&app, &sc->mat, dimages);
         double t3 = mlb_now_seconds();
         if (!s) s = mlb_mesh_sample_surface(&sc->mesh, pts, SMOOTH_POINTS, 0, 0x5300000000ull + (uint64_t)step);
-        if (!s) s = mlb_material_smoothness(&sc->mat, pts, SMOOTH_POINTS, 0.01, 0.03, 0, step, 1, &smooth);
+        if (!s) s = mlb_material_smoothness(&sc->mat, pts, SMOOTH_POINTS, 0.01, 0.03, 0, 0, step, 1, &smooth);
         double t4 = mlb_now_seconds();
         if (!s) material_net_update(&sc->mat, &adam);
         double t5 = mlb_now_seconds();

@@ -375,10 +375,10 @@ TEST(smoothness) {
     enum { n = 50 };
     double pts[3 * n];
     for (int i = 0; i < 3 * n; i++) pts[i] = (mlb_rng_uniform_f64(6, 0, i) - 0.5) * 1.5;
-    const double sigma = 0.05, weight = 0.03;
+    const double sigma = 0.05, weight = 0.03, wspec = 0.02;
     double L;
     material_net_zero_grad_f64(&net);
-    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 7, 1, &L) == MLB_OK);
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 1, &L) == MLB_OK);
     // the value from its definition, with the jitter drawn the documented way
     double x[3 * n], xj[3 * n], k0[7 * n], k1[7 * n];
     for (int i = 0; i < 3 * n; i++) {
@@ -387,21 +387,23 @@ TEST(smoothness) {
     }
     REQUIRE(material_net_eval_f64(&net, x, n, k0, NULL) == MLB_OK);
     REQUIRE(material_net_eval_f64(&net, xj, n, k1, NULL) == MLB_OK);
-    double ref = 0;
+    double ref_kd = 0, ref_spec = 0;
     for (int i = 0; i < n; i++)
-        for (int ch = 0; ch < 3; ch++) ref += fabs(k0[7 * i + ch] - k1[7 * i + ch]);
-    ref *= weight / (3.0 * n);
-    CHECK_CLOSE(L, ref, 1e-12, 0);
-    CHECK(L > 0);
+        for (int ch = 0; ch < 7; ch++) *(ch < 3 ? &ref_kd : &ref_spec) += fabs(k0[7 * i + ch] - k1[7 * i + ch]);
+    CHECK_CLOSE(L, weight / (3.0 * n) * ref_kd + wspec / (4.0 * n) * ref_spec, 1e-12, 0);
+    CHECK(L > 0 && ref_spec > 0);
+    double Lkd;   // the paper's kd-only term alone
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 0, 42, 7, 0, &Lkd) == MLB_OK);
+    CHECK_CLOSE(Lkd, weight / (3.0 * n) * ref_kd, 1e-12, 0);
     // another step draws another jitter; sigma 0 gives 0
     double L2, L0;
-    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 8, 0, &L2) == MLB_OK);
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 8, 0, &L2) == MLB_OK);
     CHECK(L2 != L);
-    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, 0, weight, 42, 8, 0, &L0) == MLB_OK);
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, 0, weight, wspec, 42, 8, 0, &L0) == MLB_OK);
     CHECK(L0 == 0);
     // finite differences over the parameters of largest gradient
     material_net_zero_grad_f64(&net);
-    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 7, 1, &L) == MLB_OK);
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 1, &L) == MLB_OK);
     const double h = 1e-7;
     size_t pick[8];
     test_top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
@@ -409,15 +411,15 @@ TEST(smoothness) {
         size_t i = pick[q];
         double keep = net.params[i], Lp, Lm;
         net.params[i] = keep + h;
-        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 7, 0, &Lp) == MLB_OK);
+        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 0, &Lp) == MLB_OK);
         net.params[i] = keep - h;
-        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, 42, 7, 0, &Lm) == MLB_OK);
+        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 0, &Lm) == MLB_OK);
         net.params[i] = keep;
         double fd = (Lp - Lm) / (2 * h);
         CHECK_MSG(fabs(fd - net.grads[i]) <= 1e-6 * fabs(fd) + 1e-10, "param %zu: fd %.10g, backward %.10g", i, fd, net.grads[i]);
         CHECK(net.grads[i] != 0);
     }
-    CHECK(mlb_material_smoothness_f64(&net, pts, 0, sigma, weight, 42, 7, 0, &L) == MLB_ERR_ARG);
+    CHECK(mlb_material_smoothness_f64(&net, pts, 0, sigma, weight, wspec, 42, 7, 0, &L) == MLB_ERR_ARG);
     material_net_free_f64(&net);
     brdf_ae_free(&prior);
 }

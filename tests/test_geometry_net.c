@@ -120,6 +120,56 @@ TEST(fd_whole_chain_f64) {
     geometry_net_free_f64(&net);
 }
 
+// Coarse-to-fine (active_levels): the masked levels change nothing and get no gradient; the active
+// ones keep their exact gradient (central differences, double).
+TEST(coarse_to_fine_levels) {
+    mlb_geometry_config c = small_config();
+    mlb_geometry_net_f64 net;
+    REQUIRE(geometry_net_init_f64(&net, &c) == MLB_OK);
+    const int n = 64;
+    double pos[3 * 64], sdf[64], sdf2[64], dsdf[64];
+    for (int i = 0; i < 3 * n; i++) pos[i] = (mlb_rng_uniform_f64(5, 0, i) - 0.5) * c.scale;
+    for (int i = 0; i < n; i++) dsdf[i] = mlb_rng_uniform_f64(5, 1, i) - 0.5;
+    // table values of order 0.1 (the initialisation's 1e-4 would make a 1e-6 step cross ReLU kinks)
+    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.2 * (mlb_rng_uniform_f64(5, 2, i) - 0.5);
+    net.active_levels = 2;
+    const size_t F = (size_t)c.enc.n_features, fine = net.enc.offset[2] * F;   // first value of level 2
+    REQUIRE(geometry_net_forward_f64(&net, sdf, NULL, pos, n) == MLB_OK);
+    for (size_t i = fine; i < net.n_enc; i++) net.params[i] += 0.5;   // the masked levels' table
+    REQUIRE(geometry_net_forward_f64(&net, sdf2, NULL, pos, n) == MLB_OK);
+    CHECK(!memcmp(sdf, sdf2, sizeof sdf));
+    geometry_net_zero_grad_f64(&net);
+    geometry_net_backward_f64(&net, dsdf, NULL);
+    double masked = 0, active = 0;
+    for (size_t i = 0; i < net.n_enc; i++) {
+        if (i < fine) active += fabs(net.grads[i]);
+        else masked += fabs(net.grads[i]);
+    }
+    CHECK(masked == 0 && active > 0);
+    int checked = 0, bad = 0;
+    for (size_t i = 0; i < fine && checked < 40; i += 7) {
+        if (net.grads[i] == 0) continue;
+        double h = 1e-6, keep = net.params[i], lp = 0, lm = 0;
+        net.params[i] = keep + h;
+        geometry_net_forward_f64(&net, sdf2, NULL, pos, n);
+        for (int k = 0; k < n; k++) lp += dsdf[k] * sdf2[k];
+        net.params[i] = keep - h;
+        geometry_net_forward_f64(&net, sdf2, NULL, pos, n);
+        for (int k = 0; k < n; k++) lm += dsdf[k] * sdf2[k];
+        net.params[i] = keep;
+        double fd = (lp - lm) / (2 * h);
+        if (fabs(fd - net.grads[i]) > 1e-7 + 1e-6 * fabs(fd) && bad++ < 3)
+            printf("  value %zu: analytic %.10g fd %.10g\n", i, net.grads[i], fd);
+        checked++;
+    }
+    printf("  coarse-to-fine: 2 of 4 levels active, %d active table values checked by central differences\n", checked);
+    CHECK(checked >= 10 && bad == 0);
+    net.active_levels = 0;   // all levels again: the perturbed fine table now shows
+    REQUIRE(geometry_net_forward_f64(&net, sdf2, NULL, pos, n) == MLB_OK);
+    CHECK(memcmp(sdf, sdf2, sizeof sdf) != 0);
+    geometry_net_free_f64(&net);
+}
+
 TEST(float_matches_double) {
     mlb_geometry_config c = small_config();
     mlb_geometry_net f;
@@ -382,6 +432,7 @@ TEST(save_load) {
 
 int main(void) {
     RUN(fd_whole_chain_f64);
+    RUN(coarse_to_fine_levels);
     RUN(float_matches_double);
     RUN(analytic_sdfs);
     RUN(winding_number);

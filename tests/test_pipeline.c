@@ -95,6 +95,19 @@ TEST(config_round_trip_and_errors) {
     REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
     CHECK(back.view_prompts == 1);
     free(text);
+    // a run from before "coarse_to_fine" and "material_smoothness_specular" loads with what it ran
+    // with (0, 0), not today's defaults (0.5, 0.1)
+    CHECK(c.coarse_to_fine == 0.5 && c.w_mat_spec == 0.1);
+    REQUIRE(mlb_pipeline_config_save(&c, path) == MLB_OK);
+    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
+    char *k1 = strstr(text, "\"coarse_to_fine\""), *k2 = strstr(text, "\"material_smoothness_specular\"");
+    REQUIRE(k1 && k2);
+    memcpy(k1 + 1, "x", 1);
+    memcpy(k2 + 1, "x", 1);
+    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.coarse_to_fine == 0 && back.w_mat_spec == 0);
+    free(text);
     mlb_clear_error();
 }
 

@@ -50,14 +50,17 @@
        none): e.g. where to evaluate the smoothness regulariser. Valid until the next render. */      \
     const R* N(mlb_appearance_points)(const N(mlb_appearance)* a, int* n);                           \
     /* Material smoothness (paper §3.4, nvdiffrec):                                                   \
-         L = weight · mean_i (1/3) Σ_c |kd_c(x_i) − kd_c(x_i + ε_i)|,  ε_i ~ N(0, sigma² I)             \
+         L = weight · mean_i (1/3) Σ_{c in kd} |k_c(x_i) − k_c(x_i + ε_i)|                             \
+           + weight_spec · mean_i (1/4) Σ_{c in ks, kr} |k_c(x_i) − k_c(x_i + ε_i)|,  ε_i ~ N(0, σ² I)   \
        over pts [n,3] (world units), ε from Philox (seed, stream 0x5A17, index step·2^32 + 3i + c).    \
-       kd only, as the paper: specular colour and roughness may change sharply (inlays, trims).       \
+       The paper smooths kd only (weight_spec 0); nvdiffrec also smooths its specular texture, and   \
+       noisy ks/roughness is what shows as speckle in relighting (docs/pipeline.md).                 \
        nvdiffrec's weight is 0.03 with sigma 0.01 (0.5% of the default 2.1 grid box). backward != 0: \
        net->grads += ∂L/∂params. Runs material_net_forward on 2n points, so it REPLACES the net's     \
        forward cache: call it after mlb_appearance_backward. *loss (may be NULL) receives L. */      \
     mlb_status N(mlb_material_smoothness)(N(mlb_material_net)* net, const R* pts, int n, double sigma,      \
-                                          double weight, uint64_t seed, long step, int backward, double* loss);
+                                          double weight, double weight_spec, uint64_t seed, long step,       \
+                                          int backward, double* loss);
 
 #define MLB_APPEARANCE_F32(name) name
 #define MLB_APPEARANCE_F64(name) name##_f64

@@ -43,6 +43,8 @@ mlb_adam_config mlb_geometry_adam(double lr);
         R* adam_m;                      /* [n_params] */                                            \
         R* adam_v;                      /* [n_params] */                                            \
         long step;                      /* Adam steps taken */                                      \
+        int active_levels;              /* coarse-to-fine: levels >= this give zero features and   \
+                                           get no gradient (0 = all levels) */                      \
         /* forward cache (the last forward's points) */                                             \
         int n, capacity;                                                                            \
         R* x;                           /* [n, 3] in [0,1]^3 */                                     \

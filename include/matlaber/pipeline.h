@@ -40,12 +40,15 @@ typedef struct {
     int grid;                     // DMTet grid as Fantasia3D names it (128 → 64 cells per axis)
     char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder" or an OBJ file
     int init_iters;               // SDF initialisation steps: 400
+    double coarse_to_fine;        // hash-grid levels unlocked from 4 to all over this fraction of the
+                                  // geometry steps (0: all levels from the start)
     double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
     // appearance stage
     int appearance_iters;         // 2000
     double appearance_lr;         // 1e-2
     mlb_material_mode material;   // latent (the paper) or direct (ablation)
-    double w_mat;                 // material smoothness weight: 0.03
+    double w_mat;                 // material smoothness weight (kd): 0.03
+    double w_mat_spec;            // the same on ks and roughness: 0 (the paper smooths kd only)
     double mat_sigma;             // its offset std in world units: 0.01
     int n_envs;                   // the environment pool (sds; image guidance uses the views' own)
     char envs[MLB_PIPELINE_MAX_ENVS][MLB_PIPELINE_PATH];

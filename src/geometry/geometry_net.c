@@ -79,6 +79,14 @@ static mlb_status FN(geo_reserve)(FN(mlb_geometry_net)* net, int n) {
     return MLB_OK;
 }
 
+// Coarse-to-fine: the features of levels >= active_levels (and so their gradients) are zero, the
+// level-major columns [l·F, (l+1)·F) of every row.
+static void FN(mask_levels)(const FN(mlb_geometry_net)* net, real* feat, int n) {
+    const int L = net->enc.cfg.n_levels, F = net->enc.cfg.n_features, a = net->active_levels;
+    if (a <= 0 || a >= L) return;
+    for (int i = 0; i < n; i++) memset(feat + (size_t)i * L * F + (size_t)a * F, 0, sizeof(real) * (size_t)(L - a) * F);
+}
+
 mlb_status FN(geometry_net_forward)(FN(mlb_geometry_net)* net, real* sdf, real* deform, const real* pos, int n) {
     if (n < 1) return mlb_fail(MLB_ERR_ARG, "geometry network: %d points", n);
     mlb_status s = FN(geo_reserve)(net, n);
@@ -88,6 +96,7 @@ mlb_status FN(geometry_net_forward)(FN(mlb_geometry_net)* net, real* sdf, real* 
     // x[n,3] = pos/scale + 0.5 ∈ [0,1]^3 (the hash grid clamps points outside the box)
     for (size_t i = 0; i < 3 * (size_t)n; i++) net->x[i] = pos[i] * inv + (real)0.5;
     FN(hashgrid_forward)(&net->enc, net->feat, net->x, n);                  // feat[n, L·F]
+    FN(mask_levels)(net, net->feat, n);
     const real* out = FN(mlp_forward)(&net->mlp, &net->cache, net->feat, n);   // out[n, 4]
     for (int i = 0; i < n; i++) {
         if (sdf) sdf[i] = out[4 * i];
@@ -104,6 +113,7 @@ void FN(geometry_net_backward)(FN(mlb_geometry_net)* net, const real* dsdf, cons
     }
     memset(net->dfeat, 0, sizeof(real) * (size_t)net->enc.out_dim * n);
     FN(mlp_backward)(&net->mlp, &net->cache, net->grads + net->n_enc, net->dfeat, net->dout, net->feat, n);
+    FN(mask_levels)(net, net->dfeat, n);
     FN(hashgrid_backward)(&net->enc, net->grads, NULL, net->dfeat, net->x, n);
 }
 

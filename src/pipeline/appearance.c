@@ -311,10 +311,11 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
 }
 
 mlb_status FN(mlb_material_smoothness)(FN(mlb_material_net)* net, const real* pts, int n, double sigma, double weight,
-                                       uint64_t seed, long step, int backward, double* loss) {
+                                       double weight_spec, uint64_t seed, long step, int backward, double* loss) {
     if (loss) *loss = 0;
     if (n < 1 || n > INT32_MAX / 2 || !pts) return mlb_fail(MLB_ERR_ARG, "material smoothness: %d points", n);
-    if (!(sigma >= 0) || !isfinite(sigma) || !isfinite(weight)) return mlb_fail(MLB_ERR_ARG, "material smoothness: sigma %g, weight %g", sigma, weight);
+    if (!(sigma >= 0) || !isfinite(sigma) || !isfinite(weight) || !isfinite(weight_spec))
+        return mlb_fail(MLB_ERR_ARG, "material smoothness: sigma %g, weights %g, %g", sigma, weight, weight_spec);
     size_t nn = (size_t)n;
     real* x = malloc(sizeof(real) * 6 * nn);    // [2n, 3]: the points, then the jittered points
     real* k = malloc(sizeof(real) * 14 * nn);   // [2n, 7]
@@ -326,15 +327,23 @@ mlb_status FN(mlb_material_smoothness)(FN(mlb_material_net)* net, const real* pt
     }
     mlb_status st = FN(material_net_forward)(net, k, NULL, x, 2 * n);
     if (!st) {
-        double sum = 0, scale = weight / (3.0 * n);
+        // channel c's scale: weight / 3n for kd (0-2), weight_spec / 4n for ks and kr (3-6)
+        const double scale_kd = weight / (3.0 * n), scale_spec = weight_spec / (4.0 * n);
+        const int nc = weight_spec != 0 ? 7 : 3;
+        double sum_kd = 0, sum_spec = 0;
         for (size_t i = 0; i < nn; i++)
-            for (int c = 0; c < 3; c++) sum += fabs((double)k[7 * i + c] - (double)k[7 * (nn + i) + c]);
-        if (loss) *loss = scale * sum;
+            for (int c = 0; c < nc; c++) {
+                double d = fabs((double)k[7 * i + c] - (double)k[7 * (nn + i) + c]);
+                if (c < 3) sum_kd += d;
+                else sum_spec += d;
+            }
+        if (loss) *loss = scale_kd * sum_kd + scale_spec * sum_spec;
         if (backward) {
-            // d|a − b| = sign(a − b) (0 at a = b); everything but kd gets 0
+            // d|a − b| = sign(a − b) (0 at a = b); channels without a weight get 0
             memset(k, 0, sizeof(real) * 14 * nn);
             for (size_t i = 0; i < nn; i++)
-                for (int c = 0; c < 3; c++) {
+                for (int c = 0; c < nc; c++) {
+                    double scale = c < 3 ? scale_kd : scale_spec;
                     real d = net->k[7 * i + c] - net->k[7 * (nn + i) + c];
                     real g = (real)(d > 0 ? scale : d < 0 ? -scale : 0);
                     k[7 * i + c] = g;

@@ -73,6 +73,17 @@ static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_con
     return s;
 }
 
+// Coarse-to-fine hash grid: the first COARSE_LEVELS levels from the start, one more level at a time
+// until all are active at coarse_to_fine × geometry_iters (0: all levels from the start). 0 = all.
+#define COARSE_LEVELS 4
+static int active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
+    const int L = net->enc.cfg.n_levels;
+    const double span = c->coarse_to_fine * c->geometry_iters;
+    if (!(span > 0) || L <= COARSE_LEVELS) return 0;
+    long a = COARSE_LEVELS + (long)((double)(L - COARSE_LEVELS) * it / span);
+    return a >= L ? 0 : (int)a;
+}
+
 static void pipeline_scene_free(pipeline_scene* sc) {
     for (int i = 0; i < sc->n_envs; i++) {
         mlb_envlight_free(&sc->lights[i]);
@@ -105,7 +116,9 @@ static mlb_status init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c
     fc.iters = c->init_iters;
     fc.seed = c->seed + 1;
     double final_loss = 0;
+    net->active_levels = active_levels_at(c, net, 0);   // the initial shape in the levels step 0 sees
     s = mlb_geometry_fit_shape(net, &shape, &fc, progress, &final_loss);
+    net->active_levels = 0;
     mlb_shape_free(&shape);
     if (!s) mlb_log(MLB_LOG_INFO, "shape init (%s): SDF MSE %.3g after %d steps", c->init, final_loss, fc.iters);
     return s;
@@ -211,6 +224,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     memset(&st, 0, sizeof st);
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
     for (long it = start; !s && it < c->geometry_iters; it++) {
+        net->active_levels = active_levels_at(c, net, it);
         s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
         mlb_geofit_stats stats;
         if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it),
@@ -222,6 +236,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
+    net->active_levels = 0;   // the surface the appearance stage and the outputs use: every level
     mlb_geofit_state_free(&st);
     free(views);
     free(images);
@@ -261,9 +276,10 @@ static mlb_status appearance_stage(pipeline_run* r) {
             s = r->g->loss(r->g, MLB_STAGE_APPEARANCE, it, views, n, images, c->res, c->res, dimages, &loss);
         }
         if (!s) s = mlb_appearance_backward(&app, net, dimages);
-        if (!s && c->w_mat > 0) {
+        if (!s && (c->w_mat > 0 || c->w_mat_spec > 0)) {
             s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
-            if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->seed, it, 1, &smooth);
+            if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->w_mat_spec, c->seed, it,
+                                                1, &smooth);
         }
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
         material_net_update(net, &adam);

@@ -30,6 +30,8 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     c.appearance_lr = 1e-2;
     c.material = MLB_MATERIAL_LATENT;
     c.w_mat = 0.03;
+    c.w_mat_spec = 0.1;         // docs/pipeline.md: demo albedo +2.2 dB, relighting +0.35 dB
+    c.coarse_to_fine = 0.5;     // docs/pipeline.md: demo Chamfer 0.00167 -> 0.00117
     c.mat_sigma = 0.01;
     c.n_envs = 3;
     snprintf(c.envs[0], sizeof c.envs[0], "sky");
@@ -59,8 +61,9 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->grid < 8 || c->grid > 512) bad = "--grid must be in 8..512";
     else if (!(c->geometry_lr > 0) || !(c->appearance_lr > 0)) bad = "learning rates must be > 0";
     else if (c->init_iters < 0) bad = "init iterations must be >= 0";
+    else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
     else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
-    else if (!(c->w_mat >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weight >= 0 and sigma > 0";
+    else if (!(c->w_mat >= 0) || !(c->w_mat_spec >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weights >= 0 and sigma > 0";
     else if (c->n_envs < 1 || c->n_envs > MLB_PIPELINE_MAX_ENVS) bad = "the environment pool needs 1..8 entries";
     else if (c->env_height < 16 || c->env_height > 4096) bad = "environment height must be in 16..4096";
     else if (c->cube_size < 64 || c->cube_size > 1024 || (c->cube_size & (c->cube_size - 1)))
@@ -81,10 +84,11 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
 typedef enum { F_STR, F_INT, F_LONG_U64, F_DOUBLE, F_MATERIAL } field_kind;
 // optional: a key added after runs were already written; missing, it keeps the default, which is
 // what the program did before the key existed (so an old run resumes as it started).
-typedef struct { const char* key; field_kind kind; size_t offset; size_t size; int optional; } field;
-#define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 0}
-#define FLD_OPT(k, kind, member) \
-    {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 1}
+typedef struct { const char* key; field_kind kind; size_t offset; size_t size; int optional; double legacy; } field;
+#define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 0, 0}
+// legacy: the value a run written before the key existed ran with (numbers only)
+#define FLD_OPT(k, kind, member, legacy) \
+    {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 1, legacy}
 static const field FIELDS[] = {
     FLD("guidance", F_STR, guidance),           FLD("prompt", F_STR, prompt),
     FLD("negative", F_STR, negative),           FLD("model", F_STR, model),
@@ -101,7 +105,9 @@ static const field FIELDS[] = {
     FLD("fixed_env", F_INT, fixed_env),         FLD("env_height", F_INT, env_height),
     FLD("cube_size", F_INT, cube_size),         FLD("checkpoint_every", F_INT, checkpoint_every),
     FLD("preview_every", F_INT, preview_every),
-    FLD_OPT("view_prompts", F_INT, view_prompts),   // added 2026-11-25; before: always on
+    FLD_OPT("view_prompts", F_INT, view_prompts, 1),                  // added 2026-11-25; before: always on
+    FLD_OPT("coarse_to_fine", F_DOUBLE, coarse_to_fine, 0),           // added 2026-11-26; before: off
+    FLD_OPT("material_smoothness_specular", F_DOUBLE, w_mat_spec, 0), // added 2026-11-26; before: kd only
 };
 #undef FLD
 #undef FLD_OPT
@@ -159,7 +165,11 @@ mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) 
         const field* f = &FIELDS[i];
         const cJSON* it = cJSON_GetObjectItemCaseSensitive(root, f->key);
         char* p = (char*)&c + f->offset;
-        if (!it && f->optional) continue;
+        if (!it && f->optional) {   // a run from before the key: what it ran with, not today's default
+            if (f->kind == F_DOUBLE) *(double*)p = f->legacy;
+            else if (f->kind == F_INT) *(int*)p = (int)f->legacy;
+            continue;
+        }
         if (!it) { s = mlb_fail(MLB_ERR_FORMAT, "%s: missing \"%s\"", path, f->key); break; }
         int want_string = f->kind == F_STR || f->kind == F_LONG_U64 || f->kind == F_MATERIAL;
         if (want_string ? !cJSON_IsString(it) : !cJSON_IsNumber(it)) {

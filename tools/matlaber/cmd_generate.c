@@ -16,6 +16,8 @@ static const cli_option options[] = {
     {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
     {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
     {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder or FILE.obj (default ellipsoid)"},
+    {"coarse-to-fine", 1, 'C', "F", "hash-grid levels unlocked from 4 to all over this fraction of the geometry steps (default 0.5; 0 = all at once)"},
+    {"spec-smoothness", 1, 'K', "W", "material smoothness weight on ks and roughness (default 0.1; 0 = kd only, as the paper)"},
     {"geometry-iters", 1, 'G', "N", "geometry stage steps (generate 3000, fit 400)"},
     {"appearance-iters", 1, 'A', "N", "appearance stage steps (generate 2000, fit 400)"},
     {"res", 1, 'r', "N", "render size (generate 512, fit 128)"},
@@ -97,6 +99,12 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
             break;
         case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
         case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
+        case 'C':
+            if (cli_parse_double(optarg, 0, 1, &c.coarse_to_fine)) return cli_usage_error(command, "--coarse-to-fine: expected a fraction in [0, 1]");
+            break;
+        case 'K':
+            if (cli_parse_double(optarg, 0, 100, &c.w_mat_spec)) return cli_usage_error(command, "--spec-smoothness: expected a weight in [0, 100]");
+            break;
         case 'G': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--geometry-iters: expected >= 0"); c.geometry_iters = (int)v; break;
         case 'A': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--appearance-iters: expected >= 0"); c.appearance_iters = (int)v; break;
         case 'r': if (cli_parse_long(optarg, 16, 2048, &v) || v % 8) return cli_usage_error(command, "--res: expected a multiple of 8 in 16..2048"); c.res = (int)v; break;

@@ -47,7 +47,7 @@ static void usage(FILE* out) {
             "  version         print the version\n\n"
             "global options:\n"
             MLB_DEVICE_OPTION_HELP
-            "                  (on a GPU the Stable Diffusion UNet runs there, in 'sd txt2img' and\n"
+            "                  (on a GPU the Stable Diffusion UNet and VAE run there, in 'sd txt2img' and\n"
             "                  'generate'; the rest still runs on the CPU in this version: docs/cuda.md)\n"
             MLB_PRECISION_OPTION_HELP "\n"
             "'matlaber <command> --help' describes each command.\n",

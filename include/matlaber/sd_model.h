@@ -25,8 +25,8 @@ typedef struct {
     int v_prediction;             // -1: from the configs (default), 0: epsilon, 1: v-prediction
     int load_text_encoder;        // 1 (default); 0 to skip it (and the tokenizer)
     int load_vae;                 // 1 (default)
-    mlb_device unet_device;       // where the UNet and the VAE run (default: mlb_device_current(), --device)
-    mlb_gemm_precision unet_precision;   // their GPU GEMMs (default: mlb_gemm_precision_current(), --precision)
+    mlb_device device;            // where the UNet and the VAE run (default: mlb_device_current(), --device)
+    mlb_gemm_precision precision; // their GPU GEMMs (default: mlb_gemm_precision_current(), --precision)
 } mlb_sd_model_options;
 
 typedef struct {

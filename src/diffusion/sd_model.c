@@ -70,18 +70,18 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     mlb_status s;
     if ((s = mlb_unet_load(path, NULL, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }
-    if (opt.unet_device != MLB_DEVICE_CPU) {
-        if ((s = mlb_unet_use_device(m->unet, opt.unet_device, opt.unet_precision)) != MLB_OK) {
-            mlb_fail_context(s, "moving the UNet to the %s", mlb_device_name(opt.unet_device));
+    if (opt.device != MLB_DEVICE_CPU) {
+        if ((s = mlb_unet_use_device(m->unet, opt.device, opt.precision)) != MLB_OK) {
+            mlb_fail_context(s, "moving the UNet to the %s", mlb_device_name(opt.device));
             goto fail;
         }
-        mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands", mlb_device_name(opt.unet_device),
-                mlb_gemm_precision_name(opt.unet_precision));
+        mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands", mlb_device_name(opt.device),
+                mlb_gemm_precision_name(opt.precision));
     }
     if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
-    if (m->vae && opt.unet_device != MLB_DEVICE_CPU &&
-        (s = mlb_vae_use_device(m->vae, opt.unet_device, opt.unet_precision)) != MLB_OK) {
-        mlb_fail_context(s, "moving the VAE to the %s", mlb_device_name(opt.unet_device));
+    if (m->vae && opt.device != MLB_DEVICE_CPU &&
+        (s = mlb_vae_use_device(m->vae, opt.device, opt.precision)) != MLB_OK) {
+        mlb_fail_context(s, "moving the VAE to the %s", mlb_device_name(opt.device));
         goto fail;
     }
     if (opt.load_text_encoder) {

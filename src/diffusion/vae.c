@@ -26,7 +26,7 @@ typedef FN(mlb_vae_attn) attn_t;
 #ifdef MLB_F64
 typedef const void* vae_ops;
 #define CPU_OPS NULL
-static int on_host(vae_ops be) { (void)be; return 1; }
+static mlb_device ops_device(vae_ops be) { (void)be; return MLB_DEVICE_CPU; }
 static mlb_status op_alloc(vae_ops be, real** p, size_t n) {
     (void)be;
     *p = malloc((n ? n : 1) * sizeof(real));
@@ -95,7 +95,7 @@ static mlb_status op_upsample(vae_ops be, real* out, const real* in, int N, int 
 #else
 typedef const mlb_backend* vae_ops;
 #define CPU_OPS mlb_backend_cpu()
-static int on_host(vae_ops be) { return be->device == MLB_DEVICE_CPU; }
+static mlb_device ops_device(vae_ops be) { return be->device; }
 static mlb_status op_alloc(vae_ops be, real** p, size_t n) { return be->alloc(p, n); }
 static void op_release(vae_ops be, void* p) { be->release(p); }
 static mlb_status op_zero(vae_ops be, real* y, size_t n) { return be->zero(y, n); }
@@ -210,25 +210,30 @@ static size_t FN(carve_all)(vae_t* v, real* base) {
     return c.n;
 }
 
-mlb_status FN(mlb_vae_create)(const mlb_vae_config* cfg, vae_t** out) {
+// A model of cfg with zeroed parameters in the memory of be's device.
+static mlb_status FN(create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
     MLB_TRY(mlb_vae_config_check(cfg));
     vae_t* v = calloc(1, sizeof *v);
     if (!v) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
     v->cfg = *cfg;
+    v->device = ops_device(be);
     v->n_params = FN(carve_all)(v, NULL);
-    v->params = calloc(v->n_params, sizeof(real));
-    if (!v->params) {
+    mlb_status s = op_alloc(be, &v->params, v->n_params);
+    if (!s) s = op_zero(be, v->params, v->n_params);
+    if (s) {
         size_t n = v->n_params;
-        free(v);
-        return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for %zu parameters (%.1f MB)", n,
-                        n * (double)sizeof(real) / 1e6);
+        FN(mlb_vae_free)(v);
+        return mlb_fail_context(s, "VAE: %zu parameters (%.1f MB) on the %s", n,
+                                n * (double)sizeof(real) / 1e6, mlb_device_name(ops_device(be)));
     }
     FN(carve_all)(v, v->params);
     *out = v;
     return MLB_OK;
 }
+
+mlb_status FN(mlb_vae_create)(const mlb_vae_config* cfg, vae_t** out) { return FN(create_on)(CPU_OPS, cfg, out); }
 
 void FN(mlb_vae_free)(vae_t* v) {
     if (!v) return;
@@ -438,7 +443,7 @@ void FN(mlb_vae_cache_free)(FN(mlb_vae_cache)* cache) {
 static mlb_status FN(host_view)(vae_ops be, const real* x, size_t n, real** tmp, const real** view) {
     *tmp = NULL;
     *view = x;
-    if (on_host(be)) return MLB_OK;
+    if (ops_device(be) == MLB_DEVICE_CPU) return MLB_OK;
     if (!(*tmp = malloc(n * sizeof(real)))) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for a host copy");
     *view = *tmp;
     return op_download(be, *tmp, x, n);
@@ -464,7 +469,7 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     const mlb_vae_config* g = &v->cfg;
     const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
     const size_t NG = (size_t)N * g->norm_groups;
-    const mlb_device dev = on_host(be) ? MLB_DEVICE_CPU : MLB_DEVICE_CUDA;
+    const mlb_device dev = ops_device(be);
     enc_rec rec;
     if (cache) {
         size_t need = FN(enc_layout)(g, N, H, W, NULL, &rec);
@@ -602,7 +607,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     if (FN(enc_layout)(g, N, H, W, NULL, &rec) > cache->capacity)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache is smaller than its forward needed (another "
                         "model's cache?)");
-    if (cache->device != (on_host(be) ? MLB_DEVICE_CPU : MLB_DEVICE_CUDA))
+    if (cache->device != ops_device(be))
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache is on the %s, the model's ops on the other "
                         "device", mlb_device_name(cache->device));
     FN(enc_layout)(g, N, H, W, cache->buf, &rec);
@@ -626,7 +631,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     const int h = hs[L - 1], w = wsz[L - 1], T = h * w;
     const size_t zn = (size_t)z * T, nm = (size_t)N * 2 * zn;
     // d(moments), on the host: the mean half, and the logvar half where the clamp passes it
-    real *mtmp = NULL, *d = on_host(be) ? T1 : malloc(nm * sizeof(real));
+    real *mtmp = NULL, *d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
     const real* mh = NULL;
     mlb_status s = d ? FN(host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
     if (!s) {
@@ -792,20 +797,13 @@ mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec)
     if (d == MLB_DEVICE_CPU) return MLB_OK;
     if (v->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: the VAE must be on the CPU");
     vae_ops be = mlb_backend_for(d, prec);
-    vae_t* m = calloc(1, sizeof *m);
-    if (!m) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
-    m->cfg = v->cfg;
-    m->device = d;
-    m->n_params = v->n_params;
-    mlb_status s = op_alloc(be, &m->params, v->n_params);
+    vae_t* m;
+    mlb_status s = FN(create_on)(be, &v->cfg, &m);
     if (!s) {
-        FN(carve_all)(m, m->params);
         s = op_upload(be, m->params, v->params, v->n_params);
+        if (s) mlb_vae_free(m);
     }
-    if (s) {
-        mlb_vae_free(m);
-        return mlb_fail_context(s, "moving the VAE (%zu parameters) to the %s", v->n_params, mlb_device_name(d));
-    }
+    if (s) return mlb_fail_context(s, "moving the VAE (%zu parameters) to the %s", v->n_params, mlb_device_name(d));
     v->mirror = m;
     v->mirror_ops = be;
     return MLB_OK;

@@ -29,7 +29,9 @@
 //                              [--init-iters 100] [--dir /tmp] [--sd15-views 1] [--device cpu|cuda]
 //                              [--precision fp16]
 // --device cuda moves the SD 1.5 UNet and VAE to the GPU (mlb_unet_use_device, mlb_vae_use_device) at
-// --precision; the render, the networks and Adam stay on the CPU (docs/cuda.md).
+// --precision, and in the appearance stage the material network, its AdamW and the shading
+// (mlb_material_net_use_device, as the pipeline does); rasterization, antialias and the geometry
+// stage's networks stay on the CPU (docs/cuda.md).
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -248,6 +250,8 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
     mlb_appearance app;
     memset(&app, 0, sizeof app);
     mlb_status s = views && images && dimages && pts ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: appearance buffers");
+    if (!s && mlb_device_current() == MLB_DEVICE_CUDA)   // as the pipeline's appearance stage
+        s = mlb_material_net_use_device(&sc->mat, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
     for (int it = 0; !s && it <= iters; it++) {
         long step = it;
         double loss = 0, smooth = 0, t0 = mlb_now_seconds();
@@ -265,7 +269,7 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
         if (!s) s = mlb_mesh_sample_surface(&sc->mesh, pts, SMOOTH_POINTS, 0, 0x5300000000ull + (uint64_t)step);
         if (!s) s = mlb_material_smoothness(&sc->mat, pts, SMOOTH_POINTS, 0.01, 0.03, 0, 0, step, 1, &smooth);
         double t4 = mlb_now_seconds();
-        if (!s) material_net_update(&sc->mat, &adam);
+        if (!s) s = material_net_update(&sc->mat, &adam);
         double t5 = mlb_now_seconds();
         if (!s && it > 0) {
             out->render += t1 - t0; out->guide += t2 - t1; out->back += t3 - t2; out->smooth += t4 - t3;
@@ -279,6 +283,8 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
         out->unet = time_unet(gd, n, res / 8);
     }
     mlb_appearance_free(&app);
+    mlb_status left = mlb_material_net_leave_device(&sc->mat);
+    if (!s) s = left;
     free(views); free(images); free(dimages); free(pts);
     return s;
 }

@@ -10,67 +10,9 @@
 #include "matlaber/render.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
+#include "appearance_test_util.h"
 #include "material_test_util.h"
 #include "test.h"
-
-typedef struct {
-    mlb_envmap env[2];
-    mlb_envlight light[2];
-    const mlb_envlight* ptr[2];
-    mlb_mesh mesh;
-} scene;
-
-static int scene_init(scene* s, int segments, int rings) {
-    memset(s, 0, sizeof *s);
-    static const char* names[2] = {"sky", "studio"};
-    mlb_envlight_options o = {.face_size = 16, .min_size = 4};
-    for (int i = 0; i < 2; i++) {
-        if (mlb_envmap_named(&s->env[i], names[i], 32) || mlb_envlight_build(&s->light[i], &s->env[i], &o)) return 0;
-        s->ptr[i] = &s->light[i];
-    }
-    if (mlb_mesh_uv_sphere(&s->mesh, 0.8f, segments, rings)) return 0;
-    // weld the seam and pole copies into a closed mesh (as the pipeline's marching-tets surfaces
-    // are): otherwise the seam's edges are boundary edges, which antialias blends across
-    mlb_mesh* m = &s->mesh;
-    int32_t* remap = malloc(sizeof(int32_t) * m->n_verts);
-    int nv = 0;
-    for (int i = 0; i < m->n_verts; i++) {
-        int j = 0;
-        while (j < nv && fabsf(m->pos[3 * j] - m->pos[3 * i]) + fabsf(m->pos[3 * j + 1] - m->pos[3 * i + 1]) +
-                             fabsf(m->pos[3 * j + 2] - m->pos[3 * i + 2]) > 1e-6f)
-            j++;
-        if (j == nv) {
-            memmove(m->pos + 3 * nv, m->pos + 3 * i, sizeof(float) * 3);
-            memmove(m->normal + 3 * nv, m->normal + 3 * i, sizeof(float) * 3);
-            nv++;
-        }
-        remap[i] = j;
-    }
-    for (int f = 0; f < 3 * m->n_faces; f++) m->faces[f] = remap[m->faces[f]];
-    m->n_verts = nv;
-    free(m->uv);
-    m->uv = NULL;
-    free(remap);
-    return 1;
-}
-
-static void scene_free(scene* s) {
-    for (int i = 0; i < 2; i++) { mlb_envlight_free(&s->light[i]); mlb_envmap_free(&s->env[i]); }
-    mlb_mesh_free(&s->mesh);
-}
-
-static void make_views(mlb_view* v, int n) {
-    for (int i = 0; i < n; i++) {
-        memset(&v[i], 0, sizeof v[i]);
-        v[i].azimuth_deg = 30 + 100 * i;
-        v[i].elevation_deg = 20 - 25 * i;
-        v[i].radius = 2.6;
-        v[i].env = i % 2;
-        v[i].env_rotation_deg = 40.0f + 75.0f * i;
-        v[i].target = -1;
-        mlb_camera_orbit(&v[i].cam, v[i].azimuth_deg, v[i].elevation_deg, v[i].radius, NULL, 45, 1, 0.1, 100);
-    }
-}
 
 static mlb_material_config small_config(mlb_material_mode mode) {
     mlb_material_config c = mlb_material_default();
@@ -424,11 +366,16 @@ TEST(smoothness) {
     brdf_ae_free(&prior);
 }
 
+// The material network, its optimiser and the shading on the CPU table's "device" (the code the GPU
+// runs, on host memory) agree with the host path; test_cuda_material runs it on a GPU.
+TEST(device_twin_on_cpu_table) { appearance_twin_check(mlb_backend_cpu(), 3, 48, 2, 3, 1e-5); }
+
 int main(void) {
     RUN(fd_whole_chain_f64);
     RUN(matches_render_shaded);
     RUN(fit_constant_material);
     RUN(thread_count_independent);
     RUN(smoothness);
+    RUN(device_twin_on_cpu_table);
     return test_summary();
 }

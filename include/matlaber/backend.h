@@ -17,8 +17,11 @@
 #include "matlaber/conv_ops.h"
 #include "matlaber/cuda_ops.h"
 #include "matlaber/device.h"
+#include "matlaber/envmap.h"
 #include "matlaber/error.h"
+#include "matlaber/hashgrid.h"
 #include "matlaber/nn.h"
+#include "matlaber/shade.h"
 
 typedef struct mlb_backend mlb_backend;
 struct mlb_backend {
@@ -61,6 +64,27 @@ struct mlb_backend {
     mlb_status (*transpose_last2)(float* out, const float* in, int N, int R, int S, int accumulate);
     mlb_status (*geglu)(float* out, const float* in, int rows, int C4);           // out[t,j] = in[t,j] gelu(in[t,C4+j])
     mlb_status (*upsample_nearest2x)(float* out, const float* in, int N, int C, int H, int W);
+    // ---- the field networks and the renderer's shading (material_net.h, appearance.h) ----
+    mlb_status (*activation_backward)(float* din, const float* dout, const float* in, size_t n, mlb_activation act);
+    // hash-grid encoding (hashgrid.h): g gives the layout, params the table on this device (g->params
+    // is ignored); the backward accumulates into dparams and dx, either may be NULL
+    mlb_status (*hashgrid)(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N);
+    mlb_status (*hashgrid_backward)(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
+                                    const float* dout, const float* x, int N);
+    // AdamW step t (adam_update's contract)
+    mlb_status (*adam)(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_config* cfg,
+                       long t);
+    // A pre-integrated light made usable on this device (the CPU keeps a pointer to `light`, which
+    // must then outlive the handle; CUDA uploads its cube maps and LUT), and its release.
+    mlb_status (*light_upload)(void** handle, const mlb_envlight* light);
+    void (*light_free)(void* handle);
+    // Split-sum shading (shade.h's contract; backward +=) under the light of `handle` turned by
+    // `rotation` radians about +y, as mlb_envlight_set_rotation would turn it.
+    mlb_status (*shade)(float* out, const float* kd, const float* ks, const float* kr, const float* n,
+                        const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel);
+    mlb_status (*shade_backward)(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
+                                 const float* kd, const float* ks, const float* kr, const float* n, const float* v,
+                                 int N, const void* handle, float rotation, mlb_fresnel fresnel);
 };
 
 // The table of device d (CUDA ops at GEMM precision prec; the CPU ignores prec). Never NULL; the

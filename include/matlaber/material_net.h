@@ -16,6 +16,7 @@
 #define MATLABER_MATERIAL_NET_H
 #include <stddef.h>
 #include <stdint.h>
+#include "matlaber/backend.h"
 #include "matlaber/brdf_ae.h"
 #include "matlaber/error.h"
 #include "matlaber/hashgrid.h"
@@ -57,6 +58,7 @@ mlb_adam_config mlb_material_adam(double lr);
         R *x, *feat, *out, *k, *dfeat, *dout, *dk;                                                 \
         N(mlb_mlp_cache) cache, dec_cache;                                                         \
         R* shard_grads;              /* [shards, n_mlp]: the MLP's gradient per batch shard */      \
+        struct mlb_material_device* dev; /* mlb_material_net_use_device (float only); NULL: the CPU */ \
     } N(mlb_material_net);                                                                         \
     /* Latent mode needs the prior (its decoder is copied); direct mode ignores it (may be NULL). */ \
     mlb_status N(material_net_init)(N(mlb_material_net)* net, const mlb_material_config* cfg,     \
@@ -67,8 +69,8 @@ mlb_adam_config mlb_material_adam(double lr);
        Caches what backward needs. */                                                              \
     mlb_status N(material_net_forward)(N(mlb_material_net)* net, R* k, R* z, const R* pos, int n);  \
     /* grads += ∂(Σ dk·k)/∂params over the last forward's points. dpos (may be NULL) += ∂/∂pos. */  \
-    void N(material_net_backward)(N(mlb_material_net)* net, const R* dk, R* dpos);                 \
-    void N(material_net_update)(N(mlb_material_net)* net, const mlb_adam_config* adam);            \
+    mlb_status N(material_net_backward)(N(mlb_material_net)* net, const R* dk, R* dpos);           \
+    mlb_status N(material_net_update)(N(mlb_material_net)* net, const mlb_adam_config* adam);      \
     /* Inference without the net's cache (thread-safe, chunked): pos [n,3] → k [n,7] and, latent   \
        mode, z [n,4] (either may be NULL; z in direct mode is MLB_ERR_ARG). */                      \
     mlb_status N(material_net_eval)(const N(mlb_material_net)* net, const R* pos, size_t n, R* k, R* z); \
@@ -81,6 +83,21 @@ MLB_MATERIAL_DECLARE(float, MLB_MATERIAL_F32)
 MLB_MATERIAL_DECLARE(double, MLB_MATERIAL_F64)
 #undef MLB_MATERIAL_F32
 #undef MLB_MATERIAL_F64
+
+// ---- on a device (float nets; src/pipeline/material_net_device.c) ----
+// Moves the trained parameters, their gradients, the Adam moments and the frozen decoder to the
+// device of `be` (backend.h), where material_net_forward/backward/zero_grad/update then run, the
+// hash grid and the MLPs over the whole batch (no shards). Points and k still cross as host arrays.
+// While there, the host's params, grads, adam_m and adam_v are behind: mlb_material_net_sync_host
+// brings them up to date (checkpoints, the end of a stage); eval refuses a net whose host copy is
+// behind. The CPU table is allowed (the same code on host memory: the CPU tests of this path).
+mlb_status mlb_material_net_use_device(mlb_material_net* net, const mlb_backend* be);
+// Copies params, grads, adam_m and adam_v from the device to the host arrays (no-op on the host).
+mlb_status mlb_material_net_sync_host(mlb_material_net* net);
+// Syncs and frees the device copy: the net is a host net again.
+mlb_status mlb_material_net_leave_device(mlb_material_net* net);
+// The table the net runs on: NULL for a host net.
+const mlb_backend* mlb_material_net_backend(const mlb_material_net* net);
 
 // Inference without touching the net's cache (thread-safe, chunked): pos [n,3] → k [n,7].
 mlb_status mlb_material_eval(const mlb_material_net* net, const float* pos, size_t n, float* k);

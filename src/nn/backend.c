@@ -1,5 +1,6 @@
 // The two op tables of backend.h: the CPU's over host memory and CUDA's over device memory.
 #include "matlaber/backend.h"
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/transformer_ops.h"
@@ -97,11 +98,57 @@ static mlb_status cpu_upsample(float* out, const float* in, int N, int C, int H,
     return MLB_OK;
 }
 
+static mlb_status cpu_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act) {
+    activation_backward(din, dout, in, n, act);
+    return MLB_OK;
+}
+static mlb_status cpu_hashgrid(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N) {
+    mlb_hashgrid h = *g;
+    h.params = (float*)params;   // read only: the forward does not write the table
+    hashgrid_forward(&h, out, x, N);
+    return MLB_OK;
+}
+static mlb_status cpu_hashgrid_backward(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
+                                        const float* dout, const float* x, int N) {
+    mlb_hashgrid h = *g;
+    h.params = (float*)params;
+    hashgrid_backward(&h, dparams, dx, dout, x, N);
+    return MLB_OK;
+}
+static mlb_status cpu_adam(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_config* cfg,
+                           long t) {
+    adam_update(params, grads, m, v, n, cfg, t);
+    return MLB_OK;
+}
+static mlb_status cpu_light_upload(void** handle, const mlb_envlight* light) {
+    *handle = (void*)light;
+    return MLB_OK;
+}
+static void cpu_light_free(void* handle) { (void)handle; }
+// The light turned as the CPU renderer turns it: a copy with mlb_envlight_set_rotation.
+static mlb_envlight cpu_turned(const void* handle, float rotation) {
+    mlb_envlight l = *(const mlb_envlight*)handle;
+    mlb_envlight_set_rotation(&l, rotation);
+    return l;
+}
+static mlb_status cpu_shade(float* out, const float* kd, const float* ks, const float* kr, const float* n,
+                            const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    mlb_envlight l = cpu_turned(handle, rotation);
+    return mlb_shade_forward(out, kd, ks, kr, n, v, N, &l, fresnel);
+}
+static mlb_status cpu_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
+                                     const float* kd, const float* ks, const float* kr, const float* n, const float* v,
+                                     int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    mlb_envlight l = cpu_turned(handle, rotation);
+    return mlb_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
+}
+
 static const mlb_backend cpu_table = {
     MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
     cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_groupnorm, groupnorm_backward,
     cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu,
-    cpu_upsample,
+    cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload,
+    cpu_light_free, cpu_shade, cpu_shade_backward,
 };
 
 // ---- CUDA ----------------------------------------------------------------------------------------
@@ -151,11 +198,45 @@ static mlb_status cuda_sdpa_backward(const mlb_backend* be, float* dq, float* dk
     return mlb_cuda_sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
 }
 
+static mlb_status cuda_light_upload(void** handle, const mlb_envlight* light) {
+    mlb_cuda_envlight* l = calloc(1, sizeof *l);
+    if (!l) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    mlb_status s = mlb_cuda_envlight_upload(l, light);
+    if (s) { free(l); return s; }
+    *handle = l;
+    return MLB_OK;
+}
+static void cuda_light_free(void* handle) {
+    if (!handle) return;
+    mlb_cuda_envlight_free(handle);
+    free(handle);
+}
+// The uploaded light turned by `rotation`: cos and sin computed as the upload computes them.
+static mlb_cuda_envlight cuda_turned(const void* handle, float rotation) {
+    mlb_cuda_envlight l = *(const mlb_cuda_envlight*)handle;
+    l.rot_cos = (float)cos((double)rotation);
+    l.rot_sin = (float)sin((double)rotation);
+    return l;
+}
+static mlb_status cuda_shade(float* out, const float* kd, const float* ks, const float* kr, const float* n,
+                             const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    mlb_cuda_envlight l = cuda_turned(handle, rotation);
+    return mlb_cuda_shade_forward(out, kd, ks, kr, n, v, N, &l, fresnel);
+}
+static mlb_status cuda_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
+                                      const float* kd, const float* ks, const float* kr, const float* n, const float* v,
+                                      int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    mlb_cuda_envlight l = cuda_turned(handle, rotation);
+    return mlb_cuda_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
+}
+
 #define CUDA_TABLE(prec)                                                                                         \
     {MLB_DEVICE_CUDA, prec, cuda_alloc, cuda_release, cuda_upload, cuda_download, mlb_cuda_copy_rows, cuda_zero,  \
      cuda_copy, cuda_linear, cuda_linear_backward, cuda_conv2d, cuda_conv2d_backward, mlb_cuda_groupnorm_forward, \
      mlb_cuda_groupnorm_backward, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, cuda_sdpa_backward,     \
-     mlb_cuda_add, mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x}
+     mlb_cuda_add, mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x,  \
+     mlb_cuda_activation_backward, mlb_cuda_hashgrid_forward, mlb_cuda_hashgrid_backward, mlb_cuda_adam_update,   \
+     cuda_light_upload, cuda_light_free, cuda_shade, cuda_shade_backward}
 static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE(MLB_GEMM_TF32),
                                            CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
 

@@ -8,6 +8,7 @@
 #include "matlaber/raster.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
+#include "appearance_device.h"
 
 #ifdef MLB_F64
 #define SHADE_FORWARD mlb_shade_forward_f64
@@ -59,6 +60,7 @@ struct FN(mlb_appearance_state) {
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
     real *pts, *nrm, *vdir, *kd, *ks, *kr, *rgb;
     mlb_envlight* lights;                 // [n_views]: copies with the view's rotation
+    appearance_device* dev;               // the shading on the material network's device (float)
 };
 
 void FN(mlb_appearance_free)(FN(mlb_appearance)* a) {
@@ -66,6 +68,7 @@ void FN(mlb_appearance_free)(FN(mlb_appearance)* a) {
     if (s) {
         for (int i = 0; i < B_COUNT; i++) free(s->b[i].p);
         mlb_raster_ctx_free(s->ctx);
+        appearance_device_free(s->dev);
         free(s);
     }
     a->state = NULL;
@@ -127,6 +130,53 @@ static mlb_status FN(check_mesh)(const mlb_mesh* mesh, int res, int ss, const ch
     if (res < 1 || ss < 1 || (long)res * ss > MLB_RASTER_MAX_SIZE)
         return mlb_fail(MLB_ERR_ARG, "%s: size %d at supersampling %d (the render must be 1..%d pixels)", who, res, ss,
                         MLB_RASTER_MAX_SIZE);
+    return MLB_OK;
+}
+
+// The split-sum shading of every view's samples: on the material network's device when it has one
+// (float build), else per view on the CPU.
+static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
+                                  const mlb_envlight* const* lights, const mlb_view* views, mlb_fresnel fresnel) {
+    int n = s->n_views;
+    for (int v = 0; v < n; v++) {
+        s->lights[v] = *lights[views[v].env];
+        mlb_envlight_set_rotation(&s->lights[v], (float)(views[v].env_rotation_deg * (M_PI / 180.0)));
+    }
+#ifndef MLB_F64
+    if (net->dev) {
+        const mlb_envlight* source[n];
+        for (int v = 0; v < n; v++) source[v] = lights[views[v].env];
+        return appearance_device_shade(&s->dev, mlb_material_net_backend(net), s->rgb, s->kd, s->ks, s->kr, s->nrm,
+                                       s->vdir, s->start, n, s->lights, source, fresnel);
+    }
+#else
+    (void)net;
+#endif
+    for (int v = 0; v < n; v++) {
+        int j0 = s->start[v], m = s->start[v + 1] - j0;
+        size_t o = (size_t)j0;
+        if (m > 0)
+            MLB_TRY(SHADE_FORWARD(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
+                                  &s->lights[v], fresnel));
+    }
+    return MLB_OK;
+}
+
+// dkd, dks, dkr (zeroed by the caller) += the shading's gradients from drgb, every view.
+static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
+                                           real* dkd, real* dks, real* dkr, const real* drgb, mlb_fresnel fresnel) {
+#ifndef MLB_F64
+    if (net->dev) return appearance_device_shade_backward(s->dev, dkd, dks, dkr, drgb);
+#else
+    (void)net;
+#endif
+    for (int v = 0; v < s->n_views; v++) {
+        int j0 = s->start[v], m = s->start[v + 1] - j0;
+        size_t o = (size_t)j0;
+        if (m > 0)
+            MLB_TRY(SHADE_BACKWARD(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
+                                   s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], fresnel));
+    }
     return MLB_OK;
 }
 
@@ -229,16 +279,11 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         s->kr[i] = k[7 * (size_t)i + 6];
     }
 
-    // shade, sRGB, composite, antialias, downsample: per view
+    // shade; then sRGB, composite, antialias, downsample: per view
+    MLB_TRY(FN(shade_views)(s, net, lights, views, a->fresnel));
     size_t p = (size_t)res * res;
     for (int v = 0; v < n; v++) {
-        s->lights[v] = *lights[views[v].env];
-        mlb_envlight_set_rotation(&s->lights[v], (float)(views[v].env_rotation_deg * (M_PI / 180.0)));
         int j0 = s->start[v], m = s->start[v + 1] - j0;
-        size_t o = (size_t)j0;
-        if (m > 0)
-            MLB_TRY(SHADE_FORWARD(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
-                                  &s->lights[v], a->fresnel));
         real* color = s->color + 4 * P * v;
         memset(color, 0, sizeof(real) * 4 * P);
         for (int j = j0; j < j0 + m; j++) {
@@ -289,16 +334,12 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
         MLB_TRY(FN(mlb_antialias_backward)(s->ctx, dcolor, NULL, dout, s->weights + 2 * P * v, s->color + 4 * P * v, 4,
                                            s->tri + P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v, V, s->faces,
                                            s->adj, F, S, S));
-        int j0 = s->start[v], m = s->start[v + 1] - j0;
-        if (m == 0) continue;
         // colour = sRGB(clamp(L)) at covered samples (the coverage channel does not depend on the material)
-        for (int j = j0; j < j0 + m; j++)
+        for (int j = s->start[v]; j < s->start[v + 1]; j++)
             for (int c = 0; c < 3; c++)
                 drgb[3 * (size_t)j + c] = dcolor[4 * (size_t)s->where[j] + c] * FN(srgb_clamped_d)(s->rgb[3 * (size_t)j + c]);
-        size_t o = (size_t)j0;
-        MLB_TRY(SHADE_BACKWARD(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
-                               s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], a->fresnel));
     }
+    MLB_TRY(FN(shade_views_backward)(s, net, dkd, dks, dkr, drgb, a->fresnel));
     for (int i = 0; i < N; i++) {
         for (int c = 0; c < 3; c++) {
             dk[7 * (size_t)i + c] = dkd[3 * (size_t)i + c];
@@ -306,8 +347,7 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
         }
         dk[7 * (size_t)i + 6] = dkr[i];
     }
-    FN(material_net_backward)(net, dk, NULL);
-    return MLB_OK;
+    return FN(material_net_backward)(net, dk, NULL);
 }
 
 mlb_status FN(mlb_material_smoothness)(FN(mlb_material_net)* net, const real* pts, int n, double sigma, double weight,
@@ -339,17 +379,17 @@ mlb_status FN(mlb_material_smoothness)(FN(mlb_material_net)* net, const real* pt
             }
         if (loss) *loss = scale_kd * sum_kd + scale_spec * sum_spec;
         if (backward) {
-            // d|a − b| = sign(a − b) (0 at a = b); channels without a weight get 0
-            memset(k, 0, sizeof(real) * 14 * nn);
+            // d|a − b| = sign(a − b) (0 at a = b); channels without a weight get 0. In place: each
+            // pair (i, n + i) is read before it is overwritten.
             for (size_t i = 0; i < nn; i++)
-                for (int c = 0; c < nc; c++) {
+                for (int c = 0; c < 7; c++) {
                     double scale = c < 3 ? scale_kd : scale_spec;
-                    real d = net->k[7 * i + c] - net->k[7 * (nn + i) + c];
-                    real g = (real)(d > 0 ? scale : d < 0 ? -scale : 0);
+                    real d = k[7 * i + c] - k[7 * (nn + i) + c];
+                    real g = (real)(c >= nc ? 0 : d > 0 ? scale : d < 0 ? -scale : 0);
                     k[7 * i + c] = g;
                     k[7 * (nn + i) + c] = -g;
                 }
-            FN(material_net_backward)(net, k, NULL);
+            st = FN(material_net_backward)(net, k, NULL);
         }
     }
     free(x);

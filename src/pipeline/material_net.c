@@ -8,6 +8,7 @@
 #include "matlaber/brdf.h"
 #include "matlaber/material_net.h"
 #include "core/real.h"
+#include "material_net_internal.h"
 
 #define K_DIM 7
 #define Z_DIM MLB_LATENT_DIM
@@ -21,7 +22,7 @@
 
 // The BRDF auto-encoder's output map k = lo + (hi − lo)·s (brdf_ae.h) applied to sigmoid outputs s.
 
-static void FN(map_to_ranges)(real* k, const real* s, int n) {
+void FN(material_map_to_ranges)(real* k, const real* s, int n) {
     for (int i = 0; i < n; i++)
         for (int c = 0; c < K_DIM; c++)
             k[(size_t)i * K_DIM + c] = (real)(mlb_brdf_range_lo[c] + (mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]) * s[(size_t)i * K_DIM + c]);
@@ -40,6 +41,9 @@ static mlb_status check_config(const mlb_material_config* c) {
 static int FN(out_dim)(const FN(mlb_material_net)* net) { return net->cfg.mode == MLB_MATERIAL_LATENT ? Z_DIM : K_DIM; }
 
 void FN(material_net_free)(FN(mlb_material_net)* net) {
+#ifndef MLB_F64
+    material_device_free(net->dev);
+#endif
     free(net->params);
     free(net->grads);
     free(net->adam_m);
@@ -101,7 +105,12 @@ mlb_status FN(material_net_init)(FN(mlb_material_net)* net, const mlb_material_c
     return MLB_OK;
 }
 
-void FN(material_net_zero_grad)(FN(mlb_material_net)* net) { memset(net->grads, 0, sizeof(real) * net->n_params); }
+void FN(material_net_zero_grad)(FN(mlb_material_net)* net) {
+#ifndef MLB_F64
+    if (net->dev) { material_device_zero_grad(net); return; }   // a failure is reported by the next op
+#endif
+    memset(net->grads, 0, sizeof(real) * net->n_params);
+}
 
 static int FN(max_width)(const FN(mlb_mlp)* mlp) {
     int m = 0;
@@ -233,15 +242,18 @@ static const real* FN(mat_run)(const FN(mlb_material_net)* net, FN(mlb_mlp_cache
     if (!k) return out;
     if (net->cfg.mode == MLB_MATERIAL_LATENT) {
         const real* s = FN(mlp_forward_sharded)(&net->dec, dec_cache, out, n, need_d1);
-        FN(map_to_ranges)(k, s, n);
+        FN(material_map_to_ranges)(k, s, n);
     } else {
-        FN(map_to_ranges)(k, out, n);
+        FN(material_map_to_ranges)(k, out, n);
     }
     return out;
 }
 
 mlb_status FN(material_net_forward)(FN(mlb_material_net)* net, real* k, real* z, const real* pos, int n) {
     if (n < 1) return mlb_fail(MLB_ERR_ARG, "material network: %d points", n);
+#ifndef MLB_F64
+    if (net->dev) return material_device_forward(net, k, z, pos, n);
+#endif
     MLB_TRY(FN(mat_reserve)(net, n));
     net->n = n;
     int O = FN(out_dim)(net);
@@ -252,9 +264,12 @@ mlb_status FN(material_net_forward)(FN(mlb_material_net)* net, real* k, real* z,
     return MLB_OK;
 }
 
-void FN(material_net_backward)(FN(mlb_material_net)* net, const real* dk, real* dpos) {
+mlb_status FN(material_net_backward)(FN(mlb_material_net)* net, const real* dk, real* dpos) {
     int n = net->n, L = net->enc.out_dim;
-    if (n < 1) return;
+    if (n < 1) return mlb_fail(MLB_ERR_ARG, "material network: backward without a forward");
+#ifndef MLB_F64
+    if (net->dev) return material_device_backward(net, dk, dpos);
+#endif
     // ds = dk·(hi − lo): the gradient at the sigmoid outputs (decoder's or the MLP's own)
     real* ds = net->dk;
     for (int i = 0; i < n; i++)
@@ -274,16 +289,26 @@ void FN(material_net_backward)(FN(mlb_material_net)* net, const real* dk, real* 
         real inv = (real)(1.0 / net->cfg.scale);
         for (size_t i = 0; i < 3 * (size_t)n; i++) dpos[i] += dx[i] * inv;
     }
+    return MLB_OK;
 }
 
-void FN(material_net_update)(FN(mlb_material_net)* net, const mlb_adam_config* adam) {
+mlb_status FN(material_net_update)(FN(mlb_material_net)* net, const mlb_adam_config* adam) {
+#ifndef MLB_F64
+    if (net->dev) return material_device_update(net, adam);
+#endif
     net->step++;
     FN(adam_update)(net->params, net->grads, net->adam_m, net->adam_v, net->n_params, adam, net->step);
+    return MLB_OK;
 }
 
 mlb_status FN(material_net_eval)(const FN(mlb_material_net)* net, const real* pos, size_t n, real* k, real* z) {
     if (z && net->cfg.mode != MLB_MATERIAL_LATENT)
         return mlb_fail(MLB_ERR_ARG, "material network: latent codes asked of a direct-mode network");
+#ifndef MLB_F64
+    if (material_device_host_behind(net))
+        return mlb_fail(MLB_ERR_ARG, "material network: its parameters on the %s are ahead of the host's copy "
+                                     "(mlb_material_net_sync_host first)", mlb_device_name(mlb_material_net_backend(net)->device));
+#endif
     if (n == 0) return MLB_OK;
     int chunk = n < EVAL_CHUNK ? (int)n : EVAL_CHUNK, L = net->enc.out_dim, O = FN(out_dim)(net);
     FN(mlb_mlp_cache) c, dc;
@@ -315,7 +340,7 @@ mlb_status FN(material_net_decode)(const FN(mlb_material_net)* net, const real* 
     for (size_t start = 0; start < n; start += (size_t)chunk) {
         int B = (int)(n - start < (size_t)chunk ? n - start : (size_t)chunk);
         const real* s = FN(mlp_forward_sharded)(&net->dec, &dc, z + Z_DIM * start, B, 0);
-        FN(map_to_ranges)(k + K_DIM * start, s, B);
+        FN(material_map_to_ranges)(k + K_DIM * start, s, B);
     }
     FN(mlp_cache_free)(&dc);
     return MLB_OK;

@@ -186,8 +186,10 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
         r->result.appearance_steps++;
     }
     if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0) s = pipeline_preview(r, ss->stage, it, images, n_views);
-    if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters))
-        s = pipeline_state_save(ss->ckpt, ss->params, ss->m, ss->v, ss->n, it + 1, ss->name);
+    if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters)) {
+        if (ss->stage == MLB_STAGE_APPEARANCE) s = mlb_material_net_sync_host(&r->mat);   // from the GPU
+        if (!s) s = pipeline_state_save(ss->ckpt, ss->params, ss->m, ss->v, ss->n, it + 1, ss->name);
+    }
     pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
     *stop = !s && pipeline_should_stop(r);
     return s;
@@ -265,6 +267,11 @@ static mlb_status appearance_stage(pipeline_run* r) {
     mlb_appearance app;
     memset(&app, 0, sizeof app);
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    // On a GPU the material network, its optimiser and the shading run there (fp32: the MLP is small)
+    if (!s && mlb_device_current() == MLB_DEVICE_CUDA) {
+        s = mlb_material_net_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
+        if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
+    }
     for (long it = start; !s && it < c->appearance_iters; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
         if (!s) s = pipeline_fix_env(r, views, n);
@@ -281,14 +288,16 @@ static mlb_status appearance_stage(pipeline_run* r) {
             if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->w_mat_spec, c->seed, it,
                                                 1, &smooth);
         }
+        if (!s) s = material_net_update(net, &adam);
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
-        material_net_update(net, &adam);
         double row[3] = {loss, smooth, r->scene.mesh.n_faces};
         int stop = 0;
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
     mlb_appearance_free(&app);
+    mlb_status left = mlb_material_net_leave_device(net);   // the host copy is the result
+    if (!s) s = left;
     free(views);
     free(images);
     free(dimages);

@@ -1,0 +1,242 @@
+// The material network on a device (material_net.h, "on a device"): the same hash grid → MLP →
+// frozen decoder as material_net.c, written against an op table (backend.h) over the whole batch,
+// with its parameters, gradients, Adam moments and forward cache on the table's device. Only the
+// points, k and dk cross as host arrays; the grid-box mapping of the points and the output ranges
+// are applied on the host with the CPU path's own arithmetic.
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/brdf.h"
+#include "matlaber/material_net.h"
+#include "material_net_internal.h"
+
+enum { K_DIM = 7, NET_MLP = 0, NET_DEC = 1 };
+
+struct mlb_material_device {
+    const mlb_backend* be;
+    float *params, *grads, *m, *v;   // [n_params] on the device: the table, then the MLP
+    float* dec_params;               // the frozen decoder (latent mode)
+    mlb_mlp net[2];                  // the MLP and the decoder over device weights (host metadata)
+    mlb_mlp grad_mlp;                // the MLP's layout over grads: weight/bias gradient pointers
+    int capacity;                    // points the buffers below hold
+    float *x, *feat, *dfeat, *dx;    // [n,3], [n,L], [n,L], [n,3]
+    float* pre[2][MLB_MLP_MAX_LAYERS];    // per network and layer: [n, dims[l+1]] before ...
+    float* post[2][MLB_MLP_MAX_LAYERS];   // ... and after the activation
+    float *ds, *dz, *dpre, *dbuf[2];      // backward scratch: [n,7], [n,out], [n,W] × 3
+    float* host;                          // staging [n,7]
+    int width;                            // W: the widest layer of either network
+    int host_behind;                      // the host's params/grads/moments are stale
+    mlb_status pending;                   // an error of zero_grad, returned by the next op
+};
+
+static mlb_activation layer_act(const mlb_mlp* m, int l) { return l == m->n_layers - 1 ? m->out_act : m->hidden_act; }
+static int net_count(const mlb_material_net* net) { return net->cfg.mode == MLB_MATERIAL_LATENT ? 2 : 1; }
+
+static void release_batch(struct mlb_material_device* d) {
+    const mlb_backend* be = d->be;
+    float** all[] = {&d->x, &d->feat, &d->dfeat, &d->dx, &d->ds, &d->dz, &d->dpre, &d->dbuf[0], &d->dbuf[1]};
+    for (size_t i = 0; i < sizeof all / sizeof all[0]; i++) { be->release(*all[i]); *all[i] = NULL; }
+    for (int k = 0; k < 2; k++)
+        for (int l = 0; l < MLB_MLP_MAX_LAYERS; l++) {
+            be->release(d->pre[k][l]); be->release(d->post[k][l]);
+            d->pre[k][l] = d->post[k][l] = NULL;
+        }
+    free(d->host);
+    d->host = NULL;
+    d->capacity = 0;
+}
+
+void material_device_free(struct mlb_material_device* d) {
+    if (!d) return;
+    release_batch(d);
+    float* all[] = {d->params, d->grads, d->m, d->v, d->dec_params};
+    for (size_t i = 0; i < sizeof all / sizeof all[0]; i++) d->be->release(all[i]);
+    free(d);
+}
+
+// Buffers for n points (grown, never shrunk).
+static mlb_status reserve(mlb_material_net* net, int n) {
+    struct mlb_material_device* d = net->dev;
+    if (n <= d->capacity) return MLB_OK;
+    release_batch(d);
+    const mlb_backend* be = d->be;
+    size_t N = (size_t)n, L = (size_t)net->enc.out_dim, W = (size_t)d->width;
+    mlb_status s = MLB_OK;
+    if (!s) s = be->alloc(&d->x, 3 * N);
+    if (!s) s = be->alloc(&d->feat, L * N);
+    if (!s) s = be->alloc(&d->dfeat, L * N);
+    if (!s) s = be->alloc(&d->dx, 3 * N);
+    if (!s) s = be->alloc(&d->ds, K_DIM * N);
+    if (!s) s = be->alloc(&d->dz, K_DIM * N);
+    if (!s) s = be->alloc(&d->dpre, W * N);
+    for (int i = 0; i < 2 && !s; i++) s = be->alloc(&d->dbuf[i], W * N);
+    for (int k = 0; k < net_count(net) && !s; k++)
+        for (int l = 0; l < d->net[k].n_layers && !s; l++) {
+            s = be->alloc(&d->pre[k][l], (size_t)d->net[k].dims[l + 1] * N);
+            if (!s) s = be->alloc(&d->post[k][l], (size_t)d->net[k].dims[l + 1] * N);
+        }
+    if (!s && !(d->host = malloc(sizeof(float) * K_DIM * N))) s = mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    if (s) { release_batch(d); return mlb_fail_context(s, "material network on the %s: %d points", mlb_device_name(be->device), n); }
+    d->capacity = n;
+    return MLB_OK;
+}
+
+// Network k over n rows of `in`; returns its output (the last layer's post).
+static mlb_status mlp_forward_on(struct mlb_material_device* d, int k, const float* in, int n, const float** out) {
+    const mlb_backend* be = d->be;
+    const mlb_mlp* m = &d->net[k];
+    const float* x = in;
+    for (int l = 0; l < m->n_layers; l++) {
+        MLB_TRY(be->linear(be, d->pre[k][l], x, m->weight[l], m->bias[l], n, m->dims[l], m->dims[l + 1]));
+        MLB_TRY(be->activation(d->post[k][l], d->pre[k][l], (size_t)n * m->dims[l + 1], layer_act(m, l)));
+        x = d->post[k][l];
+    }
+    *out = x;
+    return MLB_OK;
+}
+
+// din [n, dims[0]] = ∂(Σ dout·out)/∂in through network k's cached forward (overwritten); the
+// weight gradients (+=) into `grads` when given (a layout of the network over the gradient array).
+static mlb_status mlp_backward_on(struct mlb_material_device* d, int k, const mlb_mlp* grads, const float* in,
+                                  const float* dout, float* din, int n) {
+    const mlb_backend* be = d->be;
+    const mlb_mlp* m = &d->net[k];
+    const float* dpost = dout;
+    for (int l = m->n_layers - 1; l >= 0; l--) {
+        size_t C = (size_t)m->dims[l], OC = (size_t)m->dims[l + 1];
+        MLB_TRY(be->zero(d->dpre, n * OC));
+        MLB_TRY(be->activation_backward(d->dpre, dpost, d->pre[k][l], n * OC, layer_act(m, l)));
+        float* dx = l ? d->dbuf[l & 1] : din;
+        MLB_TRY(be->zero(dx, n * C));
+        MLB_TRY(be->linear_backward(be, dx, grads ? grads->weight[l] : NULL, grads ? grads->bias[l] : NULL, d->dpre,
+                                    l ? d->post[k][l - 1] : in, m->weight[l], n, (int)C, (int)OC));
+        dpost = dx;
+    }
+    return MLB_OK;
+}
+
+mlb_status material_device_forward(mlb_material_net* net, float* k, float* z, const float* pos, int n) {
+    struct mlb_material_device* d = net->dev;
+    const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    MLB_TRY(reserve(net, n));
+    net->n = 0;
+    float inv = (float)(1.0 / net->cfg.scale);
+    for (size_t i = 0; i < 3 * (size_t)n; i++) d->host[i] = pos[i] * inv + 0.5f;   // the grid box → [0,1]^3
+    MLB_TRY(be->upload(d->x, d->host, 3 * (size_t)n));
+    MLB_TRY(be->hashgrid(&net->enc, d->params, d->feat, d->x, n));
+    const float *out, *s;
+    MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, &out));
+    s = out;
+    if (net->cfg.mode == MLB_MATERIAL_LATENT) MLB_TRY(mlp_forward_on(d, NET_DEC, out, n, &s));
+    if (k) {
+        MLB_TRY(be->download(d->host, s, K_DIM * (size_t)n));
+        material_map_to_ranges(k, d->host, n);
+    }
+    if (z && net->cfg.mode == MLB_MATERIAL_LATENT) MLB_TRY(be->download(z, out, MLB_LATENT_DIM * (size_t)n));
+    net->n = n;
+    return MLB_OK;
+}
+
+mlb_status material_device_backward(mlb_material_net* net, const float* dk, float* dpos) {
+    struct mlb_material_device* d = net->dev;
+    const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    int n = net->n;
+    size_t N = (size_t)n;
+    // ds = dk·(hi − lo): the gradient at the sigmoid outputs (the decoder's or the MLP's own)
+    for (size_t i = 0; i < N; i++)
+        for (int c = 0; c < K_DIM; c++)
+            d->host[i * K_DIM + c] = dk[i * K_DIM + c] * (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
+    MLB_TRY(be->upload(d->ds, d->host, K_DIM * N));
+    const float* dout = d->ds;
+    if (net->cfg.mode == MLB_MATERIAL_LATENT) {   // dz through the frozen decoder
+        const mlb_mlp* mlp = &d->net[NET_MLP];
+        MLB_TRY(mlp_backward_on(d, NET_DEC, NULL, d->post[NET_MLP][mlp->n_layers - 1], d->ds, d->dz, n));
+        dout = d->dz;
+    }
+    MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
+    if (dpos) MLB_TRY(be->zero(d->dx, 3 * N));
+    MLB_TRY(be->hashgrid_backward(&net->enc, d->params, d->grads, dpos ? d->dx : NULL, d->dfeat, d->x, n));
+    d->host_behind = 1;
+    if (dpos) {
+        MLB_TRY(be->download(d->host, d->dx, 3 * N));
+        float inv = (float)(1.0 / net->cfg.scale);
+        for (size_t i = 0; i < 3 * N; i++) dpos[i] += d->host[i] * inv;
+    }
+    return MLB_OK;
+}
+
+void material_device_zero_grad(mlb_material_net* net) {
+    struct mlb_material_device* d = net->dev;
+    mlb_status s = d->be->zero(d->grads, net->n_params);
+    if (s && !d->pending) d->pending = s;
+    d->host_behind = 1;
+}
+
+mlb_status material_device_update(mlb_material_net* net, const mlb_adam_config* adam) {
+    struct mlb_material_device* d = net->dev;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    net->step++;
+    d->host_behind = 1;
+    return d->be->adam(d->params, d->grads, d->m, d->v, net->n_params, adam, net->step);
+}
+
+int material_device_host_behind(const mlb_material_net* net) { return net->dev && net->dev->host_behind; }
+
+const mlb_backend* mlb_material_net_backend(const mlb_material_net* net) { return net->dev ? net->dev->be : NULL; }
+
+mlb_status mlb_material_net_sync_host(mlb_material_net* net) {
+    struct mlb_material_device* d = net->dev;
+    if (!d || !d->host_behind) return MLB_OK;
+    const mlb_backend* be = d->be;
+    float* host[] = {net->params, net->grads, net->adam_m, net->adam_v};
+    float* dev[] = {d->params, d->grads, d->m, d->v};
+    for (int i = 0; i < 4; i++) MLB_TRY(be->download(host[i], dev[i], net->n_params));
+    d->host_behind = 0;
+    return MLB_OK;
+}
+
+mlb_status mlb_material_net_leave_device(mlb_material_net* net) {
+    if (!net->dev) return MLB_OK;
+    MLB_TRY(mlb_material_net_sync_host(net));
+    material_device_free(net->dev);
+    net->dev = NULL;
+    net->n = 0;
+    return MLB_OK;
+}
+
+mlb_status mlb_material_net_use_device(mlb_material_net* net, const mlb_backend* be) {
+    if (!net->params || !be) return mlb_fail(MLB_ERR_ARG, "material network to a device: no network or no device");
+    MLB_TRY(mlb_material_net_leave_device(net));
+    struct mlb_material_device* d = calloc(1, sizeof *d);
+    if (!d) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    d->be = be;
+    size_t np = net->n_params;
+    size_t nd = net->cfg.mode == MLB_MATERIAL_LATENT ? mlp_param_count(net->dec.n_layers, net->dec.dims, 1) : 0;
+    mlb_status s = be->alloc(&d->params, np);
+    if (!s) s = be->alloc(&d->grads, np);
+    if (!s) s = be->alloc(&d->m, np);
+    if (!s) s = be->alloc(&d->v, np);
+    if (!s && nd) s = be->alloc(&d->dec_params, nd);
+    if (!s) s = be->upload(d->params, net->params, np);
+    if (!s) s = be->upload(d->grads, net->grads, np);
+    if (!s) s = be->upload(d->m, net->adam_m, np);
+    if (!s) s = be->upload(d->v, net->adam_v, np);
+    if (!s && nd) s = be->upload(d->dec_params, net->dec_params, nd);
+    // the networks' layouts over the device arrays (mlp_init only carves pointers)
+    const mlb_mlp* m = &net->mlp;
+    if (!s) s = mlp_init(&d->net[NET_MLP], m->n_layers, m->dims, 1, m->hidden_act, m->out_act, d->params + net->n_enc);
+    if (!s) s = mlp_init(&d->grad_mlp, m->n_layers, m->dims, 1, m->hidden_act, m->out_act, d->grads + net->n_enc);
+    if (!s && nd) s = mlp_init(&d->net[NET_DEC], net->dec.n_layers, net->dec.dims, 1, net->dec.hidden_act, net->dec.out_act,
+                               d->dec_params);
+    for (int k = 0; k < net_count(net); k++)
+        for (int l = 0; l <= d->net[k].n_layers; l++)
+            if (d->net[k].dims[l] > d->width) d->width = d->net[k].dims[l];
+    if (s) {
+        material_device_free(d);
+        return mlb_fail_context(s, "moving the material network to the %s", mlb_device_name(be->device));
+    }
+    net->dev = d;
+    net->n = 0;   // a host forward's cache is not the device's
+    return MLB_OK;
+}

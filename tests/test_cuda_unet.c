@@ -37,8 +37,20 @@ static void conv_case(mlb_conv2d cv, int with_bias, uint64_t seed) {
     free(x); free(w); free(b); free(ref); free(got);
 }
 
+static void conv_cases(void);
+
+// Every case on both paths: cuDNN when the build has it (symmetric padding) and the im2col GEMMs.
 TEST(conv2d_matches_cpu) {
     REQUIRE_GPU();
+    for (int path = mlb_cuda_cudnn_version() ? 0 : 1; path < 2; path++) {
+        mlb_cuda_use_cudnn(path == 0);
+        printf("  convolutions on %s\n", path == 0 ? "cuDNN" : "the GEMM path");
+        conv_cases();
+    }
+    mlb_cuda_use_cudnn(1);
+}
+
+static void conv_cases(void) {
     uint64_t s = test_seed();
     mlb_conv2d a = mlb_conv2d_make(2, 32, 16, 16, 64, 3, 1, 1);   // a UNet 3x3
     conv_case(a, 1, s + 1);

@@ -68,8 +68,22 @@ static void conv_bwd_case(mlb_conv2d cv, uint64_t seed) {
     free(x); free(w); free(dy); free(dx0); free(dw0); free(db0); free(dx); free(dw); free(db); free(gx); free(gw); free(gb);
 }
 
+static void conv_bwd_cases(void);
+
+// Every case on both paths: cuDNN's input gradient when the build has it (symmetric padding), the
+// im2col GEMMs for the rest.
 TEST(conv2d_backward_matches_cpu) {
     REQUIRE_GPU();
+    printf("  cuDNN version %d\n", mlb_cuda_cudnn_version());
+    for (int path = mlb_cuda_cudnn_version() ? 0 : 1; path < 2; path++) {
+        mlb_cuda_use_cudnn(path == 0);
+        printf("  convolutions on %s\n", path == 0 ? "cuDNN" : "the GEMM path");
+        conv_bwd_cases();
+    }
+    mlb_cuda_use_cudnn(1);
+}
+
+static void conv_bwd_cases(void) {
     uint64_t s = test_seed();
     conv_bwd_case(mlb_conv2d_make(2, 16, 12, 10, 24, 3, 1, 1), s + 1);   // a ResNet 3x3
     mlb_conv2d v = mlb_conv2d_make(3, 8, 11, 13, 8, 3, 2, 0);            // the VAE's downsample

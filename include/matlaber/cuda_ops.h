@@ -101,6 +101,12 @@ mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* wei
 // NULL), the scores held for a chunk of images at a time (at most 1 GiB), softmax in float.
 mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
+// With cuDNN in the build (src/cuda/conv_cudnn.cu) the forward and the input gradient of a
+// convolution with symmetric padding run there, the rest on the GEMMs. mlb_cuda_use_cudnn(0) (or
+// MLB_CUDNN=0 in the environment) sends every convolution to the GEMM path; mlb_cuda_cudnn_version
+// is cuDNN's version number (e.g. 91400), 0 without it.
+void mlb_cuda_use_cudnn(int on);
+int mlb_cuda_cudnn_version(void);
 // The backwards (src/cuda/conv_backward.cu): conv2d_backward's and sdpa_backward's contracts (+=,
 // any gradient may be NULL; sdpa needs the forward's out and lse).
 mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,

@@ -135,6 +135,8 @@ mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const f
                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
 mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                     const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
+void mlb_cuda_use_cudnn(int on) { (void)on; }
+int mlb_cuda_cudnn_version(void) { return 0; }
 mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
                                   const float* lse, const float* q, const float* k, const float* v, int B, int Tq,
                                   int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }

@@ -16,6 +16,7 @@ extern "C" {
 #include "matlaber/conv_ops.h"
 }
 
+#include "conv_cudnn.cuh"
 #include "gemm_ops.cuh"
 
 // out[row, i] = bias[row % OC] for rows = N*OC planes of HW values
@@ -42,6 +43,7 @@ extern "C" mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const
                                               const mlb_conv2d* cv, mlb_gemm_precision prec) {
     if (!out || !in || !weight || !cv) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_conv2d_forward: NULL argument");
     MLB_TRY(mlb_conv2d_check(cv));
+    if (mlb_cudnn_conv_usable(cv)) return mlb_cudnn_conv2d_forward(out, in, weight, bias, cv, prec);
     conv_geom g = conv_geom_of(cv);
     const int N = cv->N, OC = cv->OC, OHW = g.OH * g.OW, CKK = g.C * g.KH * g.KW;
     float beta = 0.0f;

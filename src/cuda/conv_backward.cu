@@ -8,6 +8,7 @@
 //           D = rowsum(dO o O): dP = dO V^T, dS = P o (dP - D), dQ = scale dS K, dK = scale dS^T Q,
 //           dV = P^T dO, per chunk of images as batched GEMMs over (image, head).
 #include <math.h>
+#include "conv_cudnn.cuh"
 #include "gemm_ops.cuh"
 
 // ---- conv2d ------------------------------------------------------------------------------------
@@ -66,6 +67,10 @@ extern "C" mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float
     if (dbias) {
         conv_dbias_kernel<<<OC, 256>>>(dbias, dout, N, OC, OHW);
         MLB_CUDA_LAUNCHED("conv_dbias_kernel");
+    }
+    if (din && mlb_cudnn_conv_usable(cv)) {   // the input gradient by cuDNN, the weight gradient below
+        MLB_TRY(mlb_cudnn_conv2d_backward_data(din, dout, weight, cv, prec));
+        din = NULL;
     }
     if (!din && !dweight) return MLB_OK;
     const int half = is_half(prec);

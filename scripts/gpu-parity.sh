@@ -108,7 +108,7 @@ rm -f "$build/CMakeCache.txt"   # a fresh configure: cached pkg-config paths may
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DMLB_CUDA=ON -DCMAKE_CUDA_COMPILER="$nvcc" \
   -DCMAKE_CUDA_ARCHITECTURES="${MLB_CUDA_ARCH:-90}" "${extra_cmake[@]}" > "$out/configure.log" 2>&1 \
   || { tail -30 "$out/configure.log"; say "gpu-parity: configure failed ($out/configure.log)"; exit 2; }
-grep -E "matlaber: CUDA part" "$out/configure.log" | tee -a "$log"
+grep -E "matlaber: (CUDA part|cuDNN)" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
 tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
 targets=$tests

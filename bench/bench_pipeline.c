@@ -42,6 +42,7 @@
 #include "bench_util.h"
 #include "matlaber/appearance.h"
 #include "matlaber/brdf_ae.h"
+#include "matlaber/cuda_ops.h"
 #include "matlaber/device.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/envmap.h"
@@ -133,7 +134,15 @@ static mlb_status make_image_guide(guide* gd, const char* dir, int res) {
 typedef struct {
     double render, guide, back, smooth, opt, total, unet;   // s per iteration (unet: -1 = not SDS)
     int faces;
+    double gpu_gib;   // device memory in use at the stage's end (weights, caches, scratch); -1 on the CPU
 } split;
+
+// GiB in use on the current GPU (total - free), -1 when the device is the CPU
+static double gpu_in_use(void) {
+    size_t free_b = 0, total_b = 0;
+    if (mlb_device_current() != MLB_DEVICE_CUDA || mlb_cuda_mem_info(&free_b, &total_b)) return -1;
+    return (double)(total_b - free_b) / (1024.0 * 1024.0 * 1024.0);
+}
 
 // The UNet's share of an SDS guidance call: one forward of batch 2·n at h × h (measured once per
 // model, batch and size: the latent phase's 64² UNet call is the same at every render size).
@@ -195,6 +204,7 @@ static void reset_mat(scene* sc) {
 
 static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int iters, split* out) {
     memset(out, 0, sizeof *out);
+    out->gpu_gib = -1;
     reset_geo(sc);
     mlb_guidance* g = gd->g;
     int n = g->n_views;
@@ -230,6 +240,7 @@ static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int 
     if (!s && iters > 0) {
         out->render /= iters; out->guide /= iters; out->back /= iters; out->opt /= iters; out->total /= iters;
         out->unet = time_unet(gd, n, step0 < LATENT_ITERS ? MLB_GUIDANCE_LATENT_SIZE : res / 8);
+        out->gpu_gib = gpu_in_use();
     }
     mlb_geofit_state_free(&st);
     free(views); free(cams); free(dimages);
@@ -238,6 +249,7 @@ static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int 
 
 static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, split* out) {
     memset(out, 0, sizeof *out);
+    out->gpu_gib = -1;
     reset_mat(sc);
     mlb_guidance* g = gd->g;
     int n = g->n_views;
@@ -281,6 +293,7 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
         out->total /= iters;
         out->faces = sc->mesh.n_faces;
         out->unet = time_unet(gd, n, res / 8);
+        out->gpu_gib = gpu_in_use();
     }
     mlb_appearance_free(&app);
     mlb_status left = mlb_material_net_leave_device(&sc->mat);
@@ -380,18 +393,20 @@ static mlb_status render_views(const char* dir) {
 // ---- the table ----------------------------------------------------------------------------------
 static void print_header(void) {
     printf("| stage | guidance | phase | res | views | faces | s/iter | render fwd | guidance | of which UNet | backward | "
-           "smoothness | optimizer |\n");
-    printf("|---|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+           "smoothness | optimizer | GPU GiB |\n");
+    printf("|---|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
 }
 
 static void print_row(const char* stage, const char* guidance, const char* phase, int res, int views, const split* r) {
-    char unet[32], smooth[32];
+    char unet[32], smooth[32], gpu[32];
+    if (r->gpu_gib >= 0) snprintf(gpu, sizeof gpu, "%.1f", r->gpu_gib);
+    else snprintf(gpu, sizeof gpu, "-");
     if (r->unet >= 0) snprintf(unet, sizeof unet, "%.3f", r->unet);
     else snprintf(unet, sizeof unet, "-");
     if (!strcmp(stage, "appearance")) snprintf(smooth, sizeof smooth, "%.3f", r->smooth);
     else snprintf(smooth, sizeof smooth, "-");
-    printf("| %s | %s | %s | %d | %d | %d | %.3f | %.3f | %.3f | %s | %.3f | %s | %.3f |\n", stage, guidance, phase, res, views,
-           r->faces, r->total, r->render, r->guide, unet, r->back, smooth, r->opt);
+    printf("| %s | %s | %s | %d | %d | %d | %.3f | %.3f | %.3f | %s | %.3f | %s | %.3f | %s |\n", stage, guidance, phase, res,
+           views, r->faces, r->total, r->render, r->guide, unet, r->back, smooth, r->opt, gpu);
     fflush(stdout);
 }
 

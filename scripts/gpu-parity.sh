@@ -146,6 +146,11 @@ if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae.log" | tee -a "$log"
+  if grep -q "matlaber: cuDNN /" "$out/configure.log"; then   # the baseline: every convolution on the GEMM path
+    say "gpu-parity: the same two benches with MLB_CUDNN=0 (convolutions on im2col + GEMM)"
+    (cd "$build" && MLB_CUDNN=0 ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet_gemm.log" | tee -a "$log"
+    (cd "$build" && MLB_CUDNN=0 ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae_gemm.log" | tee -a "$log"
+  fi
 fi
 if [ $pipeline = 1 ]; then
   (cd "$build" && ./bench/bench_pipeline --sd15 --no-images --no-tiny --device cuda --precision "${MLB_PRECISION:-fp16}" \

@@ -110,7 +110,7 @@ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DMLB_CUDA=ON -DCMAKE_CUDA_COM
   || { tail -30 "$out/configure.log"; say "gpu-parity: configure failed ($out/configure.log)"; exit 2; }
 grep -E "matlaber: (CUDA part|cuDNN)" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
-tests=$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')
+tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')}   # MLB_GPU_TESTS="test_cuda_x ...": only those
 targets=$tests
 [ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
 [ $pipeline = 1 ] && targets="$targets bench_pipeline"

@@ -5,21 +5,23 @@
 // Tolerance. The UNet outputs differ by ~1e-6 relative (test_cuda_unet), but Adam's step m / sqrt(v)
 // turns any difference in a near-zero gradient into a full +-lr step, so the two runs separate at
 // the scale of the learning rate, not of the rounding (measured on an H200: Chamfer / diagonal
-// 1.7e-3, 188 vs 182 vertices). The control is a second CPU run with another seed: the device
-// difference must be smaller than the seed's, and under 1e-2 of the diagonal (an eighth of a grid
-// cell at --grid 16). The material fields, both evaluated at the CPU mesh's vertices: the same
-// chaos acts on every hash-table entry (a first Adam step is +-lr whatever the gradient's size), so
-// with the material network on the GPU too the per-vertex fields of the two devices ended as far
-// apart as two seeds' (H200: 2.10e-2 vs 2.00e-2 mean |difference|). What the guidance determines
-// is the field's mean (the sum over every sample's gradient): the mean material over the vertices
-// must differ between the devices by less than between the seeds, and by under 1e-2. The
-// appearance stage's arithmetic itself is checked step by step in test_cuda_material.
+// 1.0e-3 .. 1.7e-3, 188 vs 182 vertices). The control is a second CPU run with another seed: the
+// device difference must be smaller than the seed's, and under 1e-2 of the diagonal (an eighth of a
+// grid cell at --grid 16).
+// The materials are compared on one surface: runs without geometry steps (the initial shape, fitted
+// on the CPU in both), since a material field evaluated on the other run's surface reads hash cells
+// that run never trained (the finest cells are ~1e-3 of the diagonal, the surfaces 1e-3 apart):
+// that confound put the two devices' materials as far apart as two seeds' (H200: 9.99e-3 .. 2.10e-2
+// vs 2.00e-2 mean |difference| at the vertices). On one surface the device difference must be
+// under 1e-2 and under the seed's. The appearance arithmetic itself is checked step by step in
+// test_cuda_material.
 #include "cuda_test_util.h"
 #include "matlaber/geometry.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/sd_model.h"
 
-static mlb_status run_on(const char* device, const char* model, const char* dir, uint64_t seed, mlb_pipeline_result* r) {
+static mlb_status run_on(const char* device, const char* model, const char* dir, uint64_t seed, int geometry_iters,
+                         mlb_pipeline_result* r) {
     mlb_device d;
     MLB_TRY(mlb_device_select(device, &d));
     mlb_set_gemm_precision(MLB_GEMM_FP32);
@@ -30,7 +32,7 @@ static mlb_status run_on(const char* device, const char* model, const char* dir,
     c.res = 64;
     c.grid = 16;
     c.views = 2;
-    c.geometry_iters = 12;
+    c.geometry_iters = geometry_iters;
     c.init_iters = 50;
     c.appearance_iters = 6;
     c.preview_every = 0;
@@ -66,11 +68,11 @@ TEST(generate_agrees_between_devices) {
     mlb_pipeline_result rc, rg, rs;
     char dir_s[700];
     snprintf(dir_s, sizeof dir_s, "%s/cpu_seed1", tmp);
-    mlb_status s = run_on("cpu", model, dir_c, 0, &rc);
-    if (!s) s = run_on("cpu", model, dir_s, 1, &rs);
+    mlb_status s = run_on("cpu", model, dir_c, 0, 12, &rc);
+    if (!s) s = run_on("cpu", model, dir_s, 1, 12, &rs);
     CHECK_MSG(s == MLB_OK, "CPU run: %s", mlb_last_error());
     if (s) return;
-    s = run_on("cuda", model, dir_g, 0, &rg);
+    s = run_on("cuda", model, dir_g, 0, 12, &rg);
     CHECK_MSG(s == MLB_OK, "GPU run: %s", mlb_last_error());
     mlb_device d;
     mlb_device_select("cpu", &d);
@@ -93,36 +95,41 @@ TEST(generate_agrees_between_devices) {
            "the seed's)\n", dev.relative, seed.relative);
     CHECK(dev.relative <= 1e-2);
     CHECK(dev.relative < seed.relative);
-    // the material fields at the CPU mesh's vertices
+    mlb_run_asset_free(&a);
+    mlb_run_asset_free(&b);
+    mlb_run_asset_free(&c);
+    // the materials, on the one surface of runs without geometry steps
+    snprintf(dir_c, sizeof dir_c, "%s/cpu_app", tmp);
+    snprintf(dir_g, sizeof dir_g, "%s/cuda_app", tmp);
+    snprintf(dir_s, sizeof dir_s, "%s/cpu_app_seed1", tmp);
+    s = run_on("cpu", model, dir_c, 0, 0, &rc);
+    if (!s) s = run_on("cpu", model, dir_s, 1, 0, &rs);
+    if (!s) s = run_on("cuda", model, dir_g, 0, 0, &rg);
+    mlb_device_select("cpu", &d);
+    CHECK_MSG(s == MLB_OK, "appearance runs: %s", mlb_last_error());
+    if (s) return;
+    CHECK(mlb_run_asset_load(&a, dir_c) == MLB_OK);
+    CHECK(mlb_run_asset_load(&b, dir_g) == MLB_OK);
+    CHECK(mlb_run_asset_load(&c, dir_s) == MLB_OK);
+    CHECK(a.mesh.n_verts == b.mesh.n_verts && !memcmp(a.mesh.pos, b.mesh.pos, sizeof(float) * 3 * a.mesh.n_verts));
     size_t n = (size_t)a.mesh.n_verts * 7;
     float *ka = host_alloc(n), *kb = host_alloc(n), *kc = host_alloc(n);
-    mlb_run_asset bb = b, cc = c;   // shallow copies that borrow a's mesh
-    bb.mesh = a.mesh;
+    mlb_run_asset cc = c;   // borrows a's mesh
     cc.mesh = a.mesh;
     CHECK(mlb_run_asset_vertex_brdf(&a, ka) == MLB_OK);
-    CHECK(mlb_run_asset_vertex_brdf(&bb, kb) == MLB_OK);
+    CHECK(mlb_run_asset_vertex_brdf(&b, kb) == MLB_OK);
     CHECK(mlb_run_asset_vertex_brdf(&cc, kc) == MLB_OK);
-    double mb = 0, mc = 0, mean[3][7] = {{0}};
+    double mb = 0, mc = 0;
     for (size_t i = 0; i < n; i++) {
         mb += fabs((double)ka[i] - kb[i]);
         mc += fabs((double)ka[i] - kc[i]);
-        mean[0][i % 7] += ka[i];
-        mean[1][i % 7] += kb[i];
-        mean[2][i % 7] += kc[i];
     }
     mb /= (double)n;
     mc /= (double)n;
-    printf("  material (kd, ks, roughness) at the vertices, mean |difference| to the CPU run: GPU %.3e, CPU with "
-           "another seed %.3e (not bounded: see the header)\n", mb, mc);
-    double db = 0, dc = 0;
-    for (int ch = 0; ch < 7; ch++) {
-        db += fabs(mean[0][ch] - mean[1][ch]) / (double)a.mesh.n_verts / 7;
-        dc += fabs(mean[0][ch] - mean[2][ch]) / (double)a.mesh.n_verts / 7;
-    }
-    printf("  mean material over the vertices, |difference| per channel: GPU %.3e, CPU with another seed %.3e "
-           "(bound: below both 1e-2 and the seed's)\n", db, dc);
-    CHECK(db <= 1e-2);
-    CHECK(db < dc);
+    printf("  one surface (%d vertices): material (kd, ks, roughness) at the vertices, mean |difference| to the CPU "
+           "run: GPU %.3e, CPU with another seed %.3e (bound: below both 1e-2 and the seed's)\n", a.mesh.n_verts, mb, mc);
+    CHECK(mb <= 1e-2);
+    CHECK(mb < mc);
     free(ka); free(kb); free(kc);
     mlb_run_asset_free(&a);
     mlb_run_asset_free(&b);

@@ -21,7 +21,7 @@ static int cmp_double(const void* a, const void* b) {
 
 // ---- the profiling table: the CUDA table's ops, each timed with events and its FLOPs counted ----
 enum { P_CONV, P_LINEAR, P_SDPA, P_NORM, P_GLUE, P_COUNT };
-static const char* p_names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (GEMM+softmax)",
+static const char* p_names[P_COUNT] = {"conv2d", "linear (GEMM)", "attention (GEMM+softmax)",
                                        "group/layer norm", "glue (add, transpose, GEGLU, copies)"};
 static double p_ms[P_COUNT], p_flop[P_COUNT];
 static long p_calls[P_COUNT];
@@ -88,9 +88,14 @@ static void profile(const mlb_unet* u, float* out, const float* x, const float* 
     printf("\nprofile, batch %d, %s (each op synchronised; un-profiled forward %.2f ms; activations %.2f GiB):\n", N,
            mlb_gemm_precision_name(prec), total_ms, p_arena * 4.0 / 1073741824.0);
     printf("%-38s %7s %10s %7s %10s %10s\n", "op", "calls", "ms", "share", "GFLOP", "TFLOP/s");
-    for (int c = 0; c < P_COUNT; c++)
-        printf("%-38s %7ld %10.2f %6.1f%% %10.1f %10.1f\n", p_names[c], p_calls[c], p_ms[c], 100 * p_ms[c] / sum,
+    for (int c = 0; c < P_COUNT; c++) {
+        char name[64];   // the convolutions' path: cuDNN (symmetric padding) unless MLB_CUDNN=0 or absent
+        const char* off = getenv("MLB_CUDNN");
+        snprintf(name, sizeof name, "%s%s", p_names[c],
+                 c ? "" : mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? " (cuDNN)" : " (im2col + GEMM)");
+        printf("%-38s %7ld %10.2f %6.1f%% %10.1f %10.1f\n", name, p_calls[c], p_ms[c], 100 * p_ms[c] / sum,
                p_flop[c] / 1e9, p_ms[c] > 0 && p_flop[c] > 0 ? p_flop[c] / (p_ms[c] * 1e9) : 0.0);
+    }
     printf("%-38s %7s %10.2f %6.1f%% %10.1f %10.1f\n", "total", "", sum, 100.0, flop / 1e9, flop / (sum * 1e9));
 }
 

@@ -48,7 +48,8 @@ static void usage(FILE* out) {
             "global options:\n"
             MLB_DEVICE_OPTION_HELP
             "                  (on a GPU the Stable Diffusion UNet and VAE run there, in 'sd txt2img' and\n"
-            "                  'generate'; the rest still runs on the CPU in this version: docs/cuda.md)\n"
+            "                  'generate', and the appearance stage's material network and shading; the\n"
+            "                  rest still runs on the CPU in this version: docs/cuda.md)\n"
             MLB_PRECISION_OPTION_HELP "\n"
             "'matlaber <command> --help' describes each command.\n",
             MATLABER_VERSION);

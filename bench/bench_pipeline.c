@@ -30,7 +30,7 @@
 //                              [--precision fp16]
 // --device cuda moves the SD 1.5 UNet and VAE to the GPU (mlb_unet_use_device, mlb_vae_use_device) at
 // --precision, and in the appearance stage the material network, its AdamW and the shading
-// (mlb_material_net_use_device, as the pipeline does); rasterization, antialias and the geometry
+// (mlb_field_use_device, as the pipeline does); rasterization, antialias and the geometry
 // stage's networks stay on the CPU (docs/cuda.md).
 #include <cblas.h>
 #include <omp.h>
@@ -263,7 +263,7 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
     memset(&app, 0, sizeof app);
     mlb_status s = views && images && dimages && pts ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: appearance buffers");
     if (!s && mlb_device_current() == MLB_DEVICE_CUDA)   // as the pipeline's appearance stage
-        s = mlb_material_net_use_device(&sc->mat, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
+        s = mlb_field_use_device(&sc->mat, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
     for (int it = 0; !s && it <= iters; it++) {
         long step = it;
         double loss = 0, smooth = 0, t0 = mlb_now_seconds();
@@ -296,7 +296,7 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
         out->gpu_gib = gpu_in_use();
     }
     mlb_appearance_free(&app);
-    mlb_status left = mlb_material_net_leave_device(&sc->mat);
+    mlb_status left = mlb_field_leave_device(&sc->mat);
     if (!s) s = left;
     free(views); free(images); free(dimages); free(pts);
     return s;

@@ -1,6 +1,6 @@
 // Shared by tests/test_appearance.c and tests/test_cuda_material.c (not itself a test): a closed
 // sphere under two procedural environment lights, views around it, and the check that the
-// appearance renderer with its material network on an op table's device (mlb_material_net_use_device)
+// appearance renderer with its material network on an op table's device (mlb_field_use_device)
 // agrees with the host's.
 #ifndef MATLABER_APPEARANCE_TEST_UTIL_H
 #define MATLABER_APPEARANCE_TEST_UTIL_H
@@ -76,7 +76,7 @@ static void make_views(mlb_view* v, int n) {
 // smooth in the gradient and rounding cannot flip a step's sign), each comparing the images, the
 // gradients and then the parameters (relative L2 within tol), and the material smoothness term.
 // The loss is ½|image − 0.3|² (from the host's image): a coherent gradient, which a ReLU flipped by
-// rounding at one sample moves by about one part in the sample count (material_twin_check).
+// rounding at one sample moves by about one part in the sample count (field_twin_check).
 static inline void appearance_twin_check(const mlb_backend* be, int n, int res, int ss, int steps, double tol) {
     scene sc;
     REQUIRE(scene_init(&sc, 48, 24));
@@ -91,8 +91,8 @@ static inline void appearance_twin_check(const mlb_backend* be, int n, int res, 
         REQUIRE(material_net_init(&net[t], &c, &prior) == MLB_OK);
         for (size_t i = 0; i < net[t].n_enc; i++) net[t].params[i] = 0.3f * mlb_rng_normal(21, 0, i);
     }
-    REQUIRE(mlb_material_net_use_device(&net[1], be) == MLB_OK);
-    CHECK(mlb_material_net_backend(&net[1]) == be && mlb_material_net_backend(&net[0]) == NULL);
+    REQUIRE(mlb_field_use_device(&net[1], be) == MLB_OK);
+    CHECK(mlb_field_backend(&net[1]) == be && mlb_field_backend(&net[0]) == NULL);
     mlb_view* views = calloc((size_t)n, sizeof *views);
     make_views(views, n);
     size_t m = (size_t)n * res * res * 4, np = net[0].n_params;
@@ -123,15 +123,15 @@ static inline void appearance_twin_check(const mlb_backend* be, int n, int res, 
         float k[7];
         CHECK(mlb_material_eval(&net[1], pts, 1, k) == MLB_ERR_ARG);
         memcpy(grads0, net[0].grads, sizeof(float) * np);
-        REQUIRE(mlb_material_net_sync_host(&net[1]) == MLB_OK);
+        REQUIRE(mlb_field_sync_host(&net[1]) == MLB_OK);
         snprintf(what, sizeof what, "step %d: table gradient", it);
         CHECK_PARITY(what, net[1].grads, grads0, net[0].n_enc, 10 * tol);
         snprintf(what, sizeof what, "step %d: MLP gradient", it);
         CHECK_PARITY(what, net[1].grads + net[0].n_enc, grads0 + net[0].n_enc, net[0].n_mlp, 10 * tol);
         for (int t = 0; t < 2; t++) REQUIRE(material_net_update(&net[t], &adam) == MLB_OK);
     }
-    REQUIRE(mlb_material_net_leave_device(&net[1]) == MLB_OK);
-    CHECK(mlb_material_net_backend(&net[1]) == NULL && net[1].step == steps);
+    REQUIRE(mlb_field_leave_device(&net[1]) == MLB_OK);
+    CHECK(mlb_field_backend(&net[1]) == NULL && net[1].step == steps);
     CHECK_PARITY("parameters after the steps", net[1].params, net[0].params, np, tol);
     CHECK_PARITY("Adam second moments", net[1].adam_v, net[0].adam_v, np, 10 * tol);
     float k[2][7 * 16];

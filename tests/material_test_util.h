@@ -17,46 +17,48 @@ static inline void randomize_f64(mlb_material_net_f64* net, uint64_t seed) {
         for (int j = 0; j < net->mlp.dims[l + 1]; j++) net->mlp.bias[l][j] = 0.3 * mlb_rng_normal_f64(seed, 2, 100 * l + j);
 }
 
-// Two copies of one random network in `mode`, one on the host and one moved to `be`'s device:
-// forward (k, z), backward with dpos onto random starting values, and AdamW (eps 1e-4: smooth in the
-// gradient) for 3 steps over n points, compared by relative L2 within tol; dpos point by point
-// (CHECK_POINTWISE: a ReLU flipped by rounding changes one point's dpos entirely). The loss is
-// ½|k − 0.5|² (dk = k − 0.5 from the host's k), a coherent gradient: with random dk the parameter
-// gradient would be a sum of n cancelling terms that one flipped point moves by 1/√n.
-static inline void material_twin_check(const mlb_backend* be, mlb_material_mode mode, int n, double tol) {
+// Two copies of one random field (kind; mode for materials), one on the host and one moved to
+// `be`'s device: forward (y, z), backward with dpos onto random starting values, and AdamW (eps
+// 1e-4: smooth in the gradient) for 3 steps over n points, compared by relative L2 within tol;
+// dpos point by point (CHECK_POINTWISE: a ReLU flipped by rounding changes one point's dpos
+// entirely). The loss is ½|y − 0.5|² (dy = y − 0.5 from the host's y), a coherent gradient: with
+// random dy the parameter gradient would be a sum of n cancelling terms that one flipped point
+// moves by 1/√n.
+static inline void field_twin_check(const mlb_backend* be, mlb_field_kind kind, mlb_material_mode mode, int n, double tol) {
     mlb_brdf_ae prior;
     REQUIRE(random_prior(&prior));
-    mlb_material_config c = mlb_material_default();
+    mlb_field_config c = mlb_material_default();
+    c.kind = kind;
     c.enc = (mlb_hashgrid_config){6, 2, 1 << 12, 4, 1.6};
     c.hidden = 16;
     c.mode = mode;
-    mlb_material_net net[2];
+    mlb_field net[2];
     for (int t = 0; t < 2; t++) {
-        REQUIRE(material_net_init(&net[t], &c, &prior) == MLB_OK);
+        REQUIRE(field_init(&net[t], &c, &prior) == MLB_OK);
         for (size_t i = 0; i < net[t].n_enc; i++) net[t].params[i] = 0.4f * mlb_rng_normal(31, 0, i);
     }
-    REQUIRE(mlb_material_net_use_device(&net[1], be) == MLB_OK);
+    REQUIRE(mlb_field_use_device(&net[1], be) == MLB_OK);
+    const int D = mlb_field_out_dim(&c), latent = kind == MLB_FIELD_MATERIAL && mode == MLB_MATERIAL_LATENT;
     size_t N = (size_t)n;
-    float *pos = malloc(sizeof(float) * 3 * N), *dk = malloc(sizeof(float) * 7 * N);
-    float *k[2], *z[2], *dpos[2];
+    float *pos = malloc(sizeof(float) * 3 * N), *dy = malloc(sizeof(float) * D * N);
+    float *y[2], *z[2], *dpos[2];
     for (int t = 0; t < 2; t++) {
-        k[t] = malloc(sizeof(float) * 7 * N);
+        y[t] = malloc(sizeof(float) * D * N);
         z[t] = malloc(sizeof(float) * 4 * N);
         dpos[t] = malloc(sizeof(float) * 3 * N);
     }
     for (size_t i = 0; i < 3 * N; i++) pos[i] = 1.6f * (mlb_rng_uniform(32, 0, i) - 0.5f);
     mlb_adam_config adam = mlb_material_adam(1e-2);
     adam.eps = 1e-4;
-    int latent = mode == MLB_MATERIAL_LATENT;
     for (int it = 0; it < 3; it++) {
         for (int t = 0; t < 2; t++) {
             for (size_t i = 0; i < 3 * N; i++) dpos[t][i] = mlb_rng_normal(33, 0, i);   // backward accumulates
-            material_net_zero_grad(&net[t]);
-            REQUIRE(material_net_forward(&net[t], k[t], latent ? z[t] : NULL, pos, n) == MLB_OK);
+            field_zero_grad(&net[t]);
+            REQUIRE(field_forward(&net[t], y[t], latent ? z[t] : NULL, pos, n) == MLB_OK);
         }
-        for (size_t i = 0; i < 7 * N; i++) dk[i] = k[0][i] - 0.5f;
-        for (int t = 0; t < 2; t++) REQUIRE(material_net_backward(&net[t], dk, dpos[t]) == MLB_OK);
-        CHECK_PARITY("k", k[1], k[0], 7 * N, tol);
+        for (size_t i = 0; i < (size_t)D * N; i++) dy[i] = y[0][i] - 0.5f;
+        for (int t = 0; t < 2; t++) REQUIRE(field_backward(&net[t], dy, dpos[t]) == MLB_OK);
+        CHECK_PARITY("y", y[1], y[0], (size_t)D * N, tol);
         if (latent) CHECK_PARITY("z", z[1], z[0], 4 * N, tol);
         for (size_t i = 0; i < 3 * N; i++) {   // the increments
             float start = mlb_rng_normal(33, 0, i);
@@ -64,24 +66,27 @@ static inline void material_twin_check(const mlb_backend* be, mlb_material_mode 
             dpos[1][i] -= start;
         }
         CHECK_POINTWISE("dpos", dpos[1], dpos[0], N, 3, 100 * tol, 1e-3);
-        REQUIRE(mlb_material_net_sync_host(&net[1]) == MLB_OK);
+        REQUIRE(mlb_field_sync_host(&net[1]) == MLB_OK);
         CHECK_PARITY("gradient", net[1].grads, net[0].grads, net[0].n_params, 10 * tol);
-        for (int t = 0; t < 2; t++) REQUIRE(material_net_update(&net[t], &adam) == MLB_OK);
+        for (int t = 0; t < 2; t++) REQUIRE(field_update(&net[t], &adam) == MLB_OK);
     }
-    REQUIRE(mlb_material_net_sync_host(&net[1]) == MLB_OK);
+    REQUIRE(mlb_field_sync_host(&net[1]) == MLB_OK);
     CHECK_PARITY("parameters after 3 steps", net[1].params, net[0].params, net[0].n_params, tol);
     CHECK_PARITY("Adam first moments", net[1].adam_m, net[0].adam_m, net[0].n_params, 10 * tol);
     CHECK(net[1].step == 3);
     // synced: eval on the host agrees; a bad point count is the same error on both
-    REQUIRE(mlb_material_eval(&net[1], pos, 8, k[1]) == MLB_OK);
-    REQUIRE(mlb_material_eval(&net[0], pos, 8, k[0]) == MLB_OK);
-    CHECK_PARITY("eval of the synced host copy", k[1], k[0], 7 * 8, tol);
-    for (int t = 0; t < 2; t++) CHECK(material_net_forward(&net[t], k[t], NULL, pos, 0) == MLB_ERR_ARG);
+    REQUIRE(field_eval(&net[1], pos, 8, y[1], NULL) == MLB_OK);
+    REQUIRE(field_eval(&net[0], pos, 8, y[0], NULL) == MLB_OK);
+    CHECK_PARITY("eval of the synced host copy", y[1], y[0], (size_t)D * 8, tol);
+    for (int t = 0; t < 2; t++) CHECK(field_forward(&net[t], y[t], NULL, pos, 0) == MLB_ERR_ARG);
+    // coarse to fine is the host's only: a clear error on the device, never a silent full grid
+    net[1].active_levels = 2;
+    CHECK(field_forward(&net[1], y[1], NULL, pos, 8) == MLB_ERR_ARG);
     for (int t = 0; t < 2; t++) {
-        material_net_free(&net[t]);
-        free(k[t]); free(z[t]); free(dpos[t]);
+        field_free(&net[t]);
+        free(y[t]); free(z[t]); free(dpos[t]);
     }
-    free(pos); free(dk);
+    free(pos); free(dy);
     brdf_ae_free(&prior);
 }
 

@@ -283,11 +283,12 @@ TEST(save_load) {
     brdf_ae_free(&prior);
 }
 
-// The device path (material_net_device.c: one batch, no shards, written against an op table) run
+// The device path (src/nn/field_device.c: one batch, no shards, written against an op table) run
 // with the CPU's table agrees with the host path; test_cuda_material runs it with CUDA's.
 TEST(device_twin_on_cpu_table) {
-    material_twin_check(mlb_backend_cpu(), MLB_MATERIAL_LATENT, 3000, 1e-5);
-    material_twin_check(mlb_backend_cpu(), MLB_MATERIAL_DIRECT, 1500, 1e-5);
+    field_twin_check(mlb_backend_cpu(), MLB_FIELD_MATERIAL, MLB_MATERIAL_LATENT, 3000, 1e-5);
+    field_twin_check(mlb_backend_cpu(), MLB_FIELD_MATERIAL, MLB_MATERIAL_DIRECT, 1500, 1e-5);
+    field_twin_check(mlb_backend_cpu(), MLB_FIELD_GEOMETRY, MLB_MATERIAL_LATENT, 2500, 1e-5);
 }
 
 TEST(use_device_without_gpu) {
@@ -297,11 +298,11 @@ TEST(use_device_without_gpu) {
     REQUIRE(material_net_init(&net, &c, NULL) == MLB_OK);
     float pos[3 * 4] = {0.1f, 0.2f, 0.3f, -0.2f, 0.1f, 0.0f, 0.3f, -0.3f, 0.2f, 0, 0, 0}, a[7 * 4], b[7 * 4];
     REQUIRE(mlb_material_eval(&net, pos, 4, a) == MLB_OK);
-    CHECK(mlb_material_net_use_device(&net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32)) == MLB_ERR_DEVICE);
-    CHECK(net.dev == NULL && mlb_material_net_backend(&net) == NULL);
+    CHECK(mlb_field_use_device(&net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32)) == MLB_ERR_DEVICE);
+    CHECK(net.dev == NULL && mlb_field_backend(&net) == NULL);
     CHECK(material_net_forward(&net, b, NULL, pos, 4) == MLB_OK && !memcmp(a, b, sizeof a));
-    CHECK(mlb_material_net_use_device(&net, NULL) == MLB_ERR_ARG);
-    CHECK(mlb_material_net_sync_host(&net) == MLB_OK && mlb_material_net_leave_device(&net) == MLB_OK);
+    CHECK(mlb_field_use_device(&net, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_field_sync_host(&net) == MLB_OK && mlb_field_leave_device(&net) == MLB_OK);
     material_net_free(&net);
 }
 

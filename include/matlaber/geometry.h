@@ -14,46 +14,26 @@
 #include <stdint.h>
 #include "matlaber/dmtet.h"
 #include "matlaber/error.h"
+#include "matlaber/field.h"
 #include "matlaber/hashgrid.h"
 #include "matlaber/mesh.h"
 #include "matlaber/nn.h"
 #include "matlaber/progress.h"
 #include "matlaber/safetensors.h"
 
-typedef struct {
-    mlb_hashgrid_config enc;   // default mlb_hashgrid_default(): 16 levels × 2, T = 2^19, base 16
-    int hidden;                // MLP width, default 32
-    int n_hidden;              // hidden layers, default 2 (so n_hidden + 1 linear layers)
-    float scale;               // the grid box is [−0.5, 0.5]^3 × scale (mesh_scale), default 2.1
-    uint64_t seed;             // initialisation seed, default 1
-} mlb_geometry_config;
+// The geometry network is a field (field.h) of kind MLB_FIELD_GEOMETRY: config, layout, cache,
+// optimiser state and files are the field's (mlb_geometry_net is an mlb_field).
+typedef mlb_field_config mlb_geometry_config;
+typedef mlb_field mlb_geometry_net;
+typedef mlb_field_f64 mlb_geometry_net_f64;
 
 mlb_geometry_config mlb_geometry_default(void);
 // Adam for hash-grid networks (reference.md §4): betas (0.9, 0.99), eps 1e-15, no weight decay.
 mlb_adam_config mlb_geometry_adam(double lr);
 
 #define MLB_GEOMETRY_DECLARE(R, N)                                                                   \
-    typedef struct {                                                                                \
-        mlb_geometry_config cfg;                                                                    \
-        N(mlb_hashgrid) enc;                                                                        \
-        N(mlb_mlp) mlp;                                                                             \
-        size_t n_enc, n_mlp, n_params;  /* table values, MLP values, their sum */                   \
-        R* params;                      /* [n_params]: table then MLP */                            \
-        R* grads;                       /* [n_params] */                                            \
-        R* adam_m;                      /* [n_params] */                                            \
-        R* adam_v;                      /* [n_params] */                                            \
-        long step;                      /* Adam steps taken */                                      \
-        int active_levels;              /* coarse-to-fine: levels >= this give zero features and   \
-                                           get no gradient (0 = all levels) */                      \
-        /* forward cache (the last forward's points) */                                             \
-        int n, capacity;                                                                            \
-        R* x;                           /* [n, 3] in [0,1]^3 */                                     \
-        R* feat;                        /* [n, L·F] encoding */                                     \
-        R* dout;                        /* [n, 4] scratch for backward */                           \
-        R* dfeat;                       /* [n, L·F] scratch for backward */                         \
-        N(mlb_mlp_cache) cache;                                                                     \
-    } N(mlb_geometry_net);                                                                          \
-    /* Allocates and initialises (table U(±1e-4), Glorot MLP weights) from cfg->seed. */            \
+    /* Allocates and initialises (table U(±1e-4), Glorot MLP weights) from cfg->seed (kind set to  \
+       geometry whatever cfg says). */                                                              \
     mlb_status N(geometry_net_init)(N(mlb_geometry_net)* net, const mlb_geometry_config* cfg);      \
     void N(geometry_net_free)(N(mlb_geometry_net)* net);   /* safe on a zeroed net */              \
     void N(geometry_net_zero_grad)(N(mlb_geometry_net)* net);                                       \
@@ -62,9 +42,9 @@ mlb_adam_config mlb_geometry_adam(double lr);
     mlb_status N(geometry_net_forward)(N(mlb_geometry_net)* net, R* sdf, R* deform, const R* pos, int n); \
     /* grads += ∂(Σ dsdf·sdf + Σ ddeform·deform)/∂params over the last forward's n points;          \
        dsdf[n], ddeform[n,3] (either may be NULL = zero). */                                        \
-    void N(geometry_net_backward)(N(mlb_geometry_net)* net, const R* dsdf, const R* ddeform);       \
+    mlb_status N(geometry_net_backward)(N(mlb_geometry_net)* net, const R* dsdf, const R* ddeform); \
     /* One Adam step over all parameters with net->grads (net->step += 1). */                       \
-    void N(geometry_net_update)(N(mlb_geometry_net)* net, const mlb_adam_config* adam);
+    mlb_status N(geometry_net_update)(N(mlb_geometry_net)* net, const mlb_adam_config* adam);
 
 #define MLB_GEOMETRY_F32(name) name
 #define MLB_GEOMETRY_F64(name) name##_f64

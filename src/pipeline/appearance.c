@@ -146,7 +146,7 @@ static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(m
     if (net->dev) {
         const mlb_envlight* source[n];
         for (int v = 0; v < n; v++) source[v] = lights[views[v].env];
-        return appearance_device_shade(&s->dev, mlb_material_net_backend(net), s->rgb, s->kd, s->ks, s->kr, s->nrm,
+        return appearance_device_shade(&s->dev, mlb_field_backend(net), s->rgb, s->kd, s->ks, s->kr, s->nrm,
                                        s->vdir, s->start, n, s->lights, source, fresnel);
     }
 #else

@@ -187,7 +187,7 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
     }
     if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0) s = pipeline_preview(r, ss->stage, it, images, n_views);
     if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters)) {
-        if (ss->stage == MLB_STAGE_APPEARANCE) s = mlb_material_net_sync_host(&r->mat);   // from the GPU
+        if (ss->stage == MLB_STAGE_APPEARANCE) s = mlb_field_sync_host(&r->mat);   // from the GPU
         if (!s) s = pipeline_state_save(ss->ckpt, ss->params, ss->m, ss->v, ss->n, it + 1, ss->name);
     }
     pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
@@ -269,7 +269,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     // On a GPU the material network, its optimiser and the shading run there (fp32: the MLP is small)
     if (!s && mlb_device_current() == MLB_DEVICE_CUDA) {
-        s = mlb_material_net_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
+        s = mlb_field_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
     }
     for (long it = start; !s && it < c->appearance_iters; it++) {
@@ -296,7 +296,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
         if (stop) break;
     }
     mlb_appearance_free(&app);
-    mlb_status left = mlb_material_net_leave_device(net);   // the host copy is the result
+    mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
     if (!s) s = left;
     free(views);
     free(images);

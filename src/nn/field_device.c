@@ -1,17 +1,17 @@
-// The material network on a device (material_net.h, "on a device"): the same hash grid → MLP →
-// frozen decoder as material_net.c, written against an op table (backend.h) over the whole batch,
-// with its parameters, gradients, Adam moments and forward cache on the table's device. Only the
-// points, k and dk cross as host arrays; the grid-box mapping of the points and the output ranges
-// are applied on the host with the CPU path's own arithmetic.
+// A field on a device (field.h, "on a device"): the same hash grid → MLP → frozen decoder as
+// field.c, written against an op table (backend.h) over the whole batch, with its parameters,
+// gradients, Adam moments and forward cache on the table's device. Only the points, the outputs
+// and their gradients cross as host arrays; the grid-box mapping of the points and the output
+// ranges are applied on the host with the CPU path's own arithmetic.
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/brdf.h"
-#include "matlaber/material_net.h"
-#include "material_net_internal.h"
+#include "matlaber/field.h"
+#include "nn/field_internal.h"
 
 enum { K_DIM = 7, NET_MLP = 0, NET_DEC = 1 };
 
-struct mlb_material_device {
+struct mlb_field_device {
     const mlb_backend* be;
     float *params, *grads, *m, *v;   // [n_params] on the device: the table, then the MLP
     float* dec_params;               // the frozen decoder (latent mode)
@@ -29,9 +29,17 @@ struct mlb_material_device {
 };
 
 static mlb_activation layer_act(const mlb_mlp* m, int l) { return l == m->n_layers - 1 ? m->out_act : m->hidden_act; }
-static int net_count(const mlb_material_net* net) { return net->cfg.mode == MLB_MATERIAL_LATENT ? 2 : 1; }
+static int latent(const mlb_field* f) { return f->cfg.kind == MLB_FIELD_MATERIAL && f->cfg.mode == MLB_MATERIAL_LATENT; }
+static int net_count(const mlb_field* net) { return latent(net) ? 2 : 1; }
+// The coarse-to-fine mask is not on the device yet (field.h)
+static mlb_status check_levels(const mlb_field* f) {
+    int a = f->active_levels, L = f->enc.cfg.n_levels;
+    if (a > 0 && a < L)
+        return mlb_fail(MLB_ERR_ARG, "field on a device: coarse to fine (%d of %d levels active) runs on the host only", a, L);
+    return MLB_OK;
+}
 
-static void release_batch(struct mlb_material_device* d) {
+static void release_batch(struct mlb_field_device* d) {
     const mlb_backend* be = d->be;
     float** all[] = {&d->x, &d->feat, &d->dfeat, &d->dx, &d->ds, &d->dz, &d->dpre, &d->dbuf[0], &d->dbuf[1]};
     for (size_t i = 0; i < sizeof all / sizeof all[0]; i++) { be->release(*all[i]); *all[i] = NULL; }
@@ -45,7 +53,7 @@ static void release_batch(struct mlb_material_device* d) {
     d->capacity = 0;
 }
 
-void material_device_free(struct mlb_material_device* d) {
+void field_device_free(struct mlb_field_device* d) {
     if (!d) return;
     release_batch(d);
     float* all[] = {d->params, d->grads, d->m, d->v, d->dec_params};
@@ -54,8 +62,8 @@ void material_device_free(struct mlb_material_device* d) {
 }
 
 // Buffers for n points (grown, never shrunk).
-static mlb_status reserve(mlb_material_net* net, int n) {
-    struct mlb_material_device* d = net->dev;
+static mlb_status reserve(mlb_field* net, int n) {
+    struct mlb_field_device* d = net->dev;
     if (n <= d->capacity) return MLB_OK;
     release_batch(d);
     const mlb_backend* be = d->be;
@@ -75,13 +83,13 @@ static mlb_status reserve(mlb_material_net* net, int n) {
             if (!s) s = be->alloc(&d->post[k][l], (size_t)d->net[k].dims[l + 1] * N);
         }
     if (!s && !(d->host = malloc(sizeof(float) * K_DIM * N))) s = mlb_fail(MLB_ERR_NOMEM, "out of memory");
-    if (s) { release_batch(d); return mlb_fail_context(s, "material network on the %s: %d points", mlb_device_name(be->device), n); }
+    if (s) { release_batch(d); return mlb_fail_context(s, "field on the %s: %d points", mlb_device_name(be->device), n); }
     d->capacity = n;
     return MLB_OK;
 }
 
 // Network k over n rows of `in`; returns its output (the last layer's post).
-static mlb_status mlp_forward_on(struct mlb_material_device* d, int k, const float* in, int n, const float** out) {
+static mlb_status mlp_forward_on(struct mlb_field_device* d, int k, const float* in, int n, const float** out) {
     const mlb_backend* be = d->be;
     const mlb_mlp* m = &d->net[k];
     const float* x = in;
@@ -96,7 +104,7 @@ static mlb_status mlp_forward_on(struct mlb_material_device* d, int k, const flo
 
 // din [n, dims[0]] = ∂(Σ dout·out)/∂in through network k's cached forward (overwritten); the
 // weight gradients (+=) into `grads` when given (a layout of the network over the gradient array).
-static mlb_status mlp_backward_on(struct mlb_material_device* d, int k, const mlb_mlp* grads, const float* in,
+static mlb_status mlp_backward_on(struct mlb_field_device* d, int k, const mlb_mlp* grads, const float* in,
                                   const float* dout, float* din, int n) {
     const mlb_backend* be = d->be;
     const mlb_mlp* m = &d->net[k];
@@ -114,10 +122,11 @@ static mlb_status mlp_backward_on(struct mlb_material_device* d, int k, const ml
     return MLB_OK;
 }
 
-mlb_status material_device_forward(mlb_material_net* net, float* k, float* z, const float* pos, int n) {
-    struct mlb_material_device* d = net->dev;
+mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float* pos, int n) {
+    struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    MLB_TRY(check_levels(net));
     MLB_TRY(reserve(net, n));
     net->n = 0;
     float inv = (float)(1.0 / net->cfg.scale);
@@ -127,29 +136,35 @@ mlb_status material_device_forward(mlb_material_net* net, float* k, float* z, co
     const float *out, *s;
     MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, &out));
     s = out;
-    if (net->cfg.mode == MLB_MATERIAL_LATENT) MLB_TRY(mlp_forward_on(d, NET_DEC, out, n, &s));
-    if (k) {
+    if (latent(net)) MLB_TRY(mlp_forward_on(d, NET_DEC, out, n, &s));
+    if (y && net->cfg.kind == MLB_FIELD_GEOMETRY) {
+        MLB_TRY(be->download(y, out, 4 * (size_t)n));
+    } else if (y) {
         MLB_TRY(be->download(d->host, s, K_DIM * (size_t)n));
-        material_map_to_ranges(k, d->host, n);
+        field_map_to_ranges(y, d->host, n);
     }
-    if (z && net->cfg.mode == MLB_MATERIAL_LATENT) MLB_TRY(be->download(z, out, MLB_LATENT_DIM * (size_t)n));
+    if (z && latent(net)) MLB_TRY(be->download(z, out, MLB_LATENT_DIM * (size_t)n));
     net->n = n;
     return MLB_OK;
 }
 
-mlb_status material_device_backward(mlb_material_net* net, const float* dk, float* dpos) {
-    struct mlb_material_device* d = net->dev;
+mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
+    struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
     int n = net->n;
     size_t N = (size_t)n;
-    // ds = dk·(hi − lo): the gradient at the sigmoid outputs (the decoder's or the MLP's own)
-    for (size_t i = 0; i < N; i++)
-        for (int c = 0; c < K_DIM; c++)
-            d->host[i * K_DIM + c] = dk[i * K_DIM + c] * (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
-    MLB_TRY(be->upload(d->ds, d->host, K_DIM * N));
+    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
+        MLB_TRY(be->upload(d->ds, dy, 4 * N));
+    } else {
+        // ds = dk·(hi − lo): the gradient at the sigmoid outputs (the decoder's or the MLP's own)
+        for (size_t i = 0; i < N; i++)
+            for (int c = 0; c < K_DIM; c++)
+                d->host[i * K_DIM + c] = dy[i * K_DIM + c] * (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
+        MLB_TRY(be->upload(d->ds, d->host, K_DIM * N));
+    }
     const float* dout = d->ds;
-    if (net->cfg.mode == MLB_MATERIAL_LATENT) {   // dz through the frozen decoder
+    if (latent(net)) {   // dz through the frozen decoder
         const mlb_mlp* mlp = &d->net[NET_MLP];
         MLB_TRY(mlp_backward_on(d, NET_DEC, NULL, d->post[NET_MLP][mlp->n_layers - 1], d->ds, d->dz, n));
         dout = d->dz;
@@ -166,27 +181,27 @@ mlb_status material_device_backward(mlb_material_net* net, const float* dk, floa
     return MLB_OK;
 }
 
-void material_device_zero_grad(mlb_material_net* net) {
-    struct mlb_material_device* d = net->dev;
+void field_device_zero_grad(mlb_field* net) {
+    struct mlb_field_device* d = net->dev;
     mlb_status s = d->be->zero(d->grads, net->n_params);
     if (s && !d->pending) d->pending = s;
     d->host_behind = 1;
 }
 
-mlb_status material_device_update(mlb_material_net* net, const mlb_adam_config* adam) {
-    struct mlb_material_device* d = net->dev;
+mlb_status field_device_update(mlb_field* net, const mlb_adam_config* adam) {
+    struct mlb_field_device* d = net->dev;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
     net->step++;
     d->host_behind = 1;
     return d->be->adam(d->params, d->grads, d->m, d->v, net->n_params, adam, net->step);
 }
 
-int material_device_host_behind(const mlb_material_net* net) { return net->dev && net->dev->host_behind; }
+int field_device_host_behind(const mlb_field* net) { return net->dev && net->dev->host_behind; }
 
-const mlb_backend* mlb_material_net_backend(const mlb_material_net* net) { return net->dev ? net->dev->be : NULL; }
+const mlb_backend* mlb_field_backend(const mlb_field* net) { return net->dev ? net->dev->be : NULL; }
 
-mlb_status mlb_material_net_sync_host(mlb_material_net* net) {
-    struct mlb_material_device* d = net->dev;
+mlb_status mlb_field_sync_host(mlb_field* net) {
+    struct mlb_field_device* d = net->dev;
     if (!d || !d->host_behind) return MLB_OK;
     const mlb_backend* be = d->be;
     float* host[] = {net->params, net->grads, net->adam_m, net->adam_v};
@@ -196,23 +211,23 @@ mlb_status mlb_material_net_sync_host(mlb_material_net* net) {
     return MLB_OK;
 }
 
-mlb_status mlb_material_net_leave_device(mlb_material_net* net) {
+mlb_status mlb_field_leave_device(mlb_field* net) {
     if (!net->dev) return MLB_OK;
-    MLB_TRY(mlb_material_net_sync_host(net));
-    material_device_free(net->dev);
+    MLB_TRY(mlb_field_sync_host(net));
+    field_device_free(net->dev);
     net->dev = NULL;
     net->n = 0;
     return MLB_OK;
 }
 
-mlb_status mlb_material_net_use_device(mlb_material_net* net, const mlb_backend* be) {
-    if (!net->params || !be) return mlb_fail(MLB_ERR_ARG, "material network to a device: no network or no device");
-    MLB_TRY(mlb_material_net_leave_device(net));
-    struct mlb_material_device* d = calloc(1, sizeof *d);
+mlb_status mlb_field_use_device(mlb_field* net, const mlb_backend* be) {
+    if (!net->params || !be) return mlb_fail(MLB_ERR_ARG, "field to a device: no field or no device");
+    MLB_TRY(mlb_field_leave_device(net));
+    struct mlb_field_device* d = calloc(1, sizeof *d);
     if (!d) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     d->be = be;
     size_t np = net->n_params;
-    size_t nd = net->cfg.mode == MLB_MATERIAL_LATENT ? mlp_param_count(net->dec.n_layers, net->dec.dims, 1) : 0;
+    size_t nd = latent(net) ? mlp_param_count(net->dec.n_layers, net->dec.dims, 1) : 0;
     mlb_status s = be->alloc(&d->params, np);
     if (!s) s = be->alloc(&d->grads, np);
     if (!s) s = be->alloc(&d->m, np);
@@ -225,16 +240,16 @@ mlb_status mlb_material_net_use_device(mlb_material_net* net, const mlb_backend*
     if (!s && nd) s = be->upload(d->dec_params, net->dec_params, nd);
     // the networks' layouts over the device arrays (mlp_init only carves pointers)
     const mlb_mlp* m = &net->mlp;
-    if (!s) s = mlp_init(&d->net[NET_MLP], m->n_layers, m->dims, 1, m->hidden_act, m->out_act, d->params + net->n_enc);
-    if (!s) s = mlp_init(&d->grad_mlp, m->n_layers, m->dims, 1, m->hidden_act, m->out_act, d->grads + net->n_enc);
+    if (!s) s = mlp_init(&d->net[NET_MLP], m->n_layers, m->dims, m->has_bias, m->hidden_act, m->out_act, d->params + net->n_enc);
+    if (!s) s = mlp_init(&d->grad_mlp, m->n_layers, m->dims, m->has_bias, m->hidden_act, m->out_act, d->grads + net->n_enc);
     if (!s && nd) s = mlp_init(&d->net[NET_DEC], net->dec.n_layers, net->dec.dims, 1, net->dec.hidden_act, net->dec.out_act,
                                d->dec_params);
     for (int k = 0; k < net_count(net); k++)
         for (int l = 0; l <= d->net[k].n_layers; l++)
             if (d->net[k].dims[l] > d->width) d->width = d->net[k].dims[l];
     if (s) {
-        material_device_free(d);
-        return mlb_fail_context(s, "moving the material network to the %s", mlb_device_name(be->device));
+        field_device_free(d);
+        return mlb_fail_context(s, "moving the field to the %s", mlb_device_name(be->device));
     }
     net->dev = d;
     net->n = 0;   // a host forward's cache is not the device's

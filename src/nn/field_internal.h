@@ -1,0 +1,18 @@
+// Between field.c (the field, dual-compiled) and field_device.c (its device twin, float only): a
+// float field's operations dispatch to the twin when f->dev is set.
+#ifndef MATLABER_FIELD_INTERNAL_H
+#define MATLABER_FIELD_INTERNAL_H
+#include "matlaber/field.h"
+
+// k [n,7] = lo + (hi − lo)·s for sigmoid outputs s [n,7]: the decoder's output ranges (brdf_ae.h)
+void field_map_to_ranges(float* k, const float* s, int n);
+void field_map_to_ranges_f64(double* k, const double* s, int n);
+
+void field_device_free(struct mlb_field_device* d);
+mlb_status field_device_forward(mlb_field* f, float* y, float* z, const float* pos, int n);
+mlb_status field_device_backward(mlb_field* f, const float* dy, float* dpos);
+void field_device_zero_grad(mlb_field* f);   // an error is kept for the next op to return
+mlb_status field_device_update(mlb_field* f, const mlb_adam_config* adam);
+int field_device_host_behind(const mlb_field* f);   // 1: the host's params are stale
+
+#endif

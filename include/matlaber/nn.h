@@ -58,5 +58,9 @@ void mlb_gemm_bf16(int trans_a, int trans_b, int M, int N, int K, float alpha, c
 int mlb_gemm_bf16_native(void);
 // For tests: on = 1 forces the fp32 fallback, 0 uses the kernel where the CPU has it.
 void mlb_gemm_bf16_force_fallback(int on);
+// linear_forward / linear_backward with their GEMMs in mlb_gemm_bf16 (the bias sums stay fp32/double).
+void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC);
+void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                          const float* weight, int B, int C, int OC);
 
 #endif

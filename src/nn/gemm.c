@@ -76,11 +76,8 @@ static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const
               lda, B, ldb, beta, C, ldc);
 }
 
-// One shard's product on the calling thread: BLAS, or (float) the bf16 kernel.
-typedef void (*FN(gemm_serial))(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda,
-                                const real* B, int ldb, real beta, real* C, int ldc);
-
-static void FN(gemm_sharded)(FN(gemm_serial) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
+// call: one shard's product on the calling thread (BLAS, or in the float pass the bf16 kernel).
+static void FN(gemm_sharded)(FN(mlb_gemm_fn) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
                              int lda, const real* B, int ldb, real beta, real* C, int ldc) {
     if (M <= 0 || N <= 0) return;
     // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. Only

@@ -9,8 +9,9 @@
 // Layout: op(A) is packed into panels of MR rows, op(B) into panels of NR columns, both as pairs
 // along K: one 32-bit word = (bf16 x[k+1] << 16) | bf16 x[k], a zero pad after an odd K, zero
 // rows/columns past the edges. The micro-kernel keeps an MR x NR tile in 28 zmm registers over the
-// whole K (no K blocking: one fp32 sum per element in k order), then writes alpha·tile + beta·C
-// with masked stores for the ragged edges.
+// K block (KC pairs), keeping the fp32 sums in a tile buffer between blocks (one fp32 sum per
+// element in k order either way), then writes alpha·tile + beta·C with masked stores for the
+// ragged edges.
 #include "nn/gemm_bf16.h"
 #include <stdint.h>
 #include <stdlib.h>
@@ -27,6 +28,8 @@
 
 #define MR 14   // rows of the register tile: 14 x 2 accumulators + 2 B vectors of the 32 zmm
 #define NR 32   // columns: two zmm of 16 fp32
+#define KC 128  // K pairs per block: an A micro-panel (7 KB) and a B one (16 KB) stay in L1
+#define MC 24   // A panels packed at a time (172 KB at KC: stays in L2 while the B panels pass)
 
 static int force_fallback = -1;   // -1: not read yet ($MATLABER_CPU_BF16), 0/1 set
 
@@ -94,10 +97,15 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size
     }
 }
 
-// C[m, n] (m <= MR, n <= NR) = alpha · (a panel [kp][MR] · b panel [kp][NR]) + beta · C.
-BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, float* C, int ldc, int m, int n,
-                                     float alpha, float beta) {
-#define ACC(i) __m512 c##i##0 = _mm512_setzero_ps(), c##i##1 = _mm512_setzero_ps();
+// One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
+// (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
+// C[m, n] (m <= MR, n <= NR) = alpha · sum + beta · C. A stored and reloaded fp32 sum is the same
+// sum: K blocking does not change a bit.
+BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
+                                     float* C, int ldc, int m, int n, float alpha, float beta) {
+#define ACC(i)                                                                                       \
+    __m512 c##i##0 = w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),                  \
+           c##i##1 = w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
     ACC(0) ACC(1) ACC(2) ACC(3) ACC(4) ACC(5) ACC(6) ACC(7) ACC(8) ACC(9) ACC(10) ACC(11) ACC(12) ACC(13)
 #undef ACC
     for (int p = 0; p < kp; p++, a += MR, b += NR) {
@@ -111,6 +119,13 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
         STEP(0) STEP(1) STEP(2) STEP(3) STEP(4) STEP(5) STEP(6) STEP(7) STEP(8) STEP(9) STEP(10) STEP(11)
         STEP(12) STEP(13)
 #undef STEP
+    }
+    if (w_out) {
+#define KEEP(i) _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1);
+        KEEP(0) KEEP(1) KEEP(2) KEEP(3) KEEP(4) KEEP(5) KEEP(6) KEEP(7) KEEP(8) KEEP(9) KEEP(10) KEEP(11) KEEP(12)
+        KEEP(13)
+#undef KEEP
+        return;
     }
     __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
     __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
@@ -135,36 +150,52 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
 void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
                           int ldb, float beta, float* C, int ldc) {
 #ifdef MLB_BF16_KERNEL
-    const int kp = (K + 1) / 2, mpanels = (M + MR - 1) / MR;
-    // all of op(A) once ([mpanels][kp][MR]), then op(B) one NR-column panel at a time ([kp][NR])
-    uint32_t* pa = malloc(sizeof(uint32_t) * (size_t)mpanels * MR * kp);
-    uint32_t* pb = malloc(sizeof(uint32_t) * (size_t)NR * kp);
-    if (!pa || !pb) {   // a few MB at most per shard; never seen. fp32 then, and said so.
+    const int kp = (K + 1) / 2, mpanels = (M + MR - 1) / MR, npanels = (N + NR - 1) / NR;
+    const int kc = kp < KC ? kp : KC, mc = mpanels < MC ? mpanels : MC, blocks = (kp + KC - 1) / KC;
+    // per K block: op(B) packed whole ([npanels][kc][NR]), op(A) MC panels at a time ([MC][kc][MR]);
+    // over several K blocks the sums wait in fp32 tiles ([mpanels][npanels][MR][NR])
+    uint32_t* pa = malloc(sizeof(uint32_t) * (size_t)mc * MR * kc);
+    uint32_t* pb = malloc(sizeof(uint32_t) * (size_t)npanels * NR * kc);
+    float* w = blocks > 1 ? malloc(sizeof(float) * (size_t)mpanels * npanels * MR * NR) : NULL;
+    if (!pa || !pb || (blocks > 1 && !w)) {   // a few MB at most per shard; never seen. fp32 then, and said so.
         free(pa);
         free(pb);
+        free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
         cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
                     lda, B, ldb, beta, C, ldc);
         return;
     }
-    // op(A)[i, k]: A[i·lda + k], or A[k·lda + i] transposed
-    for (int q = 0; q < mpanels; q++) {
-        int i0 = q * MR, rows = M - i0 < MR ? M - i0 : MR;
-        const float* a = ta ? A + i0 : A + (size_t)i0 * lda;
-        pack_pairs(pa + (size_t)q * MR * kp, MR, a, ta ? 1 : (size_t)lda, ta ? (size_t)lda : 1, rows, K);
-    }
-    for (int j0 = 0; j0 < N; j0 += NR) {
-        int cols = N - j0 < NR ? N - j0 : NR;
-        // column j of op(B): B[k·ldb + j], or B[j·ldb + k] transposed
-        const float* b = tb ? B + (size_t)j0 * ldb : B + j0;
-        pack_pairs(pb, NR, b, tb ? (size_t)ldb : 1, tb ? 1 : (size_t)ldb, cols, K);
-        for (int q = 0; q < mpanels; q++) {
-            int i0 = q * MR, rows = M - i0 < MR ? M - i0 : MR;
-            micro_kernel(kp, pa + (size_t)q * MR * kp, pb, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta);
+    // op(A)[i, k] = A[i·lda + k], or A[k·lda + i] transposed; op(B)[k, j] = B[k·ldb + j] or B[j·ldb + k]
+    const size_t ars = ta ? 1 : (size_t)lda, aks = ta ? (size_t)lda : 1;
+    const size_t bcs = tb ? (size_t)ldb : 1, bks = tb ? 1 : (size_t)ldb;
+    for (int blk = 0; blk < blocks; blk++) {
+        const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
+        const int first = blk == 0, last = blk == blocks - 1;
+        for (int jp = 0; jp < npanels; jp++) {
+            int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
+            pack_pairs(pb + (size_t)jp * NR * np, NR, B + (size_t)j0 * bcs + (size_t)k0 * bks, bcs, bks, cols, nk);
+        }
+        for (int q0 = 0; q0 < mpanels; q0 += MC) {
+            int nq = mpanels - q0 < MC ? mpanels - q0 : MC;
+            for (int q = 0; q < nq; q++) {
+                int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
+                pack_pairs(pa + (size_t)q * MR * np, MR, A + (size_t)i0 * ars + (size_t)k0 * aks, ars, aks, rows, nk);
+            }
+            for (int jp = 0; jp < npanels; jp++) {
+                int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
+                for (int q = 0; q < nq; q++) {
+                    int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
+                    float* tile = w ? w + ((size_t)(q0 + q) * npanels + jp) * MR * NR : NULL;
+                    micro_kernel(np, pa + (size_t)q * MR * np, pb + (size_t)jp * NR * np, first ? NULL : tile,
+                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta);
+                }
+            }
         }
     }
     free(pa);
     free(pb);
+    free(w);
 #else   // never called: mlb_gemm_bf16_native() is 0 in such a build
     cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A, lda,
                 B, ldb, beta, C, ldc);

@@ -144,7 +144,7 @@ TEST(fallback_is_fp32) {
     mlb_gemm_bf16(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 2.f, C1, N);
     mlb_gemm(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 2.f, C2, N);
     CHECK(memcmp(C1, C2, sizeof(float) * M * N) == 0);
-    mlb_gemm_bf16_force_fallback(0);
+    mlb_gemm_bf16_force_fallback(!native);   // as it was (off stays off under $MATLABER_CPU_BF16=0)
     CHECK(mlb_gemm_bf16_native() == native);
     if (native) {   // and the kernel again differs from fp32 (by bf16 rounding)
         mlb_gemm_bf16(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 0.f, C1, N);

@@ -6,7 +6,9 @@
 // uncond), the VAE encoder forward + backward; peak resident memory and the achieved GFLOP/s
 // against this machine's measured SGEMM rate. Prints a table (docs/sd_bench.md).
 //   build/bench/bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] [--dir /tmp]
-// --vae 0 skips the VAE; --latent 0 skips the UNet.
+//                        [--precision fp32|bf16]
+// --vae 0 skips the VAE; --latent 0 skips the UNet. --precision bf16 runs the UNet's and VAE's
+// linear and conv GEMMs with bf16 operands (mlb_unet_use_device / mlb_vae_use_device on the CPU).
 #include <cblas.h>
 #include <math.h>
 #include <omp.h>
@@ -145,6 +147,7 @@ int main(int argc, char** argv) {
         execv("/proc/self/exe", argv);
     }
     int latent = 64, batch = 2, steps = 1, vae_size = 512, keep = 0, text = 1;
+    mlb_gemm_precision prec = MLB_GEMM_FP32;
     const char* base = "/tmp";
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--keep")) keep = 1;
@@ -154,7 +157,13 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--steps")) steps = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--vae")) vae_size = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--dir")) base = argv[++i];
-        else { fprintf(stderr, "usage: bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] [--dir /tmp]\n"); return 2; }
+        else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
+            if (mlb_gemm_precision_parse(argv[++i], &prec)) return fail("--precision");
+        } else {
+            fprintf(stderr, "usage: bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] "
+                            "[--dir /tmp] [--precision fp32|bf16]\n");
+            return 2;
+        }
     }
     if (steps < 1) steps = 1;
     if (batch < 1) batch = 1;
@@ -165,6 +174,9 @@ int main(int argc, char** argv) {
            mlb_blas_corename(), wp ? wp : "(unset)");
     double rate = bench_sgemm_rate(4096, 320, 2880);
     printf("sgemm 4096x2880 . 2880x320: %.1f GFLOP/s\n", rate);
+    printf("UNet and VAE GEMMs: %s%s\n", mlb_gemm_precision_name(prec),
+           prec == MLB_GEMM_BF16 ? (mlb_gemm_bf16_native() ? " (linear and conv, AVX-512 BF16)" : " asked, no AVX-512 BF16: fp32")
+                                 : "");
     char dir[512];
     snprintf(dir, sizeof dir, "%s/mlb_bench_sd_XXXXXX", base);
     if (!mkdtemp(dir)) { perror("mkdtemp"); return 1; }
@@ -217,6 +229,7 @@ int main(int argc, char** argv) {
         double t1 = mlb_now_seconds();
         mlb_unet* u = NULL;
         if (mlb_unet_load(pu, NULL, &u)) { rc = fail("loading the UNet"); goto out; }
+        if (mlb_unet_use_device(u, MLB_DEVICE_CPU, prec)) { rc = fail("UNet precision"); mlb_unet_free(u); goto out; }
         double t2 = mlb_now_seconds();
         size_t nx = (size_t)batch * 4 * latent * latent, nc = (size_t)batch * 77 * 768;
         float *x = malloc(nx * 4), *y = malloc(nx * 4), *ctx = malloc(nc * 4), *tt = malloc((size_t)batch * 4);
@@ -251,6 +264,7 @@ int main(int argc, char** argv) {
         v = NULL;
         double t1 = mlb_now_seconds();
         if (mlb_vae_load(pv, NULL, &v)) { rc = fail("loading the VAE"); goto out; }
+        if (mlb_vae_use_device(v, MLB_DEVICE_CPU, prec)) { rc = fail("VAE precision"); mlb_vae_free(v); goto out; }
         double t2 = mlb_now_seconds();
         int S = vae_size, h = mlb_vae_latent_size(&g, S);
         size_t ni = (size_t)3 * S * S, nz = (size_t)4 * h * h;

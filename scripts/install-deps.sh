@@ -17,6 +17,9 @@ PACKAGES=(
 # node and npm (three.js for `matlaber view`, the glTF-Validator and playwright-core for the tests;
 # scripts/build.sh runs npm ci in viewer/): Debian's packages only when the commands are missing, so
 # that a NodeSource nodejs (which ships npm itself and conflicts with Debian's npm) is left alone.
+# Optional (installed when root, never an error when missing): oneDNN for bench_gemm_onednn, the
+# comparison of its bf16 matmul with the program's own kernel (docs/ops.md). Nothing else uses it.
+OPTIONAL=(libdnnl-dev)
 command -v node > /dev/null 2>&1 || PACKAGES+=(nodejs)
 command -v npm > /dev/null 2>&1 || PACKAGES+=(npm)
 
@@ -26,6 +29,21 @@ for p in "${PACKAGES[@]}"; do
     missing+=("$p")
   fi
 done
+
+optional_missing=()
+for p in "${OPTIONAL[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    optional_missing+=("$p")
+  fi
+done
+if [ ${#optional_missing[@]} -gt 0 ]; then
+  if [ "$(id -u)" -eq 0 ]; then
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${optional_missing[@]}" ||
+      echo "install-deps: optional ${optional_missing[*]} not installed (only bench_gemm_onednn needs it)"
+  else
+    echo "install-deps: optional, for bench_gemm_onednn only: sudo apt-get install ${optional_missing[*]}"
+  fi
+fi
 
 if [ ${#missing[@]} -eq 0 ]; then
   echo "install-deps: all ${#PACKAGES[@]} packages present"

@@ -34,6 +34,15 @@ if [ -d "$R/sd1_diffusers" ]; then
   err_has "tokenizer hint" "tokenizer"
   expect 0 "single file + tokenizer folder" -- $M sd txt2img -m "$R/sd1_tiny.f16.safetensors" --tokenizer "$R/sd1_diffusers/tokenizer" -p "a golden goblet" --negative "low quality" --steps 2 --size 64 -o "$T/c.png"
   [ "$(png_size "$T/c.png")" = "64x64" ] && ok "64x64 PNG" || bad "PNG size"
+  # --precision on the CPU: the default (fp16, a GPU format) and fp32 are the same fp32 image; bf16
+  # runs (its linear and conv GEMMs in bf16 where the CPU has AVX-512 BF16) and says so
+  P=(sd txt2img -m "$R/sd1_diffusers" -p "a golden goblet" --steps 2 --size 64 --seed 5)
+  expect 0 "cpu, default precision" -- $M --device cpu "${P[@]}" -o "$T/p16.png"
+  expect 0 "cpu, --precision fp32" -- $M --device cpu --precision fp32 "${P[@]}" -o "$T/p32.png"
+  cmp -s "$T/p16.png" "$T/p32.png" && ok "cpu: default = fp32, bit for bit" || bad "cpu: the default precision changed the image"
+  expect 0 "cpu, --precision bf16" -- $M --log-level info --device cpu --precision bf16 "${P[@]}" -o "$T/pbf.png"
+  [ "$(png_size "$T/pbf.png")" = "64x64" ] && ok "bf16: 64x64 PNG" || bad "bf16: PNG size"
+  err_has "bf16 said in the log" "bf16"
 else
   echo "skip: no shared sd_reference fixtures"
 fi

@@ -8,7 +8,9 @@
 //
 // The CPU table calls the CPU ops of nn_api.inc, transformer_ops.h and conv_ops.h, in the order
 // and with the arithmetic the models used before the table existed, so CPU results are bitwise
-// unchanged. The CUDA table calls cuda_ops.h (in a build without the CUDA part each of its ops
+// unchanged. The CPU's bf16 table is the same but for the linear and conv GEMMs (forward and
+// backward), which take bf16 operands (mlb_gemm_bf16: AVX-512 BF16, fp32 sums; fp32 on a CPU
+// without it); attention, norms and the rest stay fp32. The CUDA table calls cuda_ops.h (in a build without the CUDA part each of its ops
 // fails with "built without CUDA", so callers need no #ifdef); its GEMMs (linear, conv, attention)
 // run at be->precision. Ops are asynchronous on the device: download synchronises.
 #ifndef MATLABER_BACKEND_H
@@ -26,7 +28,7 @@
 typedef struct mlb_backend mlb_backend;
 struct mlb_backend {
     mlb_device device;
-    mlb_gemm_precision precision;   // the GEMMs' operands on CUDA; the CPU is always fp32
+    mlb_gemm_precision precision;   // the GEMMs' operands: CUDA any; the CPU fp32, or bf16 (linear, conv)
     // memory: n floats
     mlb_status (*alloc)(float** out, size_t n);
     void (*release)(void* p);
@@ -87,8 +89,9 @@ struct mlb_backend {
                                  int N, const void* handle, float rotation, mlb_fresnel fresnel);
 };
 
-// The table of device d (CUDA ops at GEMM precision prec; the CPU ignores prec). Never NULL; the
-// CUDA table's ops fail cleanly when the build or the machine has no GPU.
+// The table of device d (CUDA ops at GEMM precision prec; the CPU's bf16 table for MLB_GEMM_BF16,
+// its fp32 one for any other prec: fp16 and tf32 are GPU formats). Never NULL; the CUDA table's ops
+// fail cleanly when the build or the machine has no GPU.
 const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec);
 const mlb_backend* mlb_backend_cpu(void);
 

@@ -72,6 +72,12 @@ mlb_status conv2d_backward(float* din, float* dweight, float* dbias, const float
                            const float* weight, const mlb_conv2d* cv, float* ws);
 mlb_status conv2d_backward_f64(double* din, double* dweight, double* dbias, const double* dout, const double* in,
                                const double* weight, const mlb_conv2d* cv, double* ws);
+// The same two with their GEMMs in mlb_gemm_bf16 (nn.h: bf16 operands, fp32 sums; fp32 where the
+// CPU lacks AVX-512 BF16). The backend's CPU bf16 table runs these.
+mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
+                               const mlb_conv2d* cv, float* ws);
+mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                const float* weight, const mlb_conv2d* cv, float* ws);
 
 // ---- group normalisation (torch.nn.GroupNorm) with an optional fused activation ----------------
 // in/out [N, C, HW] (HW = H*W values per channel), G groups of C/G consecutive channels:

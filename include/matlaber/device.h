@@ -9,7 +9,9 @@
 
 typedef enum { MLB_DEVICE_CPU = 0, MLB_DEVICE_CUDA = 1 } mlb_device;
 
-// The operands of a GPU's GEMMs (linear, conv, attention); the CPU computes in fp32 whatever this says.
+// The operands of a GPU's GEMMs (linear, conv, attention). On the CPU only bf16 means something:
+// the linear and conv GEMMs in bf16 (mlb_gemm_bf16, AVX-512 BF16; fp32 on a CPU without it); fp16
+// and tf32 (GPU formats, and the global default fp16) compute in fp32 there.
 typedef enum {
     MLB_GEMM_FP32 = 0,   // plain fp32 (CUDA cores): matches the CPU to ~1e-6 relative
     MLB_GEMM_TF32,       // fp32 operands rounded to tf32 on tensor cores, fp32 accumulation (~3e-4)
@@ -23,7 +25,10 @@ mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out);
 // Stable Diffusion is usually run on GPUs; fp32 accumulation throughout).
 void mlb_set_gemm_precision(mlb_gemm_precision p);
 mlb_gemm_precision mlb_gemm_precision_current(void);
-#define MLB_PRECISION_OPTION_HELP "  --precision P   GPU GEMM operands: fp16 (default), bf16, tf32 or fp32 (fp32 accumulation always)\n"
+#define MLB_PRECISION_OPTION_HELP                                                                          \
+    "  --precision P   GEMM operands, fp32 accumulation always. GPU: fp16 (default), bf16, tf32 or fp32.\n"   \
+    "                  CPU: fp32 (what fp16 and tf32 mean there), or bf16 for the SD UNet's and VAE's\n"      \
+    "                  linear and conv GEMMs (AVX-512 BF16; on a CPU without it fp32, said once)\n"
 
 int mlb_cuda_compiled(void);          // 1 when the CUDA part was built
 int mlb_cuda_device_count(void);      // 0 when none (or not compiled, or no driver)

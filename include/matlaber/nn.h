@@ -46,4 +46,21 @@ mlb_adam_config mlb_adamw_default(double lr);   // betas (0.9, 0.999), eps 1e-8,
 #undef MLB_REAL
 #undef MLB_FN
 
+// ---- bf16 GEMM (float only): mlb_gemm's contract, with op(A) and op(B) rounded to bf16 (nearest
+// even; denormals read as zero) and the products summed in fp32 (AVX-512 BF16, src/nn/gemm_bf16.c).
+// Bitwise the same on any thread count (mlb_gemm's shards). Where the CPU lacks AVX-512 BF16, or
+// $MATLABER_CPU_BF16 is 0/off, it is mlb_gemm (fp32), and says so once (info log).
+// Error against the exact product of the fp32 inputs: about 2^-8 · sqrt(K) relative to the sum of
+// |terms| (each operand carries up to 2^-9 relative rounding; tests/test_gemm_bf16.c).
+void mlb_gemm_bf16(int trans_a, int trans_b, int M, int N, int K, float alpha, const float* A, int lda,
+                   const float* B, int ldb, float beta, float* C, int ldc);
+// 1 when mlb_gemm_bf16 runs the bf16 kernel here, 0 when it falls back to fp32.
+int mlb_gemm_bf16_native(void);
+// For tests: on = 1 forces the fp32 fallback, 0 uses the kernel where the CPU has it.
+void mlb_gemm_bf16_force_fallback(int on);
+// linear_forward / linear_backward with their GEMMs in mlb_gemm_bf16 (the bias sums stay fp32/double).
+void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC);
+void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                          const float* weight, int B, int C, int OC);
+
 #endif

@@ -93,7 +93,8 @@ struct mlb_unet {
     mlb_unet_transformer up_attn[MLB_UNET_MAX_LEVELS][MLB_UNET_MAX_LAYERS + 1];
     mlb_unet_conv up_conv[MLB_UNET_MAX_LEVELS];     // after a nearest 2x upsample (all but the last)
     float *norm_out_w, *norm_out_b, *conv_out_w, *conv_out_b;
-    // mlb_unet_use_device: a copy on the GPU that mlb_unet_forward runs on (NULL: the CPU)
+    // mlb_unet_use_device: a copy on the GPU that mlb_unet_forward runs on (NULL: the CPU), and the
+    // ops it runs with (without a mirror: NULL for the CPU's fp32 ops, or the CPU's bf16 table)
     struct mlb_unet* mirror;
     const struct mlb_backend* mirror_ops;
 };
@@ -115,7 +116,9 @@ void mlb_unet_free(mlb_unet* u);   // NULL is fine; frees device weights on thei
 mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** out);
 // From now on mlb_unet_forward (host buffers) runs on device d with GEMM operands at precision
 // prec: the weights are copied there once, the inputs and
-// the output cross per call (a few hundred KB for SD's latents). MLB_DEVICE_CPU undoes it.
+// the output cross per call (a few hundred KB for SD's latents). MLB_DEVICE_CPU undoes it; with
+// MLB_GEMM_BF16 the CPU's linear and conv GEMMs then take bf16 operands (backend.h), any other prec
+// is the CPU's fp32.
 mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision prec);
 // A copy of the CPU UNet src with its weights on device d (one upload of params).
 mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out);

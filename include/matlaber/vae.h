@@ -78,7 +78,9 @@ typedef struct {
 
 // From now on mlb_vae_encode / _encode_backward / _decode (host buffers) run on device d with GEMM
 // operands at prec: the weights are copied there once; the encoder's cache stays there; images,
-// latents and gradients cross per call. MLB_DEVICE_CPU undoes it. Float models only.
+// latents and gradients cross per call. MLB_DEVICE_CPU undoes it; with MLB_GEMM_BF16 the CPU's conv
+// and linear GEMMs then take bf16 operands (backend.h), any other prec is the CPU's fp32. Float
+// models only.
 mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec);
 
 // ---- loading (float) ------------------------------------------------------------------------------

@@ -32,5 +32,9 @@ typedef float real;
 
 // Every GEMM of the dual sources goes through the thread-count independent one (src/nn/gemm.c).
 #define GEMM FN(mlb_gemm)
+// Its signature: ops that may run their GEMM at another precision (conv, linear: the float pass's
+// *_bf16 variants pass mlb_gemm_bf16) take one of these.
+typedef void (*FN(mlb_gemm_fn))(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda,
+                                const real* B, int ldb, real beta, real* C, int ldc);
 
 #endif

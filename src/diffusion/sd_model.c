@@ -70,16 +70,22 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     mlb_status s;
     if ((s = mlb_unet_load(path, NULL, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }
-    if (opt.device != MLB_DEVICE_CPU) {
+    // a GPU, or bf16 on the CPU (its only other precision: fp16 and tf32 stay fp32 there)
+    int cpu_bf16 = opt.device == MLB_DEVICE_CPU && opt.precision == MLB_GEMM_BF16;
+    if (opt.device != MLB_DEVICE_CPU || cpu_bf16) {
         if ((s = mlb_unet_use_device(m->unet, opt.device, opt.precision)) != MLB_OK) {
             mlb_fail_context(s, "moving the UNet to the %s", mlb_device_name(opt.device));
             goto fail;
         }
-        mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands", mlb_device_name(opt.device),
-                mlb_gemm_precision_name(opt.precision));
+        if (cpu_bf16 && !mlb_gemm_bf16_native())
+            mlb_log(MLB_LOG_WARN, "--precision bf16: this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off); the "
+                                  "UNet and VAE compute in fp32");
+        else
+            mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands%s", mlb_device_name(opt.device),
+                    mlb_gemm_precision_name(opt.precision), cpu_bf16 ? " (linear and conv; attention fp32)" : "");
     }
     if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
-    if (m->vae && opt.device != MLB_DEVICE_CPU &&
+    if (m->vae && (opt.device != MLB_DEVICE_CPU || cpu_bf16) &&
         (s = mlb_vae_use_device(m->vae, opt.device, opt.precision)) != MLB_OK) {
         mlb_fail_context(s, "moving the VAE to the %s", mlb_device_name(opt.device));
         goto fail;

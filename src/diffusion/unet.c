@@ -94,8 +94,9 @@ static mlb_status report(const mlb_backend* be, mlb_unet_debug_fn fn, void* user
 
 mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
                             int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user) {
-    if (!u || !u->mirror)
-        return mlb_unet_forward_on(mlb_backend_cpu(), u, out, x, t, context, N, H, W, Tc, debug, debug_user);
+    if (!u || !u->mirror)   // on the CPU: its fp32 ops, or the bf16 ones (mlb_unet_use_device)
+        return mlb_unet_forward_on(u && u->mirror_ops ? u->mirror_ops : mlb_backend_cpu(), u, out, x, t, context, N,
+                                   H, W, Tc, debug, debug_user);
     // on the mirror's device: x, context and out staged in one device buffer (allocated per call,
     // as the activations are: small beside them)
     if (!out || !x || !t || !context || N < 1 || H < 1 || W < 1 || Tc < 1)

@@ -460,6 +460,8 @@ mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision pre
     if (!u) return mlb_fail(MLB_ERR_ARG, "mlb_unet_use_device: NULL UNet");
     mlb_unet_free(u->mirror);
     u->mirror = NULL;
+    // on the CPU no copy: only bf16 changes the ops (fp16 and tf32 are GPU formats: fp32 here)
+    u->mirror_ops = d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16 ? mlb_backend_for(d, prec) : NULL;
     if (d == MLB_DEVICE_CPU) return MLB_OK;
     if (u->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_unet_use_device: the UNet must be on the CPU");
     MLB_TRY(mlb_unet_to_device(u, d, &u->mirror));

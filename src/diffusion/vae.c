@@ -26,6 +26,7 @@ typedef FN(mlb_vae_attn) attn_t;
 #ifdef MLB_F64
 typedef const void* vae_ops;
 #define CPU_OPS NULL
+#define MODEL_OPS(v) NULL
 static mlb_device ops_device(vae_ops be) { (void)be; return MLB_DEVICE_CPU; }
 static mlb_status op_alloc(vae_ops be, real** p, size_t n) {
     (void)be;
@@ -95,6 +96,8 @@ static mlb_status op_upsample(vae_ops be, real* out, const real* in, int N, int 
 #else
 typedef const mlb_backend* vae_ops;
 #define CPU_OPS mlb_backend_cpu()
+// the CPU ops a model without a mirror runs: fp32, or bf16 after mlb_vae_use_device(v, CPU, BF16)
+#define MODEL_OPS(v) ((v)->mirror_ops ? (v)->mirror_ops : mlb_backend_cpu())
 static mlb_device ops_device(vae_ops be) { return be->device; }
 static mlb_status op_alloc(vae_ops be, real** p, size_t n) { return be->alloc(p, n); }
 static void op_release(vae_ops be, void* p) { be->release(p); }
@@ -593,7 +596,7 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
         return s;
     }
 #endif
-    return FN(encode_core)(CPU_OPS, v, image, N, H, W, mean, logvar, cache);
+    return FN(encode_core)(MODEL_OPS(v), v, image, N, H, W, mean, logvar, cache);
 }
 
 // On the ops of be: the cache and dimage live on be's device; dmean and dlogvar on the host.
@@ -711,7 +714,7 @@ mlb_status FN(mlb_vae_encode_backward)(const vae_t* v, const FN(mlb_vae_cache)* 
         return s;
     }
 #endif
-    return FN(encode_backward_core)(CPU_OPS, v, cache, dmean, dlogvar, dimage);
+    return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage);
 }
 
 // ---- decoder ---------------------------------------------------------------------------------------
@@ -786,7 +789,7 @@ mlb_status FN(mlb_vae_decode)(const vae_t* v, const real* zin, int N, int h, int
         return s;
     }
 #endif
-    return FN(decode_core)(CPU_OPS, v, zin, N, h, w, image);
+    return FN(decode_core)(MODEL_OPS(v), v, zin, N, h, w, image);
 }
 
 #ifndef MLB_F64
@@ -794,6 +797,8 @@ mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec)
     if (!v) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: NULL VAE");
     mlb_vae_free(v->mirror);
     v->mirror = NULL;
+    // on the CPU no copy: only bf16 changes the ops (fp16 and tf32 are GPU formats: fp32 here)
+    v->mirror_ops = d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16 ? mlb_backend_for(d, prec) : NULL;
     if (d == MLB_DEVICE_CPU) return MLB_OK;
     if (v->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: the VAE must be on the CPU");
     vae_ops be = mlb_backend_for(d, prec);

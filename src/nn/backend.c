@@ -1,4 +1,5 @@
-// The two op tables of backend.h: the CPU's over host memory and CUDA's over device memory.
+// The op tables of backend.h: the CPU's over host memory (fp32, and bf16 for the linear and conv
+// GEMMs) and CUDA's over device memory, one per GEMM precision.
 #include "matlaber/backend.h"
 #include <math.h>
 #include <stdlib.h>
@@ -142,6 +143,29 @@ static mlb_status cpu_shade_backward(float* dkd, float* dks, float* dkr, float* 
     mlb_envlight l = cpu_turned(handle, rotation);
     return mlb_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
 }
+// bf16: the linear and conv GEMMs with bf16 operands (mlb_gemm_bf16), all else as the fp32 table.
+static mlb_status cpu_linear_bf16(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
+                                  int B, int C, int OC) {
+    (void)be;
+    linear_forward_bf16(out, in, w, b, B, C, OC);
+    return MLB_OK;
+}
+static mlb_status cpu_linear_backward_bf16(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                           const float* in, const float* w, int B, int C, int OC) {
+    (void)be;
+    linear_backward_bf16(din, dw, db, dout, in, w, B, C, OC);
+    return MLB_OK;
+}
+static mlb_status cpu_conv2d_bf16(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
+                                  const mlb_conv2d* cv) {
+    (void)be;
+    return conv2d_forward_bf16(out, in, w, b, cv, NULL);
+}
+static mlb_status cpu_conv2d_backward_bf16(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                                           const float* in, const float* w, const mlb_conv2d* cv) {
+    (void)be;
+    return conv2d_backward_bf16(din, dw, db, dout, in, w, cv, NULL);
+}
 
 static const mlb_backend cpu_table = {
     MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
@@ -149,6 +173,13 @@ static const mlb_backend cpu_table = {
     cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu,
     cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload,
     cpu_light_free, cpu_shade, cpu_shade_backward,
+};
+static const mlb_backend cpu_bf16_table = {
+    MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
+    cpu_linear_bf16, cpu_linear_backward_bf16, cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_groupnorm,
+    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel,
+    cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
+    cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
 };
 
 // ---- CUDA ----------------------------------------------------------------------------------------
@@ -243,6 +274,6 @@ static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE
 const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
 
 const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec) {
-    if (d != MLB_DEVICE_CUDA) return &cpu_table;
+    if (d != MLB_DEVICE_CUDA) return prec == MLB_GEMM_BF16 ? &cpu_bf16_table : &cpu_table;
     return &cuda_tables[prec >= MLB_GEMM_FP32 && prec <= MLB_GEMM_BF16 ? prec : MLB_GEMM_FP32];
 }

@@ -170,8 +170,8 @@ static mlb_status FN(conv_ws)(real** ws, real** owned, const mlb_conv2d* cv) {
     return MLB_OK;
 }
 
-mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, const real* bias,
-                               const mlb_conv2d* cv, real* ws) {
+static mlb_status FN(conv2d_forward_with)(FN(mlb_gemm_fn) gemm, real* out, const real* in, const real* weight,
+                                          const real* bias, const mlb_conv2d* cv, real* ws) {
     MLB_TRY(mlb_conv2d_check(cv));
     if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
     const int OH = mlb_conv2d_out_h(cv), OW = mlb_conv2d_out_w(cv), K = cv->C * cv->KH * cv->KW;
@@ -188,7 +188,7 @@ mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, con
         }
         const real* x = in + (size_t)n * in_n;
         if (FN(pointwise)(cv)) {   // out[OC, HW] += weight[OC, C] . in[C, HW]
-            GEMM(MLB_NOTRANS, MLB_NOTRANS, cv->OC, (int)plane, cv->C, (real)1, weight, cv->C, x,
+            gemm(MLB_NOTRANS, MLB_NOTRANS, cv->OC, (int)plane, cv->C, (real)1, weight, cv->C, x,
                  (int)plane, (real)1, o, (int)plane);
             continue;
         }
@@ -197,7 +197,7 @@ mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, con
             int rows = y0 + band <= OH ? band : OH - y0;
             int P = rows * OW;
             FN(im2col)(ws, x, cv, OW, y0, rows);
-            GEMM(MLB_NOTRANS, MLB_NOTRANS, cv->OC, P, K, (real)1, weight, K, ws, P, (real)1,
+            gemm(MLB_NOTRANS, MLB_NOTRANS, cv->OC, P, K, (real)1, weight, K, ws, P, (real)1,
                  o + (size_t)y0 * OW, (int)plane);
         }
     }
@@ -205,8 +205,9 @@ mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, con
     return MLB_OK;
 }
 
-mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real* dout, const real* in,
-                                const real* weight, const mlb_conv2d* cv, real* ws) {
+static mlb_status FN(conv2d_backward_with)(FN(mlb_gemm_fn) gemm, real* din, real* dweight, real* dbias,
+                                           const real* dout, const real* in, const real* weight, const mlb_conv2d* cv,
+                                           real* ws) {
     MLB_TRY(mlb_conv2d_check(cv));
     if (!dout || (din && !weight) || (dweight && !in)) return mlb_fail(MLB_ERR_ARG, "conv2d backward: NULL buffer");
     const int OH = mlb_conv2d_out_h(cv), OW = mlb_conv2d_out_w(cv), K = cv->C * cv->KH * cv->KW;
@@ -229,10 +230,10 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
         const real* d = dout + (size_t)n * out_n;
         if (FN(pointwise)(cv)) {
             if (din)   // din[C, HW] += weight^T[C, OC] . dout[OC, HW]
-                GEMM(MLB_TRANS, MLB_NOTRANS, cv->C, (int)plane, cv->OC, (real)1, weight, cv->C, d,
+                gemm(MLB_TRANS, MLB_NOTRANS, cv->C, (int)plane, cv->OC, (real)1, weight, cv->C, d,
                      (int)plane, (real)1, din + (size_t)n * in_n, (int)plane);
             if (dweight)   // dweight[OC, C] += dout[OC, HW] . in^T[HW, C]
-                GEMM(MLB_NOTRANS, MLB_TRANS, cv->OC, cv->C, (int)plane, (real)1, d, (int)plane,
+                gemm(MLB_NOTRANS, MLB_TRANS, cv->OC, cv->C, (int)plane, (real)1, d, (int)plane,
                      in + (size_t)n * in_n, (int)plane, (real)1, dweight, cv->C);
             continue;
         }
@@ -243,11 +244,11 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
             const real* db = d + (size_t)y0 * OW;
             if (dweight) {   // dweight[OC, K] += dout_band[OC, P] . col^T[P, K]
                 FN(im2col)(ws, in + (size_t)n * in_n, cv, OW, y0, rows);
-                GEMM(MLB_NOTRANS, MLB_TRANS, cv->OC, K, P, (real)1, db, (int)plane, ws, P, (real)1,
+                gemm(MLB_NOTRANS, MLB_TRANS, cv->OC, K, P, (real)1, db, (int)plane, ws, P, (real)1,
                      dweight, K);
             }
             if (din) {   // dcol[K, P] = weight^T[K, OC] . dout_band[OC, P], then scattered into din
-                GEMM(MLB_TRANS, MLB_NOTRANS, K, P, cv->OC, (real)1, weight, K, db, (int)plane,
+                gemm(MLB_TRANS, MLB_NOTRANS, K, P, cv->OC, (real)1, weight, K, db, (int)plane,
                      (real)0, ws, P);
                 FN(col2im_add)(din + (size_t)n * in_n, ws, cv, OW, y0, rows);
             }
@@ -256,6 +257,28 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
     free(owned);
     return MLB_OK;
 }
+
+mlb_status FN(conv2d_forward)(real* out, const real* in, const real* weight, const real* bias,
+                               const mlb_conv2d* cv, real* ws) {
+    return FN(conv2d_forward_with)(GEMM, out, in, weight, bias, cv, ws);
+}
+
+mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real* dout, const real* in,
+                                const real* weight, const mlb_conv2d* cv, real* ws) {
+    return FN(conv2d_backward_with)(GEMM, din, dweight, dbias, dout, in, weight, cv, ws);
+}
+
+#ifndef MLB_F64
+mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
+                               const mlb_conv2d* cv, float* ws) {
+    return conv2d_forward_with(mlb_gemm_bf16, out, in, weight, bias, cv, ws);
+}
+
+mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                                const float* weight, const mlb_conv2d* cv, float* ws) {
+    return conv2d_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, cv, ws);
+}
+#endif
 
 // ---- group norm ------------------------------------------------------------------------------------
 // The activation and its derivative; SiLU (the VAE's and UNet's) inline, the rest through nn.h.

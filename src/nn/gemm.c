@@ -7,12 +7,15 @@
 // call on one thread (OpenBLAS is kept single-threaded), and OpenMP threads take whole shards. The
 // threads change who computes a shard, never what it computes. A shard cut along K (the outputs are
 // too few to share) writes its partial product to scratch, and the partials are added in shard
-// order. Dual-compiled (float / double _f64) like ops.c.
+// order. Dual-compiled (float / double _f64) like ops.c; the float pass also has mlb_gemm_bf16, the
+// same shards over the bf16 kernel of gemm_bf16.c.
 #include <stdint.h>
 #include <stdlib.h>
 #include <omp.h>
 #include "matlaber/nn.h"
 #include "core/real.h"
+#include "matlaber/log.h"
+#include "nn/gemm_bf16.h"
 
 #ifdef MLB_F64
 #define BLAS_GEMM cblas_dgemm
@@ -73,8 +76,9 @@ static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const
               lda, B, ldb, beta, C, ldc);
 }
 
-void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B, int ldb,
-                  real beta, real* C, int ldc) {
+// call: one shard's product on the calling thread (BLAS, or in the float pass the bf16 kernel).
+static void FN(gemm_sharded)(FN(mlb_gemm_fn) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
+                             int lda, const real* B, int ldb, real beta, real* C, int ldc) {
     if (M <= 0 || N <= 0) return;
     // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. Only
     // outside a parallel region, where no other thread is inside OpenBLAS.
@@ -92,7 +96,7 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
         if (!partial) cut = CUT_NONE;   // a few hundred KB at most; never seen, and still thread-independent
     }
     if (cut == CUT_NONE) {
-        FN(blas_call)(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+        call(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
         return;
     }
 #pragma omp parallel for schedule(static)
@@ -101,16 +105,16 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
         if (cut == CUT_M) {
             int m = M - lo < block ? M - lo : block;
             const real* a = ta ? A + lo : A + (size_t)lo * lda;
-            FN(blas_call)(ta, tb, m, N, K, alpha, a, lda, B, ldb, beta, C + (size_t)lo * ldc, ldc);
+            call(ta, tb, m, N, K, alpha, a, lda, B, ldb, beta, C + (size_t)lo * ldc, ldc);
         } else if (cut == CUT_N) {
             int n = N - lo < block ? N - lo : block;
             const real* b = tb ? B + (size_t)lo * ldb : B + lo;
-            FN(blas_call)(ta, tb, M, n, K, alpha, A, lda, b, ldb, beta, C + lo, ldc);
+            call(ta, tb, M, n, K, alpha, A, lda, b, ldb, beta, C + lo, ldc);
         } else {
             int k = K - lo < block ? K - lo : block;
             const real* a = ta ? A + (size_t)lo * lda : A + lo;
             const real* b = tb ? B + lo : B + (size_t)lo * ldb;
-            FN(blas_call)(ta, tb, M, N, k, (real)1, a, lda, b, ldb, (real)0, partial + (size_t)s * M * N, N);
+            call(ta, tb, M, N, k, (real)1, a, lda, b, ldb, (real)0, partial + (size_t)s * M * N, N);
         }
     }
     if (cut != CUT_K) return;
@@ -127,3 +131,25 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
         }
     free(partial);
 }
+
+void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B, int ldb,
+                  real beta, real* C, int ldc) {
+    FN(gemm_sharded)(FN(blas_call), ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+}
+
+#ifndef MLB_F64
+void mlb_gemm_bf16(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
+                   int ldb, float beta, float* C, int ldc) {
+    if (!mlb_gemm_bf16_native()) {   // no AVX-512 BF16 here (or forced off): the fp32 GEMM, said once
+        static int told;
+        if (!told) {
+            told = 1;
+            mlb_log(MLB_LOG_INFO, "bf16 GEMM: %s; computing in fp32",
+                    getenv("MATLABER_CPU_BF16") ? "off ($MATLABER_CPU_BF16)" : "this CPU has no AVX-512 BF16");
+        }
+        mlb_gemm(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+        return;
+    }
+    gemm_sharded(mlb_gemm_bf16_serial, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+}
+#endif

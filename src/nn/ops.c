@@ -27,8 +27,8 @@
 // linear
 
 // out[B,OC] = in[B,C] . weight[OC,C]^T + bias[OC]
-void FN(linear_forward)(real* out, const real* in, const real* weight, const real* bias,
-                        int B, int C, int OC) {
+static void FN(linear_forward_with)(FN(mlb_gemm_fn) gemm, real* out, const real* in, const real* weight,
+                                    const real* bias, int B, int C, int OC) {
     if (B <= 0 || OC <= 0) return;
     // Start from the bias (or zero) and let GEMM add the product (beta = 1): one pass over out.
     for (int b = 0; b < B; b++) {
@@ -37,8 +37,12 @@ void FN(linear_forward)(real* out, const real* in, const real* weight, const rea
     }
     // C == 0 is a valid empty product, but BLAS rejects lda = 0, so skip the call.
     if (C <= 0) return;
-    GEMM(MLB_NOTRANS, MLB_TRANS, B, OC, C,
+    gemm(MLB_NOTRANS, MLB_TRANS, B, OC, C,
          (real)1, in, C, weight, C, (real)1, out, OC);
+}
+
+void FN(linear_forward)(real* out, const real* in, const real* weight, const real* bias, int B, int C, int OC) {
+    FN(linear_forward_with)(GEMM, out, in, weight, bias, B, C, OC);
 }
 
 // dbias[OC] += sum_b dout[b, :]. Split over blocks of output columns, each summed over the batch in
@@ -61,20 +65,36 @@ static void dbias_accumulate(real* dbias, const real* dout, int B, int OC) {
 }
 
 // din[B,C] += dout[B,OC] . weight[OC,C]; dweight[OC,C] += dout^T . in[B,C]; dbias[OC] += sum_b dout
-void FN(linear_backward)(real* din, real* dweight, real* dbias, const real* dout, const real* in,
-                         const real* weight, int B, int C, int OC) {
+static void FN(linear_backward_with)(FN(mlb_gemm_fn) gemm, real* din, real* dweight, real* dbias,
+                                     const real* dout, const real* in, const real* weight, int B, int C, int OC) {
     // With B == 0 or OC == 0 every sum is empty: nothing is added. C == 0 leaves only dbias.
     if (B <= 0 || OC <= 0) return;
     if (C > 0) {
         if (din)
-            GEMM(MLB_NOTRANS, MLB_NOTRANS, B, C, OC,
+            gemm(MLB_NOTRANS, MLB_NOTRANS, B, C, OC,
                  (real)1, dout, OC, weight, C, (real)1, din, C);
         if (dweight)
-            GEMM(MLB_TRANS, MLB_NOTRANS, OC, C, B,
+            gemm(MLB_TRANS, MLB_NOTRANS, OC, C, B,
                  (real)1, dout, OC, in, C, (real)1, dweight, C);
     }
     if (dbias) dbias_accumulate(dbias, dout, B, OC);
 }
+
+void FN(linear_backward)(real* din, real* dweight, real* dbias, const real* dout, const real* in,
+                         const real* weight, int B, int C, int OC) {
+    FN(linear_backward_with)(GEMM, din, dweight, dbias, dout, in, weight, B, C, OC);
+}
+
+#ifndef MLB_F64
+void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC) {
+    linear_forward_with(mlb_gemm_bf16, out, in, weight, bias, B, C, OC);
+}
+
+void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
+                          const float* weight, int B, int C, int OC) {
+    linear_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, B, C, OC);
+}
+#endif
 
 // ---------------------------------------------------------------------------------------------
 // activations

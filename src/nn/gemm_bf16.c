@@ -1,0 +1,203 @@
+// The bf16 GEMM of one thread: C[M,N] = alpha·op(A)[M,K]·op(B)[K,N] + beta·C (row-major), the
+// operands rounded to bf16 (round to nearest even, as VCVTNE2PS2BF16 does: denormals read as zero),
+// the products summed in fp32 by AVX-512 BF16 (VDPBF16PS: two bf16 products per fp32 lane per
+// instruction, twice the multiply-adds of an fp32 FMA). mlb_gemm_bf16 (gemm.c) cuts a product into
+// the same shards as mlb_gemm and calls this once per shard, so the bits never depend on the thread
+// count. Compiled for the generic target: only the functions marked BF16_TARGET use AVX-512, and
+// they run only after mlb_gemm_bf16_native() said the CPU has it.
+//
+// Layout: op(A) is packed into panels of MR rows, op(B) into panels of NR columns, both as pairs
+// along K: one 32-bit word = (bf16 x[k+1] << 16) | bf16 x[k], a zero pad after an odd K, zero
+// rows/columns past the edges. The micro-kernel keeps an MR x NR tile in 28 zmm registers over the
+// K block (KC pairs), keeping the fp32 sums in a tile buffer between blocks (one fp32 sum per
+// element in k order either way), then writes alpha·tile + beta·C with masked stores for the
+// ragged edges.
+#include "nn/gemm_bf16.h"
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cblas.h>
+#include "matlaber/cpu.h"
+#include "matlaber/log.h"
+
+#if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
+#define MLB_BF16_KERNEL 1
+#include <immintrin.h>
+#define BF16_TARGET __attribute__((target("avx512f,avx512bw,avx512vl,avx512bf16")))
+#endif
+
+#define MR 14   // rows of the register tile: 14 x 2 accumulators + 2 B vectors of the 32 zmm
+#define NR 32   // columns: two zmm of 16 fp32
+#define KC 128  // K pairs per block: an A micro-panel (7 KB) and a B one (16 KB) stay in L1
+#define MC 24   // A panels packed at a time (172 KB at KC: stays in L2 while the B panels pass)
+
+static int force_fallback = -1;   // -1: not read yet ($MATLABER_CPU_BF16), 0/1 set
+
+void mlb_gemm_bf16_force_fallback(int on) { force_fallback = on ? 1 : 0; }
+
+int mlb_gemm_bf16_native(void) {
+    static int cpu_has = -1;
+    if (cpu_has < 0) {
+#ifdef MLB_BF16_KERNEL
+        mlb_cpu_info f;
+        mlb_cpu_detect(&f);
+        cpu_has = f.avx512f && f.avx512bw && f.avx512vl && f.avx512_bf16;
+#else
+        cpu_has = 0;
+#endif
+    }
+    if (force_fallback < 0) {
+        const char* e = getenv("MATLABER_CPU_BF16");
+        force_fallback = e && (!strcmp(e, "0") || !strcmp(e, "off"));
+    }
+    return cpu_has && !force_fallback;
+}
+
+#ifdef MLB_BF16_KERNEL
+// Rows r0 .. r0+R of X packed as pairs along K into out[kp][Rpad] (Rpad = MR or NR): X[r, k] is
+// X[r·rs + k·ks] with rs = 1 or ks = 1. Rows past R and the pad after an odd K are zero.
+BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size_t rs, size_t ks, int R, int K) {
+    const int kp = (K + 1) / 2;
+    if (ks == 1) {   // each row runs along K: 32 floats -> 16 pair words, then spread with stride Rpad
+        uint32_t tmp[16];
+        for (int r = 0; r < Rpad; r++) {
+            if (r >= R) {
+                for (int p = 0; p < kp; p++) out[(size_t)p * Rpad + r] = 0;
+                continue;
+            }
+            const float* x = X + (size_t)r * rs;
+            for (int k = 0; k < K; k += 32) {
+                int left = K - k, np = kp - k / 2 < 16 ? kp - k / 2 : 16;
+                __mmask16 m0 = left >= 16 ? 0xFFFF : (__mmask16)((1u << left) - 1);
+                __mmask16 m1 = left >= 32 ? 0xFFFF : left > 16 ? (__mmask16)((1u << (left - 16)) - 1) : 0;
+                __m512 lo = _mm512_maskz_loadu_ps(m0, x + k), hi = _mm512_maskz_loadu_ps(m1, x + k + 16);
+                _mm512_storeu_si512(tmp, (__m512i)_mm512_cvtne2ps_pbh(hi, lo));
+                for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
+            }
+        }
+        return;
+    }
+    // each k runs along the rows: rows k and k+1, 16 at a time, interleaved word by word
+    static const uint16_t order[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
+                                       8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+    const __m512i weave = _mm512_loadu_si512(order);
+    for (int p = 0; p < kp; p++) {
+        const float* x0 = X + (size_t)(2 * p) * ks;
+        const float* x1 = x0 + ks;
+        int has1 = 2 * p + 1 < K;
+        for (int r = 0; r < Rpad; r += 16) {
+            int left = R - r;
+            __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
+            __m512 a = _mm512_maskz_loadu_ps(m, x0 + r);
+            __m512 b = has1 ? _mm512_maskz_loadu_ps(m, x1 + r) : _mm512_setzero_ps();
+            __m512i w = _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b, a));
+            __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
+            _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
+        }
+    }
+}
+
+// One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
+// (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
+// C[m, n] (m <= MR, n <= NR) = alpha · sum + beta · C. A stored and reloaded fp32 sum is the same
+// sum: K blocking does not change a bit.
+BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
+                                     float* C, int ldc, int m, int n, float alpha, float beta) {
+#define ACC(i)                                                                                       \
+    __m512 c##i##0 = w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),                  \
+           c##i##1 = w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
+    ACC(0) ACC(1) ACC(2) ACC(3) ACC(4) ACC(5) ACC(6) ACC(7) ACC(8) ACC(9) ACC(10) ACC(11) ACC(12) ACC(13)
+#undef ACC
+    for (int p = 0; p < kp; p++, a += MR, b += NR) {
+        __m512bh b0 = (__m512bh)_mm512_loadu_si512(b), b1 = (__m512bh)_mm512_loadu_si512(b + 16);
+#define STEP(i)                                                             \
+    {                                                                       \
+        __m512bh ai = (__m512bh)_mm512_set1_epi32((int)a[i]);               \
+        c##i##0 = _mm512_dpbf16_ps(c##i##0, ai, b0);                        \
+        c##i##1 = _mm512_dpbf16_ps(c##i##1, ai, b1);                        \
+    }
+        STEP(0) STEP(1) STEP(2) STEP(3) STEP(4) STEP(5) STEP(6) STEP(7) STEP(8) STEP(9) STEP(10) STEP(11)
+        STEP(12) STEP(13)
+#undef STEP
+    }
+    if (w_out) {
+#define KEEP(i) _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1);
+        KEEP(0) KEEP(1) KEEP(2) KEEP(3) KEEP(4) KEEP(5) KEEP(6) KEEP(7) KEEP(8) KEEP(9) KEEP(10) KEEP(11) KEEP(12)
+        KEEP(13)
+#undef KEEP
+        return;
+    }
+    __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+    __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
+    const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
+    // beta = 0 never reads C (NaN there is ignored, as BLAS does)
+#define PUT(i)                                                                                          \
+    if (i < m) {                                                                                        \
+        float* c = C + (size_t)(i) * ldc;                                                               \
+        __m512 r0 = _mm512_mul_ps(va, c##i##0), r1 = _mm512_mul_ps(va, c##i##1);                        \
+        if (beta != 0) {                                                                                \
+            r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);                                 \
+            r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);                            \
+        }                                                                                               \
+        _mm512_mask_storeu_ps(c, m0, r0);                                                               \
+        _mm512_mask_storeu_ps(c + 16, m1, r1);                                                          \
+    }
+    PUT(0) PUT(1) PUT(2) PUT(3) PUT(4) PUT(5) PUT(6) PUT(7) PUT(8) PUT(9) PUT(10) PUT(11) PUT(12) PUT(13)
+#undef PUT
+}
+#endif
+
+void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
+                          int ldb, float beta, float* C, int ldc) {
+#ifdef MLB_BF16_KERNEL
+    const int kp = (K + 1) / 2, mpanels = (M + MR - 1) / MR, npanels = (N + NR - 1) / NR;
+    const int kc = kp < KC ? kp : KC, mc = mpanels < MC ? mpanels : MC, blocks = (kp + KC - 1) / KC;
+    // per K block: op(B) packed whole ([npanels][kc][NR]), op(A) MC panels at a time ([MC][kc][MR]);
+    // over several K blocks the sums wait in fp32 tiles ([mpanels][npanels][MR][NR])
+    uint32_t* pa = malloc(sizeof(uint32_t) * (size_t)mc * MR * kc);
+    uint32_t* pb = malloc(sizeof(uint32_t) * (size_t)npanels * NR * kc);
+    float* w = blocks > 1 ? malloc(sizeof(float) * (size_t)mpanels * npanels * MR * NR) : NULL;
+    if (!pa || !pb || (blocks > 1 && !w)) {   // a few MB at most per shard; never seen. fp32 then, and said so.
+        free(pa);
+        free(pb);
+        free(w);
+        mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
+        cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
+                    lda, B, ldb, beta, C, ldc);
+        return;
+    }
+    // op(A)[i, k] = A[i·lda + k], or A[k·lda + i] transposed; op(B)[k, j] = B[k·ldb + j] or B[j·ldb + k]
+    const size_t ars = ta ? 1 : (size_t)lda, aks = ta ? (size_t)lda : 1;
+    const size_t bcs = tb ? (size_t)ldb : 1, bks = tb ? 1 : (size_t)ldb;
+    for (int blk = 0; blk < blocks; blk++) {
+        const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
+        const int first = blk == 0, last = blk == blocks - 1;
+        for (int jp = 0; jp < npanels; jp++) {
+            int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
+            pack_pairs(pb + (size_t)jp * NR * np, NR, B + (size_t)j0 * bcs + (size_t)k0 * bks, bcs, bks, cols, nk);
+        }
+        for (int q0 = 0; q0 < mpanels; q0 += MC) {
+            int nq = mpanels - q0 < MC ? mpanels - q0 : MC;
+            for (int q = 0; q < nq; q++) {
+                int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
+                pack_pairs(pa + (size_t)q * MR * np, MR, A + (size_t)i0 * ars + (size_t)k0 * aks, ars, aks, rows, nk);
+            }
+            for (int jp = 0; jp < npanels; jp++) {
+                int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
+                for (int q = 0; q < nq; q++) {
+                    int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
+                    float* tile = w ? w + ((size_t)(q0 + q) * npanels + jp) * MR * NR : NULL;
+                    micro_kernel(np, pa + (size_t)q * MR * np, pb + (size_t)jp * NR * np, first ? NULL : tile,
+                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta);
+                }
+            }
+        }
+    }
+    free(pa);
+    free(pb);
+    free(w);
+#else   // never called: mlb_gemm_bf16_native() is 0 in such a build
+    cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A, lda,
+                B, ldb, beta, C, ldc);
+#endif
+}

@@ -1,0 +1,172 @@
+// Tests of mlb_gemm_bf16 (src/nn/gemm_bf16.c, the shards of gemm.c): ragged shapes (M, N, K not
+// multiples of the 14 x 32 register tile or of the K pair), every cut of the shard plan, all four
+// transpose combinations, padded leading dimensions, alpha and beta (beta = 0 ignores NaN in C).
+// Two references per element, both in long double:
+//  - the exact product of the operands rounded to bf16 here (nearest even, denormals to zero, as
+//    VCVTNE2PS2BF16): only the fp32 sums differ, so |C - ref| <= (K + 2) · 2^-24 · |alpha| · sum|terms|
+//    (+ the beta·C term's rounding). This pins every packed operand: one wrong or misplaced value
+//    breaks it by orders of magnitude.
+//  - the exact product of the fp32 operands, the tolerance a caller gets: per element at most
+//    (2^-7 + 2^-16 + (K + 2) · 2^-24) · |alpha| · sum|a·b| (each operand rounded by at most 2^-8
+//    relative, so each product by 2^-7 + 2^-16, then the fp32 sums), and over the checked elements an RMS error at most 2^-8 · sqrt(sum (a·b)²), i.e. about
+//    2^-8 · sqrt(K) times a typical |a·b| (measured about 0.6 · 2^-8).
+// Bitwise the same on 1, 2 and 3 threads. Skipped (saying why) without AVX-512 BF16; the fp32
+// fallback is checked by forcing it.
+#include "test.h"
+#include "matlaber/nn.h"
+#include "matlaber/rng.h"
+#include <float.h>
+#include <omp.h>
+#include <stdint.h>
+
+#define SEED 20261126u
+
+typedef struct { int M, N, K; char along; const char* what; } shape;
+static const shape shapes[] = {
+    {1, 1, 1, '-', "1x1x1"},
+    {7, 5, 3, '-', "tiny, odd K"},
+    {14, 32, 64, '-', "one whole tile"},
+    {15, 33, 1, '-', "a tile and one more row and column, K 1"},
+    {29, 95, 517, '-', "ragged everywhere, one call"},
+    {1000, 96, 300, 'M', "cut along M"},
+    {60, 1500, 301, 'N', "cut along N, odd K"},
+    {32, 48, 24000, 'K', "cut along K"},
+    {517, 259, 333, 'M', "odd sizes, cut along M"},
+    {33, 31, 9001, 'K', "odd sizes, cut along K"},
+};
+#define N_SHAPES (sizeof shapes / sizeof shapes[0])
+
+static float bf16_round(float x) {
+    uint32_t u;
+    memcpy(&u, &x, 4);
+    if ((u & 0x7f800000u) == 0) u &= 0x80000000u;   // denormal -> signed zero
+    else u += 0x7fffu + ((u >> 16) & 1);            // nearest even (no NaN or Inf in these tests)
+    u &= 0xffff0000u;
+    memcpy(&x, &u, 4);
+    return x;
+}
+
+static size_t stored(int trans, int R, int C, int ld) { return (size_t)(trans ? C : R) * ld; }
+static float at(const float* X, int trans, int ld, int r, int c) {
+    return trans ? X[(size_t)c * ld + r] : X[(size_t)r * ld + c];
+}
+
+typedef struct { double worst_bf16, worst_fp32, rms_num, rms_den; } stats;
+
+static void run_case(const shape* s, int ta, int tb, float alpha, float beta, stats* st) {
+    const int M = s->M, N = s->N, K = s->K;
+    const int lda = (ta ? M : K) + 3, ldb = (tb ? K : N) + 5, ldc = N + 2;
+    size_t na = stored(ta, M, K, lda), nb = stored(tb, K, N, ldb), nc = (size_t)M * ldc;
+    float *A = malloc(sizeof(float) * na), *B = malloc(sizeof(float) * nb), *C0 = malloc(sizeof(float) * nc);
+    float *C = malloc(sizeof(float) * nc), *C2 = malloc(sizeof(float) * nc);
+    REQUIRE(A && B && C0 && C && C2);
+    for (size_t i = 0; i < na; i++) A[i] = (float)mlb_rng_normal_f64(SEED, 1, i);
+    for (size_t i = 0; i < nb; i++) B[i] = (float)mlb_rng_normal_f64(SEED, 2, i);
+    for (size_t i = 0; i < nc; i++) C0[i] = beta == 0 ? NAN : (float)mlb_rng_normal_f64(SEED, 3, i);
+    memcpy(C, C0, sizeof(float) * nc);
+    omp_set_num_threads(2);
+    mlb_gemm_bf16(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+    int bad = 0;   // checked: every 5th row and 3rd column, and the last of each (a wrong offset shows)
+    for (int i = 0; i < M && bad < 3; i++)
+        for (int j = 0; j < N && bad < 3; j++) {
+            if ((i % 5 && i != M - 1) || (j % 3 && j != N - 1)) continue;
+            long double sb = 0, mb = 0, sf = 0, mf = 0, sq = 0;
+            for (int k = 0; k < K; k++) {
+                float a = at(A, ta, lda, i, k), b = at(B, tb, ldb, k, j);
+                long double pb = (long double)bf16_round(a) * bf16_round(b), pf = (long double)a * b;
+                sb += pb; mb += fabsl(pb); sf += pf; mf += fabsl(pf); sq += pf * pf;
+            }
+            size_t e = (size_t)i * ldc + j;
+            double c0 = beta == 0 ? 0 : C0[e];
+            double refb = (double)(alpha * sb + (long double)beta * c0), reff = (double)(alpha * sf + (long double)beta * c0);
+            double cterm = 4 * FLT_EPSILON * fabs(beta * c0) + 1e-30;
+            double eb = fabs(C[e] - refb) / ((K + 2) * 0x1p-24 * fabs(alpha) * (double)mb + cterm);
+            double ef = fabs(C[e] - reff) / ((0x1p-7 + 0x1p-16 + (K + 2) * 0x1p-24) * fabs(alpha) * (double)mf + cterm);
+            if (!(eb <= 1) || !(ef <= 1)) {
+                printf("  %s ta %d tb %d: C[%d,%d] = %.9g, bf16 operands %.9g, fp32 operands %.9g\n", s->what, ta, tb,
+                       i, j, C[e], refb, reff);
+                bad++;
+            }
+            if (eb > st->worst_bf16) st->worst_bf16 = eb;
+            if (ef > st->worst_fp32) st->worst_fp32 = ef;
+            double d = (C[e] - reff) / alpha;
+            st->rms_num += d * d;
+            st->rms_den += (double)sq;
+        }
+    CHECK_MSG(bad == 0, "%s, ta %d, tb %d, alpha %g, beta %g: wrong values", s->what, ta, tb, alpha, beta);
+    for (int threads = 1; threads <= 3; threads += 2) {
+        memcpy(C2, C0, sizeof(float) * nc);
+        omp_set_num_threads(threads);
+        mlb_gemm_bf16(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C2, ldc);
+        CHECK_MSG(memcmp(C, C2, sizeof(float) * nc) == 0, "%s, ta %d, tb %d: %d threads differ from 2", s->what, ta,
+                  tb, threads);
+    }
+    // padding between rows of C is never written
+    for (int i = 0; i < M; i++)
+        for (int j = N; j < ldc; j++)
+            if (beta == 0) CHECK(isnan(C[(size_t)i * ldc + j]));
+    free(A); free(B); free(C0); free(C); free(C2);
+}
+
+TEST(values_threads_edges) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off): fp32 fallback only");
+    int max_threads = omp_get_max_threads();
+    stats st = {0};
+    for (size_t s = 0; s < N_SHAPES; s++) {
+        char along = '?';
+        mlb_gemm_shards(shapes[s].M, shapes[s].N, shapes[s].K, &along);
+        CHECK_MSG(along == shapes[s].along, "%s: cut along %c", shapes[s].what, along);
+        for (int t = 0; t < 4; t++) {
+            run_case(&shapes[s], t & 1, t >> 1, 0.7f, 1.3f, &st);
+            run_case(&shapes[s], t & 1, t >> 1, -1.1f, 0.0f, &st);
+        }
+    }
+    omp_set_num_threads(max_threads);
+    double rms = sqrt(st.rms_num / st.rms_den);
+    printf("  largest error / bound: bf16-operand reference %.3g, fp32-operand reference %.3g; RMS error %.3g "
+           "(2^-8 = %.3g)\n", st.worst_bf16, st.worst_fp32, rms, 0x1p-8);
+    CHECK(rms <= 0x1p-8);
+    CHECK(rms > 0x1p-12);   // and it is bf16: an fp32 product here would be ~2^-24
+}
+
+// Forced off, it is the fp32 GEMM, bit for bit.
+TEST(fallback_is_fp32) {
+    const int M = 70, N = 45, K = 130;
+    float *A = malloc(sizeof(float) * M * K), *B = malloc(sizeof(float) * K * N);
+    float *C1 = malloc(sizeof(float) * M * N), *C2 = malloc(sizeof(float) * M * N);
+    REQUIRE(A && B && C1 && C2);
+    mlb_rng_fill_uniform(A, (size_t)M * K, SEED, 4, 0, -1, 1);
+    mlb_rng_fill_uniform(B, (size_t)K * N, SEED, 5, 0, -1, 1);
+    for (int i = 0; i < M * N; i++) C1[i] = C2[i] = (float)i / 7;
+    int native = mlb_gemm_bf16_native();
+    mlb_gemm_bf16_force_fallback(1);
+    CHECK(mlb_gemm_bf16_native() == 0);
+    mlb_gemm_bf16(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 2.f, C1, N);
+    mlb_gemm(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 2.f, C2, N);
+    CHECK(memcmp(C1, C2, sizeof(float) * M * N) == 0);
+    mlb_gemm_bf16_force_fallback(!native);   // as it was (off stays off under $MATLABER_CPU_BF16=0)
+    CHECK(mlb_gemm_bf16_native() == native);
+    if (native) {   // and the kernel again differs from fp32 (by bf16 rounding)
+        mlb_gemm_bf16(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 0.f, C1, N);
+        mlb_gemm(MLB_NOTRANS, MLB_TRANS, M, N, K, 0.5f, A, K, B, K, 0.f, C2, N);
+        CHECK(memcmp(C1, C2, sizeof(float) * M * N) != 0);
+    }
+    free(A); free(B); free(C1); free(C2);
+}
+
+// alpha = 0 scales C only; K = 0 the same (as mlb_gemm).
+TEST(alpha_zero_and_empty_k) {
+    float A[6] = {INFINITY, 1, 2, 3, 4, 5}, B[6] = {1, 2, 3, 4, 5, 6}, C[4] = {1, 2, 3, 4};
+    mlb_gemm_bf16(MLB_NOTRANS, MLB_NOTRANS, 2, 2, 3, 0.f, A, 3, B, 2, 2.f, C, 2);
+    CHECK(C[0] == 2 && C[1] == 4 && C[2] == 6 && C[3] == 8);
+    C[0] = NAN;
+    mlb_gemm_bf16(MLB_NOTRANS, MLB_NOTRANS, 2, 2, 0, 1.f, A, 1, B, 2, 0.f, C, 2);
+    CHECK(C[0] == 0 && C[3] == 0);
+}
+
+int main(void) {
+    RUN(values_threads_edges);
+    RUN(fallback_is_fp32);
+    RUN(alpha_zero_and_empty_k);
+    return test_summary();
+}

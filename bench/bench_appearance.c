@@ -28,16 +28,7 @@ static double cpu(void) {
 }
 
 int main(int argc, char** argv) {
-    // the program's runtime settings (tools/matlaber/main.c): OpenBLAS kernels this CPU can run,
-    // passive OpenMP waiting; both are read when the runtimes load, hence the restart
-    const char* core = mlb_blas_better_coretype();
-    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
-    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
-        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
-        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
-        setenv("MATLABER_REEXEC", "1", 1);
-        execv("/proc/self/exe", argv);
-    }
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     if (argc > 1) mlb_set_threads(atoi(argv[1]) > 0 ? atoi(argv[1]) : 1);
     mlb_mesh mesh;
     mlb_envmap env;

@@ -475,14 +475,7 @@ static int run_guidance(scene* sc, const char* name, guide* sds, const char* vie
 
 int main(int argc, char** argv) {
     // the program's runtime settings (tools/matlaber/main.c), read when the runtimes load
-    const char* core = mlb_blas_better_coretype();
-    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
-    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
-        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
-        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
-        setenv("MATLABER_REEXEC", "1", 1);
-        execv("/proc/self/exe", argv);
-    }
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     int iters = 1, sd15 = 0, images = 1, tiny = 1, do_geo = 1, do_app = 1, init_iters = 100;
     int sizes[8] = {64, 128, 512}, n_sizes = 3, sd_sizes[8] = {512}, n_sd_sizes = 1;
     const char* base = "/tmp";

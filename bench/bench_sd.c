@@ -138,14 +138,7 @@ static int fail(const char* what) {
 }
 
 int main(int argc, char** argv) {
-    const char* core = mlb_blas_better_coretype();   // as the program restarts itself (tools/matlaber/main.c)
-    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
-    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
-        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
-        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
-        setenv("MATLABER_REEXEC", "1", 1);
-        execv("/proc/self/exe", argv);
-    }
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     int latent = 64, batch = 2, steps = 1, vae_size = 512, keep = 0, text = 1;
     mlb_gemm_precision prec = MLB_GEMM_FP32;
     const char* base = "/tmp";

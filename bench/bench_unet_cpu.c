@@ -41,14 +41,7 @@ static void profile(const mlb_unet* u, float* out, const float* x, const float* 
 }
 
 int main(int argc, char** argv) {
-    const char* core = mlb_blas_better_coretype();   // as the program restarts itself (tools/matlaber/main.c)
-    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
-    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
-        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
-        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
-        setenv("MATLABER_REEXEC", "1", 1);
-        execv("/proc/self/exe", argv);
-    }
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     int reps = 1, N = 2, L = 64;
     for (int i = 1; i < argc; i++) {
         if (i + 1 < argc && !strcmp(argv[i], "--reps")) reps = atoi(argv[++i]);

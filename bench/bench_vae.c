@@ -100,14 +100,7 @@ int main(int argc, char** argv) {
     // As the program does for OpenBLAS's kernels: restart once with the right settings. libgomp's
     // default spin-wait after every OpenMP loop takes the second core from OpenBLAS's GEMM threads
     // (5-15x slower on 2 cores, docs/vae.md), and both are read only when the runtimes load.
-    const char* core = mlb_blas_better_coretype();
-    int fix_omp = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
-    if ((core || fix_omp) && !getenv("MATLABER_REEXEC")) {
-        if (core) setenv("OPENBLAS_CORETYPE", core, 1);
-        if (fix_omp) setenv("OMP_WAIT_POLICY", "passive", 1);
-        setenv("MATLABER_REEXEC", "1", 1);
-        execv("/proc/self/exe", argv);
-    }
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     int sd512 = 0;
     for (int i = 1; i < argc; i++) if (!strcmp(argv[i], "--sd512")) sd512 = 1;
     int threads = omp_get_max_threads();

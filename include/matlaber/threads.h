@@ -12,4 +12,10 @@ const char* mlb_blas_config(void);
 // to ask for through $OPENBLAS_CORETYPE (read when OpenBLAS loads, so the program must restart
 // itself); NULL when nothing needs doing or the user set $OPENBLAS_CORETYPE.
 const char* mlb_blas_better_coretype(void);
+// Two settings the OpenMP and OpenBLAS runtimes read only when they load, so a program restarts
+// itself once with them (execv of /proc/self/exe, MATLABER_REEXEC=1 marking the second start):
+// OpenBLAS pointed at the kernels this CPU can run (above; MATLABER_BLAS_CHOSEN=1 then), and
+// OMP_WAIT_POLICY=passive, without which libgomp's idle threads spin after every loop. The user's
+// own settings are kept. Returns (doing nothing) when neither is needed or the restart failed.
+void mlb_runtime_restart(char** argv);
 #endif

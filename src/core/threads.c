@@ -6,6 +6,7 @@
 #include <cblas.h>
 #include <omp.h>
 #include <stdlib.h>
+#include <unistd.h>
 
 void mlb_set_threads(int n) {
     if (n < 1) n = 1;
@@ -24,4 +25,15 @@ const char* mlb_blas_better_coretype(void) {
     mlb_cpu_info cpu;
     mlb_cpu_detect(&cpu);
     return mlb_blas_coretype_for(openblas_get_corename(), &cpu);
+}
+
+void mlb_runtime_restart(char** argv) {
+    if (getenv("MATLABER_REEXEC")) return;
+    const char* core = mlb_blas_better_coretype();
+    int set_wait = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
+    if (!core && !set_wait) return;
+    if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);
+    if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);
+    setenv("MATLABER_REEXEC", "1", 1);
+    execv("/proc/self/exe", argv);   // returns only on failure: carry on as we are
 }

@@ -55,26 +55,14 @@ static void usage(FILE* out) {
             MATLABER_VERSION);
 }
 
-// Two settings that the OpenMP and OpenBLAS runtimes read only when they load, so the program
-// restarts itself once with them: OpenBLAS pointed at the kernels this CPU can run (see
-// mlb_blas_better_coretype), and OMP_WAIT_POLICY=passive, without which libgomp's idle threads
-// spin after every loop. That took the cores OpenBLAS's own GEMM threads needed (the VAE ran 8-35x
-// slower on 2 cores; docs/vae.md); GEMMs now run on OpenMP threads (mlb_gemm) and no longer care
-// (docs/benchmarks.md), but passive still leaves idle cores to other processes. The user's own
-// settings are kept.
-static void choose_runtime_settings(char** argv) {
-    if (getenv("MATLABER_REEXEC")) return;
-    const char* core = mlb_blas_better_coretype();
-    int set_wait = getenv("OMP_WAIT_POLICY") == NULL;
-    if (!core && !set_wait) return;
-    if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);
-    if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);
-    setenv("MATLABER_REEXEC", "1", 1);
-    execv("/proc/self/exe", argv);   // returns only on failure: carry on as we are
-}
-
+// The program restarts itself once with the runtime settings OpenBLAS and OpenMP read at load
+// (mlb_runtime_restart, threads.h): OpenBLAS pointed at the kernels this CPU can run, and
+// OMP_WAIT_POLICY=passive, without which libgomp's idle threads spin after every loop. That took
+// the cores OpenBLAS's own GEMM threads needed (the VAE ran 8-35x slower on 2 cores; docs/vae.md);
+// GEMMs now run on OpenMP threads (mlb_gemm) and no longer care (docs/benchmarks.md), but passive
+// still leaves idle cores to other processes.
 int main(int argc, char** argv) {
-    choose_runtime_settings(argv);
+    mlb_runtime_restart(argv);
     mlb_log_set_sink(mlb_log_file_sink, stderr);
     int i = 1, device_given = 0;
     // global options before the command

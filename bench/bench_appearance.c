@@ -29,7 +29,13 @@ static double cpu(void) {
 
 int main(int argc, char** argv) {
     mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
-    if (argc > 1) mlb_set_threads(atoi(argv[1]) > 0 ? atoi(argv[1]) : 1);
+    char* end = NULL;
+    long threads = argc > 1 ? strtol(argv[1], &end, 10) : 0;
+    if (argc > 2 || (argc > 1 && (*end || threads < 1 || threads > 1024))) {
+        fprintf(stderr, "usage: bench_appearance [threads]\n");
+        return 2;
+    }
+    if (argc > 1) mlb_set_threads((int)threads);
     mlb_mesh mesh;
     mlb_envmap env;
     mlb_envlight light;

@@ -17,8 +17,7 @@ TEST(material_net_direct) {
     field_twin_check(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), MLB_FIELD_MATERIAL, MLB_MATERIAL_DIRECT, 50000, 1e-4);
 }
 
-// The geometry network (no biases, linear output) on the same path: not yet run on a GPU (written
-// after the last device run of 2026-11-26; the ops are the ones the material cases exercise).
+// The geometry network (no biases, linear output) on the same path (the same field).
 TEST(geometry_net) {
     REQUIRE_GPU();
     field_twin_check(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), MLB_FIELD_GEOMETRY, MLB_MATERIAL_LATENT, 100000, 1e-4);

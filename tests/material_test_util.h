@@ -70,7 +70,15 @@ static inline void field_twin_check(const mlb_backend* be, mlb_field_kind kind, 
         CHECK_PARITY("gradient", net[1].grads, net[0].grads, net[0].n_params, 10 * tol);
         for (int t = 0; t < 2; t++) REQUIRE(field_update(&net[t], &adam) == MLB_OK);
     }
+    // the host copy is behind after the last update: saving it is refused, nothing is written
+    char path[600];
+    snprintf(path, sizeof path, "%s/field_%d_%d.safetensors", test_tmpdir("field_twin"), (int)kind, (int)mode);
+    remove(path);
+    CHECK(mlb_field_save(&net[1], path, 0, NULL, 0) == MLB_ERR_ARG);
+    struct stat st;
+    CHECK(stat(path, &st) != 0);
     REQUIRE(mlb_field_sync_host(&net[1]) == MLB_OK);
+    CHECK(mlb_field_save(&net[1], path, 1, NULL, 0) == MLB_OK);
     CHECK_PARITY("parameters after 3 steps", net[1].params, net[0].params, net[0].n_params, tol);
     CHECK_PARITY("Adam first moments", net[1].adam_m, net[0].adam_m, net[0].n_params, 10 * tol);
     CHECK(net[1].step == 3);

@@ -103,7 +103,8 @@ const mlb_backend* mlb_field_backend(const mlb_field* f);   // NULL for a field 
 // metadata under `prefix` ("geometry" or "material": prefix.levels, .features, .table_size,
 // .base_res, .per_level_scale, .hidden, .n_hidden, .scale, .seed; material: .mode and the
 // decoder's .decoder_hidden, .decoder_depth, .decoder_activation; with_optimizer: .step) plus the
-// caller's extra entries. Written atomically.
+// caller's extra entries. Written atomically. A field on a device whose host copy is behind is
+// MLB_ERR_ARG (mlb_field_sync_host first).
 mlb_status mlb_field_save(const mlb_field* f, const char* path, int with_optimizer, const mlb_st_meta* extra,
                           size_t n_extra);
 // Reads a field of `kind` back; every tensor's shape is checked against the metadata before

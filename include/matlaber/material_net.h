@@ -67,7 +67,7 @@ mlb_status mlb_material_decode(const mlb_material_net* net, const float* z, size
 // "mlp.N.weight"/"mlp.N.bias", "decoder.N.weight"/".bias" (latent mode) and, with_optimizer,
 // "adam.m", "adam.v" plus metadata "material.step"; the config in metadata ("material.mode",
 // ".levels", ".features", ".table_size", ".base_res", ".per_level_scale", ".hidden", ".n_hidden",
-// ".scale", ".seed"). Written atomically. with_optimizer on a net whose state is on a device is
+// ".scale", ".seed"). Written atomically. A net on a device whose host copy is behind is
 // MLB_ERR_ARG (mlb_field_sync_host first).
 mlb_status mlb_material_save(const mlb_material_net* net, const char* path, int with_optimizer);
 // *net overwritten (zeroed on failure); optimizer state restored when present.

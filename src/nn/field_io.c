@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/field.h"
+#include "nn/field_internal.h"
 
 enum { N_KEYS = 8 };
 static const char* const key_names[N_KEYS] = {"levels", "features", "table_size", "base_res", "per_level_scale",
@@ -34,9 +35,9 @@ static void mlp_entries(const mlb_mlp* p, const char* prefix, mlb_st_entry* e, i
 mlb_status mlb_field_save(const mlb_field* f, const char* path, int with_optimizer, const mlb_st_meta* extra,
                           size_t n_extra) {
     const mlb_field_config* c = &f->cfg;
-    if (mlb_field_backend(f) && with_optimizer)   // the moments live on the device: the caller syncs first
-        return mlb_fail(MLB_ERR_ARG, "saving a field whose optimizer state is on the %s (mlb_field_sync_host first)",
-                        mlb_device_name(mlb_field_backend(f)->device));
+    if (field_device_host_behind(f))   // the state lives on the device: the caller syncs first
+        return mlb_fail(MLB_ERR_ARG, "%s: the field's parameters on the %s are ahead of the host's copy "
+                        "(mlb_field_sync_host first)", path, mlb_device_name(mlb_field_backend(f)->device));
     const char* prefix = prefix_of(c->kind);
     enum { MAX_E = 3 + 4 * MLB_MLP_MAX_LAYERS };
     mlb_st_entry e[MAX_E];

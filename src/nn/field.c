@@ -177,22 +177,6 @@ static const real* FN(mlp_forward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_ca
     return c->post[mlp->n_layers - 1];
 }
 
-// din [B, dims[0]] = ∂(Σ dout·out)/∂in through a cached MLP forward, without weight gradients
-// (the frozen decoder). Uses the cache's scratch buffers. din is overwritten.
-static void FN(mlp_backward_input)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* din, const real* dout, int B) {
-    const real* dpost = dout;
-    real* bufs[2] = {c->scratch[0], c->scratch[1]};
-    real* dpre = c->scratch[2];
-    for (int l = mlp->n_layers - 1; l >= 0; l--) {
-        int C = mlp->dims[l], OC = mlp->dims[l + 1];
-        for (size_t i = 0; i < (size_t)B * OC; i++) dpre[i] = dpost[i] * c->d1[l][i];
-        real* dx = l ? bufs[l & 1] : din;
-        memset(dx, 0, sizeof(real) * (size_t)B * C);
-        FN(linear_backward)(dx, NULL, NULL, dpre, NULL, mlp->weight[l], B, C, OC);
-        dpost = dx;
-    }
-}
-
 // The backward over the forward's shards: din (overwritten when frozen, else accumulated) and,
 // unless frozen, dparams += the shards' gradients summed in shard order.
 static void FN(mlp_backward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* dparams, real* shard_grads,
@@ -205,8 +189,9 @@ static void FN(mlp_backward_sharded)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* 
         FN(mlb_mlp_cache) v = FN(cache_rows)(c, mlp, start, B);
         real* dx = din + (size_t)start * in_dim;
         const real* dy = dout + (size_t)start * out_dim;
-        if (frozen) {
-            FN(mlp_backward_input)(mlp, &v, dx, dy, B);
+        if (frozen) {   // the input gradient alone, overwritten
+            memset(dx, 0, sizeof(real) * (size_t)B * in_dim);
+            FN(mlp_backward)(mlp, &v, NULL, dx, dy, NULL, B);
         } else {
             real* g = shard_grads + (size_t)sh * n_mlp;
             memset(g, 0, sizeof(real) * n_mlp);

@@ -106,8 +106,8 @@ void FN(mlp_backward)(const FN(mlb_mlp)* mlp, FN(mlb_mlp_cache)* c, real* dparam
     for (int l = mlp->n_layers - 1; l >= 0; l--) {
         int C = mlp->dims[l], OC = mlp->dims[l + 1];
         for (size_t i = 0; i < (size_t)B * OC; i++) dpre[i] = dpost[i] * c->d1[l][i];
-        real* dweight = dparams + (mlp->weight[l] - mlp->params);
-        real* dbias = mlp->bias[l] ? dparams + (mlp->bias[l] - mlp->params) : NULL;
+        real* dweight = dparams ? dparams + (mlp->weight[l] - mlp->params) : NULL;
+        real* dbias = dparams && mlp->bias[l] ? dparams + (mlp->bias[l] - mlp->params) : NULL;
         const real* x = l ? c->post[l - 1] : in;
         real* dx;
         if (l == 0) dx = din;   // may be NULL: no input gradient wanted

@@ -26,9 +26,7 @@ mlb_status FN(material_net_update)(FN(mlb_material_net)* net, const mlb_adam_con
 }
 
 mlb_status FN(material_net_eval)(const FN(mlb_material_net)* net, const real* pos, size_t n, real* k, real* z) {
-    if (z && net->cfg.mode != MLB_MATERIAL_LATENT)
-        return mlb_fail(MLB_ERR_ARG, "material network: latent codes asked of a direct-mode network");
-    return FN(field_eval)(net, pos, n, k, z);
+    return FN(field_eval)(net, pos, n, k, z);   // z of a direct-mode net: MLB_ERR_ARG
 }
 
 mlb_status FN(material_net_decode)(const FN(mlb_material_net)* net, const real* z, size_t n, real* k) {

@@ -18,13 +18,13 @@
 #include "pipeline/pipeline_internal.h"
 
 // ---- optimiser state: one safetensors file per stage -----------------------------------------
-// "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken in the metadata. Exact floats, so
-// a resumed run continues bitwise from where the checkpoint was taken.
-static mlb_status pipeline_state_save(const char* path, float* params, float* m, float* v, size_t n, long step,
-                               const char* stage) {
-    mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
-                            {"adam_m", m, 1, {(int64_t)n}},
-                            {"adam_v", v, 1, {(int64_t)n}}};
+// A field's "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken in the metadata. Exact
+// floats, so a resumed run continues bitwise from where the checkpoint was taken.
+static mlb_status pipeline_state_save(const char* path, const mlb_field* f, long step, const char* stage) {
+    size_t n = f->n_params;
+    mlb_ckpt_tensor t[3] = {{"params", f->params, 1, {(int64_t)n}},
+                            {"adam_m", f->adam_m, 1, {(int64_t)n}},
+                            {"adam_v", f->adam_v, 1, {(int64_t)n}}};
     mlb_ckpt_meta meta = {0};
     mlb_status s = mlb_ckpt_meta_set_i64(&meta, "step", step);
     if (!s) s = mlb_ckpt_meta_set(&meta, "stage", stage);
@@ -33,11 +33,12 @@ static mlb_status pipeline_state_save(const char* path, float* params, float* m,
     return s;
 }
 
-static mlb_status pipeline_state_load(const char* path, float* params, float* m, float* v, size_t n, long* step,
-                               const char* stage) {
-    mlb_ckpt_tensor t[3] = {{"params", params, 1, {(int64_t)n}},
-                            {"adam_m", m, 1, {(int64_t)n}},
-                            {"adam_v", v, 1, {(int64_t)n}}};
+// Into f (params, moments and its step counter).
+static mlb_status pipeline_state_load(const char* path, mlb_field* f, const char* stage) {
+    size_t n = f->n_params;
+    mlb_ckpt_tensor t[3] = {{"params", f->params, 1, {(int64_t)n}},
+                            {"adam_m", f->adam_m, 1, {(int64_t)n}},
+                            {"adam_v", f->adam_v, 1, {(int64_t)n}}};
     mlb_ckpt_meta meta = {0};
     mlb_status s = mlb_checkpoint_load(path, t, 3, &meta);
     int64_t k = 0;
@@ -46,7 +47,7 @@ static mlb_status pipeline_state_load(const char* path, float* params, float* m,
     if (!s) s = mlb_ckpt_meta_get_i64(&meta, "step", &k);
     if (!s && k < 0) s = mlb_fail(MLB_ERR_FORMAT, "%s: negative step %lld", path, (long long)k);
     mlb_ckpt_meta_free(&meta);
-    if (!s) *step = (long)k;
+    if (!s) f->step = (long)k;
     return s;
 }
 
@@ -137,9 +138,7 @@ static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
 typedef struct {
     mlb_stage stage;
     const char* name;            // "geometry" / "appearance": checkpoint file and metadata
-    float *params, *m, *v;       // the trained parameters and their Adam moments
-    size_t n;
-    long* step;                  // the optimiser's step counter
+    mlb_field* field;            // the stage's network: parameters, Adam moments, step counter
     long iters;                  // the stage's length
     long progress_offset;        // steps of the stages before this one
     char ckpt[MLB_PIPELINE_PATH + 64];
@@ -148,11 +147,9 @@ typedef struct {
 static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
     stage_state ss;
     if (stage == MLB_STAGE_GEOMETRY) {
-        ss = (stage_state){stage, "geometry", r->geo.params, r->geo.adam_m, r->geo.adam_v, r->geo.n_params, &r->geo.step,
-                           r->c->geometry_iters, 0, {0}};
+        ss = (stage_state){stage, "geometry", &r->geo, r->c->geometry_iters, 0, {0}};
     } else {
-        ss = (stage_state){stage, "appearance", r->mat.params, r->mat.adam_m, r->mat.adam_v, r->mat.n_params, &r->mat.step,
-                           r->c->appearance_iters, r->c->geometry_iters, {0}};
+        ss = (stage_state){stage, "appearance", &r->mat, r->c->appearance_iters, r->c->geometry_iters, {0}};
     }
     char rel[64];
     snprintf(rel, sizeof rel, "checkpoints/%s.safetensors", ss.name);
@@ -165,9 +162,9 @@ static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, in
     *start = 0;
     *found = r->resume && mlb_is_file(ss->ckpt);
     if (!*found) return MLB_OK;
-    mlb_status s = pipeline_state_load(ss->ckpt, ss->params, ss->m, ss->v, ss->n, start, ss->name);
+    mlb_status s = pipeline_state_load(ss->ckpt, ss->field, ss->name);
     if (s) return s;
-    *ss->step = *start;
+    *start = ss->field->step;
     mlb_log(MLB_LOG_INFO, "resuming the %s stage at step %ld", ss->name, *start);
     return MLB_OK;
 }
@@ -187,8 +184,8 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
     }
     if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0) s = pipeline_preview(r, ss->stage, it, images, n_views);
     if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters)) {
-        if (ss->stage == MLB_STAGE_APPEARANCE) s = mlb_field_sync_host(&r->mat);   // from the GPU
-        if (!s) s = pipeline_state_save(ss->ckpt, ss->params, ss->m, ss->v, ss->n, it + 1, ss->name);
+        s = mlb_field_sync_host(ss->field);   // from the GPU (nothing to do on the host)
+        if (!s) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->name);
     }
     pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
     *stop = !s && pipeline_should_stop(r);
@@ -211,7 +208,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
         memset(net->adam_m, 0, sizeof(float) * net->n_params);
         memset(net->adam_v, 0, sizeof(float) * net->n_params);
         net->step = 0;
-        s = pipeline_state_save(ss.ckpt, net->params, net->adam_m, net->adam_v, net->n_params, 0, ss.name);
+        s = pipeline_state_save(ss.ckpt, net, 0, ss.name);
         if (s) return s;
     }
     r->geometry_start = start;

@@ -108,8 +108,9 @@ TEST(loss_gradient_matches_finite_differences) {
     random_brdfs_f64(k, B, 1);
     mlb_brdf_work_f64 w;
     REQUIRE(brdf_work_alloc_f64(&w, &ae, B) == MLB_OK);
-    mlb_brdf_loss_config configs[2] = {strong_terms(), mlb_brdf_loss_default_config()};
-    for (int ci = 0; ci < 2; ci++) {
+    mlb_brdf_loss_config configs[3] = {strong_terms(), mlb_brdf_loss_default_config(), strong_terms()};
+    configs[2].smooth_form = MLB_BRDF_SMOOTH_BEND;
+    for (int ci = 0; ci < 3; ci++) {
         mlb_brdf_loss_config lc = configs[ci];
         mlb_brdf_losses_f64 L;
         memset(ae.grads, 0, sizeof(double) * ae.n_params);
@@ -146,10 +147,12 @@ TEST(each_loss_term_gradient) {
     random_brdfs_f64(k, B, 2);
     mlb_brdf_work_f64 w;
     REQUIRE(brdf_work_alloc_f64(&w, &ae, B) == MLB_OK);
-    double weights[4][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-    for (int t = 0; t < 4; t++) {
+    // the last row is the smoothness term alone in its bend form
+    double weights[5][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0, 1, 0}};
+    for (int t = 0; t < 5; t++) {
         mlb_brdf_loss_config lc = mlb_brdf_loss_default_config();
         lc.lambda_kl = weights[t][0]; lc.lambda_s = weights[t][1]; lc.lambda_c = weights[t][2];
+        if (t == 4) lc.smooth_form = MLB_BRDF_SMOOTH_BEND;
         mlb_brdf_losses_f64 L;
         memset(ae.grads, 0, sizeof(double) * ae.n_params);
         REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 2, 0, ae.grads, &L) == MLB_OK);
@@ -194,6 +197,17 @@ TEST(smoothness_term_is_derivative_along_alpha) {
         brdf_ae_decode_f64(&ae, zm, 1, km);
         for (int c = 0; c < 7; c++) CHECK_CLOSE(w.tk_n[i * 7 + c], (kp[c] - km[c]) / (2 * h), 1e-6, 1e-10);
     }
+    // the bend form: |tk_n - (D(z_i) - D(z_j))|^2 with the ends decoded here, not read from the work
+    lc.smooth_form = MLB_BRDF_SMOOTH_BEND;
+    REQUIRE(brdf_ae_loss_f64(&ae, &w, k, B, &lc, 1, 0, NULL, &L) == MLB_OK);
+    double ends[B * 7], bend = 0;
+    brdf_ae_decode_f64(&ae, w.z, B, ends);
+    for (int i = 0; i < B; i++)
+        for (int c = 0; c < 7; c++) {
+            double d = w.tk_n[i * 7 + c] - (ends[i * 7 + c] - ends[((i + 1) % B) * 7 + c]);
+            bend += d * d / B;
+        }
+    CHECK_CLOSE(L.l_s, bend, 1e-12, 1e-15);
     brdf_work_free_f64(&w);
     brdf_ae_free_f64(&ae);
 }

@@ -24,8 +24,16 @@ typedef struct {
     mlb_activation act;      // hidden activation (default SiLU: smooth, so the decoder's Jacobian is too)
 } mlb_brdf_ae_config;
 
+// The interpolation smoothness term L_s, with t_n = dD(z_n)/dalpha along a pair's path and
+// c_n = D(z_i) - D(z_j) the chord between its decoded ends (docs/brdf_prior.md):
+typedef enum {
+    MLB_BRDF_SMOOTH_SPEED = 0,   // mean_n |t_n|^2: reference.md's formula; its floor |c_n|^2 pulls decoded ends together
+    MLB_BRDF_SMOOTH_BEND = 1,    // mean_n |t_n - c_n|^2: zero exactly on straight constant-speed paths, no pull on the ends
+} mlb_brdf_smooth_form;
+
 typedef struct {
     double lambda_kl, lambda_s, lambda_c;   // 2e-4, 0.05, 1e-4 (paper)
+    mlb_brdf_smooth_form smooth_form;
     int n_alpha;                            // interpolation weights alpha = j / (n_alpha - 1), j = 0..n_alpha-1
     int sample_latent;                      // 1: z = mu + sigma * eps (training); 0: z = mu
 } mlb_brdf_loss_config;
@@ -59,7 +67,8 @@ mlb_status mlb_brdf_ae_load_default(mlb_brdf_ae* ae, char* source, size_t source
 typedef struct {
     int epochs;            // 30
     int batch;             // 256
-    double lr;             // 1e-4
+    double lr;             // 1e-4: the first step's learning rate
+    double lr_final;       // the last step's, reached by a cosine decay; <= 0: constant lr
     double weight_decay;   // AdamW decoupled decay (0.01)
     double beta1, beta2, eps;
     uint64_t seed;

@@ -8,8 +8,8 @@
 //   k_n = map(D(z_n));  tk_n = J_map J_D(z_n) dir   (forward-mode tangent = dk_n/dalpha)
 //   zhat_n = mu(E(2 k_n - 1))
 // Each term is a per-sample squared L2 norm averaged over the batch, as the formulas read
-// (reference.md §1): L_r = mean_b |k_hat - k|^2, L_KL = mean_b sum_d KL_d, L_s = mean_b |tk_n|^2,
-// L_c = mean_b |zhat_n - z_n|^2.
+// (reference.md §1): L_r = mean_b |k_hat - k|^2, L_KL = mean_b sum_d KL_d, L_s = mean_b |tk_n|^2
+// (speed form) or mean_b |tk_n - (k_hat_i - k_hat_j)|^2 (bend form), L_c = mean_b |zhat_n - z_n|^2.
 // map(s) = lo + (hi - lo) s puts the decoder's sigmoid outputs into the valid ranges.
 #include <stdlib.h>
 #include <string.h>
@@ -102,6 +102,14 @@ static void map_to_ranges(real* k, const real* s, int B) {
             k[i * K_DIM + c] = (real)(mlb_brdf_range_lo[c] + (mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]) * s[i * K_DIM + c]);
 }
 
+// The decoded chord of entry n = i * 7 + c of the interpolation batch (pair i, i + 1) in the bend
+// form of L_s; 0 in the speed form.
+static real smooth_chord(const FN(mlb_brdf_work)* w, const mlb_brdf_loss_config* lc, int n, int B) {
+    if (lc->smooth_form != MLB_BRDF_SMOOTH_BEND) return 0;
+    int i = n / K_DIM, c = n % K_DIM, j = (i + 1) % B;
+    return w->k_hat[i * K_DIM + c] - w->k_hat[j * K_DIM + c];
+}
+
 mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
                             const mlb_brdf_loss_config* lc, uint64_t seed, uint64_t step, real* grads,
                             FN(mlb_brdf_losses)* out) {
@@ -139,9 +147,14 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     const real* ts_n = FN(mlp_jvp_forward)(&ae->dec, &w->dec_interp, w->dir, B);
     map_to_ranges(w->k_n, s_n, B);
     for (int i = 0; i < nk; i++) w->tk_n[i] = (real)(mlb_brdf_range_hi[i % K_DIM] - mlb_brdf_range_lo[i % K_DIM]) * ts_n[i];
-    // L_s = mean_n |tk_n|^2; w->g_ts holds dL_s/dtk_n (lambda_s and the output map come in the backward)
+    // L_s = mean_n |tk_n - chord_n|^2 (chord 0 for the speed form); w->g_ts holds dL_s/dtk_n
+    // (lambda_s and the output map come in the backward)
     double sum_s = 0;
-    for (int i = 0; i < nk; i++) { sum_s += (double)w->tk_n[i] * w->tk_n[i]; w->g_ts[i] = 2 * w->tk_n[i] / B; }
+    for (int i = 0; i < nk; i++) {
+        real dev = w->tk_n[i] - smooth_chord(w, lc, i, B);
+        sum_s += (double)dev * dev;
+        w->g_ts[i] = 2 * dev / B;
+    }
     sum_s /= B;
     real l_s = (real)sum_s;
     for (int i = 0; i < nk; i++) w->x_n[i] = 2 * w->k_n[i] - 1;
@@ -189,6 +202,16 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     // ---- reconstruction: d/dk_hat -> d/ds -> decoder -> d/dz
     memset(w->g_s, 0, sizeof(real) * nk);
     FN(mse_backward)(w->g_s, w->k_hat, k, (size_t)nk, K_DIM);
+    if (lc->smooth_form == MLB_BRDF_SMOOTH_BEND)   // chord_n = k_hat_i - k_hat_j, i = n, j = n + 1
+        for (int i = 0; i < B; i++) {
+            int j = (i + 1) % B;
+            for (int c = 0; c < K_DIM; c++) {
+                int n = i * K_DIM + c;
+                real g = lam_s * 2 * (w->tk_n[n] - smooth_chord(w, lc, n, B)) / B;
+                w->g_s[n] -= g;
+                w->g_s[j * K_DIM + c] += g;
+            }
+        }
     for (int i = 0; i < nk; i++) w->g_s[i] *= (real)(mlb_brdf_range_hi[i % K_DIM] - mlb_brdf_range_lo[i % K_DIM]);
     FN(mlp_backward)(&ae->dec, &w->dec_data, g_dec, w->g_z, w->g_s, w->z, B);
     // ---- z = mu + exp(logvar/2) eps, plus the KL term

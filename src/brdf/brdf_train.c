@@ -95,6 +95,10 @@ mlb_status mlb_brdf_ae_train(mlb_brdf_ae* ae, const float* data, size_t n, const
                 for (int sh = 0; sh < TRAIN_SHARDS; sh++) g += shard_grads[sh][i];
                 ae->grads[i] = g / TRAIN_SHARDS;
             }
+            if (cfg->lr_final > 0) {   // cosine from lr at the first step to lr_final at the last
+                double t = total_steps > 1 ? (double)step / (double)(total_steps - 1) : 1;
+                adam.lr = cfg->lr_final + 0.5 * (cfg->lr - cfg->lr_final) * (1 + cos(M_PI * t));
+            }
             step++;
             adam_update(ae->params, ae->grads, m, v, ae->n_params, &adam, step);
             for (int sh = 0; sh < TRAIN_SHARDS; sh++) {

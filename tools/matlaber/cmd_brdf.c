@@ -81,12 +81,14 @@ static const cli_option train_options[] = {
     {"epochs", 1, 'e', "N", "epochs (default 30)"},
     {"batch", 1, 'b', "N", "batch size (default 256)"},
     {"lr", 1, 'l', "X", "AdamW learning rate (default 1e-4)"},
+    {"lr-final", 1, 'L', "X", "learning rate at the last step, reached by a cosine decay (default: constant --lr)"},
     {"weight-decay", 1, 'w', "X", "AdamW decoupled weight decay (default 0.01)"},
     {"hidden", 1, 'H', "N", "hidden width (default 64)"},
     {"depth", 1, 'D', "N", "hidden layers per network (default 3)"},
     {"activation", 1, 'a', "NAME", "hidden activation (default silu)"},
     {"lambda-kl", 1, 'K', "X", "weight of the KL term (default 2e-4)"},
     {"lambda-s", 1, 'S', "X", "weight of the interpolation smoothness term (default 0.05)"},
+    {"smoothness", 1, 'F', "FORM", "interpolation smoothness form: bend or speed (default bend; docs/brdf_prior.md)"},
     {"lambda-c", 1, 'C', "X", "weight of the cyclic term (default 1e-4)"},
     {"seed", 1, 's', "S", "seed of data, initialisation, shuffling and noise (default 1)"},
     {"out", 1, 'o', "FILE", "output safetensors file (default brdf_prior.safetensors)"},
@@ -119,6 +121,7 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'e': if (cli_parse_long(optarg, 1, 100000, &v)) return cli_usage_error("brdf train", "--epochs: expected 1..100000"); tc.epochs = (int)v; break;
         case 'b': if (cli_parse_long(optarg, 2, 1 << 20, &v)) return cli_usage_error("brdf train", "--batch: expected 2..1048576"); tc.batch = (int)v; break;
         case 'l': if (cli_parse_double(optarg, 1e-12, 10, &x)) return cli_usage_error("brdf train", "--lr: expected a positive number"); tc.lr = x; break;
+        case 'L': if (cli_parse_double(optarg, 0, 10, &x)) return cli_usage_error("brdf train", "--lr-final: expected 0..10"); tc.lr_final = x; break;
         case 'w': if (cli_parse_double(optarg, 0, 10, &x)) return cli_usage_error("brdf train", "--weight-decay: expected 0..10"); tc.weight_decay = x; break;
         case 'H': if (cli_parse_long(optarg, 1, 4096, &v)) return cli_usage_error("brdf train", "--hidden: expected 1..4096"); mc.hidden = (int)v; break;
         case 'D': if (cli_parse_long(optarg, 1, MLB_MLP_MAX_LAYERS - 1, &v)) return cli_usage_error("brdf train", "--depth: expected 1..%d", MLB_MLP_MAX_LAYERS - 1); mc.depth = (int)v; break;
@@ -126,6 +129,11 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'K': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-kl: expected >= 0"); tc.loss.lambda_kl = x; break;
         case 'S': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-s: expected >= 0"); tc.loss.lambda_s = x; break;
         case 'C': if (cli_parse_double(optarg, 0, 1e6, &x)) return cli_usage_error("brdf train", "--lambda-c: expected >= 0"); tc.loss.lambda_c = x; break;
+        case 'F':
+            if (!strcmp(optarg, "bend")) tc.loss.smooth_form = MLB_BRDF_SMOOTH_BEND;
+            else if (!strcmp(optarg, "speed")) tc.loss.smooth_form = MLB_BRDF_SMOOTH_SPEED;
+            else return cli_usage_error("brdf train", "--smoothness: expected bend or speed, not '%s'", optarg);
+            break;
         case 'o': out_path = optarg; break;
         case 'j': json = 1; break;
         case 'h':

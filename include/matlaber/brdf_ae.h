@@ -32,7 +32,7 @@ typedef enum {
 } mlb_brdf_smooth_form;
 
 typedef struct {
-    double lambda_kl, lambda_s, lambda_c;   // 2e-4, 0.05, 1e-4 (paper)
+    double lambda_kl, lambda_s, lambda_c;   // 2e-4, 0.02, 1e-4 (the paper: 0.05 with the speed form)
     mlb_brdf_smooth_form smooth_form;
     int n_alpha;                            // interpolation weights alpha = j / (n_alpha - 1), j = 0..n_alpha-1
     int sample_latent;                      // 1: z = mu + sigma * eps (training); 0: z = mu
@@ -67,16 +67,21 @@ mlb_status mlb_brdf_ae_load_default(mlb_brdf_ae* ae, char* source, size_t source
 typedef struct {
     int epochs;            // 30
     int batch;             // 256
-    double lr;             // 1e-4: the first step's learning rate
-    double lr_final;       // the last step's, reached by a cosine decay; <= 0: constant lr
+    double lr;             // 1e-3: the first step's learning rate
+    double lr_final;       // 1e-5: the last step's, reached by a cosine decay; <= 0: constant lr
     double weight_decay;   // AdamW decoupled decay (0.01)
     double beta1, beta2, eps;
     uint64_t seed;
     mlb_brdf_loss_config loss;
+    // After the joint epochs: the encoder alone (decoder frozen, z = mu, reconstruction only),
+    // which closes most of the gap between D(mu(k)) and the refined latent (docs/brdf_prior.md)
+    int encoder_epochs;    // 5 (0: none)
+    double encoder_lr;     // 1e-3, cosine to 1% of it
 } mlb_brdf_train_config;
 
 typedef struct {
     int epoch;
+    int encoder_only;                   // an epoch of the encoder phase
     double loss, l_r, l_kl, l_s, l_c;   // means over the epoch
     double seconds, samples_per_second;
 } mlb_brdf_epoch_stats;

@@ -110,29 +110,12 @@ static real smooth_chord(const FN(mlb_brdf_work)* w, const mlb_brdf_loss_config*
     return w->k_hat[i * K_DIM + c] - w->k_hat[j * K_DIM + c];
 }
 
-mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
-                            const mlb_brdf_loss_config* lc, uint64_t seed, uint64_t step, real* grads,
-                            FN(mlb_brdf_losses)* out) {
-    if (B < 2 || B > w->capacity)
-        return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: batch %d outside 2..%d", B, w->capacity);
+// Forward of the interpolation path: z_n and its derivative along alpha, the decoded k_n, the
+// smoothness term and the cyclic re-encoding (w holds what the backward needs).
+static void interp_forward(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const mlb_brdf_loss_config* lc, int B,
+                           real* l_s, real* l_c) {
     const int nk = B * K_DIM, nz = B * Z_DIM;
     const int A = lc->n_alpha > 1 ? lc->n_alpha : 2;
-
-    // ---- reconstruction path
-    for (int i = 0; i < nk; i++) w->x[i] = 2 * k[i] - 1;
-    const real* mulv = FN(mlp_forward)(&ae->enc, &w->enc_data, w->x, B);
-    split_mu_logvar(mulv, w->mu, w->logvar, B);
-    for (int i = 0; i < nz; i++) {
-        // index = step * 2^32 + position: every step and row has its own noise
-        w->eps[i] = lc->sample_latent ? (real)mlb_rng_normal_f64(seed, STREAM_EPS, (step << 32) + (uint64_t)i) : 0;
-        w->z[i] = w->mu[i] + R_EXP((real)0.5 * w->logvar[i]) * w->eps[i];
-    }
-    const real* s = FN(mlp_forward)(&ae->dec, &w->dec_data, w->z, B);
-    map_to_ranges(w->k_hat, s, B);
-    real l_r = K_DIM * FN(mse_forward)(w->k_hat, k, (size_t)nk);   // mean over B of the sum over 7
-    real l_kl = FN(kl_normal_forward)(w->mu, w->logvar, B, Z_DIM);
-
-    // ---- interpolation path: z_n and its derivative along alpha
     for (int i = 0; i < B; i++) {
         int j = (i + 1) % B;
         real a = (real)(i % A) / (real)(A - 1);
@@ -156,20 +139,19 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
         w->g_ts[i] = 2 * dev / B;
     }
     sum_s /= B;
-    real l_s = (real)sum_s;
+    *l_s = (real)sum_s;
     for (int i = 0; i < nk; i++) w->x_n[i] = 2 * w->k_n[i] - 1;
     const real* mulv_n = FN(mlp_forward)(&ae->enc, &w->enc_interp, w->x_n, B);
     split_mu_logvar(mulv_n, w->zhat_n, NULL, B);
-    real l_c = Z_DIM * FN(mse_forward)(w->zhat_n, w->z_n, (size_t)nz);
+    *l_c = Z_DIM * FN(mse_forward)(w->zhat_n, w->z_n, (size_t)nz);
+}
 
-    out->l_r = l_r; out->l_kl = l_kl; out->l_s = l_s; out->l_c = l_c;
-    out->total = (real)(l_r + lc->lambda_kl * l_kl + lc->lambda_s * l_s + lc->lambda_c * l_c);
-    if (!grads) return MLB_OK;
-
-    real* g_enc = grads;
-    real* g_dec = grads + ae->n_enc_params;
+// Backward of interp_forward: adds the cyclic and smoothness terms' parameter gradients into
+// g_enc / g_dec and their gradient with respect to the sampled codes into w->g_z.
+static void interp_backward(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const mlb_brdf_loss_config* lc, int B,
+                            real* g_enc, real* g_dec) {
+    const int nk = B * K_DIM, nz = B * Z_DIM;
     const real lam_c = (real)lc->lambda_c, lam_s = (real)lc->lambda_s;
-
     // ---- cyclic: d/dzhat_n and the direct d/dz_n
     memset(w->g_encout, 0, sizeof(real) * 2 * nz);
     for (int i = 0; i < B; i++)
@@ -189,7 +171,6 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
     memset(w->g_dir, 0, sizeof(real) * nz);
     FN(mlp_jvp_backward)(&ae->dec, &w->dec_interp, g_dec, w->g_zn, w->g_dir, w->g_s, w->g_ts, w->z_n, w->dir, B);
     // z_n = alpha z_i + (1 - alpha) z_j, dir = z_i - z_j
-    memset(w->g_z, 0, sizeof(real) * nz);
     for (int i = 0; i < B; i++) {
         int j = (i + 1) % B;
         real a = w->alpha[i];
@@ -199,10 +180,48 @@ mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, con
             w->g_z[j * Z_DIM + d] += (1 - a) * gn - gd;
         }
     }
+}
+
+mlb_status FN(brdf_ae_loss)(const FN(mlb_brdf_ae)* ae, FN(mlb_brdf_work)* w, const real* k, int B,
+                            const mlb_brdf_loss_config* lc, uint64_t seed, uint64_t step, real* grads,
+                            FN(mlb_brdf_losses)* out) {
+    if (B < 2 || B > w->capacity)
+        return mlb_fail(MLB_ERR_ARG, "BRDF auto-encoder: batch %d outside 2..%d", B, w->capacity);
+    const int nk = B * K_DIM, nz = B * Z_DIM;
+
+    // ---- reconstruction path
+    for (int i = 0; i < nk; i++) w->x[i] = 2 * k[i] - 1;
+    const real* mulv = FN(mlp_forward)(&ae->enc, &w->enc_data, w->x, B);
+    split_mu_logvar(mulv, w->mu, w->logvar, B);
+    for (int i = 0; i < nz; i++) {
+        // index = step * 2^32 + position: every step and row has its own noise
+        w->eps[i] = lc->sample_latent ? (real)mlb_rng_normal_f64(seed, STREAM_EPS, (step << 32) + (uint64_t)i) : 0;
+        w->z[i] = w->mu[i] + R_EXP((real)0.5 * w->logvar[i]) * w->eps[i];
+    }
+    const real* s = FN(mlp_forward)(&ae->dec, &w->dec_data, w->z, B);
+    map_to_ranges(w->k_hat, s, B);
+    real l_r = K_DIM * FN(mse_forward)(w->k_hat, k, (size_t)nk);   // mean over B of the sum over 7
+    real l_kl = FN(kl_normal_forward)(w->mu, w->logvar, B, Z_DIM);
+
+    // ---- interpolation path (skipped when neither term using it counts: the encoder-only phase)
+    const int interp = lc->lambda_s != 0 || lc->lambda_c != 0;
+    real l_s = 0, l_c = 0;
+    if (interp) interp_forward(ae, w, lc, B, &l_s, &l_c);
+
+    out->l_r = l_r; out->l_kl = l_kl; out->l_s = l_s; out->l_c = l_c;
+    out->total = (real)(l_r + lc->lambda_kl * l_kl + lc->lambda_s * l_s + lc->lambda_c * l_c);
+    if (!grads) return MLB_OK;
+
+    real* g_enc = grads;
+    real* g_dec = grads + ae->n_enc_params;
+    const real lam_s = (real)lc->lambda_s;
+
+    memset(w->g_z, 0, sizeof(real) * nz);
+    if (interp) interp_backward(ae, w, lc, B, g_enc, g_dec);
     // ---- reconstruction: d/dk_hat -> d/ds -> decoder -> d/dz
     memset(w->g_s, 0, sizeof(real) * nk);
     FN(mse_backward)(w->g_s, w->k_hat, k, (size_t)nk, K_DIM);
-    if (lc->smooth_form == MLB_BRDF_SMOOTH_BEND)   // chord_n = k_hat_i - k_hat_j, i = n, j = n + 1
+    if (interp && lc->smooth_form == MLB_BRDF_SMOOTH_BEND)   // chord_n = k_hat_i - k_hat_j, i = n, j = n + 1
         for (int i = 0; i < B; i++) {
             int j = (i + 1) % B;
             for (int c = 0; c < K_DIM; c++) {

@@ -79,15 +79,17 @@ static const cli_option train_options[] = {
     {"samples", 1, 'n', "N", "procedural samples (default 1000000 without --data, 0 with it)"},
     {"pixels-per-map", 1, 'p', "N", "sample N pixels per SVBRDF map (default: every pixel)"},
     {"epochs", 1, 'e', "N", "epochs (default 30)"},
+    {"encoder-epochs", 1, 'E', "N", "epochs of the encoder alone after the joint ones (default 5; 0: none)"},
+    {"encoder-lr", 1, 'R', "X", "learning rate of those epochs, cosine to 1% of it (default 1e-3)"},
     {"batch", 1, 'b', "N", "batch size (default 256)"},
-    {"lr", 1, 'l', "X", "AdamW learning rate (default 1e-4)"},
-    {"lr-final", 1, 'L', "X", "learning rate at the last step, reached by a cosine decay (default: constant --lr)"},
+    {"lr", 1, 'l', "X", "AdamW learning rate at the first step (default 1e-3)"},
+    {"lr-final", 1, 'L', "X", "learning rate at the last step, reached by a cosine decay (default 1e-5; 0: constant --lr)"},
     {"weight-decay", 1, 'w', "X", "AdamW decoupled weight decay (default 0.01)"},
     {"hidden", 1, 'H', "N", "hidden width (default 64)"},
     {"depth", 1, 'D', "N", "hidden layers per network (default 3)"},
     {"activation", 1, 'a', "NAME", "hidden activation (default silu)"},
     {"lambda-kl", 1, 'K', "X", "weight of the KL term (default 2e-4)"},
-    {"lambda-s", 1, 'S', "X", "weight of the interpolation smoothness term (default 0.05)"},
+    {"lambda-s", 1, 'S', "X", "weight of the interpolation smoothness term (default 0.02; the paper 0.05 with the speed form)"},
     {"smoothness", 1, 'F', "FORM", "interpolation smoothness form: bend or speed (default bend; docs/brdf_prior.md)"},
     {"lambda-c", 1, 'C', "X", "weight of the cyclic term (default 1e-4)"},
     {"seed", 1, 's', "S", "seed of data, initialisation, shuffling and noise (default 1)"},
@@ -99,8 +101,8 @@ static const cli_option train_options[] = {
 typedef struct { int json; } epoch_printer;
 
 static void print_epoch(const mlb_brdf_epoch_stats* st, void* user) {
-    mlb_log(MLB_LOG_INFO, "epoch %2d: loss %.6f (rec %.6f, kl %.4f, smooth %.5f, cyclic %.5f), %.0f samples/s",
-            st->epoch, st->loss, st->l_r, st->l_kl, st->l_s, st->l_c, st->samples_per_second);
+    mlb_log(MLB_LOG_INFO, "%sepoch %2d: loss %.6f (rec %.6f, kl %.4f, smooth %.5f, cyclic %.5f), %.0f samples/s",
+            st->encoder_only ? "encoder " : "", st->epoch, st->loss, st->l_r, st->l_kl, st->l_s, st->l_c, st->samples_per_second);
 }
 
 int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae* trained_out) {
@@ -121,6 +123,8 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'e': if (cli_parse_long(optarg, 1, 100000, &v)) return cli_usage_error("brdf train", "--epochs: expected 1..100000"); tc.epochs = (int)v; break;
         case 'b': if (cli_parse_long(optarg, 2, 1 << 20, &v)) return cli_usage_error("brdf train", "--batch: expected 2..1048576"); tc.batch = (int)v; break;
         case 'l': if (cli_parse_double(optarg, 1e-12, 10, &x)) return cli_usage_error("brdf train", "--lr: expected a positive number"); tc.lr = x; break;
+        case 'E': if (cli_parse_long(optarg, 0, 100000, &v)) return cli_usage_error("brdf train", "--encoder-epochs: expected 0..100000"); tc.encoder_epochs = (int)v; break;
+        case 'R': if (cli_parse_double(optarg, 1e-12, 10, &x)) return cli_usage_error("brdf train", "--encoder-lr: expected a positive number"); tc.encoder_lr = x; break;
         case 'L': if (cli_parse_double(optarg, 0, 10, &x)) return cli_usage_error("brdf train", "--lr-final: expected 0..10"); tc.lr_final = x; break;
         case 'w': if (cli_parse_double(optarg, 0, 10, &x)) return cli_usage_error("brdf train", "--weight-decay: expected 0..10"); tc.weight_decay = x; break;
         case 'H': if (cli_parse_long(optarg, 1, 4096, &v)) return cli_usage_error("brdf train", "--hidden: expected 1..4096"); mc.hidden = (int)v; break;
@@ -138,8 +142,9 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
         case 'j': json = 1; break;
         case 'h':
             printf("usage: matlaber brdf train [options]\n\n"
-                   "Trains the latent BRDF auto-encoder (7 -> 4 -> 7) with L_r + 2e-4 L_KL + 0.05 L_s + 1e-4 L_c\n"
-                   "(paper §3.3). Without --data it trains on the built-in procedural material distribution;\n"
+                   "Trains the latent BRDF auto-encoder (7 -> 4 -> 7) with L_r + 2e-4 L_KL + 0.02 L_s + 1e-4 L_c\n"
+                   "(paper §3.3; L_s in its bend form), then the encoder alone for a few epochs (decoder frozen).\n"
+                   "Without --data it trains on the built-in procedural material distribution;\n"
                    "the shipped prior is 'matlaber brdf train --out models/brdf_prior.safetensors'.\n\n");
             cli_print_options(stdout, train_options);
             return 0;
@@ -170,9 +175,12 @@ int brdf_train_main(int argc, char** argv, const char* default_out, mlb_brdf_ae*
     for (int i = 0; i < argc && used < sizeof command; i++) used += snprintf(command + used, sizeof command - used, " %s", argv[i]);
     char settings[512];
     snprintf(settings, sizeof settings,
-             "epochs %d, batch %d, lr %g, weight decay %g, seed %llu, hidden %d, depth %d, %s, lambda_kl %g, lambda_s %g, lambda_c %g",
-             tc.epochs, tc.batch, tc.lr, tc.weight_decay, (unsigned long long)tc.seed, mc.hidden, mc.depth,
-             mlb_activation_name(mc.act), tc.loss.lambda_kl, tc.loss.lambda_s, tc.loss.lambda_c);
+             "epochs %d, batch %d, lr %g (cosine to %g), weight decay %g, seed %llu, hidden %d, depth %d, %s, lambda_kl %g, "
+             "lambda_s %g (%s form), lambda_c %g, then %d encoder epochs at lr %g",
+             tc.epochs, tc.batch, tc.lr, tc.lr_final > 0 ? tc.lr_final : tc.lr, tc.weight_decay, (unsigned long long)tc.seed,
+             mc.hidden, mc.depth, mlb_activation_name(mc.act), tc.loss.lambda_kl, tc.loss.lambda_s,
+             tc.loss.smooth_form == MLB_BRDF_SMOOTH_BEND ? "bend" : "speed", tc.loss.lambda_c, tc.encoder_epochs,
+             tc.encoder_lr);
     mlb_st_meta meta[] = {{"command", command}, {"data", description}, {"training", settings}};
     if (out_path) {
         s = mlb_brdf_ae_save(&ae, out_path, meta, sizeof meta / sizeof *meta);

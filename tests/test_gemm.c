@@ -7,6 +7,7 @@
 #include "test.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
+#include <cblas.h>
 #include <float.h>
 #include <omp.h>
 #include <stdint.h>
@@ -133,7 +134,24 @@ TEST(alpha_zero_and_empty_k) {
     CHECK(C[0] == 0 && C[3] == 0);
 }
 
+// A program whose first GEMMs all run inside its own parallel region (the BRDF training's shards)
+// must still get a single-threaded OpenBLAS: with its default pool (one thread per core) each
+// shard's call spun against the OpenMP threads. Must run before any other GEMM of this process.
+TEST(first_gemm_inside_a_parallel_region_keeps_openblas_single_threaded) {
+    openblas_set_num_threads(2);   // OpenBLAS's default on a 2-core machine, whatever this one has
+    REQUIRE(openblas_get_num_threads() == 2);
+    static float A[128 * 64], B[64 * 64], C[2][128 * 64];
+    for (int i = 0; i < 128 * 64; i++) A[i] = mlb_rng_uniform(SEED, 7, i);
+    for (int i = 0; i < 64 * 64; i++) B[i] = mlb_rng_uniform(SEED, 8, i);
+#pragma omp parallel for num_threads(2)
+    for (int s = 0; s < 2; s++)
+        mlb_gemm(MLB_NOTRANS, MLB_TRANS, 128, 64, 64, 1.f, A, 64, B, 64, 0.f, C[s], 64);
+    CHECK(openblas_get_num_threads() == 1);
+    CHECK(memcmp(C[0], C[1], sizeof C[0]) == 0);
+}
+
 int main(void) {
+    RUN(first_gemm_inside_a_parallel_region_keeps_openblas_single_threaded);   // first: see above
     RUN(values_and_threads_every_cut);
     RUN(alpha_zero_and_empty_k);
     return test_summary();

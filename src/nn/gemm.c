@@ -12,6 +12,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <omp.h>
+#include <pthread.h>
 #include "matlaber/nn.h"
 #include "core/real.h"
 #include "matlaber/log.h"
@@ -70,6 +71,9 @@ int FN(mlb_gemm_shards)(int M, int N, int K, char* along) {
     return cut == CUT_NONE ? 1 : count;
 }
 
+static pthread_once_t blas_single_thread_once = PTHREAD_ONCE_INIT;
+static void blas_single_thread(void) { openblas_set_num_threads(1); }
+
 static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B,
                           int ldb, real beta, real* C, int ldc) {
     BLAS_GEMM(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
@@ -80,8 +84,13 @@ static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const
 static void FN(gemm_sharded)(FN(mlb_gemm_fn) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
                              int lda, const real* B, int ldb, real beta, real* C, int ldc) {
     if (M <= 0 || N <= 0) return;
-    // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. Only
-    // outside a parallel region, where no other thread is inside OpenBLAS.
+    // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. The
+    // first call anywhere does it once, before any thread's first BLAS call (a caller whose every
+    // GEMM runs inside its own parallel region, like the BRDF training's shards, would otherwise
+    // leave OpenBLAS at its default of one thread per core, busy-waiting against the OpenMP
+    // threads: 2 cores trained no faster than 1). Later changes are undone outside parallel
+    // regions, where no other thread is inside OpenBLAS.
+    pthread_once(&blas_single_thread_once, blas_single_thread);
     if (!omp_in_parallel() && openblas_get_num_threads() != 1) openblas_set_num_threads(1);
     if (K <= 0 || alpha == 0) {   // no product: C = beta·C (BLAS rejects lda = 0 for K = 0)
         for (int i = 0; i < M; i++)

@@ -39,6 +39,7 @@ int main(int argc, char** argv) {
             brdf_ae_init(&ae, &mc, 1);
             mlb_brdf_train_config tc = mlb_brdf_train_default_config();
             tc.epochs = 1;
+            tc.encoder_epochs = 0;   // the joint loss's rate; the encoder phase is a cheaper loss
             size_t n = (size_t)steps * tc.batch;
             if (n > set.n) n = set.n;
             double t0 = mlb_now_seconds();

@@ -5,7 +5,7 @@
 #   scripts/gpu-parity.sh --fetch-debs   HERE (Debian 12, with network): downloads the -dev packages the
 #                                        build needs into build-gpu-debs/ (ignored by git), for a GPU
 #                                        machine that cannot install anything
-#   scripts/gpu-parity.sh [--bench] [--memcheck] [--pipeline]
+#   scripts/gpu-parity.sh [--bench [--cudnn-baseline]] [--memcheck] [--pipeline]
 #                                        ON THE GPU MACHINE, in the repository root: configures
 #                                        build-gpu/ (CUDA on, sm_90 unless MLB_CUDA_ARCH says otherwise),
 #                                        unpacks build-gpu-debs/*.deb into a private prefix when a
@@ -32,12 +32,14 @@ fi
 bench=0
 memcheck=0
 pipeline=0
+cudnn_baseline=0
 for a in "$@"; do
   case $a in
     --bench) bench=1 ;;
     --memcheck) memcheck=1 ;;   # every test under compute-sanitizer (out-of-bounds, races: slower)
     --pipeline) pipeline=1 ;;   # bench_pipeline with full-size random SD 1.5 on the GPU, 9 views at 512² (~2 min)
-    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench] [--memcheck] [--pipeline]]" >&2; exit 2 ;;
+    --cudnn-baseline) cudnn_baseline=1 ;;   # with --bench: the UNet and VAE benches again with MLB_CUDNN=0
+    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench [--cudnn-baseline]] [--memcheck] [--pipeline]]" >&2; exit 2 ;;
   esac
 done
 
@@ -46,18 +48,22 @@ done
 out=$root/build-gpu/logs
 mkdir -p "$out"
 log=$out/gpu-parity.log
+[ -n "${OUT:-}" ] && log=$OUT/gpu-parity.log   # written in place: it comes back even if the call is cut off
 finish() {
   if [ -n "${OUT:-}" ]; then
-    cp "$log" "$OUT/" 2> /dev/null
     [ -f "$out/parity-errors.txt" ] && cp "$out/parity-errors.txt" "$OUT/"
-    [ -f "$out/build.log" ] && cp "$out/build.log" "$OUT/"
-    [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
+    if [ $built = 0 ]; then   # the build logs only when the build did not get through (at most 8 files come back)
+      [ -f "$out/build.log" ] && cp "$out/build.log" "$OUT/"
+      [ -f "$out/configure.log" ] && cp "$out/configure.log" "$OUT/"
+    fi
     [ -f "$out/bench_cuda_unet.log" ] && cp "$out/bench_cuda_unet.log" "$OUT/"
     [ -f "$out/bench_cuda_vae.log" ] && cp "$out/bench_cuda_vae.log" "$OUT/"
+    [ -f "$out/bench_cuda_unet_noflash.log" ] && cp "$out/bench_cuda_unet_noflash.log" "$OUT/"
     [ -f "$out/bench_pipeline.log" ] && cp "$out/bench_pipeline.log" "$OUT/"
     for f in "$out"/test_cuda_*.log; do grep -q "FAIL" "$f" 2> /dev/null && cp "$f" "$OUT/"; done
   fi
 }
+built=0
 trap finish EXIT
 : > "$log"
 say() { echo "$@" | tee -a "$log"; }
@@ -119,6 +125,7 @@ jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
 cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
   || { grep -E "error" "$out/build.log" | head -30; say "gpu-parity: build failed ($out/build.log)"; exit 2; }
 
+built=1
 # ---- run: a fresh random seed per run, printed so a failure can be replayed with MLB_TEST_SEED
 export MLB_TEST_SEED=${MLB_TEST_SEED:-$(( $(date +%s) % 1000000 + 1 ))}
 say "gpu-parity: MLB_TEST_SEED=$MLB_TEST_SEED"
@@ -146,7 +153,10 @@ if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae.log" | tee -a "$log"
-  if grep -q "matlaber: cuDNN /" "$out/configure.log"; then   # the baseline: every convolution on the GEMM path
+  # the baseline of the fused attention kernel: every sdpa on the batched GEMMs (bench_cuda times both itself)
+  say "gpu-parity: bench_cuda_unet with MLB_FLASH=0 (attention on the batched GEMMs)"
+  (cd "$build" && MLB_FLASH=0 ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet_noflash.log" | tee -a "$log"
+  if [ $cudnn_baseline = 1 ] && grep -q "matlaber: cuDNN /" "$out/configure.log"; then   # every convolution on the GEMM path
     say "gpu-parity: the same two benches with MLB_CUDNN=0 (convolutions on im2col + GEMM)"
     (cd "$build" && MLB_CUDNN=0 ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet_gemm.log" | tee -a "$log"
     (cd "$build" && MLB_CUDNN=0 ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae_gemm.log" | tee -a "$log"

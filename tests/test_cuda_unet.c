@@ -65,31 +65,41 @@ static void conv_cases(void) {
     conv_case(r, 1, s + 6);
 }
 
+// At fp16/bf16 both paths: the fused kernel (flash_attention.cu) and the batched GEMMs with the
+// row softmax; each writes out and lse, both checked against the CPU.
 static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t seed) {
     int ldq = fused ? 3 * C : C, ldkv = fused ? 3 * C : C;
-    size_t nq = (size_t)B * Tq * ldq, nkv = (size_t)B * Tk * ldkv, no = (size_t)B * Tq * C;
+    size_t nq = (size_t)B * Tq * ldq, nkv = (size_t)B * Tk * ldkv, no = (size_t)B * Tq * C, nl = (size_t)B * NH * Tq;
     float *q = host_alloc(nq), *k = fused ? q + C : host_alloc(nkv), *v = fused ? q + 2 * C : host_alloc(nkv);
     fill_uniform(q, nq, seed, 1, -1, 1);
     if (!fused) {
         fill_uniform(k, nkv, seed, 2, -1, 1);
         fill_uniform(v, nkv, seed, 3, -1, 1);
     }
-    float *ref = host_alloc(no), *got = host_alloc(no);
-    CHECK(sdpa_forward(ref, NULL, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
+    float *ref = host_alloc(no), *got = host_alloc(no), *lse_ref = host_alloc(nl), *lse_got = host_alloc(nl);
+    CHECK(sdpa_forward(ref, lse_ref, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
     float *dq = dev_floats(q, nq), *dk = fused ? dq + C : dev_floats(k, nkv), *dv = fused ? dq + 2 * C : dev_floats(v, nkv);
     for (int p = 0; p < 4; p++) {
-        float* dout = dev_floats(NULL, no);
-        char what[160];
-        snprintf(what, sizeof what, "sdpa B%d Tq%d Tk%d C%d NH%d%s %s", B, Tq, Tk, C, NH, fused ? " fused" : "",
-                 prec_names[p]);
-        mlb_status st = mlb_cuda_sdpa_forward(dout, NULL, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
-        CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
-        if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, op_bound[p]);
-        mlb_cuda_free(dout);
+        int half = p == MLB_GEMM_FP16 || p == MLB_GEMM_BF16;
+        for (int flash = half; flash >= 0; flash--) {
+            mlb_cuda_use_flash(flash);
+            float *dout = dev_floats(NULL, no), *dlse = dev_floats(NULL, nl);
+            char what[160];
+            snprintf(what, sizeof what, "sdpa B%d Tq%d Tk%d C%d NH%d%s %s%s", B, Tq, Tk, C, NH, fused ? " fused" : "",
+                     prec_names[p], half ? (flash ? " fused kernel" : " GEMMs") : "");
+            mlb_status st = mlb_cuda_sdpa_forward(dout, dlse, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
+            CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
+            if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, op_bound[p]);
+            strncat(what, " lse", sizeof what - strlen(what) - 1);
+            if (st == MLB_OK && host_floats(lse_got, dlse, nl)) CHECK_PARITY(what, lse_got, lse_ref, nl, op_bound[p]);
+            mlb_cuda_free(dout);
+            mlb_cuda_free(dlse);
+        }
     }
+    mlb_cuda_use_flash(1);
     mlb_cuda_free(dq);
     if (!fused) { mlb_cuda_free(dk); mlb_cuda_free(dv); free(k); free(v); }
-    free(q); free(ref); free(got);
+    free(q); free(ref); free(got); free(lse_ref); free(lse_got);
 }
 
 TEST(sdpa_matches_cpu) {
@@ -99,6 +109,13 @@ TEST(sdpa_matches_cpu) {
     sdpa_case(2, 256, 77, 320, 8, 0, s + 12);    // cross-attention to 77 tokens
     sdpa_case(3, 50, 50, 96, 3, 1, s + 13);      // fused qkv, odd T
     sdpa_case(1, 64, 7, 64, 1, 0, s + 14);       // one wide head, short context
+    sdpa_case(1, 1000, 1000, 320, 8, 0, s + 15); // many key tiles, T not a multiple of 64
+    sdpa_case(2, 300, 300, 640, 8, 0, s + 16);   // UNet level 2 (hd 80)
+    sdpa_case(2, 64, 77, 1280, 8, 0, s + 17);    // UNet level 4 cross-attention (hd 160)
+    sdpa_case(2, 130, 130, 320, 5, 1, s + 18);   // SD 2 heads of 64, fused qkv
+    sdpa_case(1, 70, 90, 256, 1, 0, s + 19);     // hd 256: the fused kernel's widest head
+    sdpa_case(1, 33, 40, 25, 1, 0, s + 20);      // hd 25, padded to 32
+    sdpa_case(1, 40, 40, 512, 1, 0, s + 21);     // the VAE's one head of 512: the GEMMs only
     float* d = dev_floats(NULL, 64);
     CHECK(mlb_cuda_sdpa_forward(d, NULL, d, d, d, 1, 2, 2, 30, 4, 30, 30, MLB_GEMM_FP32) == MLB_ERR_ARG);   // 4 does not divide 30
     CHECK(mlb_cuda_sdpa_forward(d, NULL, d, d, d, 1, 2, 2, 32, 4, 16, 32, MLB_GEMM_FP32) == MLB_ERR_ARG);   // ldq < C

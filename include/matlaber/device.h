@@ -59,6 +59,10 @@ mlb_status mlb_cuda_adam_update(float* params, const float* grads, float* m, flo
 // Host <-> device helpers for tests and tools.
 mlb_status mlb_cuda_malloc(void** ptr, size_t bytes);
 mlb_status mlb_cuda_free(void* ptr);
+// mlb_cuda_malloc takes from the device's stream-ordered pool, which keeps freed memory for the
+// next request (src/cuda/device.cu); mlb_cuda_trim waits for the device and hands it back to the
+// driver (the memory then shows as free to other processes and to cudaMalloc).
+mlb_status mlb_cuda_trim(void);
 mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes);
 mlb_status mlb_cuda_copy_to_host(void* dst, const void* src, size_t bytes);
 

@@ -122,6 +122,7 @@ mlb_status mlb_cuda_fill_uniform(float* dst, size_t n, uint64_t seed, float lo, 
 mlb_status mlb_cuda_timer_begin(void) { NO_CUDA; }
 mlb_status mlb_cuda_timer_end(double* ms) { *ms = 0; NO_CUDA; }
 mlb_status mlb_cuda_mem_info(size_t* free_bytes, size_t* total_bytes) { *free_bytes = *total_bytes = 0; NO_CUDA; }
+mlb_status mlb_cuda_trim(void) { NO_CUDA; }
 mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
                          const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
                          mlb_gemm_precision prec) { NO_CUDA; }
@@ -136,6 +137,7 @@ mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const f
 mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                     const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
 void mlb_cuda_use_cudnn(int on) { (void)on; }
+void mlb_cuda_use_flash(int on) { (void)on; }
 int mlb_cuda_cudnn_version(void) { return 0; }
 mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
                                   const float* lse, const float* q, const float* k, const float* v, int B, int Tq,

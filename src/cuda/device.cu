@@ -65,7 +65,12 @@ mlb_status mlb_cuda_scratch(void** out, size_t bytes) {
         g_scratch = NULL;
         g_scratch_bytes = 0;
         size_t want = bytes + bytes / 4;   // grow by 25% more than asked: fewer reallocations
-        MLB_CUDA_CHECK(cudaMalloc(&g_scratch, want));
+        if (cudaMalloc(&g_scratch, want) != cudaSuccess) {   // the pool may hold what is missing
+            (void)cudaGetLastError();
+            g_scratch = NULL;
+            MLB_TRY(mlb_cuda_trim());
+            MLB_CUDA_CHECK(cudaMalloc(&g_scratch, want));
+        }
         g_scratch_bytes = want;
     }
     *out = g_scratch;
@@ -93,13 +98,44 @@ extern "C" mlb_status mlb_cuda_sync(void) {
     return MLB_OK;
 }
 
+// Buffers come from the device's stream-ordered pool (cudaMallocAsync on the default stream, which
+// every op runs on), told to keep what is freed: the per-call activations (the UNet's and the VAE's
+// arenas, the staging of inputs) are then reused from one call to the next instead of going back
+// to the driver, and freeing no longer synchronises the device as cudaFree does. When the pool
+// cannot grow, what it keeps is handed back to the driver and the request tried once more.
+static int g_pool_device = -1;
+static mlb_status keep_freed_memory(void) {
+    int dev;
+    MLB_CUDA_CHECK(cudaGetDevice(&dev));
+    if (dev == g_pool_device) return MLB_OK;
+    cudaMemPool_t pool;
+    MLB_CUDA_CHECK(cudaDeviceGetDefaultMemPool(&pool, dev));
+    uint64_t keep = UINT64_MAX;
+    MLB_CUDA_CHECK(cudaMemPoolSetAttribute(pool, cudaMemPoolAttrReleaseThreshold, &keep));
+    g_pool_device = dev;
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_trim(void) {
+    int dev;
+    cudaMemPool_t pool;
+    MLB_CUDA_CHECK(cudaGetDevice(&dev));
+    MLB_CUDA_CHECK(cudaDeviceGetDefaultMemPool(&pool, dev));
+    MLB_CUDA_CHECK(cudaDeviceSynchronize());
+    MLB_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+    return MLB_OK;
+}
 extern "C" mlb_status mlb_cuda_malloc(void** ptr, size_t bytes) {
     *ptr = NULL;
-    MLB_CUDA_CHECK(cudaMalloc(ptr, bytes ? bytes : 1));
+    MLB_TRY(keep_freed_memory());
+    if (cudaMallocAsync(ptr, bytes ? bytes : 1, 0) == cudaSuccess) return MLB_OK;
+    (void)cudaGetLastError();
+    *ptr = NULL;
+    MLB_TRY(mlb_cuda_trim());
+    MLB_CUDA_CHECK(cudaMallocAsync(ptr, bytes ? bytes : 1, 0));
     return MLB_OK;
 }
 extern "C" mlb_status mlb_cuda_free(void* ptr) {
-    if (ptr) MLB_CUDA_CHECK(cudaFree(ptr));
+    if (ptr) MLB_CUDA_CHECK(cudaFreeAsync(ptr, 0));
     return MLB_OK;
 }
 extern "C" mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes) {

@@ -126,13 +126,18 @@ extern "C" mlb_status mlb_cuda_trim(void) {
 }
 extern "C" mlb_status mlb_cuda_malloc(void** ptr, size_t bytes) {
     *ptr = NULL;
-    MLB_TRY(keep_freed_memory());
-    if (cudaMallocAsync(ptr, bytes ? bytes : 1, 0) == cudaSuccess) return MLB_OK;
-    (void)cudaGetLastError();
-    *ptr = NULL;
-    MLB_TRY(mlb_cuda_trim());
-    MLB_CUDA_CHECK(cudaMallocAsync(ptr, bytes ? bytes : 1, 0));
-    return MLB_OK;
+    if (cudaMallocAsync(ptr, bytes ? bytes : 1, 0) != cudaSuccess) {
+        (void)cudaGetLastError();
+        *ptr = NULL;
+        if (g_pool_device >= 0) MLB_TRY(mlb_cuda_trim());   // the pool has kept memory: hand it back, try again
+        MLB_CUDA_CHECK(cudaMallocAsync(ptr, bytes ? bytes : 1, 0));
+    }
+    mlb_status st = keep_freed_memory();
+    if (st != MLB_OK) {
+        (void)cudaFreeAsync(*ptr, 0);
+        *ptr = NULL;
+    }
+    return st;
 }
 extern "C" mlb_status mlb_cuda_free(void* ptr) {
     if (ptr) MLB_CUDA_CHECK(cudaFreeAsync(ptr, 0));

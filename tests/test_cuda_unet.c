@@ -65,8 +65,8 @@ static void conv_cases(void) {
     conv_case(r, 1, s + 6);
 }
 
-// At fp16/bf16 both paths: the fused kernel (flash_attention.cu) and the batched GEMMs with the
-// row softmax; each writes out and lse, both checked against the CPU.
+// At fp16/bf16 with heads up to 128 wide both paths: the fused kernel (flash_attention.cu) and the
+// batched GEMMs with the row softmax; each writes out and lse, both checked against the CPU.
 static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t seed) {
     int ldq = fused ? 3 * C : C, ldkv = fused ? 3 * C : C;
     size_t nq = (size_t)B * Tq * ldq, nkv = (size_t)B * Tk * ldkv, no = (size_t)B * Tq * C, nl = (size_t)B * NH * Tq;
@@ -80,13 +80,13 @@ static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t 
     CHECK(sdpa_forward(ref, lse_ref, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
     float *dq = dev_floats(q, nq), *dk = fused ? dq + C : dev_floats(k, nkv), *dv = fused ? dq + 2 * C : dev_floats(v, nkv);
     for (int p = 0; p < 4; p++) {
-        int half = p == MLB_GEMM_FP16 || p == MLB_GEMM_BF16;
-        for (int flash = half; flash >= 0; flash--) {
+        int half = p == MLB_GEMM_FP16 || p == MLB_GEMM_BF16, fusable = half && C / NH <= 128;
+        for (int flash = fusable; flash >= 0; flash--) {
             mlb_cuda_use_flash(flash);
             float *dout = dev_floats(NULL, no), *dlse = dev_floats(NULL, nl);
             char what[160];
             snprintf(what, sizeof what, "sdpa B%d Tq%d Tk%d C%d NH%d%s %s%s", B, Tq, Tk, C, NH, fused ? " fused" : "",
-                     prec_names[p], half ? (flash ? " fused kernel" : " GEMMs") : "");
+                     prec_names[p], fusable ? (flash ? " fused kernel" : " GEMMs") : "");
             mlb_status st = mlb_cuda_sdpa_forward(dout, dlse, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
             CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
             if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, op_bound[p]);
@@ -111,10 +111,12 @@ TEST(sdpa_matches_cpu) {
     sdpa_case(1, 64, 7, 64, 1, 0, s + 14);       // one wide head, short context
     sdpa_case(1, 1000, 1000, 320, 8, 0, s + 15); // many key tiles, T not a multiple of 64
     sdpa_case(2, 300, 300, 640, 8, 0, s + 16);   // UNet level 2 (hd 80)
-    sdpa_case(2, 64, 77, 1280, 8, 0, s + 17);    // UNet level 4 cross-attention (hd 160)
+    sdpa_case(2, 64, 77, 640, 10, 0, s + 17);    // hd 64 cross-attention, Tk one tile and 13 keys
     sdpa_case(2, 130, 130, 320, 5, 1, s + 18);   // SD 2 heads of 64, fused qkv
-    sdpa_case(1, 70, 90, 256, 1, 0, s + 19);     // hd 256: the fused kernel's widest head
+    sdpa_case(1, 70, 90, 128, 1, 0, s + 19);     // hd 128: the fused kernel's widest head
+    sdpa_case(2, 64, 77, 1280, 8, 0, s + 22);    // hd 160 (UNet level 4): the GEMMs only
     sdpa_case(1, 33, 40, 25, 1, 0, s + 20);      // hd 25, padded to 32
+    sdpa_case(1, 20, 70, 24, 2, 0, s + 23);      // hd 12, padded to 16
     sdpa_case(1, 40, 40, 512, 1, 0, s + 21);     // the VAE's one head of 512: the GEMMs only
     float* d = dev_floats(NULL, 64);
     CHECK(mlb_cuda_sdpa_forward(d, NULL, d, d, d, 1, 2, 2, 30, 4, 30, 30, MLB_GEMM_FP32) == MLB_ERR_ARG);   // 4 does not divide 30

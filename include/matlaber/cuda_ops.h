@@ -106,8 +106,8 @@ mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const f
 // MLB_CUDNN=0 in the environment) sends every convolution to the GEMM path; mlb_cuda_cudnn_version
 // is cuDNN's version number (e.g. 91400), 0 without it.
 void mlb_cuda_use_cudnn(int on);
-// mlb_cuda_sdpa_forward at fp16/bf16 with heads up to 256 wide runs fused on the tensor cores
-// (src/cuda/flash_attention.cu: the scores never reach device memory); mlb_cuda_use_flash(0) (or
+// mlb_cuda_sdpa_forward at fp16/bf16 with heads up to 128 wide runs fused on the tensor cores
+// (src/cuda/flash_attention.cu: the scores never leave the registers); mlb_cuda_use_flash(0) (or
 // MLB_FLASH=0 in the environment) sends it to the batched GEMMs and the row softmax instead.
 void mlb_cuda_use_flash(int on);
 int mlb_cuda_cudnn_version(void);

@@ -4,8 +4,8 @@
 //           (stride 0); a 1x1 stride-1 unpadded conv in fp32/tf32 is the GEMM alone.
 //   sdpa:   q, k, v split into heads [B, NH, T, hd] (converted on the way), scores S = q k^T / sqrt(hd)
 //           as one batched GEMM over (image, head) for a chunk of images, a row softmax (a warp per
-//           row) and O = P v, merged back to [B, Tq, C]. At fp16/bf16 with heads up to 256 wide
-//           the fused kernel of flash_attention.cu runs instead (the scores stay on chip).
+//           row) and O = P v, merged back to [B, Tq, C]. At fp16/bf16 with heads up to 128 wide
+//           the fused kernel of flash_attention.cu runs instead (the scores stay in registers).
 // The contracts of conv2d_forward and sdpa_forward (conv_ops.h). Scratch chunks stay under
 // CHUNK_BYTES whatever the batch: the scores of SD's 64^2 latent (8 heads, 4096^2) are 512 MiB per
 // image.

@@ -1,54 +1,48 @@
 // Scaled dot-product attention fused on the tensor cores (fp16/bf16 operands, fp32 accumulation):
-// the [Tq, Tk] scores never reach device memory. sdpa_forward's contract (conv_ops.h), taken by
-// mlb_cuda_sdpa_forward at fp16/bf16 for head widths up to 256 (docs/cuda.md).
+// the [Tq, Tk] scores never reach memory, nor shared memory. sdpa_forward's contract (conv_ops.h),
+// taken by mlb_cuda_sdpa_forward at fp16/bf16 for head widths up to 128 (docs/cuda.md).
 //
-// q, k, v are first split into heads in the operand type, padded with zeros to whole tiles:
-// [B*NH, Tp, hdp] with Tp a multiple of 64 and hdp of 16, so the tile loads need no bounds and
-// padded keys give finite scores that the softmax masks. A block takes 64 query rows of one
-// (image, head), four warps of 16 rows each, and walks the keys in tiles of 64:
-//   S_w [16, 64] = Q_w K^T             wmma 16x16x16, into the warp's float tile in shared memory
-//   online softmax per row              two lanes per row (columns interleaved), base-2 exponent:
-//                                       m' = max(m, max_j s_j c), P = 2^(s c - m'), l = l 2^(m - m') + sum P
-//   O_w = O_w 2^(m - m') + P V          O kept in shared memory as float
+// q and k are first split into heads in the operand type, [B*NH, Tp, hdp], and v transposed per head,
+// [B*NH, hdp, Tp], all padded with zeros to whole tiles (Tp a multiple of 64, hdp of 16), so the tile
+// loads need no bounds, padded keys give finite scores that the softmax masks, and every operand
+// fragment below is one 32-bit load. A block takes 64 query rows of one (image, head), four warps of
+// 16 rows each, and walks the keys in tiles of 64 (K and V^T in shared memory). Per warp, with the
+// m16n8k16 MMA (PTX ISA, "Matrix fragments for mma.m16n8k16"; lane = 4 g + t holds rows g and g + 8):
+//   S [16, 64] = Q K^T        in registers (8 accumulator tiles); Q's fragments loaded once
+//   online softmax            the row max over the quad of lanes sharing a row (two shuffles), base 2:
+//                             m' = max(m, s c), P = 2^(s c - m'), l = l 2^(m - m') + sum P
+//   O [16, hdp] = O 2^(m - m') + P V    P's accumulators repacked as the A operand in registers
 // then O / l goes to out [B, Tq, C] (the heads merged on the way) and lse = (m + log2 l) ln 2.
-// Shared memory: (3 * 64 (hdp + 8)) 16-bit values + 4 warps x (16 x 68 floats + 16 x 72 16-bit
-// + 16 (hdp + 4) floats): 61 KB at hdp 48, 190 KB at 256.
 #include <cuda_bf16.h>
 #include <cuda_fp16.h>
 #include <math.h>
-#include <mma.h>
 #include "common.cuh"
 #include "gemm_ops.cuh"
 
 namespace {
-constexpr int BQ = 64, BK = 64, WARPS = 4, THREADS = 32 * WARPS;
-constexpr int SLD = BK + 4;   // a warp's score tile, floats per row (a multiple of 4, as wmma needs)
-constexpr int PLD = BK + 8;   // a warp's probabilities, 16-bit values per row (a multiple of 8)
-constexpr int MAX_HD = 256;
-
-struct flash_layout {
-    int ld, old;   // rows of Q/K/V in 16-bit values, rows of O in floats
-    size_t bytes;
-};
-flash_layout layout_of(int hdp) {
-    flash_layout L;
-    L.ld = hdp + 8;
-    L.old = hdp + 4;
-    L.bytes = (size_t)3 * BQ * L.ld * 2 + (size_t)WARPS * 16 * (SLD * 4 + PLD * 2 + L.old * 4);
-    return L;
-}
+constexpr int BQ = 64, BK = 64, THREADS = 128;   // four warps of 16 query rows
+constexpr int MAX_HD = 128;                      // wider heads: the O accumulators would spill
+constexpr int LDV = BK + 8;                      // a row of V^T in shared memory (16-bit values)
 }   // namespace
 
-// out [BH, Tp, hdp] of T from in [B, T, ld] (head h at column h*hd), zeros outside T x hd
+// out [BH, Tp, hdp] of T from in [B, T, ld] (head h at column h*hd), zeros outside T x hd;
+// transposed: out [BH, hdp, Tp] (v, so that P V's B fragments are pairs of adjacent keys)
 template <typename T>
 __global__ void split_heads_padded_kernel(T* out, const float* in, int B, int T_, int Tp, int NH, int hd, int hdp,
-                                          int ld) {
+                                          int ld, int transposed) {
     const size_t n = (size_t)B * NH * Tp * hdp;
     for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
-        const int d = (int)(i % hdp);
-        const size_t rt = i / hdp;
-        const int t = (int)(rt % Tp);
-        const size_t bh = rt / Tp;
+        int d, t;
+        size_t bh;
+        if (transposed) {
+            t = (int)(i % Tp);
+            d = (int)(i / Tp % hdp);
+            bh = i / ((size_t)Tp * hdp);
+        } else {
+            d = (int)(i % hdp);
+            t = (int)(i / hdp % Tp);
+            bh = i / ((size_t)Tp * hdp);
+        }
         const int h = (int)(bh % NH), b = (int)(bh / NH);
         float v = 0.0f;
         if (t < T_ && d < hd) v = in[((size_t)b * T_ + t) * ld + (size_t)h * hd + d];
@@ -56,110 +50,162 @@ __global__ void split_heads_padded_kernel(T* out, const float* in, int B, int T_
     }
 }
 
-template <typename T>
-__global__ void __launch_bounds__(THREADS)
-    flash_forward_kernel(float* out, float* lse, const T* qh, const T* kh, const T* vh, int NH, int Tq, int Tqp,
-                         int Tk, int Tkp, int hd, int hdp, int C, float scale_log2) {
+__device__ __forceinline__ uint32_t ld32(const void* p) { return *(const uint32_t*)p; }
+template <typename T> __device__ __forceinline__ uint32_t pack2(float lo, float hi);
+template <> __device__ __forceinline__ uint32_t pack2<__half>(float lo, float hi) {
+    __half2 h = __floats2half2_rn(lo, hi);
+    return *(uint32_t*)&h;
+}
+template <> __device__ __forceinline__ uint32_t pack2<__nv_bfloat16>(float lo, float hi) {
+    __nv_bfloat162 h = __floats2bfloat162_rn(lo, hi);
+    return *(uint32_t*)&h;
+}
+// d[4] += A[16x16] B[16x8], fp32 accumulation
+template <typename T> __device__ __forceinline__ void mma16816(float* d, const uint32_t* a, uint32_t b0, uint32_t b1);
+template <> __device__ __forceinline__ void mma16816<__half>(float* d, const uint32_t* a, uint32_t b0, uint32_t b1) {
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 800
-    using namespace nvcuda;
-    extern __shared__ __align__(128) unsigned char smem[];
-    const int ld = hdp + 8, old = hdp + 4, chunks = hdp / 8;   // 16-byte chunks per row
-    T* sQ = (T*)smem;
-    T* sK = sQ + BQ * ld;
-    T* sV = sK + BK * ld;
-    float* sS = (float*)(sV + BK * ld);
-    T* sP = (T*)(sS + WARPS * 16 * SLD);
-    float* sO = (float*)(sP + WARPS * 16 * PLD);
-    const int warp = threadIdx.x >> 5, lane = threadIdx.x & 31;
-    const int bh = blockIdx.y, q0 = blockIdx.x * BQ;
-    float* sSw = sS + warp * 16 * SLD;
-    T* sPw = sP + warp * 16 * PLD;
-    float* sOw = sO + warp * 16 * old;
+    asm volatile("mma.sync.aligned.m16n8k16.row.col.f32.f16.f16.f32 {%0,%1,%2,%3}, {%4,%5,%6,%7}, {%8,%9}, "
+                 "{%0,%1,%2,%3};\n"
+                 : "+f"(d[0]), "+f"(d[1]), "+f"(d[2]), "+f"(d[3])
+                 : "r"(a[0]), "r"(a[1]), "r"(a[2]), "r"(a[3]), "r"(b0), "r"(b1));
+#endif
+}
+template <> __device__ __forceinline__ void mma16816<__nv_bfloat16>(float* d, const uint32_t* a, uint32_t b0,
+                                                                     uint32_t b1) {
+#if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 800
+    asm volatile("mma.sync.aligned.m16n8k16.row.col.f32.bf16.bf16.f32 {%0,%1,%2,%3}, {%4,%5,%6,%7}, {%8,%9}, "
+                 "{%0,%1,%2,%3};\n"
+                 : "+f"(d[0]), "+f"(d[1]), "+f"(d[2]), "+f"(d[3])
+                 : "r"(a[0]), "r"(a[1]), "r"(a[2]), "r"(a[3]), "r"(b0), "r"(b1));
+#endif
+}
 
-    const T* qb = qh + ((size_t)bh * Tqp + q0) * hdp;
-    for (int i = threadIdx.x; i < BQ * chunks; i += THREADS) {
-        const int r = i / chunks, c = i % chunks;
-        *(uint4*)(sQ + r * ld + c * 8) = *(const uint4*)(qb + (size_t)r * hdp + c * 8);
+template <typename T, int HDP>
+__global__ void __launch_bounds__(THREADS)
+    flash_forward_kernel(float* out, float* lse, const T* qh, const T* kh, const T* vt, int NH, int Tq, int Tqp,
+                         int Tk, int Tkp, int hd, int C, float scale_log2) {
+    constexpr int LDK = HDP + 8;   // a row of K (and, before the loop, of Q) in shared memory
+    constexpr int CH = HDP / 8;    // 16-byte chunks per row of K
+    __shared__ __align__(16) T sK[BK * LDK];
+    __shared__ __align__(16) T sV[HDP * LDV];
+    const int warp = threadIdx.x >> 5, lane = threadIdx.x & 31, g = lane >> 2, t = lane & 3;
+    const int bh = blockIdx.y, q0 = blockIdx.x * BQ;
+
+    // this warp's Q fragments, through sK
+    const T* qb = qh + ((size_t)bh * Tqp + q0) * HDP;
+    for (int i = threadIdx.x; i < BQ * CH; i += THREADS) {
+        const int r = i / CH, c = i % CH;
+        *(uint4*)(sK + r * LDK + c * 8) = *(const uint4*)(qb + (size_t)r * HDP + c * 8);
     }
-    for (int i = lane; i < 16 * old; i += 32) sOw[i] = 0.0f;
-    const int row = lane >> 1, half = lane & 1;   // this lane's row of the warp's 16, and its columns' parity
-    float m = -INFINITY, l = 0.0f;
+    __syncthreads();
+    uint32_t qf[HDP / 16][4];
+    const T* qw = sK + warp * 16 * LDK;
+#pragma unroll
+    for (int ks = 0; ks < HDP / 16; ks++) {
+        qf[ks][0] = ld32(qw + g * LDK + ks * 16 + 2 * t);
+        qf[ks][1] = ld32(qw + (g + 8) * LDK + ks * 16 + 2 * t);
+        qf[ks][2] = ld32(qw + g * LDK + ks * 16 + 8 + 2 * t);
+        qf[ks][3] = ld32(qw + (g + 8) * LDK + ks * 16 + 8 + 2 * t);
+    }
+    float o[HDP / 8][4];
+#pragma unroll
+    for (int dn = 0; dn < HDP / 8; dn++) o[dn][0] = o[dn][1] = o[dn][2] = o[dn][3] = 0.0f;
+    float m0 = -INFINITY, m1 = -INFINITY, l0 = 0.0f, l1 = 0.0f;   // rows g and g + 8 (l: this lane's columns)
 
     const int tiles = (Tk + BK - 1) / BK;
     for (int kt = 0; kt < tiles; kt++) {
-        __syncthreads();   // every warp is done with the last tile's K and V (and Q is in place)
-        const T* kb = kh + ((size_t)bh * Tkp + (size_t)kt * BK) * hdp;
-        const T* vb = vh + ((size_t)bh * Tkp + (size_t)kt * BK) * hdp;
-        for (int i = threadIdx.x; i < BK * chunks; i += THREADS) {
-            const int r = i / chunks, c = i % chunks;
-            *(uint4*)(sK + r * ld + c * 8) = *(const uint4*)(kb + (size_t)r * hdp + c * 8);
-            *(uint4*)(sV + r * ld + c * 8) = *(const uint4*)(vb + (size_t)r * hdp + c * 8);
+        __syncthreads();   // every warp is done with sK (Q, or the last tile) and sV
+        const T* kb = kh + ((size_t)bh * Tkp + (size_t)kt * BK) * HDP;
+        for (int i = threadIdx.x; i < BK * CH; i += THREADS) {
+            const int r = i / CH, c = i % CH;
+            *(uint4*)(sK + r * LDK + c * 8) = *(const uint4*)(kb + (size_t)r * HDP + c * 8);
+        }
+        const T* vb = vt + (size_t)bh * HDP * Tkp + (size_t)kt * BK;
+        for (int i = threadIdx.x; i < HDP * (BK / 8); i += THREADS) {
+            const int r = i / (BK / 8), c = i % (BK / 8);
+            *(uint4*)(sV + r * LDV + c * 8) = *(const uint4*)(vb + (size_t)r * Tkp + c * 8);
         }
         __syncthreads();
-        // S_w = Q_w K^T: K's rows read as a column-major [hdp, 64] operand
-        for (int n = 0; n < BK / 16; n++) {
-            wmma::fragment<wmma::accumulator, 16, 16, 16, float> acc;
-            wmma::fill_fragment(acc, 0.0f);
-            for (int kk = 0; kk < hdp / 16; kk++) {
-                wmma::fragment<wmma::matrix_a, 16, 16, 16, T, wmma::row_major> a;
-                wmma::fragment<wmma::matrix_b, 16, 16, 16, T, wmma::col_major> b;
-                wmma::load_matrix_sync(a, sQ + warp * 16 * ld + kk * 16, ld);
-                wmma::load_matrix_sync(b, sK + n * 16 * ld + kk * 16, ld);
-                wmma::mma_sync(acc, a, b, acc);
+        // S = Q K^T: 8 tiles of 8 keys; K's row (key 8j + g) holds the B fragment's adjacent pair
+        float s[BK / 8][4];
+#pragma unroll
+        for (int j = 0; j < BK / 8; j++) {
+            s[j][0] = s[j][1] = s[j][2] = s[j][3] = 0.0f;
+            const T* kr = sK + (8 * j + g) * LDK + 2 * t;
+#pragma unroll
+            for (int ks = 0; ks < HDP / 16; ks++) mma16816<T>(s[j], qf[ks], ld32(kr + ks * 16), ld32(kr + ks * 16 + 8));
+        }
+        // scale to base 2, mask the keys past Tk, row max over the quad
+        const int kbase = kt * BK;
+        float mx0 = -INFINITY, mx1 = -INFINITY;
+#pragma unroll
+        for (int j = 0; j < BK / 8; j++)
+#pragma unroll
+            for (int e = 0; e < 2; e++) {
+                const int ok = kbase + 8 * j + 2 * t + e < Tk;
+                s[j][e] = ok ? s[j][e] * scale_log2 : -INFINITY;
+                s[j][2 + e] = ok ? s[j][2 + e] * scale_log2 : -INFINITY;
+                mx0 = fmaxf(mx0, s[j][e]);
+                mx1 = fmaxf(mx1, s[j][2 + e]);
             }
-            wmma::store_matrix_sync(sSw + n * 16, acc, SLD, wmma::mem_row_major);
+        mx0 = fmaxf(mx0, __shfl_xor_sync(0xffffffffu, mx0, 1));
+        mx0 = fmaxf(mx0, __shfl_xor_sync(0xffffffffu, mx0, 2));
+        mx1 = fmaxf(mx1, __shfl_xor_sync(0xffffffffu, mx1, 1));
+        mx1 = fmaxf(mx1, __shfl_xor_sync(0xffffffffu, mx1, 2));
+        const float mn0 = fmaxf(m0, mx0), mn1 = fmaxf(m1, mx1);   // finite: key kbase is always valid
+        const float a0 = exp2f(m0 - mn0), a1 = exp2f(m1 - mn1);     // 0 on the first tile
+        m0 = mn0;
+        m1 = mn1;
+        l0 *= a0;
+        l1 *= a1;
+#pragma unroll
+        for (int dn = 0; dn < HDP / 8; dn++) {
+            o[dn][0] *= a0; o[dn][1] *= a0;
+            o[dn][2] *= a1; o[dn][3] *= a1;
         }
-        __syncwarp();
-        // online softmax over this tile: columns 2j + half, keys past Tk masked
-        const float* srow = sSw + row * SLD;
-        const int valid = Tk - kt * BK;
-        float mx = -INFINITY;
-        for (int j = 0; j < BK / 2; j++) {
-            const int c = 2 * j + half;
-            if (c < valid) mx = fmaxf(mx, srow[c]);
+        // P, repacked: S tiles 2kk and 2kk + 1 are the A fragment of key step kk
+        uint32_t pf[BK / 16][4];
+#pragma unroll
+        for (int j = 0; j < BK / 8; j++) {
+            const float p00 = exp2f(s[j][0] - mn0), p01 = exp2f(s[j][1] - mn0);
+            const float p10 = exp2f(s[j][2] - mn1), p11 = exp2f(s[j][3] - mn1);
+            l0 += p00 + p01;
+            l1 += p10 + p11;
+            pf[j / 2][(j % 2) * 2 + 0] = pack2<T>(p00, p01);
+            pf[j / 2][(j % 2) * 2 + 1] = pack2<T>(p10, p11);
         }
-        mx = fmaxf(mx, __shfl_xor_sync(0xffffffffu, mx, 1));
-        const float m_new = fmaxf(m, mx * scale_log2);
-        const float alpha = exp2f(m - m_new);   // 0 on the first tile (m = -inf)
-        float sum = 0.0f;
-        T* prow = sPw + row * PLD;
-        for (int j = 0; j < BK / 2; j++) {
-            const int c = 2 * j + half;
-            const float p = c < valid ? exp2f(srow[c] * scale_log2 - m_new) : 0.0f;
-            prow[c] = to_operand<T>(p);
-            sum += p;
+        // O += P V: V^T's row (dimension 8 dn + g) holds the B fragment's adjacent keys
+#pragma unroll
+        for (int dn = 0; dn < HDP / 8; dn++) {
+            const T* vr = sV + (8 * dn + g) * LDV + 2 * t;
+#pragma unroll
+            for (int kk = 0; kk < BK / 16; kk++) mma16816<T>(o[dn], pf[kk], ld32(vr + kk * 16), ld32(vr + kk * 16 + 8));
         }
-        sum += __shfl_xor_sync(0xffffffffu, sum, 1);
-        l = l * alpha + sum;
-        m = m_new;
-        float* orow = sOw + row * old;
-        for (int d = half; d < hdp; d += 2) orow[d] *= alpha;
-        __syncwarp();
-        // O_w += P_w V
-        for (int dn = 0; dn < hdp / 16; dn++) {
-            wmma::fragment<wmma::accumulator, 16, 16, 16, float> acc;
-            wmma::load_matrix_sync(acc, sOw + dn * 16, old, wmma::mem_row_major);
-            for (int kk = 0; kk < BK / 16; kk++) {
-                wmma::fragment<wmma::matrix_a, 16, 16, 16, T, wmma::row_major> a;
-                wmma::fragment<wmma::matrix_b, 16, 16, 16, T, wmma::row_major> b;
-                wmma::load_matrix_sync(a, sPw + kk * 16, PLD);
-                wmma::load_matrix_sync(b, sV + kk * 16 * ld + dn * 16, ld);
-                wmma::mma_sync(acc, a, b, acc);
-            }
-            wmma::store_matrix_sync(sOw + dn * 16, acc, old, wmma::mem_row_major);
-        }
-        __syncwarp();
     }
-    const int t = q0 + warp * 16 + row;
-    if (t < Tq) {
-        const int b = bh / NH, h = bh % NH;
-        const float inv = 1.0f / l;
-        float* o = out + ((size_t)b * Tq + t) * C + (size_t)h * hd;
-        const float* orow = sOw + row * old;
-        for (int d = half; d < hd; d += 2) o[d] = orow[d] * inv;
-        if (lse && !half) lse[(size_t)bh * Tq + t] = (m + log2f(l)) * 0.6931471805599453f;
+    l0 += __shfl_xor_sync(0xffffffffu, l0, 1);
+    l0 += __shfl_xor_sync(0xffffffffu, l0, 2);
+    l1 += __shfl_xor_sync(0xffffffffu, l1, 1);
+    l1 += __shfl_xor_sync(0xffffffffu, l1, 2);
+    const int b = bh / NH, h = bh % NH, r0 = q0 + warp * 16 + g, r1 = r0 + 8;
+    const float inv0 = 1.0f / l0, inv1 = 1.0f / l1;
+#pragma unroll
+    for (int dn = 0; dn < HDP / 8; dn++) {
+        const int d = 8 * dn + 2 * t;
+        if (r0 < Tq) {
+            float* o0 = out + ((size_t)b * Tq + r0) * C + (size_t)h * hd;
+            if (d < hd) o0[d] = o[dn][0] * inv0;
+            if (d + 1 < hd) o0[d + 1] = o[dn][1] * inv0;
+        }
+        if (r1 < Tq) {
+            float* o1 = out + ((size_t)b * Tq + r1) * C + (size_t)h * hd;
+            if (d < hd) o1[d] = o[dn][2] * inv1;
+            if (d + 1 < hd) o1[d + 1] = o[dn][3] * inv1;
+        }
     }
-#endif
+    if (lse && t == 0) {
+        if (r0 < Tq) lse[(size_t)bh * Tq + r0] = (m0 + log2f(l0)) * 0.6931471805599453f;
+        if (r1 < Tq) lse[(size_t)bh * Tq + r1] = (m1 + log2f(l1)) * 0.6931471805599453f;
+    }
 }
 
 static int g_flash_on = -1;   // -1: from $MLB_FLASH on first use (0 turns it off)
@@ -172,13 +218,22 @@ int mlb_cuda_flash_usable(int B, int Tq, int hd, int NH, mlb_gemm_precision prec
     }
     if (!g_flash_on || !is_half(prec) || hd < 1 || hd > MAX_HD || (long long)B * NH > 65535 || Tq > (1 << 30))
         return 0;   // grid.y holds (image, head)
-    int dev, major = 0, optin = 0;
-    if (cudaGetDevice(&dev) != cudaSuccess || cudaDeviceGetAttribute(&major, cudaDevAttrComputeCapabilityMajor, dev) ||
-        cudaDeviceGetAttribute(&optin, cudaDevAttrMaxSharedMemoryPerBlockOptin, dev)) {
+    int dev, major = 0;
+    if (cudaGetDevice(&dev) != cudaSuccess || cudaDeviceGetAttribute(&major, cudaDevAttrComputeCapabilityMajor, dev)) {
         (void)cudaGetLastError();
         return 0;
     }
-    return major >= 8 && layout_of((hd + 15) / 16 * 16).bytes <= (size_t)optin;   // bf16 wmma: sm_80 on
+    return major >= 8;   // mma.m16n8k16 with bf16: sm_80 on
+}
+
+template <typename T, int HDP>
+static mlb_status flash_launch(float* out, float* lse, const T* qh, const T* kh, const T* vt, int B, int NH, int Tq,
+                               int Tqp, int Tk, int Tkp, int hd, int C) {
+    const float scale_log2 = 1.4426950408889634f / sqrtf((float)hd);
+    dim3 grid(Tqp / BQ, B * NH);
+    flash_forward_kernel<T, HDP><<<grid, THREADS>>>(out, lse, qh, kh, vt, NH, Tq, Tqp, Tk, Tkp, hd, C, scale_log2);
+    MLB_CUDA_LAUNCHED("flash_forward_kernel");
+    return MLB_OK;
 }
 
 template <typename T>
@@ -191,23 +246,19 @@ static mlb_status flash_run(float* out, float* lse, const float* q, const float*
     MLB_TRY(mlb_cuda_scratch(&base, q_bytes + 2 * kv_bytes));
     T* qh = (T*)base;
     T* kh = (T*)((char*)base + q_bytes);
-    T* vh = (T*)((char*)base + q_bytes + kv_bytes);
-    split_heads_padded_kernel<T><<<mlb_grid(nq, 256), 256>>>(qh, q, B, Tq, Tqp, NH, hd, hdp, ldq);
+    T* vt = (T*)((char*)base + q_bytes + kv_bytes);
+    split_heads_padded_kernel<T><<<mlb_grid(nq, 256), 256>>>(qh, q, B, Tq, Tqp, NH, hd, hdp, ldq, 0);
     MLB_CUDA_LAUNCHED("split_heads_padded_kernel");
-    split_heads_padded_kernel<T><<<mlb_grid(nkv, 256), 256>>>(kh, k, B, Tk, Tkp, NH, hd, hdp, ldkv);
+    split_heads_padded_kernel<T><<<mlb_grid(nkv, 256), 256>>>(kh, k, B, Tk, Tkp, NH, hd, hdp, ldkv, 0);
     MLB_CUDA_LAUNCHED("split_heads_padded_kernel");
-    split_heads_padded_kernel<T><<<mlb_grid(nkv, 256), 256>>>(vh, v, B, Tk, Tkp, NH, hd, hdp, ldkv);
+    split_heads_padded_kernel<T><<<mlb_grid(nkv, 256), 256>>>(vt, v, B, Tk, Tkp, NH, hd, hdp, ldkv, 1);
     MLB_CUDA_LAUNCHED("split_heads_padded_kernel");
-    const flash_layout L = layout_of(hdp);
-    if (L.bytes > 48 * 1024)   // past the default limit: opt in (per device, so on every call; it costs ~1 us)
-        MLB_CUDA_CHECK(cudaFuncSetAttribute(flash_forward_kernel<T>, cudaFuncAttributeMaxDynamicSharedMemorySize,
-                                            (int)L.bytes));
-    const float scale_log2 = 1.4426950408889634f / sqrtf((float)hd);
-    dim3 grid(Tqp / BQ, B * NH);
-    flash_forward_kernel<T><<<grid, THREADS, L.bytes>>>(out, lse, qh, kh, vh, NH, Tq, Tqp, Tk, Tkp, hd, hdp, C,
-                                                        scale_log2);
-    MLB_CUDA_LAUNCHED("flash_forward_kernel");
-    return MLB_OK;
+    switch (hdp) {
+#define HDP_CASE(n) case n: return flash_launch<T, n>(out, lse, qh, kh, vt, B, NH, Tq, Tqp, Tk, Tkp, hd, C);
+        HDP_CASE(16) HDP_CASE(32) HDP_CASE(48) HDP_CASE(64) HDP_CASE(80) HDP_CASE(96) HDP_CASE(112) HDP_CASE(128)
+#undef HDP_CASE
+    }
+    return mlb_fail(MLB_ERR_ARG, "flash attention: head width %d (at most %d)", hd, MAX_HD);
 }
 
 mlb_status mlb_cuda_flash_sdpa(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,

@@ -54,8 +54,8 @@ mlb_status mlb_cuda_im2col(mlb_cuda_dtype dt, void* cols, const float* in, int n
 // out [B, NH, T, hd] of dt from in [B, T, ld] (head h at column h*hd)
 mlb_status mlb_cuda_split_heads(mlb_cuda_dtype dt, void* out, const float* in, int B, int T_, int NH, int hd, int ld);
 // Attention fused on the tensor cores (flash_attention.cu): sdpa_forward's contract at fp16/bf16.
-// usable: the switch is on (mlb_cuda_use_flash, $MLB_FLASH), prec is fp16/bf16, hd <= 256, the
-// GPU has bf16 tensor cores (sm_80 on) and the shared memory the head width needs.
+// usable: the switch is on (mlb_cuda_use_flash, $MLB_FLASH), prec is fp16/bf16, hd <= 128 and the
+// GPU has bf16 tensor cores (sm_80 on).
 int mlb_cuda_flash_usable(int B, int Tq, int hd, int NH, mlb_gemm_precision prec);
 mlb_status mlb_cuda_flash_sdpa(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
                                int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);

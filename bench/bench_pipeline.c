@@ -31,13 +31,19 @@
 // --device cuda moves the SD 1.5 UNet and VAE to the GPU (mlb_unet_use_device, mlb_vae_use_device) at
 // --precision, and in the appearance stage the material network, its AdamW and the shading
 // (mlb_field_use_device, as the pipeline does); rasterization, antialias and the geometry
-// stage's networks stay on the CPU (docs/cuda.md).
+// stage's networks stay on the CPU (docs/cuda.md). On the CPU, --precision bf16 gives the UNet and
+// VAE the CPU's bf16 GEMMs (as `matlaber --precision bf16` and the cpu preset do).
+// --sd15 --generate PRESET (e.g. cpu) skips the table and runs a whole generation end to end with
+// that preset (mlb_pipeline_preset) and the random SD 1.5 (random prompt embeddings): the pipeline's
+// own loop with its checkpoints, previews and the final .glb, in a run folder under --dir that is
+// removed afterwards; it prints the wall time of each part.
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include "bench_util.h"
 #include "matlaber/appearance.h"
@@ -50,6 +56,7 @@
 #include "matlaber/geometry_fit.h"
 #include "matlaber/guidance_image.h"
 #include "matlaber/guidance_sds.h"
+#include "matlaber/pipeline.h"
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
 #include "matlaber/schedule.h"
@@ -424,10 +431,55 @@ static int parse_sizes(const char* arg, int* out, int cap) {
     return n;
 }
 
+// A whole `matlaber generate --preset NAME` (its settings, the pipeline's own loop) with the random
+// SD 1.5 u, vae in a run folder under dir, removed afterwards; t_model: when the weights began loading.
+static int generate_run(const char* preset, const char* dir, const mlb_unet* u, const mlb_vae* vae, const float* ac,
+                        double t_model) {
+    mlb_pipeline_config c = mlb_pipeline_default();
+    if (mlb_pipeline_preset(&c, preset)) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
+    snprintf(c.prompt, sizeof c.prompt, "(random embeddings)");
+    snprintf(c.model, sizeof c.model, "(random SD 1.5)");
+    if (c.latent_iters < 0) c.latent_iters = c.geometry_iters / 3;
+    double t0 = mlb_now_seconds();
+    printf("generate --preset %s end to end: %d views at %d², %d geometry steps (%d latent-phase), %d appearance "
+           "steps, grid %d, %s GEMMs (weights loaded in %.1f s)\n", preset, c.views, c.res, c.geometry_iters,
+           c.latent_iters, c.appearance_iters, c.grid, mlb_gemm_precision_name(mlb_gemm_precision_current()),
+           t0 - t_model);
+    fflush(stdout);
+    guide gd;
+    memset(&gd, 0, sizeof gd);
+    char run[700];
+    snprintf(run, sizeof run, "%s/run", dir);
+    mlb_progress progress;
+    mlb_pipeline_result result;
+    mlb_status s = make_sds_guide(&gd, "sds SD 1.5", u, vae, ac, 77, c.views);
+    if (!s) s = mlb_pipeline_run(run, &c, gd.g, NULL, 0, &progress, &result);
+    double total = mlb_now_seconds() - t0;
+    guide_free(&gd);
+    int rc = 0;
+    if (s) {
+        fprintf(stderr, "bench_pipeline: generate: %s\n", mlb_last_error());
+        rc = 1;
+    } else {
+        char glb[800];
+        snprintf(glb, sizeof glb, "%s/final/asset.glb", run);
+        struct stat st;
+        long glb_bytes = stat(glb, &st) ? -1 : (long)st.st_size;
+        printf("done: %.1f s (%.1f min) for %ld + %ld steps, %d faces, final/asset.glb %ld bytes; "
+               "with the weights' loading %.1f min\n", total, total / 60, result.geometry_steps,
+               result.appearance_steps, result.n_faces, glb_bytes, (mlb_now_seconds() - t_model) / 60);
+        printf("peak resident memory: %.2f GB (getrusage ru_maxrss)\n", bench_peak_mb() / 1024.0);
+    }
+    char cmd[800];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", run);
+    if (system(cmd)) fprintf(stderr, "bench_pipeline: could not remove %s\n", run);
+    return rc;
+}
+
 static int usage(void) {
     fprintf(stderr, "usage: bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512] [--no-images] "
                     "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp] [--sd15-views 1] "
-                    "[--device cpu|cuda] [--precision fp16]\n");
+                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET]\n");
     return 2;
 }
 
@@ -480,6 +532,7 @@ int main(int argc, char** argv) {
     int sizes[8] = {64, 128, 512}, n_sizes = 3, sd_sizes[8] = {512}, n_sd_sizes = 1;
     const char* base = "/tmp";
     int sd_views = 1;
+    const char* generate = NULL;
     mlb_device device = MLB_DEVICE_CPU;
     mlb_gemm_precision precision = MLB_GEMM_FP16;
     for (int i = 1; i < argc; i++) {
@@ -490,6 +543,7 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--init-iters")) init_iters = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--dir")) base = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--sd15-views")) sd_views = atoi(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--generate")) generate = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--device")) {
             if (mlb_device_select(argv[++i], &device) != MLB_OK) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
         } else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
@@ -505,6 +559,11 @@ int main(int argc, char** argv) {
             do_app = !strcmp(st, "both") || !strcmp(st, "appearance");
             if (!do_geo && !do_app) return usage();
         } else return usage();
+    }
+    if (generate) {   // the end-to-end run: SD 1.5 only
+        if (!sd15) return usage();
+        images = 0;
+        tiny = 0;
     }
     if (iters < 1) iters = 1;
     if (init_iters < 1) init_iters = 1;
@@ -592,12 +651,17 @@ int main(int argc, char** argv) {
         unlink(pv);
         if (s) { fprintf(stderr, "bench_pipeline: SD 1.5: %s\n", mlb_last_error()); rc = 1; goto out; }
         fprintf(stderr, "SD 1.5 random weights written and loaded in %.1f s\n", mlb_now_seconds() - t0);
-        if (device != MLB_DEVICE_CPU) {
+        if (device != MLB_DEVICE_CPU || precision == MLB_GEMM_BF16) {
             s = mlb_unet_use_device(tu, device, precision);
             if (!s) s = mlb_vae_use_device(tv, device, precision);
             if (s) { fprintf(stderr, "bench_pipeline: --device: %s\n", mlb_last_error()); rc = 1; goto out; }
             printf("SD 1.5 UNet and VAE on the %s, %s GEMMs; %d views per step\n", mlb_device_name(device),
                    mlb_gemm_precision_name(precision), sd_views);
+        }
+        if (generate) {
+            mlb_set_gemm_precision(precision);
+            rc = generate_run(generate, dir, tu, tv, ac, t0);
+            goto out;
         }
         if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views) ||
             run_guidance(&sc, "sds SD 1.5", &tg, NULL, sd_sizes, n_sd_sizes, iters, do_geo, do_app)) {

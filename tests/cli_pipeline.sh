@@ -62,6 +62,23 @@ if [ -d "$R" ]; then
   expect 0 "generate --no-view-prompts, stopped after its first step" -- $Q generate -p "a golden goblet" -m "$R" \
     --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 2 --no-view-prompts --stop-after 1 -o "$T/g2"
   grep -q '"view_prompts":[[:space:]]*0' "$T/g2/config.json" && ok "--no-view-prompts recorded" || bad "config: view_prompts not 0"
+  # the cpu preset, shortened: both stages (the geometry's latent and VAE phases), stopped after a
+  # checkpoint and resumed, ending in final/asset.glb; options after --preset override it
+  expect 2 "unknown preset" -- $M generate --preset fast -p x -m "$R" -o "$T/p0"
+  err_has "unknown preset lists the presets" "paper, cpu"
+  expect 0 "generate --preset cpu, stopped after 3 steps" -- $Q generate --preset cpu -p "a golden goblet" -m "$R" \
+    --geometry-iters 3 --appearance-iters 2 --checkpoint-every 2 --export-texture 512 --stop-after 3 -o "$T/p"
+  for kv in '"views":[[:space:]]*1,' '"res":[[:space:]]*256,' '"grid":[[:space:]]*64,' '"precision":[[:space:]]*"bf16"' \
+            '"latent_iters":[[:space:]]*1,' '"checkpoint_every":[[:space:]]*2,' '"export_texture":[[:space:]]*512,'; do
+    grep -q "$kv" "$T/p/config.json" && ok "preset run: $kv" || bad "preset run config lacks $kv"
+  done
+  [ -e "$T/p/final/asset.glb" ] && bad "stopped preset run has a .glb" || ok "stopped preset run has no .glb"
+  expect 2 "--preset with --resume" -- $Q generate --resume "$T/p" --preset cpu
+  expect 0 "resume the preset run" -- $Q generate --resume "$T/p"
+  [ "$(head -c 4 "$T/p/final/asset.glb" 2> /dev/null)" = "glTF" ] && ok "preset run ends in final/asset.glb" || bad "no final/asset.glb"
+  for stage in 0 1; do   # loss.csv's stage column: 0 geometry, 1 appearance
+    grep -q "^$stage," "$T/p/loss.csv" && ok "preset run: stage $stage steps in loss.csv" || bad "preset run: no stage $stage steps"
+  done
 else
   echo "skip: no shared sd_reference fixture for generate"
 fi

@@ -111,6 +111,49 @@ TEST(config_round_trip_and_errors) {
     mlb_clear_error();
 }
 
+// Presets: "paper" is the defaults, "cpu" a valid config that survives config.json (precision and
+// the .glb size included); a run written before "export_texture" and "precision" existed resumes
+// with no .glb and the program's precision; unknown names are refused with the list.
+TEST(presets) {
+    mlb_pipeline_config d = mlb_pipeline_default(), c = d, back;
+    REQUIRE(mlb_pipeline_preset(&c, "paper") == MLB_OK);
+    CHECK(!memcmp(&c, &d, sizeof c));
+    REQUIRE(mlb_pipeline_preset(&c, "cpu") == MLB_OK);
+    CHECK(c.views == 1 && c.res == 256 && !strcmp(c.precision, "bf16") && c.export_texture == 1024);
+    CHECK(c.geometry_iters > 0 && c.appearance_iters > 0 && c.latent_iters < 0);   // a third latent, as the default
+    CHECK(c.geometry_iters < d.geometry_iters / 10 && c.checkpoint_every < 20);
+    snprintf(c.prompt, sizeof c.prompt, "a goblet");
+    snprintf(c.model, sizeof c.model, "/models/sd15");
+    CHECK(mlb_pipeline_validate(&c) == MLB_OK);
+    char path[512];
+    tmp_path(path, sizeof path, "config.json");
+    REQUIRE(mlb_pipeline_config_save(&c, path) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    back.stop_after = c.stop_after;
+    back.overwrite = c.overwrite;
+    CHECK(!memcmp(&back, &c, sizeof c));
+    char* text = NULL;
+    size_t n = 0;
+    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
+    char *k1 = strstr(text, "\"export_texture\""), *k2 = strstr(text, "\"precision\"");
+    REQUIRE(k1 && k2);
+    memcpy(k1 + 1, "x", 1);
+    memcpy(k2 + 1, "x", 1);
+    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.export_texture == 0 && back.precision[0] == 0);
+    free(text);
+    c.export_texture = -1;
+    CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
+    c.export_texture = 0;
+    snprintf(c.precision, sizeof c.precision, "int8");
+    CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "precision") != NULL);
+    CHECK(mlb_pipeline_preset(&c, "fast") == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "fast") && strstr(mlb_last_error(), MLB_PIPELINE_PRESETS));
+    mlb_clear_error();
+}
+
 // A sphere of one known material, rendered into a views folder.
 static const float SPHERE_K[7] = {0.60f, 0.30f, 0.10f, 0.04f, 0.04f, 0.04f, 0.5f};
 static void sphere_truth(const float* pos, float k[7]) {
@@ -320,6 +363,7 @@ int main(void) {
     snprintf(tmpdir, sizeof tmpdir, "%s/mlb_pipeline_XXXXXX", base && *base ? base : "/tmp");
     if (!mkdtemp(tmpdir)) return 1;
     RUN(config_round_trip_and_errors);
+    RUN(presets);
     RUN(image_fit_recovers_a_known_albedo);
     RUN(resume_reaches_the_uninterrupted_result);
     RUN(sds_generate_two_steps_per_stage);

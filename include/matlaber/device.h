@@ -25,6 +25,9 @@ mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out);
 // Stable Diffusion is usually run on GPUs; fp32 accumulation throughout).
 void mlb_set_gemm_precision(mlb_gemm_precision p);
 mlb_gemm_precision mlb_gemm_precision_current(void);
+// 1 once mlb_set_gemm_precision was called (the program's --precision): a run's own setting
+// (config.json "precision", the cpu preset's bf16) applies only when it was not.
+int mlb_gemm_precision_chosen(void);
 #define MLB_PRECISION_OPTION_HELP                                                                          \
     "  --precision P   GEMM operands, fp32 accumulation always. GPU: fp16 (default), bf16, tf32 or fp32.\n"   \
     "                  CPU: fp32 (what fp16 and tf32 mean there), or bf16 for the SD UNet's and VAE's\n"      \

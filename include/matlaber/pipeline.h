@@ -56,6 +56,10 @@ typedef struct {
     int env_height;               // lat-long height of built-in environments: 256
     int cube_size;                // pre-integrated cube face size: 128
     // run
+    int export_texture;           // > 0: the run ends by writing final/asset.glb with textures of this
+                                  // size (generate: 1024; fit: 0 = none; `matlaber export` does it later)
+    char precision[8];            // "" (the program's --precision), "fp32" or "bf16": the GEMMs' operands
+                                  // when the program was not given --precision (the cpu preset: bf16)
     int checkpoint_every;         // steps between checkpoints: 100
     int preview_every;            // steps between preview renders: 100 (0 = none)
     long stop_after;              // stop (without a final checkpoint, as if killed) after this many steps
@@ -64,6 +68,12 @@ typedef struct {
 } mlb_pipeline_config;
 
 mlb_pipeline_config mlb_pipeline_default(void);
+// A named set of settings over the defaults (docs/pipeline.md, "Presets"): "paper" (the defaults:
+// the paper's schedule, 9 views at 512², for a GPU) or "cpu" (1 view, 256² renders, a short
+// schedule sized by measurement to finish within an hour on 2 cores with SD 1.5, bf16 GEMMs,
+// frequent checkpoints). MLB_ERR_ARG naming the presets for any other name.
+mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
+#define MLB_PIPELINE_PRESETS "paper, cpu"
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);

@@ -95,8 +95,10 @@ mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out) {
 }
 
 static mlb_gemm_precision current_precision = MLB_GEMM_FP16;
-void mlb_set_gemm_precision(mlb_gemm_precision p) { current_precision = p; }
+static int precision_chosen = 0;
+void mlb_set_gemm_precision(mlb_gemm_precision p) { current_precision = p; precision_chosen = 1; }
 mlb_gemm_precision mlb_gemm_precision_current(void) { return current_precision; }
+int mlb_gemm_precision_chosen(void) { return precision_chosen; }
 
 #ifndef MLB_HAVE_CUDA
 static mlb_status no_cuda(const char* fn) {

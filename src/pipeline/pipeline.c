@@ -13,6 +13,7 @@
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
 #include "matlaber/pipeline.h"
+#include "matlaber/run_textured.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
 #include "pipeline/pipeline_internal.h"
@@ -367,6 +368,14 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
     }
     if (!s && geometry_done && !r.stopped) {
         s = pipeline_write_final(&r);
+        if (!s && c->export_texture > 0) {   // the same as `matlaber export RUN_DIR -o final/asset.glb`
+            mlb_log(MLB_LOG_INFO, "writing %s/final/asset.glb (%d² textures)", dir, c->export_texture);
+            pipeline_path(path, sizeof path, dir, "final/asset.glb");
+            s = mlb_run_export_glb(dir, c->export_texture, path);
+            if (s)   // the run itself is complete (final/): say how to get the asset anyway
+                s = mlb_fail_context(s, "writing %s (the run is complete; `matlaber export %s --texture-size N -o "
+                                        "FILE.glb` retries with another size)", path, dir);
+        }
         if (!s) r.result.finished = 1;
     }
     if (progress && !s) mlb_progress_end(progress, r.result.finished ? "done" : "stopped");

@@ -40,10 +40,34 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     c.fixed_env = 0;
     c.env_height = 256;
     c.cube_size = 128;
+    c.export_texture = 1024;
     c.checkpoint_every = 100;
     c.preview_every = 100;
     c.stop_after = 0;
     return c;
+}
+
+mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
+    if (!strcmp(name, "paper")) return MLB_OK;   // the defaults are the paper's
+    if (strcmp(name, "cpu") != 0)
+        return mlb_fail(MLB_ERR_ARG, "--preset: '%s' is not one of %s", name, MLB_PIPELINE_PRESETS);
+    // Sized with bench_pipeline --sd15 --precision bf16 on 2 cores of an AMD EPYC (docs/pipeline.md,
+    // "Presets"): one view per step; a latent-phase step (the SD 1.5 UNet at 64², batch 2) costs
+    // ~15 s, a 256² VAE-phase geometry or appearance step ~8 s (UNet at 32² 3 s + VAE encoder
+    // forward and backward 5 s).
+    c->views = 1;
+    c->res = 256;
+    c->geometry_iters = 150;      // the first third in the latent phase (64² normal-map latents, ~15 s each)
+    c->appearance_iters = 180;
+    c->geometry_lr = 5e-3;        // 20x fewer steps than the paper's 3000: larger steps
+    c->grid = 64;                 // 32 cells per axis: a 256² render resolves no finer surface
+    c->init_iters = 200;
+    c->env_height = 128;
+    c->cube_size = 64;
+    c->checkpoint_every = 10;     // ~2 minutes of work between checkpoints
+    c->preview_every = 20;
+    snprintf(c->precision, sizeof c->precision, "bf16");
+    return MLB_OK;
 }
 
 int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? c->grid / 2 : 1; }
@@ -73,6 +97,10 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
+    else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
+    else if (c->precision[0] && strcmp(c->precision, "fp32") && strcmp(c->precision, "bf16") &&
+             strcmp(c->precision, "fp16") && strcmp(c->precision, "tf32"))
+        bad = "precision must be empty, fp32, bf16, fp16 or tf32";
     if (bad) return mlb_fail(MLB_ERR_ARG, "pipeline config: %s", bad);
     for (int i = 0; i < c->n_envs; i++)
         if (!c->envs[i][0]) return mlb_fail(MLB_ERR_ARG, "pipeline config: environment %d is empty", i);
@@ -108,6 +136,8 @@ static const field FIELDS[] = {
     FLD_OPT("view_prompts", F_INT, view_prompts, 1),                  // added 2026-11-25; before: always on
     FLD_OPT("coarse_to_fine", F_DOUBLE, coarse_to_fine, 0),           // added 2026-11-26; before: off
     FLD_OPT("material_smoothness_specular", F_DOUBLE, w_mat_spec, 0), // added 2026-11-26; before: kd only
+    FLD_OPT("export_texture", F_INT, export_texture, 0),              // added 2026-11-26; before: no .glb
+    FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
 };
 #undef FLD
 #undef FLD_OPT

@@ -5,54 +5,18 @@
 #include <stdlib.h>
 #include <string.h>
 #include "cli.h"
-#include "matlaber/bake.h"
 #include "matlaber/envmap.h"
 #include "matlaber/export.h"
 #include "matlaber/fileio.h"
-#include "matlaber/material_net.h"
-#include "matlaber/obj.h"
-#include "matlaber/pipeline.h"
-#include "matlaber/uv_atlas.h"
+#include "matlaber/run_textured.h"
 
-// A run's asset: its storage and the view the writers take.
-typedef struct {
-    mlb_run_asset run;        // final/mesh.obj and final/material.safetensors
-    mlb_uv_mesh uv;
-    mlb_baked baked;
-    mlb_asset asset;
-} run_asset;
-
-static void run_asset_free(run_asset* r) {
-    mlb_baked_free(&r->baked);
-    mlb_uv_mesh_free(&r->uv);
-    mlb_run_asset_free(&r->run);
-}
-
-static mlb_status eval_material(void* user, const float* pos, size_t n, float* k) {
-    return mlb_material_eval(user, pos, n, k);
-}
-
-// RUN_DIR/final/mesh.obj + RUN_DIR/final/material.safetensors -> unwrap -> bake at size x size.
-static int load_run(const char* run_dir, int size, run_asset* r) {
-    memset(r, 0, sizeof *r);
-    if (!mlb_is_dir(run_dir)) return cli_fail(mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such run folder", run_dir), "export");
-    mlb_status s = mlb_run_asset_load(&r->run, run_dir);
+// RUN_DIR's final/ unwrapped and baked at size x size (run_textured.h), the atlas reported.
+static int load_run(const char* run_dir, int size, mlb_run_textured* r) {
+    mlb_status s = mlb_run_textured_load(r, run_dir, size);
     if (s != MLB_OK) return cli_fail(s, "reading the run");
-    mlb_uv_options uo = mlb_uv_default();
-    uo.texture_size = size;
-    // the default 4-texel gutter is for 1024² textures; small textures get a proportional one
-    if (uo.gutter > size / 64) uo.gutter = size >= 128 ? size / 64 : 1;
-    mlb_uv_stats st;
-    if ((s = mlb_uv_unwrap(&r->run.mesh, &uo, &r->uv, &st)) != MLB_OK) { run_asset_free(r); return cli_fail(s, "UV atlas"); }
+    const mlb_uv_stats* st = &r->uv_stats;
     fprintf(stderr, "matlaber: UV atlas: %d charts, %d vertices, %d faces, utilisation %.1f%%, stretch L2 %.3f\n",
-            st.n_charts, st.n_verts, st.n_faces, 100 * st.utilisation, st.stretch_l2);
-    if ((s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked)) != MLB_OK) {
-        run_asset_free(r);
-        return cli_fail(s, "baking the material");
-    }
-    const mlb_mesh* m = &r->uv.mesh;
-    r->asset = (mlb_asset){m->n_verts, m->n_faces, m->pos, m->normal, m->uv, m->faces, size,
-                           r->baked.kd, r->baked.ks, r->baked.roughness, "matlaber"};
+            st->n_charts, st->n_verts, st->n_faces, 100 * st->utilisation, st->stretch_l2);
     return 0;
 }
 
@@ -93,11 +57,11 @@ int cmd_export(int argc, char** argv) {
     int glb = strcmp(format, "glb") == 0;
     if (!glb && strcmp(format, "obj") != 0) return cli_usage_error("export", "--format: expected glb or obj");
     if (!glb && !mlb_ends_with(out, ".obj")) return cli_usage_error("export", "-o %s: an OBJ export must end in .obj", out);
-    run_asset r;
+    mlb_run_textured r;
     int rc = load_run(argv[optind], (int)size, &r);
     if (rc) return rc;
     mlb_status s = glb ? mlb_export_glb(out, &r.asset) : mlb_export_obj(out, &r.asset);
-    run_asset_free(&r);
+    mlb_run_textured_free(&r);
     if (s != MLB_OK) return cli_fail(s, "export");
     printf("%s\n", out);
     return 0;
@@ -165,11 +129,11 @@ int cmd_view(int argc, char** argv) {
     if (mlb_is_file(in)) {
         s = mlb_viewer_write(out, in, &opt);
     } else {
-        run_asset r;
+        mlb_run_textured r;
         int rc = load_run(in, (int)size, &r);
         if (rc) return rc;
         s = mlb_viewer_write_asset(out, &r.asset, &opt);
-        run_asset_free(&r);
+        mlb_run_textured_free(&r);
     }
     if (s != MLB_OK) return cli_fail(s, "view");
     printf("%s\nserve it:  python3 -m http.server -d %s 8000   then open http://localhost:8000/\n", out, out);

@@ -4,12 +4,16 @@
 #include <stdlib.h>
 #include <string.h>
 #include "cli.h"
+#include "matlaber/device.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/views.h"
 
 static const cli_option options[] = {
+    {"preset", 1, 'Q', "NAME", "generate: paper (default: the paper's schedule, 9 views at 512², for a GPU) or cpu\n"
+                               "                           (1 view at 256², a short schedule, bf16: within an hour on 2 cores\n"
+                               "                           with SD 1.5); options after it override it (docs/pipeline.md)"},
     {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder)"},
     {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
@@ -31,6 +35,8 @@ static const cli_option options[] = {
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
+    {"export-texture", 1, 'T', "N", "texture size of RUN_DIR/final/asset.glb, written at the end (generate 1024;\n"
+                                    "                           fit and 0: none, `matlaber export` makes one later)"},
     {"checkpoint-every", 1, 'c', "N", "steps between checkpoints (default 100)"},
     {"preview-every", 1, 'P', "N", "steps between preview renders, 0 = none (default 100)"},
     {"resume", 1, 'R', "RUN_DIR", "continue a run that was stopped (its config.json is used)"},
@@ -79,6 +85,17 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         c.geometry_lr = 1e-2;
         c.preview_every = 50;
         c.checkpoint_every = 50;
+        c.export_texture = 0;
+    }
+    // --preset first, whatever its place: the other options override it
+    const char* preset = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--preset") && i + 1 < argc) preset = argv[++i];
+        else if (!strncmp(argv[i], "--preset=", 9)) preset = argv[i] + 9;
+    }
+    if (preset) {
+        if (is_fit) return cli_usage_error(command, "--preset is an option of generate");
+        if (mlb_pipeline_preset(&c, preset)) return cli_usage_error(command, "%s", mlb_last_error());
     }
     const char *out = NULL, *resume = NULL;
     long stop_after = 0, v;
@@ -89,6 +106,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     int opt;
     while ((opt = getopt_long(argc, argv, "hp:m:n:o:", table, NULL)) != -1) {
         switch (opt) {
+        case 'Q': break;   // applied above
         case 'p': snprintf(c.prompt, sizeof c.prompt, "%s", optarg); break;
         case 'm': snprintf(c.model, sizeof c.model, "%s", optarg); break;
         case 'n': snprintf(c.negative, sizeof c.negative, "%s", optarg); break;
@@ -119,6 +137,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
             break;
         case 'S': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000"); c.guidance_scale = x; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
+        case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
         case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;
         case 'P': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--preview-every: expected >= 0"); c.preview_every = (int)v; break;
         case 'R': resume = optarg; break;
@@ -139,7 +158,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
                        "Text to 3D with materials (the paper): DMTet geometry by score distillation on normal maps, then\n"
                        "a hash-grid material network predicting latent BRDF codes, decoded by the frozen BRDF prior and\n"
                        "shaded under rotating environments, again by score distillation. Defaults are the paper's\n"
-                       "(docs/pipeline.md); on a CPU, lower --res, --grid and the iteration counts.\n\n");
+                       "(docs/pipeline.md); on a CPU use --preset cpu. Ends with RUN_DIR/final/asset.glb.\n\n");
             cli_print_options(stdout, options);
             return 0;
         default: return cli_usage_error(command, "unknown option");
@@ -150,6 +169,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     const char* dir = resume ? resume : out;
     if (resume) {
         if (out && strcmp(out, resume) != 0) return cli_usage_error(command, "--resume continues RUN_DIR in place: drop -o");
+        if (preset) return cli_usage_error(command, "--resume continues with the run's own settings (config.json): drop --preset");
         char path[4096];
         snprintf(path, sizeof path, "%s/config.json", resume);
         s = mlb_pipeline_config_load(&c, path);
@@ -171,6 +191,10 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     c.stop_after = stop_after;
     s = mlb_pipeline_validate(&c);
     if (s) return cli_fail(s, command);
+    if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
+        mlb_gemm_precision p;
+        if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
+    }
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     s = mlb_pipeline_make_guidance(&c, &g, &views);
@@ -186,8 +210,9 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     double seconds = mlb_now_seconds() - t0;
     if (result.finished)
         printf("%s: done in %.1f s: %d vertices, %d faces; last losses geometry %.4g, appearance %.4g\n"
-               "outputs in %s/final (mesh.obj, material.safetensors, renders), loss curves in %s/loss.png\n",
-               command, seconds, result.n_verts, result.n_faces, result.geometry_loss, result.appearance_loss, dir, dir);
+               "outputs in %s/final (%smesh.obj, material.safetensors, renders), loss curves in %s/loss.png\n",
+               command, seconds, result.n_verts, result.n_faces, result.geometry_loss, result.appearance_loss, dir,
+               c.export_texture > 0 ? "asset.glb, " : "", dir);
     else
         printf("%s: stopped after %ld + %ld steps (%.1f s); continue with: matlaber %s --resume %s\n", command,
                result.geometry_steps, result.appearance_steps, seconds, command, dir);

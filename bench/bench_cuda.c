@@ -183,13 +183,15 @@ int main(int argc, char** argv) {
             char shape[64];
             snprintf(shape, sizeof shape, "B%d Tq%d Tk%d C%d heads %d", a.B, a.Tq, a.Tk, a.C, a.NH);
             double flops = 4.0 * a.B * (double)a.Tq * a.Tk * a.C;
-            for (int flash = 1; flash >= 0; flash--) {
-                mlb_cuda_use_flash(flash);
+            for (int flash = 2; flash >= 0; flash--) {   // 2: the fused kernel with 128 query rows per block
+                mlb_cuda_use_flash(flash > 0);
+                mlb_cuda_flash_rows(flash == 2 ? 128 : 64);
                 double ms = time_ms(sdpa_op, &a);
-                row(flash ? "sdpa bf16, fused kernel" : "sdpa bf16, batched GEMMs", shape, ms, "TFLOP/s",
-                    flops / (ms * 1e-3) / 1e12, flash ? "scores on chip" : "scores through memory");
+                row(flash == 2 ? "sdpa bf16, fused, 128 rows" : flash ? "sdpa bf16, fused, 64 rows" : "sdpa bf16, batched GEMMs",
+                    shape, ms, "TFLOP/s", flops / (ms * 1e-3) / 1e12, flash ? "scores on chip" : "scores through memory");
             }
             mlb_cuda_use_flash(1);
+            mlb_cuda_flash_rows(64);
             mlb_cuda_free(a.q); mlb_cuda_free(a.k); mlb_cuda_free(a.v); mlb_cuda_free(a.out);
         }
     }

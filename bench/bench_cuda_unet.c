@@ -21,7 +21,7 @@ static int cmp_double(const void* a, const void* b) {
 }
 
 // ---- the profile (unet_profile.h), each op timed with device events around it ----
-static const char* p_names[P_COUNT] = {"conv2d", "linear (GEMM)", "attention (GEMM+softmax)",
+static const char* p_names[P_COUNT] = {"conv2d", "linear (GEMM)", "attention",
                                        "group/layer norm", "glue (add, transpose, GEGLU, copies)"};
 
 static void profile(const mlb_unet* u, float* out, const float* x, const float* t, const float* ctx, int N, int H, int W,
@@ -29,20 +29,14 @@ static void profile(const mlb_unet* u, float* out, const float* x, const float* 
     prof_begin = mlb_cuda_timer_begin;
     prof_end = mlb_cuda_timer_end;
     TRY(unet_profile_run(mlb_backend_for(MLB_DEVICE_CUDA, prec), u, out, x, t, ctx, N, H, W));
-    double sum = 0, flop = 0;
-    for (int c = 0; c < P_COUNT; c++) { sum += p_ms[c]; flop += p_flop[c]; }
     printf("\nprofile, batch %d, %s (each op synchronised; un-profiled forward %.2f ms; activations %.2f GiB):\n", N,
            mlb_gemm_precision_name(prec), total_ms, p_arena * 4.0 / 1073741824.0);
-    printf("%-38s %7s %10s %7s %10s %10s\n", "op", "calls", "ms", "share", "GFLOP", "TFLOP/s");
-    for (int c = 0; c < P_COUNT; c++) {
-        char name[64];   // the convolutions' path: cuDNN (symmetric padding) unless MLB_CUDNN=0 or absent
-        const char* off = getenv("MLB_CUDNN");
-        snprintf(name, sizeof name, "%s%s", p_names[c],
-                 c ? "" : mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? " (cuDNN)" : " (im2col + GEMM)");
-        printf("%-38s %7ld %10.2f %6.1f%% %10.1f %10.1f\n", name, p_calls[c], p_ms[c], 100 * p_ms[c] / sum,
-               p_flop[c] / 1e9, p_ms[c] > 0 && p_flop[c] > 0 ? p_flop[c] / (p_ms[c] * 1e9) : 0.0);
-    }
-    printf("%-38s %7s %10.2f %6.1f%% %10.1f %10.1f\n", "total", "", sum, 100.0, flop / 1e9, flop / (sum * 1e9));
+    char conv[64];   // the convolutions' path: cuDNN (symmetric padding) unless MLB_CUDNN=0 or absent
+    const char* off = getenv("MLB_CUDNN");
+    snprintf(conv, sizeof conv, "%s%s", p_names[0],
+             mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? " (cuDNN)" : " (im2col + GEMM)");
+    const char* names[P_COUNT] = {conv, p_names[1], p_names[2], p_names[3], p_names[4]};
+    profile_print(names);
 }
 
 int main(int argc, char** argv) {

@@ -4,6 +4,7 @@
 // stays on the GPU): encoder forward with the cache + encoder backward for 9 images at 512^2 (one
 // RGB-phase SDS step of 9 views), and the decoder for 1 image at 512^2 (txt2img), at fp32, tf32 and
 // bf16 GEMMs. Median of `reps` after one warm-up, wall clock (each call ends synchronised).
+// Then one profiled encode and backward at bf16 (unet_profile.h: each op on its own, synchronised).
 // Usage: bench_cuda_vae [reps] (default 3). Exits 0 with a message without a GPU. docs/cuda.md.
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,6 +13,7 @@
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
 #include "matlaber/vae.h"
+#include "unet_profile.h"
 
 #define TRY(x) do { if ((x) != MLB_OK) { fprintf(stderr, "bench_cuda_vae: %s\n", mlb_last_error()); exit(1); } } while (0)
 
@@ -71,6 +73,28 @@ int main(int argc, char** argv) {
         printf("%-6s %-34s %10.1f GiB held after (cache of 9 images: %.1f GiB)\n", pn, "device memory",
                (tot - fr) / 1073741824.0, cache.capacity * 4.0 / 1073741824.0);
         fflush(stdout);
+        mlb_vae_cache_free(&cache);
+    }
+    // where the bf16 time goes: one encode (with the cache) and one backward through the profiling
+    // copy of the mirror's op table (unet_profile.h), each op synchronised
+    {
+        const mlb_backend* keep = v->mirror_ops;
+        mlb_backend w;
+        prof_begin = mlb_cuda_timer_begin;
+        prof_end = mlb_cuda_timer_end;
+        const char* off = getenv("MLB_CUDNN");
+        const char* names[P_COUNT] = {mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? "conv2d (cuDNN)" : "conv2d (im2col + GEMM)",
+                                      "linear (GEMM)", "attention (one head of 512)", "group norm", "glue (add, SiLU, copies)"};
+        mlb_vae_cache cache = {0};
+        for (int pass = 0; pass < 2; pass++) {
+            profile_wrap(keep, &w);
+            v->mirror_ops = &w;
+            if (pass == 0) TRY(mlb_vae_encode(v, img, N, H, W, mean, logvar, &cache));
+            else TRY(mlb_vae_encode_backward(v, &cache, g, NULL, dimg));
+            v->mirror_ops = keep;
+            printf("\nprofile, %s 9 x 512^2, bf16 (each op synchronised):\n", pass ? "encode backward" : "encode (with cache)");
+            profile_print(names);
+        }
         mlb_vae_cache_free(&cache);
     }
     mlb_vae_free(v);

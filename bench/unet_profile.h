@@ -1,9 +1,11 @@
-// The UNet's per-op profile, shared by bench_cuda_unet.c (GPU) and bench_unet_cpu.c (CPU): a copy
-// of an op table whose ops time themselves with the bench's clock (prof_begin / prof_end, which on
-// the GPU synchronise around each op) and count their GEMM FLOPs, so one forward through it says
-// where the time goes. Not a test: numbers only.
+// The per-op profile of the UNet (bench_cuda_unet.c on the GPU, bench_unet_cpu.c on the CPU) and of
+// the VAE's encoder forward and backward (bench_cuda_vae.c): a copy of an op table whose ops time
+// themselves with the bench's clock (prof_begin / prof_end, which on the GPU synchronise around
+// each op) and count their GEMM FLOPs (backwards: one GEMM's worth per gradient asked for; the
+// attention backward five), so one pass through it says where the time goes. Not a test: numbers only.
 #ifndef MATLABER_UNET_PROFILE_H
 #define MATLABER_UNET_PROFILE_H
+#include <stdio.h>
 #include <string.h>
 #include "matlaber/backend.h"
 #include "matlaber/unet.h"
@@ -60,16 +62,57 @@ static mlb_status w_rows(float* d, size_t dp, const float* s, size_t sp, size_t 
     PROF(P_GLUE, 0, inner->copy_rows(d, dp, s, sp, w, r));
 }
 
+static mlb_status w_conv_bwd(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
+                             const float* in, const float* w, const mlb_conv2d* cv) {
+    (void)be;
+    double f = 2.0 * cv->N * cv->OC * mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv) * cv->C * cv->KH * cv->KW;
+    PROF(P_CONV, f * ((din != NULL) + (dw != NULL)), inner->conv2d_backward(inner, din, dw, db, dout, in, w, cv));
+}
+static mlb_status w_gn_bwd(float* din, float* dw, float* db, const float* dout, const float* in, const float* w,
+                           const float* b, const float* mean, const float* rstd, int N, int C, int HW, int G,
+                           mlb_activation a) {
+    PROF(P_NORM, 0, inner->groupnorm_backward(din, dw, db, dout, in, w, b, mean, rstd, N, C, HW, G, a));
+}
+static mlb_status w_sdpa_bwd(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout, const float* out,
+                             const float* lse, const float* q, const float* k, const float* v, int B, int Tq, int Tk,
+                             int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    PROF(P_SDPA, 10.0 * B * Tq * Tk * C,
+         inner->sdpa_backward(inner, dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv));
+}
+static mlb_status w_act_bwd(float* din, const float* dout, const float* in, size_t n, mlb_activation a) {
+    PROF(P_GLUE, 0, inner->activation_backward(din, dout, in, n, a));
+}
+
+// *w = the profiling copy of be (its ops call be's), the counters reset.
+static void profile_wrap(const mlb_backend* be, mlb_backend* w) {
+    inner = be;
+    *w = *be;
+    w->linear = w_linear; w->conv2d = w_conv; w->sdpa = w_sdpa; w->groupnorm = w_gn; w->layernorm = w_ln;
+    w->activation = w_act; w->add = w_add; w->add_channel = w_addc; w->transpose_last2 = w_tr; w->geglu = w_geglu;
+    w->upsample_nearest2x = w_up; w->copy_rows = w_rows; w->alloc = w_alloc;
+    w->conv2d_backward = w_conv_bwd; w->groupnorm_backward = w_gn_bwd; w->sdpa_backward = w_sdpa_bwd;
+    w->activation_backward = w_act_bwd;
+    p_arena = 0;
+    memset(p_ms, 0, sizeof p_ms); memset(p_flop, 0, sizeof p_flop); memset(p_calls, 0, sizeof p_calls);
+}
+
+// The table of the counters, one row per category (names[P_COUNT]), as milliseconds.
+static inline void profile_print(const char* const* names) {
+    double sum = 0, flop = 0;
+    for (int c = 0; c < P_COUNT; c++) { sum += p_ms[c]; flop += p_flop[c]; }
+    printf("%-38s %7s %10s %7s %10s %10s\n", "op", "calls", "ms", "share", "GFLOP", "TFLOP/s");
+    for (int c = 0; c < P_COUNT; c++)
+        printf("%-38s %7ld %10.2f %6.1f%% %10.1f %10.1f\n", names[c], p_calls[c], p_ms[c], 100 * p_ms[c] / sum,
+               p_flop[c] / 1e9, p_ms[c] > 0 && p_flop[c] > 0 ? p_flop[c] / (p_ms[c] * 1e9) : 0.0);
+    printf("%-38s %7s %10.2f %6.1f%% %10.1f %10.1f\n", "total", "", sum, 100.0, flop / 1e9, flop / (sum * 1e9));
+}
+
 // One forward of u through the profiling copy of `be`, the counters reset first.
 static mlb_status unet_profile_run(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
                                    const float* ctx, int N, int H, int W) {
-    inner = be;
-    mlb_backend w = *be;
-    w.linear = w_linear; w.conv2d = w_conv; w.sdpa = w_sdpa; w.groupnorm = w_gn; w.layernorm = w_ln;
-    w.activation = w_act; w.add = w_add; w.add_channel = w_addc; w.transpose_last2 = w_tr; w.geglu = w_geglu;
-    w.upsample_nearest2x = w_up; w.copy_rows = w_rows; w.alloc = w_alloc;
-    p_arena = 0;
-    memset(p_ms, 0, sizeof p_ms); memset(p_flop, 0, sizeof p_flop); memset(p_calls, 0, sizeof p_calls);
+    mlb_backend w;
+    profile_wrap(be, &w);
     return mlb_unet_forward_on(&w, u, out, x, t, ctx, N, H, W, 77, NULL, NULL);
 }
 

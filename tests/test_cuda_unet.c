@@ -81,12 +81,13 @@ static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t 
     float *dq = dev_floats(q, nq), *dk = fused ? dq + C : dev_floats(k, nkv), *dv = fused ? dq + 2 * C : dev_floats(v, nkv);
     for (int p = 0; p < 4; p++) {
         int half = p == MLB_GEMM_FP16 || p == MLB_GEMM_BF16, fusable = half && C / NH <= 128;
-        for (int flash = fusable; flash >= 0; flash--) {
-            mlb_cuda_use_flash(flash);
+        for (int flash = 2 * fusable; flash >= 0; flash--) {   // 2: the fused kernel, 128 rows per block
+            mlb_cuda_use_flash(flash > 0);
+            mlb_cuda_flash_rows(flash == 2 ? 128 : 64);
             float *dout = dev_floats(NULL, no), *dlse = dev_floats(NULL, nl);
             char what[160];
             snprintf(what, sizeof what, "sdpa B%d Tq%d Tk%d C%d NH%d%s %s%s", B, Tq, Tk, C, NH, fused ? " fused" : "",
-                     prec_names[p], fusable ? (flash ? " fused kernel" : " GEMMs") : "");
+                     prec_names[p], fusable ? (flash == 2 ? " fused kernel, 128 rows" : flash ? " fused kernel" : " GEMMs") : "");
             mlb_status st = mlb_cuda_sdpa_forward(dout, dlse, dq, dk, dv, B, Tq, Tk, C, NH, ldq, ldkv, (mlb_gemm_precision)p);
             CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
             if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, op_bound[p]);
@@ -97,6 +98,7 @@ static void sdpa_case(int B, int Tq, int Tk, int C, int NH, int fused, uint64_t 
         }
     }
     mlb_cuda_use_flash(1);
+    mlb_cuda_flash_rows(64);
     mlb_cuda_free(dq);
     if (!fused) { mlb_cuda_free(dk); mlb_cuda_free(dv); free(k); free(v); }
     free(q); free(ref); free(got); free(lse_ref); free(lse_got);

@@ -110,6 +110,9 @@ void mlb_cuda_use_cudnn(int on);
 // (src/cuda/flash_attention.cu: the scores never leave the registers); mlb_cuda_use_flash(0) (or
 // MLB_FLASH=0 in the environment) sends it to the batched GEMMs and the row softmax instead.
 void mlb_cuda_use_flash(int on);
+// Its query rows per block, 64 (default) or 128 (or MLB_FLASH_ROWS=128): tests and the benchmark
+// run both.
+void mlb_cuda_flash_rows(int rows);
 int mlb_cuda_cudnn_version(void);
 // The backwards (src/cuda/conv_backward.cu): conv2d_backward's and sdpa_backward's contracts (+=,
 // any gradient may be NULL; sdpa needs the forward's out and lse).

@@ -140,6 +140,7 @@ mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, co
                                     const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
 void mlb_cuda_use_cudnn(int on) { (void)on; }
 void mlb_cuda_use_flash(int on) { (void)on; }
+void mlb_cuda_flash_rows(int rows) { (void)rows; }
 int mlb_cuda_cudnn_version(void) { return 0; }
 mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
                                   const float* lse, const float* q, const float* k, const float* v, int B, int Tq,

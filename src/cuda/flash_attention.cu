@@ -3,10 +3,11 @@
 // taken by mlb_cuda_sdpa_forward at fp16/bf16 for head widths up to 128 (docs/cuda.md).
 //
 // q and k are first split into heads in the operand type, [B*NH, Tp, hdp], and v transposed per head,
-// [B*NH, hdp, Tp], all padded with zeros to whole tiles (Tp a multiple of 64, hdp of 16), so the tile
-// loads need no bounds, padded keys give finite scores that the softmax masks, and every operand
-// fragment below is one 32-bit load. A block takes 64 query rows of one (image, head), four warps of
-// 16 rows each, and walks the keys in tiles of 64 (K and V^T in shared memory). Per warp, with the
+// [B*NH, hdp, Tp], all padded with zeros to whole tiles (Tp a multiple of 64 for keys and 128 for
+// queries, hdp of 16), so the loads need no bounds, padded keys give finite scores that the softmax
+// masks, and every operand fragment below is one 32-bit load. A block takes 64 (four warps) or 128
+// (eight warps: K and V read half as often; mlb_cuda_flash_rows) query rows of one (image, head),
+// 16 rows per warp, and walks the keys in tiles of 64 (K and V^T in shared memory). Per warp, with the
 // m16n8k16 MMA (PTX ISA, "Matrix fragments for mma.m16n8k16"; lane = 4 g + t holds rows g and g + 8):
 //   S [16, 64] = Q K^T        in registers (8 accumulator tiles); Q's fragments loaded once
 //   online softmax            the row max over the quad of lanes sharing a row (two shuffles), base 2:
@@ -20,7 +21,8 @@
 #include "gemm_ops.cuh"
 
 namespace {
-constexpr int BQ = 64, BK = 64, THREADS = 128;   // four warps of 16 query rows
+constexpr int BK = 64;                           // keys per tile
+constexpr int QPAD = 128;                        // query rows are padded to a multiple of the larger block
 constexpr int MAX_HD = 128;                      // wider heads: the O accumulators would spill
 constexpr int LDV = BK + 8;                      // a row of V^T in shared memory (16-bit values)
 }   // namespace
@@ -80,32 +82,27 @@ template <> __device__ __forceinline__ void mma16816<__nv_bfloat16>(float* d, co
 #endif
 }
 
-template <typename T, int HDP>
-__global__ void __launch_bounds__(THREADS)
+template <typename T, int HDP, int WARPS>
+__global__ void __launch_bounds__(32 * WARPS)
     flash_forward_kernel(float* out, float* lse, const T* qh, const T* kh, const T* vt, int NH, int Tq, int Tqp,
                          int Tk, int Tkp, int hd, int C, float scale_log2) {
-    constexpr int LDK = HDP + 8;   // a row of K (and, before the loop, of Q) in shared memory
+    constexpr int LDK = HDP + 8;   // a row of K in shared memory
     constexpr int CH = HDP / 8;    // 16-byte chunks per row of K
+    constexpr int THREADS = 32 * WARPS, BQ = 16 * WARPS;
     __shared__ __align__(16) T sK[BK * LDK];
     __shared__ __align__(16) T sV[HDP * LDV];
     const int warp = threadIdx.x >> 5, lane = threadIdx.x & 31, g = lane >> 2, t = lane & 3;
     const int bh = blockIdx.y, q0 = blockIdx.x * BQ;
 
-    // this warp's Q fragments, through sK
-    const T* qb = qh + ((size_t)bh * Tqp + q0) * HDP;
-    for (int i = threadIdx.x; i < BQ * CH; i += THREADS) {
-        const int r = i / CH, c = i % CH;
-        *(uint4*)(sK + r * LDK + c * 8) = *(const uint4*)(qb + (size_t)r * HDP + c * 8);
-    }
-    __syncthreads();
+    // this warp's Q fragments, straight from global memory (read once)
+    const T* qw = qh + ((size_t)bh * Tqp + q0 + warp * 16) * HDP;
     uint32_t qf[HDP / 16][4];
-    const T* qw = sK + warp * 16 * LDK;
 #pragma unroll
     for (int ks = 0; ks < HDP / 16; ks++) {
-        qf[ks][0] = ld32(qw + g * LDK + ks * 16 + 2 * t);
-        qf[ks][1] = ld32(qw + (g + 8) * LDK + ks * 16 + 2 * t);
-        qf[ks][2] = ld32(qw + g * LDK + ks * 16 + 8 + 2 * t);
-        qf[ks][3] = ld32(qw + (g + 8) * LDK + ks * 16 + 8 + 2 * t);
+        qf[ks][0] = ld32(qw + g * HDP + ks * 16 + 2 * t);
+        qf[ks][1] = ld32(qw + (g + 8) * HDP + ks * 16 + 2 * t);
+        qf[ks][2] = ld32(qw + g * HDP + ks * 16 + 8 + 2 * t);
+        qf[ks][3] = ld32(qw + (g + 8) * HDP + ks * 16 + 8 + 2 * t);
     }
     float o[HDP / 8][4];
 #pragma unroll
@@ -114,7 +111,7 @@ __global__ void __launch_bounds__(THREADS)
 
     const int tiles = (Tk + BK - 1) / BK;
     for (int kt = 0; kt < tiles; kt++) {
-        __syncthreads();   // every warp is done with sK (Q, or the last tile) and sV
+        __syncthreads();   // every warp is done with the last tile's sK and sV
         const T* kb = kh + ((size_t)bh * Tkp + (size_t)kt * BK) * HDP;
         for (int i = threadIdx.x; i < BK * CH; i += THREADS) {
             const int r = i / CH, c = i % CH;
@@ -226,12 +223,24 @@ int mlb_cuda_flash_usable(int B, int Tq, int hd, int NH, mlb_gemm_precision prec
     return major >= 8;   // mma.m16n8k16 with bf16: sm_80 on
 }
 
+static int g_flash_rows = 0;   // query rows per block: 64 or 128; 0: from $MLB_FLASH_ROWS, else 64
+extern "C" void mlb_cuda_flash_rows(int rows) { g_flash_rows = rows == 128 ? 128 : 64; }
+
 template <typename T, int HDP>
 static mlb_status flash_launch(float* out, float* lse, const T* qh, const T* kh, const T* vt, int B, int NH, int Tq,
                                int Tqp, int Tk, int Tkp, int hd, int C) {
+    if (!g_flash_rows) {
+        const char* e = getenv("MLB_FLASH_ROWS");
+        g_flash_rows = e && atoi(e) == 128 ? 128 : 64;
+    }
     const float scale_log2 = 1.4426950408889634f / sqrtf((float)hd);
-    dim3 grid(Tqp / BQ, B * NH);
-    flash_forward_kernel<T, HDP><<<grid, THREADS>>>(out, lse, qh, kh, vt, NH, Tq, Tqp, Tk, Tkp, hd, C, scale_log2);
+    if (g_flash_rows == 128) {
+        flash_forward_kernel<T, HDP, 8><<<dim3(Tqp / 128, B * NH), 256>>>(out, lse, qh, kh, vt, NH, Tq, Tqp, Tk, Tkp,
+                                                                           hd, C, scale_log2);
+    } else {
+        flash_forward_kernel<T, HDP, 4><<<dim3(Tqp / 64, B * NH), 128>>>(out, lse, qh, kh, vt, NH, Tq, Tqp, Tk, Tkp, hd,
+                                                                          C, scale_log2);
+    }
     MLB_CUDA_LAUNCHED("flash_forward_kernel");
     return MLB_OK;
 }
@@ -239,7 +248,7 @@ static mlb_status flash_launch(float* out, float* lse, const T* qh, const T* kh,
 template <typename T>
 static mlb_status flash_run(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
                             int Tk, int C, int NH, int ldq, int ldkv) {
-    const int hd = C / NH, hdp = (hd + 15) / 16 * 16, Tqp = (Tq + BQ - 1) / BQ * BQ, Tkp = (Tk + BK - 1) / BK * BK;
+    const int hd = C / NH, hdp = (hd + 15) / 16 * 16, Tqp = (Tq + QPAD - 1) / QPAD * QPAD, Tkp = (Tk + BK - 1) / BK * BK;
     const size_t nq = (size_t)B * NH * Tqp * hdp, nkv = (size_t)B * NH * Tkp * hdp;
     const size_t q_bytes = round_up(nq * sizeof(T)), kv_bytes = round_up(nkv * sizeof(T));
     void* base;

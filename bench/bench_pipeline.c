@@ -36,7 +36,8 @@
 // --sd15 --generate PRESET (e.g. cpu) skips the table and runs a whole generation end to end with
 // that preset (mlb_pipeline_preset) and the random SD 1.5 (random prompt embeddings): the pipeline's
 // own loop with its checkpoints, previews and the final .glb, in a run folder under --dir that is
-// removed afterwards; it prints the wall time of each part.
+// removed afterwards; it prints the wall time (--generate-geometry-lr X overrides the preset's
+// geometry learning rate: random weights' gradients can empty the grid, docs/pipeline.md).
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -433,18 +434,22 @@ static int parse_sizes(const char* arg, int* out, int cap) {
 
 // A whole `matlaber generate --preset NAME` (its settings, the pipeline's own loop) with the random
 // SD 1.5 u, vae in a run folder under dir, removed afterwards; t_model: when the weights began loading.
-static int generate_run(const char* preset, const char* dir, const mlb_unet* u, const mlb_vae* vae, const float* ac,
-                        double t_model) {
+static int generate_run(const char* preset, double geometry_lr, const char* dir, const mlb_unet* u, const mlb_vae* vae,
+                        const float* ac, double t_model) {
     mlb_pipeline_config c = mlb_pipeline_default();
     if (mlb_pipeline_preset(&c, preset)) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
+    // Random weights' SDS gradients are noise with a guidance scale of 100: at the preset's learning
+    // rate they can empty the grid ("no surface") in a few dozen steps. --generate-geometry-lr keeps
+    // a surface for the timing (a step's time does not depend on the learning rate).
+    if (geometry_lr > 0) c.geometry_lr = geometry_lr;
     snprintf(c.prompt, sizeof c.prompt, "(random embeddings)");
     snprintf(c.model, sizeof c.model, "(random SD 1.5)");
     if (c.latent_iters < 0) c.latent_iters = c.geometry_iters / 3;
     double t0 = mlb_now_seconds();
-    printf("generate --preset %s end to end: %d views at %d², %d geometry steps (%d latent-phase), %d appearance "
-           "steps, grid %d, %s GEMMs (weights loaded in %.1f s)\n", preset, c.views, c.res, c.geometry_iters,
-           c.latent_iters, c.appearance_iters, c.grid, mlb_gemm_precision_name(mlb_gemm_precision_current()),
-           t0 - t_model);
+    printf("generate --preset %s end to end: %d views at %d², %d geometry steps (%d latent-phase, lr %g), %d "
+           "appearance steps, grid %d, %s GEMMs (weights loaded in %.1f s)\n", preset, c.views, c.res,
+           c.geometry_iters, c.latent_iters, c.geometry_lr, c.appearance_iters, c.grid,
+           mlb_gemm_precision_name(mlb_gemm_precision_current()), t0 - t_model);
     fflush(stdout);
     guide gd;
     memset(&gd, 0, sizeof gd);
@@ -479,7 +484,7 @@ static int generate_run(const char* preset, const char* dir, const mlb_unet* u, 
 static int usage(void) {
     fprintf(stderr, "usage: bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512] [--no-images] "
                     "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp] [--sd15-views 1] "
-                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET]\n");
+                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET [--generate-geometry-lr X]]\n");
     return 2;
 }
 
@@ -533,6 +538,7 @@ int main(int argc, char** argv) {
     const char* base = "/tmp";
     int sd_views = 1;
     const char* generate = NULL;
+    double generate_geo_lr = 0;
     mlb_device device = MLB_DEVICE_CPU;
     mlb_gemm_precision precision = MLB_GEMM_FP16;
     for (int i = 1; i < argc; i++) {
@@ -544,6 +550,7 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--dir")) base = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--sd15-views")) sd_views = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--generate")) generate = argv[++i];
+        else if (i + 1 < argc && !strcmp(argv[i], "--generate-geometry-lr")) generate_geo_lr = atof(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--device")) {
             if (mlb_device_select(argv[++i], &device) != MLB_OK) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
         } else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
@@ -660,7 +667,7 @@ int main(int argc, char** argv) {
         }
         if (generate) {
             mlb_set_gemm_precision(precision);
-            rc = generate_run(generate, dir, tu, tv, ac, t0);
+            rc = generate_run(generate, generate_geo_lr, dir, tu, tv, ac, t0);
             goto out;
         }
         if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views) ||

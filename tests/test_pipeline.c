@@ -37,6 +37,27 @@ static int same_file(const char* a, const char* b) {
     return same;
 }
 
+// c saved to path with keys a and b renamed (as a config.json written before they existed), loaded
+// into *back.
+static mlb_status load_without_keys(const mlb_pipeline_config* c, const char* path, const char* a, const char* b,
+                                    mlb_pipeline_config* back) {
+    MLB_TRY(mlb_pipeline_config_save(c, path));
+    char* text = NULL;
+    size_t n = 0;
+    MLB_TRY(mlb_read_file(path, &text, &n, 1 << 20));
+    const char* keys[2] = {a, b};
+    for (int i = 0; i < 2; i++) {
+        char quoted[128];
+        snprintf(quoted, sizeof quoted, "\"%s\"", keys[i]);
+        char* at = strstr(text, quoted);
+        if (!at) { free(text); return mlb_fail(MLB_ERR_FORMAT, "%s: no key %s", path, quoted); }
+        at[1] = 'x';
+    }
+    mlb_status s = mlb_write_file_atomic(path, text, n);
+    free(text);
+    return s ? s : mlb_pipeline_config_load(back, path);
+}
+
 TEST(config_round_trip_and_errors) {
     mlb_pipeline_config c = mlb_pipeline_default(), back;
     snprintf(c.prompt, sizeof c.prompt, "a \"golden\" goblet");
@@ -98,16 +119,8 @@ TEST(config_round_trip_and_errors) {
     // a run from before "coarse_to_fine" and "material_smoothness_specular" loads with what it ran
     // with (0, 0), not today's defaults (0.5, 0.1)
     CHECK(c.coarse_to_fine == 0.5 && c.w_mat_spec == 0.1);
-    REQUIRE(mlb_pipeline_config_save(&c, path) == MLB_OK);
-    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
-    char *k1 = strstr(text, "\"coarse_to_fine\""), *k2 = strstr(text, "\"material_smoothness_specular\"");
-    REQUIRE(k1 && k2);
-    memcpy(k1 + 1, "x", 1);
-    memcpy(k2 + 1, "x", 1);
-    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
-    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    REQUIRE(load_without_keys(&c, path, "coarse_to_fine", "material_smoothness_specular", &back) == MLB_OK);
     CHECK(back.coarse_to_fine == 0 && back.w_mat_spec == 0);
-    free(text);
     mlb_clear_error();
 }
 
@@ -132,17 +145,8 @@ TEST(presets) {
     back.stop_after = c.stop_after;
     back.overwrite = c.overwrite;
     CHECK(!memcmp(&back, &c, sizeof c));
-    char* text = NULL;
-    size_t n = 0;
-    REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
-    char *k1 = strstr(text, "\"export_texture\""), *k2 = strstr(text, "\"precision\"");
-    REQUIRE(k1 && k2);
-    memcpy(k1 + 1, "x", 1);
-    memcpy(k2 + 1, "x", 1);
-    REQUIRE(mlb_write_file_atomic(path, text, n) == MLB_OK);
-    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    REQUIRE(load_without_keys(&c, path, "export_texture", "precision", &back) == MLB_OK);
     CHECK(back.export_texture == 0 && back.precision[0] == 0);
-    free(text);
     c.export_texture = -1;
     CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
     c.export_texture = 0;

@@ -59,7 +59,6 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
     c->res = 256;
     c->geometry_iters = 150;      // the first third in the latent phase (64² normal-map latents, ~15 s each)
     c->appearance_iters = 180;
-    c->geometry_lr = 5e-3;        // 20x fewer steps than the paper's 3000: larger steps
     c->grid = 64;                 // 32 cells per axis: a 256² render resolves no finer surface
     c->init_iters = 200;
     c->env_height = 128;

@@ -37,7 +37,8 @@
 // that preset (mlb_pipeline_preset) and the random SD 1.5 (random prompt embeddings): the pipeline's
 // own loop with its checkpoints, previews and the final .glb, in a run folder under --dir that is
 // removed afterwards; it prints the wall time (--generate-geometry-lr X overrides the preset's
-// geometry learning rate: random weights' gradients can empty the grid, docs/pipeline.md).
+// geometry learning rate: random weights' gradients can empty the grid, docs/pipeline.md;
+// --generate-scale F multiplies both stages' step counts, for a miniature of a long schedule).
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -434,14 +435,20 @@ static int parse_sizes(const char* arg, int* out, int cap) {
 
 // A whole `matlaber generate --preset NAME` (its settings, the pipeline's own loop) with the random
 // SD 1.5 u, vae in a run folder under dir, removed afterwards; t_model: when the weights began loading.
-static int generate_run(const char* preset, double geometry_lr, const char* dir, const mlb_unet* u, const mlb_vae* vae,
-                        const float* ac, double t_model) {
+static int generate_run(const char* preset, double geometry_lr, double scale, const char* dir, const mlb_unet* u,
+                        const mlb_vae* vae, const float* ac, double t_model) {
     mlb_pipeline_config c = mlb_pipeline_default();
     if (mlb_pipeline_preset(&c, preset)) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
     // Random weights' SDS gradients are noise with a guidance scale of 100: at the preset's learning
     // rate they can empty the grid ("no surface") in a few dozen steps. --generate-geometry-lr keeps
     // a surface for the timing (a step's time does not depend on the learning rate).
     if (geometry_lr > 0) c.geometry_lr = geometry_lr;
+    // --generate-scale F: both stages' step counts times F (a miniature of a long schedule, whose
+    // per-step time then extrapolates; the latent phase stays the first third)
+    if (scale > 0 && scale != 1) {
+        c.geometry_iters = (int)(c.geometry_iters * scale + 0.5);
+        c.appearance_iters = (int)(c.appearance_iters * scale + 0.5);
+    }
     snprintf(c.prompt, sizeof c.prompt, "(random embeddings)");
     snprintf(c.model, sizeof c.model, "(random SD 1.5)");
     if (c.latent_iters < 0) c.latent_iters = c.geometry_iters / 3;
@@ -484,7 +491,7 @@ static int generate_run(const char* preset, double geometry_lr, const char* dir,
 static int usage(void) {
     fprintf(stderr, "usage: bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512] [--no-images] "
                     "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp] [--sd15-views 1] "
-                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET [--generate-geometry-lr X]]\n");
+                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET [--generate-geometry-lr X] [--generate-scale F]]\n");
     return 2;
 }
 
@@ -538,7 +545,7 @@ int main(int argc, char** argv) {
     const char* base = "/tmp";
     int sd_views = 1;
     const char* generate = NULL;
-    double generate_geo_lr = 0;
+    double generate_geo_lr = 0, generate_scale = 1;
     mlb_device device = MLB_DEVICE_CPU;
     mlb_gemm_precision precision = MLB_GEMM_FP16;
     for (int i = 1; i < argc; i++) {
@@ -551,6 +558,7 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--sd15-views")) sd_views = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--generate")) generate = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--generate-geometry-lr")) generate_geo_lr = atof(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--generate-scale")) generate_scale = atof(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--device")) {
             if (mlb_device_select(argv[++i], &device) != MLB_OK) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
         } else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
@@ -667,7 +675,7 @@ int main(int argc, char** argv) {
         }
         if (generate) {
             mlb_set_gemm_precision(precision);
-            rc = generate_run(generate, generate_geo_lr, dir, tu, tv, ac, t0);
+            rc = generate_run(generate, generate_geo_lr, generate_scale, dir, tu, tv, ac, t0);
             goto out;
         }
         if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views) ||

@@ -163,8 +163,11 @@ if [ $bench = 1 ]; then
   fi
 fi
 if [ $pipeline = 1 ]; then
-  (cd "$build" && ./bench/bench_pipeline --sd15 --no-images --no-tiny --device cuda --precision "${MLB_PRECISION:-fp16}" \
-     --sd15-views 9 --sd15-sizes 512 --iters 1 --dir /tmp) 2>&1 | tee "$out/bench_pipeline.log" | tee -a "$log"
+  # MLB_PIPELINE_ARGS replaces the table's arguments (e.g. a --generate run: docs/cuda.md)
+  # shellcheck disable=SC2086
+  (cd "$build" && ./bench/bench_pipeline --sd15 --device cuda --precision "${MLB_PRECISION:-fp16}" --dir /tmp \
+     ${MLB_PIPELINE_ARGS:---no-images --no-tiny --sd15-views 9 --sd15-sizes 512 --iters 1}) 2>&1 \
+     | tee "$out/bench_pipeline.log" | tee -a "$log"
 fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="

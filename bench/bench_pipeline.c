@@ -614,7 +614,7 @@ int main(int argc, char** argv) {
         printf("image guidance data: 12 views of a sphere at 512² (%.1f s)\n", mlb_now_seconds() - t0);
     }
     printf("\n");
-    print_header();
+    if (!generate) print_header();
     if (images && run_guidance(&sc, "images", NULL, views_dir, sizes, n_sizes, iters, do_geo, do_app)) { rc = 1; goto out; }
     if (tiny) {
         mlb_unet_config uc = mlb_unet_tiny_config(0);
@@ -670,8 +670,9 @@ int main(int argc, char** argv) {
             s = mlb_unet_use_device(tu, device, precision);
             if (!s) s = mlb_vae_use_device(tv, device, precision);
             if (s) { fprintf(stderr, "bench_pipeline: --device: %s\n", mlb_last_error()); rc = 1; goto out; }
-            printf("SD 1.5 UNet and VAE on the %s, %s GEMMs; %d views per step\n", mlb_device_name(device),
-                   mlb_gemm_precision_name(precision), sd_views);
+            printf("SD 1.5 UNet and VAE on the %s, %s GEMMs", mlb_device_name(device), mlb_gemm_precision_name(precision));
+            if (!generate) printf("; %d views per step", sd_views);
+            printf("\n");
         }
         if (generate) {
             mlb_set_gemm_precision(precision);

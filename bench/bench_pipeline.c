@@ -106,15 +106,17 @@ static mlb_sds* random_sds(const mlb_unet* u, const mlb_vae* vae, const float* a
     return s;
 }
 
+// latent_iters: the geometry steps fed as 64² latents (the table passes LATENT_ITERS and picks each
+// phase by the step number; a --generate run its preset's).
 static mlb_status make_sds_guide(guide* gd, const char* name, const mlb_unet* u, const mlb_vae* vae, const float* ac,
-                                 int Tc, int views) {
+                                 int Tc, int views, long latent_iters) {
     memset(gd, 0, sizeof *gd);
     gd->name = name;
     gd->unet = u;
     gd->Tc = Tc;
     mlb_guidance_sds_config gc = mlb_guidance_sds_default();
     gc.views = views;
-    gc.latent_iters = (int)LATENT_ITERS;
+    gc.latent_iters = (int)latent_iters;
     gc.n_envs = N_ENVS;
     gc.seed = 0;
     mlb_sds* a = random_sds(u, vae, ac, Tc, 1);
@@ -464,7 +466,7 @@ static int generate_run(const char* preset, double geometry_lr, double scale, co
     snprintf(run, sizeof run, "%s/run", dir);
     mlb_progress progress;
     mlb_pipeline_result result;
-    mlb_status s = make_sds_guide(&gd, "sds SD 1.5", u, vae, ac, 77, c.views);
+    mlb_status s = make_sds_guide(&gd, "sds SD 1.5", u, vae, ac, 77, c.views, c.latent_iters);
     if (!s) s = mlb_pipeline_run(run, &c, gd.g, NULL, 0, &progress, &result);
     double total = mlb_now_seconds() - t0;
     guide_free(&gd);
@@ -632,7 +634,7 @@ int main(int argc, char** argv) {
         unlink(pu);
         unlink(cj);
         mlb_vae_init_random(tv, 3, 1.0f);
-        if (make_sds_guide(&tg, "sds tiny", tu, tv, ac, 6, 4) ||
+        if (make_sds_guide(&tg, "sds tiny", tu, tv, ac, 6, 4, LATENT_ITERS) ||
             run_guidance(&sc, "sds tiny", &tg, NULL, sizes, n_sizes, iters, do_geo, do_app)) {
             fprintf(stderr, "bench_pipeline: tiny SDS: %s\n", mlb_last_error());
             rc = 1;
@@ -679,7 +681,7 @@ int main(int argc, char** argv) {
             rc = generate_run(generate, generate_geo_lr, generate_scale, dir, tu, tv, ac, t0);
             goto out;
         }
-        if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views) ||
+        if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views, LATENT_ITERS) ||
             run_guidance(&sc, "sds SD 1.5", &tg, NULL, sd_sizes, n_sd_sizes, iters, do_geo, do_app)) {
             fprintf(stderr, "bench_pipeline: SD 1.5 SDS: %s\n", mlb_last_error());
             rc = 1;

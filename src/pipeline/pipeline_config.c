@@ -53,12 +53,12 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         return mlb_fail(MLB_ERR_ARG, "--preset: '%s' is not one of %s", name, MLB_PIPELINE_PRESETS);
     // Sized with bench_pipeline --sd15 --precision bf16 on 2 cores of an AMD EPYC (docs/pipeline.md,
     // "Presets"): one view per step; a latent-phase step (the SD 1.5 UNet at 64², batch 2) costs
-    // ~15 s, a 256² VAE-phase geometry or appearance step ~8 s (UNet at 32² 3 s + VAE encoder
-    // forward and backward 5 s).
+    // ~11.3 s, a 256² VAE-phase geometry or appearance step ~5.1 s (UNet at 32² 2.3 s + the VAE
+    // encoder's forward and backward ~2.8 s): ~42 minutes of steps, the rest of the hour a margin.
     c->views = 1;
     c->res = 256;
-    c->geometry_iters = 150;      // the first third in the latent phase (64² normal-map latents, ~15 s each)
-    c->appearance_iters = 180;
+    c->geometry_iters = 180;      // the first third in the latent phase (64² normal-map latents)
+    c->appearance_iters = 240;
     c->grid = 64;                 // 32 cells per axis: a 256² render resolves no finer surface
     c->init_iters = 200;
     c->env_height = 128;

@@ -31,10 +31,8 @@ static void profile(const mlb_unet* u, float* out, const float* x, const float* 
     TRY(unet_profile_run(mlb_backend_for(MLB_DEVICE_CUDA, prec), u, out, x, t, ctx, N, H, W));
     printf("\nprofile, batch %d, %s (each op synchronised; un-profiled forward %.2f ms; activations %.2f GiB):\n", N,
            mlb_gemm_precision_name(prec), total_ms, p_arena * 4.0 / 1073741824.0);
-    char conv[64];   // the convolutions' path: cuDNN (symmetric padding) unless MLB_CUDNN=0 or absent
-    const char* off = getenv("MLB_CUDNN");
-    snprintf(conv, sizeof conv, "%s%s", p_names[0],
-             mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? " (cuDNN)" : " (im2col + GEMM)");
+    char conv[64];
+    snprintf(conv, sizeof conv, "%s (%s)", p_names[0], profile_conv_path());
     const char* names[P_COUNT] = {conv, p_names[1], p_names[2], p_names[3], p_names[4]};
     profile_print(names);
 }

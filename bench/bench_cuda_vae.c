@@ -82,9 +82,10 @@ int main(int argc, char** argv) {
         mlb_backend w;
         prof_begin = mlb_cuda_timer_begin;
         prof_end = mlb_cuda_timer_end;
-        const char* off = getenv("MLB_CUDNN");
-        const char* names[P_COUNT] = {mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? "conv2d (cuDNN)" : "conv2d (im2col + GEMM)",
-                                      "linear (GEMM)", "attention (one head of 512)", "group norm", "glue (add, SiLU, copies)"};
+        char conv[64];
+        snprintf(conv, sizeof conv, "conv2d (%s)", profile_conv_path());
+        const char* names[P_COUNT] = {conv, "linear (GEMM)", "attention (one head of 512)", "group norm",
+                                      "glue (add, SiLU, copies)"};
         mlb_vae_cache cache = {0};
         for (int pass = 0; pass < 2; pass++) {
             profile_wrap(keep, &w);

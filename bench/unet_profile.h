@@ -6,8 +6,10 @@
 #ifndef MATLABER_UNET_PROFILE_H
 #define MATLABER_UNET_PROFILE_H
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include "matlaber/backend.h"
+#include "matlaber/cuda_ops.h"
 #include "matlaber/unet.h"
 
 enum { P_CONV, P_LINEAR, P_SDPA, P_NORM, P_GLUE, P_COUNT };
@@ -97,6 +99,13 @@ static void profile_wrap(const mlb_backend* be, mlb_backend* w) {
     memset(p_ms, 0, sizeof p_ms); memset(p_flop, 0, sizeof p_flop); memset(p_calls, 0, sizeof p_calls);
 }
 
+// The convolutions' path as the profile names it: cuDNN (symmetric padding) unless MLB_CUDNN=0 or
+// the build has none.
+static inline const char* profile_conv_path(void) {
+    const char* off = getenv("MLB_CUDNN");
+    return mlb_cuda_cudnn_version() && !(off && off[0] == '0') ? "cuDNN" : "im2col + GEMM";
+}
+
 // The table of the counters, one row per category (names[P_COUNT]), as milliseconds.
 static inline void profile_print(const char* const* names) {
     double sum = 0, flop = 0;
@@ -109,8 +118,8 @@ static inline void profile_print(const char* const* names) {
 }
 
 // One forward of u through the profiling copy of `be`, the counters reset first.
-static mlb_status unet_profile_run(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
-                                   const float* ctx, int N, int H, int W) {
+static inline mlb_status unet_profile_run(const mlb_backend* be, const mlb_unet* u, float* out, const float* x,
+                                          const float* t, const float* ctx, int N, int H, int W) {
     mlb_backend w;
     profile_wrap(be, &w);
     return mlb_unet_forward_on(&w, u, out, x, t, ctx, N, H, W, 77, NULL, NULL);

@@ -58,8 +58,8 @@ typedef struct {
     // run
     int export_texture;           // > 0: the run ends by writing final/asset.glb with textures of this
                                   // size (generate: 1024; fit: 0 = none; `matlaber export` does it later)
-    char precision[8];            // "" (the program's --precision), "fp32" or "bf16": the GEMMs' operands
-                                  // when the program was not given --precision (the cpu preset: bf16)
+    char precision[8];            // "" (the program's --precision) or a --precision name: the GEMMs'
+                                  // operands when the program was not given --precision (cpu preset: bf16)
     int checkpoint_every;         // steps between checkpoints: 100
     int preview_every;            // steps between preview renders: 100 (0 = none)
     long stop_after;              // stop (without a final checkpoint, as if killed) after this many steps

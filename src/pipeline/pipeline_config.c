@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/device.h"
 #include "matlaber/fileio.h"
 #include "matlaber/pipeline.h"
 
@@ -73,6 +74,7 @@ int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? 
 
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     const char* bad = NULL;
+    mlb_gemm_precision prec;
     if (strcmp(c->guidance, "sds") && strcmp(c->guidance, "images")) bad = "guidance must be \"sds\" or \"images\"";
     else if (!strcmp(c->guidance, "sds") && !c->model[0]) bad = "score distillation needs a model (-m)";
     else if (!strcmp(c->guidance, "sds") && !c->prompt[0]) bad = "score distillation needs a prompt (-p)";
@@ -97,9 +99,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
     else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
-    else if (c->precision[0] && strcmp(c->precision, "fp32") && strcmp(c->precision, "bf16") &&
-             strcmp(c->precision, "fp16") && strcmp(c->precision, "tf32"))
-        bad = "precision must be empty, fp32, bf16, fp16 or tf32";
+    else if (c->precision[0] && mlb_gemm_precision_parse(c->precision, &prec) != MLB_OK)
+        bad = "precision must be empty (the program's) or one of --precision's names";
     if (bad) return mlb_fail(MLB_ERR_ARG, "pipeline config: %s", bad);
     for (int i = 0; i < c->n_envs; i++)
         if (!c->envs[i][0]) return mlb_fail(MLB_ERR_ARG, "pipeline config: environment %d is empty", i);

@@ -10,9 +10,12 @@
 //    (2^-7 + 2^-16 + (K + 2) · 2^-24) · |alpha| · sum|a·b| (each operand rounded by at most 2^-8
 //    relative, so each product by 2^-7 + 2^-16, then the fp32 sums), and over the checked elements an RMS error at most 2^-8 · sqrt(sum (a·b)²), i.e. about
 //    2^-8 · sqrt(K) times a typical |a·b| (measured about 0.6 · 2^-8).
-// Bitwise the same on 1, 2 and 3 threads. Skipped (saying why) without AVX-512 BF16; the fp32
+// Bitwise the same on 1, 2 and 3 threads. Also sdpa_forward_bf16 (attention on these GEMMs, src/nn/
+// attention_bf16.c) against attention in double, per element within the bound its roundings allow.
+// Skipped (saying why) without AVX-512 BF16; the fp32
 // fallback is checked by forcing it.
 #include "test.h"
+#include "matlaber/conv_ops.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
 #include <float.h>
@@ -164,9 +167,122 @@ TEST(alpha_zero_and_empty_k) {
     CHECK(C[0] == 0 && C[3] == 0);
 }
 
+// ---- attention (sdpa_forward_bf16) -----------------------------------------------------------------
+// Reference in double, per (batch, head, query): the softmax weights p, lse, out, and the bound of the
+// bf16 result. The roundings: q and k to bf16 (2^-8 each) move a score by at most
+// eps_s = scale · (2^-7 + 2^-16 + (hd + 2) · 2^-24) · sum_d |q_d k_d|; with E = max_s eps_s every
+// weight moves by a factor within e^(±2E); then the weights and v are rounded to bf16 (2^-8 each),
+// the fp32 sums over Tk keys ((Tk + 4) · 2^-23 of sum |p v|) and the polynomial exp (< 2e-7):
+//   |out - ref| <= sum_s p_s |v_s| · ((e^(2E) - 1)(1 + 2^-6) + 2^-7 + 2^-16 + (Tk + 4) · 2^-23 + 1e-6)
+//   |lse - ref| <= E + (Tk + 2) · 2^-24 + 1e-6 + 2^-23 |lse|.
+typedef struct { int B, Tq, Tk, C, NH, fused; const char* what; } att_shape;
+static const att_shape att_shapes[] = {
+    {1, 1, 1, 8, 1, 0, "one query, one key"},
+    {2, 70, 77, 96, 8, 0, "cross-attention to 77 tokens, heads of 12"},
+    {1, 130, 130, 160, 4, 1, "fused qkv (stride 3C), heads of 40, Tq not a multiple of 64"},
+    {2, 64, 7, 128, 2, 0, "heads of 64, 7 keys"},
+    {1, 65, 300, 320, 2, 0, "heads of 160"},
+    {1, 40, 50, 512, 1, 0, "one head of 512 (the VAE's)"},
+    {2, 257, 257, 320, 8, 1, "fused qkv, heads of 40, threaded"},
+};
+
+static void att_case(const att_shape* s, double* worst, double* rms_num, double* rms_den) {
+    const int B = s->B, Tq = s->Tq, Tk = s->Tk, C = s->C, NH = s->NH, hd = C / NH;
+    const int ldq = s->fused ? 3 * C : C, ldkv = ldq;
+    size_t nq = (size_t)B * Tq * ldq, nkv = s->fused ? 0 : (size_t)B * Tk * ldkv, no = (size_t)B * Tq * C;
+    float *q = malloc(sizeof(float) * (nq + 2 * nkv)), *out = malloc(sizeof(float) * no);
+    float *out2 = malloc(sizeof(float) * no), *lse = malloc(sizeof(float) * B * NH * Tq);
+    double* p = malloc(sizeof(double) * Tk);
+    REQUIRE(q && out && out2 && lse && p);
+    mlb_rng_fill_uniform(q, nq + 2 * nkv, SEED, 20 + (uint64_t)(s - att_shapes), 0, -2, 2);
+    const float *k = s->fused ? q + C : q + nq, *v = s->fused ? q + 2 * C : q + nq + nkv;
+    CHECK(sdpa_forward_bf16(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv) == MLB_OK);
+    const double scale = 1 / sqrt((double)hd), u_prod = 0x1p-7 + 0x1p-16;
+    for (int b = 0; b < B; b++)
+        for (int h = 0; h < NH; h++)
+            for (int t = 0; t < Tq; t++) {
+                const float* qt = q + ((size_t)b * Tq + t) * ldq + h * hd;
+                double mx = -INFINITY, E = 0, sum = 0;
+                for (int j = 0; j < Tk; j++) {
+                    const float* kj = k + ((size_t)b * Tk + j) * ldkv + h * hd;
+                    double dot = 0, mag = 0;
+                    for (int d = 0; d < hd; d++) { dot += (double)qt[d] * kj[d]; mag += fabs((double)qt[d] * kj[d]); }
+                    p[j] = scale * dot;
+                    double e = scale * (u_prod + (hd + 2) * 0x1p-24) * mag;
+                    if (e > E) E = e;
+                    if (p[j] > mx) mx = p[j];
+                }
+                for (int j = 0; j < Tk; j++) { p[j] = exp(p[j] - mx); sum += p[j]; }
+                double ref_lse = mx + log(sum), got_lse = lse[((size_t)b * NH + h) * Tq + t];
+                double lse_bound = E + (Tk + 2) * 0x1p-24 + 1e-6 + 0x1p-23 * fabs(ref_lse);
+                double r = fabs(got_lse - ref_lse) / lse_bound;
+                if (r > worst[1]) worst[1] = r;
+                double factor = (exp(2 * E) - 1) * (1 + 0x1p-6) + u_prod + (Tk + 4) * 0x1p-23 + 1e-6;
+                for (int d = 0; d < hd; d++) {
+                    double ref = 0, mag = 0;
+                    for (int j = 0; j < Tk; j++) {
+                        double vj = v[((size_t)b * Tk + j) * ldkv + h * hd + d];
+                        ref += p[j] / sum * vj;
+                        mag += p[j] / sum * fabs(vj);
+                    }
+                    double got = out[((size_t)b * Tq + t) * C + h * hd + d];
+                    double e = fabs(got - ref) / (factor * mag);
+                    if (!(e <= worst[0])) worst[0] = e;   // NaN sticks
+                    *rms_num += (got - ref) * (got - ref);
+                    *rms_den += ref * ref;
+                }
+            }
+    // the same bits with lse NULL and on 1, 2 and 3 threads
+    int max_threads = omp_get_max_threads();
+    for (int threads = 1; threads <= 3; threads++) {
+        omp_set_num_threads(threads);
+        CHECK(sdpa_forward_bf16(out2, threads == 2 ? NULL : lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv) == MLB_OK);
+        CHECK_MSG(memcmp(out, out2, sizeof(float) * no) == 0, "%s: %d threads differ", s->what, threads);
+    }
+    omp_set_num_threads(max_threads);
+    free(q); free(out); free(out2); free(lse); free(p);
+}
+
+TEST(attention) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off): fp32 fallback only");
+    double worst[2] = {0, 0}, num = 0, den = 0;
+    for (size_t i = 0; i < sizeof att_shapes / sizeof att_shapes[0]; i++) {
+        double w[2] = {0, 0};
+        att_case(&att_shapes[i], w, &num, &den);
+        printf("  %-58s error / bound: out %.3g, lse %.3g\n", att_shapes[i].what, w[0], w[1]);
+        CHECK_MSG(w[0] <= 1 && w[1] <= 1, "%s: out of bounds", att_shapes[i].what);
+        for (int j = 0; j < 2; j++) if (w[j] > worst[j]) worst[j] = w[j];
+    }
+    double rms = sqrt(num / den);
+    printf("  RMS error of out %.3g (2^-8 = %.3g)\n", rms, 0x1p-8);
+    CHECK(rms <= 0x1p-7 && rms > 0x1p-14);   // bf16, not fp32 (~2^-24)
+}
+
+// Forced off, the attention is sdpa_forward's, bit for bit (out and lse).
+TEST(attention_fallback_is_fp32) {
+    const int B = 2, T = 150, C = 64, NH = 4;
+    size_t n = (size_t)B * T * C, nl = (size_t)B * NH * T;
+    float *x = malloc(sizeof(float) * 3 * n), *o1 = malloc(sizeof(float) * n), *o2 = malloc(sizeof(float) * n);
+    float *l1 = malloc(sizeof(float) * nl), *l2 = malloc(sizeof(float) * nl);
+    REQUIRE(x && o1 && o2 && l1 && l2);
+    mlb_rng_fill_uniform(x, 3 * n, SEED, 40, 0, -2, 2);
+    int native = mlb_gemm_bf16_native();
+    mlb_gemm_bf16_force_fallback(1);
+    CHECK(sdpa_forward_bf16(o1, l1, x, x + n, x + 2 * n, B, T, T, C, NH, C, C) == MLB_OK);
+    CHECK(sdpa_forward(o2, l2, x, x + n, x + 2 * n, B, T, T, C, NH, C, C, NULL) == MLB_OK);
+    CHECK(memcmp(o1, o2, sizeof(float) * n) == 0 && memcmp(l1, l2, sizeof(float) * nl) == 0);
+    mlb_gemm_bf16_force_fallback(!native);
+    // the shape errors are sdpa_forward's
+    CHECK(sdpa_forward_bf16(o1, l1, x, x + n, x + 2 * n, B, T, T, C, 3, C, C) == MLB_ERR_ARG);
+    CHECK(sdpa_forward_bf16(o1, l1, x, x + n, x + 2 * n, B, T, 0, C, NH, C, C) == MLB_ERR_ARG);
+    free(x); free(o1); free(o2); free(l1); free(l2);
+}
+
 int main(void) {
     RUN(values_threads_edges);
     RUN(fallback_is_fp32);
     RUN(alpha_zero_and_empty_k);
+    RUN(attention);
+    RUN(attention_fallback_is_fp32);
     return test_summary();
 }

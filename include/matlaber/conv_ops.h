@@ -136,6 +136,11 @@ void transpose_last2_f64(double* out, const double* in, int N, int R, int S, int
 // maximum; row sums are in double.
 // lse [B, NH, Tq] (may be NULL) receives each row's log-sum-exp of the scaled scores, which the
 // backward needs. MLB_ERR_ARG: C not a multiple of NH, ld < C, Tk < 1 with Tq >= 1, ...
+// The same forward for the CPU's bf16 op table (src/nn/attention_bf16.c): both products with bf16
+// operands and fp32 sums, the softmax in fp32; bitwise the same on any thread count; sdpa_forward
+// itself (fp32 bits) where the CPU lacks AVX-512 BF16. Relative error about 2^-8 (tests/test_gemm_bf16.c).
+mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
+                             int Tk, int C, int NH, int ldq, int ldkv);
 size_t sdpa_workspace_size(int Tq, int Tk);   // elements; enough for forward and backward
 mlb_status sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
                         int Tk, int C, int NH, int ldq, int ldkv, float* ws);

@@ -167,6 +167,12 @@ static mlb_status cpu_conv2d_backward_bf16(const mlb_backend* be, float* din, fl
     return conv2d_backward_bf16(din, dw, db, dout, in, w, cv, NULL);
 }
 
+static mlb_status cpu_sdpa_bf16(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
+                                const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    return sdpa_forward_bf16(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv);
+}
+
 static const mlb_backend cpu_table = {
     MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
     cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_groupnorm, groupnorm_backward,
@@ -177,7 +183,7 @@ static const mlb_backend cpu_table = {
 static const mlb_backend cpu_bf16_table = {
     MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
     cpu_linear_bf16, cpu_linear_backward_bf16, cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_groupnorm,
-    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel,
+    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa_bf16, cpu_sdpa_backward, cpu_add, cpu_add_channel,
     cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
     cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
 };

@@ -18,7 +18,7 @@
 #define TRY(x) do { if ((x) != MLB_OK) { fprintf(stderr, "bench_unet_cpu: %s\n", mlb_last_error()); exit(1); } } while (0)
 
 // ---- the profile (unet_profile.h), each op timed by the wall clock ----
-static const char* p_names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (GEMM+softmax, fp32)",
+static const char* p_names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (GEMM + softmax)",
                                        "group/layer norm", "glue (add, transpose, GEGLU, copies)"};
 static double clock_t0;
 static mlb_status wall_begin(void) { clock_t0 = mlb_now_seconds(); return MLB_OK; }

@@ -4,8 +4,9 @@
 //
 // Why: in fp32 the SD 1.5 UNet's attention ran at ~48 GFLOP/s, 45% of a bf16 CFG step
 // (docs/benchmarks.md): each score block went through OpenBLAS at K = 40 (one head), then a scalar
-// expf per score, then a second GEMM at N = 40. Here the work is cut into tasks (batch, head, a
-// block of BLOCK_ROWS queries), each done whole by one thread:
+// expf per score, then a second GEMM at N = 40. Here, head after head, the keys and values are
+// packed to bf16 once (gemm_bf16.h) and the queries cut into blocks of BLOCK_ROWS, each done whole
+// by one thread:
 //   S[r, Tk]  = scale · Q_blk · K^T           (bf16 GEMM, K = head width)
 //   S        <- exp(S - rowmax), rowsum in fp32 (AVX-512, 16 lanes, a fixed order)
 //   O^T[hd, r] = V^T · S^T                     (bf16 GEMM; hd is the short side: 14-row panels fit
@@ -24,7 +25,9 @@
 #include "matlaber/nn.h"
 #include "nn/gemm_bf16.h"
 
+#ifndef BLOCK_ROWS
 #define BLOCK_ROWS 64
+#endif
 
 #if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
 #define MLB_ATT_KERNEL 1
@@ -83,9 +86,12 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
         return sdpa_forward(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
     const int hd = C / NH, blocks = (Tq + BLOCK_ROWS - 1) / BLOCK_ROWS;
     const float scale = (float)(1.0 / sqrt((double)hd));
-    const int64_t tasks = (int64_t)B * NH * blocks;
+    // per head, packed once for all its query blocks: K^T as the first product's B, V^T as the second's A
+    const size_t kw = mlb_gemm_bf16_packed_words(1, Tk, hd), vw = mlb_gemm_bf16_packed_words(0, hd, Tk);
+    uint32_t* kv_packed = malloc(sizeof(uint32_t) * (kw + vw));
+    if (!kv_packed) return mlb_fail(MLB_ERR_NOMEM, "attention (bf16): out of memory for a head's packed keys");
     int failed = 0;
-#pragma omp parallel if (tasks > 1 && (int64_t)Tq * Tk * hd >= (1 << 20))
+#pragma omp parallel if (blocks > 1 && (int64_t)Tq * Tk * hd >= (1 << 20))
     {
         // per thread: one block's scores [BLOCK_ROWS, Tk], its O^T [hd, BLOCK_ROWS]
         float* S = malloc(sizeof(float) * ((size_t)BLOCK_ROWS * Tk + (size_t)hd * BLOCK_ROWS));
@@ -94,28 +100,39 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
 #pragma omp atomic write
             failed = 1;
         }
-#pragma omp for schedule(static)
-        for (int64_t task = 0; task < tasks; task++) {
-            if (!S) continue;
-            const int blk = (int)(task % blocks), h = (int)(task / blocks % NH), b = (int)(task / blocks / NH);
-            const int t0 = blk * BLOCK_ROWS, nr = Tq - t0 < BLOCK_ROWS ? Tq - t0 : BLOCK_ROWS;
-            const float* qb = q + ((size_t)b * Tq + t0) * ldq + (size_t)h * hd;
+        for (int bh = 0; bh < B * NH; bh++) {
+            const int b = bh / NH, h = bh % NH;
             const float* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
             const float* vb = v + (size_t)b * Tk * ldkv + (size_t)h * hd;
-            mlb_gemm_bf16_serial(0, 1, nr, Tk, hd, scale, qb, ldq, kb, ldkv, 0.0f, S, Tk);
-            float inv[BLOCK_ROWS];
-            for (int i = 0; i < nr; i++) {
-                float sum, mx = softmax_row_unnormalised(S + (size_t)i * Tk, Tk, &sum);
-                inv[i] = 1.0f / sum;
-                if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = mx + logf(sum);
+#pragma omp sections
+            {
+#pragma omp section
+                mlb_gemm_bf16_pack(1, 1, Tk, hd, kb, ldkv, kv_packed);
+#pragma omp section
+                mlb_gemm_bf16_pack(0, 1, hd, Tk, vb, ldkv, kv_packed + kw);
             }
-            mlb_gemm_bf16_serial(1, 1, hd, nr, Tk, 1.0f, vb, ldkv, S, Tk, 0.0f, OT, nr);
-            float* ob = out + ((size_t)b * Tq + t0) * C + (size_t)h * hd;
-            for (int i = 0; i < nr; i++)
-                for (int d = 0; d < hd; d++) ob[(size_t)i * C + d] = OT[(size_t)d * nr + i] * inv[i];
+#pragma omp for schedule(static)
+            for (int blk = 0; blk < blocks; blk++) {
+                if (!S) continue;
+                const int t0 = blk * BLOCK_ROWS, nr = Tq - t0 < BLOCK_ROWS ? Tq - t0 : BLOCK_ROWS;
+                const float* qb = q + ((size_t)b * Tq + t0) * ldq + (size_t)h * hd;
+                mlb_gemm_bf16_serial_packed(0, 1, nr, Tk, hd, scale, qb, ldq, NULL, kb, ldkv, kv_packed, 0.0f, S, Tk);
+                float inv[BLOCK_ROWS];
+                for (int i = 0; i < nr; i++) {
+                    float sum, mx = softmax_row_unnormalised(S + (size_t)i * Tk, Tk, &sum);
+                    inv[i] = 1.0f / sum;
+                    if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = mx + logf(sum);
+                }
+                mlb_gemm_bf16_serial_packed(1, 1, hd, nr, Tk, 1.0f, vb, ldkv, kv_packed + kw, S, Tk, NULL, 0.0f, OT,
+                                            nr);
+                float* ob = out + ((size_t)b * Tq + t0) * C + (size_t)h * hd;
+                for (int i = 0; i < nr; i++)
+                    for (int d = 0; d < hd; d++) ob[(size_t)i * C + d] = OT[(size_t)d * nr + i] * inv[i];
+            }
         }
         free(S);
     }
+    free(kv_packed);
     if (failed)
         return mlb_fail(MLB_ERR_NOMEM, "attention (bf16): out of memory for a %d x %d score block", BLOCK_ROWS, Tk);
     return MLB_OK;

@@ -132,6 +132,36 @@ TEST(values_threads_edges) {
     CHECK(rms > 0x1p-12);   // and it is bf16: an fp32 product here would be ~2^-24
 }
 
+// One operand stored in bf16 (mlb_bf16_from_f32, then mlb_gemm_bf16_stored_a / _b): the same bits as
+// mlb_gemm_bf16 on the fp32 values, for every shape, cut and transpose, with padded strides.
+TEST(stored_operands) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off)");
+    for (size_t si = 0; si < N_SHAPES; si++)
+        for (int t = 0; t < 4; t++) {
+            const int M = shapes[si].M, N = shapes[si].N, K = shapes[si].K, ta = t & 1, tb = t >> 1;
+            const int lda = (ta ? M : K) + 3, ldb = (tb ? K : N) + 5;
+            size_t na = stored(ta, M, K, lda), nb = stored(tb, K, N, ldb), nc = (size_t)M * N;
+            float *A = malloc(sizeof(float) * na), *B = malloc(sizeof(float) * nb);
+            float *C1 = malloc(sizeof(float) * nc), *C2 = malloc(sizeof(float) * nc);
+            uint16_t *A16 = malloc(2 * na), *B16 = malloc(2 * nb);
+            REQUIRE(A && B && C1 && C2 && A16 && B16);
+            mlb_rng_fill_uniform(A, na, SEED, 30 + si, (uint64_t)t, -1, 1);
+            mlb_rng_fill_uniform(B, nb, SEED, 50 + si, (uint64_t)t, -1, 1);
+            CHECK(mlb_bf16_from_f32(A16, A, na) == 1 && mlb_bf16_from_f32(B16, B, nb) == 1);
+            mlb_gemm_bf16(ta, tb, M, N, K, 0.7f, A, lda, B, ldb, 0.0f, C1, N);
+            mlb_gemm_bf16_stored_a(ta, tb, M, N, K, 0.7f, (const float*)A16, lda, B, ldb, 0.0f, C2, N);
+            CHECK_MSG(!memcmp(C1, C2, sizeof(float) * nc), "%s, ta %d, tb %d: A stored in bf16 differs", shapes[si].what, ta, tb);
+            mlb_gemm_bf16_stored_b(ta, tb, M, N, K, 0.7f, A, lda, (const float*)B16, ldb, 0.0f, C2, N);
+            CHECK_MSG(!memcmp(C1, C2, sizeof(float) * nc), "%s, ta %d, tb %d: B stored in bf16 differs", shapes[si].what, ta, tb);
+            free(A); free(B); free(C1); free(C2); free(A16); free(B16);
+        }
+    // the rounding: nearest even, as the packing does (1 + 2^-8 is a tie: to 1; 1 + 3·2^-8 to 1 + 2^-6)
+    float v[3] = {1.0f + 0x1p-8f, 1.0f + 3 * 0x1p-8f, -2.5f};
+    uint16_t h[3];
+    CHECK(mlb_bf16_from_f32(h, v, 3) == 1);
+    CHECK(h[0] == 0x3F80 && h[1] == 0x3F82 && h[2] == 0xC020);
+}
+
 // Forced off, it is the fp32 GEMM, bit for bit.
 TEST(fallback_is_fp32) {
     const int M = 70, N = 45, K = 130;
@@ -280,6 +310,7 @@ TEST(attention_fallback_is_fp32) {
 
 int main(void) {
     RUN(values_threads_edges);
+    RUN(stored_operands);
     RUN(fallback_is_fp32);
     RUN(alpha_zero_and_empty_k);
     RUN(attention);

@@ -6,11 +6,13 @@
 // (UNet) GEMM layers whose errors partly add up; the same bound the GPU's bf16 parity tests use
 // (test_cuda_unet, test_cuda_vae: measured 1.5e-2 there; here 1.0e-2 to 1.5e-2 on a Zen 4 EPYC). And
 // at least 1e-5: it is bf16, not fp32.
-// Also: the bf16 forward is bitwise the same on 1 and 2 threads; fp16 and tf32 on the CPU (and
+// Also: the bf16 forward is bitwise the same on 1 and 2 threads and with the UNet's weights stored in
+// bf16 (mlb_unet_options.bf16_weights), which then refuses every other device and precision; fp16 and tf32 on the CPU (and
 // going back to fp32) give the fp32 bits exactly; with the fp32 fallback forced, bf16 = fp32 bits.
 // Skipped (saying why) on a CPU without AVX-512 BF16, except the fp32 checks.
 #include "test.h"
 #include <omp.h>
+#include "matlaber/backend.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
 #include "matlaber/unet.h"
@@ -71,6 +73,26 @@ static void unet_case(int sd2) {
         CHECK(mlb_unet_forward(u, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         omp_set_num_threads(threads);
         CHECK_MSG(!memcmp(got, got1, nx * 4), "bf16 UNet: 1 thread differs from 2");
+        // loaded with its linear and conv weights stored in bf16: the same bits at half the memory
+        mlb_unet_options o16 = {NULL, 1};
+        mlb_unet* u16 = NULL;
+        CHECK_MSG(mlb_unet_load(path, &o16, &u16) == MLB_OK, "%s", mlb_last_error());
+        if (u16) {
+            CHECK(u16->bf16_weights && mlb_unet_param_count(u16) == mlb_unet_param_count(u));
+            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+            CHECK_MSG(!memcmp(got, got1, nx * 4), "bf16-stored weights differ from the bf16 table on fp32 weights");
+            // forced off, the attention goes fp32 but the stored weights have no fp32 copy: their GEMMs stay bf16
+            mlb_gemm_bf16_force_fallback(1);
+            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+            mlb_gemm_bf16_force_fallback(0);
+            CHECK_REL("tiny UNet, bf16 weights, fallback forced", got1, ref, nx);
+            CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_BF16) == MLB_OK);
+            CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_ERR_UNSUPPORTED);
+            CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CUDA, MLB_GEMM_BF16) == MLB_ERR_UNSUPPORTED);
+            CHECK(mlb_unet_forward_on(mlb_backend_cpu(), u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, got1, nx * 4));
+            mlb_unet_free(u16);
+        }
         // the fallback (no AVX-512 BF16) is fp32, bit for bit
         mlb_gemm_bf16_force_fallback(1);
         CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);

@@ -95,5 +95,9 @@ struct mlb_backend {
 // fail cleanly when the build or the machine has no GPU.
 const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec);
 const mlb_backend* mlb_backend_cpu(void);
+// The CPU's bf16 table for models whose linear and conv weights are stored in bf16 (uint16_t values
+// behind the weight pointers; mlb_unet_options.bf16_weights): the bf16 table's results bit for bit,
+// at half the weights' memory; the backward of linear and conv fails (MLB_ERR_UNSUPPORTED).
+const mlb_backend* mlb_backend_cpu_bf16_stored(void);
 
 #endif

@@ -76,6 +76,10 @@ mlb_status conv2d_backward_f64(double* din, double* dweight, double* dbias, cons
 // CPU lacks AVX-512 BF16). The backend's CPU bf16 table runs these.
 mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
                                const mlb_conv2d* cv, float* ws);
+// conv2d_forward_bf16 with the weight stored in bf16 (uint16_t [OC, C, KH, KW] cast to const float*):
+// the same bits.
+mlb_status conv2d_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias,
+                                      const mlb_conv2d* cv, float* ws);
 mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                 const float* weight, const mlb_conv2d* cv, float* ws);
 

@@ -123,6 +123,9 @@ mlb_status mlb_unet_forward_on(const mlb_backend* be, const mlb_unet* u, float* 
     if (u->device != be->device)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: the weights are on the %s, the ops on the %s (mlb_unet_to_device)",
                         mlb_device_name(u->device), mlb_device_name(be->device));
+    if (u->bf16_weights != (be == mlb_backend_cpu_bf16_stored()))
+        return mlb_fail(MLB_ERR_ARG, "UNet forward: weights stored in %s, ops for weights in %s",
+                        u->bf16_weights ? "bf16" : "fp32", u->bf16_weights ? "fp32" : "bf16");
     const mlb_unet_config* c = &u->cfg;
     int n = c->n_levels, NL = c->layers_per_block, f = 1 << (n - 1);
     if (N < 1 || H < 1 || W < 1 || Tc < 1)

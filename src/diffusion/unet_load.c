@@ -1,5 +1,5 @@
 // UNet loading: layout detection, diffusers -> ldm name translation, configuration from config.json
-// or the ldm_config metadata, and the float32 parameters (see unet.h, docs/unet.md).
+// or the ldm_config metadata, and the parameters (float32, or bf16 linear and conv weights) (see unet.h, docs/unet.md).
 #include "matlaber/unet.h"
 #include "matlaber/backend.h"
 #include "matlaber/unet_random.h"
@@ -10,6 +10,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "matlaber/fileio.h"
+#include "matlaber/log.h"
 #include "matlaber/sd_files.h"
 
 #define UNET_PATH_MAX 4096
@@ -177,23 +178,38 @@ static mlb_status parse_ldm_config(const mlb_safetensors* st, unet_cfg_file* f) 
 typedef struct {
     mlb_unet* u;
     const mlb_safetensors* st;
-    int pass;   // 0: count, 1: carve and read, 2: carve only
-    size_t n;
+    int pass;     // 0: count, 1: carve and read, 2: carve only
+    size_t n;     // parameters
+    size_t slots; // floats of storage (fewer than n with bf16 weights)
     float* p;
+    float* tmp;   // bf16 weights: one tensor read in fp32 before rounding (the largest one)
+    size_t tmp_n;
 } loader;
 
+// With bf16 weights every tensor of two or more dimensions (the linear and conv weights) takes
+// ceil(n / 2) floats of storage holding n uint16_t values.
 static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a, int64_t b, int64_t c, int64_t e) {
     int64_t shape[4] = {a, b, c, e};
     size_t n = 1;
     for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
-    if (L->pass == 0) { L->n += n; return MLB_OK; }
-    if (L->pass == 2) { *dst = L->p; L->p += n; return MLB_OK; }
+    int half = L->u->bf16_weights && ndim >= 2;
+    size_t slots = half ? (n + 1) / 2 : n;
+    if (L->pass == 0) {
+        L->n += n;
+        L->slots += slots;
+        if (half && n > L->tmp_n) L->tmp_n = n;
+        return MLB_OK;
+    }
+    *dst = L->p;
+    L->p += slots;
+    if (L->pass == 2) return MLB_OK;
     char name[512];
     tensor_name(name, sizeof name, L->u, d);
     MLB_TRY(mlb_st_expect(L->st, name, ndim, shape));
-    *dst = L->p;
-    L->p += n;
-    return mlb_st_read_f32(L->st, name, *dst, n);
+    if (!half) return mlb_st_read_f32(L->st, name, *dst, n);
+    MLB_TRY(mlb_st_read_f32(L->st, name, L->tmp, n));
+    mlb_bf16_from_f32((uint16_t*)*dst, L->tmp, n);   // the CPU has it: checked before the walk
+    return MLB_OK;
 }
 
 static mlb_status reg_resnet(loader* L, mlb_unet_resnet* r, const char* pre, int cin, int cout) {
@@ -321,12 +337,19 @@ static mlb_status heads_for(const mlb_unet_config* c, const unet_cfg_file* f, in
 }
 
 mlb_status mlb_unet_from_st(const mlb_safetensors* st, const char* config_path, mlb_unet** out) {
+    mlb_unet_options o = {config_path, 0};
+    return mlb_unet_from_st_opt(st, &o, out);
+}
+
+mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_options* opt, mlb_unet** out) {
+    const char* config_path = opt ? opt->config_path : NULL;
     if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_from_st: NULL output");
     *out = NULL;
     mlb_unet* u = calloc(1, sizeof *u);
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     mlb_unet_config* c = &u->cfg;
     mlb_status s = MLB_OK;
+    loader L = {u, st, 0, 0, 0, NULL, NULL, 0};
     if (mlb_st_find(st, LDM_PREFIX "input_blocks.0.0.weight")) c->layout = MLB_UNET_LAYOUT_LDM;
     else if (mlb_st_find(st, "conv_in.weight")) c->layout = MLB_UNET_LAYOUT_DIFFUSERS;
     else { s = mlb_fail(MLB_ERR_FORMAT, "%s: no UNet found (neither 'conv_in.weight' nor '" LDM_PREFIX "input_blocks.0.0.weight')", mlb_st_path(st)); goto fail; }
@@ -351,17 +374,26 @@ mlb_status mlb_unet_from_st(const mlb_safetensors* st, const char* config_path, 
     }
     if ((s = heads_for(c, &f, c->n_levels - 1, c->block_out[c->n_levels - 1], &c->mid_heads, cfg_src)) != MLB_OK) goto fail;
     if (c->block_out[0] % 2) { s = mlb_fail(MLB_ERR_FORMAT, "%s: odd time-projection width %d", cfg_src, c->block_out[0]); goto fail; }
-    loader L = {u, st, 0, 0, NULL};
+    if (opt && opt->bf16_weights) {
+        uint16_t probe;
+        float one = 1;
+        if (mlb_bf16_from_f32(&probe, &one, 1)) u->bf16_weights = 1;
+        else mlb_log(MLB_LOG_INFO, "%s: bf16 weights asked for, but this CPU has no AVX-512 BF16: loading fp32", mlb_st_path(st));
+    }
     if ((s = walk(&L)) != MLB_OK) goto fail;
     u->n_params = L.n;
-    u->params = malloc(L.n * sizeof(float));
-    if (!u->params) { s = mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the UNet's %zu parameters", mlb_st_path(st), L.n); goto fail; }
+    u->params = malloc(L.slots * sizeof(float));
+    L.tmp = L.tmp_n ? malloc(L.tmp_n * sizeof(float)) : NULL;
+    if (!u->params || (L.tmp_n && !L.tmp)) { s = mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the UNet's %zu parameters", mlb_st_path(st), L.n); goto fail; }
     L.pass = 1;
     L.p = u->params;
     if ((s = walk(&L)) != MLB_OK) goto fail;
+    free(L.tmp);
+    if (u->bf16_weights) u->mirror_ops = mlb_backend_cpu_bf16_stored();
     *out = u;
     return MLB_OK;
 fail:
+    free(L.tmp);
     mlb_unet_free(u);
     return s;
 }
@@ -402,14 +434,15 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
         }
     }
     const char* cp = opt && opt->config_path ? opt->config_path : (cfg[0] ? cfg : NULL);
-    mlb_status s = mlb_unet_from_st(st, cp, out);
+    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0};
+    mlb_status s = mlb_unet_from_st_opt(st, &o, out);
     mlb_st_close(st);
     return s;
 }
 
 void mlb_unet_free(mlb_unet* u) {
     if (!u) return;
-    mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_FP32);
+    mlb_unet_free(u->mirror);
     mlb_backend_for(u->device, MLB_GEMM_FP32)->release(u->params);
     free(u);
 }
@@ -422,7 +455,7 @@ mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** ou
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     u->cfg = *c;
     u->device = d;
-    loader L = {u, NULL, 0, 0, NULL};
+    loader L = {u, NULL, 0, 0, 0, NULL, NULL, 0};
     mlb_status s = walk(&L);
     if (s == MLB_OK) {
         u->n_params = L.n;
@@ -458,6 +491,12 @@ size_t mlb_unet_param_count(const mlb_unet* u) { return u ? u->n_params : 0; }
 
 mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision prec) {
     if (!u) return mlb_fail(MLB_ERR_ARG, "mlb_unet_use_device: NULL UNet");
+    if (u->bf16_weights) {   // no fp32 weights to run on anything else
+        if (d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16) return MLB_OK;
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "this UNet keeps its weights in bf16 (loaded with bf16_weights): it runs "
+                        "only on the CPU in bf16; load it again for %s on the %s", mlb_gemm_precision_name(prec),
+                        mlb_device_name(d));
+    }
     mlb_unet_free(u->mirror);
     u->mirror = NULL;
     // on the CPU no copy: only bf16 changes the ops (fp16 and tf32 are GPU formats: fp32 here)

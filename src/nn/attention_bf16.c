@@ -104,27 +104,28 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
             const int b = bh / NH, h = bh % NH;
             const float* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
             const float* vb = v + (size_t)b * Tk * ldkv + (size_t)h * hd;
+            const mlb_bf16_operand kop = {kb, 0, 0, ldkv, kv_packed}, vop = {vb, 0, 0, ldkv, kv_packed + kw};
 #pragma omp sections
             {
 #pragma omp section
-                mlb_gemm_bf16_pack(1, 1, Tk, hd, kb, ldkv, kv_packed);
+                mlb_gemm_bf16_pack(1, 1, Tk, hd, &kop, kv_packed);
 #pragma omp section
-                mlb_gemm_bf16_pack(0, 1, hd, Tk, vb, ldkv, kv_packed + kw);
+                mlb_gemm_bf16_pack(0, 1, hd, Tk, &vop, kv_packed + kw);
             }
 #pragma omp for schedule(static)
             for (int blk = 0; blk < blocks; blk++) {
                 if (!S) continue;
                 const int t0 = blk * BLOCK_ROWS, nr = Tq - t0 < BLOCK_ROWS ? Tq - t0 : BLOCK_ROWS;
                 const float* qb = q + ((size_t)b * Tq + t0) * ldq + (size_t)h * hd;
-                mlb_gemm_bf16_serial_packed(0, 1, nr, Tk, hd, scale, qb, ldq, NULL, kb, ldkv, kv_packed, 0.0f, S, Tk);
+                const mlb_bf16_operand qop = {qb, 0, 0, ldq, NULL}, sop = {S, 0, 0, Tk, NULL};
+                mlb_gemm_bf16_kernel(0, 1, nr, Tk, hd, scale, &qop, &kop, 0.0f, S, Tk);
                 float inv[BLOCK_ROWS];
                 for (int i = 0; i < nr; i++) {
                     float sum, mx = softmax_row_unnormalised(S + (size_t)i * Tk, Tk, &sum);
                     inv[i] = 1.0f / sum;
                     if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = mx + logf(sum);
                 }
-                mlb_gemm_bf16_serial_packed(1, 1, hd, nr, Tk, 1.0f, vb, ldkv, kv_packed + kw, S, Tk, NULL, 0.0f, OT,
-                                            nr);
+                mlb_gemm_bf16_kernel(1, 1, hd, nr, Tk, 1.0f, &vop, &sop, 0.0f, OT, nr);
                 float* ob = out + ((size_t)b * Tq + t0) * C + (size_t)h * hd;
                 for (int i = 0; i < nr; i++)
                     for (int d = 0; d < hd; d++) ob[(size_t)i * C + d] = OT[(size_t)d * nr + i] * inv[i];

@@ -173,6 +173,35 @@ static mlb_status cpu_sdpa_bf16(const mlb_backend* be, float* out, float* lse, c
     return sdpa_forward_bf16(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv);
 }
 
+// The bf16 table for a model whose linear and conv weights are stored in bf16 (mlb_unet_options
+// bf16_weights): the weight pointers it is given hold uint16_t values. No backward through them.
+static mlb_status cpu_linear_bf16_stored(const mlb_backend* be, float* out, const float* in, const float* w,
+                                         const float* b, int B, int C, int OC) {
+    (void)be;
+    linear_forward_bf16_stored(out, in, w, b, B, C, OC);
+    return MLB_OK;
+}
+static mlb_status cpu_conv2d_bf16_stored(const mlb_backend* be, float* out, const float* in, const float* w,
+                                         const float* b, const mlb_conv2d* cv) {
+    (void)be;
+    return conv2d_forward_bf16_stored(out, in, w, b, cv, NULL);
+}
+static mlb_status no_backward_stored(void) {
+    return mlb_fail(MLB_ERR_UNSUPPORTED, "no backward through weights stored in bf16 (load the model with fp32 weights)");
+}
+static mlb_status cpu_linear_backward_bf16_stored(const mlb_backend* be, float* din, float* dw, float* db,
+                                                  const float* dout, const float* in, const float* w, int B, int C,
+                                                  int OC) {
+    (void)be; (void)din; (void)dw; (void)db; (void)dout; (void)in; (void)w; (void)B; (void)C; (void)OC;
+    return no_backward_stored();
+}
+static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* din, float* dw, float* db,
+                                                  const float* dout, const float* in, const float* w,
+                                                  const mlb_conv2d* cv) {
+    (void)be; (void)din; (void)dw; (void)db; (void)dout; (void)in; (void)w; (void)cv;
+    return no_backward_stored();
+}
+
 static const mlb_backend cpu_table = {
     MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
     cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_groupnorm, groupnorm_backward,
@@ -183,6 +212,14 @@ static const mlb_backend cpu_table = {
 static const mlb_backend cpu_bf16_table = {
     MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
     cpu_linear_bf16, cpu_linear_backward_bf16, cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_groupnorm,
+    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa_bf16, cpu_sdpa_backward, cpu_add, cpu_add_channel,
+    cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
+    cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
+};
+static const mlb_backend cpu_bf16_stored_table = {
+    MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
+    cpu_linear_bf16_stored, cpu_linear_backward_bf16_stored, cpu_conv2d_bf16_stored,
+    cpu_conv2d_backward_bf16_stored, cpu_groupnorm,
     groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa_bf16, cpu_sdpa_backward, cpu_add, cpu_add_channel,
     cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
     cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
@@ -278,6 +315,7 @@ static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE
                                            CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
 
 const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
+const mlb_backend* mlb_backend_cpu_bf16_stored(void) { return &cpu_bf16_stored_table; }
 
 const mlb_backend* mlb_backend_for(mlb_device d, mlb_gemm_precision prec) {
     if (d != MLB_DEVICE_CUDA) return prec == MLB_GEMM_BF16 ? &cpu_bf16_table : &cpu_table;

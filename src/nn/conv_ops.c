@@ -274,6 +274,11 @@ mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight,
     return conv2d_forward_with(mlb_gemm_bf16, out, in, weight, bias, cv, ws);
 }
 
+mlb_status conv2d_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias,
+                                      const mlb_conv2d* cv, float* ws) {
+    return conv2d_forward_with(mlb_gemm_bf16_stored_a, out, in, weight, bias, cv, ws);
+}
+
 mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                 const float* weight, const mlb_conv2d* cv, float* ws) {
     return conv2d_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, cv, ws);

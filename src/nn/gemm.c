@@ -74,14 +74,19 @@ int FN(mlb_gemm_shards)(int M, int N, int K, char* along) {
 static pthread_once_t blas_single_thread_once = PTHREAD_ONCE_INIT;
 static void blas_single_thread(void) { openblas_set_num_threads(1); }
 
-static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const real* A, int lda, const real* B,
-                          int ldb, real beta, real* C, int ldc) {
-    BLAS_GEMM(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
-              lda, B, ldb, beta, C, ldc);
+// One shard: op(A)·op(B) of the sub-blocks starting a_off and b_off elements into A and B (offsets,
+// not pointers, so that an operand stored as bf16 is addressed in its own element size).
+typedef void (*FN(shard_fn))(int ta, int tb, int M, int N, int K, real alpha, const real* A, size_t a_off, int lda,
+                             const real* B, size_t b_off, int ldb, real beta, real* C, int ldc);
+
+static void FN(blas_call)(int ta, int tb, int M, int N, int K, real alpha, const real* A, size_t a_off, int lda,
+                          const real* B, size_t b_off, int ldb, real beta, real* C, int ldc) {
+    BLAS_GEMM(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
+              A + a_off, lda, B + b_off, ldb, beta, C, ldc);
 }
 
 // call: one shard's product on the calling thread (BLAS, or in the float pass the bf16 kernel).
-static void FN(gemm_sharded)(FN(mlb_gemm_fn) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
+static void FN(gemm_sharded)(FN(shard_fn) call, int ta, int tb, int M, int N, int K, real alpha, const real* A,
                              int lda, const real* B, int ldb, real beta, real* C, int ldc) {
     if (M <= 0 || N <= 0) return;
     // OpenBLAS's own threads would split a shard again (per thread count): keep it at one. The
@@ -105,25 +110,22 @@ static void FN(gemm_sharded)(FN(mlb_gemm_fn) call, int ta, int tb, int M, int N,
         if (!partial) cut = CUT_NONE;   // a few hundred KB at most; never seen, and still thread-independent
     }
     if (cut == CUT_NONE) {
-        call(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+        call(ta, tb, M, N, K, alpha, A, 0, lda, B, 0, ldb, beta, C, ldc);
         return;
     }
 #pragma omp parallel for schedule(static)
     for (int s = 0; s < count; s++) {
-        int lo = s * block;
+        size_t lo = (size_t)s * block;
         if (cut == CUT_M) {
-            int m = M - lo < block ? M - lo : block;
-            const real* a = ta ? A + lo : A + (size_t)lo * lda;
-            call(ta, tb, m, N, K, alpha, a, lda, B, ldb, beta, C + (size_t)lo * ldc, ldc);
+            int m = M - (int)lo < block ? M - (int)lo : block;
+            call(ta, tb, m, N, K, alpha, A, ta ? lo : lo * lda, lda, B, 0, ldb, beta, C + lo * ldc, ldc);
         } else if (cut == CUT_N) {
-            int n = N - lo < block ? N - lo : block;
-            const real* b = tb ? B + (size_t)lo * ldb : B + lo;
-            call(ta, tb, M, n, K, alpha, A, lda, b, ldb, beta, C + lo, ldc);
+            int n = N - (int)lo < block ? N - (int)lo : block;
+            call(ta, tb, M, n, K, alpha, A, 0, lda, B, tb ? lo * ldb : lo, ldb, beta, C + lo, ldc);
         } else {
-            int k = K - lo < block ? K - lo : block;
-            const real* a = ta ? A + (size_t)lo * lda : A + lo;
-            const real* b = tb ? B + lo : B + (size_t)lo * ldb;
-            call(ta, tb, M, N, k, (real)1, a, lda, b, ldb, (real)0, partial + (size_t)s * M * N, N);
+            int k = K - (int)lo < block ? K - (int)lo : block;
+            call(ta, tb, M, N, k, (real)1, A, ta ? lo * lda : lo, lda, B, tb ? lo : lo * ldb, ldb, (real)0,
+                 partial + (size_t)s * M * N, N);
         }
     }
     if (cut != CUT_K) return;
@@ -147,6 +149,24 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
 }
 
 #ifndef MLB_F64
+// The bf16 kernel's shards: both operands fp32, or A / B stored in bf16 (the pointer given is their
+// uint16_t storage).
+static void bf16_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off, int lda,
+                       const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
+    mlb_bf16_operand a = {A, 0, a_off, lda, NULL}, b = {B, 0, b_off, ldb, NULL};
+    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
+}
+static void bf16_stored_a_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
+                                int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
+    mlb_bf16_operand a = {A, 1, a_off, lda, NULL}, b = {B, 0, b_off, ldb, NULL};
+    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
+}
+static void bf16_stored_b_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
+                                int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
+    mlb_bf16_operand a = {A, 0, a_off, lda, NULL}, b = {B, 1, b_off, ldb, NULL};
+    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
+}
+
 void mlb_gemm_bf16(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
                    int ldb, float beta, float* C, int ldc) {
     if (!mlb_gemm_bf16_native()) {   // no AVX-512 BF16 here (or forced off): the fp32 GEMM, said once
@@ -159,6 +179,16 @@ void mlb_gemm_bf16(int ta, int tb, int M, int N, int K, float alpha, const float
         mlb_gemm(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
         return;
     }
-    gemm_sharded(mlb_gemm_bf16_serial, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+    gemm_sharded(bf16_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+}
+
+void mlb_gemm_bf16_stored_a(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
+                            const float* B, int ldb, float beta, float* C, int ldc) {
+    gemm_sharded(bf16_stored_a_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
+}
+
+void mlb_gemm_bf16_stored_b(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
+                            const float* B, int ldb, float beta, float* C, int ldc) {
+    gemm_sharded(bf16_stored_b_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
 }
 #endif

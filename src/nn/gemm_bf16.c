@@ -35,7 +35,7 @@ static int force_fallback = -1;   // -1: not read yet ($MATLABER_CPU_BF16), 0/1 
 
 void mlb_gemm_bf16_force_fallback(int on) { force_fallback = on ? 1 : 0; }
 
-int mlb_gemm_bf16_native(void) {
+static int cpu_has_bf16(void) {
     static int cpu_has = -1;
     if (cpu_has < 0) {
 #ifdef MLB_BF16_KERNEL
@@ -46,11 +46,15 @@ int mlb_gemm_bf16_native(void) {
         cpu_has = 0;
 #endif
     }
+    return cpu_has;
+}
+
+int mlb_gemm_bf16_native(void) {
     if (force_fallback < 0) {
         const char* e = getenv("MATLABER_CPU_BF16");
         force_fallback = e && (!strcmp(e, "0") || !strcmp(e, "off"));
     }
-    return cpu_has && !force_fallback;
+    return cpu_has_bf16() && !force_fallback;
 }
 
 #ifdef MLB_BF16_KERNEL
@@ -94,6 +98,55 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size
             __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
             _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
         }
+    }
+}
+
+// pack_pairs for values already in bf16 (uint16_t): the same words, without the rounding. Along K
+// two neighbours are already one word in memory (little-endian: x[k] low, x[k+1] high).
+BF16_TARGET static void pack_pairs_bf16(uint32_t* out, int Rpad, const uint16_t* X, size_t rs, size_t ks, int R,
+                                        int K) {
+    const int kp = (K + 1) / 2;
+    if (ks == 1) {
+        uint32_t tmp[16];
+        for (int r = 0; r < Rpad; r++) {
+            if (r >= R) {
+                for (int p = 0; p < kp; p++) out[(size_t)p * Rpad + r] = 0;
+                continue;
+            }
+            const uint16_t* x = X + (size_t)r * rs;
+            for (int k = 0; k < K; k += 32) {
+                int left = K - k, np = kp - k / 2 < 16 ? kp - k / 2 : 16;
+                __mmask32 m = left >= 32 ? 0xFFFFFFFFu : (__mmask32)((1u << left) - 1);
+                _mm512_storeu_si512(tmp, _mm512_maskz_loadu_epi16(m, x + k));
+                for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
+            }
+        }
+        return;
+    }
+    static const uint16_t order[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
+                                       8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+    const __m512i weave = _mm512_loadu_si512(order);
+    for (int p = 0; p < kp; p++) {
+        const uint16_t* x0 = X + (size_t)(2 * p) * ks;
+        const uint16_t* x1 = x0 + ks;
+        int has1 = 2 * p + 1 < K;
+        for (int r = 0; r < Rpad; r += 16) {
+            int left = R - r;
+            __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
+            __m256i a = _mm256_maskz_loadu_epi16(m, x0 + r);
+            __m256i b = has1 ? _mm256_maskz_loadu_epi16(m, x1 + r) : _mm256_setzero_si256();
+            __m512i w = _mm512_permutexvar_epi16(weave, _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1));
+            __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
+            _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
+        }
+    }
+}
+
+BF16_TARGET static void round_to_bf16(uint16_t* out, const float* in, size_t n) {
+    for (size_t i = 0; i < n; i += 16) {
+        __mmask16 m = n - i >= 16 ? 0xFFFF : (__mmask16)((1u << (n - i)) - 1);
+        __m256i h = (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, in + i));
+        _mm256_mask_storeu_epi16(out + i, m, h);
     }
 }
 
@@ -147,14 +200,24 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
 }
 #endif
 
+int mlb_bf16_from_f32(uint16_t* out, const float* in, size_t n) {
+#ifdef MLB_BF16_KERNEL
+    if (!cpu_has_bf16()) return 0;
+    round_to_bf16(out, in, n);
+    return 1;
+#else
+    (void)out; (void)in; (void)n;
+    return 0;
+#endif
+}
+
 // Words of op(X)'s panels over all K blocks: block after block, in each the panels of R rows
 // (A: MR, B: NR) over that block's pairs, the layout the loop below reads per block.
-static size_t packed_words(int side_b, int R, int K) {
+size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K) {
+    if (R <= 0 || K <= 0) return 0;
     const int Rpad = side_b ? NR : MR;
     return (size_t)((R + Rpad - 1) / Rpad) * Rpad * (size_t)((K + 1) / 2);
 }
-
-size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K) { return R > 0 && K > 0 ? packed_words(side_b, R, K) : 0; }
 
 // Strides of op(X)'s rows and K: op(A)[i, k] = A[i·lda + k] (or A[k·lda + i] transposed); for B the
 // "rows" are op(B)'s columns: op(B)[k, j] = B[k·ldb + j] (or B[j·ldb + k] transposed).
@@ -164,65 +227,97 @@ static void operand_strides(int side_b, int trans, int ld, size_t* rs, size_t* k
     *ks = along_k_contiguous ? 1 : (size_t)ld;
 }
 
+// Element e of an operand's storage, as fp32 (the out-of-memory path only).
+static float element(const mlb_bf16_operand* X, size_t e) {
+    if (!X->is_bf16) return ((const float*)X->data)[X->offset + e];
+    uint32_t u = (uint32_t)((const uint16_t*)X->data)[X->offset + e] << 16;
+    float f;
+    memcpy(&f, &u, 4);
+    return f;
+}
+
+// C = alpha·op(A)·op(B) + beta·C element by element in fp32, needing no memory and no AVX-512: for an
+// operand stored in bf16 when the kernel cannot run (out of memory, or a CPU without AVX-512 BF16).
+static void gemm_elementwise(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                             const mlb_bf16_operand* B, float beta, float* C, int ldc) {
+    for (int i = 0; i < M; i++)
+        for (int j = 0; j < N; j++) {
+            float sum = 0;
+            for (int k = 0; k < K; k++)
+                sum += element(A, ta ? (size_t)k * A->ld + i : (size_t)i * A->ld + k) *
+                       element(B, tb ? (size_t)j * B->ld + k : (size_t)k * B->ld + j);
+            float* c = C + (size_t)i * ldc + j;
+            *c = beta == 0 ? alpha * sum : alpha * sum + beta * *c;
+        }
+}
+
 #ifdef MLB_BF16_KERNEL
-// K block blk's panels of op(X) (R rows) into out ([panels][np][Rpad]).
-static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const float* X, size_t rs, size_t ks) {
+// K block blk's panels of op(X) (R rows, starting r0 rows into it) into out ([panels][np][Rpad]).
+static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const mlb_bf16_operand* X, int trans,
+                       int r0) {
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad;
     const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
+    size_t rs, ks;
+    operand_strides(side_b, trans, X->ld, &rs, &ks);
     for (int q = 0; q < panels; q++) {
-        int r0 = q * Rpad, rows = R - r0 < Rpad ? R - r0 : Rpad;
-        pack_pairs(out + (size_t)q * Rpad * np, Rpad, X + (size_t)r0 * rs + (size_t)k0 * ks, rs, ks, rows, nk);
+        int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
+        size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
+        uint32_t* o = out + (size_t)q * Rpad * np;
+        if (X->is_bf16) pack_pairs_bf16(o, Rpad, (const uint16_t*)X->data + at, rs, ks, rows, nk);
+        else pack_pairs(o, Rpad, (const float*)X->data + at, rs, ks, rows, nk);
     }
 }
 #endif
 
-void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const float* X, int ld, uint32_t* out) {
+void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out) {
 #ifdef MLB_BF16_KERNEL
     if (R <= 0 || K <= 0) return;
-    size_t rs, ks;
-    operand_strides(side_b, trans, ld, &rs, &ks);
-    const int blocks = ((K + 1) / 2 + KC - 1) / KC, panels = (R + (side_b ? NR : MR) - 1) / (side_b ? NR : MR);
-    for (int blk = 0; blk < blocks; blk++)
-        pack_block(out + (size_t)blk * KC * panels * (side_b ? NR : MR), side_b, R, K, blk, X, rs, ks);
+    const int Rpad = side_b ? NR : MR, blocks = ((K + 1) / 2 + KC - 1) / KC, panels = (R + Rpad - 1) / Rpad;
+    for (int blk = 0; blk < blocks; blk++) pack_block(out + (size_t)blk * KC * panels * Rpad, side_b, R, K, blk, X, trans, 0);
 #else
-    (void)side_b; (void)trans; (void)R; (void)K; (void)X; (void)ld; (void)out;
+    (void)side_b; (void)trans; (void)R; (void)K; (void)X; (void)out;
 #endif
 }
 
-void mlb_gemm_bf16_serial_packed(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
-                                 const uint32_t* A_packed, const float* B, int ldb, const uint32_t* B_packed,
-                                 float beta, float* C, int ldc) {
+void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                          const mlb_bf16_operand* B, float beta, float* C, int ldc) {
+    if (!cpu_has_bf16()) {   // only an operand stored in bf16 gets here on such a CPU (mlb_gemm_bf16 checks first)
+        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
+        return;
+    }
 #ifdef MLB_BF16_KERNEL
     const int kp = (K + 1) / 2, mpanels = (M + MR - 1) / MR, npanels = (N + NR - 1) / NR;
     const int kc = kp < KC ? kp : KC, mc = mpanels < MC ? mpanels : MC, blocks = (kp + KC - 1) / KC;
     // per K block: op(B) packed whole ([npanels][kc][NR]), op(A) MC panels at a time ([MC][kc][MR]),
     // unless given packed; over several K blocks the sums wait in fp32 tiles ([mpanels][npanels][MR][NR])
-    uint32_t* pa = A_packed ? NULL : malloc(sizeof(uint32_t) * (size_t)mc * MR * kc);
-    uint32_t* pb = B_packed ? NULL : malloc(sizeof(uint32_t) * (size_t)npanels * NR * kc);
+    uint32_t* pa = A->packed ? NULL : malloc(sizeof(uint32_t) * (size_t)mc * MR * kc);
+    uint32_t* pb = B->packed ? NULL : malloc(sizeof(uint32_t) * (size_t)npanels * NR * kc);
     float* w = blocks > 1 ? malloc(sizeof(float) * (size_t)mpanels * npanels * MR * NR) : NULL;
-    if ((!A_packed && !pa) || (!B_packed && !pb) || (blocks > 1 && !w)) {   // a few MB at most; never seen
+    if ((!A->packed && !pa) || (!B->packed && !pb) || (blocks > 1 && !w)) {   // a few MB at most; never seen
         free(pa);
         free(pb);
         free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
-        cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A,
-                    lda, B, ldb, beta, C, ldc);
+        if (!A->is_bf16 && !B->is_bf16) {
+            cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
+                        (const float*)A->data + A->offset, A->ld, (const float*)B->data + B->offset, B->ld, beta, C,
+                        ldc);
+            return;
+        }
+        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);   // an operand stored in bf16
         return;
     }
-    size_t ars, aks, brs, bks;
-    operand_strides(0, ta, lda, &ars, &aks);
-    operand_strides(1, tb, ldb, &brs, &bks);
     for (int blk = 0; blk < blocks; blk++) {
         const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC;
         const int first = blk == 0, last = blk == blocks - 1;
-        const uint32_t* pbk = B_packed ? B_packed + (size_t)p0 * npanels * NR : pb;
-        if (!B_packed) pack_block(pb, 1, N, K, blk, B, brs, bks);
+        const uint32_t* pbk = B->packed ? B->packed + (size_t)p0 * npanels * NR : pb;
+        if (!B->packed) pack_block(pb, 1, N, K, blk, B, tb, 0);
         for (int q0 = 0; q0 < mpanels; q0 += MC) {
             int nq = mpanels - q0 < MC ? mpanels - q0 : MC;
-            const uint32_t* pak = A_packed ? A_packed + (size_t)p0 * mpanels * MR + (size_t)q0 * MR * np : pa;
-            if (!A_packed) {   // panels q0 .. q0 + nq of this block (the rows from q0·MR on)
-                int i0 = q0 * MR, rows = M - i0 < nq * MR ? M - i0 : nq * MR;
-                pack_block(pa, 0, rows, K, blk, A + (size_t)i0 * ars, ars, aks);
+            const uint32_t* pak = A->packed ? A->packed + (size_t)p0 * mpanels * MR + (size_t)q0 * MR * np : pa;
+            if (!A->packed) {   // panels q0 .. q0 + nq of this block
+                int rows = M - q0 * MR < nq * MR ? M - q0 * MR : nq * MR;
+                pack_block(pa, 0, rows, K, blk, A, ta, q0 * MR);
             }
             for (int jp = 0; jp < npanels; jp++) {
                 int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
@@ -238,14 +333,11 @@ void mlb_gemm_bf16_serial_packed(int ta, int tb, int M, int N, int K, float alph
     free(pa);
     free(pb);
     free(w);
-#else   // never called: mlb_gemm_bf16_native() is 0 in such a build
-    (void)A_packed; (void)B_packed;
-    cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha, A, lda,
-                B, ldb, beta, C, ldc);
 #endif
 }
 
 void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
                           int ldb, float beta, float* C, int ldc) {
-    mlb_gemm_bf16_serial_packed(ta, tb, M, N, K, alpha, A, lda, NULL, B, ldb, NULL, beta, C, ldc);
+    mlb_bf16_operand a = {A, 0, 0, lda, NULL}, b = {B, 0, 0, ldb, NULL};
+    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }

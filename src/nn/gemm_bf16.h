@@ -1,23 +1,33 @@
-// Internal: the one-thread bf16 GEMM that mlb_gemm_bf16 (gemm.c) runs per shard (gemm_bf16.c).
+// Internal: the one-thread bf16 GEMM kernel that mlb_gemm_bf16 (gemm.c) runs per shard
+// (gemm_bf16.c), and its operands' packed form for callers that reuse one (attention_bf16.c).
 #ifndef MATLABER_NN_GEMM_BF16_H
 #define MATLABER_NN_GEMM_BF16_H
 #include <stddef.h>
 #include <stdint.h>
 
+// One operand: fp32 values (rounded to bf16 as they are packed) or values stored in bf16 (uint16_t,
+// the top half of the fp32 bits, as mlb_bf16_from_f32 rounds them: then the same products bit for
+// bit), element (i, k) at data[offset + i·ld + k] (or transposed); packed: its whole packed form
+// (mlb_gemm_bf16_pack), then data is read only if the kernel runs out of memory, or NULL.
+typedef struct {
+    const void* data;
+    int is_bf16;
+    size_t offset;
+    int ld;
+    const uint32_t* packed;
+} mlb_bf16_operand;
+
 // C[M,N] = alpha·op(A)·op(B) + beta·C with bf16 operands and fp32 sums, on the calling thread only.
 // Only when mlb_gemm_bf16_native() (nn.h) is 1. M, N, K >= 1.
+void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                          const mlb_bf16_operand* B, float beta, float* C, int ldc);
+// The same with plain fp32 operands.
 void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
                           int ldb, float beta, float* C, int ldc);
 
-// The same with op(A) and/or op(B) given already packed (NULL: packed here, per K block), so an
-// operand used by many products is converted once: mlb_gemm_bf16_pack(0, ta, M, K, A, lda, ..) for
-// A, mlb_gemm_bf16_pack(1, tb, N, K, B, ldb, ..) for B, into mlb_gemm_bf16_packed_words(side_b, M or
-// N, K) words. A and B are still passed: they are read only where no packed form is given, and by
-// the fp32 fallback if the kernel's tiles cannot be allocated.
+// op(X) packed whole (side_b 0: as A, R = M rows; 1: as B, R = N columns) into
+// mlb_gemm_bf16_packed_words(side_b, R, K) words, for an operand used by many products.
 size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K);
-void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const float* X, int ld, uint32_t* out);
-void mlb_gemm_bf16_serial_packed(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
-                                 const uint32_t* A_packed, const float* B, int ldb, const uint32_t* B_packed,
-                                 float beta, float* C, int ldc);
+void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out);
 
 #endif

@@ -94,6 +94,11 @@ void linear_backward_bf16(float* din, float* dweight, float* dbias, const float*
                           const float* weight, int B, int C, int OC) {
     linear_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, B, C, OC);
 }
+
+void linear_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias, int B, int C,
+                                int OC) {
+    linear_forward_with(mlb_gemm_bf16_stored_b, out, in, weight, bias, B, C, OC);
+}
 #endif
 
 // ---------------------------------------------------------------------------------------------

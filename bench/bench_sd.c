@@ -8,7 +8,8 @@
 //   build/bench/bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] [--dir /tmp]
 //                        [--precision fp32|bf16]
 // --vae 0 skips the VAE; --latent 0 skips the UNet. --precision bf16 runs the UNet's and VAE's
-// linear and conv GEMMs with bf16 operands (mlb_unet_use_device / mlb_vae_use_device on the CPU).
+// linear, conv and attention GEMMs with bf16 operands (mlb_unet_use_device / mlb_vae_use_device on
+// the CPU), the UNet's weights kept in bf16 as the program loads them (mlb_unet_options.bf16_weights).
 #include <cblas.h>
 #include <math.h>
 #include <omp.h>
@@ -221,7 +222,8 @@ int main(int argc, char** argv) {
         if (mlb_unet_write_random(&c, &o, pu)) { rc = fail("writing the UNet"); goto out; }
         double t1 = mlb_now_seconds();
         mlb_unet* u = NULL;
-        if (mlb_unet_load(pu, NULL, &u)) { rc = fail("loading the UNet"); goto out; }
+        mlb_unet_options uo = {NULL, prec == MLB_GEMM_BF16};   // as the program loads it (sd_model.c)
+        if (mlb_unet_load(pu, &uo, &u)) { rc = fail("loading the UNet"); goto out; }
         if (mlb_unet_use_device(u, MLB_DEVICE_CPU, prec)) { rc = fail("UNet precision"); mlb_unet_free(u); goto out; }
         double t2 = mlb_now_seconds();
         size_t nx = (size_t)batch * 4 * latent * latent, nc = (size_t)batch * 77 * 768;

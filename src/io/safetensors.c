@@ -7,6 +7,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -529,6 +530,17 @@ int mlb_st_metadata_at(const mlb_safetensors* st, size_t i, const char** key, co
     return 0;
 }
 
+// After a tensor is converted, its whole pages of the mapping are dropped from memory (they are
+// read back from the file if touched again): a loader reads each tensor once, so loading a 2 GB
+// checkpoint holds what was converted, not that plus the file.
+static void drop_pages(const mlb_safetensors* st, const mlb_st_tensor* t) {
+    if (!st->map || !t->nbytes) return;
+    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE), a = (uintptr_t)t->data, b = a + t->nbytes;
+    a = (a + page - 1) / page * page;
+    b = b / page * page;
+    if (b > a) madvise((void*)a, b - a, MADV_DONTNEED);
+}
+
 mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* out, size_t n_elems) {
     if (!st || !name) return mlb_fail(MLB_ERR_ARG, "mlb_st_read_f32: NULL handle or name");
     const mlb_st_tensor* t = mlb_st_find(st, name);
@@ -555,6 +567,7 @@ mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* o
         return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: tensor '%s' is %s; only F32, F16, BF16 and F64 convert to float32",
                         st->path, name, mlb_dtype_name(t->dtype));
     }
+    drop_pages(st, t);
     return MLB_OK;
 }
 

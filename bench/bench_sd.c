@@ -6,7 +6,9 @@
 // uncond), the VAE encoder forward + backward; peak resident memory and the achieved GFLOP/s
 // against this machine's measured SGEMM rate. Prints a table (docs/sd_bench.md).
 //   build/bench/bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] [--dir /tmp]
-//                        [--precision fp32|bf16]
+//                        [--precision fp32|bf16] [--single-file OUT.safetensors]
+// --single-file also merges the three into one F16 single-file checkpoint (what stable-diffusion.cpp
+// and `matlaber sd txt2img -m` load; bench/compare_sdcpp.sh).
 // --vae 0 skips the VAE; --latent 0 skips the UNet. --precision bf16 runs the UNet's and VAE's
 // linear, conv and attention GEMMs with bf16 operands (mlb_unet_use_device / mlb_vae_use_device on
 // the CPU), the UNet's weights kept in bf16 as the program loads them (mlb_unet_options.bf16_weights).
@@ -131,6 +133,48 @@ static void vae_flops(const mlb_vae_config* g, int H, int W, double* fwd, double
     *bwd = b;
 }
 
+// The three files merged into one SD 1.x single-file checkpoint at `path`, every tensor F16 (the VAE's
+// F32 rounded to nearest), the UNet's metadata kept: what other programs load (bench/compare_sdcpp.sh
+// runs stable-diffusion.cpp on it).
+static int write_single_file(const char* path, const char* const parts[3]) {
+    mlb_safetensors* st[3] = {NULL, NULL, NULL};
+    size_t total = 0;
+    int rc = 1;
+    for (int i = 0; i < 3; i++) {
+        if (mlb_st_open(&st[i], parts[i])) goto done;
+        total += mlb_st_count(st[i]);
+    }
+    mlb_st_entry* e = calloc(total, sizeof *e);
+    void** owned = calloc(total, sizeof *owned);
+    size_t n = 0;
+    if (!e || !owned) goto free_entries;
+    for (int i = 0; i < 3; i++)
+        for (size_t j = 0; j < mlb_st_count(st[i]); j++, n++) {
+            const mlb_st_tensor* t = mlb_st_tensor_at(st[i], j);
+            e[n] = (mlb_st_entry){t->name, MLB_DT_F16, t->ndim, t->shape, t->data};
+            if (t->dtype == MLB_DT_F16) continue;
+            float* f = malloc(t->nelem * sizeof(float));
+            owned[n] = malloc(t->nelem * 2);
+            if (!f || !owned[n] || mlb_st_read_f32(st[i], t->name, f, t->nelem)) { free(f); goto free_entries; }
+            mlb_f32_to_f16_array(owned[n], f, t->nelem);
+            free(f);
+            e[n].data = owned[n];
+        }
+    size_t nm = mlb_st_metadata_count(st[0]);
+    mlb_st_meta* meta = calloc(nm ? nm : 1, sizeof *meta);
+    for (size_t j = 0; meta && j < nm; j++) mlb_st_metadata_at(st[0], j, &meta[j].key, &meta[j].value);
+    rc = !meta || mlb_st_write(path, e, n, meta, nm) != MLB_OK;
+    free(meta);
+free_entries:
+    if (rc) fprintf(stderr, "bench_sd: writing %s: %s\n", path, mlb_last_error());
+    for (size_t j = 0; owned && j < total; j++) free(owned[j]);
+    free(owned);
+    free(e);
+done:
+    for (int i = 0; i < 3; i++) mlb_st_close(st[i]);
+    return rc;
+}
+
 typedef struct { char what[64]; double gen_s, load_s, run_s, gflop, mb; char note[96]; } row;
 
 static int fail(const char* what) {
@@ -143,6 +187,7 @@ int main(int argc, char** argv) {
     int latent = 64, batch = 2, steps = 1, vae_size = 512, keep = 0, text = 1;
     mlb_gemm_precision prec = MLB_GEMM_FP32;
     const char* base = "/tmp";
+    const char* single = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--keep")) keep = 1;
         else if (!strcmp(argv[i], "--no-text")) text = 0;
@@ -151,13 +196,18 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--steps")) steps = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--vae")) vae_size = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--dir")) base = argv[++i];
+        else if (i + 1 < argc && !strcmp(argv[i], "--single-file")) single = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
             if (mlb_gemm_precision_parse(argv[++i], &prec)) return fail("--precision");
         } else {
             fprintf(stderr, "usage: bench_sd [--latent 64] [--batch 2] [--steps 1] [--vae 512] [--no-text] [--keep] "
-                            "[--dir /tmp] [--precision fp32|bf16]\n");
+                            "[--dir /tmp] [--precision fp32|bf16] [--single-file OUT.safetensors]\n");
             return 2;
         }
+    }
+    if (single && (!text || latent <= 0 || vae_size <= 0)) {
+        fprintf(stderr, "bench_sd: --single-file needs all three parts (no --no-text, --latent and --vae > 0)\n");
+        return 2;
     }
     if (steps < 1) steps = 1;
     if (batch < 1) batch = 1;
@@ -290,6 +340,11 @@ out:
                rows[i].run_s, rows[i].gflop, g, 100 * g / rate, rows[i].mb, rows[i].note);
     }
     printf("\npeak resident memory: %.0f MB (getrusage ru_maxrss)\n", bench_peak_mb());
+    if (single && !rc) {
+        const char* const parts[3] = {pu, pt, pv};
+        rc = write_single_file(single, parts);
+        if (!rc) printf("single-file checkpoint (F16): %s\n", single);
+    }
     if (!keep) {
         unlink(pu); unlink(pt); unlink(pv);
         char cj[620];

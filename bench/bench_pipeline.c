@@ -655,7 +655,8 @@ int main(int argc, char** argv) {
         uo.seed = 1;
         mlb_vae_config vc = mlb_vae_sd_config();
         mlb_status s = mlb_unet_write_random(&uc, &uo, pu);
-        if (!s) s = mlb_unet_load(pu, NULL, &tu);
+        mlb_unet_options lo = {NULL, device == MLB_DEVICE_CPU && precision == MLB_GEMM_BF16};   // as sd_model.c
+        if (!s) s = mlb_unet_load(pu, &lo, &tu);
         if (!s) s = mlb_vae_create(&vc, &tv);
         if (!s) {
             mlb_vae_init_random(tv, 1, 1.0f);

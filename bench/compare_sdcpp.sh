@@ -31,13 +31,14 @@
 #   launch -> ready   stamp of the first line after loading (sd.cpp "generate_image WxH", matlaber
 #                     "model: ...") minus the stamp taken just before launching the process.
 #   text encode       sd.cpp: "get_learned_condition completed, taking X s" (cond + uncond prompt);
-#                     matlaber logs nothing for it: stamp(final progress line) - sampling - stamp(model line).
+#                     matlaber: "prompts encoded (X s)" (older builds logged nothing for it: then
+#                     stamp(final progress line) - sampling - stamp(model line)).
 #   sampling          sd.cpp: "sampling completed, taking X s"; matlaber: "took D" of the final
 #                     "txt2img: N/N (100%) ..." progress line (0.1 s resolution under 60 s, 1 s above).
 #   s/step            sampling / STEPS (each step: one cond + one uncond UNet pass since CFG != 1;
 #                     sd.cpp runs them as two batch-1 passes, matlaber as one batch-2 pass).
-#   VAE decode        sd.cpp: "decode_first_stage completed, taking X s"; matlaber logs nothing for the
-#                     decode: stamp("wrote ...") - stamp(final progress line), i.e. decode + PNG write.
+#   VAE decode        sd.cpp: "decode_first_stage completed, taking X s"; matlaber: "latent decoded (X s)"
+#                     (older builds: stamp("wrote ...") - stamp(final progress line), decode + PNG write).
 #   wall, CPU, RSS    /usr/bin/time -v: elapsed wall clock, user + system seconds, maximum resident set.
 # The checkpoint is read once (cat > /dev/null) before each run so every run starts from a warm page cache.
 set -u -o pipefail
@@ -158,10 +159,15 @@ matlaber_fields() {
             tp = $1; s = $2; sub(/.* took /, "", s); sub(/,.*/, "", s); smp = dur(s)
         }
         $2 ~ /^wrote / { tw = $1 }
+        # since 2026-11-26 it logs both stages: "prompts encoded (X s)", "latent decoded (X s)"
+        $2 ~ /^prompts encoded \([0-9.]+s\)$/ { s = $2; gsub(/^.*\(|s\)$/, "", s); txt = s + 0 }
+        $2 ~ /^latent decoded \([0-9.]+s\)$/ { s = $2; gsub(/^.*\(|s\)$/, "", s); dec = s + 0 }
         END {
+            if (txt == "" && tm != "" && tp != "" && smp != "") txt = tp - smp - tm
+            if (dec == "" && tp != "" && tw != "") dec = tw - tp
             printf "%s %s %s %s %s\n", load == "" ? "na" : sprintf("%.2f", load), tm == "" ? "na" : sprintf("%.2f", tm - t0),
-                (tm == "" || tp == "" || smp == "") ? "na" : sprintf("%.2f", tp - smp - tm),
-                smp == "" ? "na" : sprintf("%.2f", smp), (tp == "" || tw == "") ? "na" : sprintf("%.2f", tw - tp)
+                txt == "" ? "na" : sprintf("%.2f", txt),
+                smp == "" ? "na" : sprintf("%.2f", smp), dec == "" ? "na" : sprintf("%.2f", dec)
         }' "$OUT_DIR/$1.log"
 }
 
@@ -266,8 +272,8 @@ for i in "${!rows[@]}"; do
 done
 echo
 echo "Ratios below 1: matlaber takes less time / memory than sd.cpp. Numbers: see the header of $0."
-echo "matlaber text encode = stamp(final progress line) - sampling - stamp(model line); matlaber VAE decode ="
-echo "stamp(\"wrote\") - stamp(final progress line) (decode + PNG write): matlaber logs neither."
+echo "matlaber text encode and VAE decode: its \"prompts encoded\" and \"latent decoded\" lines (or, from builds"
+echo "that lack them, the stamps around them: see the header of bench/compare_sdcpp.sh)."
 fail=0
 for n in "${names[@]}"; do [ "$(cat "$OUT_DIR/$n.rc")" = 0 ] || { echo "**$n failed (exit $(cat "$OUT_DIR/$n.rc")): $OUT_DIR/$n.log**"; fail=1; }; done
 exit $fail

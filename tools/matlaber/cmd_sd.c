@@ -201,10 +201,12 @@ static int txt2img_main(int argc, char** argv) {
     float* rgb = malloc(3 * (size_t)size * size * sizeof(float));
     int rc = 0;
     if (!ctx || !latent || !img || !rgb) { rc = cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), "txt2img"); goto done; }
+    double stage = mlb_now_seconds();
     if ((s = mlb_sd_model_encode_prompt(m, negative, ctx)) || (s = mlb_sd_model_encode_prompt(m, prompt, ctx + (size_t)T * Dc))) {
         rc = cli_fail(s, "encoding the prompt");
         goto done;
     }
+    mlb_log(MLB_LOG_INFO, "prompts encoded (%.2fs)", mlb_now_seconds() - stage);
     mlb_sd_model_drop_text(m);
     mlb_rng_fill_normal(latent, n, (uint64_t)seed, TXT2IMG_NOISE_STREAM, 0, 0.0f, 1.0f);
     mlb_progress pr;
@@ -213,7 +215,9 @@ static int txt2img_main(int argc, char** argv) {
                            (float)cfg, NULL, NULL, &pr);
     mlb_progress_end(&pr, NULL);
     if (s) { rc = cli_fail(s, "sampling"); goto done; }
+    stage = mlb_now_seconds();
     if ((s = mlb_sd_decode_latent(m->vae, m->scaling_factor, latent, h, h, img))) { rc = cli_fail(s, "decoding the latent"); goto done; }
+    mlb_log(MLB_LOG_INFO, "latent decoded (%.2fs)", mlb_now_seconds() - stage);
     const size_t hw = (size_t)size * size;
     for (size_t i = 0; i < hw; i++)
         for (int ch = 0; ch < 3; ch++) {

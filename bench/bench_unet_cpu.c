@@ -20,14 +20,11 @@
 // ---- the profile (unet_profile.h), each op timed by the wall clock ----
 static const char* p_names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (GEMM + softmax)",
                                        "group/layer norm", "glue (add, transpose, GEGLU, copies)"};
-static double clock_t0;
-static mlb_status wall_begin(void) { clock_t0 = mlb_now_seconds(); return MLB_OK; }
-static mlb_status wall_end(double* ms) { *ms = 1e3 * (mlb_now_seconds() - clock_t0); return MLB_OK; }
 
 static void profile(const mlb_unet* u, float* out, const float* x, const float* t, const float* ctx, int N, int H,
                     int W, mlb_gemm_precision prec) {
-    prof_begin = wall_begin;
-    prof_end = wall_end;
+    prof_begin = profile_wall_begin;
+    prof_end = profile_wall_end;
     double t0 = mlb_now_seconds();
     TRY(unet_profile_run(mlb_backend_for(MLB_DEVICE_CPU, prec), u, out, x, t, ctx, N, H, W));
     double total = mlb_now_seconds() - t0, sum = 0, flop = 0;

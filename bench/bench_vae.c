@@ -4,6 +4,8 @@
 // architecture with random weights at small sizes; and an estimate for the real VAE at 512² from
 // the GEMM FLOP count and this machine's measured GEMM rate. Prints tables; see docs/vae.md.
 //   build/bench/bench_vae [tiny-vae-path] [--sd512]    (--sd512 also times the real size at 512²)
+//   build/bench/bench_vae --profile S [--precision fp32|bf16]: only where the time of the real VAE goes
+//     at S² (encode with its cache, its backward to the image, decode), each op of the CPU's table timed.
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -12,6 +14,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 #include "bench_util.h"
+#include "unet_profile.h"
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
@@ -96,13 +99,67 @@ static const char* find_tiny(int argc, char** argv) {
     return NULL;
 }
 
+// Where the real SD VAE's time goes at S² on the CPU: encode (with the cache), its backward to the
+// image and decode, once each through the profiling copy of the CPU's op table (unet_profile.h).
+static int profile_sd_vae(int S, mlb_gemm_precision prec) {
+    mlb_vae_config g = mlb_vae_sd_config();
+    mlb_vae* v = NULL;
+    if (S % 8 || mlb_vae_create(&g, &v) || mlb_vae_use_device(v, MLB_DEVICE_CPU, prec)) {
+        fprintf(stderr, "bench_vae: --profile %d: %s\n", S, S % 8 ? "the size must be a multiple of 8" : mlb_last_error());
+        mlb_vae_free(v);
+        return 1;
+    }
+    mlb_vae_init_random(v, 1, 1.0f);
+    int h = mlb_vae_latent_size(&g, S);
+    size_t ni = (size_t)3 * S * S, nz = (size_t)4 * h * h;
+    float *img = malloc(ni * 4), *dimg = calloc(ni, 4), *mean = malloc(nz * 4), *dm = malloc(nz * 4);
+    mlb_rng_fill_uniform(img, ni, 3, 1, 0, -1, 1);
+    mlb_rng_fill_normal(dm, nz, 3, 2, 0, 0, 1);
+    prof_begin = profile_wall_begin;
+    prof_end = profile_wall_end;
+    const char* names[P_COUNT] = {"conv2d (im2col + GEMM)", "linear (GEMM)", "attention (one head of 512)",
+                                  "group norm", "glue (add, SiLU, copies)"};
+    const char* what[3] = {"encode (with cache)", "encode backward to the image", "decode"};
+    const mlb_backend* keep = v->mirror_ops;
+    mlb_backend w;
+    mlb_vae_cache cache = {0};
+    int rc = 0;
+    for (int pass = 0; pass < 3 && !rc; pass++) {
+        profile_wrap(keep ? keep : mlb_backend_cpu(), &w);
+        v->mirror_ops = &w;
+        double t0 = mlb_now_seconds();
+        mlb_status s = pass == 0 ? mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache)
+                     : pass == 1 ? mlb_vae_encode_backward(v, &cache, dm, NULL, dimg)
+                                 : mlb_vae_decode(v, mean, 1, h, h, img);
+        double dt = mlb_now_seconds() - t0;
+        v->mirror_ops = keep;
+        if (s) { fprintf(stderr, "bench_vae: %s: %s\n", what[pass], mlb_last_error()); rc = 1; break; }
+        printf("\nprofile, SD VAE %s, 1 x %d², %s GEMMs on the CPU (%.2f s):\n", what[pass], S,
+               mlb_gemm_precision_name(prec), dt);
+        profile_print(names);
+    }
+    mlb_vae_cache_free(&cache);
+    free(img); free(dimg); free(mean); free(dm);
+    mlb_vae_free(v);
+    return rc;
+}
+
 int main(int argc, char** argv) {
     // As the program does for OpenBLAS's kernels: restart once with the right settings. libgomp's
     // default spin-wait after every OpenMP loop takes the second core from OpenBLAS's GEMM threads
     // (5-15x slower on 2 cores, docs/vae.md), and both are read only when the runtimes load.
     mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
-    int sd512 = 0;
-    for (int i = 1; i < argc; i++) if (!strcmp(argv[i], "--sd512")) sd512 = 1;
+    int sd512 = 0, profile_size = 0;
+    mlb_gemm_precision prec = MLB_GEMM_FP32;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--sd512")) sd512 = 1;
+        else if (i + 1 < argc && !strcmp(argv[i], "--profile")) profile_size = atoi(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--precision") && mlb_gemm_precision_parse(argv[++i], &prec)) {
+            fprintf(stderr, "bench_vae: %s\n", mlb_last_error());
+            return 2;
+        }
+    }
+    if (profile_size > 0) return profile_sd_vae(profile_size, prec);
     int threads = omp_get_max_threads();
     mlb_set_threads(threads);
     const char* wp = getenv("OMP_WAIT_POLICY");

@@ -58,24 +58,50 @@ int mlb_gemm_bf16_native(void) {
 }
 
 #ifdef MLB_BF16_KERNEL
-// Rows r0 .. r0+R of X packed as pairs along K into out[kp][Rpad] (Rpad = MR or NR): X[r, k] is
-// X[r·rs + k·ks] with rs = 1 or ks = 1. Rows past R and the pad after an odd K are zero.
-BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size_t rs, size_t ks, int R, int K) {
+// 32 consecutive values x[0 .. left) of fp32 (rounded) or bf16 storage as 32 bf16 (16 pair words),
+// zero past `left`.
+BF16_TARGET static inline __m512i load32_bf16(const void* X, int is_bf16, size_t at, int left) {
+    if (is_bf16) {
+        __mmask32 m = left >= 32 ? 0xFFFFFFFFu : (__mmask32)((1u << left) - 1);
+        return _mm512_maskz_loadu_epi16(m, (const uint16_t*)X + at);
+    }
+    const float* x = (const float*)X + at;
+    __mmask16 m0 = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
+    __mmask16 m1 = left >= 32 ? 0xFFFF : left > 16 ? (__mmask16)((1u << (left - 16)) - 1) : 0;
+    return (__m512i)_mm512_cvtne2ps_pbh(_mm512_maskz_loadu_ps(m1, x + 16), _mm512_maskz_loadu_ps(m0, x));
+}
+
+// 16 values of two rows a (at a_at) and b (at b_at, or zero when has_b is 0) as [a0..a15 | b0..b15] bf16.
+BF16_TARGET static inline __m512i load16x2_bf16(const void* X, int is_bf16, size_t a_at, size_t b_at, int has_b,
+                                                __mmask16 m) {
+    if (is_bf16) {
+        const uint16_t* x = (const uint16_t*)X;
+        __m256i a = _mm256_maskz_loadu_epi16(m, x + a_at);
+        __m256i b = has_b ? _mm256_maskz_loadu_epi16(m, x + b_at) : _mm256_setzero_si256();
+        return _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1);
+    }
+    const float* x = (const float*)X;
+    __m512 a = _mm512_maskz_loadu_ps(m, x + a_at);
+    __m512 b = has_b ? _mm512_maskz_loadu_ps(m, x + b_at) : _mm512_setzero_ps();
+    return (__m512i)_mm512_cvtne2ps_pbh(b, a);
+}
+
+// Rows r0 .. r0+R of X (fp32 values, rounded here, or bf16 storage) packed as pairs along K into
+// out[kp][Rpad] (Rpad = MR or NR): X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R
+// and the pad after an odd K are zero. In bf16 storage two neighbours along K are already one word.
+BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int is_bf16, size_t at, size_t rs,
+                                   size_t ks, int R, int K) {
     const int kp = (K + 1) / 2;
-    if (ks == 1) {   // each row runs along K: 32 floats -> 16 pair words, then spread with stride Rpad
+    if (ks == 1) {   // each row runs along K: 32 values -> 16 pair words, then spread with stride Rpad
         uint32_t tmp[16];
         for (int r = 0; r < Rpad; r++) {
             if (r >= R) {
                 for (int p = 0; p < kp; p++) out[(size_t)p * Rpad + r] = 0;
                 continue;
             }
-            const float* x = X + (size_t)r * rs;
             for (int k = 0; k < K; k += 32) {
-                int left = K - k, np = kp - k / 2 < 16 ? kp - k / 2 : 16;
-                __mmask16 m0 = left >= 16 ? 0xFFFF : (__mmask16)((1u << left) - 1);
-                __mmask16 m1 = left >= 32 ? 0xFFFF : left > 16 ? (__mmask16)((1u << (left - 16)) - 1) : 0;
-                __m512 lo = _mm512_maskz_loadu_ps(m0, x + k), hi = _mm512_maskz_loadu_ps(m1, x + k + 16);
-                _mm512_storeu_si512(tmp, (__m512i)_mm512_cvtne2ps_pbh(hi, lo));
+                int np = kp - k / 2 < 16 ? kp - k / 2 : 16;
+                _mm512_storeu_si512(tmp, load32_bf16(X, is_bf16, at + (size_t)r * rs + k, K - k));
                 for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
             }
         }
@@ -86,56 +112,12 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size
                                        8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
     const __m512i weave = _mm512_loadu_si512(order);
     for (int p = 0; p < kp; p++) {
-        const float* x0 = X + (size_t)(2 * p) * ks;
-        const float* x1 = x0 + ks;
+        size_t x0 = at + (size_t)(2 * p) * ks;
         int has1 = 2 * p + 1 < K;
         for (int r = 0; r < Rpad; r += 16) {
             int left = R - r;
             __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
-            __m512 a = _mm512_maskz_loadu_ps(m, x0 + r);
-            __m512 b = has1 ? _mm512_maskz_loadu_ps(m, x1 + r) : _mm512_setzero_ps();
-            __m512i w = _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b, a));
-            __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
-            _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
-        }
-    }
-}
-
-// pack_pairs for values already in bf16 (uint16_t): the same words, without the rounding. Along K
-// two neighbours are already one word in memory (little-endian: x[k] low, x[k+1] high).
-BF16_TARGET static void pack_pairs_bf16(uint32_t* out, int Rpad, const uint16_t* X, size_t rs, size_t ks, int R,
-                                        int K) {
-    const int kp = (K + 1) / 2;
-    if (ks == 1) {
-        uint32_t tmp[16];
-        for (int r = 0; r < Rpad; r++) {
-            if (r >= R) {
-                for (int p = 0; p < kp; p++) out[(size_t)p * Rpad + r] = 0;
-                continue;
-            }
-            const uint16_t* x = X + (size_t)r * rs;
-            for (int k = 0; k < K; k += 32) {
-                int left = K - k, np = kp - k / 2 < 16 ? kp - k / 2 : 16;
-                __mmask32 m = left >= 32 ? 0xFFFFFFFFu : (__mmask32)((1u << left) - 1);
-                _mm512_storeu_si512(tmp, _mm512_maskz_loadu_epi16(m, x + k));
-                for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
-            }
-        }
-        return;
-    }
-    static const uint16_t order[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
-                                       8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-    const __m512i weave = _mm512_loadu_si512(order);
-    for (int p = 0; p < kp; p++) {
-        const uint16_t* x0 = X + (size_t)(2 * p) * ks;
-        const uint16_t* x1 = x0 + ks;
-        int has1 = 2 * p + 1 < K;
-        for (int r = 0; r < Rpad; r += 16) {
-            int left = R - r;
-            __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
-            __m256i a = _mm256_maskz_loadu_epi16(m, x0 + r);
-            __m256i b = has1 ? _mm256_maskz_loadu_epi16(m, x1 + r) : _mm256_setzero_si256();
-            __m512i w = _mm512_permutexvar_epi16(weave, _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1));
+            __m512i w = _mm512_permutexvar_epi16(weave, load16x2_bf16(X, is_bf16, x0 + r, x0 + ks + r, has1, m));
             __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
             _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
         }
@@ -263,8 +245,7 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
         uint32_t* o = out + (size_t)q * Rpad * np;
-        if (X->is_bf16) pack_pairs_bf16(o, Rpad, (const uint16_t*)X->data + at, rs, ks, rows, nk);
-        else pack_pairs(o, Rpad, (const float*)X->data + at, rs, ks, rows, nk);
+        pack_pairs(o, Rpad, X->data, X->is_bf16, at, rs, ks, rows, nk);
     }
 }
 #endif

@@ -1,5 +1,6 @@
 // UNet loading: layout detection, diffusers -> ldm name translation, configuration from config.json
-// or the ldm_config metadata, and the parameters (float32, or bf16 linear and conv weights) (see unet.h, docs/unet.md).
+// or the ldm_config metadata, and the parameters: float32, or the linear and conv weights in bf16
+// (see unet.h, docs/unet.md).
 #include "matlaber/unet.h"
 #include "matlaber/backend.h"
 #include "matlaber/unet_random.h"

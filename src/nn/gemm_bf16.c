@@ -316,9 +316,3 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
     free(w);
 #endif
 }
-
-void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
-                          int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 0, 0, lda, NULL}, b = {B, 0, 0, ldb, NULL};
-    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
-}

@@ -21,9 +21,6 @@ typedef struct {
 // Only when mlb_gemm_bf16_native() (nn.h) is 1. M, N, K >= 1.
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc);
-// The same with plain fp32 operands.
-void mlb_gemm_bf16_serial(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
-                          int ldb, float beta, float* C, int ldc);
 
 // op(X) packed whole (side_b 0: as A, R = M rows; 1: as B, R = N columns) into
 // mlb_gemm_bf16_packed_words(side_b, R, K) words, for an operand used by many products.

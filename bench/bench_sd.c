@@ -219,7 +219,7 @@ int main(int argc, char** argv) {
     double rate = bench_sgemm_rate(4096, 320, 2880);
     printf("sgemm 4096x2880 . 2880x320: %.1f GFLOP/s\n", rate);
     printf("UNet and VAE GEMMs: %s%s\n", mlb_gemm_precision_name(prec),
-           prec == MLB_GEMM_BF16 ? (mlb_gemm_bf16_native() ? " (linear and conv, AVX-512 BF16)" : " asked, no AVX-512 BF16: fp32")
+           prec == MLB_GEMM_BF16 ? (mlb_gemm_bf16_native() ? " (linear, conv and attention, AVX-512 BF16)" : " asked, no AVX-512 BF16: fp32")
                                  : "");
     char dir[512];
     snprintf(dir, sizeof dir, "%s/mlb_bench_sd_XXXXXX", base);

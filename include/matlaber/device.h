@@ -10,7 +10,8 @@
 typedef enum { MLB_DEVICE_CPU = 0, MLB_DEVICE_CUDA = 1 } mlb_device;
 
 // The operands of a GPU's GEMMs (linear, conv, attention). On the CPU only bf16 means something:
-// the linear and conv GEMMs in bf16 (mlb_gemm_bf16, AVX-512 BF16; fp32 on a CPU without it); fp16
+// the linear, conv and attention GEMMs in bf16 (mlb_gemm_bf16, AVX-512 BF16; fp32 on a CPU without
+// it; the SD UNet's weights then kept in bf16); fp16
 // and tf32 (GPU formats, and the global default fp16) compute in fp32 there.
 typedef enum {
     MLB_GEMM_FP32 = 0,   // plain fp32 (CUDA cores): matches the CPU to ~1e-6 relative
@@ -31,7 +32,7 @@ int mlb_gemm_precision_chosen(void);
 #define MLB_PRECISION_OPTION_HELP                                                                          \
     "  --precision P   GEMM operands, fp32 accumulation always. GPU: fp16 (default), bf16, tf32 or fp32.\n"   \
     "                  CPU: fp32 (what fp16 and tf32 mean there), or bf16 for the SD UNet's and VAE's\n"      \
-    "                  linear and conv GEMMs (AVX-512 BF16; on a CPU without it fp32, said once)\n"
+    "                  linear, conv and attention GEMMs (AVX-512 BF16; on a CPU without it fp32, said once)\n"
 
 int mlb_cuda_compiled(void);          // 1 when the CUDA part was built
 int mlb_cuda_device_count(void);      // 0 when none (or not compiled, or no driver)

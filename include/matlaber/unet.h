@@ -125,7 +125,8 @@ mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** ou
 // From now on mlb_unet_forward (host buffers) runs on device d with GEMM operands at precision
 // prec: the weights are copied there once, the inputs and
 // the output cross per call (a few hundred KB for SD's latents). MLB_DEVICE_CPU undoes it; with
-// MLB_GEMM_BF16 the CPU's linear and conv GEMMs then take bf16 operands (backend.h), any other prec
+// MLB_GEMM_BF16 the CPU's linear, conv and attention GEMMs then take bf16 operands (backend.h; the
+// weights stay fp32: mlb_unet_options.bf16_weights keeps them in bf16 at load), any other prec
 // is the CPU's fp32.
 mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision prec);
 // A copy of the CPU UNet src with its weights on device d (one upload of params).

@@ -467,6 +467,32 @@ TEST(write_round_trip) {
     unlink(path);
 }
 
+// mlb_st_read_f32 drops a tensor's pages of the mapping once converted (so a loader does not hold
+// the file beside its weights): the data stays readable, through read_f32 again and through t->data.
+TEST(read_drops_pages_keeps_data) {
+    char path[4200];
+    snprintf(path, sizeof path, "%s/pages.safetensors", tmpdir);
+    enum { N = 6000 };   // 24 KB: whole pages inside it
+    float* w = malloc(sizeof(float) * N), *out = malloc(sizeof(float) * N);
+    REQUIRE(w && out);
+    for (int i = 0; i < N; i++) w[i] = (float)i * 0.25f - 7.0f;
+    const mlb_st_entry e[] = {{"head", MLB_DT_F32, 1, (const int64_t[]){3}, w},
+                              {"big", MLB_DT_F32, 1, (const int64_t[]){N}, w}};
+    REQUIRE(mlb_st_write(path, e, 2, NULL, 0) == MLB_OK);
+    mlb_safetensors* st = NULL;
+    REQUIRE(mlb_st_open(&st, path) == MLB_OK);
+    for (int pass = 0; pass < 2; pass++) {
+        memset(out, 0, sizeof(float) * N);
+        CHECK(mlb_st_read_f32(st, "big", out, N) == MLB_OK && memcmp(out, w, sizeof(float) * N) == 0);
+    }
+    CHECK(memcmp(mlb_st_find(st, "big")->data, w, sizeof(float) * N) == 0);
+    CHECK(mlb_st_read_f32(st, "head", out, 3) == MLB_OK && memcmp(out, w, 3 * sizeof(float)) == 0);
+    mlb_st_close(st);
+    unlink(path);
+    free(w);
+    free(out);
+}
+
 TEST(write_errors_leave_file_alone) {
     char path[4200];
     snprintf(path, sizeof path, "%s/keep.safetensors", tmpdir);
@@ -672,6 +698,7 @@ int main(void) {
     RUN(valid_unaligned);
     RUN(read_and_expect_errors);
     RUN(write_round_trip);
+    RUN(read_drops_pages_keeps_data);
     RUN(write_errors_leave_file_alone);
     RUN(shared_sd_reference_files);
     RUN(shared_sd1_f16_matches_f32);

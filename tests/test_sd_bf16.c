@@ -7,8 +7,9 @@
 // (test_cuda_unet, test_cuda_vae: measured 1.5e-2 there; here 1.0e-2 to 1.5e-2 on a Zen 4 EPYC). And
 // at least 1e-5: it is bf16, not fp32.
 // Also: the bf16 forward is bitwise the same on 1 and 2 threads and with the UNet's weights stored in
-// bf16 (mlb_unet_options.bf16_weights), which then refuses every other device and precision; fp16 and tf32 on the CPU (and
-// going back to fp32) give the fp32 bits exactly; with the fp32 fallback forced, bf16 = fp32 bits.
+// bf16 (mlb_unet_options.bf16_weights), which then refuses every other device and precision; fp16
+// and tf32 on the CPU (and going back to fp32) give the fp32 bits exactly; with the fp32 fallback
+// forced, bf16 = fp32 bits.
 // Skipped (saying why) on a CPU without AVX-512 BF16, except the fp32 checks.
 #include "test.h"
 #include <omp.h>

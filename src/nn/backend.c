@@ -203,28 +203,19 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
     return no_backward_stored();
 }
 
-static const mlb_backend cpu_table = {
-    MLB_DEVICE_CPU, MLB_GEMM_FP32, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
-    cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_groupnorm, groupnorm_backward,
-    cpu_layernorm, cpu_activation, cpu_sdpa, cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu,
-    cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload,
-    cpu_light_free, cpu_shade, cpu_shade_backward,
-};
-static const mlb_backend cpu_bf16_table = {
-    MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
-    cpu_linear_bf16, cpu_linear_backward_bf16, cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_groupnorm,
-    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa_bf16, cpu_sdpa_backward, cpu_add, cpu_add_channel,
-    cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
-    cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
-};
-static const mlb_backend cpu_bf16_stored_table = {
-    MLB_DEVICE_CPU, MLB_GEMM_BF16, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy,
-    cpu_linear_bf16_stored, cpu_linear_backward_bf16_stored, cpu_conv2d_bf16_stored,
-    cpu_conv2d_backward_bf16_stored, cpu_groupnorm,
-    groupnorm_backward, cpu_layernorm, cpu_activation, cpu_sdpa_bf16, cpu_sdpa_backward, cpu_add, cpu_add_channel,
-    cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, cpu_hashgrid, cpu_hashgrid_backward, cpu_adam,
-    cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward,
-};
+// The CPU's tables differ only in their GEMM precision, the linear and conv ops and the attention forward.
+#define CPU_TABLE(prec, linear, linear_bwd, conv, conv_bwd, sdpa)                                                 \
+    {MLB_DEVICE_CPU, prec, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy, linear, \
+     linear_bwd, conv, conv_bwd, cpu_groupnorm, groupnorm_backward, cpu_layernorm, cpu_activation, sdpa,          \
+     cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, \
+     cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward}
+static const mlb_backend cpu_table =
+    CPU_TABLE(MLB_GEMM_FP32, cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_sdpa);
+static const mlb_backend cpu_bf16_table = CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16, cpu_linear_backward_bf16,
+                                                    cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_sdpa_bf16);
+static const mlb_backend cpu_bf16_stored_table =
+    CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16_stored, cpu_linear_backward_bf16_stored, cpu_conv2d_bf16_stored,
+              cpu_conv2d_backward_bf16_stored, cpu_sdpa_bf16);
 
 // ---- CUDA ----------------------------------------------------------------------------------------
 static mlb_status cuda_alloc(float** out, size_t n) {

@@ -18,7 +18,8 @@ typedef struct {
 } mlb_bf16_operand;
 
 // C[M,N] = alpha·op(A)·op(B) + beta·C with bf16 operands and fp32 sums, on the calling thread only.
-// Only when mlb_gemm_bf16_native() (nn.h) is 1. M, N, K >= 1.
+// M, N, K >= 1. Callers with fp32 operands check mlb_gemm_bf16_native() (nn.h) first; on a CPU
+// without AVX-512 BF16 an operand stored in bf16 is multiplied element by element (correct, slow).
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc);
 

@@ -7,6 +7,7 @@
 #include "matlaber/conv_ops.h"
 #include "matlaber/error.h"
 #include "matlaber/threads.h"
+#include "nn/groupnorm_avx512.h"
 #include "test.h"
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -402,6 +403,59 @@ TEST(sdpa_forward_backward) {
     }
 }
 
+// The float pass (vectorised on a CPU with AVX-512, groupnorm_avx512.c, and its scalar loops) against
+// the double one: forward, input gradient and the affine's gradients, ragged and VAE-sized groups.
+TEST(groupnorm_float_paths_vs_double) {
+    static const int shapes[][4] = {{2, 12, 10, 4}, {1, 8, 37, 2}, {1, 4, 1, 2}, {2, 64, 4096, 32}, {1, 6, 17, 1}};
+    for (int vec = 0; vec <= 1; vec++) {
+        mlb_groupnorm_force_scalar(!vec);
+        if (vec && !mlb_groupnorm_vectorised()) { printf("  group norm: no AVX-512 here, vectorised path not run\n"); break; }
+        double worst_fwd = 0, worst_bwd = 0;
+        for (size_t si = 0; si < sizeof shapes / sizeof shapes[0]; si++)
+            for (int silu = 0; silu <= 1; silu++)
+                for (int affine = 0; affine <= 1; affine++) {
+                    const int N = shapes[si][0], C = shapes[si][1], HW = shapes[si][2], G = shapes[si][3];
+                    const size_t n = (size_t)N * C * HW;
+                    mlb_activation act = silu ? MLB_ACT_SILU : MLB_ACT_IDENTITY;
+                    double *x = dalloc(n), *o = dalloc(n), *R = dalloc(n), *dx = dalloc(n), *w = dalloc(C), *b = dalloc(C);
+                    double *dw = dalloc(C), *db = dalloc(C), *mean = dalloc(N * G), *rstd = dalloc(N * G);
+                    float *xf = falloc(n), *of = falloc(n), *Rf = falloc(n), *dxf = falloc(n), *wf = falloc(C),
+                          *bf = falloc(C), *dwf = falloc(C), *dbf = falloc(C), *meanf = falloc(N * G), *rstdf = falloc(N * G);
+                    fill(xf, x, n, 2, 5); fill(wf, w, C, 0.5, 1); fill(bf, b, C, 0.5, 0); fill(Rf, R, n, 1, 0);
+                    const double *wp = affine ? w : NULL, *bp = affine ? b : NULL;
+                    const float *wfp = affine ? wf : NULL, *bfp = affine ? bf : NULL;
+                    for (size_t i = 0; i < n; i++) { dx[i] = 0.25; dxf[i] = 0.25f; }
+                    REQUIRE(groupnorm_forward_f64(o, mean, rstd, x, wp, bp, N, C, HW, G, 1e-6, act) == MLB_OK);
+                    REQUIRE(groupnorm_forward(of, meanf, rstdf, xf, wfp, bfp, N, C, HW, G, 1e-6f, act) == MLB_OK);
+                    double e = 0;
+                    for (size_t i = 0; i < n; i++) e = fmax(e, fabs(of[i] - o[i]) / (1 + fabs(o[i])));
+                    for (int i = 0; i < N * G; i++)
+                        e = fmax(e, fmax(fabs(meanf[i] - mean[i]) / mean[i], fabs(rstdf[i] - rstd[i]) / rstd[i]));
+                    CHECK_MSG(e < 1e-6, "vec %d shape %zu silu %d affine %d: forward %.3g", vec, si, silu, affine, e);
+                    worst_fwd = fmax(worst_fwd, e);
+                    REQUIRE(groupnorm_backward_f64(dx, affine ? dw : NULL, affine ? db : NULL, R, x, wp, bp, mean, rstd, N,
+                                                   C, HW, G, act) == MLB_OK);
+                    REQUIRE(groupnorm_backward(dxf, affine ? dwf : NULL, affine ? dbf : NULL, Rf, xf, wfp, bfp, meanf,
+                                               rstdf, N, C, HW, G, act) == MLB_OK);
+                    // dx = rstd (gy w - mean(gy w) - xhat mean(gy w xhat)) cancels: its rounding scales with
+                    // the size of the terms, rstd |dout| |w| (a group of 2 close values has a large rstd)
+                    double scale = max_abs(rstd, N * G) * max_abs(R, n) * (affine ? max_abs(w, C) : 1), eb = 0;
+                    for (size_t i = 0; i < n; i++) eb = fmax(eb, fabs(dxf[i] - dx[i]) / scale);
+                    if (affine) {
+                        double sw = max_abs(dw, C), sb = max_abs(db, C);
+                        for (int c = 0; c < C; c++) eb = fmax(eb, fmax(fabs(dwf[c] - dw[c]) / sw, fabs(dbf[c] - db[c]) / sb));
+                    }
+                    CHECK_MSG(eb < 4e-6, "vec %d shape %zu silu %d affine %d: backward %.3g", vec, si, silu, affine, eb);
+                    worst_bwd = fmax(worst_bwd, eb);
+                    free(x); free(o); free(R); free(dx); free(w); free(b); free(dw); free(db); free(mean); free(rstd);
+                    free(xf); free(of); free(Rf); free(dxf); free(wf); free(bf); free(dwf); free(dbf); free(meanf); free(rstdf);
+                }
+        printf("  group norm, float %s vs double: forward %.3g, backward %.3g (relative)\n", vec ? "AVX-512" : "scalar",
+               worst_fwd, worst_bwd);
+    }
+    mlb_groupnorm_force_scalar(0);
+}
+
 TEST(error_messages) {
     mlb_conv2d cv = conv_case(1, 2, 1, 1, 3, 3, 3, 1, 1, 0, 0, 0, 0);
     float x[2] = {0}, w[54] = {0}, o[27];
@@ -430,6 +484,7 @@ int main(void) {
     RUN(conv2d_backward_fd);
     RUN(conv2d_float_vs_double_backward);
     RUN(groupnorm_forward_and_fd);
+    RUN(groupnorm_float_paths_vs_double);
     RUN(upsample_and_transpose);
     RUN(sdpa_forward_backward);
     RUN(error_messages);

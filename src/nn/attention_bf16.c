@@ -31,32 +31,11 @@
 
 #if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
 #define MLB_ATT_KERNEL 1
-#include <immintrin.h>
-#define AVX512_TARGET __attribute__((target("avx512f,avx512bw,avx512vl,avx512dq")))
-
-// e^x for x <= 0 (scores minus their row maximum), 16 lanes: x = n·ln2 + r with |r| <= ln2/2,
-// e^r by its Taylor polynomial to r^6 (truncation < 1.3e-7 relative), times 2^n by VSCALEFPS.
-// Below -100 the result is 0 (e^-100 is far under fp32's normal range: a zero weight).
-AVX512_TARGET static inline __m512 exp_nonpositive(__m512 x) {
-    const __m512 log2e = _mm512_set1_ps(1.44269504088896341f);
-    const __m512 ln2_hi = _mm512_set1_ps(0.693145751953125f), ln2_lo = _mm512_set1_ps(1.428606765330187e-6f);
-    x = _mm512_max_ps(x, _mm512_set1_ps(-100.0f));
-    __m512 n = _mm512_roundscale_ps(_mm512_mul_ps(x, log2e), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m512 r = _mm512_fnmadd_ps(n, ln2_hi, x);
-    r = _mm512_fnmadd_ps(n, ln2_lo, r);
-    __m512 p = _mm512_set1_ps(1.0f / 720);
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.0f / 120));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.0f / 24));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.0f / 6));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(0.5f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.0f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.0f));
-    return _mm512_scalef_ps(p, n);
-}
+#include "nn/avx512_math.h"
 
 // Row p[0..n): p <- e^(p - max p); returns the max, *sum = sum of the new p (fp32, 16 partial sums
 // added in a fixed order).
-AVX512_TARGET static float softmax_row_unnormalised(float* p, int n, float* sum) {
+MLB_AVX512_TARGET static float softmax_row_unnormalised(float* p, int n, float* sum) {
     __m512 m = _mm512_set1_ps(-INFINITY);
     for (int s = 0; s < n; s += 16) {
         __mmask16 k = n - s >= 16 ? 0xFFFF : (__mmask16)((1u << (n - s)) - 1);
@@ -67,7 +46,7 @@ AVX512_TARGET static float softmax_row_unnormalised(float* p, int n, float* sum)
     __m512 acc = _mm512_setzero_ps();
     for (int s = 0; s < n; s += 16) {
         __mmask16 k = n - s >= 16 ? 0xFFFF : (__mmask16)((1u << (n - s)) - 1);
-        __m512 e = exp_nonpositive(_mm512_sub_ps(_mm512_maskz_loadu_ps(k, p + s), vm));
+        __m512 e = mlb_exp_nonpositive_ps(_mm512_sub_ps(_mm512_maskz_loadu_ps(k, p + s), vm));
         e = _mm512_maskz_mov_ps(k, e);
         _mm512_mask_storeu_ps(p + s, k, e);
         acc = _mm512_add_ps(acc, e);

@@ -9,6 +9,9 @@
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "core/real.h"
+#ifndef MLB_F64
+#include "nn/groupnorm_avx512.h"
+#endif
 
 // Below this many values a loop stays on one thread (the fork/join costs more than the work).
 #define COPS_PARALLEL_MIN 32768
@@ -302,6 +305,16 @@ static inline real FN(gn_act_d1)(mlb_activation act, real y) {
     return FN(mlb_act_d1)(act, y);
 }
 
+// Whether the float pass runs a group through groupnorm_avx512.c (SiLU or identity, on a CPU with it).
+static int FN(gn_vectorised)(mlb_activation act) {
+#ifndef MLB_F64
+    return (act == MLB_ACT_IDENTITY || act == MLB_ACT_SILU) && mlb_groupnorm_vectorised();
+#else
+    (void)act;
+    return 0;
+#endif
+}
+
 static mlb_status FN(gn_check)(int N, int C, int HW, int G) {
     if (N < 0 || C < 0 || HW < 0 || G < 1)
         return mlb_fail(MLB_ERR_ARG, "group norm: bad shape [%d, %d, %d] with %d groups", N, C, HW, G);
@@ -317,10 +330,23 @@ mlb_status FN(groupnorm_forward)(real* out, real* mean, real* rstd, const real* 
     if (!out || !in) return mlb_fail(MLB_ERR_ARG, "group norm: NULL buffer");
     const int Cg = C / G;
     const size_t M = (size_t)Cg * HW;
+    const int vec = FN(gn_vectorised)(act);
+    (void)vec;   // the double pass never vectorises
 #pragma omp parallel for schedule(static) if ((size_t)N * C * HW >= COPS_PARALLEL_MIN)
     for (int ng = 0; ng < N * G; ng++) {
         const real* x = in + (size_t)ng * M;   // the group's channels are consecutive in NCHW
         real* o = out + (size_t)ng * M;
+#ifndef MLB_F64
+        if (vec) {
+            const int c0 = (ng % G) * Cg;
+            double m, r;
+            mlb_groupnorm_forward_group(o, &m, &r, x, weight ? weight + c0 : NULL, bias ? bias + c0 : NULL, Cg, HW,
+                                        eps, act == MLB_ACT_SILU);
+            if (mean) mean[ng] = (real)m;
+            if (rstd) rstd[ng] = (real)r;
+            continue;
+        }
+#endif
         double m = 0, v = 0;
         for (size_t i = 0; i < M; i++) m += (double)x[i];
         m = M ? m / (double)M : 0;
@@ -352,6 +378,8 @@ mlb_status FN(groupnorm_backward)(real* din, real* dweight, real* dbias, const r
     if (!dout || !in || !mean || !rstd) return mlb_fail(MLB_ERR_ARG, "group norm backward: NULL buffer");
     const int Cg = C / G;
     const size_t M = (size_t)Cg * HW;
+    const int vec = FN(gn_vectorised)(act);
+    (void)vec;   // the double pass never vectorises
     double* part = NULL;   // [N, C, 2]: per image and channel, sum gy * xhat and sum gy
     if (dweight || dbias) {
         part = malloc((size_t)N * C * 2 * sizeof(double));
@@ -363,6 +391,15 @@ mlb_status FN(groupnorm_backward)(real* din, real* dweight, real* dbias, const r
         const real* d = dout + (size_t)ng * M;
         real m = mean[ng], r = rstd[ng];
         int g = ng % G, n = ng / G;
+#ifndef MLB_F64
+        if (vec) {
+            const int c0 = g * Cg;
+            mlb_groupnorm_backward_group(din ? din + (size_t)ng * M : NULL, part ? part + ((size_t)n * C + c0) * 2 : NULL,
+                                         d, x, weight ? weight + c0 : NULL, bias ? bias + c0 : NULL, m, r, Cg, HW,
+                                         act == MLB_ACT_SILU);
+            continue;
+        }
+#endif
         double s1 = 0, s2 = 0;   // sums of g and g * xhat over the group
         for (int cc = 0; cc < Cg; cc++) {
             int c = g * Cg + cc;

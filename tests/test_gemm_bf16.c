@@ -11,7 +11,10 @@
 //    relative, so each product by 2^-7 + 2^-16, then the fp32 sums), and over the checked elements an RMS error at most 2^-8 · sqrt(sum (a·b)²), i.e. about
 //    2^-8 · sqrt(K) times a typical |a·b| (measured about 0.6 · 2^-8).
 // Bitwise the same on 1, 2 and 3 threads. Also sdpa_forward_bf16 (attention on these GEMMs, src/nn/
-// attention_bf16.c) against attention in double, per element within the bound its roundings allow.
+// attention_bf16.c) against attention in double, per element within the bound its roundings allow,
+// and the bf16 convolutions whose GEMM packs straight from the image (src/nn/conv_bf16.c): the bits
+// of im2col + mlb_gemm_bf16 (the input gradient: of the flipped conv), 1 and 2 threads alike, each
+// element within its bound of the exact conv.
 // Skipped (saying why) without AVX-512 BF16; the fp32
 // fallback is checked by forcing it.
 #include "test.h"
@@ -308,6 +311,165 @@ TEST(attention_fallback_is_fp32) {
     free(x); free(o1); free(o2); free(l1); free(l2);
 }
 
+// ---- convolution: conv2d_forward_bf16 / _stored and conv2d_backward_bf16's input gradient packed
+// straight from the image (src/nn/conv_bf16.c) ----------------------------------------------------
+// im2col of image x ([C, H, W]) for cv into col[K, OH·OW], written out here in plain loops.
+static void test_im2col(float* col, const float* x, const mlb_conv2d* cv) {
+    const int OH = mlb_conv2d_out_h(cv), OW = mlb_conv2d_out_w(cv);
+    for (int c = 0; c < cv->C; c++)
+        for (int i = 0; i < cv->KH; i++)
+            for (int j = 0; j < cv->KW; j++)
+                for (int y = 0; y < OH; y++)
+                    for (int xo = 0; xo < OW; xo++) {
+                        int iy = y * cv->stride_h - cv->pad_top + i, ix = xo * cv->stride_w - cv->pad_left + j;
+                        float v = iy >= 0 && iy < cv->H && ix >= 0 && ix < cv->W ? x[((size_t)c * cv->H + iy) * cv->W + ix] : 0;
+                        col[(((size_t)c * cv->KH + i) * cv->KW + j) * OH * OW + (size_t)y * OW + xo] = v;
+                    }
+}
+
+// out (+)= conv as im2col + mlb_gemm_bf16 (the sums start from the bias, or from out with accumulate).
+static void reference_conv(float* out, const float* in, const float* w, const float* bias, const mlb_conv2d* cv,
+                           int accumulate) {
+    const int K = cv->C * cv->KH * cv->KW, P = mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
+    float* col = malloc(sizeof(float) * (size_t)K * P);
+    for (int n = 0; n < cv->N; n++) {
+        float* o = out + (size_t)n * cv->OC * P;
+        if (!accumulate)
+            for (int oc = 0; oc < cv->OC; oc++)
+                for (int p = 0; p < P; p++) o[(size_t)oc * P + p] = bias ? bias[oc] : 0;
+        test_im2col(col, in + (size_t)n * cv->C * cv->H * cv->W, cv);
+        mlb_gemm_bf16(0, 0, cv->OC, P, K, 1.0f, w, K, col, P, 1.0f, o, P);
+    }
+    free(col);
+}
+
+typedef struct { int N, C, H, W, OC, KH, KW, sh, sw, pt, pl, pb, pr; const char* what; } conv_shape;
+static const conv_shape conv_shapes[] = {
+    {2, 5, 40, 40, 19, 3, 3, 1, 1, 1, 1, 1, 1, "3x3 same, rows of 40 across 32-pixel panels, 2 images"},
+    {1, 3, 7, 9, 16, 3, 3, 1, 1, 1, 1, 1, 1, "rows of 9: several rows per panel"},
+    {1, 8, 33, 35, 30, 3, 3, 2, 2, 0, 0, 1, 1, "the VAE's downsample: stride 2, pad right/bottom only"},
+    {1, 4, 12, 50, 7, 3, 1, 1, 1, 1, 0, 1, 0, "3x1 kernel"},
+    {1, 2, 20, 20, 3, 5, 5, 1, 1, 2, 2, 2, 2, "5x5 same"},
+    {1, 6, 21, 23, 5, 3, 3, 1, 1, 0, 0, 0, 0, "3x3 valid (its input gradient pads by 2)"},
+    {1, 16, 70, 70, 33, 3, 3, 1, 1, 1, 1, 1, 1, "10 tiles of 512 pixels"},
+    {1, 7, 8, 8, 9, 3, 3, 1, 1, 1, 2, 0, 1, "uneven pads"},
+};
+
+TEST(conv_from_the_image) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off)");
+    const int max_threads = omp_get_max_threads();
+    double worst_fwd = 0, worst_din = 0;
+    for (size_t si = 0; si < sizeof conv_shapes / sizeof conv_shapes[0]; si++) {
+        const conv_shape* s = &conv_shapes[si];
+        const mlb_conv2d cv = {s->N, s->C, s->H, s->W, s->OC, s->KH, s->KW, s->sh, s->sw, s->pt, s->pl, s->pb, s->pr};
+        const int OH = mlb_conv2d_out_h(&cv), OW = mlb_conv2d_out_w(&cv), K = s->C * s->KH * s->KW;
+        const size_t nin = (size_t)s->N * s->C * s->H * s->W, nout = (size_t)s->N * s->OC * OH * OW, nw = (size_t)s->OC * K;
+        float *x = malloc(sizeof(float) * nin), *w = malloc(sizeof(float) * nw), *b = malloc(sizeof(float) * s->OC);
+        float *o1 = malloc(sizeof(float) * nout), *o2 = malloc(sizeof(float) * nout), *ref = malloc(sizeof(float) * nout);
+        float *d1 = malloc(sizeof(float) * nin), *d2 = malloc(sizeof(float) * nin), *dref = malloc(sizeof(float) * nin);
+        uint16_t* w16 = malloc(2 * nw);
+        REQUIRE(x && w && b && o1 && o2 && ref && d1 && d2 && dref && w16);
+        mlb_rng_fill_uniform(x, nin, SEED, 70 + si, 0, -1, 1);
+        mlb_rng_fill_uniform(w, nw, SEED, 70 + si, 1, -1, 1);
+        mlb_rng_fill_uniform(b, s->OC, SEED, 70 + si, 2, -1, 1);
+        // forward: the bits of im2col + mlb_gemm_bf16, on 1 and 2 threads, and with the weight in bf16
+        reference_conv(ref, x, w, b, &cv, 0);
+        omp_set_num_threads(1);
+        CHECK(conv2d_forward_bf16(o1, x, w, b, &cv, NULL) == MLB_OK);
+        omp_set_num_threads(2);
+        CHECK(conv2d_forward_bf16(o2, x, w, b, &cv, NULL) == MLB_OK);
+        CHECK_MSG(!memcmp(o1, ref, sizeof(float) * nout) && !memcmp(o2, ref, sizeof(float) * nout),
+                  "%s: forward differs from im2col + GEMM", s->what);
+        CHECK(mlb_bf16_from_f32(w16, w, nw) == 1);
+        CHECK(conv2d_forward_bf16_stored(o2, x, (const float*)w16, b, &cv, NULL) == MLB_OK);
+        CHECK_MSG(!memcmp(o2, ref, sizeof(float) * nout), "%s: forward with the weight stored in bf16 differs", s->what);
+        // against the exact conv in long double: each product of bf16-rounded operands is within
+        // 2^-7 + 2^-16 of the exact one, then the fp32 sums: (K + 2)·2^-24 of sum|terms|
+        for (int n = 0; n < s->N; n++)
+            for (int oc = 0; oc < s->OC; oc++)
+                for (int y = 0; y < OH; y++)
+                    for (int xo = 0; xo < OW; xo++) {
+                        long double sum = b[oc], mag = fabsl((long double)b[oc]);
+                        for (int c = 0; c < s->C; c++)
+                            for (int i = 0; i < s->KH; i++)
+                                for (int j = 0; j < s->KW; j++) {
+                                    int iy = y * s->sh - s->pt + i, ix = xo * s->sw - s->pl + j;
+                                    if (iy < 0 || iy >= s->H || ix < 0 || ix >= s->W) continue;
+                                    long double t = (long double)w[(((size_t)oc * s->C + c) * s->KH + i) * s->KW + j] *
+                                                    x[(((size_t)n * s->C + c) * s->H + iy) * s->W + ix];
+                                    sum += t;
+                                    mag += fabsl(t);
+                                }
+                        double e = (double)fabsl(o1[(((size_t)n * s->OC + oc) * OH + y) * OW + xo] - sum);
+                        double bound = (0x1p-7 + 0x1p-16 + (K + 2) * 0x1p-24) * (double)mag;
+                        CHECK_MSG(e <= bound, "%s: out[%d,%d,%d,%d] off by %.3g (bound %.3g)", s->what, n, oc, y, xo, e, bound);
+                        if (mag > 0 && e / (double)mag > worst_fwd) worst_fwd = e / (double)mag;
+                    }
+        // input gradient, added to what din holds: a stride-1 conv runs as the conv of dout with the
+        // weight flipped and transposed (its bits: that conv through im2col + GEMM), a strided one as
+        // before; both within the bound of the exact gradient
+        float* dout = o1;
+        mlb_rng_fill_uniform(dout, nout, SEED, 70 + si, 3, -1, 1);
+        mlb_rng_fill_uniform(d1, nin, SEED, 70 + si, 4, -1, 1);
+        memcpy(d2, d1, sizeof(float) * nin);
+        memcpy(dref, d1, sizeof(float) * nin);
+        if (s->sh == 1 && s->sw == 1) {
+            float* wt = malloc(sizeof(float) * nw);
+            REQUIRE(wt);
+            for (int oc = 0; oc < s->OC; oc++)
+                for (int c = 0; c < s->C; c++)
+                    for (int i = 0; i < s->KH; i++)
+                        for (int j = 0; j < s->KW; j++)
+                            wt[(((size_t)c * s->OC + oc) * s->KH + (s->KH - 1 - i)) * s->KW + (s->KW - 1 - j)] =
+                                w[(((size_t)oc * s->C + c) * s->KH + i) * s->KW + j];
+            const mlb_conv2d t = {s->N, s->OC, OH, OW, s->C, s->KH, s->KW, 1, 1, s->KH - 1 - s->pt, s->KW - 1 - s->pl,
+                                  s->KH - 1 - s->pb, s->KW - 1 - s->pr};
+            CHECK(mlb_conv2d_out_h(&t) == s->H && mlb_conv2d_out_w(&t) == s->W);
+            reference_conv(dref, dout, wt, NULL, &t, 1);
+            free(wt);
+        }
+        omp_set_num_threads(1);
+        CHECK(conv2d_backward_bf16(d1, NULL, NULL, dout, NULL, w, &cv, NULL) == MLB_OK);
+        omp_set_num_threads(2);
+        CHECK(conv2d_backward_bf16(d2, NULL, NULL, dout, NULL, w, &cv, NULL) == MLB_OK);
+        CHECK_MSG(!memcmp(d1, d2, sizeof(float) * nin), "%s: input gradient differs between 1 and 2 threads", s->what);
+        if (s->sh == 1 && s->sw == 1)
+            CHECK_MSG(!memcmp(d1, dref, sizeof(float) * nin), "%s: input gradient differs from the flipped conv", s->what);
+        double* exact = calloc(nin, sizeof(double));
+        double* mag = calloc(nin, sizeof(double));
+        REQUIRE(exact && mag);
+        for (int n = 0; n < s->N; n++)
+            for (int oc = 0; oc < s->OC; oc++)
+                for (int y = 0; y < OH; y++)
+                    for (int xo = 0; xo < OW; xo++)
+                        for (int c = 0; c < s->C; c++)
+                            for (int i = 0; i < s->KH; i++)
+                                for (int j = 0; j < s->KW; j++) {
+                                    int iy = y * s->sh - s->pt + i, ix = xo * s->sw - s->pl + j;
+                                    if (iy < 0 || iy >= s->H || ix < 0 || ix >= s->W) continue;
+                                    double t = (double)w[(((size_t)oc * s->C + c) * s->KH + i) * s->KW + j] *
+                                               dout[(((size_t)n * s->OC + oc) * OH + y) * OW + xo];
+                                    size_t e = (((size_t)n * s->C + c) * s->H + iy) * s->W + ix;
+                                    exact[e] += t;
+                                    mag[e] += fabs(t);
+                                }
+        float* start = malloc(sizeof(float) * nin);   // what din held before the call
+        REQUIRE(start);
+        mlb_rng_fill_uniform(start, nin, SEED, 70 + si, 4, -1, 1);
+        for (size_t e = 0; e < nin; e++) {
+            double err = fabs((double)d1[e] - (start[e] + exact[e]));
+            double bound = (0x1p-7 + 0x1p-16 + (s->OC * s->KH * s->KW + 4) * 0x1p-24) * (mag[e] + fabs(start[e])) + 0x1p-24;
+            CHECK_MSG(err <= bound, "%s: din[%zu] off by %.3g (bound %.3g)", s->what, e, err, bound);
+            if (mag[e] > 0 && err / mag[e] > worst_din) worst_din = err / mag[e];
+        }
+        free(start); free(exact); free(mag);
+        free(x); free(w); free(b); free(o1); free(o2); free(ref); free(d1); free(d2); free(dref); free(w16);
+    }
+    omp_set_num_threads(max_threads);
+    printf("  conv from the image: worst error relative to sum|terms|: forward %.3g, input gradient %.3g (bf16 "
+           "operands: up to 2^-7 = %.3g)\n", worst_fwd, worst_din, 0x1p-7);
+}
+
 int main(void) {
     RUN(values_threads_edges);
     RUN(stored_operands);
@@ -315,5 +477,6 @@ int main(void) {
     RUN(alpha_zero_and_empty_k);
     RUN(attention);
     RUN(attention_fallback_is_fp32);
+    RUN(conv_from_the_image);
     return test_summary();
 }

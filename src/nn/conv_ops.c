@@ -10,6 +10,7 @@
 #include "matlaber/nn.h"
 #include "core/real.h"
 #ifndef MLB_F64
+#include "nn/conv_bf16.h"
 #include "nn/groupnorm_avx512.h"
 #endif
 
@@ -272,18 +273,27 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
 }
 
 #ifndef MLB_F64
+// bf16: the implicit GEMM of conv_bf16.c where it applies (the same bits as im2col + GEMM here).
 mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
                                const mlb_conv2d* cv, float* ws) {
+    if (out && in && weight && conv2d_bf16_implicit_applies(cv, 0))
+        return conv2d_bf16_implicit_forward(out, in, weight, 0, bias, cv, 0);
     return conv2d_forward_with(mlb_gemm_bf16, out, in, weight, bias, cv, ws);
 }
 
 mlb_status conv2d_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias,
                                       const mlb_conv2d* cv, float* ws) {
+    if (out && in && weight && conv2d_bf16_implicit_applies(cv, 0))
+        return conv2d_bf16_implicit_forward(out, in, weight, 1, bias, cv, 0);
     return conv2d_forward_with(mlb_gemm_bf16_stored_a, out, in, weight, bias, cv, ws);
 }
 
 mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                 const float* weight, const mlb_conv2d* cv, float* ws) {
+    if (din && dout && weight && conv2d_bf16_implicit_applies(cv, 1)) {
+        MLB_TRY(conv2d_bf16_implicit_input_grad(din, dout, weight, cv));
+        din = NULL;   // the weight's and bias's gradients below, if asked for
+    }
     return conv2d_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, cv, ws);
 }
 #endif

@@ -153,17 +153,17 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
 // uint16_t storage).
 static void bf16_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off, int lda,
                        const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 0, a_off, lda, NULL}, b = {B, 0, b_off, ldb, NULL};
+    mlb_bf16_operand a = {A, 0, a_off, lda, NULL, NULL}, b = {B, 0, b_off, ldb, NULL, NULL};
     mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }
 static void bf16_stored_a_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
                                 int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 1, a_off, lda, NULL}, b = {B, 0, b_off, ldb, NULL};
+    mlb_bf16_operand a = {A, 1, a_off, lda, NULL, NULL}, b = {B, 0, b_off, ldb, NULL, NULL};
     mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }
 static void bf16_stored_b_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
                                 int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 0, a_off, lda, NULL}, b = {B, 1, b_off, ldb, NULL};
+    mlb_bf16_operand a = {A, 0, a_off, lda, NULL, NULL}, b = {B, 1, b_off, ldb, NULL, NULL};
     mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }
 

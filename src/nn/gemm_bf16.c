@@ -86,6 +86,10 @@ BF16_TARGET static inline __m512i load16x2_bf16(const void* X, int is_bf16, size
     return (__m512i)_mm512_cvtne2ps_pbh(b, a);
 }
 
+// [a0..a15 | b0..b15] (bf16) -> word r = (b_r << 16) | a_r: two neighbours along K as one pair word.
+static const uint16_t pair_weave[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
+                                        8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+
 // Rows r0 .. r0+R of X (fp32 values, rounded here, or bf16 storage) packed as pairs along K into
 // out[kp][Rpad] (Rpad = MR or NR): X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R
 // and the pad after an odd K are zero. In bf16 storage two neighbours along K are already one word.
@@ -108,9 +112,7 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int i
         return;
     }
     // each k runs along the rows: rows k and k+1, 16 at a time, interleaved word by word
-    static const uint16_t order[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
-                                       8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-    const __m512i weave = _mm512_loadu_si512(order);
+    const __m512i weave = _mm512_loadu_si512(pair_weave);
     for (int p = 0; p < kp; p++) {
         size_t x0 = at + (size_t)(2 * p) * ks;
         int has1 = 2 * p + 1 < K;
@@ -120,6 +122,70 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int i
             __m512i w = _mm512_permutexvar_epi16(weave, load16x2_bf16(X, is_bf16, x0 + r, x0 + ks + r, has1, m));
             __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
             _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
+        }
+    }
+}
+
+// lo/hi (lanes 0-15 / 16-31) = row k = (c, i, j) of the im2col matrix of cv's input img for the
+// `lanes` output pixels from (y, x) on; the other lanes zero. The pixels fall in runs along output
+// rows (one when OW >= NR); a run of a stride-1 conv is one masked load from an input row (the
+// padding's lanes stay zero), of a strided one a gather.
+BF16_TARGET static inline void im2col_lanes(__m512* lo, __m512* hi, const float* img, const mlb_conv2d* cv, int OW,
+                                            int c, int i, int j, int y, int x, int lanes) {
+    *lo = *hi = _mm512_setzero_ps();
+    const float* plane = img + (size_t)c * cv->H * cv->W;
+    for (int lane = 0; lane < lanes; y++, x = 0) {
+        const int len = OW - x < lanes - lane ? OW - x : lanes - lane, first = lane;
+        lane += len;
+        const int iy = y * cv->stride_h - cv->pad_top + i;
+        if (iy < 0 || iy >= cv->H) continue;
+        const float* row = plane + (size_t)iy * cv->W;
+        const int ix0 = x * cv->stride_w - cv->pad_left + j;   // the input column of the run's first lane
+        if (cv->stride_w == 1) {   // lane l reads row[ix0 + l - first] where that is inside the row
+            const int t_lo = ix0 < 0 ? -ix0 : 0, t_hi = cv->W - ix0 < len ? cv->W - ix0 : len;
+            if (t_hi <= t_lo) continue;
+            const int n = t_hi - t_lo;
+            const uint32_t m = (n >= 32 ? 0xFFFFFFFFu : (1u << n) - 1) << (first + t_lo);
+            const float* base = row + ix0 - first;
+            if ((uint16_t)m) *lo = _mm512_mask_loadu_ps(*lo, (__mmask16)m, base);
+            if (m >> 16) *hi = _mm512_mask_loadu_ps(*hi, (__mmask16)(m >> 16), base + 16);
+        } else {
+            float tmp[NR] = {0};
+            for (int t = 0; t < len; t++) {
+                const int ix = ix0 + t * cv->stride_w;
+                if (ix >= 0 && ix < cv->W) tmp[first + t] = row[ix];
+            }
+            const uint32_t m = (len >= 32 ? 0xFFFFFFFFu : (1u << len) - 1) << first;
+            *lo = _mm512_mask_loadu_ps(*lo, (__mmask16)m, tmp);
+            *hi = _mm512_mask_loadu_ps(*hi, (__mmask16)(m >> 16), tmp + 16);
+        }
+    }
+}
+
+// A B block of the im2col operand: columns pixel0 .. pixel0 + R, rows k0 .. k0 + K, into out
+// ([panels][np][NR], as pack_block lays out B). Pair by pair across all panels, so that each input
+// row is read along its length (prefetched, and again from L1 for the kernel's next column j).
+BF16_TARGET static void pack_im2col_block(uint32_t* out, int np, const float* img, const mlb_conv2d* cv,
+                                          size_t pixel0, int R, int k0, int K) {
+    const __m512i weave = _mm512_loadu_si512(pair_weave);
+    const int OW = mlb_conv2d_out_w(cv), KHW = cv->KH * cv->KW, panels = (R + NR - 1) / NR;
+    const int y0 = (int)(pixel0 / (size_t)OW), x0 = (int)(pixel0 % (size_t)OW);
+    int c = k0 / KHW, i = k0 / cv->KW % cv->KH, j = k0 % cv->KW;   // row k's (c, i, j), stepped along
+    for (int p = 0; 2 * p < K; p++) {
+        const int ca = c, ia = i, ja = j, has_b = 2 * p + 1 < K;
+        if (++j == cv->KW) { j = 0; if (++i == cv->KH) { i = 0; c++; } }
+        const int cb = c, ib = i, jb = j;
+        if (++j == cv->KW) { j = 0; if (++i == cv->KH) { i = 0; c++; } }
+        int y = y0, x = x0;
+        for (int q = 0; q < panels; q++) {
+            const int lanes = R - q * NR < NR ? R - q * NR : NR;
+            __m512 a[2], b[2] = {_mm512_setzero_ps(), _mm512_setzero_ps()};
+            im2col_lanes(&a[0], &a[1], img, cv, OW, ca, ia, ja, y, x, lanes);
+            if (has_b) im2col_lanes(&b[0], &b[1], img, cv, OW, cb, ib, jb, y, x, lanes);
+            uint32_t* o = out + ((size_t)q * np + p) * NR;
+            _mm512_storeu_si512(o, _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b[0], a[0])));
+            _mm512_storeu_si512(o + 16, _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b[1], a[1])));
+            for (x += NR; x >= OW; x -= OW) y++;
         }
     }
 }
@@ -209,8 +275,18 @@ static void operand_strides(int side_b, int trans, int ld, size_t* rs, size_t* k
     *ks = along_k_contiguous ? 1 : (size_t)ld;
 }
 
+// Value (k, pixel) of the im2col matrix of cv's input image img (zero in the padding).
+static float im2col_value(const float* img, const mlb_conv2d* cv, int k, size_t pixel) {
+    const int OW = mlb_conv2d_out_w(cv), c = k / (cv->KH * cv->KW), i = k / cv->KW % cv->KH, j = k % cv->KW;
+    const long y = (long)(pixel / (size_t)OW), x = (long)(pixel % (size_t)OW);
+    const long iy = y * cv->stride_h - cv->pad_top + i, ix = x * cv->stride_w - cv->pad_left + j;
+    if (iy < 0 || iy >= cv->H || ix < 0 || ix >= cv->W) return 0;
+    return img[((size_t)c * cv->H + (size_t)iy) * cv->W + (size_t)ix];
+}
+
 // Element e of an operand's storage, as fp32 (the out-of-memory path only).
 static float element(const mlb_bf16_operand* X, size_t e) {
+    if (X->im2col) return im2col_value(X->data, X->im2col, (int)(e / (size_t)X->ld), X->offset + e % (size_t)X->ld);
     if (!X->is_bf16) return ((const float*)X->data)[X->offset + e];
     uint32_t u = (uint32_t)((const uint16_t*)X->data)[X->offset + e] << 16;
     float f;
@@ -241,6 +317,10 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
     const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
     size_t rs, ks;
     operand_strides(side_b, trans, X->ld, &rs, &ks);
+    if (X->im2col) {
+        pack_im2col_block(out, np, X->data, X->im2col, X->offset + (size_t)r0, R, k0, nk);
+        return;
+    }
     for (int q = 0; q < panels; q++) {
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
@@ -279,7 +359,7 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
         free(pb);
         free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
-        if (!A->is_bf16 && !B->is_bf16) {
+        if (!A->is_bf16 && !B->is_bf16 && !B->im2col) {
             cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
                         (const float*)A->data + A->offset, A->ld, (const float*)B->data + B->offset, B->ld, beta, C,
                         ldc);

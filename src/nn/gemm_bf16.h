@@ -5,16 +5,22 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "matlaber/conv_ops.h"
+
 // One operand: fp32 values (rounded to bf16 as they are packed) or values stored in bf16 (uint16_t,
 // the top half of the fp32 bits, as mlb_bf16_from_f32 rounds them: then the same products bit for
 // bit), element (i, k) at data[offset + i·ld + k] (or transposed); packed: its whole packed form
 // (mlb_gemm_bf16_pack), then data is read only if the kernel runs out of memory, or NULL.
+// im2col (B only, not transposed): op(B) is the im2col matrix of the conv's input, one fp32 image
+// [C, H, W] at data, gathered as it is packed (no buffer): row k = (c·KH + i)·KW + j, column j' =
+// output pixel offset + j' (y·OW + x); ld >= the columns used, is_bf16 0.
 typedef struct {
     const void* data;
     int is_bf16;
     size_t offset;
     int ld;
     const uint32_t* packed;
+    const mlb_conv2d* im2col;
 } mlb_bf16_operand;
 
 // C[M,N] = alpha·op(A)·op(B) + beta·C with bf16 operands and fp32 sums, on the calling thread only.

@@ -1,0 +1,94 @@
+// Convolution on the bf16 GEMM kernel (gemm_bf16.c) as an "implicit GEMM": the kernel packs its B
+// panels straight from the input image (mlb_bf16_operand.im2col), so no im2col matrix is written.
+//
+// Why: through an im2col buffer a 3x3 conv at 512² x 128 channels writes and reads back 1.2 GB of
+// fp32 columns before the kernel packs them again, and the SD VAE's convs ran at 171 GFLOP/s where
+// the kernel does 300+ on packed operands (docs/benchmarks.md).
+//
+//   out[OC, pixels] = W[OC, K] · col[K, pixels],  K = C·KH·KW
+// The weight is packed once per call (every tile reads the same panels); the output pixels are cut
+// into tiles of TILE_PIXELS, each one kernel call on one thread (its packed B block, TILE_PIXELS x
+// 128 pairs, stays in L2). Each output element is one fp32 sum in k order exactly as in
+// mlb_gemm_bf16 over an im2col buffer: the same bits, on any thread count.
+//
+// The input gradient of a stride-1 conv is itself such a conv: din[c] = sum_oc W[oc, c] flipped (*)
+// dout[oc], with pads KH-1-pad_top etc. (the transposed conv's), so it runs here too instead of as a
+// GEMM into a K x pixels buffer then a col2im scatter.
+#include <stdint.h>
+#include <stdlib.h>
+#include "matlaber/error.h"
+#include "matlaber/nn.h"
+#include "nn/conv_bf16.h"
+#include "nn/gemm_bf16.h"
+
+// Output pixels per task: its packed B block (TILE_PIXELS x 128 pairs x 4 bytes = 256 KB) and the
+// fp32 tile sums of up to 256 channels stay in a Zen 4 core's 1 MB L2.
+#define TILE_PIXELS 512
+
+static int pointwise(const mlb_conv2d* cv) {
+    return cv->KH == 1 && cv->KW == 1 && cv->stride_h == 1 && cv->stride_w == 1 && cv->pad_top == 0 &&
+           cv->pad_left == 0 && cv->pad_bottom == 0 && cv->pad_right == 0;
+}
+
+int conv2d_bf16_implicit_applies(const mlb_conv2d* cv, int input_grad) {
+    if (!cv || !mlb_gemm_bf16_native()) return 0;
+    if (mlb_conv2d_check(cv) != MLB_OK) {   // the caller's path reports it
+        mlb_clear_error();
+        return 0;
+    }
+    if (pointwise(cv)) return 0;
+    if (input_grad)
+        return cv->stride_h == 1 && cv->stride_w == 1 && cv->pad_top < cv->KH && cv->pad_bottom < cv->KH &&
+               cv->pad_left < cv->KW && cv->pad_right < cv->KW;
+    return 1;
+}
+
+mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const void* weight, int weight_bf16,
+                                        const float* bias, const mlb_conv2d* cv, int accumulate) {
+    MLB_TRY(mlb_conv2d_check(cv));
+    if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
+    const int OC = cv->OC, K = cv->C * cv->KH * cv->KW;
+    const size_t plane = (size_t)mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
+    const size_t in_n = (size_t)cv->C * cv->H * cv->W, out_n = (size_t)OC * plane;
+    uint32_t* packed = malloc(sizeof(uint32_t) * mlb_gemm_bf16_packed_words(0, OC, K));
+    if (!packed) return mlb_fail(MLB_ERR_NOMEM, "conv2d (bf16): out of memory for the packed %d x %d weight", OC, K);
+    mlb_bf16_operand w = {weight, weight_bf16, 0, K, NULL, NULL};
+    mlb_gemm_bf16_pack(0, 0, OC, K, &w, packed);
+    w.packed = packed;
+    const long tiles = (long)((plane + TILE_PIXELS - 1) / TILE_PIXELS), tasks = (long)cv->N * tiles;
+#pragma omp parallel for schedule(dynamic) if (tasks > 1)
+    for (long t = 0; t < tasks; t++) {
+        const int n = (int)(t / tiles);
+        const size_t p0 = (size_t)(t % tiles) * TILE_PIXELS;
+        const int np = plane - p0 < TILE_PIXELS ? (int)(plane - p0) : TILE_PIXELS;
+        float* o = out + (size_t)n * out_n + p0;
+        if (!accumulate)   // the sums are added to the bias, as over an im2col buffer
+            for (int oc = 0; oc < OC; oc++) {
+                const float b = bias ? bias[oc] : 0.0f;
+                for (int p = 0; p < np; p++) o[(size_t)oc * plane + p] = b;
+            }
+        const mlb_bf16_operand col = {in + (size_t)n * in_n, 0, p0, (int)plane, NULL, cv};
+        mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, &w, &col, 1.0f, o, (int)plane);
+    }
+    free(packed);
+    return MLB_OK;
+}
+
+mlb_status conv2d_bf16_implicit_input_grad(float* din, const float* dout, const float* weight, const mlb_conv2d* cv) {
+    MLB_TRY(mlb_conv2d_check(cv));
+    if (!din || !dout || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d backward: NULL buffer");
+    const int C = cv->C, OC = cv->OC, KH = cv->KH, KW = cv->KW;
+    float* flipped = malloc(sizeof(float) * (size_t)C * OC * KH * KW);   // [C, OC, KH, KW]
+    if (!flipped) return mlb_fail(MLB_ERR_NOMEM, "conv2d backward (bf16): out of memory for the flipped weight");
+    for (int oc = 0; oc < OC; oc++)
+        for (int c = 0; c < C; c++)
+            for (int i = 0; i < KH; i++)
+                for (int j = 0; j < KW; j++)
+                    flipped[(((size_t)c * OC + oc) * KH + (KH - 1 - i)) * KW + (KW - 1 - j)] =
+                        weight[(((size_t)oc * C + c) * KH + i) * KW + j];
+    const mlb_conv2d t = {cv->N, OC, mlb_conv2d_out_h(cv), mlb_conv2d_out_w(cv), C, KH, KW, 1, 1,
+                          KH - 1 - cv->pad_top, KW - 1 - cv->pad_left, KH - 1 - cv->pad_bottom, KW - 1 - cv->pad_right};
+    mlb_status st = conv2d_bf16_implicit_forward(din, dout, flipped, 0, NULL, &t, 1);
+    free(flipped);
+    return st;
+}

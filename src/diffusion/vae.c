@@ -286,6 +286,16 @@ static vae_plan enc_plan(const mlb_vae_config* g, int N, int H, int W) {
     return p;
 }
 
+// Scratch the encoder's forward with a cache and its backward need (kept after the cache's values,
+// so that an SDS loop's steps do not map and fault in fresh pages each time): the larger of the two.
+static size_t FN(enc_scratch)(const mlb_vae_config* g, int N, int H, int W) {
+    vae_plan p = enc_plan(g, N, H, W);
+    const size_t nT = (size_t)N * p.T * g->block_out[g->n_levels - 1], NG = (size_t)N * g->norm_groups;
+    size_t fwd = p.act * 3 + (g->mid_attention ? nT + (size_t)N * p.T : 0) + 4 * NG;
+    size_t bwd = p.act * 4 + (g->mid_attention ? nT * 5 : 0);
+    return fwd > bwd ? fwd : bwd;
+}
+
 static vae_plan dec_plan(const mlb_vae_config* g, int N, int h, int w) {
     vae_plan p = {0, 0, h * w};
     const int L = g->n_levels, top = g->block_out[L - 1];
@@ -432,7 +442,7 @@ size_t FN(mlb_vae_cache_size)(const mlb_vae_config* cfg, int N, int H, int W) {
         return 0;
     }
     enc_rec r;
-    return FN(enc_layout)(cfg, N, H, W, NULL, &r);
+    return FN(enc_layout)(cfg, N, H, W, NULL, &r) + FN(enc_scratch)(cfg, N, H, W);
 }
 
 void FN(mlb_vae_cache_free)(FN(mlb_vae_cache)* cache) {
@@ -474,8 +484,10 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     const size_t NG = (size_t)N * g->norm_groups;
     const mlb_device dev = ops_device(be);
     enc_rec rec;
+    size_t kept = 0;   // with a cache: the values its backward reads; the scratch follows them
     if (cache) {
-        size_t need = FN(enc_layout)(g, N, H, W, NULL, &rec);
+        kept = FN(enc_layout)(g, N, H, W, NULL, &rec);
+        size_t need = kept + FN(enc_scratch)(g, N, H, W);
         cache->N = 0;   // invalid until this forward completes
         if (cache->capacity < need || cache->device != dev) {
             op_release(ops_of(cache->device), cache->buf);
@@ -493,8 +505,8 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     const size_t nT = (size_t)N * p.T * top;
     size_t att = g->mid_attention ? nT * (cache ? 1 : 5) + (size_t)N * p.T : 0;
     size_t total = p.act * (cache ? 3 : 4) + att + 4 * NG;
-    real* scratch;
-    if (op_alloc(be, &scratch, total) != MLB_OK)
+    real* scratch = cache ? cache->buf + kept : NULL;
+    if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
         return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
     real* P0 = scratch;
     real* P1 = P0 + p.act;
@@ -576,7 +588,7 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
         if (cache) { cache->N = N; cache->H = H; cache->W = W; }
     }
     free(tmp);
-    op_release(be, scratch);
+    if (!cache) op_release(be, scratch);
     return s;
 }
 
@@ -607,7 +619,8 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
     const size_t NG = (size_t)N * g->norm_groups;
     enc_rec rec;
-    if (FN(enc_layout)(g, N, H, W, NULL, &rec) > cache->capacity)
+    const size_t kept = FN(enc_layout)(g, N, H, W, NULL, &rec);
+    if (kept + FN(enc_scratch)(g, N, H, W) > cache->capacity)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache is smaller than its forward needed (another "
                         "model's cache?)");
     if (cache->device != ops_device(be))
@@ -616,13 +629,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     FN(enc_layout)(g, N, H, W, cache->buf, &rec);
     vae_plan p = enc_plan(g, N, H, W);
     const size_t nT = (size_t)N * p.T * top;
-    size_t att = g->mid_attention ? nT * 5 : 0;
-    size_t total = p.act * 4 + att;
-    real* scratch;
-    if (op_alloc(be, &scratch, total) != MLB_OK)
-        return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder backward: %.1f MB of scratch",
-                                total * (double)sizeof(real) / 1e6);
-    real* D0 = scratch;
+    real* D0 = cache->buf + kept;   // the cache's scratch (FN(enc_scratch))
     real* D1 = D0 + p.act;
     real* T1 = D1 + p.act;
     real* T2 = T1 + p.act;
@@ -690,7 +697,6 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     }
 #undef OTHER
     if (!s) s = op_conv_bwd(be, dimage, cur, v->enc_conv_in_w, conv3_desc(N, g->in_channels, H, W, g->block_out[0]));
-    op_release(be, scratch);
     return s;
 }
 

@@ -135,29 +135,48 @@ TEST(values_threads_edges) {
     CHECK(rms > 0x1p-12);   // and it is bf16: an fp32 product here would be ~2^-24
 }
 
-// One operand stored in bf16 (mlb_bf16_from_f32, then mlb_gemm_bf16_stored_a / _b): the same bits as
-// mlb_gemm_bf16 on the fp32 values, for every shape, cut and transpose, with padded strides.
-TEST(stored_operands) {
+// linear_forward_bf16 (the weight packed per call, rows cut into tasks) against the exact product
+// per element, the same bits on 1 and 2 threads, and linear_forward_bf16_packed on the weight packed
+// once (mlb_bf16_pack_linear_weight) giving those bits too. Shapes of the SD UNet's kinds: the time
+// embedding (2 rows), the context's keys/values (154 rows, where mlb_gemm_bf16 would cut K), ragged.
+TEST(packed_weights) {
     if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off)");
-    for (size_t si = 0; si < N_SHAPES; si++)
-        for (int t = 0; t < 4; t++) {
-            const int M = shapes[si].M, N = shapes[si].N, K = shapes[si].K, ta = t & 1, tb = t >> 1;
-            const int lda = (ta ? M : K) + 3, ldb = (tb ? K : N) + 5;
-            size_t na = stored(ta, M, K, lda), nb = stored(tb, K, N, ldb), nc = (size_t)M * N;
-            float *A = malloc(sizeof(float) * na), *B = malloc(sizeof(float) * nb);
-            float *C1 = malloc(sizeof(float) * nc), *C2 = malloc(sizeof(float) * nc);
-            uint16_t *A16 = malloc(2 * na), *B16 = malloc(2 * nb);
-            REQUIRE(A && B && C1 && C2 && A16 && B16);
-            mlb_rng_fill_uniform(A, na, SEED, 30 + si, (uint64_t)t, -1, 1);
-            mlb_rng_fill_uniform(B, nb, SEED, 50 + si, (uint64_t)t, -1, 1);
-            CHECK(mlb_bf16_from_f32(A16, A, na) == 1 && mlb_bf16_from_f32(B16, B, nb) == 1);
-            mlb_gemm_bf16(ta, tb, M, N, K, 0.7f, A, lda, B, ldb, 0.0f, C1, N);
-            mlb_gemm_bf16_stored_a(ta, tb, M, N, K, 0.7f, (const float*)A16, lda, B, ldb, 0.0f, C2, N);
-            CHECK_MSG(!memcmp(C1, C2, sizeof(float) * nc), "%s, ta %d, tb %d: A stored in bf16 differs", shapes[si].what, ta, tb);
-            mlb_gemm_bf16_stored_b(ta, tb, M, N, K, 0.7f, A, lda, (const float*)B16, ldb, 0.0f, C2, N);
-            CHECK_MSG(!memcmp(C1, C2, sizeof(float) * nc), "%s, ta %d, tb %d: B stored in bf16 differs", shapes[si].what, ta, tb);
-            free(A); free(B); free(C1); free(C2); free(A16); free(B16);
-        }
+    static const int lin[][3] = {{1, 1, 1}, {2, 320, 1280}, {154, 768, 320}, {300, 517, 95}, {1000, 64, 33}, {2048, 320, 320}};
+    const int max_threads = omp_get_max_threads();
+    double worst = 0;
+    for (size_t si = 0; si < sizeof lin / sizeof lin[0]; si++) {
+        const int B = lin[si][0], C = lin[si][1], OC = lin[si][2];
+        float *x = malloc(sizeof(float) * B * C), *w = malloc(sizeof(float) * OC * C), *b = malloc(sizeof(float) * OC);
+        float *o1 = malloc(sizeof(float) * B * OC), *o2 = malloc(sizeof(float) * B * OC);
+        uint32_t* packed = malloc(sizeof(uint32_t) * mlb_bf16_linear_weight_words(OC, C));
+        REQUIRE(x && w && b && o1 && o2 && packed);
+        mlb_rng_fill_uniform(x, (size_t)B * C, SEED, 60 + si, 0, -1, 1);
+        mlb_rng_fill_uniform(w, (size_t)OC * C, SEED, 60 + si, 1, -1, 1);
+        mlb_rng_fill_uniform(b, OC, SEED, 60 + si, 2, -1, 1);
+        omp_set_num_threads(1);
+        linear_forward_bf16(o1, x, w, b, B, C, OC);
+        omp_set_num_threads(2);
+        linear_forward_bf16(o2, x, w, b, B, C, OC);
+        CHECK_MSG(!memcmp(o1, o2, sizeof(float) * B * OC), "linear %dx%dx%d: 1 and 2 threads differ", B, C, OC);
+        CHECK(mlb_bf16_packing_available() && mlb_bf16_pack_linear_weight(packed, w, OC, C) == 1);
+        CHECK(linear_forward_bf16_packed(o2, x, packed, b, B, C, OC) == MLB_OK);
+        CHECK_MSG(!memcmp(o1, o2, sizeof(float) * B * OC), "linear %dx%dx%d: the packed weight differs", B, C, OC);
+        for (int i = 0; i < B; i++)
+            for (int j = 0; j < OC; j++) {
+                long double sum = b[j], mag = fabsl((long double)b[j]);
+                for (int k = 0; k < C; k++) {
+                    long double t = (long double)x[(size_t)i * C + k] * w[(size_t)j * C + k];
+                    sum += t;
+                    mag += fabsl(t);
+                }
+                double e = (double)fabsl(o1[(size_t)i * OC + j] - sum), bound = (0x1p-7 + 0x1p-16 + (C + 2) * 0x1p-24) * (double)mag;
+                CHECK_MSG(e <= bound, "linear %dx%dx%d: out[%d,%d] off by %.3g (bound %.3g)", B, C, OC, i, j, e, bound);
+                if (mag > 0 && e / (double)mag > worst) worst = e / (double)mag;
+            }
+        free(x); free(w); free(b); free(o1); free(o2); free(packed);
+    }
+    omp_set_num_threads(max_threads);
+    printf("  linear, weight packed per call and once: worst error relative to sum|terms| %.3g\n", worst);
     // the rounding: nearest even, as the packing does (1 + 2^-8 is a tie: to 1; 1 + 3·2^-8 to 1 + 2^-6)
     float v[3] = {1.0f + 0x1p-8f, 1.0f + 3 * 0x1p-8f, -2.5f};
     uint16_t h[3];
@@ -311,7 +330,7 @@ TEST(attention_fallback_is_fp32) {
     free(x); free(o1); free(o2); free(l1); free(l2);
 }
 
-// ---- convolution: conv2d_forward_bf16 / _stored and conv2d_backward_bf16's input gradient packed
+// ---- convolution: conv2d_forward_bf16 / _packed and conv2d_backward_bf16's input gradient packed
 // straight from the image (src/nn/conv_bf16.c) ----------------------------------------------------
 // im2col of image x ([C, H, W]) for cv into col[K, OH·OW], written out here in plain loops.
 static void test_im2col(float* col, const float* x, const mlb_conv2d* cv) {
@@ -353,6 +372,7 @@ static const conv_shape conv_shapes[] = {
     {1, 6, 21, 23, 5, 3, 3, 1, 1, 0, 0, 0, 0, "3x3 valid (its input gradient pads by 2)"},
     {1, 16, 70, 70, 33, 3, 3, 1, 1, 1, 1, 1, 1, "10 tiles of 512 pixels"},
     {1, 7, 8, 8, 9, 3, 3, 1, 1, 1, 2, 0, 1, "uneven pads"},
+    {2, 9, 10, 37, 12, 1, 1, 1, 1, 0, 0, 0, 0, "1x1 (the image is the im2col)"},
 };
 
 TEST(conv_from_the_image) {
@@ -367,12 +387,12 @@ TEST(conv_from_the_image) {
         float *x = malloc(sizeof(float) * nin), *w = malloc(sizeof(float) * nw), *b = malloc(sizeof(float) * s->OC);
         float *o1 = malloc(sizeof(float) * nout), *o2 = malloc(sizeof(float) * nout), *ref = malloc(sizeof(float) * nout);
         float *d1 = malloc(sizeof(float) * nin), *d2 = malloc(sizeof(float) * nin), *dref = malloc(sizeof(float) * nin);
-        uint16_t* w16 = malloc(2 * nw);
-        REQUIRE(x && w && b && o1 && o2 && ref && d1 && d2 && dref && w16);
+        uint32_t* wp = malloc(sizeof(uint32_t) * mlb_bf16_conv_weight_words(s->OC, K));
+        REQUIRE(x && w && b && o1 && o2 && ref && d1 && d2 && dref && wp);
         mlb_rng_fill_uniform(x, nin, SEED, 70 + si, 0, -1, 1);
         mlb_rng_fill_uniform(w, nw, SEED, 70 + si, 1, -1, 1);
         mlb_rng_fill_uniform(b, s->OC, SEED, 70 + si, 2, -1, 1);
-        // forward: the bits of im2col + mlb_gemm_bf16, on 1 and 2 threads, and with the weight in bf16
+        // forward: the bits of im2col + mlb_gemm_bf16, on 1 and 2 threads, and with the weight packed once
         reference_conv(ref, x, w, b, &cv, 0);
         omp_set_num_threads(1);
         CHECK(conv2d_forward_bf16(o1, x, w, b, &cv, NULL) == MLB_OK);
@@ -380,9 +400,9 @@ TEST(conv_from_the_image) {
         CHECK(conv2d_forward_bf16(o2, x, w, b, &cv, NULL) == MLB_OK);
         CHECK_MSG(!memcmp(o1, ref, sizeof(float) * nout) && !memcmp(o2, ref, sizeof(float) * nout),
                   "%s: forward differs from im2col + GEMM", s->what);
-        CHECK(mlb_bf16_from_f32(w16, w, nw) == 1);
-        CHECK(conv2d_forward_bf16_stored(o2, x, (const float*)w16, b, &cv, NULL) == MLB_OK);
-        CHECK_MSG(!memcmp(o2, ref, sizeof(float) * nout), "%s: forward with the weight stored in bf16 differs", s->what);
+        CHECK(mlb_bf16_pack_conv_weight(wp, w, s->OC, K) == 1);
+        CHECK(conv2d_forward_bf16_packed(o2, x, wp, b, &cv) == MLB_OK);
+        CHECK_MSG(!memcmp(o2, ref, sizeof(float) * nout), "%s: forward with the weight packed once differs", s->what);
         // against the exact conv in long double: each product of bf16-rounded operands is within
         // 2^-7 + 2^-16 of the exact one, then the fp32 sums: (K + 2)·2^-24 of sum|terms|
         for (int n = 0; n < s->N; n++)
@@ -463,7 +483,7 @@ TEST(conv_from_the_image) {
             if (mag[e] > 0 && err / mag[e] > worst_din) worst_din = err / mag[e];
         }
         free(start); free(exact); free(mag);
-        free(x); free(w); free(b); free(o1); free(o2); free(ref); free(d1); free(d2); free(dref); free(w16);
+        free(x); free(w); free(b); free(o1); free(o2); free(ref); free(d1); free(d2); free(dref); free(wp);
     }
     omp_set_num_threads(max_threads);
     printf("  conv from the image: worst error relative to sum|terms|: forward %.3g, input gradient %.3g (bf16 "
@@ -472,7 +492,7 @@ TEST(conv_from_the_image) {
 
 int main(void) {
     RUN(values_threads_edges);
-    RUN(stored_operands);
+    RUN(packed_weights);
     RUN(fallback_is_fp32);
     RUN(alpha_zero_and_empty_k);
     RUN(attention);

@@ -24,6 +24,7 @@
 #ifndef MATLABER_CONV_OPS_H
 #define MATLABER_CONV_OPS_H
 #include <stddef.h>
+#include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/nn.h"   // mlb_activation
 
@@ -76,10 +77,14 @@ mlb_status conv2d_backward_f64(double* din, double* dweight, double* dbias, cons
 // CPU lacks AVX-512 BF16). The backend's CPU bf16 table runs these.
 mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
                                const mlb_conv2d* cv, float* ws);
-// conv2d_forward_bf16 with the weight stored in bf16 (uint16_t [OC, C, KH, KW] cast to const float*):
-// the same bits.
-mlb_status conv2d_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias,
-                                      const mlb_conv2d* cv, float* ws);
+// conv2d_forward_bf16 with the weight packed once for the bf16 kernel (a frozen model's: the UNet
+// loaded with bf16_weights), by mlb_bf16_pack_conv_weight (K = C·KH·KW) into
+// mlb_bf16_conv_weight_words(OC, K) words: the same bits, without packing the weight per call.
+// The packing returns 0 (writing nothing), the conv MLB_ERR_UNSUPPORTED, on a CPU without AVX-512 BF16.
+size_t mlb_bf16_conv_weight_words(int OC, int K);
+int mlb_bf16_pack_conv_weight(uint32_t* out, const float* weight, int OC, int K);
+mlb_status conv2d_forward_bf16_packed(float* out, const float* in, const uint32_t* weight, const float* bias,
+                                      const mlb_conv2d* cv);
 mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                                 const float* weight, const mlb_conv2d* cv, float* ws);
 

@@ -58,21 +58,24 @@ void mlb_gemm_bf16(int trans_a, int trans_b, int M, int N, int K, float alpha, c
 int mlb_gemm_bf16_native(void);
 // For tests: on = 1 forces the fp32 fallback, 0 uses the kernel where the CPU has it.
 void mlb_gemm_bf16_force_fallback(int on);
-// Weights kept in bf16 (half the memory of fp32): mlb_bf16_from_f32 rounds n values as the kernel
-// does (nearest even, denormals to zero), returning 1, or 0 and writing nothing where the CPU lacks
-// AVX-512 BF16. mlb_gemm_bf16_stored_a / _stored_b are mlb_gemm_bf16 with A / B such uint16_t values
-// (the pointer passed cast to const float*), giving the same bits as mlb_gemm_bf16 on the fp32
-// originals; they run the kernel even under mlb_gemm_bf16_force_fallback (there is no fp32 copy).
+// mlb_bf16_from_f32 rounds n values to bf16 as the kernel does (nearest even, denormals to zero),
+// returning 1, or 0 and writing nothing where the CPU lacks AVX-512 BF16.
 int mlb_bf16_from_f32(uint16_t* out, const float* in, size_t n);
-void mlb_gemm_bf16_stored_a(int trans_a, int trans_b, int M, int N, int K, float alpha, const float* A, int lda,
-                            const float* B, int ldb, float beta, float* C, int ldc);
-void mlb_gemm_bf16_stored_b(int trans_a, int trans_b, int M, int N, int K, float alpha, const float* A, int lda,
-                            const float* B, int ldb, float beta, float* C, int ldc);
-// linear_forward / linear_backward with their GEMMs in mlb_gemm_bf16 (the bias sums stay fp32/double).
+// linear_forward / linear_backward with their GEMMs on the bf16 kernel (the bias sums stay fp32/double).
 void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC);
-// linear_forward_bf16 with the weight stored in bf16 (uint16_t [OC, C] cast to const float*): the same bits.
-void linear_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias, int B, int C,
-                                int OC);
+// linear_forward_bf16 with the weight [OC, C] packed once for the kernel (a frozen model's: the UNet
+// loaded with bf16_weights) by mlb_bf16_pack_linear_weight into mlb_bf16_linear_weight_words(OC, C)
+// words (bf16 values in the kernel's panel layout, about half of fp32): the same bits, without
+// packing per call. The packing returns 0 (writing nothing), the linear MLB_ERR_UNSUPPORTED, on a
+// CPU without AVX-512 BF16.
+int mlb_bf16_packing_available(void);   // whether the packers (and packed ops) run: AVX-512 BF16
+size_t mlb_bf16_linear_weight_words(int OC, int C);
+int mlb_bf16_pack_linear_weight(uint32_t* out, const float* weight, int OC, int C);
+mlb_status linear_forward_bf16_packed(float* out, const float* in, const uint32_t* weight, const float* bias, int B,
+                                      int C, int OC);
+// Internal to linear_forward_bf16: the sharded mlb_gemm_bf16 it falls back to.
+void linear_forward_with_gemm_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C,
+                                   int OC);
 void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                           const float* weight, int B, int C, int OC);
 

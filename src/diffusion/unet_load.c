@@ -185,16 +185,19 @@ typedef struct {
     float* p;
     float* tmp;   // bf16 weights: one tensor read in fp32 before rounding (the largest one)
     size_t tmp_n;
+    int as_linear; // the weights registered now run as linear layers whatever their dimensions
 } loader;
 
-// With bf16 weights every tensor of two or more dimensions (the linear and conv weights) takes
-// ceil(n / 2) floats of storage holding n uint16_t values.
+// With bf16 weights the linear ([OC, C], or [OC, C, 1, 1] run as linear) and conv ([OC, C, KH, KW])
+// weights are rounded to bf16 and packed for the bf16 kernel (mlb_bf16_pack_linear_weight / _conv_weight: uint32_t words of two
+// bf16 values, about n / 2 floats of storage), so that no call packs them again.
 static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a, int64_t b, int64_t c, int64_t e) {
     int64_t shape[4] = {a, b, c, e};
     size_t n = 1;
     for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
-    int half = L->u->bf16_weights && ndim >= 2;
-    size_t slots = half ? (n + 1) / 2 : n;
+    int half = L->u->bf16_weights && (ndim == 2 || ndim == 4), linear = ndim == 2 || L->as_linear;
+    int K = half ? (int)(n / (size_t)a) : 0;   // the conv's C·KH·KW or the linear's C
+    size_t slots = !half ? n : linear ? mlb_bf16_linear_weight_words((int)a, K) : mlb_bf16_conv_weight_words((int)a, K);
     if (L->pass == 0) {
         L->n += n;
         L->slots += slots;
@@ -209,7 +212,8 @@ static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a
     MLB_TRY(mlb_st_expect(L->st, name, ndim, shape));
     if (!half) return mlb_st_read_f32(L->st, name, *dst, n);
     MLB_TRY(mlb_st_read_f32(L->st, name, L->tmp, n));
-    mlb_bf16_from_f32((uint16_t*)*dst, L->tmp, n);   // the CPU has it: checked before the walk
+    if (linear) mlb_bf16_pack_linear_weight((uint32_t*)*dst, L->tmp, (int)a, K);   // the CPU has it: checked
+    else mlb_bf16_pack_conv_weight((uint32_t*)*dst, L->tmp, (int)a, K);               // before the walk
     return MLB_OK;
 }
 
@@ -242,8 +246,10 @@ static mlb_status reg_attn(loader* L, mlb_unet_transformer* a, const char* pre, 
 #define R(field, suffix, nd, x, y, z, w) \
     snprintf(d, sizeof d, "%s.%s", pre, suffix); MLB_TRY(reg(L, &a->field, d, nd, x, y, z, w))
     R(norm_w, "norm.weight", 1, C, 0, 0, 0); R(norm_b, "norm.bias", 1, C, 0, 0, 0);
+    L->as_linear = 1;   // SD 1.x's 1x1 conv projections run as linear layers over the tokens
     R(proj_in_w, "proj_in.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_in_b, "proj_in.bias", 1, C, 0, 0, 0);
     R(proj_out_w, "proj_out.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_out_b, "proj_out.bias", 1, C, 0, 0, 0);
+    L->as_linear = 0;
     const char* tb = "transformer_blocks.0.";
     char s[160];
 #define T(field, suffix, nd, x, y) snprintf(s, sizeof s, "%s%s", tb, suffix); R(field, s, nd, x, y, 0, 0)
@@ -350,7 +356,7 @@ mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_option
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     mlb_unet_config* c = &u->cfg;
     mlb_status s = MLB_OK;
-    loader L = {u, st, 0, 0, 0, NULL, NULL, 0};
+    loader L = {u, st, 0, 0, 0, NULL, NULL, 0, 0};
     if (mlb_st_find(st, LDM_PREFIX "input_blocks.0.0.weight")) c->layout = MLB_UNET_LAYOUT_LDM;
     else if (mlb_st_find(st, "conv_in.weight")) c->layout = MLB_UNET_LAYOUT_DIFFUSERS;
     else { s = mlb_fail(MLB_ERR_FORMAT, "%s: no UNet found (neither 'conv_in.weight' nor '" LDM_PREFIX "input_blocks.0.0.weight')", mlb_st_path(st)); goto fail; }
@@ -376,9 +382,7 @@ mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_option
     if ((s = heads_for(c, &f, c->n_levels - 1, c->block_out[c->n_levels - 1], &c->mid_heads, cfg_src)) != MLB_OK) goto fail;
     if (c->block_out[0] % 2) { s = mlb_fail(MLB_ERR_FORMAT, "%s: odd time-projection width %d", cfg_src, c->block_out[0]); goto fail; }
     if (opt && opt->bf16_weights) {
-        uint16_t probe;
-        float one = 1;
-        if (mlb_bf16_from_f32(&probe, &one, 1)) u->bf16_weights = 1;
+        if (mlb_bf16_packing_available()) u->bf16_weights = 1;
         else mlb_log(MLB_LOG_INFO, "%s: bf16 weights asked for, but this CPU has no AVX-512 BF16: loading fp32", mlb_st_path(st));
     }
     if ((s = walk(&L)) != MLB_OK) goto fail;
@@ -456,7 +460,7 @@ mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** ou
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     u->cfg = *c;
     u->device = d;
-    loader L = {u, NULL, 0, 0, 0, NULL, NULL, 0};
+    loader L = {u, NULL, 0, 0, 0, NULL, NULL, 0, 0};
     mlb_status s = walk(&L);
     if (s == MLB_OK) {
         u->n_params = L.n;

@@ -174,18 +174,18 @@ static mlb_status cpu_sdpa_bf16(const mlb_backend* be, float* out, float* lse, c
     return sdpa_forward_bf16(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv);
 }
 
-// The bf16 table for a model whose linear and conv weights are stored in bf16 (mlb_unet_options
-// bf16_weights): the weight pointers it is given hold uint16_t values. No backward through them.
+// The bf16 table for a model whose linear and conv weights are packed for the bf16 kernel at load
+// (mlb_unet_options bf16_weights): the weight pointers it is given hold those uint32_t words. No
+// backward through them.
 static mlb_status cpu_linear_bf16_stored(const mlb_backend* be, float* out, const float* in, const float* w,
                                          const float* b, int B, int C, int OC) {
     (void)be;
-    linear_forward_bf16_stored(out, in, w, b, B, C, OC);
-    return MLB_OK;
+    return linear_forward_bf16_packed(out, in, (const uint32_t*)w, b, B, C, OC);
 }
 static mlb_status cpu_conv2d_bf16_stored(const mlb_backend* be, float* out, const float* in, const float* w,
                                          const float* b, const mlb_conv2d* cv) {
     (void)be;
-    return conv2d_forward_bf16_stored(out, in, w, b, cv, NULL);
+    return conv2d_forward_bf16_packed(out, in, (const uint32_t*)w, b, cv);
 }
 static mlb_status no_backward_stored(void) {
     return mlb_fail(MLB_ERR_UNSUPPORTED, "no backward through weights stored in bf16 (load the model with fp32 weights)");

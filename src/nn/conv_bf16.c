@@ -25,36 +25,24 @@
 // fp32 tile sums of up to 256 channels stay in a Zen 4 core's 1 MB L2.
 #define TILE_PIXELS 512
 
-static int pointwise(const mlb_conv2d* cv) {
-    return cv->KH == 1 && cv->KW == 1 && cv->stride_h == 1 && cv->stride_w == 1 && cv->pad_top == 0 &&
-           cv->pad_left == 0 && cv->pad_bottom == 0 && cv->pad_right == 0;
-}
-
 int conv2d_bf16_implicit_applies(const mlb_conv2d* cv, int input_grad) {
     if (!cv || !mlb_gemm_bf16_native()) return 0;
     if (mlb_conv2d_check(cv) != MLB_OK) {   // the caller's path reports it
         mlb_clear_error();
         return 0;
     }
-    if (pointwise(cv)) return 0;
     if (input_grad)
         return cv->stride_h == 1 && cv->stride_w == 1 && cv->pad_top < cv->KH && cv->pad_bottom < cv->KH &&
                cv->pad_left < cv->KW && cv->pad_right < cv->KW;
     return 1;
 }
 
-mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const void* weight, int weight_bf16,
-                                        const float* bias, const mlb_conv2d* cv, int accumulate) {
-    MLB_TRY(mlb_conv2d_check(cv));
-    if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
+// The tiles: out (+)= W · im2col(in), W packed whole (w->packed).
+static void conv_tiles(float* out, const float* in, const mlb_bf16_operand* w, const float* bias, const mlb_conv2d* cv,
+                       int accumulate) {
     const int OC = cv->OC, K = cv->C * cv->KH * cv->KW;
     const size_t plane = (size_t)mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
     const size_t in_n = (size_t)cv->C * cv->H * cv->W, out_n = (size_t)OC * plane;
-    uint32_t* packed = malloc(sizeof(uint32_t) * mlb_gemm_bf16_packed_words(0, OC, K));
-    if (!packed) return mlb_fail(MLB_ERR_NOMEM, "conv2d (bf16): out of memory for the packed %d x %d weight", OC, K);
-    mlb_bf16_operand w = {weight, weight_bf16, 0, K, NULL, NULL};
-    mlb_gemm_bf16_pack(0, 0, OC, K, &w, packed);
-    w.packed = packed;
     const long tiles = (long)((plane + TILE_PIXELS - 1) / TILE_PIXELS), tasks = (long)cv->N * tiles;
 #pragma omp parallel for schedule(dynamic) if (tasks > 1)
     for (long t = 0; t < tasks; t++) {
@@ -67,11 +55,44 @@ mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const void*
                 const float b = bias ? bias[oc] : 0.0f;
                 for (int p = 0; p < np; p++) o[(size_t)oc * plane + p] = b;
             }
-        const mlb_bf16_operand col = {in + (size_t)n * in_n, 0, p0, (int)plane, NULL, cv};
-        mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, &w, &col, 1.0f, o, (int)plane);
+        const mlb_bf16_operand col = {in + (size_t)n * in_n, p0, (int)plane, NULL, cv};
+        mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 1.0f, o, (int)plane);
     }
+}
+
+mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const float* weight, const float* bias,
+                                        const mlb_conv2d* cv, int accumulate) {
+    MLB_TRY(mlb_conv2d_check(cv));
+    if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
+    const int OC = cv->OC, K = cv->C * cv->KH * cv->KW;
+    uint32_t* packed = malloc(sizeof(uint32_t) * mlb_gemm_bf16_packed_words(0, OC, K));
+    if (!packed) return mlb_fail(MLB_ERR_NOMEM, "conv2d (bf16): out of memory for the packed %d x %d weight", OC, K);
+    mlb_bf16_operand w = {weight, 0, K, NULL, NULL};
+    mlb_gemm_bf16_pack(0, 0, OC, K, &w, packed);
+    w.packed = packed;
+    conv_tiles(out, in, &w, bias, cv, accumulate);
     free(packed);
     return MLB_OK;
+}
+
+mlb_status conv2d_forward_bf16_packed(float* out, const float* in, const uint32_t* weight, const float* bias,
+                                      const mlb_conv2d* cv) {
+    MLB_TRY(mlb_conv2d_check(cv));
+    if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
+    if (!mlb_gemm_bf16_cpu_has())
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "conv2d: a weight packed for the bf16 kernel needs a CPU with AVX-512 BF16");
+    const mlb_bf16_operand w = {NULL, 0, cv->C * cv->KH * cv->KW, weight, NULL};
+    conv_tiles(out, in, &w, bias, cv, 0);
+    return MLB_OK;
+}
+
+size_t mlb_bf16_conv_weight_words(int OC, int K) { return mlb_gemm_bf16_packed_words(0, OC, K); }
+
+int mlb_bf16_pack_conv_weight(uint32_t* out, const float* weight, int OC, int K) {
+    if (!mlb_gemm_bf16_cpu_has()) return 0;
+    const mlb_bf16_operand w = {weight, 0, K, NULL, NULL};
+    mlb_gemm_bf16_pack(0, 0, OC, K, &w, out);
+    return 1;
 }
 
 mlb_status conv2d_bf16_implicit_input_grad(float* din, const float* dout, const float* weight, const mlb_conv2d* cv) {
@@ -88,7 +109,7 @@ mlb_status conv2d_bf16_implicit_input_grad(float* din, const float* dout, const 
                         weight[(((size_t)oc * C + c) * KH + i) * KW + j];
     const mlb_conv2d t = {cv->N, OC, mlb_conv2d_out_h(cv), mlb_conv2d_out_w(cv), C, KH, KW, 1, 1,
                           KH - 1 - cv->pad_top, KW - 1 - cv->pad_left, KH - 1 - cv->pad_bottom, KW - 1 - cv->pad_right};
-    mlb_status st = conv2d_bf16_implicit_forward(din, dout, flipped, 0, NULL, &t, 1);
+    mlb_status st = conv2d_bf16_implicit_forward(din, dout, flipped, NULL, &t, 1);
     free(flipped);
     return st;
 }

@@ -277,15 +277,8 @@ mlb_status FN(conv2d_backward)(real* din, real* dweight, real* dbias, const real
 mlb_status conv2d_forward_bf16(float* out, const float* in, const float* weight, const float* bias,
                                const mlb_conv2d* cv, float* ws) {
     if (out && in && weight && conv2d_bf16_implicit_applies(cv, 0))
-        return conv2d_bf16_implicit_forward(out, in, weight, 0, bias, cv, 0);
+        return conv2d_bf16_implicit_forward(out, in, weight, bias, cv, 0);
     return conv2d_forward_with(mlb_gemm_bf16, out, in, weight, bias, cv, ws);
-}
-
-mlb_status conv2d_forward_bf16_stored(float* out, const float* in, const float* weight, const float* bias,
-                                      const mlb_conv2d* cv, float* ws) {
-    if (out && in && weight && conv2d_bf16_implicit_applies(cv, 0))
-        return conv2d_bf16_implicit_forward(out, in, weight, 1, bias, cv, 0);
-    return conv2d_forward_with(mlb_gemm_bf16_stored_a, out, in, weight, bias, cv, ws);
 }
 
 mlb_status conv2d_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,

@@ -74,8 +74,7 @@ int FN(mlb_gemm_shards)(int M, int N, int K, char* along) {
 static pthread_once_t blas_single_thread_once = PTHREAD_ONCE_INIT;
 static void blas_single_thread(void) { openblas_set_num_threads(1); }
 
-// One shard: op(A)·op(B) of the sub-blocks starting a_off and b_off elements into A and B (offsets,
-// not pointers, so that an operand stored as bf16 is addressed in its own element size).
+// One shard: op(A)·op(B) of the sub-blocks starting a_off and b_off elements into A and B.
 typedef void (*FN(shard_fn))(int ta, int tb, int M, int N, int K, real alpha, const real* A, size_t a_off, int lda,
                              const real* B, size_t b_off, int ldb, real beta, real* C, int ldc);
 
@@ -149,21 +148,10 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
 }
 
 #ifndef MLB_F64
-// The bf16 kernel's shards: both operands fp32, or A / B stored in bf16 (the pointer given is their
-// uint16_t storage).
+// The bf16 kernel's shard: both operands fp32, rounded to bf16 as they are packed.
 static void bf16_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off, int lda,
                        const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 0, a_off, lda, NULL, NULL}, b = {B, 0, b_off, ldb, NULL, NULL};
-    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
-}
-static void bf16_stored_a_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
-                                int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 1, a_off, lda, NULL, NULL}, b = {B, 0, b_off, ldb, NULL, NULL};
-    mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
-}
-static void bf16_stored_b_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off,
-                                int lda, const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, 0, a_off, lda, NULL, NULL}, b = {B, 1, b_off, ldb, NULL, NULL};
+    mlb_bf16_operand a = {A, a_off, lda, NULL, NULL}, b = {B, b_off, ldb, NULL, NULL};
     mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }
 
@@ -182,13 +170,4 @@ void mlb_gemm_bf16(int ta, int tb, int M, int N, int K, float alpha, const float
     gemm_sharded(bf16_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
 }
 
-void mlb_gemm_bf16_stored_a(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
-                            const float* B, int ldb, float beta, float* C, int ldc) {
-    gemm_sharded(bf16_stored_a_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
-}
-
-void mlb_gemm_bf16_stored_b(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda,
-                            const float* B, int ldb, float beta, float* C, int ldc) {
-    gemm_sharded(bf16_stored_b_shard, ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
-}
 #endif

@@ -26,7 +26,7 @@
 #define BF16_TARGET __attribute__((target("avx512f,avx512bw,avx512vl,avx512bf16")))
 #endif
 
-#define MR 14   // rows of the register tile: 14 x 2 accumulators + 2 B vectors of the 32 zmm
+#define MR MLB_GEMM_BF16_MR   // rows of the register tile: 14 x 2 accumulators + 2 B vectors of the 32 zmm
 #define NR 32   // columns: two zmm of 16 fp32
 #define KC 128  // K pairs per block: an A micro-panel (7 KB) and a B one (16 KB) stay in L1
 #define MC 24   // A panels packed at a time (172 KB at KC: stays in L2 while the B panels pass)
@@ -49,6 +49,8 @@ static int cpu_has_bf16(void) {
     return cpu_has;
 }
 
+int mlb_gemm_bf16_cpu_has(void) { return cpu_has_bf16(); }
+
 int mlb_gemm_bf16_native(void) {
     if (force_fallback < 0) {
         const char* e = getenv("MATLABER_CPU_BF16");
@@ -58,29 +60,16 @@ int mlb_gemm_bf16_native(void) {
 }
 
 #ifdef MLB_BF16_KERNEL
-// 32 consecutive values x[0 .. left) of fp32 (rounded) or bf16 storage as 32 bf16 (16 pair words),
-// zero past `left`.
-BF16_TARGET static inline __m512i load32_bf16(const void* X, int is_bf16, size_t at, int left) {
-    if (is_bf16) {
-        __mmask32 m = left >= 32 ? 0xFFFFFFFFu : (__mmask32)((1u << left) - 1);
-        return _mm512_maskz_loadu_epi16(m, (const uint16_t*)X + at);
-    }
-    const float* x = (const float*)X + at;
+// 32 consecutive fp32 values x[at .. at + left) rounded to 32 bf16 (16 pair words), zero past `left`.
+BF16_TARGET static inline __m512i load32_bf16(const float* X, size_t at, int left) {
+    const float* x = X + at;
     __mmask16 m0 = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
     __mmask16 m1 = left >= 32 ? 0xFFFF : left > 16 ? (__mmask16)((1u << (left - 16)) - 1) : 0;
     return (__m512i)_mm512_cvtne2ps_pbh(_mm512_maskz_loadu_ps(m1, x + 16), _mm512_maskz_loadu_ps(m0, x));
 }
 
 // 16 values of two rows a (at a_at) and b (at b_at, or zero when has_b is 0) as [a0..a15 | b0..b15] bf16.
-BF16_TARGET static inline __m512i load16x2_bf16(const void* X, int is_bf16, size_t a_at, size_t b_at, int has_b,
-                                                __mmask16 m) {
-    if (is_bf16) {
-        const uint16_t* x = (const uint16_t*)X;
-        __m256i a = _mm256_maskz_loadu_epi16(m, x + a_at);
-        __m256i b = has_b ? _mm256_maskz_loadu_epi16(m, x + b_at) : _mm256_setzero_si256();
-        return _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1);
-    }
-    const float* x = (const float*)X;
+BF16_TARGET static inline __m512i load16x2_bf16(const float* x, size_t a_at, size_t b_at, int has_b, __mmask16 m) {
     __m512 a = _mm512_maskz_loadu_ps(m, x + a_at);
     __m512 b = has_b ? _mm512_maskz_loadu_ps(m, x + b_at) : _mm512_setzero_ps();
     return (__m512i)_mm512_cvtne2ps_pbh(b, a);
@@ -90,11 +79,11 @@ BF16_TARGET static inline __m512i load16x2_bf16(const void* X, int is_bf16, size
 static const uint16_t pair_weave[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23,
                                         8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
 
-// Rows r0 .. r0+R of X (fp32 values, rounded here, or bf16 storage) packed as pairs along K into
-// out[kp][Rpad] (Rpad = MR or NR): X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R
-// and the pad after an odd K are zero. In bf16 storage two neighbours along K are already one word.
-BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int is_bf16, size_t at, size_t rs,
-                                   size_t ks, int R, int K) {
+// Rows r0 .. r0+R of X (fp32 values, rounded here) packed as pairs along K into out[kp][Rpad]
+// (Rpad = MR or NR): X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R and the pad
+// after an odd K are zero.
+BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size_t at, size_t rs, size_t ks, int R,
+                                   int K) {
     const int kp = (K + 1) / 2;
     if (ks == 1) {   // each row runs along K: 32 values -> 16 pair words, then spread with stride Rpad
         uint32_t tmp[16];
@@ -105,7 +94,7 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int i
             }
             for (int k = 0; k < K; k += 32) {
                 int np = kp - k / 2 < 16 ? kp - k / 2 : 16;
-                _mm512_storeu_si512(tmp, load32_bf16(X, is_bf16, at + (size_t)r * rs + k, K - k));
+                _mm512_storeu_si512(tmp, load32_bf16(X, at + (size_t)r * rs + k, K - k));
                 for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
             }
         }
@@ -119,7 +108,7 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const void* X, int i
         for (int r = 0; r < Rpad; r += 16) {
             int left = R - r;
             __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
-            __m512i w = _mm512_permutexvar_epi16(weave, load16x2_bf16(X, is_bf16, x0 + r, x0 + ks + r, has1, m));
+            __m512i w = _mm512_permutexvar_epi16(weave, load16x2_bf16(X, x0 + r, x0 + ks + r, has1, m));
             __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
             _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
         }
@@ -284,26 +273,37 @@ static float im2col_value(const float* img, const mlb_conv2d* cv, int k, size_t 
     return img[((size_t)c * cv->H + (size_t)iy) * cv->W + (size_t)ix];
 }
 
-// Element e of an operand's storage, as fp32 (the out-of-memory path only).
-static float element(const mlb_bf16_operand* X, size_t e) {
-    if (X->im2col) return im2col_value(X->data, X->im2col, (int)(e / (size_t)X->ld), X->offset + e % (size_t)X->ld);
-    if (!X->is_bf16) return ((const float*)X->data)[X->offset + e];
-    uint32_t u = (uint32_t)((const uint16_t*)X->data)[X->offset + e] << 16;
+// Value (r, k) of an operand given only packed (side_b 0: A, R = M rows; 1: B, R = N columns), as
+// mlb_gemm_bf16_pack lays it out: per K block of KC pairs, its panels of Rpad rows, pair by pair.
+static float packed_value(const uint32_t* P, int side_b, int R, int K, int r, int k) {
+    const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad, pair = k / 2;
+    const int blk = pair / KC, np = kp - blk * KC < KC ? kp - blk * KC : KC;
+    uint32_t w = P[(size_t)blk * KC * panels * Rpad + ((size_t)(r / Rpad) * np + (pair - blk * KC)) * Rpad + r % Rpad];
+    uint32_t u = (k & 1 ? w >> 16 : w & 0xFFFFu) << 16;
     float f;
     memcpy(&f, &u, 4);
     return f;
 }
 
+// Element (r, k) of op(X) (side_b 0: A with R = M rows; 1: B, R = N), as fp32 (the out-of-memory path
+// only): from the fp32 storage, the image of an im2col operand, or the packed form when there is
+// no other (a weight packed at load: data NULL).
+static float element(const mlb_bf16_operand* X, int side_b, int trans, int R, int K, int r, int k) {
+    if (!X->data) return packed_value(X->packed, side_b, R, K, r, k);
+    if (X->im2col) return im2col_value(X->data, X->im2col, k, X->offset + (size_t)r);
+    size_t rs, ks;
+    operand_strides(side_b, trans, X->ld, &rs, &ks);
+    return ((const float*)X->data)[X->offset + (size_t)r * rs + (size_t)k * ks];
+}
+
 // C = alpha·op(A)·op(B) + beta·C element by element in fp32, needing no memory and no AVX-512: for an
-// operand stored in bf16 when the kernel cannot run (out of memory, or a CPU without AVX-512 BF16).
+// operand with no fp32 storage (packed, or an im2col view) when the kernel cannot pack (out of memory).
 static void gemm_elementwise(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                              const mlb_bf16_operand* B, float beta, float* C, int ldc) {
     for (int i = 0; i < M; i++)
         for (int j = 0; j < N; j++) {
             float sum = 0;
-            for (int k = 0; k < K; k++)
-                sum += element(A, ta ? (size_t)k * A->ld + i : (size_t)i * A->ld + k) *
-                       element(B, tb ? (size_t)j * B->ld + k : (size_t)k * B->ld + j);
+            for (int k = 0; k < K; k++) sum += element(A, 0, ta, M, K, i, k) * element(B, 1, tb, N, K, j, k);
             float* c = C + (size_t)i * ldc + j;
             *c = beta == 0 ? alpha * sum : alpha * sum + beta * *c;
         }
@@ -325,7 +325,7 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
         uint32_t* o = out + (size_t)q * Rpad * np;
-        pack_pairs(o, Rpad, X->data, X->is_bf16, at, rs, ks, rows, nk);
+        pack_pairs(o, Rpad, X->data, at, rs, ks, rows, nk);
     }
 }
 #endif
@@ -334,6 +334,8 @@ void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_oper
 #ifdef MLB_BF16_KERNEL
     if (R <= 0 || K <= 0) return;
     const int Rpad = side_b ? NR : MR, blocks = ((K + 1) / 2 + KC - 1) / KC, panels = (R + Rpad - 1) / Rpad;
+    // the K blocks in parallel for a large operand (a conv's weight: up to 30M values in the SD UNet)
+#pragma omp parallel for schedule(static) if (blocks > 1 && (size_t)R * K >= ((size_t)1 << 20))
     for (int blk = 0; blk < blocks; blk++) pack_block(out + (size_t)blk * KC * panels * Rpad, side_b, R, K, blk, X, trans, 0);
 #else
     (void)side_b; (void)trans; (void)R; (void)K; (void)X; (void)out;
@@ -342,7 +344,7 @@ void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_oper
 
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc) {
-    if (!cpu_has_bf16()) {   // only an operand stored in bf16 gets here on such a CPU (mlb_gemm_bf16 checks first)
+    if (!cpu_has_bf16()) {   // never: every caller checks first; still correct if one did not
         gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
         return;
     }
@@ -359,13 +361,13 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
         free(pb);
         free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
-        if (!A->is_bf16 && !B->is_bf16 && !B->im2col) {
+        if (A->data && B->data && !B->im2col) {
             cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
                         (const float*)A->data + A->offset, A->ld, (const float*)B->data + B->offset, B->ld, beta, C,
                         ldc);
             return;
         }
-        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);   // an operand stored in bf16
+        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);   // a packed or im2col operand
         return;
     }
     for (int blk = 0; blk < blocks; blk++) {

@@ -1,5 +1,6 @@
 // Internal: the one-thread bf16 GEMM kernel that mlb_gemm_bf16 (gemm.c) runs per shard
-// (gemm_bf16.c), and its operands' packed form for callers that reuse one (attention_bf16.c).
+// (gemm_bf16.c), and its operands' packed form for callers that reuse one (attention_bf16.c, the
+// convolutions of conv_bf16.c, linear_bf16.c).
 #ifndef MATLABER_NN_GEMM_BF16_H
 #define MATLABER_NN_GEMM_BF16_H
 #include <stddef.h>
@@ -7,21 +8,28 @@
 
 #include "matlaber/conv_ops.h"
 
-// One operand: fp32 values (rounded to bf16 as they are packed) or values stored in bf16 (uint16_t,
-// the top half of the fp32 bits, as mlb_bf16_from_f32 rounds them: then the same products bit for
-// bit), element (i, k) at data[offset + i·ld + k] (or transposed); packed: its whole packed form
-// (mlb_gemm_bf16_pack), then data is read only if the kernel runs out of memory, or NULL.
+// Rows of the kernel's register tile (its A panels); callers cutting M do it in multiples.
+#define MLB_GEMM_BF16_MR 14
+
+// One operand: fp32 values (rounded to bf16 as they are packed), element (i, k) at
+// data[offset + i·ld + k] (or transposed); packed: its whole packed form (mlb_gemm_bf16_pack), or
+// NULL. With packed given, data is read only if the kernel runs out of memory, and may be NULL (a
+// weight packed at load, with no fp32 copy).
 // im2col (B only, not transposed): op(B) is the im2col matrix of the conv's input, one fp32 image
 // [C, H, W] at data, gathered as it is packed (no buffer): row k = (c·KH + i)·KW + j, column j' =
-// output pixel offset + j' (y·OW + x); ld >= the columns used, is_bf16 0.
+// output pixel offset + j' (y·OW + x).
 typedef struct {
-    const void* data;
-    int is_bf16;
+    const float* data;
     size_t offset;
     int ld;
     const uint32_t* packed;
     const mlb_conv2d* im2col;
 } mlb_bf16_operand;
+
+// Whether the CPU has AVX-512 BF16 (mlb_gemm_bf16_native() also says whether it is forced off). A
+// weight packed at load has no fp32 copy: its ops and packers check this one, and run the kernel
+// even when forced off.
+int mlb_gemm_bf16_cpu_has(void);
 
 // C[M,N] = alpha·op(A)·op(B) + beta·C with bf16 operands and fp32 sums, on the calling thread only.
 // M, N, K >= 1. Callers with fp32 operands check mlb_gemm_bf16_native() (nn.h) first; on a CPU

@@ -177,11 +177,12 @@ TEST(packed_weights) {
     }
     omp_set_num_threads(max_threads);
     printf("  linear, weight packed per call and once: worst error relative to sum|terms| %.3g\n", worst);
-    // the rounding: nearest even, as the packing does (1 + 2^-8 is a tie: to 1; 1 + 3·2^-8 to 1 + 2^-6)
+    // the packing's rounding: nearest even (1 + 2^-8 is a tie: to 1; 1 + 3·2^-8 to 1 + 2^-6); a [1, 3]
+    // weight packs as one 32-column panel: pair word 0 holds k = 0, 1 (low, high half), word 32 k = 2
     float v[3] = {1.0f + 0x1p-8f, 1.0f + 3 * 0x1p-8f, -2.5f};
-    uint16_t h[3];
-    CHECK(mlb_bf16_from_f32(h, v, 3) == 1);
-    CHECK(h[0] == 0x3F80 && h[1] == 0x3F82 && h[2] == 0xC020);
+    uint32_t words[64];
+    CHECK(mlb_bf16_linear_weight_words(1, 3) == 64 && mlb_bf16_pack_linear_weight(words, v, 1, 3) == 1);
+    CHECK(words[0] == (0x3F82u << 16 | 0x3F80u) && words[32] == 0xC020u && words[1] == 0);
 }
 
 // Forced off, it is the fp32 GEMM, bit for bit.

@@ -58,9 +58,6 @@ void mlb_gemm_bf16(int trans_a, int trans_b, int M, int N, int K, float alpha, c
 int mlb_gemm_bf16_native(void);
 // For tests: on = 1 forces the fp32 fallback, 0 uses the kernel where the CPU has it.
 void mlb_gemm_bf16_force_fallback(int on);
-// mlb_bf16_from_f32 rounds n values to bf16 as the kernel does (nearest even, denormals to zero),
-// returning 1, or 0 and writing nothing where the CPU lacks AVX-512 BF16.
-int mlb_bf16_from_f32(uint16_t* out, const float* in, size_t n);
 // linear_forward / linear_backward with their GEMMs on the bf16 kernel (the bias sums stay fp32/double).
 void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC);
 // linear_forward_bf16 with the weight [OC, C] packed once for the kernel (a frozen model's: the UNet

@@ -179,13 +179,6 @@ BF16_TARGET static void pack_im2col_block(uint32_t* out, int np, const float* im
     }
 }
 
-BF16_TARGET static void round_to_bf16(uint16_t* out, const float* in, size_t n) {
-    for (size_t i = 0; i < n; i += 16) {
-        __mmask16 m = n - i >= 16 ? 0xFFFF : (__mmask16)((1u << (n - i)) - 1);
-        __m256i h = (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, in + i));
-        _mm256_mask_storeu_epi16(out + i, m, h);
-    }
-}
 
 // One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
 // (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
@@ -236,17 +229,6 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
 #undef PUT
 }
 #endif
-
-int mlb_bf16_from_f32(uint16_t* out, const float* in, size_t n) {
-#ifdef MLB_BF16_KERNEL
-    if (!cpu_has_bf16()) return 0;
-    round_to_bf16(out, in, n);
-    return 1;
-#else
-    (void)out; (void)in; (void)n;
-    return 0;
-#endif
-}
 
 // Words of op(X)'s panels over all K blocks: block after block, in each the panels of R rows
 // (A: MR, B: NR) over that block's pairs, the layout the loop below reads per block.

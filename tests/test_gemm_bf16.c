@@ -491,6 +491,77 @@ TEST(conv_from_the_image) {
            "operands: up to 2^-7 = %.3g)\n", worst_fwd, worst_din, 0x1p-7);
 }
 
+// sdpa_backward_bf16 (sdpa_backward's loop with its five products on the bf16 GEMM) against the
+// backward in double on the same fp32 inputs: relative L2 error of dq, dk, dv in (2^-14, 2^-6]
+// (bf16 operands: each product ~2^-8 RMS, two products in a row for dq and dk, and dS = P (dP - D)
+// cancels: measured 2^-8.6 .. 2^-7.9), the same bits on 1 and 2 threads, and sdpa_backward's bits
+// when forced off.
+TEST(attention_backward) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16 (or $MATLABER_CPU_BF16 is off)");
+    typedef struct { int B, Tq, Tk, C, NH; const char* what; } bshape;
+    static const bshape cases[] = {{2, 150, 150, 64, 4, "self-attention, heads of 16"},
+                                   {1, 130, 77, 96, 2, "cross-attention to 77 tokens"},
+                                   {1, 256, 256, 512, 1, "one head of 512 (the VAE's)"}};
+    const int max_threads = omp_get_max_threads();
+    double worst = 0, best = 1;
+    for (size_t ci = 0; ci < sizeof cases / sizeof cases[0]; ci++) {
+        const bshape* c = &cases[ci];
+        const size_t nq = (size_t)c->B * c->Tq * c->C, nk = (size_t)c->B * c->Tk * c->C, nl = (size_t)c->B * c->NH * c->Tq;
+        float* f = malloc(sizeof(float) * (3 * nq + 2 * nk + nl + 3 * (nq + 2 * nk)));
+        double* d = malloc(sizeof(double) * (3 * nq + 2 * nk + nl + nq + 2 * nk));
+        REQUIRE(f && d);
+        float *q = f, *o = q + nq, *dout = o + nq, *k = dout + nq, *v = k + nk, *lse = v + nk;
+        float *g1 = lse + nl, *g2 = g1 + nq + 2 * nk, *g3 = g2 + nq + 2 * nk;   // [dq | dk | dv] each
+        double *qd = d, *od = qd + nq, *doutd = od + nq, *kd = doutd + nq, *vd = kd + nk, *lsed = vd + nk, *gd = lsed + nl;
+        mlb_rng_fill_uniform(q, nq, SEED, 90 + ci, 0, -2, 2);
+        mlb_rng_fill_uniform(k, nk, SEED, 90 + ci, 1, -2, 2);
+        mlb_rng_fill_uniform(v, nk, SEED, 90 + ci, 2, -1, 1);
+        mlb_rng_fill_uniform(dout, nq, SEED, 90 + ci, 3, -1, 1);
+        for (size_t i = 0; i < nq; i++) { qd[i] = q[i]; doutd[i] = dout[i]; }
+        for (size_t i = 0; i < nk; i++) { kd[i] = k[i]; vd[i] = v[i]; }
+        REQUIRE(sdpa_forward(o, lse, q, k, v, c->B, c->Tq, c->Tk, c->C, c->NH, c->C, c->C, NULL) == MLB_OK);
+        REQUIRE(sdpa_forward_f64(od, lsed, qd, kd, vd, c->B, c->Tq, c->Tk, c->C, c->NH, c->C, c->C, NULL) == MLB_OK);
+        memset(gd, 0, sizeof(double) * (nq + 2 * nk));
+        REQUIRE(sdpa_backward_f64(gd, gd + nq, gd + nq + nk, doutd, od, lsed, qd, kd, vd, c->B, c->Tq, c->Tk, c->C,
+                                  c->NH, c->C, c->C, NULL) == MLB_OK);
+        memset(g1, 0, sizeof(float) * 3 * (nq + 2 * nk));
+        omp_set_num_threads(1);
+        CHECK(sdpa_backward_bf16(g1, g1 + nq, g1 + nq + nk, dout, o, lse, q, k, v, c->B, c->Tq, c->Tk, c->C, c->NH,
+                                 c->C, c->C, NULL) == MLB_OK);
+        omp_set_num_threads(2);
+        CHECK(sdpa_backward_bf16(g2, g2 + nq, g2 + nq + nk, dout, o, lse, q, k, v, c->B, c->Tq, c->Tk, c->C, c->NH,
+                                 c->C, c->C, NULL) == MLB_OK);
+        omp_set_num_threads(max_threads);
+        CHECK_MSG(!memcmp(g1, g2, sizeof(float) * (nq + 2 * nk)), "%s: 1 and 2 threads differ", c->what);
+        const char* names[3] = {"dq", "dk", "dv"};
+        const size_t off[3] = {0, nq, nq + nk}, len[3] = {nq, nk, nk};
+        for (int w = 0; w < 3; w++) {
+            double num = 0, den = 0;
+            for (size_t i = 0; i < len[w]; i++) {
+                double e = g1[off[w] + i] - gd[off[w] + i];
+                num += e * e;
+                den += gd[off[w] + i] * gd[off[w] + i];
+            }
+            double rel = sqrt(num / den);
+            CHECK_MSG(rel > 0x1p-14 && rel <= 0x1p-6, "%s: %s relative L2 error %.3g outside (2^-14, 2^-6]", c->what,
+                      names[w], rel);
+            if (rel > worst) worst = rel;
+            if (rel < best) best = rel;
+        }
+        memset(g2, 0, sizeof(float) * (nq + 2 * nk));   // the gradients accumulate
+        mlb_gemm_bf16_force_fallback(1);   // forced off: sdpa_backward, bit for bit
+        CHECK(sdpa_backward_bf16(g2, g2 + nq, g2 + nq + nk, dout, o, lse, q, k, v, c->B, c->Tq, c->Tk, c->C, c->NH,
+                                 c->C, c->C, NULL) == MLB_OK);
+        mlb_gemm_bf16_force_fallback(0);
+        CHECK(sdpa_backward(g3, g3 + nq, g3 + nq + nk, dout, o, lse, q, k, v, c->B, c->Tq, c->Tk, c->C, c->NH, c->C,
+                            c->C, NULL) == MLB_OK);
+        CHECK_MSG(!memcmp(g2, g3, sizeof(float) * (nq + 2 * nk)), "%s: the fallback is not sdpa_backward's bits", c->what);
+        free(f); free(d);
+    }
+    printf("  attention backward, bf16 GEMMs: relative L2 error of dq/dk/dv %.3g .. %.3g (2^-7 = %.3g)\n", best, worst,
+           0x1p-7);
+}
+
 int main(void) {
     RUN(values_threads_edges);
     RUN(packed_weights);
@@ -499,5 +570,6 @@ int main(void) {
     RUN(attention);
     RUN(attention_fallback_is_fp32);
     RUN(conv_from_the_image);
+    RUN(attention_backward);
     return test_summary();
 }

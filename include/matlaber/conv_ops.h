@@ -164,5 +164,10 @@ mlb_status sdpa_backward(float* dq, float* dk, float* dv, const float* dout, con
 mlb_status sdpa_backward_f64(double* dq, double* dk, double* dv, const double* dout, const double* out,
                              const double* lse, const double* q, const double* k, const double* v, int B, int Tq,
                              int Tk, int C, int NH, int ldq, int ldkv, double* ws);
+// sdpa_backward with its five products on the bf16 GEMM (mlb_gemm_bf16; the scores, dS and the row
+// sums stay fp32/double): the CPU's bf16 op table runs it; sdpa_backward's bits without AVX-512 BF16.
+mlb_status sdpa_backward_bf16(float* dq, float* dk, float* dv, const float* dout, const float* out, const float* lse,
+                              const float* q, const float* k, const float* v, int B, int Tq, int Tk, int C, int NH,
+                              int ldq, int ldkv, float* ws);
 
 #endif

@@ -168,6 +168,12 @@ static mlb_status cpu_conv2d_backward_bf16(const mlb_backend* be, float* din, fl
     return conv2d_backward_bf16(din, dw, db, dout, in, w, cv, NULL);
 }
 
+static mlb_status cpu_sdpa_backward_bf16(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
+                                         const float* out, const float* lse, const float* q, const float* k,
+                                         const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
+    (void)be;
+    return sdpa_backward_bf16(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
+}
 static mlb_status cpu_sdpa_bf16(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
                                 const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
     (void)be;
@@ -203,19 +209,21 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
     return no_backward_stored();
 }
 
-// The CPU's tables differ only in their GEMM precision, the linear and conv ops and the attention forward.
-#define CPU_TABLE(prec, linear, linear_bwd, conv, conv_bwd, sdpa)                                                 \
+// The CPU's tables differ only in their GEMM precision, the linear and conv ops and the attention.
+#define CPU_TABLE(prec, linear, linear_bwd, conv, conv_bwd, sdpa, sdpa_bwd)                                       \
     {MLB_DEVICE_CPU, prec, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy, linear, \
      linear_bwd, conv, conv_bwd, cpu_groupnorm, groupnorm_backward, cpu_layernorm, cpu_activation, sdpa,          \
-     cpu_sdpa_backward, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, \
+     sdpa_bwd, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, \
      cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward}
 static const mlb_backend cpu_table =
-    CPU_TABLE(MLB_GEMM_FP32, cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_sdpa);
+    CPU_TABLE(MLB_GEMM_FP32, cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_sdpa,
+              cpu_sdpa_backward);
 static const mlb_backend cpu_bf16_table = CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16, cpu_linear_backward_bf16,
-                                                    cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_sdpa_bf16);
+                                                    cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_sdpa_bf16,
+                                                    cpu_sdpa_backward_bf16);
 static const mlb_backend cpu_bf16_stored_table =
     CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16_stored, cpu_linear_backward_bf16_stored, cpu_conv2d_bf16_stored,
-              cpu_conv2d_backward_bf16_stored, cpu_sdpa_bf16);
+              cpu_conv2d_backward_bf16_stored, cpu_sdpa_bf16, cpu_sdpa_backward_bf16);
 
 // ---- CUDA ----------------------------------------------------------------------------------------
 static mlb_status cuda_alloc(float** out, size_t n) {

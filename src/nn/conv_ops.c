@@ -554,9 +554,9 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
     return MLB_OK;
 }
 
-mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, const real* out, const real* lse,
-                              const real* q, const real* k, const real* v, int B, int Tq, int Tk, int C, int NH,
-                              int ldq, int ldkv, real* ws) {
+static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* dk, real* dv, const real* dout,
+                                         const real* out, const real* lse, const real* q, const real* k, const real* v,
+                                         int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv, real* ws) {
     MLB_TRY(FN(sdpa_check)(B, Tq, Tk, C, NH, ldq, ldkv));
     if (B == 0 || Tq == 0 || (!dq && !dk && !dv)) return MLB_OK;
     if (!dout || !out || !lse || !q || !k || !v) return mlb_fail(MLB_ERR_ARG, "attention backward: NULL buffer");
@@ -583,18 +583,18 @@ mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, con
                 const real* dob = dout + tok * C + (size_t)h * hd;
                 const real* ob = out + tok * C + (size_t)h * hd;
                 const real* lb = lse + ((size_t)b * NH + h) * Tq + t0;
-                GEMM(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
+                gemm(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     real* p = P + (size_t)i * Tk;
                     for (int s = 0; s < Tk; s++) p[s] = R_EXP(p[s] - lb[i]);
                 }
                 if (dv)   // dv[Tk, hd] += P^T . dout_block
-                    GEMM(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
+                    gemm(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
                          dv + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
                 if (!dq && !dk) continue;
                 // dP = dout_block . v^T; dS = P * (dP - rowsum(dout * out)) * scale
-                GEMM(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, (real)1, dob, C, vb, ldkv, (real)0, dP, Tk);
+                gemm(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, (real)1, dob, C, vb, ldkv, (real)0, dP, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     double di = 0;
@@ -607,13 +607,29 @@ mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, con
                     for (int s = 0; s < Tk; s++) g[s] = p[s] * (g[s] - dr) * scale;
                 }
                 if (dq)   // dq_block += dS . k
-                    GEMM(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,
+                    gemm(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,
                          dq + tok * ldq + (size_t)h * hd, ldq);
                 if (dk)   // dk += dS^T . q_block
-                    GEMM(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, dP, Tk, qb, ldq, (real)1,
+                    gemm(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, dP, Tk, qb, ldq, (real)1,
                          dk + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
             }
         }
     free(owned);
     return MLB_OK;
 }
+
+mlb_status FN(sdpa_backward)(real* dq, real* dk, real* dv, const real* dout, const real* out, const real* lse,
+                              const real* q, const real* k, const real* v, int B, int Tq, int Tk, int C, int NH,
+                              int ldq, int ldkv, real* ws) {
+    return FN(sdpa_backward_with)(GEMM, dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, ws);
+}
+
+#ifndef MLB_F64
+// Its five products on the bf16 GEMM (the recomputed scores and dS in fp32 between them): sdpa_backward's
+// bits where the CPU lacks AVX-512 BF16 (mlb_gemm_bf16 is then mlb_gemm).
+mlb_status sdpa_backward_bf16(float* dq, float* dk, float* dv, const float* dout, const float* out, const float* lse,
+                              const float* q, const float* k, const float* v, int B, int Tq, int Tk, int C, int NH,
+                              int ldq, int ldkv, float* ws) {
+    return sdpa_backward_with(mlb_gemm_bf16, dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, ws);
+}
+#endif

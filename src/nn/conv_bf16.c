@@ -101,12 +101,14 @@ mlb_status conv2d_bf16_implicit_input_grad(float* din, const float* dout, const 
     const int C = cv->C, OC = cv->OC, KH = cv->KH, KW = cv->KW;
     float* flipped = malloc(sizeof(float) * (size_t)C * OC * KH * KW);   // [C, OC, KH, KW]
     if (!flipped) return mlb_fail(MLB_ERR_NOMEM, "conv2d backward (bf16): out of memory for the flipped weight");
-    for (int oc = 0; oc < OC; oc++)
-        for (int c = 0; c < C; c++)
+    // written in order, in parallel over its rows (up to 30M values in the SD UNet)
+#pragma omp parallel for schedule(static) if ((size_t)C * OC * KH * KW >= ((size_t)1 << 18))
+    for (int c = 0; c < C; c++)
+        for (int oc = 0; oc < OC; oc++)
             for (int i = 0; i < KH; i++)
                 for (int j = 0; j < KW; j++)
-                    flipped[(((size_t)c * OC + oc) * KH + (KH - 1 - i)) * KW + (KW - 1 - j)] =
-                        weight[(((size_t)oc * C + c) * KH + i) * KW + j];
+                    flipped[(((size_t)c * OC + oc) * KH + i) * KW + j] =
+                        weight[(((size_t)oc * C + c) * KH + (KH - 1 - i)) * KW + (KW - 1 - j)];
     const mlb_conv2d t = {cv->N, OC, mlb_conv2d_out_h(cv), mlb_conv2d_out_w(cv), C, KH, KW, 1, 1,
                           KH - 1 - cv->pad_top, KW - 1 - cv->pad_left, KH - 1 - cv->pad_bottom, KW - 1 - cv->pad_right};
     mlb_status st = conv2d_bf16_implicit_forward(din, dout, flipped, NULL, &t, 1);

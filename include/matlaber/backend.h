@@ -9,9 +9,9 @@
 // The CPU table calls the CPU ops of nn_api.inc, transformer_ops.h and conv_ops.h, in the order
 // and with the arithmetic the models used before the table existed, so CPU results are bitwise
 // unchanged. The CPU's bf16 table is the same but for the linear and conv GEMMs (forward and
-// backward) and the attention forward, which take bf16 operands (mlb_gemm_bf16, sdpa_forward_bf16:
-// AVX-512 BF16, fp32 sums; fp32 on a CPU without it); the attention backward, norms and the rest
-// stay fp32. The CUDA table calls cuda_ops.h (in a build without the CUDA part each of its ops
+// backward) and the attention (forward and backward), which take bf16 operands (mlb_gemm_bf16,
+// sdpa_forward_bf16, sdpa_backward_bf16: AVX-512 BF16, fp32 sums; fp32 on a CPU without it); the
+// norms and the rest stay fp32. The CUDA table calls cuda_ops.h (in a build without the CUDA part each of its ops
 // fails with "built without CUDA", so callers need no #ifdef); its GEMMs (linear, conv, attention)
 // run at be->precision. Ops are asynchronous on the device: download synchronises.
 #ifndef MATLABER_BACKEND_H

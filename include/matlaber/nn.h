@@ -70,9 +70,6 @@ size_t mlb_bf16_linear_weight_words(int OC, int C);
 int mlb_bf16_pack_linear_weight(uint32_t* out, const float* weight, int OC, int C);
 mlb_status linear_forward_bf16_packed(float* out, const float* in, const uint32_t* weight, const float* bias, int B,
                                       int C, int OC);
-// Internal to linear_forward_bf16: the sharded mlb_gemm_bf16 it falls back to.
-void linear_forward_with_gemm_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C,
-                                   int OC);
 void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                           const float* weight, int B, int C, int OC);
 

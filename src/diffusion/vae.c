@@ -286,13 +286,21 @@ static vae_plan enc_plan(const mlb_vae_config* g, int N, int H, int W) {
     return p;
 }
 
-// Scratch the encoder's forward with a cache and its backward need (kept after the cache's values,
-// so that an SDS loop's steps do not map and fault in fresh pages each time): the larger of the two.
-static size_t FN(enc_scratch)(const mlb_vae_config* g, int N, int H, int W) {
+// Scratch values of the encoder's forward (no cache: 4 activations, the attention's 5 token buffers;
+// with one: 3 and 1, the rest are in the cache) and of its backward (4 and 5).
+enum { ENC_FORWARD, ENC_FORWARD_CACHED, ENC_BACKWARD };
+static size_t FN(enc_scratch_of)(const mlb_vae_config* g, int N, int H, int W, int pass) {
     vae_plan p = enc_plan(g, N, H, W);
     const size_t nT = (size_t)N * p.T * g->block_out[g->n_levels - 1], NG = (size_t)N * g->norm_groups;
-    size_t fwd = p.act * 3 + (g->mid_attention ? nT + (size_t)N * p.T : 0) + 4 * NG;
-    size_t bwd = p.act * 4 + (g->mid_attention ? nT * 5 : 0);
+    if (pass == ENC_BACKWARD) return p.act * 4 + (g->mid_attention ? nT * 5 : 0);
+    const int cached = pass == ENC_FORWARD_CACHED;
+    return p.act * (cached ? 3 : 4) + (g->mid_attention ? nT * (cached ? 1 : 5) + (size_t)N * p.T : 0) + 4 * NG;
+}
+
+// What a cache keeps after the forward's values: the scratch of the forward with it and of its
+// backward, the larger of the two (so that an SDS loop's steps do not map and fault in fresh pages).
+static size_t FN(enc_scratch)(const mlb_vae_config* g, int N, int H, int W) {
+    size_t fwd = FN(enc_scratch_of)(g, N, H, W, ENC_FORWARD_CACHED), bwd = FN(enc_scratch_of)(g, N, H, W, ENC_BACKWARD);
     return fwd > bwd ? fwd : bwd;
 }
 
@@ -503,8 +511,7 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     }
     vae_plan p = enc_plan(g, N, H, W);
     const size_t nT = (size_t)N * p.T * top;
-    size_t att = g->mid_attention ? nT * (cache ? 1 : 5) + (size_t)N * p.T : 0;
-    size_t total = p.act * (cache ? 3 : 4) + att + 4 * NG;
+    size_t total = FN(enc_scratch_of)(g, N, H, W, cache ? ENC_FORWARD_CACHED : ENC_FORWARD);
     real* scratch = cache ? cache->buf + kept : NULL;
     if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
         return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);

@@ -143,8 +143,8 @@ static mlb_status cpu_shade_backward(float* dkd, float* dks, float* dkr, float* 
     mlb_envlight l = cpu_turned(handle, rotation);
     return mlb_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
 }
-// bf16: the linear and conv GEMMs and the attention forward with bf16 operands (mlb_gemm_bf16,
-// sdpa_forward_bf16), all else as the fp32 table.
+// bf16: the linear and conv GEMMs and the attention with bf16 operands (mlb_gemm_bf16 and the ops
+// built on its kernel), all else as the fp32 table.
 static mlb_status cpu_linear_bf16(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
                                   int B, int C, int OC) {
     (void)be;

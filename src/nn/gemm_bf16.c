@@ -179,7 +179,6 @@ BF16_TARGET static void pack_im2col_block(uint32_t* out, int np, const float* im
     }
 }
 
-
 // One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
 // (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
 // C[m, n] (m <= MR, n <= NR) = alpha · sum + beta · C. A stored and reloaded fp32 sum is the same
@@ -297,12 +296,12 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
                        int r0) {
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad;
     const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
-    size_t rs, ks;
-    operand_strides(side_b, trans, X->ld, &rs, &ks);
     if (X->im2col) {
         pack_im2col_block(out, np, X->data, X->im2col, X->offset + (size_t)r0, R, k0, nk);
         return;
     }
+    size_t rs, ks;
+    operand_strides(side_b, trans, X->ld, &rs, &ks);
     for (int q = 0; q < panels; q++) {
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
@@ -345,7 +344,7 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
         if (A->data && B->data && !B->im2col) {
             cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
-                        (const float*)A->data + A->offset, A->ld, (const float*)B->data + B->offset, B->ld, beta, C,
+                        A->data + A->offset, A->ld, B->data + B->offset, B->ld, beta, C,
                         ldc);
             return;
         }

@@ -38,12 +38,13 @@ static void linear_tiles(float* out, const float* in, const mlb_bf16_operand* w,
 
 void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC) {
     if (B <= 0 || OC <= 0) return;
-    uint32_t* packed = C > 0 && mlb_gemm_bf16_native() ? malloc(sizeof(uint32_t) * mlb_bf16_linear_weight_words(OC, C)) : NULL;
-    if (!packed) {   // no AVX-512 BF16 (mlb_gemm_bf16 is then the fp32 GEMM), C = 0, or no memory
-        linear_forward_with_gemm_bf16(out, in, weight, bias, B, C, OC);
+    if (!mlb_gemm_bf16_native()) {   // no AVX-512 BF16 (or forced off): fp32, as mlb_gemm_bf16 is then
+        linear_forward(out, in, weight, bias, B, C, OC);
         return;
     }
-    mlb_bf16_pack_linear_weight(packed, weight, OC, C);
+    uint32_t* packed = C > 0 ? malloc(sizeof(uint32_t) * mlb_bf16_linear_weight_words(OC, C)) : NULL;
+    if (packed) mlb_bf16_pack_linear_weight(packed, weight, OC, C);
+    // without memory for the packed weight each task packs its panels: the same bits
     const mlb_bf16_operand w = {weight, 0, C, packed, NULL};
     linear_tiles(out, in, &w, bias, B, C, OC);
     free(packed);

@@ -86,12 +86,6 @@ void FN(linear_backward)(real* din, real* dweight, real* dbias, const real* dout
 }
 
 #ifndef MLB_F64
-// linear_forward_bf16's path where its packed kernel cannot run (linear_bf16.c).
-void linear_forward_with_gemm_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C,
-                                   int OC) {
-    linear_forward_with(mlb_gemm_bf16, out, in, weight, bias, B, C, OC);
-}
-
 void linear_backward_bf16(float* din, float* dweight, float* dbias, const float* dout, const float* in,
                           const float* weight, int B, int C, int OC) {
     linear_backward_with(mlb_gemm_bf16, din, dweight, dbias, dout, in, weight, B, C, OC);

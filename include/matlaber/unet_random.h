@@ -51,6 +51,8 @@ typedef struct {
 } mlb_unet_random_options;
 
 mlb_unet_random_options mlb_unet_random_default_options(void);   // diffusers, F32, seed 0, gain 1, NULL
+// A diffusers config.json for `c` (what mlb_unet_load reads back: heads, groups, eps, ...).
+mlb_status mlb_unet_write_config_json(const mlb_unet_config* c, const char* path);
 // Writes the random weights of `c` to `path` with mlb_st_write.
 mlb_status mlb_unet_write_random(const mlb_unet_config* c, const mlb_unet_random_options* opt, const char* path);
 // The random value tensor i of the list holds (what the written file holds before dtype rounding),

@@ -103,7 +103,14 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
             goto fail;
         }
         if ((s = mlb_tokenizer_load(tpath, &m->tokenizer)) != MLB_OK) { mlb_fail_context(s, "loading the tokenizer"); goto fail; }
-        m->pad_id = mlb_text_encoder_pad_id(m->text);
+        // SD1 pads with <|endoftext|>: 49407 in CLIP's vocabulary, the last id in a smaller one (the
+        // project's own model); SD2 pads with 0 in either
+        m->pad_id = m->text->variant == MLB_TEXT_SD2 ? mlb_text_encoder_pad_id(m->text) : mlb_tokenizer_eos(m->tokenizer);
+        if (mlb_tokenizer_vocab_size(m->tokenizer) > m->text->vocab) {
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: the tokenizer has %d tokens but the text encoder embeds %d", path,
+                         mlb_tokenizer_vocab_size(m->tokenizer), m->text->vocab);
+            goto fail;
+        }
         if (m->text->width != m->unet->cfg.context_dim) {
             s = mlb_fail(MLB_ERR_FORMAT, "%s: the text encoder is %d wide but the UNet's cross-attention expects %d", path,
                          m->text->width, m->unet->cfg.context_dim);

@@ -286,7 +286,7 @@ static void json_ints(char* buf, size_t cap, const int* v, int n) {
     if (k < cap) snprintf(buf + k, cap - k, "]");
 }
 
-static mlb_status write_config_json(const mlb_unet_config* c, const char* path) {
+mlb_status mlb_unet_write_config_json(const mlb_unet_config* c, const char* path) {
     char bo[128], heads[128], down[512] = "", up[512] = "";
     int H, Wd;
     heads_summary(c, &H, &Wd);
@@ -389,7 +389,7 @@ mlb_status mlb_unet_write_random(const mlb_unet_config* c, const mlb_unet_random
     }
     mlb_st_meta meta[2] = {{"format", "pt"}, {"ldm_config", ldm_cfg}};
     s = mlb_st_write(path, ents, n, meta, o.layout == MLB_UNET_LAYOUT_LDM ? 2 : 1);
-    if (s == MLB_OK && o.layout == MLB_UNET_LAYOUT_DIFFUSERS && o.config_json_path) s = write_config_json(c, o.config_json_path);
+    if (s == MLB_OK && o.layout == MLB_UNET_LAYOUT_DIFFUSERS && o.config_json_path) s = mlb_unet_write_config_json(c, o.config_json_path);
 done:
     if (data) for (size_t i = 0; i < n; i++) free(data[i]);
     free(data); free(names); free(ents); free(specs); free(tmp);

@@ -1,0 +1,122 @@
+// A model written in the diffusers folder layout (sd_folder.h) loads back through mlb_sd_model_load,
+// the path a user's SD 1.5 takes: the tokenizer makes each word one token, the text encoder and
+// UNet hold exactly the written numbers, prompts differing in one word encode differently.
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "matlaber/fileio.h"
+#include "matlaber/sd_folder.h"
+#include "matlaber/sd_model.h"
+#include "matlaber/unet_random.h"
+#include "test.h"
+
+static const char* WORDS[] = {"a", "gold", "goblet", "silver", "bowl", "bottle", "copper", "vase", "view", "front",
+                              "side", "back", "overhead", "mug", "stone", ","};
+#define N_WORDS ((int)(sizeof WORDS / sizeof WORDS[0]))
+
+static char dir[256];
+
+static mlb_unet_config tiny_unet(int context) {
+    mlb_unet_config c = mlb_unet_tiny_config(0);
+    c.context_dim = context;
+    return c;
+}
+
+TEST(write_and_load) {
+    snprintf(dir, sizeof dir, "/tmp/mlb_sd_folder_%d", (int)getpid());
+    char p[512];
+    snprintf(p, sizeof p, "%s/tokenizer", dir);
+    REQUIRE(mlb_sd_write_tokenizer(p, WORDS, N_WORDS) == MLB_OK);
+    mlb_tokenizer* tok = NULL;
+    REQUIRE(mlb_tokenizer_load(p, &tok) == MLB_OK);   // merges.txt + vocab.json checked together
+    int vocab = mlb_tokenizer_vocab_size(tok);
+    CHECK(vocab > 512 + 20 && vocab < 700);
+    CHECK(mlb_tokenizer_eos(tok) == vocab - 1);
+    // every word of two letters or more is one token, and "</w>" ends it
+    for (int i = 0; i < N_WORDS; i++) {
+        int* ids = NULL;
+        size_t n = 0;
+        REQUIRE(mlb_tokenizer_tokenize(tok, WORDS[i], &ids, &n) == MLB_OK);
+        CHECK_MSG(n == 1, "'%s' is %zu tokens", WORDS[i], n);
+        char want[64];
+        snprintf(want, sizeof want, "%s</w>", WORDS[i]);
+        if (n == 1) CHECK(!strcmp(mlb_tokenizer_token(tok, ids[0]), want));
+        free(ids);
+    }
+    // text outside the vocabulary still tokenises, byte by byte
+    int* ids = NULL;
+    size_t n = 0;
+    REQUIRE(mlb_tokenizer_tokenize(tok, "a zebra", &ids, &n) == MLB_OK);
+    CHECK(n == 1 + 5);
+    free(ids);
+    mlb_tokenizer_free(tok);
+
+    mlb_text_encoder_shape ts = {vocab, 32, 1, 2, 64, 7};
+    snprintf(p, sizeof p, "%s/text_encoder", dir);
+    REQUIRE(mlb_text_encoder_write_random(p, &ts) == MLB_OK);
+    mlb_unet_config uc = tiny_unet(32);
+    mlb_unet* u = NULL;
+    REQUIRE(mlb_unet_create(&uc, MLB_DEVICE_CPU, &u) == MLB_OK);
+    for (size_t i = 0; i < u->n_params; i++) u->params[i] = (float)((int)(i % 97) - 48) / 256.0f;
+    snprintf(p, sizeof p, "%s/unet", dir);
+    REQUIRE(mlb_unet_save_folder(u, p) == MLB_OK);
+    mlb_vae_config vc = mlb_vae_sd_config();
+    vc.n_levels = 2; vc.block_out[0] = 8; vc.block_out[1] = 8; vc.layers_per_block = 1; vc.norm_groups = 4;
+    vc.scaling_factor = 0.5f;
+    mlb_vae* v = NULL;
+    REQUIRE(mlb_vae_create(&vc, &v) == MLB_OK);
+    mlb_vae_init_random(v, 3, 1.0f);
+    snprintf(p, sizeof p, "%s/vae", dir);
+    REQUIRE(mlb_mkdir_p(p) == MLB_OK);
+    char w[600], cj[600];
+    snprintf(w, sizeof w, "%s/diffusion_pytorch_model.safetensors", p);
+    snprintf(cj, sizeof cj, "%s/config.json", p);
+    REQUIRE(mlb_vae_save(v, w, MLB_VAE_LAYOUT_DIFFUSERS, NULL, cj) == MLB_OK);
+    REQUIRE(mlb_sd_write_index(dir) == MLB_OK);
+
+    mlb_sd_model_options o = mlb_sd_model_default_options();
+    o.device = MLB_DEVICE_CPU;
+    mlb_sd_model* m = NULL;
+    mlb_status st = mlb_sd_model_load(dir, &o, &m);
+    REQUIRE(st == MLB_OK);
+    CHECK(m->pad_id == vocab - 1);
+    CHECK(m->scaling_factor == 0.5f);
+    CHECK(m->unet->n_params == u->n_params);
+    CHECK(!memcmp(m->unet->params, u->params, u->n_params * sizeof(float)));
+    CHECK(m->vae && m->vae->n_params == v->n_params && !memcmp(m->vae->params, v->params, v->n_params * sizeof(float)));
+    // prompts that differ in one word differ in the conditioning from that token on, not before
+    float* e1 = malloc(77 * 32 * sizeof(float));
+    float* e2 = malloc(77 * 32 * sizeof(float));
+    REQUIRE(e1 && e2);
+    REQUIRE(mlb_sd_model_encode_prompt(m, "a gold goblet", e1) == MLB_OK);
+    REQUIRE(mlb_sd_model_encode_prompt(m, "a silver goblet", e2) == MLB_OK);
+    CHECK(!memcmp(e1, e2, 2 * 32 * sizeof(float)));   // <bos> a
+    double d = 0;
+    for (int i = 2 * 32; i < 77 * 32; i++) d += fabs(e1[i] - e2[i]);
+    CHECK(d > 1.0);
+    free(e1);
+    free(e2);
+    mlb_sd_model_free(m);
+    mlb_unet_free(u);
+    mlb_vae_free(v);
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    CHECK(system(cmd) == 0);
+}
+
+TEST(bad_words) {
+    const char* bad[] = {"two words"};
+    CHECK(mlb_sd_write_tokenizer("/tmp/mlb_sd_folder_bad", bad, 1) == MLB_ERR_ARG);
+    const char* one[] = {"a"};
+    CHECK(mlb_sd_write_tokenizer("/tmp/mlb_sd_folder_bad", one, 1) == MLB_ERR_ARG);
+    mlb_text_encoder_shape ts = {600, 30, 1, 4, 64, 0};   // 30 not a multiple of 4 heads
+    CHECK(mlb_text_encoder_write_random("/tmp/mlb_sd_folder_bad", &ts) == MLB_ERR_ARG);
+    CHECK(system("rm -rf /tmp/mlb_sd_folder_bad") == 0);
+}
+
+int main(void) {
+    RUN(write_and_load);
+    RUN(bad_words);
+    return test_summary();
+}

@@ -1,6 +1,7 @@
 // The Stable Diffusion VAE (AutoencoderKL; reference.md §6, docs/vae.md): the encoder from an
 // image to the latent distribution (mean, logvar), its backward to the image (score distillation
-// differentiates through it, reference.md §7), and the decoder from a latent to an image.
+// differentiates through it, reference.md §7) and to the weights, and the decoder from a latent to
+// an image with its backward (training a VAE: docs/vae.md "Training backward").
 //
 //   encoder: conv_in -> n_levels x (layers_per_block ResNet blocks [+ downsample: pad (0,1,0,1),
 //            stride-2 3x3 conv]) -> mid (ResNet, single-head self-attention, ResNet) ->
@@ -82,6 +83,24 @@ typedef struct {
 // and linear GEMMs then take bf16 operands (backend.h), any other prec is the CPU's fp32. Float
 // models only.
 mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec);
+
+// ---- training on a device (float) -------------------------------------------------------------------
+// The calls above on the ops of `be` (backend.h) with every tensor argument in be's device memory
+// except mean/logvar/dmean/dlogvar (host, latent-sized): the model and grads must be on be->device
+// (v->mirror with be = v->mirror_ops after mlb_vae_use_device; grads from mlb_vae_create_on), and
+// so are the caches. For a trainer that keeps the weights, their gradients and the optimizer state
+// on the GPU (be->adam over grads->params) instead of crossing per step.
+struct mlb_backend;
+// A zeroed model of cfg in be's device memory (e.g. the gradients of a mirror). Free with mlb_vae_free.
+mlb_status mlb_vae_create_on(const struct mlb_backend* be, const mlb_vae_config* cfg, mlb_vae** out);
+mlb_status mlb_vae_encode_on(const struct mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
+                             float* mean, float* logvar, mlb_vae_cache* cache);
+mlb_status mlb_vae_encode_backward_params_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
+                                             const float* dmean, const float* dlogvar, float* dimage, mlb_vae* grads);
+mlb_status mlb_vae_decode_train_on(const struct mlb_backend* be, const mlb_vae* v, const float* z, int N, int h, int w,
+                                   float* image, mlb_vae_dec_cache* cache);
+mlb_status mlb_vae_decode_backward_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_dec_cache* cache,
+                                      const float* dimage, float* dz, mlb_vae* grads);
 
 // ---- loading (float) ------------------------------------------------------------------------------
 // `path`: a diffusers vae/ folder, a diffusers model folder (vae/ inside), a single-file checkpoint

@@ -88,6 +88,18 @@ struct mlb_backend {
     mlb_status (*shade_backward)(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
                                  const float* kd, const float* ks, const float* kr, const float* n, const float* v,
                                  int N, const void* handle, float rotation, mlb_fresnel fresnel);
+    // ---- the UNet's backward (unet_train.h): what its forward keeps and the glue ops' backwards ----
+    // layernorm that also writes the statistics mean/rstd [N] (either may be NULL): the same out bits
+    mlb_status (*layernorm_stats)(float* out, float* mean, float* rstd, const float* in, const float* w,
+                                  const float* b, int N, int C, float eps);
+    mlb_status (*layernorm_backward)(float* din, float* dw, float* db, const float* dout, const float* in,
+                                     const float* w, const float* mean, const float* rstd, int N, int C);
+    // din [rows, 2 C4] += d geglu: din[t,j] += dout[t,j] gelu(g), din[t,C4+j] += dout[t,j] h gelu'(g)
+    mlb_status (*geglu_backward)(float* din, const float* dout, const float* in, int rows, int C4);
+    // din [N, C, H, W] += the 2x2 block sums of dout [N, C, 2H, 2W]
+    mlb_status (*upsample_nearest2x_backward)(float* din, const float* dout, int N, int C, int H, int W);
+    // dv[n,c] += sum_i dx[n,c,i] (i < HW; summed in order, in double): add_channel's backward
+    mlb_status (*add_channel_backward)(float* dv, const float* dx, int N, int C, int HW);
 };
 
 // The table of device d (CUDA ops at GEMM precision prec; the CPU's bf16 table for MLB_GEMM_BF16,

@@ -128,6 +128,12 @@ mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW);
 mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate);
 mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4);   // out[t,j] = in[t,j] gelu(in[t,C4+j])
 mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W);
+// Their backwards (+=), the CPU's contracts (backend.h): GEGLU's per element; the upsample's 2x2
+// block sums in the CPU's order; add_channel's per-channel sums by one warp per (n, c) in double
+// (a fixed order: deterministic, not the CPU's bits).
+mlb_status mlb_cuda_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4);
+mlb_status mlb_cuda_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W);
+mlb_status mlb_cuda_add_channel_backward(float* dv, const float* dx, int N, int C, int HW);
 // rows x width floats from src (row pitch spitch) to dst (pitch dpitch)
 mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows);
 

@@ -150,6 +150,9 @@ mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW) 
 mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) { NO_CUDA; }
 mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4) { NO_CUDA; }
 mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) { NO_CUDA; }
+mlb_status mlb_cuda_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4) { NO_CUDA; }
+mlb_status mlb_cuda_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W) { NO_CUDA; }
+mlb_status mlb_cuda_add_channel_backward(float* dv, const float* dx, int N, int C, int HW) { NO_CUDA; }
 mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
     NO_CUDA;
 }

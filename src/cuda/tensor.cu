@@ -112,3 +112,70 @@ extern "C" mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float*
                                      rows, cudaMemcpyDeviceToDevice, 0));
     return MLB_OK;
 }
+
+// ---- backwards of the glue (the UNet's training: unet_train.h) ----
+// din [rows, 2 C4] += d(h gelu(g)): one thread per (t, j) writes din[t, j] and din[t, C4 + j].
+__global__ void geglu_backward_kernel(float* din, const float* dout, const float* in, size_t rows, int C4) {
+    size_t n = rows * (size_t)C4;
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
+        size_t t = i / C4, j = i - t * C4;
+        const float* row = in + t * 2 * C4;
+        float* g = din + t * 2 * C4;
+        float d = dout[i], gate = row[C4 + j];
+        g[j] += d * dev_act(MLB_ACT_GELU, gate);
+        g[C4 + j] += d * row[j] * dev_act_d1(MLB_ACT_GELU, gate);
+    }
+}
+
+extern "C" mlb_status mlb_cuda_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4) {
+    if (rows < 0 || C4 < 0) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_geglu_backward: bad shape %d x %d", rows, C4);
+    size_t n = (size_t)rows * C4;
+    if (!n) return MLB_OK;
+    geglu_backward_kernel<<<mlb_grid(n, 256), 256>>>(din, dout, in, (size_t)rows, C4);
+    MLB_CUDA_LAUNCHED("geglu_backward_kernel");
+    return MLB_OK;
+}
+
+// din [N, C, H, W] += the 2x2 block sums of dout [N, C, 2H, 2W], added as the CPU adds them
+__global__ void upsample2x_backward_kernel(float* din, const float* dout, size_t planes, int H, int W) {
+    size_t n = planes * H * W;
+    int W2 = 2 * W;
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
+        size_t p = i / ((size_t)H * W);
+        int rem = (int)(i - p * H * W), y = rem / W, x = rem - y * W;
+        const float* r0 = dout + (p * 2 * H + 2 * y) * W2;
+        const float* r1 = r0 + W2;
+        din[i] += (r0[2 * x] + r0[2 * x + 1]) + (r1[2 * x] + r1[2 * x + 1]);
+    }
+}
+
+extern "C" mlb_status mlb_cuda_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W) {
+    if (N < 0 || C < 0 || H < 0 || W < 0) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_upsample_nearest2x_backward: bad shape");
+    size_t n = (size_t)N * C * H * W;
+    if (!n) return MLB_OK;
+    upsample2x_backward_kernel<<<mlb_grid(n, 256), 256>>>(din, dout, (size_t)N * C, H, W);
+    MLB_CUDA_LAUNCHED("upsample2x_backward_kernel");
+    return MLB_OK;
+}
+
+// dv[r] += sum_i dx[r, i]: one warp per row r, strided partial sums in double, then a fixed
+// butterfly (the same order every run)
+__global__ void add_channel_backward_kernel(float* dv, const float* dx, size_t rows, int HW) {
+    size_t warp = ((size_t)blockIdx.x * blockDim.x + threadIdx.x) / 32;
+    int lane = threadIdx.x & 31;
+    if (warp >= rows) return;
+    const float* p = dx + warp * HW;
+    double s = 0;
+    for (int i = lane; i < HW; i += 32) s += p[i];
+    for (int o = 16; o > 0; o >>= 1) s += __shfl_xor_sync(0xffffffffu, s, o);
+    if (lane == 0) dv[warp] += (float)s;
+}
+
+extern "C" mlb_status mlb_cuda_add_channel_backward(float* dv, const float* dx, int N, int C, int HW) {
+    if (N < 0 || C < 0 || HW < 0) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_add_channel_backward: bad shape");
+    size_t rows = (size_t)N * C;
+    if (!rows) return MLB_OK;
+    add_channel_backward_kernel<<<(unsigned)((rows * 32 + 255) / 256), 256>>>(dv, dx, rows, HW);
+    MLB_CUDA_LAUNCHED("add_channel_backward_kernel");
+    return MLB_OK;
+}

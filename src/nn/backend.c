@@ -99,6 +99,45 @@ static mlb_status cpu_upsample(float* out, const float* in, int N, int C, int H,
     return MLB_OK;
 }
 
+static mlb_status cpu_layernorm_stats(float* out, float* mean, float* rstd, const float* in, const float* w,
+                                      const float* b, int N, int C, float eps) {
+    layernorm_forward(out, mean, rstd, in, w, b, N, C, eps);
+    return MLB_OK;
+}
+static mlb_status cpu_layernorm_backward(float* din, float* dw, float* db, const float* dout, const float* in,
+                                         const float* w, const float* mean, const float* rstd, int N, int C) {
+    layernorm_backward(din, dw, db, dout, in, w, mean, rstd, N, C);
+    return MLB_OK;
+}
+static mlb_status cpu_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4) {
+#pragma omp parallel for schedule(static)
+    for (int t = 0; t < rows; t++) {
+        const float* row = in + (size_t)t * 2 * C4;
+        const float* d = dout + (size_t)t * C4;
+        float* g = din + (size_t)t * 2 * C4;
+        for (int j = 0; j < C4; j++) {
+            float gate = row[C4 + j];
+            g[j] += d[j] * mlb_act(MLB_ACT_GELU, gate);
+            g[C4 + j] += d[j] * row[j] * mlb_act_d1(MLB_ACT_GELU, gate);
+        }
+    }
+    return MLB_OK;
+}
+static mlb_status cpu_upsample_backward(float* din, const float* dout, int N, int C, int H, int W) {
+    upsample_nearest2x_backward(din, dout, N, C, H, W);
+    return MLB_OK;
+}
+static mlb_status cpu_add_channel_backward(float* dv, const float* dx, int N, int C, int HW) {
+#pragma omp parallel for schedule(static)
+    for (long r = 0; r < (long)N * C; r++) {
+        const float* p = dx + (size_t)r * HW;
+        double s = 0;
+        for (int i = 0; i < HW; i++) s += p[i];
+        dv[r] += (float)s;
+    }
+    return MLB_OK;
+}
+
 static mlb_status cpu_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act) {
     activation_backward(din, dout, in, n, act);
     return MLB_OK;
@@ -214,7 +253,8 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
     {MLB_DEVICE_CPU, prec, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy, linear, \
      linear_bwd, conv, conv_bwd, cpu_groupnorm, groupnorm_backward, cpu_layernorm, cpu_activation, sdpa,          \
      sdpa_bwd, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, \
-     cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward}
+     cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward, \
+     cpu_layernorm_stats, cpu_layernorm_backward, cpu_geglu_backward, cpu_upsample_backward, cpu_add_channel_backward}
 static const mlb_backend cpu_table =
     CPU_TABLE(MLB_GEMM_FP32, cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_sdpa,
               cpu_sdpa_backward);
@@ -310,7 +350,9 @@ static mlb_status cuda_shade_backward(float* dkd, float* dks, float* dkr, float*
      mlb_cuda_groupnorm_backward, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, cuda_sdpa_backward,     \
      mlb_cuda_add, mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x,  \
      mlb_cuda_activation_backward, mlb_cuda_hashgrid_forward, mlb_cuda_hashgrid_backward, mlb_cuda_adam_update,   \
-     cuda_light_upload, cuda_light_free, cuda_shade, cuda_shade_backward}
+     cuda_light_upload, cuda_light_free, cuda_shade, cuda_shade_backward, mlb_cuda_layernorm_forward,            \
+     mlb_cuda_layernorm_backward, mlb_cuda_geglu_backward, mlb_cuda_upsample_nearest2x_backward,                \
+     mlb_cuda_add_channel_backward}
 static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE(MLB_GEMM_TF32),
                                            CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
 

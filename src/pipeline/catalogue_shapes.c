@@ -206,8 +206,8 @@ static float P(params* q, float lo, float hi) {
     return lo + (hi - lo) * (float)u;
 }
 
-// A quarter ellipse from (r0, y0) to (r1, y1): the first leg along y, then r (bulging outwards when
-// out = 1), as n points appended to prof at *np (excluding the start).
+// A quarter ellipse from (r0, y0) to (r1, y1), n points appended to prof at *np (the start excluded):
+// out = 1 leaves along y first (a dome, a trumpet), out = 0 along r first (a bowl's underside).
 static void arc(float (*prof)[2], int* np, float r0, float y0, float r1, float y1, int n, int out) {
     for (int i = 1; i <= n; i++) {
         double a = M_PI / 2 * i / n;
@@ -226,7 +226,7 @@ static void goblet(builder* b, params* q) {
     PT(0, 0); PT(foot, 0); PT(foot, 0.06f); PT(stem_r * 1.6f, 0.14f); PT(stem_r, 0.22f);
     float y0 = 0.22f + stem_h;
     PT(stem_r * 0.9f, 0.22f + 0.5f * stem_h); PT(stem_r, y0);
-    arc(prof, &np, stem_r, y0, cup_r, y0 + cup_h * (0.4f + 0.4f * bulge), 8, 1);
+    arc(prof, &np, stem_r, y0, cup_r, y0 + cup_h * (0.4f + 0.4f * bulge), 8, 0);   // out, then up: a bowl
     float top = y0 + cup_h;
     PT(cup_r * 0.97f, top); PT(cup_r * 0.8f, top); PT(cup_r * 0.45f, top - 0.12f); PT(0, top - 0.14f);
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
@@ -251,7 +251,7 @@ static void vase(builder* b, params* q) {
 }
 
 static void bowl(builder* b, params* q) {
-    float R = P(q, 0.7f, 1.0f), h = R * P(q, 0.35f, 0.6f), foot = R * P(q, 0.3f, 0.45f), t = 0.06f;
+    float R = P(q, 0.7f, 1.0f), h = R * P(q, 0.45f, 0.65f), foot = R * P(q, 0.3f, 0.45f), t = 0.06f;
     float prof[64][2];
     int np = 0;
     PT(0, 0); PT(foot, 0); PT(foot, 0.06f);
@@ -312,7 +312,7 @@ static void mushroom(builder* b, params* q) {
     int np = 0;
     PT(0, 0); PT(s * 1.3f, 0); PT(s * 1.25f, 0.04f); PT(s, h * 0.4f); PT(s * 0.95f, h);
     PT(c * 0.9f, h + 0.04f); PT(c, h + 0.1f);   // gills, the cap's edge
-    arc(prof, &np, c, h + 0.1f, 0, h + 0.1f + ch, 12, 0);
+    arc(prof, &np, c, h + 0.1f, 0, h + 0.1f + ch, 12, 1);   // up, then in: a dome
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
 }
 

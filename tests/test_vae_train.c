@@ -5,6 +5,7 @@
 // central finite differences. In float: against double, decode_train == decode bitwise, the same
 // bits on 1 and 2 threads, the image gradient of the params variant == mlb_vae_encode_backward's.
 #include <stdint.h>
+#include "matlaber/device.h"
 #include "matlaber/error.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
@@ -250,8 +251,45 @@ TEST(decoder_backward_fd) {
     mlb_vae_free(v);
 }
 
+// The float path on a GPU (mlb_vae_use_device, fp32 GEMMs): the same gradients as the CPU's within
+// float rounding, the host grads receiving the device's sums.
+TEST(gpu_matches_cpu) {
+    if (mlb_cuda_device_count() < 1) SKIP("no GPU");
+    setup();
+    mlb_vae *v = tiny_vae(), *gc = NULL, *gg = NULL;
+    REQUIRE(v && mlb_vae_create(&v->cfg, &gc) == MLB_OK && mlb_vae_create(&v->cfg, &gg) == MLB_OK);
+    float imf[NI], r1f[NZ], r2f[NZ], m[NZ], zf[NZ], rf[NI], a[NI], b[NI];
+    float dic[NI] = {0}, dig[NI] = {0}, dzc[NZ] = {0}, dzg[NZ] = {0};
+    for (int i = 0; i < NI; i++) { imf[i] = (float)img[i]; rf[i] = (float)rimg[i]; }
+    for (int i = 0; i < NZ; i++) { r1f[i] = (float)r1[i]; r2f[i] = (float)r2[i]; zf[i] = (float)zlat[i]; }
+    for (int pass = 0; pass < 2; pass++) {   // 0: the CPU, 1: the GPU
+        if (pass) REQUIRE(mlb_vae_use_device(v, MLB_DEVICE_CUDA, MLB_GEMM_FP32) == MLB_OK);
+        mlb_vae* g = pass ? gg : gc;
+        mlb_vae_cache ec = {0};
+        ec.train = 1;
+        mlb_vae_dec_cache dc = {0};
+        REQUIRE(mlb_vae_encode(v, imf, N, H, W, m, NULL, &ec) == MLB_OK);
+        REQUIRE(mlb_vae_encode_backward_params(v, &ec, r1f, r2f, pass ? dig : dic, g) == MLB_OK);
+        REQUIRE(mlb_vae_decode_train(v, zf, N, LAT, LAT, pass ? b : a, &dc) == MLB_OK);
+        REQUIRE(mlb_vae_decode_backward(v, &dc, rf, pass ? dzg : dzc, g) == MLB_OK);
+        CHECK(!pass || (ec.device == MLB_DEVICE_CUDA && dc.device == MLB_DEVICE_CUDA));
+        mlb_vae_cache_free(&ec);
+        mlb_vae_dec_cache_free(&dc);
+    }
+    double ep = 0, gm = 0, ei = 0, ez = 0, eo = 0;
+    for (size_t k = 0; k < v->n_params; k++) gm = fmax(gm, fabs(gc->params[k]));
+    for (size_t k = 0; k < v->n_params; k++) ep = fmax(ep, fabs(gc->params[k] - gg->params[k]) / gm);
+    for (int i = 0; i < NI; i++) { ei = fmax(ei, fabs(dic[i] - dig[i])); eo = fmax(eo, fabs(a[i] - b[i])); }
+    for (int i = 0; i < NZ; i++) ez = fmax(ez, fabs(dzc[i] - dzg[i]));
+    printf("  GPU vs CPU: weight gradients %.3g (relative to max %.3g), dimage %.3g, dz %.3g, image %.3g\n", ep, gm,
+           ei, ez, eo);
+    CHECK(ep < 1e-4 && ei < 1e-4 && ez < 1e-4 && eo < 1e-4);
+    mlb_vae_free(gc); mlb_vae_free(gg); mlb_vae_free(v);
+}
+
 int main(void) {
     RUN(encoder_weight_gradients_fd);
     RUN(decoder_backward_fd);
+    RUN(gpu_matches_cpu);
     return test_summary();
 }

@@ -98,6 +98,11 @@ static inline mlb_status op_upsample(vae_ops be, real* out, const real* in, int 
     upsample_nearest2x_forward_f64(out, in, N, C, H, W);
     return MLB_OK;
 }
+static inline mlb_status op_upsample_bwd_acc(vae_ops be, real* din, const real* dout, int N, int C, int H, int W) {
+    (void)be;
+    upsample_nearest2x_backward_f64(din, dout, N, C, H, W);
+    return MLB_OK;
+}
 #else
 typedef const mlb_backend* vae_ops;
 #define CPU_OPS mlb_backend_cpu()
@@ -149,6 +154,9 @@ static inline mlb_status op_transpose(vae_ops be, real* out, const real* in, int
 static inline mlb_status op_upsample(vae_ops be, real* out, const real* in, int N, int C, int H, int W) {
     return be->upsample_nearest2x(out, in, N, C, H, W);
 }
+static inline mlb_status op_upsample_bwd_acc(vae_ops be, real* din, const real* dout, int N, int C, int H, int W) {
+    return be->upsample_nearest2x_backward(din, dout, N, C, H, W);
+}
 #endif
 
 // Carving a buffer into tensors: p NULL counts only.
@@ -189,17 +197,11 @@ static inline void plan_act(vae_plan* p, int N, int C, int H, int W) {
 }
 
 // din [N, C, H, W] = the sum of each 2x2 block of dout [N, C, 2H, 2W] (nearest 2x upsampling's
-// backward; written, not accumulated). The op tables have no such op, so it is composed of exact
-// ones that every device has: view dout as [rows, 2] pairs along x, transpose to [2, rows] and add
-// the halves; the same along y. t: scratch of dout's size (4NCHW).
+// backward; written, not accumulated), through the op table's upsample backward. t: unused.
 static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout, real* t, int N, int C, int H, int W) {
-    const size_t q = (size_t)N * C * H * W;   // din's size; dout holds 4q
-    MLB_TRY(op_transpose(be, t, dout, 1, (int)(2 * q), 2, 0));    // [2q (y, x/2), 2] -> [2, 2q]
-    MLB_TRY(op_add(be, t, t + 2 * q, 2 * q));                      // t[0, 2q) = [N*C*H, 2 (y), W] x-pair sums
-    MLB_TRY(op_transpose(be, t + 2 * q, t, N * C * H, 2, W, 0));   // -> [N*C*H, W, 2]
-    MLB_TRY(op_transpose(be, t, t + 2 * q, 1, (int)q, 2, 0));      // -> [2, q]
-    MLB_TRY(op_copy(be, din, t, q));
-    return op_add(be, din, t + q, q);
+    (void)t;
+    MLB_TRY(op_zero(be, din, (size_t)N * C * H * W));
+    return op_upsample_bwd_acc(be, din, dout, N, C, H, W);
 }
 
 #define LOGVAR_MIN (-30.0)

@@ -113,5 +113,9 @@ void mlb_losslog_close(mlb_losslog* l);   // NULL is fine
 // colour per stage, raw values light with a moving average on top, log-y when all values are
 // positive and span more than two decades. NaN/Inf values are skipped.
 mlb_status mlb_losslog_plot(const char* csv_path, const char* png_path);
+// The same with the stages' names (stage k: stage_names[k] when k < n_names; the pipeline's plot
+// names 0 geometry and 1 appearance).
+mlb_status mlb_losslog_plot_named(const char* csv_path, const char* png_path, const char* const* stage_names,
+                                  int n_names);
 
 #endif

@@ -154,6 +154,12 @@ void mlb_losslog_close(mlb_losslog* l) {
 #define MAX_STAGES 8
 
 mlb_status mlb_losslog_plot(const char* csv_path, const char* png_path) {
+    static const char* const pipeline_stages[2] = {"geometry", "appearance"};   // guidance.h
+    return mlb_losslog_plot_named(csv_path, png_path, pipeline_stages, 2);
+}
+
+mlb_status mlb_losslog_plot_named(const char* csv_path, const char* png_path, const char* const* stage_names,
+                                  int n_names) {
     char* text = NULL;
     size_t n = 0;
     MLB_TRY(mlb_read_file(csv_path, &text, &n, LOSSLOG_MAX_BYTES));
@@ -251,8 +257,7 @@ mlb_status mlb_losslog_plot(const char* csv_path, const char* png_path) {
             double* y = ys + (size_t)ns * (rows ? rows : 1);
             size_t cnt = 0;
             for (size_t r = 0; r < rows; r++) { y[r] = stage[r] == k ? val[r * nc + c] : NAN; cnt += stage[r] == k; }
-            // the pipeline's stages by name (guidance.h: 0 geometry, 1 appearance)
-            if (k <= 1) snprintf(lab[ns], sizeof lab[ns], "%s", k == 0 ? "geometry" : "appearance");
+            if (k < n_names && stage_names[k]) snprintf(lab[ns], sizeof lab[ns], "%s", stage_names[k]);
             else snprintf(lab[ns], sizeof lab[ns], "stage %d", k);
             int sm = (int)(cnt / 50);
             ser[ns] = (mlb_plot_series){xs, y, (int)rows, {0, 0, 0}, lab[ns], sm > 1 ? (sm > 100 ? 100 : sm) : 0};

@@ -17,6 +17,10 @@ int cli_parse_long(const char* text, long lo, long hi, long* out);
 int cli_parse_double(const char* text, double lo, double hi, double* out);
 // ../shared/data beside the source tree, or $MLB_SHARED_DATA; NULL when absent.
 const char* cli_shared_data(void);
+// The project's own diffusion model (docs/sd_train.md): $MATLABER_MODEL, else models/matlaber-tiny of
+// the source tree when it holds a finished model; NULL when neither.
+#define MLB_DEFAULT_MODEL "matlaber-tiny"
+const char* cli_default_model(void);
 // Shown in --help: the getopt option table as "  --name ARG  help".
 typedef struct { const char* name; int has_arg; int val; const char* arg; const char* help; } cli_option;
 void cli_print_options(FILE* out, const cli_option* opts);
@@ -32,6 +36,7 @@ int cmd_render(int argc, char** argv);
 int cmd_relight(int argc, char** argv);
 int brdf_swatch_main(int argc, char** argv);
 int cmd_sd(int argc, char** argv);
+int sd_train_main(int argc, char** argv);
 int cmd_generate(int argc, char** argv);
 int cmd_fit(int argc, char** argv);
 int cmd_relight_run(int argc, char** argv);

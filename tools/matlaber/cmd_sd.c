@@ -236,13 +236,15 @@ done:
 int cmd_sd(int argc, char** argv) {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         FILE* out = argc < 2 ? stderr : stdout;
-        fprintf(out, "usage: matlaber sd <tokenize|txt2img> [options]\n\n"
+        fprintf(out, "usage: matlaber sd <tokenize|txt2img|train> [options]\n\n"
                      "  tokenize  text -> the 77 CLIP token ids of the SD text encoders\n"
-                     "  txt2img   text -> image: DDIM sampling with classifier-free guidance\n");
+                     "  txt2img   text -> image: DDIM sampling with classifier-free guidance\n"
+                     "  train     the project's own small model, trained on the procedural catalogue\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }
     const char* sub = argv[1];
     if (strcmp(sub, "tokenize") == 0) return tokenize_main(argc - 1, argv + 1);
     if (strcmp(sub, "txt2img") == 0) return txt2img_main(argc - 1, argv + 1);
+    if (strcmp(sub, "train") == 0) return sd_train_main(argc - 1, argv + 1);
     return cli_usage_error("sd", "unknown subcommand '%s'", sub);
 }

@@ -1,0 +1,260 @@
+// The whole `matlaber sd train` run (include/matlaber/sd_train.h): data, text side, VAE, latent
+// scale, UNet, the model folder; and the optimiser state shared by the two loops.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/fileio.h"
+#include "matlaber/log.h"
+#include "matlaber/progress.h"
+#include "matlaber/sd_folder.h"
+#include "matlaber/unet_random.h"
+#include "sd_train_internal.h"
+
+#define STATE_FORMAT "matlaber-sd-train-state"
+
+// ---- optimiser state -----------------------------------------------------------------------------
+mlb_status mlb_train_params_init(const mlb_backend* be, mlb_train_params* P, const char* out_dir, const char* name,
+                                 int stage, float* params, float* grads, size_t n, long total) {
+    P->name = name;
+    P->stage = stage;
+    P->params = params;
+    P->grads = grads;
+    P->n = n;
+    P->step = 0;
+    P->total = total;
+    P->m = P->v = NULL;
+    snprintf(P->path, sizeof P->path, "%s/train/%s.safetensors", out_dir, name);
+    MLB_TRY(be->alloc(&P->m, n));
+    MLB_TRY(be->alloc(&P->v, n));
+    MLB_TRY(be->zero(P->m, n));
+    return be->zero(P->v, n);
+}
+
+void mlb_train_params_free(const mlb_backend* be, mlb_train_params* P) {
+    be->release(P->m);
+    be->release(P->v);
+    P->m = P->v = NULL;
+}
+
+mlb_status mlb_train_params_step(const mlb_backend* be, mlb_train_params* P, double lr, long step, long total) {
+    long warm = total / 50 > 1 ? total / 50 : 1;
+    double f = step < warm ? (double)(step + 1) / warm
+                           : 0.1 + 0.45 * (1.0 + cos(M_PI * (double)(step - warm) / (double)(total > warm ? total - warm : 1)));
+    mlb_adam_config a = mlb_adamw_default(lr * f);
+    return be->adam(P->params, P->grads, P->m, P->v, P->n, &a, step + 1);
+}
+
+long mlb_train_fit_steps(long steps, long first, long step, double t_phase, double budget) {
+    if (!(budget > 0) || step - first < 20) return steps;
+    double per = (mlb_now_seconds() - t_phase) / (double)(step - first);
+    long fit = first + (long)(budget / per);
+    if (fit < step + 1) fit = step + 1;
+    if (fit < steps) mlb_log(MLB_LOG_INFO, "sd train: %.1f ms a step: %ld steps fit in the time limit (of %ld asked)", per * 1e3, fit, steps);
+    return fit < steps ? fit : steps;
+}
+
+// The three vectors through the host (the checkpoint writer reads host memory).
+mlb_status mlb_train_params_save(const mlb_backend* be, const mlb_train_params* P, mlb_losslog* log) {
+    (void)log;
+    float* h = malloc(3 * P->n * sizeof(float));
+    if (!h) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the training state", P->path);
+    mlb_status s = be->download(h, P->params, P->n);
+    if (!s) s = be->download(h + P->n, P->m, P->n);
+    if (!s) s = be->download(h + 2 * P->n, P->v, P->n);
+    mlb_ckpt_tensor t[3] = {{"params", h, 1, {(int64_t)P->n}}, {"adam_m", h + P->n, 1, {(int64_t)P->n}},
+                            {"adam_v", h + 2 * P->n, 1, {(int64_t)P->n}}};
+    mlb_ckpt_meta meta = {0};
+    if (!s) s = mlb_ckpt_meta_set(&meta, "format", STATE_FORMAT);
+    if (!s) s = mlb_ckpt_meta_set_i64(&meta, "step", P->step);
+    if (!s) s = mlb_ckpt_meta_set_i64(&meta, "total", P->total);
+    if (!s) s = mlb_checkpoint_save(P->path, t, 3, &meta);
+    mlb_ckpt_meta_free(&meta);
+    free(h);
+    if (!s) mlb_log(MLB_LOG_DEBUG, "saved %s (step %ld)", P->path, P->step);
+    return s;
+}
+
+mlb_status mlb_train_params_load(const mlb_backend* be, mlb_train_params* P) {
+    if (!mlb_is_file(P->path)) return MLB_ERR_NOT_FOUND;
+    float* h = malloc(3 * P->n * sizeof(float));
+    if (!h) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the training state", P->path);
+    mlb_ckpt_tensor t[3] = {{"params", h, 1, {(int64_t)P->n}}, {"adam_m", h + P->n, 1, {(int64_t)P->n}},
+                            {"adam_v", h + 2 * P->n, 1, {(int64_t)P->n}}};
+    mlb_ckpt_meta meta = {0};
+    int64_t step = 0;
+    mlb_status s = mlb_checkpoint_load(P->path, t, 3, &meta);
+    const char* fmt = s ? NULL : mlb_ckpt_meta_get(&meta, "format");
+    if (!s && (!fmt || strcmp(fmt, STATE_FORMAT)))
+        s = mlb_fail(MLB_ERR_FORMAT, "%s: not a training state of `matlaber sd train`", P->path);
+    int64_t total = 0;
+    if (!s) s = mlb_ckpt_meta_get_i64(&meta, "step", &step);
+    if (!s) s = mlb_ckpt_meta_get_i64(&meta, "total", &total);
+    if (!s && total > 0 && total < P->total) P->total = (long)total;   // cut by a time limit
+    if (!s && (step < 0 || step > P->total)) s = mlb_fail(MLB_ERR_FORMAT, "%s: step %lld outside 0..%ld", P->path, (long long)step, P->total);
+    if (!s) s = be->upload(P->params, h, P->n);
+    if (!s) s = be->upload(P->m, h + P->n, P->n);
+    if (!s) s = be->upload(P->v, h + 2 * P->n, P->n);
+    if (!s) P->step = (long)step;
+    mlb_ckpt_meta_free(&meta);
+    free(h);
+    return s;
+}
+
+// ---- the run -------------------------------------------------------------------------------------
+// The UNet's initial weights: the random-weight writer's values (unet_random.h), the last conv zeroed
+// so that the first prediction is 0 (the loss starts at E eps^2 = 1, not above).
+static void unet_init(mlb_unet* u, uint64_t seed) {
+    size_t n = 0, off = 0;
+    if (mlb_unet_tensor_specs(&u->cfg, NULL, 0, &n)) return;
+    mlb_unet_tensor_spec* sp = calloc(n, sizeof *sp);
+    if (!sp) return;
+    mlb_unet_tensor_specs(&u->cfg, sp, n, &n);
+    for (size_t i = 0; i < n; i++) {
+        mlb_unet_random_values(&sp[i], i, seed, 1.0f, u->params + off);
+        off += sp[i].n;
+    }
+    free(sp);
+    size_t nw = (size_t)u->cfg.out_channels * u->cfg.block_out[0] * 9;
+    memset(u->conv_out_w, 0, nw * sizeof(float));
+    memset(u->conv_out_b, 0, (size_t)u->cfg.out_channels * sizeof(float));
+}
+
+// Mean 0 and the standard deviation of the appearance latents -> the scale that gives them unit
+// variance, as SD's 0.18215 does for its VAE.
+static float latent_scale(const float* z, size_t n) {
+    double s = 0, s2 = 0;
+    for (size_t i = 0; i < n; i++) { s += z[i]; s2 += (double)z[i] * z[i]; }
+    double mean = s / (double)n, var = s2 / (double)n - mean * mean;
+    return var > 1e-12 ? (float)(1.0 / sqrt(var)) : 1.0f;
+}
+
+mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
+    MLB_TRY(mlb_sd_train_check(c));
+    char p[4200];
+    snprintf(p, sizeof p, "%s/train", c->out_dir);
+    MLB_TRY(mlb_mkdir_p(p));
+    double t0 = mlb_now_seconds();
+    mlb_sd_dataset d;
+    mlb_progress pr;
+    mlb_progress_begin(&pr, stderr, "render", c->n_images, "image");
+    MLB_TRY(mlb_sd_dataset_render(&d, c->n_images, c->res, c->seed, &pr));
+    mlb_progress_end(&pr, NULL);
+    mlb_log(MLB_LOG_INFO, "sd train: %d catalogue images at %dx%d rendered in %.1f s", d.n, d.res, d.res, mlb_now_seconds() - t0);
+    float* captions = NULL;
+    mlb_vae *hv = NULL, *dv = NULL, *gv = NULL;
+    mlb_unet *hu = NULL, *du = NULL, *gu = NULL;
+    mlb_train_params PV = {0}, PU = {0};
+    mlb_losslog* log = NULL;
+    float *lat_rgb = NULL, *lat_geo = NULL;
+    size_t nl = (size_t)d.n * 4 * d.lat * d.lat;
+    mlb_status s = mlb_sd_train_text(c, &captions);
+    // the VAE: host model (initial values, the file written), device model, device gradients
+    mlb_vae_config vc = c->vae;
+    vc.scaling_factor = 1.0f;
+    if (!s && c->init_dir) {   // a trained model's weights as the start
+        snprintf(p, sizeof p, "%s/vae", c->init_dir);
+        if (!(s = mlb_vae_load(p, NULL, &hv))) {
+            vc = hv->cfg;
+            vc.scaling_factor = hv->cfg.scaling_factor = 1.0f;
+        }
+    } else if (!s) {
+        s = mlb_vae_create(&vc, &hv);
+        if (!s) mlb_vae_init_random(hv, c->seed, 1.0f);
+    }
+    if (!s) s = mlb_vae_create_on(be, &vc, &dv);
+    if (!s) s = mlb_vae_create_on(be, &vc, &gv);
+    if (!s) s = be->upload(dv->params, hv->params, hv->n_params);
+    if (!s) s = mlb_train_params_init(be, &PV, c->out_dir, "vae", 0, dv->params, gv->params, dv->n_params, c->vae_steps);
+    PV.vae = dv;
+    PV.vae_grads = gv;
+    // the UNet likewise
+    mlb_unet_config uc = c->unet;
+    if (!s && c->init_dir) {
+        snprintf(p, sizeof p, "%s/unet", c->init_dir);
+        if (!(s = mlb_unet_load(p, NULL, &hu))) uc = hu->cfg;
+        if (!s && uc.context_dim != c->text.width)
+            s = mlb_fail(MLB_ERR_ARG, "sd train: --init %s: its UNet attends to %d-wide text, the text encoder is %d wide",
+                         c->init_dir, uc.context_dim, c->text.width);
+    } else if (!s) {
+        s = mlb_unet_create(&uc, MLB_DEVICE_CPU, &hu);
+        if (!s) unet_init(hu, c->seed + 1);
+    }
+    if (!s) s = be->device == MLB_DEVICE_CPU ? MLB_OK : mlb_unet_to_device(hu, be->device, &du);
+    mlb_unet* u = du ? du : hu;
+    if (!s) s = mlb_unet_create(&uc, be->device, &gu);
+    if (!s) s = mlb_train_params_init(be, &PU, c->out_dir, "unet", 1, u->params, gu->params, u->n_params, c->unet_steps);
+    PU.unet = u;
+    PU.unet_grads = gu;
+    // resume: the states that exist, the log cut where the later one stopped
+    int rstage = -1;
+    long rstep = 0;
+    if (!s && c->resume) {
+        mlb_status a = mlb_train_params_load(be, &PV), b = a == MLB_OK || a == MLB_ERR_NOT_FOUND ? mlb_train_params_load(be, &PU) : a;
+        if (a != MLB_OK && a != MLB_ERR_NOT_FOUND) s = a;
+        else if (b != MLB_OK && b != MLB_ERR_NOT_FOUND) s = b;
+        else if (b == MLB_OK) { rstage = 1; rstep = PU.step; }
+        else if (a == MLB_OK) { rstage = 0; rstep = PV.step; }
+        else rstage = 0;
+        if (!s) mlb_log(MLB_LOG_INFO, "sd train: resuming at VAE step %ld, UNet step %ld", PV.step, PU.step);
+    }
+    const char* col[1] = {"loss"};
+    snprintf(p, sizeof p, "%s/train/loss.csv", c->out_dir);
+    if (!s) s = mlb_losslog_open(&log, p, col, 1, rstage, rstep);
+    if (c->time_limit > 0) {
+        double left = c->time_limit - (mlb_now_seconds() - t0);
+        PV.deadline = mlb_now_seconds() + 0.25 * (left > 0 ? left : 0);
+        PU.deadline = t0 + c->time_limit - 15.0;   // the latents, the files
+    }
+    if (!s && PV.step < PV.total) s = mlb_sd_train_vae(be, c, &d, &PV, log);
+    if (!s && PV.step == PV.total && rstage < 1) s = mlb_train_params_save(be, &PV, log);
+    int stopped = !s && PV.step < PV.total;
+    if (!s) s = be->download(hv->params, dv->params, hv->n_params);
+    // latents and their scale
+    if (!s && !stopped && (!(lat_rgb = malloc(nl * sizeof(float))) || !(lat_geo = malloc(nl * sizeof(float)))))
+        s = mlb_fail(MLB_ERR_NOMEM, "sd train: out of memory for the latents");
+    if (!s && !stopped) s = mlb_sd_encode_dataset(be, dv, &d, lat_rgb, lat_geo);
+    if (!s && !stopped) {
+        float sf = latent_scale(lat_rgb, nl);
+        for (size_t i = 0; i < nl; i++) { lat_rgb[i] *= sf; lat_geo[i] *= sf; }
+        hv->cfg.scaling_factor = sf;
+        mlb_log(MLB_LOG_INFO, "sd train: latent scale %.5f (the appearance latents' standard deviation is %.4f)", sf, 1.0 / sf);
+        snprintf(p, sizeof p, "%s/vae", c->out_dir);
+        s = mlb_mkdir_p(p);
+        char w[4300], cj[4300];
+        snprintf(w, sizeof w, "%s/diffusion_pytorch_model.safetensors", p);
+        snprintf(cj, sizeof cj, "%s/config.json", p);
+        if (!s) s = mlb_vae_save(hv, w, MLB_VAE_LAYOUT_DIFFUSERS, NULL, cj);
+    }
+    if (!s && !stopped && PU.step < PU.total) s = mlb_sd_train_unet(be, c, &d, lat_rgb, lat_geo, captions, &PU, log);
+    if (!s && !stopped) stopped = PU.step < PU.total;
+    if (!s && !stopped) s = mlb_train_params_save(be, &PU, log);
+    if (!s && stopped) {
+        mlb_log(MLB_LOG_INFO, "sd train: stopped after VAE step %ld, UNet step %ld: continue with --resume", PV.step, PU.step);
+        goto finish;
+    }
+    if (!s && du) s = be->download(hu->params, du->params, hu->n_params);
+    snprintf(p, sizeof p, "%s/unet", c->out_dir);
+    if (!s) s = mlb_unet_save_folder(hu, p);
+    if (!s) s = mlb_sd_write_index(c->out_dir);
+finish:;
+    mlb_losslog_close(log);
+    char png[4300];
+    snprintf(p, sizeof p, "%s/train/loss.csv", c->out_dir);
+    snprintf(png, sizeof png, "%s/train/loss.png", c->out_dir);
+    static const char* const phases[2] = {"VAE (MSE + KL)", "UNet (noise MSE)"};
+    if (!s) s = mlb_losslog_plot_named(p, png, phases, 2);
+    if (!s && !stopped) {
+        char dur[32];
+        mlb_log(MLB_LOG_INFO, "sd train: %s written in %s (VAE %d steps, UNet %d steps on the %s)", c->out_dir,
+                mlb_format_duration(mlb_now_seconds() - t0, dur, sizeof dur), (int)PV.total, (int)PU.total,
+                mlb_device_name(be->device));
+    }
+    mlb_train_params_free(be, &PV);
+    mlb_train_params_free(be, &PU);
+    mlb_vae_free(hv); mlb_vae_free(dv); mlb_vae_free(gv);
+    mlb_unet_free(hu); mlb_unet_free(du); mlb_unet_free(gu);
+    free(lat_rgb); free(lat_geo); free(captions);
+    mlb_sd_dataset_free(&d);
+    return s;
+}

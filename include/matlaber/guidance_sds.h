@@ -29,6 +29,8 @@ typedef struct {
     const char* negative_appearance;   // "shadow, oversaturated, low quality, unrealistic"
     int views;                         // views per step, 9
     int latent_iters;                  // geometry steps fed as 64² [normal, mask] latents, 1000
+    int latent_size;                   // those latents' size: 0 = MLB_GUIDANCE_LATENT_SIZE (64, SD at 512²);
+                                       // the VAE's latent of the render for a smaller model (res / 8)
     int view_prompts;                  // 1: the prompt's view-dependent variants (default); 0: plain
     mlb_sds_options geometry_opt;      // scale 100, t 20..500, weighting fantasia0 (its seed is ignored)
     mlb_sds_options appearance_opt;    // scale 100, t 20..980, weighting fantasia0 (its seed is ignored)

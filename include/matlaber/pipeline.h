@@ -29,6 +29,7 @@ typedef struct {
     char views_dir[MLB_PIPELINE_PATH];  // images: the views folder (docs/views.md)
     double guidance_scale;        // sds: 100
     int latent_iters;             // sds geometry: steps fed as 64² [normal, mask] latents (default: iters / 3)
+    int latent_size;              // sds geometry: their size, 0 = 64 (SD at 512²); the tiny preset: res / 8
     int view_prompts;             // sds: ", front view" etc. by the camera (1, default); 0: one prompt
     uint64_t seed;                // 0
     int views;                    // views per step: 9
@@ -73,7 +74,7 @@ mlb_pipeline_config mlb_pipeline_default(void);
 // schedule sized by measurement to finish within an hour on 2 cores with SD 1.5, bf16 GEMMs,
 // frequent checkpoints). MLB_ERR_ARG naming the presets for any other name.
 mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
-#define MLB_PIPELINE_PRESETS "paper, cpu"
+#define MLB_PIPELINE_PRESETS "paper, cpu, tiny"
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);

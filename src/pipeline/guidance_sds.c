@@ -85,7 +85,7 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
         return mlb_fail(MLB_ERR_ARG, "SDS guidance: bad batch (%d views of %dx%d)", n, W, H);
     if (stage != MLB_STAGE_GEOMETRY && stage != MLB_STAGE_APPEARANCE) return mlb_fail(MLB_ERR_ARG, "SDS guidance: stage %d", (int)stage);
     int latent = stage == MLB_STAGE_GEOMETRY && step < s->c.latent_iters;
-    const int L = MLB_GUIDANCE_LATENT_SIZE;
+    const int L = s->c.latent_size > 0 ? s->c.latent_size : MLB_GUIDANCE_LATENT_SIZE;
     int C = latent ? 4 : 3, h = latent ? L : H, w = latent ? L : W;
     size_t P = (size_t)h * w, N = (size_t)n * C * P, HW = (size_t)H * W;
     if (N > s->cap) {
@@ -152,6 +152,7 @@ static mlb_status check_config(const mlb_guidance_sds_config* c) {
     if (c->views < 1 || c->views > MLB_SDS_MAX_BATCH)
         return mlb_fail(MLB_ERR_ARG, "SDS guidance: %d views per step (1..%d)", c->views, MLB_SDS_MAX_BATCH);
     if (c->latent_iters < 0) return mlb_fail(MLB_ERR_ARG, "SDS guidance: latent_iters %d < 0", c->latent_iters);
+    if (c->latent_size < 0 || c->latent_size > 1024) return mlb_fail(MLB_ERR_ARG, "SDS guidance: latent size %d", c->latent_size);
     if (c->n_envs < 0) return mlb_fail(MLB_ERR_ARG, "SDS guidance: n_envs %d < 0", c->n_envs);
     const mlb_sds_options* o2[2] = {&c->geometry_opt, &c->appearance_opt};
     for (int k = 0; k < 2; k++) {

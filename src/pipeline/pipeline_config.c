@@ -50,6 +50,24 @@ mlb_pipeline_config mlb_pipeline_default(void) {
 
 mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
     if (!strcmp(name, "paper")) return MLB_OK;   // the defaults are the paper's
+    if (!strcmp(name, "tiny")) {
+        // The project's own model (models/matlaber-tiny, `sd train`): 128² renders, 16² latents in
+        // both geometry phases, a few views per step; docs/sd_train.md.
+        c->views = 4;
+        c->res = 128;
+        c->latent_size = 16;
+        c->latent_iters = 0;      // the model never saw raw [normal, mask] latents: VAE phase from the start
+        c->geometry_iters = 300;
+        c->appearance_iters = 200;
+        c->grid = 64;
+        c->init_iters = 200;
+        c->guidance_scale = 20.0;
+        c->env_height = 128;
+        c->cube_size = 64;
+        c->checkpoint_every = 50;
+        c->preview_every = 50;
+        return MLB_OK;
+    }
     if (strcmp(name, "cpu") != 0)
         return mlb_fail(MLB_ERR_ARG, "--preset: '%s' is not one of %s", name, MLB_PIPELINE_PRESETS);
     // Sized with bench_pipeline --sd15 --precision bf16 on 2 cores of an AMD EPYC (docs/pipeline.md,
@@ -137,6 +155,7 @@ static const field FIELDS[] = {
     FLD_OPT("coarse_to_fine", F_DOUBLE, coarse_to_fine, 0),           // added 2026-11-26; before: off
     FLD_OPT("material_smoothness_specular", F_DOUBLE, w_mat_spec, 0), // added 2026-11-26; before: kd only
     FLD_OPT("export_texture", F_INT, export_texture, 0),              // added 2026-11-26; before: no .glb
+    FLD_OPT("latent_size", F_INT, latent_size, 0),                    // added 2026-11-27; before: 64
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
 };
 #undef FLD

@@ -68,6 +68,17 @@ const char* cli_shared_data(void) {
     return NULL;
 }
 
+const char* cli_default_model(void) {
+    static char path[4200];
+    const char* env = getenv("MATLABER_MODEL");
+    if (env && env[0]) return env;
+    snprintf(path, sizeof path, "%s/models/%s/model_index.json", MLB_SOURCE_DIR, MLB_DEFAULT_MODEL);
+    struct stat st;
+    if (stat(path, &st) != 0) return NULL;
+    snprintf(path, sizeof path, "%s/models/%s", MLB_SOURCE_DIR, MLB_DEFAULT_MODEL);
+    return path;
+}
+
 void cli_print_options(FILE* out, const cli_option* o) {
     for (; o->name; o++) {
         char left[64];

@@ -11,11 +11,13 @@
 #include "matlaber/views.h"
 
 static const cli_option options[] = {
-    {"preset", 1, 'Q', "NAME", "generate: paper (default: the paper's schedule, 9 views at 512², for a GPU) or cpu\n"
+    {"preset", 1, 'Q', "NAME", "generate: paper (default: the paper's schedule, 9 views at 512², for a GPU), tiny (the\n"
+                               "                           project's own model: 4 views at 128², 16² latents) or cpu\n"
                                "                           (1 view at 256², a short schedule, bf16: within an hour on 2 cores\n"
                                "                           with SD 1.5); options after it override it (docs/pipeline.md)"},
     {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
-    {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder)"},
+    {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"
+                              "                           project's own model (models/matlaber-tiny or $MATLABER_MODEL) with --preset tiny"},
     {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
     {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
     {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
@@ -92,6 +94,24 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--preset") && i + 1 < argc) preset = argv[++i];
         else if (!strncmp(argv[i], "--preset=", 9)) preset = argv[i] + 9;
+    }
+    // no -m: the project's own model, with its preset unless another is named
+    int own_model = 0;
+    if (!is_fit) {
+        own_model = 1;
+        for (int i = 1; i < argc; i++)
+            if (!strcmp(argv[i], "-m") || !strcmp(argv[i], "--model") || !strncmp(argv[i], "--model=", 8) ||
+                !strcmp(argv[i], "--resume") || !strncmp(argv[i], "--resume=", 9) || !strcmp(argv[i], "-h") ||
+                !strcmp(argv[i], "--help"))
+                own_model = 0;
+        if (own_model) {
+            const char* m = cli_default_model();
+            if (!m) return cli_usage_error(command, "-m MODEL is required: no Stable Diffusion weights given and the project's own "
+                                           "model is not there (train it: matlaber sd train -o models/%s; docs/sd_train.md)",
+                                           MLB_DEFAULT_MODEL);
+            snprintf(c.model, sizeof c.model, "%s", m);
+            if (!preset) preset = "tiny";
+        }
     }
     if (preset) {
         if (is_fit) return cli_usage_error(command, "--preset is an option of generate");

@@ -12,6 +12,10 @@
 #                                        dependency is missing, builds the CUDA tests (and bench_cuda),
 #                                        runs them and prints a table. Logs go to $OUT when set.
 #                                        --memcheck runs each test under compute-sanitizer memcheck.
+#   scripts/gpu-parity.sh --train [...]   ON THE GPU MACHINE: also builds matlaber and trains the project's
+#                                        own model there (`sd train`, arguments from MLB_TRAIN_ARGS), then
+#                                        samples it (`sd txt2img`); the model folder comes back as
+#                                        $OUT/own-model.tar.gz (split in 15 MB parts when larger).
 # Through the device tool:  run(command="bash scripts/gpu-parity.sh --bench", carry=["build-gpu-debs"])
 # Exit status: 0 when every test passed, 1 when one failed or did not run, 2 for a setup error.
 set -uo pipefail
@@ -33,13 +37,15 @@ bench=0
 memcheck=0
 pipeline=0
 cudnn_baseline=0
+train=0
 for a in "$@"; do
   case $a in
     --bench) bench=1 ;;
     --memcheck) memcheck=1 ;;   # every test under compute-sanitizer (out-of-bounds, races: slower)
     --pipeline) pipeline=1 ;;   # bench_pipeline with full-size random SD 1.5 on the GPU, 9 views at 512² (~2 min)
     --cudnn-baseline) cudnn_baseline=1 ;;   # with --bench: the UNet and VAE benches again with MLB_CUDNN=0
-    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench [--cudnn-baseline]] [--memcheck] [--pipeline]]" >&2; exit 2 ;;
+    --train) train=1 ;;   # sd train on the GPU (MLB_TRAIN_ARGS), the model folder back under $OUT
+    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench [--cudnn-baseline]] [--memcheck] [--pipeline] [--train]]" >&2; exit 2 ;;
   esac
 done
 
@@ -120,6 +126,7 @@ tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')}   # MLB
 targets=$tests
 [ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
 [ $pipeline = 1 ] && targets="$targets bench_pipeline"
+[ $train = 1 ] && targets="$targets matlaber"
 jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
 # shellcheck disable=SC2086
 cmake --build "$build" -j"$jobs" --target $targets > "$out/build.log" 2>&1 \
@@ -168,6 +175,27 @@ if [ $pipeline = 1 ]; then
   (cd "$build" && ./bench/bench_pipeline --sd15 --device cuda --precision "${MLB_PRECISION:-fp16}" --dir /tmp \
      ${MLB_PIPELINE_ARGS:---no-images --no-tiny --sd15-views 9 --sd15-sizes 512 --iters 1}) 2>&1 \
      | tee "$out/bench_pipeline.log" | tee -a "$log"
+fi
+if [ $train = 1 ]; then
+  model=$build/own-model
+  rm -rf "$model"
+  # shellcheck disable=SC2086
+  (cd "$build" && timeout "${MLB_TRAIN_TIMEOUT:-420}" ./matlaber --device cuda --precision "${MLB_PRECISION:-tf32}" sd train \
+     -o "$model" ${MLB_TRAIN_ARGS:-}) 2>&1 | tr '\r' '\n' | grep -v '^\s*$' | awk 'NR % 20 == 1 || /train:|error|rror/' \
+     | tee "$out/train.log" | tee -a "$log"
+  for p in "a gold goblet" "a blue mug" "a silver vase" "a red table"; do
+    f=$(echo "$p" | tr ' ' '_').png
+    (cd "$build" && ./matlaber --device cuda sd txt2img -m "$model" -p "$p" --size 128 --steps 30 --cfg 5 -o "$model/$f") 2>&1 | tail -1 | tee -a "$log"
+  done
+  if [ -n "${OUT:-}" ] && [ -d "$model" ]; then
+    tar -C "$build" --exclude="own-model/train/*.safetensors" -czf "$out/own-model.tar.gz" own-model
+    if [ "$(stat -c %s "$out/own-model.tar.gz")" -gt 15000000 ]; then
+      split -b 15000000 -d "$out/own-model.tar.gz" "$OUT/own-model.tar.gz.part"
+    else
+      cp "$out/own-model.tar.gz" "$OUT/"
+    fi
+    cp "$out/train.log" "$OUT/"
+  fi
 fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="

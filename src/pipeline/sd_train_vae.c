@@ -115,13 +115,17 @@ mlb_status mlb_sd_encode_dataset(const mlb_backend* be, const mlb_vae* v, const 
     float* dimg = NULL;
     mlb_status s = hx ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "encoding the training set: out of memory");
     if (!s) s = be->alloc(&dimg, B * ni);
+    mlb_progress pr;   // minutes on a CPU: 2 x n encoder forwards
+    mlb_progress_begin(&pr, stderr, "latents", 2L * d->n, "image");
     for (int geo = 0; geo < 2 && !s; geo++)
         for (int i0 = 0; i0 < d->n && !s; i0 += B) {
             int nb = d->n - i0 < B ? d->n - i0 : B;
             for (int b = 0; b < nb; b++) vae_image(d, i0 + b, geo, hx + b * ni);
             s = be->upload(dimg, hx, nb * ni);
             if (!s) s = mlb_vae_encode_on(be, v, dimg, nb, R, R, (geo ? lat_geo : lat_rgb) + (size_t)i0 * nz, NULL, NULL);
+            mlb_progress_update(&pr, (long)geo * d->n + i0 + nb, NULL);
         }
+    if (!s) mlb_progress_end(&pr, NULL);
     be->release(dimg);
     free(hx);
     return s;

@@ -22,6 +22,8 @@ static const cli_option train_options[] = {
     {"unet-lr", 1, 'L', "LR", "UNet learning rate (default 5e-4)"},
     {"seed", 1, 's', "N", "seed of the data, the weights and the noise (default 1)"},
     {"checkpoint-every", 1, 'c', "N", "steps between saved states (default 500)"},
+    {"p-geo", 1, 'G', "P", "UNet examples that are geometry (normal) images (default 0.35)"},
+    {"p-latent", 1, 'A', "P", "UNet examples that are latent-phase [normal, mask] inputs (default 0)"},
     {"time-limit", 1, 'm', "SECONDS", "cut each phase's steps to what fits (a quarter of the time for the VAE)"},
     {"tiny", 0, 'T', NULL, "a very small model (tests): VAE 8-16 channels, UNet 32-64"},
     {"init", 1, 'I', "DIR", "start from the VAE and UNet of a model folder (e.g. --vae-steps 0 to keep its VAE)"},
@@ -62,6 +64,8 @@ int sd_train_main(int argc, char** argv) {
             break;
         case 'R': c.resume = 1; break;
         case 'I': c.init_dir = optarg; break;
+        case 'G': if (cli_parse_double(optarg, 0, 1, &x)) return cli_usage_error("sd train", "--p-geo: in [0, 1]"); c.p_geo = (float)x; break;
+        case 'A': if (cli_parse_double(optarg, 0, 1, &x)) return cli_usage_error("sd train", "--p-latent: in [0, 1]"); c.p_latent = (float)x; break;
         case 'm': if (cli_parse_double(optarg, 1, 1e7, &x)) return cli_usage_error("sd train", "--time-limit: seconds, 1..1e7"); c.time_limit = x; break;
         case 'h':
             printf("usage: matlaber sd train -o DIR [options]\n\n"

@@ -60,7 +60,18 @@ TEST(write_and_load) {
     REQUIRE(mlb_unet_create(&uc, MLB_DEVICE_CPU, &u) == MLB_OK);
     for (size_t i = 0; i < u->n_params; i++) u->params[i] = (float)((int)(i % 97) - 48) / 256.0f;
     snprintf(p, sizeof p, "%s/unet", dir);
-    REQUIRE(mlb_unet_save_folder(u, p) == MLB_OK);
+    REQUIRE(mlb_unet_save_folder(u, p, MLB_DT_F32) == MLB_OK);
+    // F16: half the file, read back as float32; these values (k / 256, |k| <= 48) are exact in F16
+    {
+        char p16[600];
+        snprintf(p16, sizeof p16, "%s/unet16", dir);
+        REQUIRE(mlb_unet_save_folder(u, p16, MLB_DT_F16) == MLB_OK);
+        mlb_unet* u16 = NULL;
+        REQUIRE(mlb_unet_load(p16, NULL, &u16) == MLB_OK);
+        CHECK(u16->n_params == u->n_params && !memcmp(u16->params, u->params, u->n_params * sizeof(float)));
+        mlb_unet_free(u16);
+        CHECK(mlb_unet_save_folder(u, p16, MLB_DT_I32) == MLB_ERR_ARG);
+    }
     mlb_vae_config vc = mlb_vae_sd_config();
     vc.n_levels = 2; vc.block_out[0] = 8; vc.block_out[1] = 8; vc.layers_per_block = 1; vc.norm_groups = 4;
     vc.scaling_factor = 0.5f;

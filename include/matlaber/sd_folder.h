@@ -11,6 +11,7 @@
 #define MATLABER_SD_FOLDER_H
 #include <stdint.h>
 #include "matlaber/error.h"
+#include "matlaber/safetensors.h"
 #include "matlaber/unet.h"
 #include "matlaber/vae.h"
 
@@ -35,8 +36,10 @@ typedef struct {
 // frozen by training: a fixed, distinct code per token that the UNet's cross-attention learns to read.
 mlb_status mlb_text_encoder_write_random(const char* dir, const mlb_text_encoder_shape* shape);
 
-// DIR/config.json + DIR/diffusion_pytorch_model.safetensors of a UNet on the host (F32).
-mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir);
+// DIR/config.json + DIR/diffusion_pytorch_model.safetensors of a UNet on the host, its tensors
+// stored as dtype (MLB_DT_F32, or MLB_DT_F16 / MLB_DT_BF16 rounded to nearest: half the file; the
+// loaders convert back to float32).
+mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dtype);
 
 // DIR/model_index.json and DIR/scheduler/scheduler_config.json (SD's DDIM settings).
 mlb_status mlb_sd_write_index(const char* dir);

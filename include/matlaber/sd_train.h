@@ -64,6 +64,7 @@ typedef struct {
     float p_no_view;            // the view suffix dropped (0.2)
     float p_geo, p_latent;      // fractions of geometry-image and latent-phase examples (0.35, 0)
     int checkpoint_every;       // steps between state saves (500)
+    mlb_dtype unet_dtype;       // the written UNet's tensors: MLB_DT_F16 (half the file; the state stays F32)
     const char* init_dir;       // a model folder whose VAE and UNet start the training (their configs
                                 // replace vae and unet; the text side must be the same), or NULL
     int resume;                 // 1: continue from the states in out_dir/train/

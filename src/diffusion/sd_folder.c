@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/fileio.h"
+#include "matlaber/half.h"
 #include "matlaber/rng.h"
 #include "matlaber/safetensors.h"
 #include "matlaber/tokenizer.h"
@@ -149,8 +150,10 @@ done:
 }
 
 // ---- UNet ----------------------------------------------------------------------------------------
-mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir) {
+mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dtype) {
     if (!u || !dir) return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: NULL argument");
+    if (dtype != MLB_DT_F32 && dtype != MLB_DT_F16 && dtype != MLB_DT_BF16)
+        return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: dtype %s (F32, F16 or BF16)", mlb_dtype_name(dtype));
     if (u->device != MLB_DEVICE_CPU || u->bf16_weights)
         return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: the UNet must be on the host in fp32");
     MLB_TRY(mlb_mkdir_p(dir));
@@ -158,12 +161,19 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir) {
     MLB_TRY(mlb_unet_tensor_specs(&u->cfg, NULL, 0, &n));
     mlb_unet_tensor_spec* sp = calloc(n, sizeof *sp);
     mlb_st_entry* ent = calloc(n, sizeof *ent);
-    if (!sp || !ent) { free(sp); free(ent); return mlb_fail(MLB_ERR_NOMEM, "UNet save: out of memory"); }
+    uint16_t* half = dtype == MLB_DT_F32 ? NULL : malloc(u->n_params * sizeof(uint16_t));
+    if (!sp || !ent || (dtype != MLB_DT_F32 && !half)) {
+        free(sp); free(ent); free(half);
+        return mlb_fail(MLB_ERR_NOMEM, "UNet save: out of memory");
+    }
+    if (dtype == MLB_DT_F16) mlb_f32_to_f16_array(half, u->params, u->n_params);
+    if (dtype == MLB_DT_BF16) mlb_f32_to_bf16_array(half, u->params, u->n_params);
     mlb_unet_tensor_specs(&u->cfg, sp, n, &n);
     // mlb_unet_create carves the parameters in the loader's order: the specs walk them in turn
     size_t off = 0;
     for (size_t i = 0; i < n; i++) {
-        ent[i] = (mlb_st_entry){sp[i].name, MLB_DT_F32, sp[i].ndim, sp[i].shape, u->params + off};
+        ent[i] = (mlb_st_entry){sp[i].name, dtype, sp[i].ndim, sp[i].shape,
+                                half ? (const void*)(half + off) : (const void*)(u->params + off)};
         off += sp[i].n;
     }
     mlb_status s = off == u->n_params ? MLB_OK
@@ -176,6 +186,7 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir) {
     if (!s) s = mlb_unet_write_config_json(&u->cfg, path);
     free(sp);
     free(ent);
+    free(half);
     return s;
 }
 

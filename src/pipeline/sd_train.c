@@ -71,6 +71,7 @@ mlb_sd_train_config mlb_sd_train_default(void) {
     c.p_geo = 0.35f;
     c.p_latent = 0.0f;   // see docs/sd_train.md: the tiny preset's geometry starts in the VAE phase
     c.checkpoint_every = 500;
+    c.unet_dtype = MLB_DT_F16;
     c.resume = 0;
     return c;
 }

@@ -30,6 +30,7 @@ typedef struct {
     double guidance_scale;        // sds: 100
     int latent_iters;             // sds geometry: steps fed as 64² [normal, mask] latents (default: iters / 3)
     int latent_size;              // sds geometry: their size, 0 = 64 (SD at 512²); the tiny preset: res / 8
+    int geometry_t_min;           // sds geometry: the smallest timestep drawn, 0 = the guidance's (20)
     int view_prompts;             // sds: ", front view" etc. by the camera (1, default); 0: one prompt
     uint64_t seed;                // 0
     int views;                    // views per step: 9

@@ -46,6 +46,7 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     gc.views = c->views;
     gc.latent_iters = c->latent_iters >= 0 ? c->latent_iters : c->geometry_iters / 3;
     gc.latent_size = c->latent_size;
+    if (c->geometry_t_min > 0) gc.geometry_opt.t_min = c->geometry_t_min;
     gc.view_prompts = c->view_prompts;
     gc.geometry_opt.guidance_scale = gc.appearance_opt.guidance_scale = (float)c->guidance_scale;
     gc.n_envs = c->n_envs;

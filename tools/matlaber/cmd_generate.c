@@ -36,6 +36,7 @@ static const cli_option options[] = {
     {"no-view-prompts", 0, 'W', NULL, "generate: one prompt for every view (default: \", front view\" etc. by the camera)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
+    {"geometry-t-min", 1, 'U', "T", "generate: the geometry stage's smallest SDS timestep (default 20)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
     {"export-texture", 1, 'T', "N", "texture size of RUN_DIR/final/asset.glb, written at the end (generate 1024;\n"
                                     "                           fit and 0: none, `matlaber export` makes one later)"},
@@ -155,6 +156,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         case 'M':
             if (mlb_material_mode_parse(optarg, &c.material)) return cli_usage_error(command, "--material: expected latent or direct");
             break;
+        case 'U': if (cli_parse_long(optarg, 0, 500, &v)) return cli_usage_error(command, "--geometry-t-min: expected 0..500"); c.geometry_t_min = (int)v; break;
         case 'S': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000"); c.guidance_scale = x; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;

@@ -57,11 +57,14 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->res = 128;
         c->latent_size = 16;
         c->latent_iters = 0;      // the model never saw raw [normal, mask] latents: VAE phase from the start
-        c->geometry_iters = 300;
-        c->appearance_iters = 200;
-        c->grid = 64;
+        // Measured on "a gold goblet" (docs/sd_train.md): grid 64 and t from 20 shred the surface
+        // into spikes; grid 32 (16 cells per axis for a 128² render) and t >= 150 give a goblet
+        c->geometry_iters = 240;
+        c->appearance_iters = 120;
+        c->grid = 32;
+        c->geometry_t_min = 150;
         c->init_iters = 200;
-        c->guidance_scale = 20.0;
+        c->guidance_scale = 20.0; // 10 gives a cleaner shape but a washed-out, greenish gold
         c->env_height = 128;
         c->cube_size = 64;
         c->checkpoint_every = 50;

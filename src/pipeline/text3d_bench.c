@@ -224,7 +224,9 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
         if (!s) {
             *n_rows = i + 1;
+            // the ETA from every prompt whose generation time is known (an earlier invocation's too)
             if (row->generated) { n_gen++; gen_wall += mlb_now_seconds() - t1; }
+            else if (isfinite(row->seconds)) { n_gen++; gen_wall += row->seconds; }
             if (c->progress)
                 mlb_log(MLB_LOG_INFO, "'%s': nearest %s (Chamfer %.4f to %s), material RMSE %.3f, %s, relit %.2f dB",
                         row->prompt, mlb_catalogue_class_name(row->scores.nearest), row->scores.chamfer_prompted,
@@ -285,6 +287,12 @@ void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb
     free(ch);
 }
 
+static const char* num_or_dash(char buf[16], double v, int digits) {
+    if (isnan(v)) snprintf(buf, 16, "-");
+    else snprintf(buf, 16, "%.*f", digits, v);
+    return buf;
+}
+
 void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows, int n,
                       const mlb_text3d_summary* sum) {
     char abl[64];
@@ -307,12 +315,13 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
                 sc->chamfer_prompted, sc->class_ok ? "ok" : "wrong", sc->material_rmse, sc->metal_ok ? "ok" : "wrong",
                 sc->metal_pred ? "metal" : "dielectric", sc->relight_psnr, t, rows[i].generated ? "" : " (earlier)");
     }
-    char tt[32];
-    fprintf(f, "\n%d prompts (%d seen, %d held out): class accuracy %.2f (seen %.2f, held out %.2f); metal accuracy %.2f;\n"
-               "median Chamfer to the prompted class %.4f; material RMSE seen %.3f, held out %.3f; relighting %.2f dB mean;\n"
+    char tt[32], a[4][16];   // a subset without held-out (or seen) prompts has no number there: "-"
+    fprintf(f, "\n%d prompts (%d seen, %d held out): class accuracy %.2f (seen %s, held out %s); metal accuracy %.2f;\n"
+               "median Chamfer to the prompted class %.4f; material RMSE seen %s, held out %s; relighting %.2f dB mean;\n"
                "total time %s.\n",
-            sum->n, sum->n_seen, sum->n_held_out, sum->class_acc, sum->class_acc_seen, sum->class_acc_held_out,
-            sum->metal_acc, sum->median_chamfer, sum->material_rmse_seen, sum->material_rmse_held_out,
+            sum->n, sum->n_seen, sum->n_held_out, sum->class_acc, num_or_dash(a[0], sum->class_acc_seen, 2),
+            num_or_dash(a[1], sum->class_acc_held_out, 2), sum->metal_acc, sum->median_chamfer,
+            num_or_dash(a[2], sum->material_rmse_seen, 3), num_or_dash(a[3], sum->material_rmse_held_out, 3),
             sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt));
 }
 

@@ -28,6 +28,7 @@ void cli_print_options(FILE* out, const cli_option* opts);
 const struct option* cli_getopt_table(const cli_option* opts);
 
 int cmd_brdf(int argc, char** argv);
+int cmd_bench(int argc, char** argv);
 int cmd_catalogue(int argc, char** argv);
 int cmd_demo(int argc, char** argv);
 int cmd_device(int argc, char** argv);

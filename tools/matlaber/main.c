@@ -40,6 +40,7 @@ static void usage(FILE* out) {
             "  geometry        init the DMTet geometry network from a shape; extract its surface\n"
             "  render          a mesh with one material under an environment light\n"
             "  catalogue       procedural objects x materials of known truth: list, export, render\n"
+            "  bench text3d    text to 3D against the catalogue's truth: shape, material, relighting\n"
             "  relight         a mesh or a finished run while the light turns (PNG frames, MP4 with ffmpeg)\n"
             "  interp          on run A's geometry, A's material field to B's in latent space\n"
             "  export          a finished run as glTF (.glb) or OBJ + MTL with baked PBR textures\n"
@@ -108,6 +109,7 @@ int main(int argc, char** argv) {
     char** sub_argv = argv + i;
     if (strcmp(cmd, "brdf") == 0) return cmd_brdf(sub_argc, sub_argv);
     if (strcmp(cmd, "catalogue") == 0) return cmd_catalogue(sub_argc, sub_argv);
+    if (strcmp(cmd, "bench") == 0) return cmd_bench(sub_argc, sub_argv);
     if (strcmp(cmd, "demo") == 0) return cmd_demo(sub_argc, sub_argv);
     if (strcmp(cmd, "geometry") == 0) return cmd_geometry(sub_argc, sub_argv);
     if (strcmp(cmd, "render") == 0) return cmd_render(sub_argc, sub_argv);

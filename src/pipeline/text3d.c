@@ -1,0 +1,124 @@
+// Measuring a generated asset against the catalogue's truth (include/matlaber/text3d.h): shape by
+// relative Chamfer distance to every class, material by the median BRDF on the surface, relighting
+// by mlb_eval_relight against the best-fitting truth instance. The benchmark loop: text3d_bench.c.
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/catalogue.h"
+#include "matlaber/evaluate.h"
+#include "matlaber/geometry.h"
+#include "matlaber/text3d.h"
+
+int mlb_text3d_is_metal(const float k[7]) {
+    double kd = ((double)k[0] + k[1] + k[2]) / 3.0, ks = ((double)k[3] + k[4] + k[5]) / 3.0;
+    return ks > MLB_TEXT3D_METAL_KS && kd < MLB_TEXT3D_METAL_KD;
+}
+
+mlb_status mlb_text3d_truth_create(mlb_text3d_truth* t, int n_seeds) {
+    memset(t, 0, sizeof *t);
+    int nc = mlb_catalogue_n_classes();
+    if (n_seeds < 1 || n_seeds > 1024) return mlb_fail(MLB_ERR_ARG, "text3d truth: %d shape seeds (1..1024)", n_seeds);
+    if (nc > MLB_TEXT3D_MAX_CLASSES) return mlb_fail(MLB_ERR_ARG, "text3d truth: %d classes (at most %d)", nc, MLB_TEXT3D_MAX_CLASSES);
+    t->meshes = calloc((size_t)nc * n_seeds, sizeof(mlb_mesh));
+    if (!t->meshes) return mlb_fail(MLB_ERR_NOMEM, "text3d truth: out of memory");
+    t->n_classes = nc;
+    t->n_seeds = n_seeds;
+    for (int c = 0; c < nc; c++)
+        for (int s = 0; s < n_seeds; s++) {
+            mlb_status st = mlb_catalogue_mesh(c, (uint64_t)s, &t->meshes[c * n_seeds + s]);
+            if (st) {
+                mlb_text3d_truth_free(t);
+                return mlb_fail_context(st, "text3d truth: %s seed %d", mlb_catalogue_class_name(c), s);
+            }
+        }
+    return MLB_OK;
+}
+
+void mlb_text3d_truth_free(mlb_text3d_truth* t) {
+    if (t->meshes)
+        for (int i = 0; i < t->n_classes * t->n_seeds; i++) mlb_mesh_free(&t->meshes[i]);
+    free(t->meshes);
+    memset(t, 0, sizeof *t);
+}
+
+mlb_text3d_measure_config mlb_text3d_measure_default(void) {
+    mlb_text3d_measure_config m = {.chamfer_samples = 2000, .chamfer_seed = 7, .relight_views = 4, .relight_res = 128};
+    return m;
+}
+
+static int cmp_float(const void* a, const void* b) {
+    float x = *(const float*)a, y = *(const float*)b;
+    return (x > y) - (x < y);
+}
+
+mlb_status mlb_text3d_median_brdf(const float* k, size_t n, float out[7]) {
+    if (n == 0) return mlb_fail(MLB_ERR_ARG, "median BRDF: no vertices");
+    float* col = malloc(sizeof(float) * n);
+    if (!col) return mlb_fail(MLB_ERR_NOMEM, "median BRDF: out of memory");
+    for (int j = 0; j < 7; j++) {
+        for (size_t i = 0; i < n; i++) col[i] = k[7 * i + j];
+        qsort(col, n, sizeof(float), cmp_float);
+        out[j] = n % 2 ? col[n / 2] : 0.5f * (col[n / 2 - 1] + col[n / 2]);
+    }
+    free(col);
+    return MLB_OK;
+}
+
+mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, const float* k, int cls, int mat,
+                              const mlb_envlight* light, const mlb_text3d_measure_config* mc, mlb_text3d_scores* out) {
+    memset(out, 0, sizeof *out);
+    const float* truth_brdf = mlb_catalogue_material_brdf(mat);
+    if (cls < 0 || cls >= t->n_classes || !truth_brdf)
+        return mlb_fail(MLB_ERR_ARG, "text3d measure: class %d / material %d out of range", cls, mat);
+    if (!mesh || mesh->n_faces < 1) return mlb_fail(MLB_ERR_ARG, "text3d measure: the asset's mesh is empty");
+    out->cls = cls;
+    out->mat = mat;
+    out->held_out = mlb_catalogue_held_out(cls, mat);
+    // shape: the best seed of every class; the nearest class names what the asset looks like
+    mlb_status s = MLB_OK;
+    out->nearest = -1;
+    for (int c = 0; !s && c < t->n_classes; c++) {
+        out->chamfer[c] = INFINITY;
+        for (int seed = 0; !s && seed < t->n_seeds; seed++) {
+            mlb_chamfer_result r;
+            s = mlb_chamfer(mesh, &t->meshes[c * t->n_seeds + seed], mc->chamfer_samples, mc->chamfer_seed, &r);
+            if (!s && r.relative < out->chamfer[c]) { out->chamfer[c] = r.relative; out->best_seed[c] = (uint64_t)seed; }
+        }
+        if (!s && (out->nearest < 0 || out->chamfer[c] < out->chamfer[out->nearest])) out->nearest = c;
+    }
+    if (s) return mlb_fail_context(s, "text3d measure: shape");
+    out->class_ok = out->nearest == cls;
+    out->chamfer_prompted = out->chamfer[cls];
+    // material: the median over the vertices (robust to the odd stray texel of a seam)
+    s = mlb_text3d_median_brdf(k, (size_t)mesh->n_verts, out->median_k);
+    if (s) return s;
+    double se = 0;
+    for (int j = 0; j < 7; j++) se += ((double)out->median_k[j] - truth_brdf[j]) * ((double)out->median_k[j] - truth_brdf[j]);
+    out->material_rmse = sqrt(se / 7.0);
+    out->metal_truth = mlb_catalogue_material_metal(mat);
+    out->metal_pred = mlb_text3d_is_metal(out->median_k);
+    out->metal_ok = out->metal_truth == out->metal_pred;
+    // relighting against the truth instance: prompted class, its best seed, the true material
+    const mlb_mesh* tm = &t->meshes[cls * t->n_seeds + (int)out->best_seed[cls]];
+    float* tk = malloc(sizeof(float) * 7 * (size_t)tm->n_verts);
+    if (!tk) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    for (int i = 0; i < tm->n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
+    s = mlb_eval_relight(tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
+    free(tk);
+    return s ? mlb_fail_context(s, "text3d measure: relighting") : MLB_OK;
+}
+
+mlb_status mlb_text3d_measure_run(const mlb_text3d_truth* t, const char* run_dir, int cls, int mat,
+                                  const mlb_envlight* light, const mlb_text3d_measure_config* mc,
+                                  mlb_text3d_scores* out) {
+    mlb_run_asset a;
+    mlb_status s = mlb_run_asset_load(&a, run_dir);
+    if (s) return s;
+    float* k = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts);
+    if (!k) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    if (!s) s = mlb_run_asset_vertex_brdf(&a, k);
+    if (!s) s = mlb_text3d_measure(t, &a.mesh, k, cls, mat, light, mc, out);
+    free(k);
+    mlb_run_asset_free(&a);
+    return s ? mlb_fail_context(s, "%s", run_dir) : MLB_OK;
+}

@@ -1,0 +1,393 @@
+// The text-to-3D benchmark loop (include/matlaber/text3d.h): one generation per catalogue caption
+// through the same config path as `matlaber generate`, each in a normal run folder (export and view
+// take it), skipped when it already finished and resumed when it stopped, then measured (text3d.c).
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/catalogue.h"
+#include "matlaber/device.h"
+#include "matlaber/fileio.h"
+#include "matlaber/log.h"
+#include "matlaber/progress.h"
+#include "matlaber/run.h"
+#include "matlaber/text3d.h"
+
+static int scaled(int n, double f) {
+    long v = lround(n * f);
+    return v < 1 ? 1 : (int)v;
+}
+
+mlb_status mlb_text3d_base_config(mlb_pipeline_config* c, const char* preset, const char* model, uint64_t seed,
+                                  double steps_scale, mlb_material_mode material, int fixed_env, int view_prompts) {
+    *c = mlb_pipeline_default();
+    if (preset && preset[0]) {
+        mlb_status s = mlb_pipeline_preset(c, preset);
+        if (s) return s;
+    }
+    if (!(steps_scale > 0 && steps_scale <= 100)) return mlb_fail(MLB_ERR_ARG, "text3d: steps scale %g (expected (0, 100])", steps_scale);
+    if (!model || !model[0]) return mlb_fail(MLB_ERR_ARG, "text3d: no model");
+    snprintf(c->model, sizeof c->model, "%s", model);
+    c->seed = seed;
+    c->material = material;
+    c->fixed_env = fixed_env ? 1 : 0;
+    c->view_prompts = view_prompts ? 1 : 0;
+    if (steps_scale != 1.0) {   // quick runs: every stage shorter, none empty
+        c->geometry_iters = scaled(c->geometry_iters, steps_scale);
+        c->appearance_iters = scaled(c->appearance_iters, steps_scale);
+        c->init_iters = scaled(c->init_iters, steps_scale);
+        if (c->latent_iters > 0) c->latent_iters = (int)lround(c->latent_iters * steps_scale);
+    }
+    if (c->latent_iters < 0) c->latent_iters = c->geometry_iters / 3;   // as generate resolves it
+    c->export_texture = 0;   // baking is not measured; `matlaber export RUN` makes the .glb
+    return MLB_OK;
+}
+
+const char* mlb_text3d_ablation_name(const mlb_pipeline_config* c, char* buf, size_t cap) {
+    buf[0] = 0;
+    const char* parts[3] = {c->material == MLB_MATERIAL_DIRECT ? "direct" : NULL, c->fixed_env ? "fixed-env" : NULL,
+                            c->view_prompts ? NULL : "no-view-prompts"};
+    for (int i = 0; i < 3; i++)
+        if (parts[i]) snprintf(buf + strlen(buf), cap - strlen(buf), "%s%s", buf[0] ? "+" : "", parts[i]);
+    if (!buf[0]) snprintf(buf, cap, "latent");
+    return buf;
+}
+
+mlb_text3d_bench_config mlb_text3d_bench_default(void) {
+    mlb_text3d_bench_config c;
+    memset(&c, 0, sizeof c);
+    c.out_dir = "bench-text3d";
+    c.base = mlb_pipeline_default();
+    c.n_seeds = 8;
+    c.relight_env = "white";
+    c.measure = mlb_text3d_measure_default();
+    return c;
+}
+
+// A run folder made with other settings than this benchmark's would mix results silently.
+static mlb_status check_same(const char* dir, const mlb_pipeline_config* want, const mlb_pipeline_config* have) {
+    const char* what = NULL;
+    if (strcmp(want->prompt, have->prompt)) what = "prompt";
+    else if (want->material != have->material) what = "material network (--material)";
+    else if (want->fixed_env != have->fixed_env) what = "--fixed-env";
+    else if (want->view_prompts != have->view_prompts) what = "--no-view-prompts";
+    else if (want->seed != have->seed) what = "seed";
+    else if (want->geometry_iters != have->geometry_iters || want->appearance_iters != have->appearance_iters)
+        what = "step counts (--preset / --steps-scale)";
+    else if (want->res != have->res || want->views != have->views || want->grid != have->grid) what = "preset";
+    if (!what) return MLB_OK;
+    return mlb_fail(MLB_ERR_ARG, "%s holds a run made with another %s: remove it or give the benchmark another -o", dir, what);
+}
+
+static int run_finished(const char* dir) {
+    char p[MLB_PIPELINE_PATH + 64];
+    snprintf(p, sizeof p, "%s/final/mesh.obj", dir);
+    if (!mlb_is_file(p)) return 0;
+    snprintf(p, sizeof p, "%s/final/material.safetensors", dir);
+    return mlb_is_file(p);
+}
+
+// RUN/text3d.json: the generation's seconds (kept for a later invocation that reuses the run).
+static void seconds_save(const char* dir, double seconds) {
+    char p[MLB_PIPELINE_PATH + 64];
+    snprintf(p, sizeof p, "%s/text3d.json", dir);
+    cJSON* j = cJSON_CreateObject();
+    if (!j) return;
+    cJSON_AddNumberToObject(j, "seconds", seconds);
+    if (mlb_run_write_json(p, j)) mlb_log(MLB_LOG_WARN, "could not write %s", p);
+    cJSON_Delete(j);
+}
+
+static double seconds_load(const char* dir) {
+    char p[MLB_PIPELINE_PATH + 64];
+    snprintf(p, sizeof p, "%s/text3d.json", dir);
+    cJSON* j = NULL;
+    double v = NAN;
+    if (mlb_is_file(p) && mlb_run_read_json(p, &j) == MLB_OK && mlb_json_get_number(j, "seconds", 0, 1e12, &v, p) != MLB_OK)
+        v = NAN;
+    cJSON_Delete(j);
+    return v;
+}
+
+// Generates the prompt into dir: fresh, resumed, or nothing to do when it finished before.
+static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipeline_config* want, const char* dir,
+                               mlb_text3d_row* row) {
+    mlb_pipeline_config c = *want;
+    int resume = 0;
+    mlb_status s = MLB_OK;
+    if (mlb_run_exists(dir)) {
+        char p[MLB_PIPELINE_PATH + 64];
+        snprintf(p, sizeof p, "%s/config.json", dir);
+        mlb_pipeline_config have;
+        s = mlb_pipeline_config_load(&have, p);
+        if (!s) s = check_same(dir, want, &have);
+        if (s) return s;
+        if (run_finished(dir)) {
+            row->seconds = seconds_load(dir);
+            row->generated = 0;
+            mlb_log(MLB_LOG_INFO, "%s finished before: measuring it", dir);
+            return MLB_OK;
+        }
+        c = have;   // continue with the run's own settings (equal in what matters, checked above)
+        resume = 1;
+        mlb_log(MLB_LOG_INFO, "%s stopped before: resuming it", dir);
+    }
+    mlb_guidance* g = NULL;
+    mlb_views* views = NULL;
+    s = mlb_pipeline_make_guidance(&c, &g, &views);
+    mlb_progress progress;
+    mlb_pipeline_result result;
+    double t0 = mlb_now_seconds();
+    if (!s) s = mlb_pipeline_run(dir, &c, g, views, resume, bc->progress ? &progress : NULL, &result);
+    mlb_guidance_free(g);
+    mlb_pipeline_free_views(views);
+    if (!s && !result.finished) s = mlb_fail(MLB_ERR_ARG, "%s: the run stopped before its end", dir);
+    if (s) return mlb_fail_context(s, "generating '%s'", c.prompt);
+    row->seconds = mlb_now_seconds() - t0;
+    row->generated = 1;
+    seconds_save(dir, row->seconds);
+    return MLB_OK;
+}
+
+mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row* rows, int* n_rows,
+                                mlb_text3d_summary* summary) {
+    *n_rows = 0;
+    double t0 = mlb_now_seconds();
+    int classes[MLB_TEXT3D_MAX_CLASSES], mats[MLB_TEXT3D_MAX_CLASSES];
+    int nc = c->n_classes, nm = c->n_materials;
+    if (nc < 0 || nc > MLB_TEXT3D_MAX_CLASSES || nm < 0 || nm > MLB_TEXT3D_MAX_CLASSES)
+        return mlb_fail(MLB_ERR_ARG, "text3d: %d classes, %d materials", nc, nm);
+    if (nc == 0) nc = mlb_catalogue_n_classes();
+    if (nm == 0) nm = mlb_catalogue_n_materials();
+    if (nc > MLB_TEXT3D_MAX_CLASSES || nm > MLB_TEXT3D_MAX_CLASSES) return mlb_fail(MLB_ERR_ARG, "text3d: catalogue too large");
+    for (int i = 0; i < nc; i++) classes[i] = c->n_classes ? c->classes[i] : i;
+    for (int i = 0; i < nm; i++) mats[i] = c->n_materials ? c->materials[i] : i;
+    // the metal rule must classify every catalogue material right from its truth, or the metal
+    // column would measure the rule rather than the asset
+    for (int m = 0; m < mlb_catalogue_n_materials(); m++)
+        if (mlb_text3d_is_metal(mlb_catalogue_material_brdf(m)) != mlb_catalogue_material_metal(m))
+            return mlb_fail(MLB_ERR_ARG, "text3d: the metal rule misclassifies %s", mlb_catalogue_material_name(m));
+    mlb_pipeline_config probe = c->base;   // the prompt is filled per run
+    snprintf(probe.prompt, sizeof probe.prompt, "a probe");
+    mlb_status s = mlb_pipeline_validate(&probe);
+    if (s) return mlb_fail_context(s, "text3d");
+    if (c->base.precision[0] && !mlb_gemm_precision_chosen()) {   // as generate: the preset's own precision
+        mlb_gemm_precision p;
+        if (mlb_gemm_precision_parse(c->base.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
+    }
+    // every prompt and its run folder first: a folder made with other settings fails before any work
+    int total = nc * nm, n_gen = 0;
+    for (int i = 0; !s && i < total; i++) {
+        int cls = classes[i / nm], mat = mats[i % nm];
+        mlb_text3d_row* row = &rows[i];
+        memset(row, 0, sizeof *row);
+        mlb_catalogue_caption(cls, mat, 0, row->prompt, sizeof row->prompt);   // view 0: no suffix
+        snprintf(row->run_dir, sizeof row->run_dir, "%s/%s_%s", c->out_dir, mlb_catalogue_class_name(cls),
+                 mlb_catalogue_material_name(mat));
+        if (mlb_run_exists(row->run_dir)) {
+            mlb_pipeline_config want = c->base, have;
+            snprintf(want.prompt, sizeof want.prompt, "%s", row->prompt);
+            char p[MLB_PIPELINE_PATH + 64];
+            snprintf(p, sizeof p, "%s/config.json", row->run_dir);
+            s = mlb_pipeline_config_load(&have, p);
+            if (!s) s = check_same(row->run_dir, &want, &have);
+        }
+    }
+    if (s) return s;
+    // the relighting light at the runs' own environment resolution (the tiny preset's is small)
+    mlb_text3d_truth truth;
+    mlb_envmap env = {0};
+    mlb_envlight light = {0};
+    mlb_envlight_options lo;
+    memset(&lo, 0, sizeof lo);
+    lo.face_size = c->base.cube_size;
+    s = mlb_text3d_truth_create(&truth, c->n_seeds);
+    if (!s) s = mlb_envmap_open(&env, c->relight_env, 1.0f, c->base.env_height, NULL);
+    if (!s) s = mlb_envlight_build(&light, &env, &lo);
+    if (!s) s = mlb_mkdir_p(c->out_dir);
+    double gen_wall = 0;
+    for (int i = 0; !s && i < total; i++) {
+        int cls = classes[i / nm], mat = mats[i % nm];
+        mlb_text3d_row* row = &rows[i];
+        if (c->progress) {
+            char eta[32];
+            if (n_gen) mlb_format_duration(gen_wall / n_gen * (total - i), eta, sizeof eta);
+            else snprintf(eta, sizeof eta, "?");
+            mlb_log(MLB_LOG_INFO, "== [%d/%d] '%s' (%s) into %s; ETA %s", i + 1, total, row->prompt,
+                    mlb_catalogue_held_out(cls, mat) ? "held out" : "seen", row->run_dir, eta);
+        }
+        double t1 = mlb_now_seconds();
+        mlb_pipeline_config want = c->base;
+        snprintf(want.prompt, sizeof want.prompt, "%s", row->prompt);
+        s = generate_one(c, &want, row->run_dir, row);
+        if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
+        if (!s) {
+            *n_rows = i + 1;
+            // the ETA from every prompt whose generation time is known (an earlier invocation's too)
+            if (row->generated) { n_gen++; gen_wall += mlb_now_seconds() - t1; }
+            else if (isfinite(row->seconds)) { n_gen++; gen_wall += row->seconds; }
+            if (c->progress)
+                mlb_log(MLB_LOG_INFO, "'%s': nearest %s (Chamfer %.4f to %s), material RMSE %.3f, %s, relit %.2f dB",
+                        row->prompt, mlb_catalogue_class_name(row->scores.nearest), row->scores.chamfer_prompted,
+                        mlb_catalogue_class_name(cls), row->scores.material_rmse,
+                        row->scores.metal_pred ? "metal" : "dielectric", row->scores.relight_psnr);
+        }
+    }
+    mlb_envlight_free(&light);
+    mlb_envmap_free(&env);
+    mlb_text3d_truth_free(&truth);
+    mlb_text3d_summarise(rows, *n_rows, mlb_now_seconds() - t0, summary);
+    if (!s) {   // the report beside the runs
+        char p[MLB_PIPELINE_PATH + 64];
+        snprintf(p, sizeof p, "%s/report.md", c->out_dir);
+        mlb_atomic_file af;
+        s = mlb_atomic_open(&af, p);
+        if (!s) {
+            mlb_text3d_print(af.f, c, rows, *n_rows, summary);
+            s = mlb_atomic_commit(&af);
+        }
+    }
+    return s;
+}
+
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb_text3d_summary* o) {
+    memset(o, 0, sizeof *o);
+    o->n = n;
+    o->seconds = seconds;
+    int ok = 0, ok_seen = 0, ok_held = 0, metal = 0;
+    double rmse_seen = 0, rmse_held = 0, psnr = 0;
+    double* ch = malloc(sizeof(double) * (n > 0 ? n : 1));
+    for (int i = 0; i < n; i++) {
+        const mlb_text3d_scores* sc = &rows[i].scores;
+        ok += sc->class_ok;
+        metal += sc->metal_ok;
+        psnr += sc->relight_psnr;
+        if (ch) ch[i] = sc->chamfer_prompted;
+        if (sc->held_out) { o->n_held_out++; ok_held += sc->class_ok; rmse_held += sc->material_rmse; }
+        else { o->n_seen++; ok_seen += sc->class_ok; rmse_seen += sc->material_rmse; }
+    }
+    o->class_acc = n ? (double)ok / n : NAN;
+    o->class_acc_seen = o->n_seen ? (double)ok_seen / o->n_seen : NAN;
+    o->class_acc_held_out = o->n_held_out ? (double)ok_held / o->n_held_out : NAN;
+    o->metal_acc = n ? (double)metal / n : NAN;
+    o->material_rmse_seen = o->n_seen ? rmse_seen / o->n_seen : NAN;
+    o->material_rmse_held_out = o->n_held_out ? rmse_held / o->n_held_out : NAN;
+    o->relight_psnr = n ? psnr / n : NAN;
+    o->median_chamfer = NAN;
+    if (ch && n) {
+        qsort(ch, (size_t)n, sizeof(double), cmp_double);
+        o->median_chamfer = n % 2 ? ch[n / 2] : 0.5 * (ch[n / 2 - 1] + ch[n / 2]);
+    }
+    free(ch);
+}
+
+static const char* num_or_dash(char buf[16], double v, int digits) {
+    if (isnan(v)) snprintf(buf, 16, "-");
+    else snprintf(buf, 16, "%.*f", digits, v);
+    return buf;
+}
+
+void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows, int n,
+                      const mlb_text3d_summary* sum) {
+    char abl[64];
+    fprintf(f, "# Text to 3D against known truth\n\n"
+               "Model %s; %d + %d steps (geometry + appearance), %d views at %d², seed %llu; ablation: %s.\n"
+               "Chamfer: relative to the truth's bounding-box diagonal, best of %d shape seeds per class.\n"
+               "Relighting under `%s` (no run saw it). Metal: mean ks > %.2f and mean kd < %.2f of the median BRDF.\n\n",
+            c->base.model, c->base.geometry_iters, c->base.appearance_iters, c->base.views, c->base.res,
+            (unsigned long long)c->base.seed, mlb_text3d_ablation_name(&c->base, abl, sizeof abl), c->n_seeds,
+            c->relight_env, MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
+    fprintf(f, "| prompt | split | nearest class | Chamfer to prompted | class | material RMSE | metal | relight PSNR | time |\n"
+               "|---|---|---|---|---|---|---|---|---|\n");
+    for (int i = 0; i < n; i++) {
+        const mlb_text3d_scores* sc = &rows[i].scores;
+        char t[32];
+        if (isnan(rows[i].seconds)) snprintf(t, sizeof t, "-");
+        else mlb_format_duration(rows[i].seconds, t, sizeof t);
+        fprintf(f, "| %s | %s | %s (%.4f) | %.4f | %s | %.3f | %s (%s) | %.2f dB | %s%s |\n", rows[i].prompt,
+                sc->held_out ? "held out" : "seen", mlb_catalogue_class_name(sc->nearest), sc->chamfer[sc->nearest],
+                sc->chamfer_prompted, sc->class_ok ? "ok" : "wrong", sc->material_rmse, sc->metal_ok ? "ok" : "wrong",
+                sc->metal_pred ? "metal" : "dielectric", sc->relight_psnr, t, rows[i].generated ? "" : " (earlier)");
+    }
+    char tt[32], a[4][16];   // a subset without held-out (or seen) prompts has no number there: "-"
+    fprintf(f, "\n%d prompts (%d seen, %d held out): class accuracy %.2f (seen %s, held out %s); metal accuracy %.2f;\n"
+               "median Chamfer to the prompted class %.4f; material RMSE seen %s, held out %s; relighting %.2f dB mean;\n"
+               "total time %s.\n",
+            sum->n, sum->n_seen, sum->n_held_out, sum->class_acc, num_or_dash(a[0], sum->class_acc_seen, 2),
+            num_or_dash(a[1], sum->class_acc_held_out, 2), sum->metal_acc, sum->median_chamfer,
+            num_or_dash(a[2], sum->material_rmse_seen, 3), num_or_dash(a[3], sum->material_rmse_held_out, 3),
+            sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt));
+}
+
+mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows,
+                                 int n, const mlb_text3d_summary* sum) {
+    char abl[64];
+    cJSON* j = cJSON_CreateObject();
+    cJSON* arr = cJSON_CreateArray();
+    cJSON* su = cJSON_CreateObject();
+    if (!j || !arr || !su) {
+        cJSON_Delete(j); cJSON_Delete(arr); cJSON_Delete(su);
+        return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    }
+    cJSON_AddStringToObject(j, "model", c->base.model);
+    cJSON_AddStringToObject(j, "ablation", mlb_text3d_ablation_name(&c->base, abl, sizeof abl));
+    cJSON_AddNumberToObject(j, "seed", (double)c->base.seed);
+    cJSON_AddNumberToObject(j, "geometry_iters", c->base.geometry_iters);
+    cJSON_AddNumberToObject(j, "appearance_iters", c->base.appearance_iters);
+    cJSON_AddNumberToObject(j, "views", c->base.views);
+    cJSON_AddNumberToObject(j, "res", c->base.res);
+    cJSON_AddNumberToObject(j, "shape_seeds", c->n_seeds);
+    cJSON_AddStringToObject(j, "relight_env", c->relight_env);
+    for (int i = 0; i < n; i++) {
+        const mlb_text3d_scores* sc = &rows[i].scores;
+        cJSON* r = cJSON_CreateObject();
+        if (!r) break;
+        cJSON_AddStringToObject(r, "prompt", rows[i].prompt);
+        cJSON_AddStringToObject(r, "class", mlb_catalogue_class_name(sc->cls));
+        cJSON_AddStringToObject(r, "material", mlb_catalogue_material_name(sc->mat));
+        cJSON_AddBoolToObject(r, "held_out", sc->held_out);
+        cJSON_AddStringToObject(r, "run_dir", rows[i].run_dir);
+        cJSON_AddStringToObject(r, "nearest_class", mlb_catalogue_class_name(sc->nearest));
+        cJSON_AddNumberToObject(r, "chamfer_prompted", sc->chamfer_prompted);
+        cJSON_AddNumberToObject(r, "chamfer_nearest", sc->chamfer[sc->nearest]);
+        cJSON_AddBoolToObject(r, "class_ok", sc->class_ok);
+        cJSON* by = cJSON_AddObjectToObject(r, "chamfer_by_class");
+        for (int k = 0; by && k < mlb_catalogue_n_classes(); k++)
+            cJSON_AddNumberToObject(by, mlb_catalogue_class_name(k), sc->chamfer[k]);
+        float kk[7];
+        memcpy(kk, sc->median_k, sizeof kk);
+        cJSON* mk = cJSON_CreateFloatArray(kk, 7);
+        if (mk) cJSON_AddItemToObject(r, "median_brdf", mk);
+        cJSON_AddNumberToObject(r, "material_rmse", sc->material_rmse);
+        cJSON_AddBoolToObject(r, "metal_truth", sc->metal_truth);
+        cJSON_AddBoolToObject(r, "metal_pred", sc->metal_pred);
+        cJSON_AddBoolToObject(r, "metal_ok", sc->metal_ok);
+        cJSON_AddNumberToObject(r, "relight_psnr", sc->relight_psnr);
+        cJSON_AddNumberToObject(r, "seconds", rows[i].seconds);   // null when unknown
+        cJSON_AddBoolToObject(r, "generated", rows[i].generated);
+        cJSON_AddItemToArray(arr, r);
+    }
+    cJSON_AddItemToObject(j, "rows", arr);
+    cJSON_AddNumberToObject(su, "prompts", sum->n);
+    cJSON_AddNumberToObject(su, "seen", sum->n_seen);
+    cJSON_AddNumberToObject(su, "held_out", sum->n_held_out);
+    cJSON_AddNumberToObject(su, "class_accuracy", sum->class_acc);
+    cJSON_AddNumberToObject(su, "class_accuracy_seen", sum->class_acc_seen);
+    cJSON_AddNumberToObject(su, "class_accuracy_held_out", sum->class_acc_held_out);
+    cJSON_AddNumberToObject(su, "metal_accuracy", sum->metal_acc);
+    cJSON_AddNumberToObject(su, "median_chamfer", sum->median_chamfer);
+    cJSON_AddNumberToObject(su, "material_rmse_seen", sum->material_rmse_seen);
+    cJSON_AddNumberToObject(su, "material_rmse_held_out", sum->material_rmse_held_out);
+    cJSON_AddNumberToObject(su, "relight_psnr_mean", sum->relight_psnr);
+    cJSON_AddNumberToObject(su, "seconds", sum->seconds);
+    cJSON_AddItemToObject(j, "summary", su);
+    mlb_status s = mlb_run_write_json(path, j);
+    cJSON_Delete(j);
+    return s;
+}

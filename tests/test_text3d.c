@@ -1,0 +1,183 @@
+// The text-to-3D benchmark's measure on known inputs (include/matlaber/text3d.h): a catalogue mesh
+// in its true material measured as an "asset" must score perfectly, a wrong material must not, and
+// the metal rule must classify every catalogue material from its truth. One smoke test runs the
+// whole benchmark path on the random tiny SD fixture (skipped without ../shared/data).
+#include <math.h>
+#include <stdlib.h>
+#include "matlaber/catalogue.h"
+#include "matlaber/fileio.h"
+#include "matlaber/text3d.h"
+#include "test.h"
+
+// Small enough for a fast test: 4 shape seeds (0..3), 300 Chamfer points, 64² relighting.
+static mlb_text3d_measure_config small_measure(void) {
+    mlb_text3d_measure_config m = mlb_text3d_measure_default();
+    m.chamfer_samples = 300;
+    m.relight_res = 64;
+    m.relight_views = 3;
+    return m;
+}
+
+static int open_white(mlb_envmap* env, mlb_envlight* light) {
+    mlb_envlight_options o;
+    memset(&o, 0, sizeof o);
+    o.face_size = 64;
+    return mlb_envmap_open(env, "white", 1.0f, 64, NULL) == MLB_OK && mlb_envlight_build(light, env, &o) == MLB_OK;
+}
+
+// Per-vertex copies of one material's 7 numbers.
+static float* material_everywhere(const mlb_mesh* m, int mat) {
+    float* k = malloc(sizeof(float) * 7 * (size_t)m->n_verts);
+    for (int i = 0; k && i < m->n_verts; i++) memcpy(k + 7 * (size_t)i, mlb_catalogue_material_brdf(mat), sizeof(float) * 7);
+    return k;
+}
+
+TEST(metal_rule_matches_catalogue) {
+    for (int m = 0; m < mlb_catalogue_n_materials(); m++)
+        CHECK_MSG(mlb_text3d_is_metal(mlb_catalogue_material_brdf(m)) == mlb_catalogue_material_metal(m), "%s",
+                  mlb_catalogue_material_name(m));
+}
+
+TEST(median_brdf) {
+    float k[5 * 7];
+    for (int i = 0; i < 5; i++)
+        for (int j = 0; j < 7; j++) k[7 * i + j] = (float)((i * 3 + j) % 5) + 0.5f * j;   // a permutation per column
+    float med[7];
+    REQUIRE(mlb_text3d_median_brdf(k, 5, med) == MLB_OK);
+    for (int j = 0; j < 7; j++) CHECK_CLOSE(med[j], 2.0 + 0.5 * j, 0, 1e-6);
+    REQUIRE(mlb_text3d_median_brdf(k, 4, med) == MLB_OK);   // even count: the mean of the middle two
+    CHECK_CLOSE(med[0], 2.0, 0, 1e-6);                      // column 0: 0, 3, 1, 4 → (1 + 3) / 2
+}
+
+TEST(base_config) {
+    mlb_pipeline_config c;
+    REQUIRE(mlb_text3d_base_config(&c, "tiny", "MODEL", 5, 0.1, MLB_MATERIAL_LATENT, 0, 1) == MLB_OK);
+    CHECK(c.geometry_iters == 30 && c.appearance_iters == 20 && c.init_iters == 20);
+    CHECK(c.res == 128 && c.views == 4 && c.seed == 5 && c.export_texture == 0 && c.latent_iters == 0);
+    snprintf(c.prompt, sizeof c.prompt, "a gold mug");   // filled per run by the benchmark
+    CHECK(mlb_pipeline_validate(&c) == MLB_OK);
+    char buf[64];
+    CHECK(!strcmp(mlb_text3d_ablation_name(&c, buf, sizeof buf), "latent"));
+    REQUIRE(mlb_text3d_base_config(&c, "tiny", "MODEL", 0, 1e-4, MLB_MATERIAL_DIRECT, 1, 0) == MLB_OK);
+    CHECK(c.geometry_iters == 1 && c.appearance_iters == 1 && c.init_iters == 1);
+    CHECK(!strcmp(mlb_text3d_ablation_name(&c, buf, sizeof buf), "direct+fixed-env+no-view-prompts"));
+    CHECK(mlb_text3d_base_config(&c, "nope", "MODEL", 0, 1, MLB_MATERIAL_LATENT, 0, 1) == MLB_ERR_ARG);
+    CHECK(mlb_text3d_base_config(&c, "tiny", "MODEL", 0, 0, MLB_MATERIAL_LATENT, 0, 1) == MLB_ERR_ARG);
+}
+
+// A catalogue mesh as the asset: the true class, seed 3 (one of the truth's seeds), true material.
+TEST(truth_as_asset_scores_perfectly) {
+    mlb_text3d_truth t;
+    REQUIRE(mlb_text3d_truth_create(&t, 4) == MLB_OK);
+    mlb_envmap env = {0};
+    mlb_envlight light = {0};
+    REQUIRE(open_white(&env, &light));
+    mlb_text3d_measure_config mc = small_measure();
+    int cls, gold, white;
+    REQUIRE(mlb_catalogue_class_parse("mug", &cls) == MLB_OK);
+    REQUIRE(mlb_catalogue_material_parse("gold", &gold) == MLB_OK);
+    REQUIRE(mlb_catalogue_material_parse("white", &white) == MLB_OK);
+    mlb_mesh m;
+    REQUIRE(mlb_catalogue_mesh(cls, 3, &m) == MLB_OK);
+    float* k = material_everywhere(&m, gold);
+    REQUIRE(k);
+    mlb_text3d_scores sc;
+    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, gold, &light, &mc, &sc) == MLB_OK);
+    CHECK(sc.class_ok && sc.nearest == cls);
+    CHECK(sc.best_seed[cls] == 3);
+    CHECK_MSG(sc.chamfer_prompted < 1e-4, "Chamfer to its own class %g", sc.chamfer_prompted);
+    for (int c = 0; c < t.n_classes; c++)
+        if (c != cls) CHECK_MSG(sc.chamfer[c] > 0.01, "%s: %g", mlb_catalogue_class_name(c), sc.chamfer[c]);
+    CHECK(sc.material_rmse == 0);
+    CHECK(sc.metal_truth && sc.metal_pred && sc.metal_ok);
+    CHECK_MSG(sc.relight_psnr > 30, "relighting %g dB", sc.relight_psnr);
+    CHECK(sc.held_out == mlb_catalogue_held_out(cls, gold));
+    double perfect = sc.relight_psnr;
+
+    // the same gold asset prompted as white: the material is wrong, and so is metal/dielectric
+    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, white, &light, &mc, &sc) == MLB_OK);
+    CHECK(sc.class_ok);
+    CHECK_MSG(sc.material_rmse > 0.3, "RMSE %g", sc.material_rmse);
+    CHECK(!sc.metal_truth && sc.metal_pred && !sc.metal_ok);
+    CHECK_MSG(sc.relight_psnr < 25 && sc.relight_psnr < perfect, "relighting %g dB", sc.relight_psnr);
+    free(k);
+    mlb_mesh_free(&m);
+
+    // another class's mesh prompted as a mug: the class is wrong, and the nearest is its own
+    int bowl;
+    REQUIRE(mlb_catalogue_class_parse("bowl", &bowl) == MLB_OK);
+    REQUIRE(mlb_catalogue_mesh(bowl, 3, &m) == MLB_OK);
+    k = material_everywhere(&m, white);
+    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, white, &light, &mc, &sc) == MLB_OK);
+    CHECK(!sc.class_ok && sc.nearest == bowl);
+    CHECK(sc.chamfer_prompted > 10 * sc.chamfer[bowl]);
+    CHECK(sc.material_rmse == 0 && sc.metal_ok);
+    free(k);
+    mlb_mesh_free(&m);
+    mlb_envlight_free(&light);
+    mlb_envmap_free(&env);
+    mlb_text3d_truth_free(&t);
+}
+
+// The whole benchmark path (generate through the library, measure, report, JSON, resume) on the
+// random tiny SD fixture at a few steps: the plumbing, not the numbers.
+TEST(bench_smoke_tiny_sd) {
+    const char* shared = test_shared_data();
+    if (!shared) SKIP("no ../shared/data");
+    char model[4200];
+    snprintf(model, sizeof model, "%s/sd_reference/sd1_diffusers", shared);
+    char probe[4300];
+    snprintf(probe, sizeof probe, "%s/model_index.json", model);
+    if (!mlb_is_file(probe)) SKIP("no %s", model);
+    const char* dir = test_tmpdir("text3d");
+    REQUIRE(dir);
+    mlb_text3d_bench_config bc = mlb_text3d_bench_default();
+    bc.out_dir = dir;
+    REQUIRE(mlb_text3d_base_config(&bc.base, "tiny", model, 0, 0.01, MLB_MATERIAL_LATENT, 0, 1) == MLB_OK);
+    bc.base.res = 64;            // smaller renders: the fixture's numbers mean nothing anyway
+    bc.base.latent_size = 8;
+    bc.base.grid = 32;
+    bc.base.views = 1;
+    bc.n_classes = 1;
+    REQUIRE(mlb_catalogue_class_parse("bowl", &bc.classes[0]) == MLB_OK);
+    bc.n_materials = 1;
+    REQUIRE(mlb_catalogue_material_parse("gold", &bc.materials[0]) == MLB_OK);
+    bc.n_seeds = 1;
+    bc.measure = small_measure();
+    bc.measure.chamfer_samples = 200;
+    mlb_text3d_row row;
+    mlb_text3d_summary sum;
+    int n = 0;
+    mlb_status s = mlb_text3d_bench_run(&bc, &row, &n, &sum);
+    CHECK_MSG(s == MLB_OK, "%s", mlb_last_error());
+    REQUIRE(n == 1);
+    CHECK(row.generated == 1 && !strcmp(row.prompt, "a gold bowl"));
+    CHECK(sum.n == 1 && sum.n_seen + sum.n_held_out == 1);
+    CHECK(isfinite(row.scores.chamfer_prompted) && isfinite(row.scores.material_rmse));
+    char path[4300];
+    snprintf(path, sizeof path, "%s/report.md", dir);
+    CHECK(mlb_is_file(path));
+    snprintf(path, sizeof path, "%s/bowl_gold/final/mesh.obj", dir);
+    CHECK(mlb_is_file(path));
+    snprintf(path, sizeof path, "%s/out.json", dir);
+    CHECK(mlb_text3d_write_json(path, &bc, &row, 1, &sum) == MLB_OK);
+    // a rerun reuses the finished run and measures the same numbers
+    mlb_text3d_row again;
+    REQUIRE(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_OK);
+    CHECK(again.generated == 0 && again.seconds == row.seconds);
+    CHECK(again.scores.chamfer_prompted == row.scores.chamfer_prompted);
+    CHECK(again.scores.material_rmse == row.scores.material_rmse);
+    // another ablation into the same folder is refused, naming it
+    bc.base.fixed_env = 1;
+    CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "bowl_gold") != NULL);
+}
+
+int main(void) {
+    RUN(metal_rule_matches_catalogue);
+    RUN(median_brdf);
+    RUN(base_config);
+    RUN(truth_as_asset_scores_perfectly);
+    RUN(bench_smoke_tiny_sd);
+    return test_summary();
+}

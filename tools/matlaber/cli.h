@@ -2,6 +2,7 @@
 #ifndef MATLABER_CLI_H
 #define MATLABER_CLI_H
 #include <getopt.h>
+#include <stdint.h>
 #include <stdio.h>
 #include "matlaber/error.h"
 
@@ -31,6 +32,8 @@ int cmd_brdf(int argc, char** argv);
 int cmd_bench(int argc, char** argv);
 int cmd_catalogue(int argc, char** argv);
 int cmd_demo(int argc, char** argv);
+// matlaber demo without --fit (cmd_demo_text.c)
+int demo_text_main(const char* out, uint64_t seed, int quick, const char* cls, const char* mat);
 int cmd_device(int argc, char** argv);
 int cmd_geometry(int argc, char** argv);
 int cmd_render(int argc, char** argv);

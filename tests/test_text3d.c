@@ -51,8 +51,12 @@ TEST(median_brdf) {
 
 TEST(base_config) {
     mlb_pipeline_config c;
+    mlb_pipeline_config p = mlb_pipeline_default();   // the preset's own step counts, a tenth of each
+    REQUIRE(mlb_pipeline_preset(&p, "tiny") == MLB_OK);
     REQUIRE(mlb_text3d_base_config(&c, "tiny", "MODEL", 5, 0.1, MLB_MATERIAL_LATENT, 0, 1) == MLB_OK);
-    CHECK(c.geometry_iters == 30 && c.appearance_iters == 20 && c.init_iters == 20);
+    CHECK(c.geometry_iters == (int)lround(p.geometry_iters * 0.1) && c.appearance_iters == (int)lround(p.appearance_iters * 0.1) &&
+          c.init_iters == (int)lround(p.init_iters * 0.1));
+    CHECK(c.grid == p.grid && c.geometry_t_min == p.geometry_t_min);
     CHECK(c.res == 128 && c.views == 4 && c.seed == 5 && c.export_texture == 0 && c.latent_iters == 0);
     snprintf(c.prompt, sizeof c.prompt, "a gold mug");   // filled per run by the benchmark
     CHECK(mlb_pipeline_validate(&c) == MLB_OK);

@@ -9,7 +9,9 @@ Q="$M --log-level warn"
 
 for c in generate fit interp "relight" demo; do expect 0 "$c --help" -- $M $c --help; done
 expect 2 "generate without -p" -- $M generate -m /x -o "$T/r"
-expect 2 "generate without -m" -- $M generate -p x -o "$T/r"
+# without -m: the project's own model ($MATLABER_MODEL, else models/matlaber-tiny), here a missing one
+expect 1 "generate without -m, no model there" -- env MATLABER_MODEL="$T/no-model" $M generate -p x -o "$T/r"
+err_has "the missing model named" "no-model"
 expect 2 "fit without --views" -- $M fit -o "$T/r"
 expect 2 "fit bad --res" -- $M fit --views "$T/v" -o "$T/r" --res 100
 expect 2 "fit bad --material" -- $M fit --views "$T/v" -o "$T/r" --material shiny

@@ -1,6 +1,6 @@
 // `sd train` on a very small model (sd_train.h): the folder it writes loads through
 // mlb_sd_model_load; the same bits on 1 and 2 threads; a run stopped and resumed gives the bits of
-// one that never stopped; the losses fall.
+// one that never stopped. (That training learns is shown on the real model: docs/sd_train.md.)
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>

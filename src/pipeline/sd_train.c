@@ -43,9 +43,9 @@ mlb_sd_train_config mlb_sd_train_default(void) {
     c.vae_batch = 16;
     c.vae_lr = 1e-3;
     c.vae_kl = 1e-4;
-    mlb_unet_config u;
-    memset(&u, 0, sizeof u);
-    u.in_channels = u.out_channels = 4;
+    mlb_unet_config u = mlb_unet_tiny_config(0);   // SD1's settings (norms, eps, sinusoid), then the sizes
+    memset(u.attn, 0, sizeof u.attn);
+    memset(u.heads, 0, sizeof u.heads);
     u.n_levels = 3;
     u.block_out[0] = 64; u.block_out[1] = 128; u.block_out[2] = 128;
     u.layers_per_block = 1;
@@ -54,14 +54,6 @@ mlb_sd_train_config mlb_sd_train_default(void) {
     u.mid_heads = 4;
     u.context_dim = c.text.width;
     u.time_embed_dim = 256;
-    u.linear_projection = 0;
-    u.norm_groups = 32;
-    u.norm_eps = 1e-5f;
-    u.transformer_norm_eps = 1e-6f;
-    u.layer_norm_eps = 1e-5f;
-    u.flip_sin_to_cos = 1;
-    u.freq_shift = 0;
-    u.layout = MLB_UNET_LAYOUT_DIFFUSERS;
     c.unet = u;
     c.unet_steps = 20000;
     c.unet_batch = 32;
@@ -231,10 +223,10 @@ mlb_status mlb_sd_train_unet(const mlb_backend* be, const mlb_sd_train_config* c
         snprintf(st, sizeof st, "loss %.4f", ema);
         pr.total = P->total;
         mlb_progress_update(&pr, step + 1, st);
-        if (P->step % c->checkpoint_every == 0 && P->step < P->total) s = mlb_train_params_save(be, P, log);
+        if (P->step % c->checkpoint_every == 0 && P->step < P->total) s = mlb_train_params_save(be, P);
     }
     if (!s) mlb_progress_end(&pr, NULL);
-    if (!s && P->step < P->total) s = mlb_train_params_save(be, P, log);   // stopped early
+    if (!s && P->step < P->total) s = mlb_train_params_save(be, P);   // stopped early
     mlb_unet_tape_free(tape);
     be->release(dx); be->release(dctx); be->release(dout); be->release(dcap);
     free(hx); free(heps); free(hout); free(ht); free(cap);

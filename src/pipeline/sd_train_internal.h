@@ -32,8 +32,8 @@ mlb_status mlb_train_params_step(const mlb_backend* be, mlb_train_params* P, dou
 // With a time limit: after 20 steps of a phase started at time t_phase (step `first`), the
 // phase's step count that fits in `budget` seconds (never more than `steps`); else `steps`.
 long mlb_train_fit_steps(long steps, long first, long step, double t_phase, double budget);
-// params, moments and the step to P->path (atomically); the loss log is flushed with each row already.
-mlb_status mlb_train_params_save(const mlb_backend* be, const mlb_train_params* P, mlb_losslog* log);
+// params, moments and the step to P->path (atomically; the loss log flushes its rows itself).
+mlb_status mlb_train_params_save(const mlb_backend* be, const mlb_train_params* P);
 // Back from P->path: MLB_ERR_NOT_FOUND when there is none (a fresh start).
 mlb_status mlb_train_params_load(const mlb_backend* be, mlb_train_params* P);
 

@@ -55,8 +55,7 @@ long mlb_train_fit_steps(long steps, long first, long step, double t_phase, doub
 }
 
 // The three vectors through the host (the checkpoint writer reads host memory).
-mlb_status mlb_train_params_save(const mlb_backend* be, const mlb_train_params* P, mlb_losslog* log) {
-    (void)log;
+mlb_status mlb_train_params_save(const mlb_backend* be, const mlb_train_params* P) {
     float* h = malloc(3 * P->n * sizeof(float));
     if (!h) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the training state", P->path);
     mlb_status s = be->download(h, P->params, P->n);
@@ -207,7 +206,7 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
         PU.deadline = t0 + c->time_limit - 15.0;   // the latents, the files
     }
     if (!s && PV.step < PV.total) s = mlb_sd_train_vae(be, c, &d, &PV, log);
-    if (!s && PV.step == PV.total && rstage < 1) s = mlb_train_params_save(be, &PV, log);
+    if (!s && PV.step == PV.total && rstage < 1) s = mlb_train_params_save(be, &PV);
     int stopped = !s && PV.step < PV.total;
     if (!s) s = be->download(hv->params, dv->params, hv->n_params);
     // latents and their scale
@@ -228,7 +227,7 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     }
     if (!s && !stopped && PU.step < PU.total) s = mlb_sd_train_unet(be, c, &d, lat_rgb, lat_geo, captions, &PU, log);
     if (!s && !stopped) stopped = PU.step < PU.total;
-    if (!s && !stopped) s = mlb_train_params_save(be, &PU, log);
+    if (!s && !stopped) s = mlb_train_params_save(be, &PU);
     if (!s && stopped) {
         mlb_log(MLB_LOG_INFO, "sd train: stopped after VAE step %ld, UNet step %ld: continue with --resume", PV.step, PU.step);
         goto finish;

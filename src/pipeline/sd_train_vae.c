@@ -95,10 +95,10 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
         snprintf(st, sizeof st, "mse %.5f", ema);
         pr.total = P->total;
         mlb_progress_update(&pr, step + 1, st);
-        if (!s && P->step % c->checkpoint_every == 0 && P->step < P->total) s = mlb_train_params_save(be, P, log);
+        if (!s && P->step % c->checkpoint_every == 0 && P->step < P->total) s = mlb_train_params_save(be, P);
     }
     if (!s) mlb_progress_end(&pr, NULL);
-    if (!s && P->step < P->total) s = mlb_train_params_save(be, P, log);   // stopped early
+    if (!s && P->step < P->total) s = mlb_train_params_save(be, P);   // stopped early
     mlb_vae_cache_free(&ec);
     mlb_vae_dec_cache_free(&dc);
     be->release(dimg); be->release(drec); be->release(dz);

@@ -340,6 +340,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
     }
     mlb_geometry_config gc = mlb_geometry_default();
     gc.seed = c->seed + 1;
+    if (c->hash_log2 > 0) gc.enc.table_size = 1u << c->hash_log2;
     if (!s) s = geometry_net_init(&r.geo, &gc);
     if (!s) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
     r.ctx = mlb_raster_ctx_create();
@@ -363,6 +364,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
         mc.mode = c->material;
         mc.seed = c->seed + 2;
         mc.scale = gc.scale;
+        mc.enc.table_size = gc.enc.table_size;
         if (!s) s = material_net_init(&r.mat, &mc, &prior);
         if (!s) s = appearance_stage(&r);
     }

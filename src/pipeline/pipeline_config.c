@@ -107,6 +107,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->grid < 8 || c->grid > 512) bad = "--grid must be in 8..512";
     else if (!(c->geometry_lr > 0) || !(c->appearance_lr > 0)) bad = "learning rates must be > 0";
     else if (c->init_iters < 0) bad = "init iterations must be >= 0";
+    else if (c->hash_log2 != 0 && (c->hash_log2 < 10 || c->hash_log2 > 24)) bad = "hash_table_log2 must be 0 (19) or 10..24";
     else if (c->geometry_t_min < 0 || c->geometry_t_min > 500) bad = "geometry_t_min must be in 0..500 (0: the guidance's 20)";
     else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
     else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
@@ -161,6 +162,7 @@ static const field FIELDS[] = {
     FLD_OPT("export_texture", F_INT, export_texture, 0),              // added 2026-11-26; before: no .glb
     FLD_OPT("latent_size", F_INT, latent_size, 0),                    // added 2026-11-27; before: 64
     FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // added 2026-11-27; before: 20
+    FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // added 2026-11-27; before: 2^19
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
 };
 #undef FLD

@@ -28,6 +28,7 @@ static const cli_option options[] = {
     {"appearance-iters", 1, 'A', "N", "appearance stage steps (generate 2000, fit 400)"},
     {"res", 1, 'r', "N", "render size (generate 512, fit 128)"},
     {"grid", 1, 'g', "N", "DMTet grid, Fantasia3D's naming: 128 = 64 cells per axis (generate 128, fit 64)"},
+    {"hash-table-log2", 1, 'H', "N", "both hash grids: 2^N entries per hashed level (default 19, the paper's; the tiny preset 16)"},
     {"geometry-lr", 1, 'L', "X", "geometry stage learning rate (generate 1e-3, fit 1e-2)"},
     {"appearance-lr", 1, 'l', "X", "appearance stage learning rate (1e-2)"},
     {"env", 1, 'e', "NAME|FILE", "generate: the environment pool (repeat or comma-separate; default sky,studio,overcast);\n"
@@ -148,6 +149,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         case 'A': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--appearance-iters: expected >= 0"); c.appearance_iters = (int)v; break;
         case 'r': if (cli_parse_long(optarg, 16, 2048, &v) || v % 8) return cli_usage_error(command, "--res: expected a multiple of 8 in 16..2048"); c.res = (int)v; break;
         case 'g': if (cli_parse_long(optarg, 8, 512, &v)) return cli_usage_error(command, "--grid: expected 8..512"); c.grid = (int)v; break;
+        case 'H': if (cli_parse_long(optarg, 10, 24, &v)) return cli_usage_error(command, "--hash-table-log2: expected 10..24"); c.hash_log2 = (int)v; break;
         case 'L': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--geometry-lr: expected a positive number"); c.geometry_lr = x; break;
         case 'l': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--appearance-lr: expected a positive number"); c.appearance_lr = x; break;
         case 'e': if (add_envs(&c, optarg, &env_reset)) return cli_usage_error(command, "--env: at most %d environments", MLB_PIPELINE_MAX_ENVS); break;

@@ -3,6 +3,7 @@
 // the metal rule must classify every catalogue material from its truth. One smoke test runs the
 // whole benchmark path on the random tiny SD fixture (skipped without ../shared/data).
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include "matlaber/catalogue.h"
 #include "matlaber/fileio.h"
@@ -171,6 +172,24 @@ TEST(bench_smoke_tiny_sd) {
     CHECK(again.generated == 0 && again.seconds == row.seconds);
     CHECK(again.scores.chamfer_prompted == row.scores.chamfer_prompted);
     CHECK(again.scores.material_rmse == row.scores.material_rmse);
+    // a failure recorded in the run's text3d.json is reused as such: a row, not the end of the run
+    snprintf(path, sizeof path, "%s/bowl_gold/text3d.json", dir);
+    REQUIRE(mlb_write_file_atomic(path, "{\"seconds\": 12, \"error\": \"no surface\"}\n", 39) == MLB_OK);
+    mlb_text3d_row failed;
+    REQUIRE(mlb_text3d_bench_run(&bc, &failed, &n, &sum) == MLB_OK);
+    CHECK(n == 1 && !strcmp(failed.error, "no surface") && failed.generated == 0 && failed.seconds == 12);
+    CHECK(sum.n_failed == 1 && sum.class_acc == 0 && sum.metal_acc == 0 && isinf(sum.median_chamfer));
+    CHECK(isnan(sum.relight_psnr) && isnan(failed.scores.material_rmse) && failed.scores.nearest == -1);
+    snprintf(path, sizeof path, "%s/bowl_gold/report.md", dir);   // the print path with a failed row
+    FILE* f = fopen(path, "w");
+    REQUIRE(f);
+    mlb_text3d_print(f, &bc, &failed, 1, &sum);
+    fclose(f);
+    char* text = NULL;
+    size_t len = 0;
+    REQUIRE(mlb_read_file(path, &text, &len, 1 << 20) == MLB_OK);
+    CHECK(strstr(text, "failed: no surface") && strstr(text, "1 of 1 generations failed"));
+    free(text);
     // another ablation into the same folder is refused, naming it
     bc.base.fixed_env = 1;
     CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);

@@ -94,11 +94,15 @@ typedef struct {
     char run_dir[MLB_PIPELINE_PATH];
     mlb_text3d_scores scores;
     double seconds;                   // generation (an earlier invocation's when it was skipped)
-    int generated;                    // 0: the run folder had finished before, reused
+    int generated;                    // 0: the run folder had finished (or failed) before, reused
+    char error[256];                  // non-empty: the generation failed (e.g. the surface vanished);
+                                      //   the row counts as wrong class and wrong metal, no numbers
 } mlb_text3d_row;
 
 typedef struct {
     int n, n_seen, n_held_out;
+    int n_failed;                     // generations that failed: wrong in the accuracies, Chamfer
+                                      //   infinite in the median, left out of the RMSE and PSNR means
     double class_acc, class_acc_seen, class_acc_held_out;
     double metal_acc;
     double median_chamfer;            // to the prompted class
@@ -109,7 +113,9 @@ typedef struct {
 
 // Generates (or resumes, or reuses when finished) and measures every class x material prompt of
 // the subset, in class-major order. rows: room for n_classes x n_materials; *n_rows: filled. A run
-// folder made with other settings is an error naming it (no silent mixing). Writes OUT/report.md.
+// folder made with other settings is an error naming it (no silent mixing). A generation that fails
+// is a row with its error (kept in RUN/text3d.json, so a rerun does not repeat it), not the end of
+// the benchmark. Writes OUT/report.md.
 mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row* rows, int* n_rows,
                                 mlb_text3d_summary* summary);
 void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb_text3d_summary* out);

@@ -88,26 +88,50 @@ static int run_finished(const char* dir) {
     return mlb_is_file(p);
 }
 
-// RUN/text3d.json: the generation's seconds (kept for a later invocation that reuses the run).
-static void seconds_save(const char* dir, double seconds) {
+// RUN/text3d.json: the generation's seconds and, when it failed, why (kept for a later invocation
+// that reuses the run: a deterministic failure is not worth repeating).
+static void outcome_save(const char* dir, double seconds, const char* error) {
     char p[MLB_PIPELINE_PATH + 64];
     snprintf(p, sizeof p, "%s/text3d.json", dir);
     cJSON* j = cJSON_CreateObject();
     if (!j) return;
     cJSON_AddNumberToObject(j, "seconds", seconds);
+    if (error && error[0]) cJSON_AddStringToObject(j, "error", error);
     if (mlb_run_write_json(p, j)) mlb_log(MLB_LOG_WARN, "could not write %s", p);
     cJSON_Delete(j);
 }
 
-static double seconds_load(const char* dir) {
+// The seconds (NAN when unknown) and the saved error (empty when none).
+static double outcome_load(const char* dir, char* error, size_t cap) {
     char p[MLB_PIPELINE_PATH + 64];
     snprintf(p, sizeof p, "%s/text3d.json", dir);
     cJSON* j = NULL;
     double v = NAN;
-    if (mlb_is_file(p) && mlb_run_read_json(p, &j) == MLB_OK && mlb_json_get_number(j, "seconds", 0, 1e12, &v, p) != MLB_OK)
-        v = NAN;
+    error[0] = 0;
+    if (mlb_is_file(p) && mlb_run_read_json(p, &j) == MLB_OK) {
+        if (mlb_json_get_number(j, "seconds", 0, 1e12, &v, p) != MLB_OK) v = NAN;
+        const cJSON* e = cJSON_GetObjectItemCaseSensitive(j, "error");
+        if (cJSON_IsString(e)) snprintf(error, cap, "%s", e->valuestring);
+    }
     cJSON_Delete(j);
     return v;
+}
+
+// A failed generation's row: no asset, so the prompted class is not the nearest (none is) and the
+// metal call is wrong; the numbers that need an asset are NAN (the Chamfer infinite).
+static void failed_scores(mlb_text3d_scores* sc, int cls, int mat) {
+    memset(sc, 0, sizeof *sc);
+    sc->cls = cls;
+    sc->mat = mat;
+    sc->held_out = mlb_catalogue_held_out(cls, mat);
+    sc->nearest = -1;
+    for (int k = 0; k < MLB_TEXT3D_MAX_CLASSES; k++) sc->chamfer[k] = INFINITY;
+    sc->chamfer_prompted = INFINITY;
+    for (int j = 0; j < 7; j++) sc->median_k[j] = NAN;
+    sc->material_rmse = NAN;
+    sc->metal_truth = mlb_catalogue_material_metal(mat);
+    sc->metal_pred = !sc->metal_truth;   // no call made: the opposite of the truth, as counted
+    sc->relight_psnr = NAN;
 }
 
 // Generates the prompt into dir: fresh, resumed, or nothing to do when it finished before.
@@ -123,10 +147,12 @@ static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipe
         s = mlb_pipeline_config_load(&have, p);
         if (!s) s = check_same(dir, want, &have);
         if (s) return s;
-        if (run_finished(dir)) {
-            row->seconds = seconds_load(dir);
+        double seconds = outcome_load(dir, row->error, sizeof row->error);
+        if (row->error[0] || run_finished(dir)) {
+            row->seconds = seconds;
             row->generated = 0;
-            mlb_log(MLB_LOG_INFO, "%s finished before: measuring it", dir);
+            mlb_log(MLB_LOG_INFO, "%s %s before: %s", dir, row->error[0] ? "failed" : "finished",
+                    row->error[0] ? row->error : "measuring it");
             return MLB_OK;
         }
         c = have;   // continue with the run's own settings (equal in what matters, checked above)
@@ -139,14 +165,21 @@ static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipe
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
+    int ran = !s;   // a failure from here on is the generation's own, not the set-up's
     if (!s) s = mlb_pipeline_run(dir, &c, g, views, resume, bc->progress ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);
     if (!s && !result.finished) s = mlb_fail(MLB_ERR_ARG, "%s: the run stopped before its end", dir);
-    if (s) return mlb_fail_context(s, "generating '%s'", c.prompt);
     row->seconds = mlb_now_seconds() - t0;
     row->generated = 1;
-    seconds_save(dir, row->seconds);
+    if (s && ran && mlb_run_exists(dir)) {
+        // the run itself failed (the surface vanished, a step went non-finite): a result, not the end
+        snprintf(row->error, sizeof row->error, "%s", mlb_last_error());
+        mlb_log(MLB_LOG_WARN, "'%s' failed: %s", c.prompt, row->error);
+        s = MLB_OK;
+    }
+    if (s) return mlb_fail_context(s, "generating '%s'", c.prompt);
+    outcome_save(dir, row->seconds, row->error);
     return MLB_OK;
 }
 
@@ -221,13 +254,14 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         mlb_pipeline_config want = c->base;
         snprintf(want.prompt, sizeof want.prompt, "%s", row->prompt);
         s = generate_one(c, &want, row->run_dir, row);
-        if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
+        if (!s && row->error[0]) failed_scores(&row->scores, cls, mat);
+        else if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
         if (!s) {
             *n_rows = i + 1;
             // the ETA from every prompt whose generation time is known (an earlier invocation's too)
             if (row->generated) { n_gen++; gen_wall += mlb_now_seconds() - t1; }
             else if (isfinite(row->seconds)) { n_gen++; gen_wall += row->seconds; }
-            if (c->progress)
+            if (c->progress && !row->error[0])
                 mlb_log(MLB_LOG_INFO, "'%s': nearest %s (Chamfer %.4f to %s), material RMSE %.3f, %s, relit %.2f dB",
                         row->prompt, mlb_catalogue_class_name(row->scores.nearest), row->scores.chamfer_prompted,
                         mlb_catalogue_class_name(cls), row->scores.material_rmse,
@@ -260,25 +294,31 @@ void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb
     memset(o, 0, sizeof *o);
     o->n = n;
     o->seconds = seconds;
-    int ok = 0, ok_seen = 0, ok_held = 0, metal = 0;
+    int ok = 0, ok_seen = 0, ok_held = 0, metal = 0, measured = 0, measured_seen = 0, measured_held = 0;
     double rmse_seen = 0, rmse_held = 0, psnr = 0;
     double* ch = malloc(sizeof(double) * (n > 0 ? n : 1));
     for (int i = 0; i < n; i++) {
         const mlb_text3d_scores* sc = &rows[i].scores;
+        int failed = rows[i].error[0] != 0;
+        o->n_failed += failed;
         ok += sc->class_ok;
         metal += sc->metal_ok;
+        if (ch) ch[i] = sc->chamfer_prompted;   // infinite when failed: counted in the median
+        if (sc->held_out) o->n_held_out++, ok_held += sc->class_ok;
+        else o->n_seen++, ok_seen += sc->class_ok;
+        if (failed) continue;
+        measured++;
         psnr += sc->relight_psnr;
-        if (ch) ch[i] = sc->chamfer_prompted;
-        if (sc->held_out) { o->n_held_out++; ok_held += sc->class_ok; rmse_held += sc->material_rmse; }
-        else { o->n_seen++; ok_seen += sc->class_ok; rmse_seen += sc->material_rmse; }
+        if (sc->held_out) measured_held++, rmse_held += sc->material_rmse;
+        else measured_seen++, rmse_seen += sc->material_rmse;
     }
     o->class_acc = n ? (double)ok / n : NAN;
     o->class_acc_seen = o->n_seen ? (double)ok_seen / o->n_seen : NAN;
     o->class_acc_held_out = o->n_held_out ? (double)ok_held / o->n_held_out : NAN;
     o->metal_acc = n ? (double)metal / n : NAN;
-    o->material_rmse_seen = o->n_seen ? rmse_seen / o->n_seen : NAN;
-    o->material_rmse_held_out = o->n_held_out ? rmse_held / o->n_held_out : NAN;
-    o->relight_psnr = n ? psnr / n : NAN;
+    o->material_rmse_seen = measured_seen ? rmse_seen / measured_seen : NAN;
+    o->material_rmse_held_out = measured_held ? rmse_held / measured_held : NAN;
+    o->relight_psnr = measured ? psnr / measured : NAN;
     o->median_chamfer = NAN;
     if (ch && n) {
         qsort(ch, (size_t)n, sizeof(double), cmp_double);
@@ -310,12 +350,20 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
         char t[32];
         if (isnan(rows[i].seconds)) snprintf(t, sizeof t, "-");
         else mlb_format_duration(rows[i].seconds, t, sizeof t);
+        if (rows[i].error[0]) {   // no asset: the error in the row, wrong where a call is made
+            fprintf(f, "| %s | %s | failed: %s | - | wrong | - | wrong | - | %s%s |\n", rows[i].prompt,
+                    sc->held_out ? "held out" : "seen", rows[i].error, t, rows[i].generated ? "" : " (earlier)");
+            continue;
+        }
         fprintf(f, "| %s | %s | %s (%.4f) | %.4f | %s | %.3f | %s (%s) | %.2f dB | %s%s |\n", rows[i].prompt,
                 sc->held_out ? "held out" : "seen", mlb_catalogue_class_name(sc->nearest), sc->chamfer[sc->nearest],
                 sc->chamfer_prompted, sc->class_ok ? "ok" : "wrong", sc->material_rmse, sc->metal_ok ? "ok" : "wrong",
                 sc->metal_pred ? "metal" : "dielectric", sc->relight_psnr, t, rows[i].generated ? "" : " (earlier)");
     }
     char tt[32], a[4][16];   // a subset without held-out (or seen) prompts has no number there: "-"
+    if (sum->n_failed)
+        fprintf(f, "\n%d of %d generations failed (wrong in both accuracies, an infinite Chamfer in the median, not in\n"
+                   "the RMSE and PSNR means).\n", sum->n_failed, sum->n);
     fprintf(f, "\n%d prompts (%d seen, %d held out): class accuracy %.2f (seen %s, held out %s); metal accuracy %.2f;\n"
                "median Chamfer to the prompted class %.4f; material RMSE seen %s, held out %s; relighting %.2f dB mean;\n"
                "total time %s.\n",
@@ -353,9 +401,14 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
         cJSON_AddStringToObject(r, "material", mlb_catalogue_material_name(sc->mat));
         cJSON_AddBoolToObject(r, "held_out", sc->held_out);
         cJSON_AddStringToObject(r, "run_dir", rows[i].run_dir);
-        cJSON_AddStringToObject(r, "nearest_class", mlb_catalogue_class_name(sc->nearest));
+        if (rows[i].error[0]) {   // the error, and null where a number needs an asset
+            cJSON_AddStringToObject(r, "error", rows[i].error);
+            cJSON_AddNullToObject(r, "nearest_class");
+        } else {
+            cJSON_AddStringToObject(r, "nearest_class", mlb_catalogue_class_name(sc->nearest));
+        }
         cJSON_AddNumberToObject(r, "chamfer_prompted", sc->chamfer_prompted);
-        cJSON_AddNumberToObject(r, "chamfer_nearest", sc->chamfer[sc->nearest]);
+        cJSON_AddNumberToObject(r, "chamfer_nearest", sc->nearest >= 0 ? sc->chamfer[sc->nearest] : INFINITY);
         cJSON_AddBoolToObject(r, "class_ok", sc->class_ok);
         cJSON* by = cJSON_AddObjectToObject(r, "chamfer_by_class");
         for (int k = 0; by && k < mlb_catalogue_n_classes(); k++)
@@ -377,6 +430,7 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddNumberToObject(su, "prompts", sum->n);
     cJSON_AddNumberToObject(su, "seen", sum->n_seen);
     cJSON_AddNumberToObject(su, "held_out", sum->n_held_out);
+    cJSON_AddNumberToObject(su, "failed", sum->n_failed);
     cJSON_AddNumberToObject(su, "class_accuracy", sum->class_acc);
     cJSON_AddNumberToObject(su, "class_accuracy_seen", sum->class_acc_seen);
     cJSON_AddNumberToObject(su, "class_accuracy_held_out", sum->class_acc_held_out);

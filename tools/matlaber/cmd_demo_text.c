@@ -102,6 +102,7 @@ int demo_text_main(const char* out, uint64_t seed, int quick, const char* cls_na
     s = mlb_mkdir_p(out);
     if (!s) s = mlb_text3d_bench_run(&bc, &row, &n, &sum);
     if (!s && n != 1) s = mlb_fail(MLB_ERR_ARG, "demo: %d runs instead of one", n);
+    if (!s && row.error[0]) s = mlb_fail(MLB_ERR_NUMERIC, "demo: generating '%s' failed: %s", row.prompt, row.error);
     // the picture, under the same unseen light as the measure
     mlb_envmap env = {0};
     mlb_envlight light = {0};

@@ -59,12 +59,14 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->latent_iters = 0;      // the model never saw raw [normal, mask] latents: VAE phase from the start
         // Measured on "a gold goblet" (docs/sd_train.md): grid 64 and t from 20 shred the surface
         // into spikes; grid 32 (16 cells per axis for a 128² render) and t >= 150 give a goblet
-        c->geometry_iters = 240;
-        c->appearance_iters = 120;
+        // 120 + 60 steps: on gold goblet / mug the same class, Chamfer (0.0215 / 0.025) and metal calls
+        // as 240 + 120, in half the time (docs/benchmarks.md, "Text to 3D")
+        c->geometry_iters = 120;
+        c->appearance_iters = 60;
         c->grid = 32;
         c->hash_log2 = 16;        // 16 cells per axis need no 2^19-entry tables: dense Adam was 14% of a step
         c->geometry_t_min = 150;
-        c->init_iters = 200;
+        c->init_iters = 100;
         c->guidance_scale = 20.0; // 10 gives a cleaner shape but a washed-out, greenish gold
         c->env_height = 128;
         c->cube_size = 64;

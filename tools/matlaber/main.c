@@ -31,6 +31,7 @@ static void usage(FILE* out) {
             "  demo            fit a procedural goblet (two real materials) from an ellipsoid, and report\n"
             "  generate        text to 3D with materials: -p PROMPT -m SD_MODEL -o RUN_DIR (the paper)\n"
             "  fit             the same two stages fitted to multi-view images (no weights): --views DIR\n"
+            "  paint           the appearance stage alone on your mesh: --mesh FILE.obj -p PROMPT -o RUN_DIR\n"
             "  brdf train      train a latent BRDF auto-encoder (the material prior)\n"
             "  brdf eval       reconstruction error vs PCA-4, KL, validity along interpolations\n"
             "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
@@ -117,6 +118,7 @@ int main(int argc, char** argv) {
         return names_run_dir(sub_argc, sub_argv) ? cmd_relight_run(sub_argc, sub_argv) : cmd_relight(sub_argc, sub_argv);
     if (strcmp(cmd, "generate") == 0) return cmd_generate(sub_argc, sub_argv);
     if (strcmp(cmd, "fit") == 0) return cmd_fit(sub_argc, sub_argv);
+    if (strcmp(cmd, "paint") == 0) return cmd_paint(sub_argc, sub_argv);
     if (strcmp(cmd, "interp") == 0) return cmd_interp(sub_argc, sub_argv);
     if (strcmp(cmd, "export") == 0) return cmd_export(sub_argc, sub_argv);
     if (strcmp(cmd, "view") == 0) return cmd_view(sub_argc, sub_argv);

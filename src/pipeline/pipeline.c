@@ -167,6 +167,8 @@ static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, in
     mlb_status s = pipeline_state_load(ss->ckpt, ss->field, ss->name);
     if (s) return s;
     *start = ss->field->step;
+    // the progress rate (and so the ETA) counts only the steps this invocation takes
+    if (r->progress && r->result.geometry_steps + r->result.appearance_steps == 0) r->progress->base = ss->progress_offset + *start;
     mlb_log(MLB_LOG_INFO, "resuming the %s stage at step %ld", ss->name, *start);
     return MLB_OK;
 }
@@ -254,6 +256,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (start >= c->appearance_iters) return MLB_OK;
+    if (r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
     mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
     int n = r->g->n_views;

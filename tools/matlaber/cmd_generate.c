@@ -273,6 +273,12 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
     }
+    if (is_paint && !resume) {   // the mesh is checked before the model loads (seconds to minutes)
+        mlb_mesh m;
+        s = mlb_paint_load_mesh(c.paint_mesh, c.paint_keep_uv, &m, NULL);
+        mlb_mesh_free(&m);
+        if (s) return cli_fail(s, command);
+    }
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     s = mlb_pipeline_make_guidance(&c, &g, &views);
@@ -280,8 +286,8 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
-    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL, mlb_log_get_level() <= MLB_LOG_INFO ? &progress : NULL,
-                         &result);
+    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL,
+                         mlb_log_get_level() <= MLB_LOG_INFO || mlb_progress_json() ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);
     if (s) return cli_fail(s, command);
@@ -289,6 +295,24 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     if (result.finished && asset) {
         int rc = write_asset(dir, c.export_texture > 0 ? c.export_texture : 1024, asset);
         if (rc) return rc;
+    }
+    FILE* json = mlb_progress_json();
+    if (json) {   // the outcome, for programs reading the progress stream
+        fprintf(json, "{\"event\":\"result\",\"command\":\"%s\",\"finished\":%s,\"run\":", command,
+                result.finished ? "true" : "false");
+        mlb_json_write_string(json, dir);
+        if (result.finished && c.export_texture > 0) {
+            char glb[4200];
+            snprintf(glb, sizeof glb, "%s/final/asset.glb", dir);
+            fputs(",\"glb\":", json);
+            mlb_json_write_string(json, glb);
+        }
+        if (result.finished && asset) {
+            fputs(",\"asset\":", json);
+            mlb_json_write_string(json, asset);
+        }
+        fprintf(json, ",\"vertices\":%d,\"faces\":%d,\"seconds\":%.2f}\n", result.n_verts, result.n_faces, seconds);
+        fflush(json);
     }
     if (result.finished && is_paint)
         printf("%s: done in %.1f s: %d vertices, %d faces; last appearance loss %.4g\n"

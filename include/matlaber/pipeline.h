@@ -58,6 +58,12 @@ typedef struct {
     int fixed_env;                // 1: environment 0 only, never rotated (Fantasia3D's setting)
     int env_height;               // lat-long height of built-in environments: 256
     int cube_size;                // pre-integrated cube face size: 128
+    // paint (`matlaber paint`, docs/paint.md): the appearance stage alone on a given mesh
+    char paint_mesh[MLB_PIPELINE_PATH]; // the input mesh as named ("" = not a paint run); the run keeps an
+                                  // exact copy in RUN_DIR/input/mesh.obj and reads only that on resume
+    int paint_keep_uv;            // 1: the texture is baked on the mesh's own UVs (default); 0: an atlas
+    double paint_centre[3];       // the generation frame of the mesh: p' = (p - centre) * scale; filled
+    double paint_scale;           //   in by mlb_pipeline_run when the run starts (0 before)
     // run
     int export_texture;           // > 0: the run ends by writing final/asset.glb with textures of this
                                   // size (generate: 1024; fit: 0 = none; `matlaber export` does it later)

@@ -12,6 +12,7 @@
 #include "matlaber/geometry_fit.h"
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
+#include "matlaber/paint.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/run_textured.h"
 #include "matlaber/run.h"
@@ -166,6 +167,8 @@ static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, in
     mlb_status s = pipeline_state_load(ss->ckpt, ss->field, ss->name);
     if (s) return s;
     *start = ss->field->step;
+    // the progress rate (and so the ETA) counts only the steps this invocation takes
+    if (r->progress && r->result.geometry_steps + r->result.appearance_steps == 0) r->progress->base = ss->progress_offset + *start;
     mlb_log(MLB_LOG_INFO, "resuming the %s stage at step %ld", ss->name, *start);
     return MLB_OK;
 }
@@ -253,6 +256,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (start >= c->appearance_iters) return MLB_OK;
+    if (r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
     mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
     int n = r->g->n_views;
@@ -304,10 +308,61 @@ static mlb_status appearance_stage(pipeline_run* r) {
 }
 
 // ---- the run -----------------------------------------------------------------------------------
-mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_guidance* g, const mlb_views* views,
+// ---- paint: the given mesh instead of the geometry stage -----------------------------------------
+// A fresh paint run loads and checks the user's mesh (before anything is written: hostile input ends
+// in an error and no folder) and fills in its frame; a resumed one reads the run's own copy.
+static mlb_status paint_open(const char* dir, mlb_pipeline_config* pc, int resume, mlb_mesh* input) {
+    if (!resume) {
+        mlb_paint_mesh_info info;
+        mlb_status s = mlb_paint_load_mesh(pc->paint_mesh, pc->paint_keep_uv, input, &info);
+        if (!s) s = mlb_paint_frame(input, pc->paint_centre, &pc->paint_scale);
+        if (!s)
+            mlb_log(MLB_LOG_INFO, "paint: %s: %d vertices, %d faces, %s; frame centre (%.4g, %.4g, %.4g), scale %.4g",
+                    pc->paint_mesh, info.n_verts, info.n_faces, info.has_uv ? "its own UVs" : "no UVs (an atlas at export)",
+                    pc->paint_centre[0], pc->paint_centre[1], pc->paint_centre[2], pc->paint_scale);
+        return s;
+    }
+    char path[MLB_PIPELINE_PATH + 64];
+    pipeline_path(path, sizeof path, dir, "input/mesh.obj");
+    mlb_status s = mlb_obj_load(path, input);
+    if (!s && !input->normal) s = mlb_mesh_compute_normals(input);
+    if (!s && !(pc->paint_scale > 0)) s = mlb_fail(MLB_ERR_FORMAT, "%s/config.json: a paint run without its frame (paint_scale)", dir);
+    return s;
+}
+
+// The appearance stage's mesh: the input moved into the generation frame (normals unchanged: the
+// map is a uniform scale and a shift).
+static mlb_status paint_scene_mesh(const mlb_pipeline_config* c, const mlb_mesh* in, mlb_mesh* out) {
+    memset(out, 0, sizeof *out);
+    size_t V = (size_t)in->n_verts, F = (size_t)in->n_faces;
+    out->pos = malloc(sizeof(float) * 3 * V);
+    out->normal = malloc(sizeof(float) * 3 * V);
+    out->faces = malloc(sizeof(int32_t) * 3 * F);
+    if (!out->pos || !out->normal || !out->faces) {
+        mlb_mesh_free(out);
+        return mlb_fail(MLB_ERR_NOMEM, "paint: out of memory for %zu vertices", V);
+    }
+    out->n_verts = (int)V;
+    out->n_faces = (int)F;
+    mlb_paint_to_frame(c->paint_centre, c->paint_scale, in->pos, out->pos, V);
+    memcpy(out->normal, in->normal, sizeof(float) * 3 * V);
+    memcpy(out->faces, in->faces, sizeof(int32_t) * 3 * F);
+    return MLB_OK;
+}
+
+mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, mlb_guidance* g, const mlb_views* views,
                             int resume, mlb_progress* progress, mlb_pipeline_result* result) {
-    mlb_status s = mlb_pipeline_validate(c);
+    mlb_status s = mlb_pipeline_validate(c_in);
     if (s) return s;
+    mlb_pipeline_config pc = *c_in;   // a fresh paint run fills in its frame
+    const mlb_pipeline_config* c = &pc;
+    const int paint = pc.paint_mesh[0] != 0;
+    mlb_mesh input;
+    memset(&input, 0, sizeof input);
+    if (paint) {
+        s = paint_open(dir, &pc, resume, &input);
+        if (s) return s;
+    }
     pipeline_run r;
     memset(&r, 0, sizeof r);
     r.dir = dir;
@@ -325,10 +380,14 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
             s = mlb_pipeline_config_save(c, path);
         }
     }
-    const char* subdirs[] = {"checkpoints", "previews", "final"};
-    for (int i = 0; !s && i < 3; i++) {
+    const char* subdirs[] = {"checkpoints", "previews", "final", "input"};
+    for (int i = 0; !s && i < 3 + paint; i++) {
         pipeline_path(path, sizeof path, dir, subdirs[i]);
         s = mlb_mkdir_p(path);
+    }
+    if (!s && paint && !resume) {
+        pipeline_path(path, sizeof path, dir, "input/mesh.obj");
+        s = mlb_paint_write_obj(path, &input);
     }
     // where a resumed run restarts: the loss log drops the rows after it
     int resume_stage = -1;   // a fresh log
@@ -341,20 +400,22 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
     mlb_geometry_config gc = mlb_geometry_default();
     gc.seed = c->seed + 1;
     if (c->hash_log2 > 0) gc.enc.table_size = 1u << c->hash_log2;
-    if (!s) s = geometry_net_init(&r.geo, &gc);
-    if (!s) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
+    if (!s && !paint) s = geometry_net_init(&r.geo, &gc);
+    if (!s && !paint) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
     r.ctx = mlb_raster_ctx_create();
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
     if (!s && progress)
-        mlb_progress_begin(progress, stderr, strcmp(c->guidance, "images") ? "generate" : "fit",
+        mlb_progress_begin(progress, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit",
                            (long)c->geometry_iters + c->appearance_iters, "it");
 
-    if (!s) s = geometry_stage(&r);
+    if (!s && !paint) s = geometry_stage(&r);
     int geometry_done = !s && !r.stopped;
-    // the fixed mesh of the appearance stage: the geometry network's surface, extracted
+    // the fixed mesh of the appearance stage: the geometry network's surface, extracted, or the
+    // painted mesh in the generation frame
     if (geometry_done) s = pipeline_scene_init(&r.scene, c, r.views);
-    if (!s && geometry_done) s = mlb_geometry_extract(&r.geo, &r.grid, &r.scene.mesh);
-    if (!s && geometry_done) s = mlb_mesh_compute_normals(&r.scene.mesh);
+    if (!s && geometry_done && paint) s = paint_scene_mesh(c, &input, &r.scene.mesh);
+    if (!s && geometry_done && !paint) s = mlb_geometry_extract(&r.geo, &r.grid, &r.scene.mesh);
+    if (!s && geometry_done && !paint) s = mlb_mesh_compute_normals(&r.scene.mesh);
     mlb_brdf_ae prior;
     memset(&prior, 0, sizeof prior);
     if (!s && geometry_done) {
@@ -390,6 +451,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
     mlb_raster_ctx_free(r.ctx);
     mlb_tetgrid_free(&r.grid);
     geometry_net_free(&r.geo);
+    mlb_mesh_free(&input);
     if (r.log) mlb_losslog_close(r.log);
     if (!s) {
         pipeline_path(path, sizeof path, dir, "loss.csv");

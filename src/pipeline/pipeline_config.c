@@ -45,6 +45,7 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     c.checkpoint_every = 100;
     c.preview_every = 100;
     c.stop_after = 0;
+    c.paint_keep_uv = 1;
     return c;
 }
 
@@ -129,6 +130,11 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
     else if (c->precision[0] && mlb_gemm_precision_parse(c->precision, &prec) != MLB_OK)
         bad = "precision must be empty (the program's) or one of --precision's names";
+    else if (c->paint_mesh[0] && c->geometry_iters != 0) bad = "a paint run has no geometry stage (geometry_iters 0)";
+    else if (c->paint_keep_uv != 0 && c->paint_keep_uv != 1) bad = "paint_keep_uv must be 0 or 1";
+    else if (!(c->paint_scale >= 0) || !isfinite(c->paint_scale) || !isfinite(c->paint_centre[0]) ||
+             !isfinite(c->paint_centre[1]) || !isfinite(c->paint_centre[2]))
+        bad = "the paint frame (paint_centre_*, paint_scale) must be finite, the scale >= 0";
     if (bad) return mlb_fail(MLB_ERR_ARG, "pipeline config: %s", bad);
     for (int i = 0; i < c->n_envs; i++)
         if (!c->envs[i][0]) return mlb_fail(MLB_ERR_ARG, "pipeline config: environment %d is empty", i);
@@ -169,6 +175,13 @@ static const field FIELDS[] = {
     FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // added 2026-11-27; before: 20
     FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // added 2026-11-27; before: 2^19
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
+    // paint runs only (written when paint_mesh is set; added 2026-11-27)
+    FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
+    FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),
+    FLD_OPT("paint_centre_x", F_DOUBLE, paint_centre[0], 0),
+    FLD_OPT("paint_centre_y", F_DOUBLE, paint_centre[1], 0),
+    FLD_OPT("paint_centre_z", F_DOUBLE, paint_centre[2], 0),
+    FLD_OPT("paint_scale", F_DOUBLE, paint_scale, 0),
 };
 #undef FLD
 #undef FLD_OPT
@@ -182,6 +195,7 @@ mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* pa
     for (size_t i = 0; i < N_FIELDS; i++) {
         const field* f = &FIELDS[i];
         const char* p = (const char*)c + f->offset;
+        if (!c->paint_mesh[0] && !strncmp(f->key, "paint_", 6)) continue;   // generate and fit runs: as before
         switch (f->kind) {
         case F_STR: cJSON_AddStringToObject(root, f->key, p); break;
         case F_INT: cJSON_AddNumberToObject(root, f->key, *(const int*)p); break;

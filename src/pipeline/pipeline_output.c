@@ -204,7 +204,7 @@ mlb_status pipeline_write_final(pipeline_run* r) {
     snprintf(cells, sizeof cells, "%d", mlb_pipeline_cells(r->c));
     mlb_st_meta meta[1] = {{"geometry.grid_cells", cells}};
     pipeline_path(path, sizeof path, r->dir, "final/geometry.safetensors");
-    mlb_status s = mlb_geometry_save(&r->geo, path, meta, 1);
+    mlb_status s = r->c->paint_mesh[0] ? MLB_OK : mlb_geometry_save(&r->geo, path, meta, 1);   // paint: no geometry network
     pipeline_path(path, sizeof path, r->dir, "final/material.safetensors");
     if (!s) s = mlb_material_save(&r->mat, path, 0);
     size_t V = (size_t)m->n_verts;

@@ -1,8 +1,12 @@
 // A finished run unwrapped and baked into a textured asset (run_textured.h).
 #include "matlaber/run_textured.h"
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include "matlaber/fileio.h"
 #include "matlaber/material_net.h"
+#include "matlaber/obj.h"
+#include "matlaber/paint.h"
 
 static mlb_status eval_material(void* user, const float* pos, size_t n, float* k) {
     return mlb_material_eval(user, pos, n, k);
@@ -15,18 +19,74 @@ void mlb_run_textured_free(mlb_run_textured* r) {
     memset(r, 0, sizeof *r);
 }
 
+// A paint run's material field lives in the generation frame; its asset keeps the input's positions.
+typedef struct { const mlb_material_net* net; const double* centre; double scale; } framed_material;
+
+static mlb_status eval_framed(void* user, const float* pos, size_t n, float* k) {
+    const framed_material* fm = user;
+    float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
+    if (!p) return mlb_fail(MLB_ERR_NOMEM, "baking: out of memory for %zu points", n);
+    mlb_paint_to_frame(fm->centre, fm->scale, pos, p, n);
+    mlb_status s = mlb_material_eval(fm->net, p, n, k);
+    free(p);
+    return s;
+}
+
+// The paint input's own UVs as a one-chart "atlas" (the mesh is moved into it, not copied).
+static mlb_status own_uv_atlas(mlb_mesh* in, int size, mlb_uv_mesh* out, mlb_uv_stats* st) {
+    memset(out, 0, sizeof *out);
+    size_t V = (size_t)in->n_verts, F = (size_t)in->n_faces;
+    out->vert_src = malloc(sizeof(int32_t) * (V ? V : 1));
+    out->face_chart = calloc(F ? F : 1, sizeof(int32_t));
+    if (!out->vert_src || !out->face_chart) {
+        mlb_uv_mesh_free(out);
+        return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    }
+    for (size_t i = 0; i < V; i++) out->vert_src[i] = (int32_t)i;
+    out->mesh = *in;
+    memset(in, 0, sizeof *in);
+    out->n_charts = 1;
+    out->texture_size = size;
+    mlb_uv_measure(out, st);
+    return MLB_OK;
+}
+
 mlb_status mlb_run_textured_load(mlb_run_textured* r, const char* dir, int size) {
     memset(r, 0, sizeof *r);
     if (!mlb_is_dir(dir)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such run folder", dir);
     mlb_status s = mlb_run_asset_load(&r->run, dir);
     if (s) return s;
+    const mlb_pipeline_config* c = &r->run.config;
+    const int paint = c->paint_mesh[0] != 0;
+    mlb_mesh input;   // paint: the input as given (original positions, its UVs and normals)
+    memset(&input, 0, sizeof input);
+    if (paint) {
+        char path[MLB_PIPELINE_PATH + 64];
+        snprintf(path, sizeof path, "%s/input/mesh.obj", dir);
+        s = mlb_obj_load(path, &input);
+        if (!s && !input.normal) s = mlb_mesh_compute_normals(&input);
+        if (!s && input.n_verts != r->run.mesh.n_verts)
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: %d vertices, but final/mesh.obj has %d", path, input.n_verts, r->run.mesh.n_verts);
+        if (s) {
+            mlb_mesh_free(&input);
+            mlb_run_textured_free(r);
+            return s;
+        }
+    }
     mlb_uv_options uo = mlb_uv_default();
     uo.texture_size = size;
     // the default 4-texel gutter is for 1024² textures; small textures get a proportional one
     if (uo.gutter > size / 64) uo.gutter = size >= 128 ? size / 64 : 1;
-    s = mlb_uv_unwrap(&r->run.mesh, &uo, &r->uv, &r->uv_stats);
-    if (s) s = mlb_fail_context(s, "%s: UV atlas", dir);
-    if (!s) s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked);
+    if (paint && input.uv && c->paint_keep_uv) {
+        s = own_uv_atlas(&input, size, &r->uv, &r->uv_stats);
+    } else {
+        s = mlb_uv_unwrap(paint ? &input : &r->run.mesh, &uo, &r->uv, &r->uv_stats);
+        if (s) s = mlb_fail_context(s, "%s: UV atlas", dir);
+    }
+    mlb_mesh_free(&input);
+    framed_material fm = {&r->run.material, c->paint_centre, c->paint_scale};
+    if (!s && paint) s = mlb_bake(&r->uv, size, eval_framed, &fm, MLB_BAKE_DEFAULT_DILATE, &r->baked);
+    if (!s && !paint) s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked);
     if (s) {
         mlb_run_textured_free(r);
         return s;

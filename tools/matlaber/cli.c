@@ -1,6 +1,7 @@
 // Shared helpers of the command-line program.
 #include "cli.h"
 #include "matlaber/log.h"
+#include "matlaber/progress.h"
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
@@ -12,6 +13,15 @@
 int cli_fail(mlb_status s, const char* what) {
     const char* msg = mlb_last_error();
     fprintf(stderr, "matlaber: error: %s%s%s\n", what ? what : "", what && *msg ? ": " : "", *msg ? msg : mlb_status_name(s));
+    FILE* json = mlb_progress_json();
+    if (json) {   // the same message for programs reading the progress stream
+        char line[4096];
+        snprintf(line, sizeof line, "%s%s%s", what ? what : "", what && *msg ? ": " : "", *msg ? msg : mlb_status_name(s));
+        fputs("{\"event\":\"error\",\"message\":", json);
+        mlb_json_write_string(json, line);
+        fputs("}\n", json);
+        fflush(json);
+    }
     return 1;
 }
 
@@ -22,6 +32,17 @@ int cli_usage_error(const char* command, const char* fmt, ...) {
     vfprintf(stderr, fmt, ap);
     va_end(ap);
     fprintf(stderr, "\n(see 'matlaber %s --help')\n", command);
+    FILE* json = mlb_progress_json();
+    if (json) {
+        char line[2048];
+        va_start(ap, fmt);
+        vsnprintf(line, sizeof line, fmt, ap);
+        va_end(ap);
+        fprintf(json, "{\"event\":\"error\",\"usage\":true,\"message\":");
+        mlb_json_write_string(json, line);
+        fputs("}\n", json);
+        fflush(json);
+    }
     return EXIT_USAGE;
 }
 

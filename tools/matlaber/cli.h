@@ -43,6 +43,7 @@ int cmd_sd(int argc, char** argv);
 int sd_train_main(int argc, char** argv);
 int cmd_generate(int argc, char** argv);
 int cmd_fit(int argc, char** argv);
+int cmd_paint(int argc, char** argv);
 int cmd_relight_run(int argc, char** argv);
 int cmd_interp(int argc, char** argv);
 int cmd_export(int argc, char** argv);

@@ -1,5 +1,6 @@
-// matlaber generate | fit: the two-stage pipeline (docs/pipeline.md) with score distillation from a
-// Stable Diffusion checkpoint, or with image guidance from a views folder (no weights).
+// matlaber generate | fit | paint: the two-stage pipeline (docs/pipeline.md) with score distillation
+// from a Stable Diffusion checkpoint, or with image guidance from a views folder (no weights); paint
+// runs the appearance stage alone on a given mesh (docs/paint.md).
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -7,6 +8,8 @@
 #include "matlaber/device.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
+#include "matlaber/paint.h"
+#include "matlaber/run_textured.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/views.h"
 
@@ -45,6 +48,10 @@ static const cli_option options[] = {
     {"preview-every", 1, 'P', "N", "steps between preview renders, 0 = none (default 100)"},
     {"resume", 1, 'R', "RUN_DIR", "continue a run that was stopped (its config.json is used)"},
     {"stop-after", 1, 'X', "N", "stop after N steps of this invocation, as if killed (testing resume)"},
+    {"mesh", 1, 'Y', "FILE.obj", "paint: the mesh to paint (its vertices, faces and UVs are kept)"},
+    {"uv", 1, 'u', "keep|atlas", "paint: bake on the mesh's own UVs (keep, default; an atlas when it has none) or\n"
+                                 "                           replace them with the project's atlas (atlas)"},
+    {"asset", 1, 'a', "FILE", "paint: also write the result there (.glb, or .obj with .mtl and PNGs beside it)"},
     {"out", 1, 'o', "RUN_DIR", "the run directory (must not exist or be empty)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
@@ -77,7 +84,21 @@ static int envs_from_views(mlb_pipeline_config* c) {
     return 0;
 }
 
-static int run_pipeline(const char* command, int argc, char** argv, int is_fit) {
+// paint: --asset FILE, the finished run's asset written as .glb or OBJ + MTL (atomically; on failure
+// nothing is left).
+static int write_asset(const char* dir, int size, const char* asset) {
+    mlb_run_textured t;
+    mlb_status s = mlb_run_textured_load(&t, dir, size);
+    if (!s) s = mlb_ends_with(asset, ".obj") ? mlb_export_obj(asset, &t.asset) : mlb_export_glb(asset, &t.asset);
+    if (!s) mlb_log(MLB_LOG_INFO, "wrote %s (%d vertices, %d faces, %d² textures)", asset, t.asset.n_verts, t.asset.n_faces, size);
+    mlb_run_textured_free(&t);
+    return s ? cli_fail(s, "--asset") : 0;
+}
+
+enum { MODE_GENERATE, MODE_FIT, MODE_PAINT };
+
+static int run_pipeline(const char* command, int argc, char** argv, int mode) {
+    const int is_fit = mode == MODE_FIT, is_paint = mode == MODE_PAINT;
     mlb_pipeline_config c = mlb_pipeline_default();
     if (is_fit) {
         snprintf(c.guidance, sizeof c.guidance, "images");
@@ -103,6 +124,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         own_model = 1;
         for (int i = 1; i < argc; i++)
             if (!strcmp(argv[i], "-m") || !strcmp(argv[i], "--model") || !strncmp(argv[i], "--model=", 8) ||
+                (is_paint && i + 1 < argc && !strcmp(argv[i], "--views") && cli_parse_long(argv[i + 1], 1, 64, &(long){0})) ||
                 !strcmp(argv[i], "--resume") || !strncmp(argv[i], "--resume=", 9) || !strcmp(argv[i], "-h") ||
                 !strcmp(argv[i], "--help"))
                 own_model = 0;
@@ -116,10 +138,11 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         }
     }
     if (preset) {
-        if (is_fit) return cli_usage_error(command, "--preset is an option of generate");
+        if (is_fit) return cli_usage_error(command, "--preset is an option of generate and paint");
         if (mlb_pipeline_preset(&c, preset)) return cli_usage_error(command, "%s", mlb_last_error());
     }
-    const char *out = NULL, *resume = NULL;
+    const char *out = NULL, *resume = NULL, *asset = NULL;
+    const char* geometry_option = NULL;   // paint: the first geometry-stage option given (refused)
     long stop_after = 0, v;
     double x;
     int env_reset = 1;
@@ -127,19 +150,24 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     optind = 1;
     int opt;
     while ((opt = getopt_long(argc, argv, "hp:m:n:o:", table, NULL)) != -1) {
+        if (is_paint && !geometry_option && strchr("ICGgLU", opt))   // the geometry stage's options
+            for (const cli_option* o = options; o->name; o++)
+                if (o->val == opt) geometry_option = o->name;
         switch (opt) {
         case 'Q': break;   // applied above
         case 'p': snprintf(c.prompt, sizeof c.prompt, "%s", optarg); break;
         case 'm': snprintf(c.model, sizeof c.model, "%s", optarg); break;
         case 'n': snprintf(c.negative, sizeof c.negative, "%s", optarg); break;
         case 'V':
-            if (is_fit) snprintf(c.views_dir, sizeof c.views_dir, "%s", optarg);
-            else if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views: expected 1..64");
+            if (is_fit || (is_paint && cli_parse_long(optarg, 1, 64, &v))) {
+                snprintf(c.views_dir, sizeof c.views_dir, "%s", optarg);   // paint: image guidance
+                snprintf(c.guidance, sizeof c.guidance, "images");
+            } else if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views: expected 1..64");
             else c.views = (int)v;
             break;
         case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
         case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
-        case 'C':
+        case 'C': 
             if (cli_parse_double(optarg, 0, 1, &c.coarse_to_fine)) return cli_usage_error(command, "--coarse-to-fine: expected a fraction in [0, 1]");
             break;
         case 'K':
@@ -167,8 +195,30 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         case 'R': resume = optarg; break;
         case 'X': if (cli_parse_long(optarg, 1, 100000000, &v)) return cli_usage_error(command, "--stop-after: expected >= 1"); stop_after = v; break;
         case 'o': out = optarg; break;
+        case 'Y': if (!is_paint) return cli_usage_error(command, "--mesh is an option of paint"); snprintf(c.paint_mesh, sizeof c.paint_mesh, "%s", optarg); break;
+        case 'u':
+            if (!is_paint) return cli_usage_error(command, "--uv is an option of paint");
+            if (strcmp(optarg, "keep") && strcmp(optarg, "atlas")) return cli_usage_error(command, "--uv: expected keep or atlas");
+            c.paint_keep_uv = !strcmp(optarg, "keep");
+            break;
+        case 'a':
+            if (!is_paint) return cli_usage_error(command, "--asset is an option of paint");
+            if (!mlb_ends_with(optarg, ".glb") && !mlb_ends_with(optarg, ".obj"))
+                return cli_usage_error(command, "--asset %s: the name must end in .glb or .obj", optarg);
+            asset = optarg;
+            break;
         case 'h':
-            if (is_fit)
+            if (is_paint)
+                printf("usage: matlaber paint --mesh FILE.obj -p PROMPT [-m MODEL] -o RUN_DIR [--asset FILE.glb] [options]\n"
+                       "       matlaber paint --mesh FILE.obj --views DIR -o RUN_DIR        (image guidance)\n"
+                       "       matlaber paint --resume RUN_DIR\n\n"
+                       "The appearance stage alone on a given mesh: its vertices, faces and UVs are kept, it is moved\n"
+                       "into the generation frame for the cameras (centred, radius 0.9) and a material field is fitted\n"
+                       "with the same guidance, view prompts, rotating environments and BRDF prior as generate. Without\n"
+                       "-m the project's own model with --preset tiny. Ends with RUN_DIR/final/asset.glb (kd, ks and\n"
+                       "roughness baked on the mesh's own UVs, an atlas where it has none, at the original positions)\n"
+                       "and --asset FILE. Broken meshes are refused with the file and the problem (docs/paint.md).\n\n");
+            else if (is_fit)
                 printf("usage: matlaber fit --views DIR -o RUN_DIR [options]\n"
                        "       matlaber fit --resume RUN_DIR\n\n"
                        "Fits a mesh and its material field to multi-view images (no diffusion weights): the two stages\n"
@@ -189,6 +239,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         }
     }
     if (optind < argc) return cli_usage_error(command, "unexpected argument '%s'", argv[optind]);
+    if (geometry_option) return cli_usage_error(command, "--%s: paint has no geometry stage (the mesh is given)", geometry_option);
     mlb_status s;
     const char* dir = resume ? resume : out;
     if (resume) {
@@ -198,15 +249,18 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         snprintf(path, sizeof path, "%s/config.json", resume);
         s = mlb_pipeline_config_load(&c, path);
         if (s) return cli_fail(s, "--resume");
-        if (strcmp(c.guidance, is_fit ? "images" : "sds") != 0)
-            return cli_usage_error(command, "%s was made by `matlaber %s`: resume it with that command", resume,
-                                   is_fit ? "generate" : "fit");
+        const char* made_by = c.paint_mesh[0] ? "paint" : strcmp(c.guidance, "images") ? "generate" : "fit";
+        if (strcmp(made_by, command) != 0)
+            return cli_usage_error(command, "%s was made by `matlaber %s`: resume it with that command", resume, made_by);
     } else {
         if (!out) return cli_usage_error(command, "-o RUN_DIR is required");
         if (is_fit && !c.views_dir[0]) return cli_usage_error(command, "--views DIR is required");
-        if (!is_fit && !c.prompt[0]) return cli_usage_error(command, "-p PROMPT is required");
-        if (!is_fit && !c.model[0]) return cli_usage_error(command, "-m MODEL is required (Stable Diffusion weights you supply)");
-        if (is_fit) {
+        if (is_paint && !c.paint_mesh[0]) return cli_usage_error(command, "--mesh FILE.obj is required");
+        int sds = strcmp(c.guidance, "sds") == 0;
+        if (!is_fit && sds && !c.prompt[0]) return cli_usage_error(command, "-p PROMPT is required");
+        if (!is_fit && sds && !c.model[0]) return cli_usage_error(command, "-m MODEL is required (Stable Diffusion weights you supply)");
+        if (is_paint) c.geometry_iters = 0;
+        if (!sds) {
             int rc = envs_from_views(&c);
             if (rc) return rc;
         }
@@ -219,6 +273,12 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
     }
+    if (is_paint && !resume) {   // the mesh is checked before the model loads (seconds to minutes)
+        mlb_mesh m;
+        s = mlb_paint_load_mesh(c.paint_mesh, c.paint_keep_uv, &m, NULL);
+        mlb_mesh_free(&m);
+        if (s) return cli_fail(s, command);
+    }
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     s = mlb_pipeline_make_guidance(&c, &g, &views);
@@ -226,13 +286,40 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
-    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL, mlb_log_get_level() <= MLB_LOG_INFO ? &progress : NULL,
-                         &result);
+    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL,
+                         mlb_log_get_level() <= MLB_LOG_INFO || mlb_progress_json() ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);
     if (s) return cli_fail(s, command);
     double seconds = mlb_now_seconds() - t0;
-    if (result.finished)
+    if (result.finished && asset) {
+        int rc = write_asset(dir, c.export_texture > 0 ? c.export_texture : 1024, asset);
+        if (rc) return rc;
+    }
+    FILE* json = mlb_progress_json();
+    if (json) {   // the outcome, for programs reading the progress stream
+        fprintf(json, "{\"event\":\"result\",\"command\":\"%s\",\"finished\":%s,\"run\":", command,
+                result.finished ? "true" : "false");
+        mlb_json_write_string(json, dir);
+        if (result.finished && c.export_texture > 0) {
+            char glb[4200];
+            snprintf(glb, sizeof glb, "%s/final/asset.glb", dir);
+            fputs(",\"glb\":", json);
+            mlb_json_write_string(json, glb);
+        }
+        if (result.finished && asset) {
+            fputs(",\"asset\":", json);
+            mlb_json_write_string(json, asset);
+        }
+        fprintf(json, ",\"vertices\":%d,\"faces\":%d,\"seconds\":%.2f}\n", result.n_verts, result.n_faces, seconds);
+        fflush(json);
+    }
+    if (result.finished && is_paint)
+        printf("%s: done in %.1f s: %d vertices, %d faces; last appearance loss %.4g\n"
+               "outputs in %s/final (asset.glb, mesh.obj, material.safetensors, renders)%s%s, loss curve in %s/loss.png\n",
+               command, seconds, result.n_verts, result.n_faces, result.appearance_loss, dir, asset ? " and " : "",
+               asset ? asset : "", dir);
+    else if (result.finished)
         printf("%s: done in %.1f s: %d vertices, %d faces; last losses geometry %.4g, appearance %.4g\n"
                "outputs in %s/final (%smesh.obj, material.safetensors, renders), loss curves in %s/loss.png\n",
                command, seconds, result.n_verts, result.n_faces, result.geometry_loss, result.appearance_loss, dir,
@@ -243,5 +330,6 @@ static int run_pipeline(const char* command, int argc, char** argv, int is_fit) 
     return 0;
 }
 
-int cmd_generate(int argc, char** argv) { return run_pipeline("generate", argc, argv, 0); }
-int cmd_fit(int argc, char** argv) { return run_pipeline("fit", argc, argv, 1); }
+int cmd_generate(int argc, char** argv) { return run_pipeline("generate", argc, argv, MODE_GENERATE); }
+int cmd_fit(int argc, char** argv) { return run_pipeline("fit", argc, argv, MODE_FIT); }
+int cmd_paint(int argc, char** argv) { return run_pipeline("paint", argc, argv, MODE_PAINT); }

@@ -9,6 +9,7 @@
 #include "matlaber/device.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
+#include "matlaber/progress.h"
 #include "matlaber/threads.h"
 
 #define MATLABER_VERSION "0.1.0"
@@ -26,12 +27,14 @@ static int names_run_dir(int argc, char** argv) {
 static void usage(FILE* out) {
     fprintf(out,
             "matlaber %s: material-aware text-to-3D with a latent BRDF auto-encoder\n\n"
-            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] [--device D] [--precision P] <command> [options]\n\n"
+            "usage: matlaber [--log-level debug|info|warn|error|quiet] [--threads N] [--device D] [--precision P]\n"
+            "                [--progress text|json] <command> [options]\n\n"
             "commands:\n"
             "  demo            text to 3D with the project's own model (\"a gold goblet\"), measured against the\n"
             "                  catalogue's truth; demo --fit: the image-fitting demo\n"
             "  generate        text to 3D with materials: -p PROMPT [-m SD_MODEL] -o RUN_DIR (the paper)\n"
             "  fit             the same two stages fitted to multi-view images (no weights): --views DIR\n"
+            "  paint           the appearance stage alone on your mesh: --mesh FILE.obj -p PROMPT -o RUN_DIR\n"
             "  brdf train      train a latent BRDF auto-encoder (the material prior)\n"
             "  brdf eval       reconstruction error vs PCA-4, KL, validity along interpolations\n"
             "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
@@ -53,7 +56,9 @@ static void usage(FILE* out) {
             "                  (on a GPU the Stable Diffusion UNet and VAE run there, in 'sd txt2img' and\n"
             "                  'generate', and the appearance stage's material network and shading; the\n"
             "                  rest still runs on the CPU in this version: docs/cuda.md)\n"
-            MLB_PRECISION_OPTION_HELP "\n"
+            MLB_PRECISION_OPTION_HELP
+            "  --progress text|json  json: progress as one JSON object per line on stderr instead of the bar, and\n"
+            "                  errors as {\"event\":\"error\",...} (for programs driving matlaber: docs/paint.md)\n\n"
             "'matlaber <command> --help' describes each command.\n",
             MATLABER_VERSION);
 }
@@ -88,6 +93,9 @@ int main(int argc, char** argv) {
             mlb_gemm_precision p;
             if (mlb_gemm_precision_parse(argv[i + 1], &p) != MLB_OK) return cli_usage_error("", "%s", mlb_last_error());
             mlb_set_gemm_precision(p);
+        } else if (strcmp(argv[i], "--progress") == 0) {
+            if (strcmp(argv[i + 1], "json") == 0) mlb_progress_set_json(stderr);
+            else if (strcmp(argv[i + 1], "text") != 0) return cli_usage_error("", "--progress: expected text or json");
         } else if (strcmp(argv[i], "--threads") == 0) {
             long n;
             if (cli_parse_long(argv[i + 1], 1, 1024, &n) != 0) return cli_usage_error("", "--threads: expected 1..1024");
@@ -118,6 +126,7 @@ int main(int argc, char** argv) {
         return names_run_dir(sub_argc, sub_argv) ? cmd_relight_run(sub_argc, sub_argv) : cmd_relight(sub_argc, sub_argv);
     if (strcmp(cmd, "generate") == 0) return cmd_generate(sub_argc, sub_argv);
     if (strcmp(cmd, "fit") == 0) return cmd_fit(sub_argc, sub_argv);
+    if (strcmp(cmd, "paint") == 0) return cmd_paint(sub_argc, sub_argv);
     if (strcmp(cmd, "interp") == 0) return cmd_interp(sub_argc, sub_argv);
     if (strcmp(cmd, "export") == 0) return cmd_export(sub_argc, sub_argv);
     if (strcmp(cmd, "view") == 0) return cmd_view(sub_argc, sub_argv);

@@ -109,7 +109,8 @@ void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n);
 double mlb_point_triangle_dist2(const double p[3], const float* a, const float* b, const float* c);
 
 // ---- triangle BVH for the distance (mesh_bvh.c) ----------------------------------------------
-// Median split on the longest axis of the centroids, leaves of <= 4 triangles, one flat node array.
+// Binned SAH split on the longest axis of the centroids (the median where it cannot tell), leaves
+// of <= 4 triangles, one flat node array.
 typedef struct {
     float lo[3], hi[3];   // bounds of the triangles below
     int32_t first;        // leaf: first triangle in tri; inner node: left child (right = first + 1)
@@ -117,6 +118,7 @@ typedef struct {
 } mlb_bvh_node;
 typedef struct {
     int n_nodes, n_tris;  // n_tris: the mesh's triangles with finite coordinates (the rest left out)
+    int depth;            // levels, the root's included
     mlb_bvh_node* nodes;  // [n_nodes], the root first; NULL when n_tris = 0
     float* tri;           // [n_tris, 9] corners, in leaf order
 } mlb_mesh_bvh;

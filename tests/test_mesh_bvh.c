@@ -298,6 +298,73 @@ TEST(threads_same_bits) {
     mlb_mesh_free(&other);
 }
 
+// Triangles at x = 2^-i: SAH peels a few off per split, so the depth guard (median split from depth
+// 48) is what keeps the tree within the query's stack.
+TEST(lopsided_tree_stays_shallow) {
+    mlb_mesh m;
+    int F = 3000;
+    REQUIRE(soup(&m, F, 0, 800));
+    for (int f = 0; f < F; f++) {
+        float x = ldexpf(1.0f, -(f % 120)) * (1 + (float)(f / 120) / 32);
+        float tri[9] = {x, 0, 0, x, 1e-3f, 0, x, 0, 1e-3f};
+        memcpy(m.pos + 9 * f, tri, sizeof tri);
+    }
+    mlb_mesh_bvh b;
+    REQUIRE(mlb_mesh_bvh_build(&b, &m) == MLB_OK);
+    printf("  %d triangles: %d nodes, depth %d\n", F, b.n_nodes, b.depth);
+    CHECK(b.depth <= 48 + 12 + 1);
+    mlb_mesh_bvh_free(&b);
+    float* p = points_for(&m, 1000, 801);
+    REQUIRE(p);
+    for (int i = 0; i < 250; i++) p[3 * i] = ldexpf(1.0f, -(i % 130)), p[3 * i + 1] = 0.01f;   // down the staircase
+    CHECK(compare(&m, p, 1000, "powers of two") == 0);
+    free(p);
+    mlb_mesh_free(&m);
+}
+
+// mlb_chamfer_many gives mlb_chamfer's numbers bit for bit, with and without the targets' BVHs,
+// on 1 and 2 threads; a bad target is named.
+TEST(chamfer_many_matches_chamfer) {
+    enum { M = 6 };
+    mlb_mesh a, t[M];
+    mlb_mesh_bvh tb[M];
+    REQUIRE(mlb_catalogue_mesh(4, 2, &a) == MLB_OK);
+    for (int j = 0; j < M; j++) {
+        REQUIRE(mlb_catalogue_mesh(j, (uint64_t)j, &t[j]) == MLB_OK);
+        REQUIRE(mlb_mesh_bvh_build(&tb[j], &t[j]) == MLB_OK);
+    }
+    mlb_chamfer_result one[M], many[M], with_bvh[M], two[M];
+    for (int j = 0; j < M; j++) REQUIRE(mlb_chamfer(&a, &t[j], 700, 3, &one[j]) == MLB_OK);
+    int threads = omp_get_max_threads();
+    omp_set_num_threads(1);
+    REQUIRE(mlb_chamfer_many(&a, t, NULL, M, 700, 3, many) == MLB_OK);
+    omp_set_num_threads(2);
+    REQUIRE(mlb_chamfer_many(&a, t, tb, M, 700, 3, with_bvh) == MLB_OK);
+    REQUIRE(mlb_chamfer_many(&a, t, NULL, M, 700, 3, two) == MLB_OK);
+    omp_set_num_threads(threads);
+    CHECK(memcmp(one, many, sizeof one) == 0);
+    CHECK(memcmp(one, with_bvh, sizeof one) == 0);
+    CHECK(memcmp(one, two, sizeof one) == 0);
+    CHECK(one[4].chamfer > 0 && one[4].relative < one[0].relative);   // a's own class is the nearest here
+    // target 3 without area: its sampling fails, and the error names it
+    mlb_mesh flat = t[3];
+    float* pos = malloc(sizeof(float) * 3 * (size_t)flat.n_verts);
+    REQUIRE(pos);
+    for (int i = 0; i < 3 * flat.n_verts; i++) pos[i] = 0.5f;
+    flat.pos = pos;
+    mlb_mesh bad[M];
+    memcpy(bad, t, sizeof bad);
+    bad[3] = flat;
+    CHECK(mlb_chamfer_many(&a, bad, NULL, M, 100, 3, many) == MLB_ERR_ARG);
+    CHECK_MSG(strstr(mlb_last_error(), "target 3") != NULL, "%s", mlb_last_error());
+    bad[3].n_faces = 0;
+    CHECK(mlb_chamfer_many(&a, bad, NULL, M, 100, 3, many) == MLB_ERR_ARG);
+    CHECK(mlb_chamfer_many(&a, t, NULL, M, 0, 3, many) == MLB_ERR_ARG);
+    free(pos);
+    for (int j = 0; j < M; j++) { mlb_mesh_free(&t[j]); mlb_mesh_bvh_free(&tb[j]); }
+    mlb_mesh_free(&a);
+}
+
 int main(void) {
     RUN(triangle_never_nearer_than_its_box);
     RUN(degenerate_triangle_distance);
@@ -306,5 +373,7 @@ int main(void) {
     RUN(degenerate_meshes_match_brute_force);
     RUN(hostile_inputs);
     RUN(threads_same_bits);
+    RUN(lopsided_tree_stays_shallow);
+    RUN(chamfer_many_matches_chamfer);
     return test_summary();
 }

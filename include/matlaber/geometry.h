@@ -159,7 +159,14 @@ typedef struct {
     double max_a_to_b, max_b_to_a;   // the largest sample distances (one-sided Hausdorff estimates)
 } mlb_chamfer_result;
 // Symmetric Chamfer distance between meshes a and b (the target): n samples on each, area-uniform
-// (Philox seed), distances to the other mesh's triangles (brute force O(n·F)).
+// (Philox seed), exact distances to the other mesh's triangles (mlb_mesh_distance). The same bits
+// for any thread count.
 mlb_status mlb_chamfer(const mlb_mesh* a, const mlb_mesh* b, int n, uint64_t seed, mlb_chamfer_result* r);
+// r[j] = mlb_chamfer(a, &b[j], n, seed), bit for bit, for the m targets b[0..m): a's samples and
+// BVH made once, the targets shared out over the threads (one parallel region: many short ones
+// cost more than the work on busy cores). b_bvh: NULL, or the targets' BVHs (mlb_mesh_bvh_build of
+// each b[j]) when they are measured against often. The first failing target's error, naming it.
+mlb_status mlb_chamfer_many(const mlb_mesh* a, const mlb_mesh* b, const mlb_mesh_bvh* b_bvh, int m, int n, uint64_t seed,
+                            mlb_chamfer_result* r);
 
 #endif

@@ -85,8 +85,8 @@ mlb_status mlb_shape_from_mesh(mlb_shape* s, const mlb_mesh* m, float scale);
 void mlb_shape_free(mlb_shape* s);   // safe on a zeroed shape
 // Signed distance (negative inside) at p[n,3]. Analytic shapes: exact for the cylinder; for the
 // ellipsoid the first-order estimate (|q|−1)·|q|/|∇|q|| with q = p/radii (exact for a sphere,
-// vanishes on the surface, sign always right). Meshes: brute-force unsigned distance (O(n·F),
-// triangles skipped by their bounding boxes) with the sign of the generalised winding number.
+// vanishes on the surface, sign always right). Meshes: unsigned distance (mlb_mesh_distance) with
+// the sign of the generalised winding number (O(n·F)).
 // Parallel over points.
 void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n);
 // n points on the surface (Philox (seed, stream)): area-uniform for meshes and the cylinder,
@@ -97,10 +97,40 @@ void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t see
 // angle (Van Oosterom–Strackee). 1 inside, 0 outside a closed CCW mesh; degrades gracefully near
 // holes. O(n·F).
 void mlb_mesh_winding_number(const mlb_mesh* m, const float* p, double* out, int n);
-// Unsigned distance from p[n,3] to the triangles. O(n·F) with bounding-box culling.
+// Unsigned distance from p[n,3] to the triangles: sqrt of the minimum of mlb_point_triangle_dist2
+// over the triangles, as float; the same bits whatever the thread count. Builds a BVH per call
+// (O(F log F), then about O(log F) per point; mlb_mesh_bvh_* below to reuse one). INFINITY
+// everywhere for a mesh without triangles, NaN for a point with a NaN coordinate; triangles with a
+// non-finite coordinate are left out. Parallel over points.
 void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n);
-// Squared distance from p to triangle (a, b, c) (Ericson's closest-point regions), in double.
+// Squared distance from p to triangle (a, b, c) (Ericson's closest-point regions), in double. The
+// closest point stays inside the triangle's bounding box (what makes box pruning exact, mesh_bvh.c);
+// a numerically degenerate triangle (zero area, a sliver) measures to its nearest edge point.
 double mlb_point_triangle_dist2(const double p[3], const float* a, const float* b, const float* c);
+
+// ---- triangle BVH for the distance (mesh_bvh.c) ----------------------------------------------
+// Binned SAH split on the longest axis of the centroids (the median where it cannot tell), leaves
+// of <= 4 triangles, one flat node array.
+typedef struct {
+    float lo[3], hi[3];   // bounds of the triangles below
+    int32_t first;        // leaf: first triangle in tri; inner node: left child (right = first + 1)
+    int32_t count;        // leaf: its triangles (> 0); inner node: 0
+} mlb_bvh_node;
+typedef struct {
+    int n_nodes, n_tris;  // n_tris: the mesh's triangles with finite coordinates (the rest left out)
+    int depth;            // levels, the root's included
+    mlb_bvh_node* nodes;  // [n_nodes], the root first; NULL when n_tris = 0
+    float* tri;           // [n_tris, 9] corners, in leaf order
+} mlb_mesh_bvh;
+// Copies what it needs: the mesh may change or go afterwards. MLB_ERR_NOMEM, or MLB_ERR_ARG beyond
+// 2^29 faces; *b zeroed on failure.
+mlb_status mlb_mesh_bvh_build(mlb_mesh_bvh* b, const mlb_mesh* m);
+void mlb_mesh_bvh_free(mlb_mesh_bvh* b);   // safe on a zeroed one
+// Minimum of mlb_point_triangle_dist2 over the triangles (exactly: pruning never changes it);
+// INFINITY without triangles, NaN when q has a NaN coordinate.
+double mlb_mesh_bvh_dist2(const mlb_mesh_bvh* b, const double q[3]);
+// mlb_mesh_distance with a built BVH: out[i] = (float)sqrt(dist2(p_i)). Parallel over points.
+void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, int n);
 // n area-uniform points on the mesh's triangles (Philox (seed, stream)); MLB_ERR_ARG for zero area.
 mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t seed, uint64_t stream);
 
@@ -129,7 +159,14 @@ typedef struct {
     double max_a_to_b, max_b_to_a;   // the largest sample distances (one-sided Hausdorff estimates)
 } mlb_chamfer_result;
 // Symmetric Chamfer distance between meshes a and b (the target): n samples on each, area-uniform
-// (Philox seed), distances to the other mesh's triangles (brute force O(n·F)).
+// (Philox seed), exact distances to the other mesh's triangles (mlb_mesh_distance). The same bits
+// for any thread count.
 mlb_status mlb_chamfer(const mlb_mesh* a, const mlb_mesh* b, int n, uint64_t seed, mlb_chamfer_result* r);
+// r[j] = mlb_chamfer(a, &b[j], n, seed), bit for bit, for the m targets b[0..m): a's samples and
+// BVH made once, the targets shared out over the threads (one parallel region: many short ones
+// cost more than the work on busy cores). b_bvh: NULL, or the targets' BVHs (mlb_mesh_bvh_build of
+// each b[j]) when they are measured against often. The first failing target's error, naming it.
+mlb_status mlb_chamfer_many(const mlb_mesh* a, const mlb_mesh* b, const mlb_mesh_bvh* b_bvh, int m, int n, uint64_t seed,
+                            mlb_chamfer_result* r);
 
 #endif

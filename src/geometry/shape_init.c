@@ -65,6 +65,17 @@ void mlb_shape_free(mlb_shape* s) {
 
 static double dot3(const double* a, const double* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
+// Closest point to p on the segment a + t·(b − a), t ∈ [0, 1], into q; its squared distance.
+static double segment_closest(const double* p, const double* a, const double* b, double* q) {
+    double ab[3], ap[3];
+    for (int k = 0; k < 3; k++) { ab[k] = b[k] - a[k]; ap[k] = p[k] - a[k]; }
+    double l2 = dot3(ab, ab), t = l2 > 0 ? dot3(ap, ab) / l2 : 0;
+    t = t > 0 ? (t < 1 ? t : 1) : 0;   // NaN -> 0
+    for (int k = 0; k < 3; k++) q[k] = a[k] + t * ab[k];
+    double d[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
+    return dot3(d, d);
+}
+
 double mlb_point_triangle_dist2(const double p[3], const float* fa, const float* fb, const float* fc) {
     // Closest point by Voronoi regions (vertex, edge, face), as in Ericson, Real-Time Collision
     // Detection §5.1.5; distances in double.
@@ -79,7 +90,7 @@ double mlb_point_triangle_dist2(const double p[3], const float* fa, const float*
     if (d3 >= 0 && d4 <= d3) { for (int k = 0; k < 3; k++) q[k] = b[k]; goto done; }
     double vc = d1 * d4 - d3 * d2;
     if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-        double v = d1 / (d1 - d3);
+        double v = d1 - d3 > 0 ? d1 / (d1 - d3) : 0;   // 0/0 when a = b: the edge is a point
         for (int k = 0; k < 3; k++) q[k] = a[k] + v * ab[k];
         goto done;
     }
@@ -89,61 +100,68 @@ double mlb_point_triangle_dist2(const double p[3], const float* fa, const float*
     if (d6 >= 0 && d5 <= d6) { for (int k = 0; k < 3; k++) q[k] = c[k]; goto done; }
     double vb = d5 * d2 - d1 * d6;
     if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-        double w = d2 / (d2 - d6);
+        double w = d2 - d6 > 0 ? d2 / (d2 - d6) : 0;
         for (int k = 0; k < 3; k++) q[k] = a[k] + w * ac[k];
         goto done;
     }
     double va = d3 * d6 - d5 * d4;
     if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-        double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        double den = (d4 - d3) + (d5 - d6), w = den > 0 ? (d4 - d3) / den : 0;
         for (int k = 0; k < 3; k++) q[k] = b[k] + w * (c[k] - b[k]);
         goto done;
     }
     {
-        double den = va + vb + vc;
-        if (!(fabs(den) > 0)) { for (int k = 0; k < 3; k++) q[k] = a[k]; goto done; }   // degenerate
-        double v = vb / den, w = vc / den;
-        for (int k = 0; k < 3; k++) q[k] = a[k] + ab[k] * v + ac[k] * w;
+        double den = va + vb + vc, v = vb / den, w = vc / den;
+        if (v >= 0 && w >= 0 && v + w <= 1) {
+            for (int k = 0; k < 3; k++) q[k] = a[k] + ab[k] * v + ac[k] * w;
+            goto done;
+        }
+        // Numerically degenerate (zero area, a sliver): va, vb, vc are rounding noise and the
+        // barycentrics can be anything; the nearest point of the three edges is the distance.
+        double qe[3], best = segment_closest(p, a, b, q), e;
+        if ((e = segment_closest(p, b, c, qe)) < best) { best = e; memcpy(q, qe, sizeof qe); }
+        if ((e = segment_closest(p, c, a, qe)) < best) memcpy(q, qe, sizeof qe);
     }
 done:;
+    // Rounding can put q an ulp outside the triangle's bounding box; inside it, the distance is
+    // never below the box's (mesh_bvh.c prunes by boxes and stays exact). NaN stays NaN.
+    for (int k = 0; k < 3; k++) {   // (comparisons, not fmin/fmax: those are libm calls here)
+        double lo = a[k] < b[k] ? a[k] : b[k], hi = a[k] < b[k] ? b[k] : a[k];
+        lo = c[k] < lo ? c[k] : lo;
+        hi = c[k] > hi ? c[k] : hi;
+        q[k] = q[k] < lo ? lo : (q[k] > hi ? hi : q[k]);
+    }
     double d[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
     return dot3(d, d);
 }
 
-void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n) {
-    int F = m->n_faces;
-    float* box = malloc(sizeof(float) * 6 * (size_t)(F > 0 ? F : 1));   // per-triangle [lo3, hi3]
-    if (!box) { for (int i = 0; i < n; i++) out[i] = INFINITY; return; }
-    for (int f = 0; f < F; f++) {
-        const int32_t* t = m->faces + 3 * f;
-        for (int k = 0; k < 3; k++) {
-            float a = m->pos[3 * t[0] + k], b = m->pos[3 * t[1] + k], c = m->pos[3 * t[2] + k];
-            box[6 * f + k] = fminf(a, fminf(b, c));
-            box[6 * f + 3 + k] = fmaxf(a, fmaxf(b, c));
-        }
-    }
-    int hint = 0;   // last point's closest triangle: a good first bound for the next (nearby) point
-#pragma omp parallel for schedule(dynamic, 64) firstprivate(hint)
+// The minimum over every triangle, no pruning: when the BVH cannot be built (out of memory), the
+// same answer slower.
+static void mesh_distance_all(const mlb_mesh* m, const float* p, float* out, int n) {
+#pragma omp parallel for schedule(dynamic, 64)
     for (int i = 0; i < n; i++) {
-        double q[3] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]};
-        double best = F > 0 ? mlb_point_triangle_dist2(q, m->pos + 3 * m->faces[3 * hint], m->pos + 3 * m->faces[3 * hint + 1],
-                                                        m->pos + 3 * m->faces[3 * hint + 2])
-                            : INFINITY;
-        for (int f = 0; f < F; f++) {
-            const float* bx = box + 6 * f;
-            double e2 = 0;
-            for (int k = 0; k < 3; k++) {
-                double e = q[k] < bx[k] ? bx[k] - q[k] : (q[k] > bx[3 + k] ? q[k] - bx[3 + k] : 0);
-                e2 += e * e;
-            }
-            if (e2 >= best) continue;
-            const int32_t* t = m->faces + 3 * f;
-            double d2 = mlb_point_triangle_dist2(q, m->pos + 3 * t[0], m->pos + 3 * t[1], m->pos + 3 * t[2]);
-            if (d2 < best) { best = d2; hint = f; }
+        double q[3] = {p[3 * (size_t)i], p[3 * (size_t)i + 1], p[3 * (size_t)i + 2]};
+        double best = INFINITY;
+        int any = 0;
+        for (int f = 0; f < m->n_faces; f++) {
+            const int32_t* t = m->faces + 3 * (size_t)f;
+            const float *a = m->pos + 3 * (size_t)t[0], *b = m->pos + 3 * (size_t)t[1], *c = m->pos + 3 * (size_t)t[2];
+            int finite = 1;
+            for (int k = 0; k < 3; k++) finite &= isfinite(a[k]) && isfinite(b[k]) && isfinite(c[k]);
+            if (!finite) continue;
+            any = 1;
+            double d2 = mlb_point_triangle_dist2(q, a, b, c);
+            if (d2 < best) best = d2;
         }
-        out[i] = (float)sqrt(best);
+        out[i] = any && (isnan(q[0]) || isnan(q[1]) || isnan(q[2])) ? NAN : (float)sqrt(best);
     }
-    free(box);
+}
+
+void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n) {
+    mlb_mesh_bvh b;
+    if (mlb_mesh_bvh_build(&b, m)) { mesh_distance_all(m, p, out, n); return; }
+    mlb_mesh_bvh_distance(&b, p, out, n);
+    mlb_mesh_bvh_free(&b);
 }
 
 void mlb_mesh_winding_number(const mlb_mesh* m, const float* p, double* out, int n) {

@@ -20,12 +20,16 @@ mlb_status mlb_text3d_truth_create(mlb_text3d_truth* t, int n_seeds) {
     if (n_seeds < 1 || n_seeds > 1024) return mlb_fail(MLB_ERR_ARG, "text3d truth: %d shape seeds (1..1024)", n_seeds);
     if (nc > MLB_TEXT3D_MAX_CLASSES) return mlb_fail(MLB_ERR_ARG, "text3d truth: %d classes (at most %d)", nc, MLB_TEXT3D_MAX_CLASSES);
     t->meshes = calloc((size_t)nc * n_seeds, sizeof(mlb_mesh));
-    if (!t->meshes) return mlb_fail(MLB_ERR_NOMEM, "text3d truth: out of memory");
+    t->bvh = calloc((size_t)nc * n_seeds, sizeof(mlb_mesh_bvh));
+    if (!t->meshes || !t->bvh) { free(t->meshes); free(t->bvh); memset(t, 0, sizeof *t);
+                                 return mlb_fail(MLB_ERR_NOMEM, "text3d truth: out of memory"); }
     t->n_classes = nc;
     t->n_seeds = n_seeds;
     for (int c = 0; c < nc; c++)
         for (int s = 0; s < n_seeds; s++) {
-            mlb_status st = mlb_catalogue_mesh(c, (uint64_t)s, &t->meshes[c * n_seeds + s]);
+            int i = c * n_seeds + s;
+            mlb_status st = mlb_catalogue_mesh(c, (uint64_t)s, &t->meshes[i]);
+            if (!st) st = mlb_mesh_bvh_build(&t->bvh[i], &t->meshes[i]);
             if (st) {
                 mlb_text3d_truth_free(t);
                 return mlb_fail_context(st, "text3d truth: %s seed %d", mlb_catalogue_class_name(c), s);
@@ -35,9 +39,12 @@ mlb_status mlb_text3d_truth_create(mlb_text3d_truth* t, int n_seeds) {
 }
 
 void mlb_text3d_truth_free(mlb_text3d_truth* t) {
-    if (t->meshes)
-        for (int i = 0; i < t->n_classes * t->n_seeds; i++) mlb_mesh_free(&t->meshes[i]);
+    for (int i = 0; i < t->n_classes * t->n_seeds; i++) {
+        if (t->meshes) mlb_mesh_free(&t->meshes[i]);
+        if (t->bvh) mlb_mesh_bvh_free(&t->bvh[i]);
+    }
     free(t->meshes);
+    free(t->bvh);
     memset(t, 0, sizeof *t);
 }
 
@@ -74,19 +81,24 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     out->cls = cls;
     out->mat = mat;
     out->held_out = mlb_catalogue_held_out(cls, mat);
-    // shape: the best seed of every class; the nearest class names what the asset looks like
-    mlb_status s = MLB_OK;
+    // shape: the best seed of every class; the nearest class names what the asset looks like. All
+    // classes x seeds in one call (the asset's samples and BVH made once, the truths' BVHs are the
+    // truth's, the targets shared out over the threads).
+    int nt = t->n_classes * t->n_seeds;
+    mlb_chamfer_result* cr = malloc(sizeof(mlb_chamfer_result) * (size_t)nt);
+    if (!cr) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    mlb_status s = mlb_chamfer_many(mesh, t->meshes, t->bvh, nt, mc->chamfer_samples, mc->chamfer_seed, cr);
+    if (s) { free(cr); return mlb_fail_context(s, "text3d measure: shape"); }
     out->nearest = -1;
-    for (int c = 0; !s && c < t->n_classes; c++) {
+    for (int c = 0; c < t->n_classes; c++) {
         out->chamfer[c] = INFINITY;
-        for (int seed = 0; !s && seed < t->n_seeds; seed++) {
-            mlb_chamfer_result r;
-            s = mlb_chamfer(mesh, &t->meshes[c * t->n_seeds + seed], mc->chamfer_samples, mc->chamfer_seed, &r);
-            if (!s && r.relative < out->chamfer[c]) { out->chamfer[c] = r.relative; out->best_seed[c] = (uint64_t)seed; }
+        for (int seed = 0; seed < t->n_seeds; seed++) {
+            const mlb_chamfer_result* r = &cr[c * t->n_seeds + seed];
+            if (r->relative < out->chamfer[c]) { out->chamfer[c] = r->relative; out->best_seed[c] = (uint64_t)seed; }
         }
-        if (!s && (out->nearest < 0 || out->chamfer[c] < out->chamfer[out->nearest])) out->nearest = c;
+        if (out->nearest < 0 || out->chamfer[c] < out->chamfer[out->nearest]) out->nearest = c;
     }
-    if (s) return mlb_fail_context(s, "text3d measure: shape");
+    free(cr);
     out->class_ok = out->nearest == cls;
     out->chamfer_prompted = out->chamfer[cls];
     // material: the median over the vertices (robust to the odd stray texel of a seam)

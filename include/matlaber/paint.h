@@ -8,6 +8,7 @@
 #include <stddef.h>
 #include "matlaber/error.h"
 #include "matlaber/mesh.h"
+#include "matlaber/raster.h"
 
 #define MLB_PAINT_MAX_FACES (1 << 22)          // 4M triangles: more is refused (the rasteriser's cost)
 #define MLB_PAINT_MAX_BYTES ((size_t)1 << 29)  // 512 MiB of mesh file (OBJ text, or glTF and its buffers)
@@ -37,6 +38,10 @@ mlb_status mlb_paint_load_mesh(const char* path, int keep_uv, mlb_mesh* out, mlb
 mlb_status mlb_paint_frame(const mlb_mesh* m, double centre[3], double* scale);
 // n points [n,3] into the frame (out may equal in).
 void mlb_paint_to_frame(const double centre[3], double scale, const float* in, float* out, size_t n);
+// A camera of the mesh's own coordinates (image guidance: the views were taken of the mesh as given)
+// moved into the frame with it: eye and target to (p − centre) · scale, near and far times scale, the
+// same orientation and field of view, so the image of the moved mesh is the image of the original.
+mlb_status mlb_paint_frame_camera(const double centre[3], double scale, mlb_camera* cam);
 // An exact copy of a loaded mesh as OBJ (v, vt, vn with 9 significant digits, one vertex per line,
 // faces v/vt/vn): read back by mlb_obj_load it gives the same vertices in the same order. Atomic.
 mlb_status mlb_paint_write_obj(const char* path, const mlb_mesh* m);

@@ -151,6 +151,25 @@ mlb_status mlb_paint_load_mesh(const char* path, int keep_uv, mlb_mesh* out, mlb
     return MLB_OK;
 }
 
+mlb_status mlb_paint_frame_camera(const double centre[3], double scale, mlb_camera* cam) {
+    // the view matrix's rows are the camera's right, up and back axes in world coordinates
+    const double* V = cam->view.m;
+    double up[3] = {V[4], V[5], V[6]}, back[3] = {V[8], V[9], V[10]}, eye[3], target[3];
+    for (int k = 0; k < 3; k++) {
+        eye[k] = (cam->eye[k] - centre[k]) * scale;
+        target[k] = eye[k] - back[k];   // the look-at direction; the distance does not matter
+        cam->target[k] = (cam->target[k] - centre[k]) * scale;
+        cam->eye[k] = eye[k];
+    }
+    cam->near_z *= scale;
+    cam->far_z *= scale;
+    cam->radius *= scale;
+    MLB_TRY(mlb_look_at(&cam->view, eye, target, up));
+    MLB_TRY(mlb_perspective(&cam->proj, cam->fovy_deg, cam->aspect, cam->near_z, cam->far_z));
+    cam->view_proj = mlb_mat4_mul(&cam->proj, &cam->view);
+    return MLB_OK;
+}
+
 mlb_status mlb_paint_write_obj(const char* path, const mlb_mesh* m) {
     mlb_atomic_file af;
     mlb_status s = mlb_atomic_open(&af, path);

@@ -39,6 +39,8 @@
 // removed afterwards; it prints the wall time (--generate-geometry-lr X overrides the preset's
 // geometry learning rate: random weights' gradients can empty the grid, docs/pipeline.md;
 // --generate-scale F multiplies both stages' step counts, for a miniature of a long schedule).
+// --paint MESH (with --generate PRESET) runs `matlaber paint --preset PRESET` instead: the appearance
+// stage alone on that mesh (.obj/.glb; docs/paint.md), the same random SD 1.5.
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -437,8 +439,8 @@ static int parse_sizes(const char* arg, int* out, int cap) {
 
 // A whole `matlaber generate --preset NAME` (its settings, the pipeline's own loop) with the random
 // SD 1.5 u, vae in a run folder under dir, removed afterwards; t_model: when the weights began loading.
-static int generate_run(const char* preset, double geometry_lr, double scale, const char* dir, const mlb_unet* u,
-                        const mlb_vae* vae, const float* ac, double t_model) {
+static int generate_run(const char* preset, double geometry_lr, double scale, const char* paint, const char* dir,
+                        const mlb_unet* u, const mlb_vae* vae, const float* ac, double t_model) {
     mlb_pipeline_config c = mlb_pipeline_default();
     if (mlb_pipeline_preset(&c, preset)) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
     // Random weights' SDS gradients are noise with a guidance scale of 100: at the preset's learning
@@ -454,7 +456,12 @@ static int generate_run(const char* preset, double geometry_lr, double scale, co
     snprintf(c.prompt, sizeof c.prompt, "(random embeddings)");
     snprintf(c.model, sizeof c.model, "(random SD 1.5)");
     if (c.latent_iters < 0) c.latent_iters = c.geometry_iters / 3;
+    if (paint) {   // no geometry stage
+        snprintf(c.paint_mesh, sizeof c.paint_mesh, "%s", paint);
+        c.geometry_iters = 0;
+    }
     double t0 = mlb_now_seconds();
+    if (paint) printf("paint --mesh %s (no geometry stage): ", paint);
     printf("generate --preset %s end to end: %d views at %d², %d geometry steps (%d latent-phase, lr %g), %d "
            "appearance steps, grid %d, %s GEMMs (weights loaded in %.1f s)\n", preset, c.views, c.res,
            c.geometry_iters, c.latent_iters, c.geometry_lr, c.appearance_iters, c.grid,
@@ -493,7 +500,8 @@ static int generate_run(const char* preset, double geometry_lr, double scale, co
 static int usage(void) {
     fprintf(stderr, "usage: bench_pipeline [--iters 1] [--sizes 64,128,512] [--sd15] [--sd15-sizes 512] [--no-images] "
                     "[--no-tiny] [--stage both|geometry|appearance] [--init-iters 100] [--dir /tmp] [--sd15-views 1] "
-                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET [--generate-geometry-lr X] [--generate-scale F]]\n");
+                    "[--device cpu|cuda] [--precision fp16] [--generate PRESET [--generate-geometry-lr X] [--generate-scale F] "
+                    "[--paint MESH]]\n");
     return 2;
 }
 
@@ -546,7 +554,7 @@ int main(int argc, char** argv) {
     int sizes[8] = {64, 128, 512}, n_sizes = 3, sd_sizes[8] = {512}, n_sd_sizes = 1;
     const char* base = "/tmp";
     int sd_views = 1;
-    const char* generate = NULL;
+    const char* generate = NULL, *paint = NULL;
     double generate_geo_lr = 0, generate_scale = 1;
     mlb_device device = MLB_DEVICE_CPU;
     mlb_gemm_precision precision = MLB_GEMM_FP16;
@@ -561,6 +569,7 @@ int main(int argc, char** argv) {
         else if (i + 1 < argc && !strcmp(argv[i], "--generate")) generate = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--generate-geometry-lr")) generate_geo_lr = atof(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--generate-scale")) generate_scale = atof(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--paint")) paint = argv[++i];
         else if (i + 1 < argc && !strcmp(argv[i], "--device")) {
             if (mlb_device_select(argv[++i], &device) != MLB_OK) { fprintf(stderr, "bench_pipeline: %s\n", mlb_last_error()); return 2; }
         } else if (i + 1 < argc && !strcmp(argv[i], "--precision")) {
@@ -577,6 +586,7 @@ int main(int argc, char** argv) {
             if (!do_geo && !do_app) return usage();
         } else return usage();
     }
+    if (paint && !generate) return usage();
     if (generate) {   // the end-to-end run: SD 1.5 only
         if (!sd15) return usage();
         images = 0;
@@ -679,7 +689,7 @@ int main(int argc, char** argv) {
         }
         if (generate) {
             mlb_set_gemm_precision(precision);
-            rc = generate_run(generate, generate_geo_lr, generate_scale, dir, tu, tv, ac, t0);
+            rc = generate_run(generate, generate_geo_lr, generate_scale, paint, dir, tu, tv, ac, t0);
             goto out;
         }
         if (make_sds_guide(&tg, "sds SD 1.5", tu, tv, ac, 77, sd_views < 1 ? 1 : sd_views, LATENT_ITERS) ||

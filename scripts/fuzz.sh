@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # Fuzz a file reader with libFuzzer + AddressSanitizer + UndefinedBehaviorSanitizer.
-#   scripts/fuzz.sh [safetensors|obj] [SECONDS]      (default: safetensors, 600 s)
+#   scripts/fuzz.sh [safetensors|obj|gltf] [SECONDS]      (default: safetensors, 600 s)
 # Builds fuzz/corpus-run[-obj]/fuzz_TARGET with clang straight from the sources it needs (not part
 # of the CMake build), writes seed files with the same source built as a seeder, then fuzzes for
 # SECONDS. The corpus grows in fuzz/corpus-run/corpus (gitignored, kept between runs); crashes
 # land in fuzz/crash-* (gitignored). The log is fuzz/corpus-run/fuzz.log. Exit status 0 = no crash.
 set -euo pipefail
 target=safetensors
-case "${1:-}" in safetensors|obj) target="$1"; shift ;; esac
+case "${1:-}" in safetensors|obj|gltf) target="$1"; shift ;; esac
 secs="${1:-600}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 run=fuzz/corpus-run
 [ "$target" = obj ] && run=fuzz/corpus-run-obj
+[ "$target" = gltf ] && run=fuzz/corpus-run-gltf
 mkdir -p "$run/corpus"
 
 cc=""
@@ -23,6 +24,9 @@ if [ -z "$cc" ]; then echo "fuzz.sh: clang not found (apt-get install clang-14 l
 
 if [ "$target" = obj ]; then
   srcs="src/io/obj.c src/geometry/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
+elif [ "$target" = gltf ]; then   # the exporter too, for the seeder's .glb
+  srcs="src/io/gltf_read.c src/export/gltf.c src/geometry/mesh.c src/geometry/primitives.c src/core/error.c src/core/fileio.c"
+  libs="-lcjson -lpng -lm"
 else
   srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"; libs="-lcjson -lm"
 fi
@@ -38,7 +42,12 @@ echo "fuzz.sh: building with $cc"
 echo "fuzz.sh: $(find "$run/corpus" -type f | wc -l) files in the corpus"
 
 # Tokens that steer mutations towards the header grammar.
-if [ "$target" = obj ]; then
+if [ "$target" = gltf ]; then
+  printf '%s\n' '"glTF"' '"JSON"' '"BIN"' '"accessors"' '"bufferView"' '"bufferViews"' '"byteOffset"' '"byteLength"' \
+    '"byteStride"' '"componentType"' '"count"' '"VEC3"' '"SCALAR"' '"POSITION"' '"NORMAL"' '"TEXCOORD_0"' '"indices"' \
+    '"mode"' '"nodes"' '"children"' '"matrix"' '"scale"' '"scenes"' '"meshes"' '"primitives"' '"buffers"' '"uri"' \
+    '"5126"' '"5125"' '"5123"' '"5121"' '"4294967295"' '"1e308"' '"-1"' '"data:;base64,"' > "$run/$target.dict"
+elif [ "$target" = obj ]; then
   printf '%s\n' '"v "' '"vt "' '"vn "' '"f "' '"/"' '"//"' '"-1"' '"1e38"' '"nan"' '"# "' '"mtllib "' > "$run/$target.dict"
 else
 cat > "$run/$target.dict" <<'EOF'

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # matlaber paint (docs/paint.md): hostile meshes refused with the file and the problem, exit 1 and no
-# run folder; a UV'd cube far from the origin painted at tiny settings with the project's own model:
-# the asset keeps its vertices, faces, UVs and positions (scale and placement restored); a stopped
+# run folder (corrupt .glb / .gltf too); a UV'd cube far from the origin painted at tiny settings with
+# the project's own model: the asset keeps its vertices, faces, UVs and positions (scale and placement
+# restored), and that .glb painted again reads back as the cube's corners; a stopped
 # run resumed ends bitwise where an uninterrupted one does; --progress json's lines.
 set -u
 M=${1:?usage: cli_paint.sh path/to/matlaber}
@@ -46,14 +47,14 @@ check_refused empty "$H/empty.obj" "no faces"
 check_refused nofaces "$H/nofaces.obj" "no faces"
 check_refused badindex "$H/badindex.obj" "out of range"
 check_refused baduvindex "$H/baduvindex.obj" "out of range"
-check_refused partialuv "$H/partialuv.obj" "only some face corners have UVs"
+check_refused partialuv "$H/partialuv.obj" "only some faces have UVs"
 check_refused uvrange "$H/uvrange.obj" "outside \[0, 1\]"
 check_refused nan "$H/nan.obj" "line 1"
 check_refused degenerate "$H/degenerate.obj" "zero area"
 check_refused point "$H/point.obj" "zero area"
 check_refused overflow "$H/overflow.obj" "line 1"
 check_refused garbage "$H/garbage.obj" "line"
-check_refused glb "$H/mesh.glb" "glTF input"
+check_refused glb "$H/mesh.glb" "truncated .glb"
 check_refused huge "$H/huge.obj" "bytes"
 check_refused folder "$H/folder.obj" "folder"
 
@@ -121,6 +122,19 @@ print(A[p["attributes"]["POSITION"]]["count"], A[p["attributes"]["TEXCOORD_0"]][
 else
   echo "skip: no python3 for the .glb check"
 fi
+# a .glb as input (docs/paint.md): the asset just written, painted again, keeps the cube's corners
+expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red cube" $small --stop-after 1 -o "$T/g"
+corners "$T/g/input/mesh.obj" > "$T/g.txt"
+cmp -s "$T/in.txt" "$T/g.txt" && ok ".glb input: positions and UVs as in the original OBJ" \
+  || { bad ".glb input corners differ"; diff "$T/in.txt" "$T/g.txt" | head; }
+# corrupt glTF refused, nothing written
+head -c 2000 "$T/a/final/asset.glb" > "$H/truncated.glb"
+LC_ALL=C sed 's/"POSITION"/"POSITIOM"/' "$T/a/final/asset.glb" > "$H/noposition.glb"
+printf '{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3"}],"bufferViews":[{"buffer":0,"byteLength":36}],"buffers":[{"byteLength":36,"uri":"../secret.bin"}]}' > "$H/escape.gltf"
+check_refused truncated_glb "$H/truncated.glb" "truncated"
+check_refused noposition_glb "$H/noposition.glb" "no POSITION"
+check_refused escape_gltf "$H/escape.gltf" "leaves the file's folder"
+
 # matlaber export of a paint run: the same asset
 expect 0 "export the paint run" -- $Q export "$T/a" --texture-size 64 -o "$T/exported.glb"
 cmp -s "$T/exported.glb" "$T/a/final/asset.glb" && ok "export = final/asset.glb" || bad "export differs from final/asset.glb"

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/fileio.h"
+#include "matlaber/gltf.h"
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
 
@@ -70,29 +71,50 @@ void mlb_paint_to_frame(const double centre[3], double scale, const float* in, f
         for (int k = 0; k < 3; k++) out[3 * i + k] = (float)(((double)in[3 * i + k] - centre[k]) * scale);
 }
 
+static int is_gltf(const char* path) {
+    static const char* const ext[4] = {".glb", ".gltf", ".GLB", ".GLTF"};
+    for (int i = 0; i < 4; i++)
+        if (mlb_ends_with(path, ext[i])) return 1;
+    return 0;
+}
+
 mlb_status mlb_paint_load_mesh(const char* path, int keep_uv, mlb_mesh* out, mlb_paint_mesh_info* info) {
     mlb_paint_mesh_info inf;
     memset(&inf, 0, sizeof inf);
     memset(out, 0, sizeof *out);
     if (info) *info = inf;
-    if (mlb_ends_with(path, ".glb") || mlb_ends_with(path, ".gltf") || mlb_ends_with(path, ".GLB") ||
-        mlb_ends_with(path, ".GLTF"))
-        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: glTF input is not read yet; export the mesh as OBJ (docs/paint.md)", path);
     if (mlb_is_dir(path)) return mlb_fail(MLB_ERR_ARG, "%s: a folder, not a mesh file", path);
-    mlb_obj_options opt;
-    memset(&opt, 0, sizeof opt);
-    opt.max_bytes = MLB_PAINT_MAX_BYTES;
-    opt.max_triangles = MLB_PAINT_MAX_FACES;
-    opt.drop_uv = !keep_uv;
-    mlb_obj_info oi;
     mlb_mesh m;
-    mlb_status s = mlb_obj_load_ex(path, &m, &opt, &oi);
-    if (s) return s;   // the reader's message names the file and the line
-    if (m.n_faces == 0)
-        s = mlb_fail(MLB_ERR_FORMAT, "%s: no faces (%d lines, %d vertices): nothing to paint", path, oi.n_lines, oi.n_positions);
-    if (!s && keep_uv && oi.uv_dropped)
-        s = mlb_fail(MLB_ERR_FORMAT, "%s: only some face corners have UVs (vt): give every face UVs, or pass --uv atlas "
-                     "to replace them with an atlas", path);
+    mlb_status s;
+    int uv_dropped;
+    if (is_gltf(path)) {   // .glb / .gltf: the glTF reader (its checks: include/matlaber/gltf.h)
+        mlb_gltf_options opt = {MLB_PAINT_MAX_BYTES, MLB_PAINT_MAX_FACES, !keep_uv, 0};
+        mlb_gltf_info gi;
+        s = mlb_gltf_load(path, &m, &opt, &gi);
+        if (s) return s;   // the reader's message names the file and the element
+        uv_dropped = gi.uv_dropped;
+        inf.n_unused_positions = gi.n_unused;
+        if (gi.n_skipped) mlb_log(MLB_LOG_INFO, "%s: %d point or line primitives skipped", path, gi.n_skipped);
+        mlb_log(MLB_LOG_INFO, "%s: %d meshes placed by the scene (%d primitives)%s", path, gi.n_instances, gi.n_primitives,
+                gi.n_mirrored ? ", some mirrored" : "");
+    } else {
+        mlb_obj_options opt;
+        memset(&opt, 0, sizeof opt);
+        opt.max_bytes = MLB_PAINT_MAX_BYTES;
+        opt.max_triangles = MLB_PAINT_MAX_FACES;
+        opt.drop_uv = !keep_uv;
+        mlb_obj_info oi;
+        s = mlb_obj_load_ex(path, &m, &opt, &oi);
+        if (s) return s;   // the reader's message names the file and the line
+        if (m.n_faces == 0)
+            s = mlb_fail(MLB_ERR_FORMAT, "%s: no faces (%d lines, %d vertices): nothing to paint", path, oi.n_lines, oi.n_positions);
+        uv_dropped = oi.uv_dropped;
+        inf.n_polygons_split = oi.n_polygons_split;
+        inf.n_unused_positions = oi.n_unused_positions;
+    }
+    if (!s && keep_uv && uv_dropped)
+        s = mlb_fail(MLB_ERR_FORMAT, "%s: only some faces have UVs (%s): give every face UVs, or pass --uv atlas "
+                     "to replace them with an atlas", path, is_gltf(path) ? "TEXCOORD_0 in some primitives" : "vt on some face corners");
     for (size_t i = 0; !s && m.uv && i < 2 * (size_t)m.n_verts; i++) {
         float u = m.uv[i];
         if (u < -MLB_PAINT_UV_TOL || u > 1 + MLB_PAINT_UV_TOL)
@@ -120,14 +142,31 @@ mlb_status mlb_paint_load_mesh(const char* path, int keep_uv, mlb_mesh* out, mlb
     inf.n_verts = m.n_verts;
     inf.n_faces = m.n_faces;
     inf.has_uv = m.uv != NULL;
-    inf.n_polygons_split = oi.n_polygons_split;
-    inf.n_unused_positions = oi.n_unused_positions;
     if (inf.n_degenerate) mlb_log(MLB_LOG_WARN, "%s: %d faces of zero area (kept; they cover nothing)", path, inf.n_degenerate);
     if (inf.n_normals_repaired)
         mlb_log(MLB_LOG_WARN, "%s: %d zero-length normals replaced by area-weighted ones", path, inf.n_normals_repaired);
-    if (oi.n_unused_positions) mlb_log(MLB_LOG_INFO, "%s: %d vertices no face uses (dropped)", path, oi.n_unused_positions);
+    if (inf.n_unused_positions) mlb_log(MLB_LOG_INFO, "%s: %d vertices no face uses (dropped)", path, inf.n_unused_positions);
     *out = m;
     if (info) *info = inf;
+    return MLB_OK;
+}
+
+mlb_status mlb_paint_frame_camera(const double centre[3], double scale, mlb_camera* cam) {
+    // the view matrix's rows are the camera's right, up and back axes in world coordinates
+    const double* V = cam->view.m;
+    double up[3] = {V[4], V[5], V[6]}, back[3] = {V[8], V[9], V[10]}, eye[3], target[3];
+    for (int k = 0; k < 3; k++) {
+        eye[k] = (cam->eye[k] - centre[k]) * scale;
+        target[k] = eye[k] - back[k];   // the look-at direction; the distance does not matter
+        cam->target[k] = (cam->target[k] - centre[k]) * scale;
+        cam->eye[k] = eye[k];
+    }
+    cam->near_z *= scale;
+    cam->far_z *= scale;
+    cam->radius *= scale;
+    MLB_TRY(mlb_look_at(&cam->view, eye, target, up));
+    MLB_TRY(mlb_perspective(&cam->proj, cam->fovy_deg, cam->aspect, cam->near_z, cam->far_z));
+    cam->view_proj = mlb_mat4_mul(&cam->proj, &cam->view);
     return MLB_OK;
 }
 

@@ -259,6 +259,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     if (r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
     mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
+    const int paint_images = c->paint_mesh[0] && !strcmp(c->guidance, "images");
     int n = r->g->n_views;
     size_t img = (size_t)c->res * c->res * 4;
     mlb_view* views = calloc((size_t)n, sizeof *views);
@@ -277,6 +278,9 @@ static mlb_status appearance_stage(pipeline_run* r) {
     for (long it = start; !s && it < c->appearance_iters; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
         if (!s) s = pipeline_fix_env(r, views, n);
+        // paint with image guidance: the views were taken of the mesh as given; move their cameras
+        // into the frame the mesh was moved into (SDS cameras are the frame's own)
+        for (int i = 0; !s && paint_images && i < n; i++) s = mlb_paint_frame_camera(c->paint_centre, c->paint_scale, &views[i].cam);
         material_net_zero_grad(net);
         if (!s) s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
         double loss = 0, smooth = 0;

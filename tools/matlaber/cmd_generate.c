@@ -48,7 +48,7 @@ static const cli_option options[] = {
     {"preview-every", 1, 'P', "N", "steps between preview renders, 0 = none (default 100)"},
     {"resume", 1, 'R', "RUN_DIR", "continue a run that was stopped (its config.json is used)"},
     {"stop-after", 1, 'X', "N", "stop after N steps of this invocation, as if killed (testing resume)"},
-    {"mesh", 1, 'Y', "FILE.obj", "paint: the mesh to paint (its vertices, faces and UVs are kept)"},
+    {"mesh", 1, 'Y', "FILE", "paint: the mesh to paint, .obj, .glb or .gltf (its vertices, faces and UVs are kept)"},
     {"uv", 1, 'u', "keep|atlas", "paint: bake on the mesh's own UVs (keep, default; an atlas when it has none) or\n"
                                  "                           replace them with the project's atlas (atlas)"},
     {"asset", 1, 'a', "FILE", "paint: also write the result there (.glb, or .obj with .mtl and PNGs beside it)"},
@@ -209,8 +209,8 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             break;
         case 'h':
             if (is_paint)
-                printf("usage: matlaber paint --mesh FILE.obj -p PROMPT [-m MODEL] -o RUN_DIR [--asset FILE.glb] [options]\n"
-                       "       matlaber paint --mesh FILE.obj --views DIR -o RUN_DIR        (image guidance)\n"
+                printf("usage: matlaber paint --mesh FILE.obj|.glb|.gltf -p PROMPT [-m MODEL] -o RUN_DIR [--asset FILE.glb] [options]\n"
+                       "       matlaber paint --mesh FILE --views DIR -o RUN_DIR                  (image guidance)\n"
                        "       matlaber paint --resume RUN_DIR\n\n"
                        "The appearance stage alone on a given mesh: its vertices, faces and UVs are kept, it is moved\n"
                        "into the generation frame for the cameras (centred, radius 0.9) and a material field is fitted\n"
@@ -255,7 +255,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     } else {
         if (!out) return cli_usage_error(command, "-o RUN_DIR is required");
         if (is_fit && !c.views_dir[0]) return cli_usage_error(command, "--views DIR is required");
-        if (is_paint && !c.paint_mesh[0]) return cli_usage_error(command, "--mesh FILE.obj is required");
+        if (is_paint && !c.paint_mesh[0]) return cli_usage_error(command, "--mesh FILE (.obj, .glb or .gltf) is required");
         int sds = strcmp(c.guidance, "sds") == 0;
         if (!is_fit && sds && !c.prompt[0]) return cli_usage_error(command, "-p PROMPT is required");
         if (!is_fit && sds && !c.model[0]) return cli_usage_error(command, "-m MODEL is required (Stable Diffusion weights you supply)");

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CUDA parity tests (tests/test_cuda_*: CUDA kernels against the CPU code) and, with --bench,
+# The CUDA parity tests (tests/test_cuda_* and test_backend_ops: CUDA kernels against the CPU code) and, with --bench,
 # bench/bench_cuda, in one call on a machine with an NVIDIA GPU. docs/cuda.md.
 #
 #   scripts/gpu-parity.sh --fetch-debs   HERE (Debian 12, with network): downloads the -dev packages the
@@ -66,7 +66,7 @@ finish() {
     [ -f "$out/bench_cuda_vae.log" ] && cp "$out/bench_cuda_vae.log" "$OUT/"
     [ -f "$out/bench_cuda_unet_noflash.log" ] && cp "$out/bench_cuda_unet_noflash.log" "$OUT/"
     [ -f "$out/bench_pipeline.log" ] && cp "$out/bench_pipeline.log" "$OUT/"
-    for f in "$out"/test_cuda_*.log; do grep -q "FAIL" "$f" 2> /dev/null && cp "$f" "$OUT/"; done
+    for f in "$out"/test_cuda_*.log "$out"/test_backend_ops.log; do grep -q "FAIL" "$f" 2> /dev/null && cp "$f" "$OUT/"; done
   fi
 }
 built=0
@@ -122,7 +122,8 @@ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DMLB_CUDA=ON -DCMAKE_CUDA_COM
   || { tail -30 "$out/configure.log"; say "gpu-parity: configure failed ($out/configure.log)"; exit 2; }
 grep -E "matlaber: (CUDA part|cuDNN)" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
-tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c | sed 's/\.c$//')}   # MLB_GPU_TESTS="test_cuda_x ...": only those
+# test_backend_ops: every op of every CUDA table against the CPU's (its CPU part runs everywhere)
+tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c test_backend_ops.c | sed 's/\.c$//')}   # MLB_GPU_TESTS="test_cuda_x ...": only those
 targets=$tests
 [ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
 [ $pipeline = 1 ] && targets="$targets bench_pipeline"
@@ -200,6 +201,6 @@ fi
 echo
 echo "==== CUDA parity (seed $MLB_TEST_SEED) ===="
 printf '%s' "$summary" | tee -a "$log"
-grep -hE "rel-L2" "$out"/test_cuda_*.log > "$out/parity-errors.txt" 2> /dev/null
+grep -hE "rel-L2" "$out"/test_cuda_*.log "$out"/test_backend_ops.log > "$out/parity-errors.txt" 2> /dev/null
 echo "(per-check errors: $out/parity-errors.txt; full log: $log)"
 exit $fail

@@ -53,38 +53,47 @@ mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, 
 // float -> fp16 / bf16 (round to nearest even) on the device, n values.
 mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n);
 
-// ---- linear (nn_api.inc) ----
-// out[B,OC] = in[B,C] . weight[OC,C]^T + bias[OC] (bias may be NULL)
-mlb_status mlb_cuda_linear_forward(float* out, const float* in, const float* weight, const float* bias, int B, int C,
-                                   int OC, mlb_gemm_precision prec);
-// din[B,C] += dout . weight; dweight[OC,C] += dout^T . in; dbias[OC] += sum_b dout (any may be NULL;
-// dbias sums over b in order: deterministic)
-mlb_status mlb_cuda_linear_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                    const float* weight, int B, int C, int OC, mlb_gemm_precision prec);
-
-// ---- activations (nn_api.inc): the CPU's formulas in float ----
-mlb_status mlb_cuda_activation_forward(float* out, const float* in, size_t n, mlb_activation act);   // out may alias in
-// out = f(in), d1 = f'(in) (d1 may be NULL)
-mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act);
-// din += dout * f'(in)
-mlb_status mlb_cuda_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act);
-
-// ---- normalisation (transformer_ops.h, conv_ops.h) ----
-// Layer norm over the last dimension; statistics two-pass in double like the CPU. One warp per row.
-mlb_status mlb_cuda_layernorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
-                                      const float* bias, int N, int C, float eps);
-// Group norm [N, C, HW], G groups, fused activation (IDENTITY or any mlb_activation); one block
-// per (n, g), statistics two-pass in double.
-mlb_status mlb_cuda_groupnorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
-                                      const float* bias, int N, int C, int HW, int G, float eps, mlb_activation act);
-// Backward (+=), the CPU's formulas: layer norm din by a warp per row, dweight/dbias by a thread per
-// column summing rows in order; group norm by a block per (n, g), dweight/dbias from per-image
-// channel sums (double, in scratch) added in order of n. Deterministic. mean/rstd from the forward.
-mlb_status mlb_cuda_layernorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                       const float* weight, const float* mean, const float* rstd, int N, int C);
-mlb_status mlb_cuda_groupnorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                       const float* weight, const float* bias, const float* mean, const float* rstd,
-                                       int N, int C, int HW, int G, mlb_activation act);
+// ---- the backend's ops (backend_ops.def) ----
+// Declared from the op list, which gives each one's parameters once: cuda_fn(params) for an
+// MLB_OP, cuda_fn(params, mlb_gemm_precision prec) for an MLB_GEMM_OP (GEMM operands at `prec`).
+// The contracts are the CPU ops' of the same names; what is particular to the GPU, by name:
+#define MLB_OP(name, cuda_fn, params) mlb_status cuda_fn params;
+#define MLB_GEMM_OP(name, cuda_fn, params, args) mlb_status cuda_fn(MLB_ARGS params, mlb_gemm_precision prec);
+#include "matlaber/backend_ops.def"
+//
+// linear (nn_api.inc): mlb_cuda_linear_forward out[B,OC] = in[B,C] . w[OC,C]^T + b[OC] (b may be
+//   NULL); mlb_cuda_linear_backward din[B,C] += dout . w; dw[OC,C] += dout^T . in; db[OC] +=
+//   sum_b dout (any may be NULL; db sums over b in order: deterministic).
+// activations (nn_api.inc), the CPU's formulas in float: mlb_cuda_activation_forward (out may alias
+//   in), mlb_cuda_activation_backward (din += dout * f'(in)).
+// normalisation (transformer_ops.h, conv_ops.h): mlb_cuda_layernorm_forward, layer norm over the
+//   last dimension, statistics two-pass in double like the CPU, one warp per row;
+//   mlb_cuda_groupnorm_forward [N, C, HW], G groups, fused activation (IDENTITY or any), one block
+//   per (n, g), statistics two-pass in double. Their backwards (+=), the CPU's formulas:
+//   mlb_cuda_layernorm_backward din by a warp per row, dw/db by a thread per column summing rows
+//   in order; mlb_cuda_groupnorm_backward by a block per (n, g), dw/db from per-image channel sums
+//   (double, in scratch) added in order of n. Deterministic. mean/rstd from the forward.
+// convolution and attention as tensor-core GEMMs (conv_ops.h; src/cuda/conv.cu):
+//   mlb_cuda_conv2d_forward, conv2d_forward's contract (b may be NULL; out must not overlap in);
+//   mlb_cuda_sdpa_forward, sdpa_forward's (q/k/v strides ldq/ldkv, Tq may differ from Tk; lse
+//   [B, NH, Tq] may be NULL), the scores held for a chunk of images at a time (at most 1 GiB),
+//   softmax in float. The backwards (src/cuda/conv_backward.cu): mlb_cuda_conv2d_backward and
+//   mlb_cuda_sdpa_backward, conv2d_backward's and sdpa_backward's contracts (+=, any gradient may
+//   be NULL; sdpa needs the forward's out and lse).
+// layout and elementwise glue (src/cuda/tensor.cu; the CPU's in src/nn/backend.c): mlb_cuda_add,
+//   mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x,
+//   mlb_cuda_copy_rows (rows x width floats from src, row pitch spitch, to dst, pitch dpitch). Their
+//   backwards (+=): mlb_cuda_geglu_backward per element; mlb_cuda_upsample_nearest2x_backward the
+//   2x2 block sums in the CPU's order; mlb_cuda_add_channel_backward the per-channel sums by one
+//   warp per (n, c) in double (a fixed order: deterministic, not the CPU's bits).
+// hash-grid encoding (hashgrid.h): g gives the layout (g->params is ignored: params is the device
+//   copy of the table). mlb_cuda_hashgrid_forward out[N, L*F] (level-major) for x[N,3]: the same
+//   float arithmetic as the CPU (no FMA contraction), so corner indices and weights agree bitwise;
+//   the sums agree to rounding. mlb_cuda_hashgrid_backward: dparams += by an atomicAdd scatter (the
+//   order of the float additions varies from run to run, so dparams is NOT bitwise reproducible,
+//   unlike the CPU's; relative differences ~1e-6); dx += one thread per point, levels in order
+//   (deterministic). Either may be NULL.
+// AdamW: mlb_cuda_adam_update, adam_update's contract.
 
 // ---- attention (transformer_ops.h attention_forward, without `att`) ----
 // Flash-style: tiles of 32 keys in shared memory, an online softmax per query row (running max and
@@ -92,15 +101,8 @@ mlb_status mlb_cuda_groupnorm_backward(float* din, float* dweight, float* dbias,
 // and causal flag as attention_forward; out [B,T,C].
 mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
                                       int C, int NH, int causal);
-
-// ---- convolution and attention as tensor-core GEMMs (conv_ops.h; src/cuda/conv.cu) ----
-// conv2d_forward's contract (bias may be NULL; out must not overlap in), GEMM operands at `prec`.
-mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
-                                   const mlb_conv2d* cv, mlb_gemm_precision prec);
-// sdpa_forward's contract (q/k/v strides ldq/ldkv, Tq may differ from Tk; lse [B, NH, Tq] may be
-// NULL), the scores held for a chunk of images at a time (at most 1 GiB), softmax in float.
-mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
-                                 int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
+// out = f(in), d1 = f'(in) (d1 may be NULL)
+mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act);
 // With cuDNN in the build (src/cuda/conv_cudnn.cu) the forward and the input gradient of a
 // convolution with symmetric padding run there, the rest on the GEMMs. mlb_cuda_use_cudnn(0) (or
 // MLB_CUDNN=0 in the environment) sends every convolution to the GEMM path; mlb_cuda_cudnn_version
@@ -114,39 +116,6 @@ void mlb_cuda_use_flash(int on);
 // run both.
 void mlb_cuda_flash_rows(int rows);
 int mlb_cuda_cudnn_version(void);
-// The backwards (src/cuda/conv_backward.cu): conv2d_backward's and sdpa_backward's contracts (+=,
-// any gradient may be NULL; sdpa needs the forward's out and lse).
-mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                    const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec);
-mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
-                                  const float* lse, const float* q, const float* k, const float* v, int B, int Tq,
-                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec);
-
-// ---- layout and elementwise glue (src/cuda/tensor.cu; the CPU's in src/nn/backend.c) ----
-mlb_status mlb_cuda_add(float* y, const float* x, size_t n);                        // y += x
-mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW);     // x[n,c,:] += v[n,c]
-mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate);
-mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4);   // out[t,j] = in[t,j] gelu(in[t,C4+j])
-mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W);
-// Their backwards (+=), the CPU's contracts (backend.h): GEGLU's per element; the upsample's 2x2
-// block sums in the CPU's order; add_channel's per-channel sums by one warp per (n, c) in double
-// (a fixed order: deterministic, not the CPU's bits).
-mlb_status mlb_cuda_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4);
-mlb_status mlb_cuda_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W);
-mlb_status mlb_cuda_add_channel_backward(float* dv, const float* dx, int N, int C, int HW);
-// rows x width floats from src (row pitch spitch) to dst (pitch dpitch)
-mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows);
-
-// ---- hash-grid encoding (hashgrid.h) ----
-// g gives the layout (g->params is ignored: params is the device copy of the table).
-// out[N, L*F] (level-major) for x[N,3]: the same float arithmetic as the CPU (no FMA contraction),
-// so corner indices and weights agree bitwise; the sums agree to rounding.
-mlb_status mlb_cuda_hashgrid_forward(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N);
-// dparams += (atomicAdd scatter: the order of the float additions varies from run to run, so
-// dparams is NOT bitwise reproducible, unlike the CPU's; relative differences ~1e-6);
-// dx += (one thread per point, levels in order: deterministic). Either may be NULL.
-mlb_status mlb_cuda_hashgrid_backward(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
-                                      const float* dout, const float* x, int N);
 
 // ---- split-sum shading (shade.h) ----
 // The pre-integrated light on the device: every specular level, the irradiance cube and the

@@ -57,9 +57,6 @@ const char* mlb_device_name(mlb_device d);   // "cpu" / "cuda"
 mlb_status mlb_device_option(const char* arg, mlb_device* out);
 #define MLB_DEVICE_OPTION_HELP "  --device D      cpu, cuda, cuda:N or auto (default: $MATLABER_DEVICE, else auto = cuda when a GPU is present)\n"
 
-// AdamW on device buffers (same contract as adam_update); used by the parity test.
-mlb_status mlb_cuda_adam_update(float* params, const float* grads, float* m, float* v, size_t n,
-                                const mlb_adam_config* cfg, long t);
 // Host <-> device helpers for tests and tools.
 mlb_status mlb_cuda_malloc(void** ptr, size_t bytes);
 mlb_status mlb_cuda_free(void* ptr);

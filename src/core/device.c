@@ -106,12 +106,15 @@ static mlb_status no_cuda(const char* fn) {
                     fn);
 }
 #define NO_CUDA return no_cuda(__func__)
+// The backend's ops, from their list (backend_ops.def)
+#define MLB_OP(name, cuda_fn, params) mlb_status cuda_fn params { NO_CUDA; }
+#define MLB_GEMM_OP(name, cuda_fn, params, args) \
+    mlb_status cuda_fn(MLB_ARGS params, mlb_gemm_precision prec) { NO_CUDA; }
+#include "matlaber/backend_ops.def"
 int mlb_cuda_compiled(void) { return 0; }
 int mlb_cuda_device_count(void) { return 0; }
 mlb_status mlb_cuda_probe(int* count) { *count = 0; NO_CUDA; }
 mlb_status mlb_cuda_describe(int index, char* buf, size_t n) { if (n) buf[0] = 0; NO_CUDA; }
-mlb_status mlb_cuda_adam_update(float* params, const float* grads, float* m, float* v, size_t n,
-                                const mlb_adam_config* cfg, long t) { NO_CUDA; }
 mlb_status mlb_cuda_malloc(void** ptr, size_t bytes) { *ptr = NULL; NO_CUDA; }
 mlb_status mlb_cuda_free(void* ptr) { if (!ptr) return MLB_OK; NO_CUDA; }
 mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes) { NO_CUDA; }
@@ -132,58 +135,14 @@ mlb_status mlb_cuda_gemm_batched(int trans_a, int trans_b, int M, int N, int K, 
                                  long long stride_a, const void* B, int ldb, long long stride_b, float beta, float* C,
                                  int ldc, long long stride_c, int batch, mlb_cuda_dtype ab_type,
                                  mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_conv2d_forward(float* out, const float* in, const float* weight, const float* bias,
-                                   const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_sdpa_forward(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
-                                 int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_conv2d_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                    const float* weight, const mlb_conv2d* cv, mlb_gemm_precision prec) { NO_CUDA; }
 void mlb_cuda_use_cudnn(int on) { (void)on; }
 void mlb_cuda_use_flash(int on) { (void)on; }
 void mlb_cuda_flash_rows(int rows) { (void)rows; }
 int mlb_cuda_cudnn_version(void) { return 0; }
-mlb_status mlb_cuda_sdpa_backward(float* dq, float* dk, float* dv, const float* dout, const float* out,
-                                  const float* lse, const float* q, const float* k, const float* v, int B, int Tq,
-                                  int Tk, int C, int NH, int ldq, int ldkv, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_add(float* y, const float* x, size_t n) { NO_CUDA; }
-mlb_status mlb_cuda_add_channel(float* x, const float* v, int N, int C, int HW) { NO_CUDA; }
-mlb_status mlb_cuda_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) { NO_CUDA; }
-mlb_status mlb_cuda_geglu(float* out, const float* in, int rows, int C4) { NO_CUDA; }
-mlb_status mlb_cuda_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) { NO_CUDA; }
-mlb_status mlb_cuda_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4) { NO_CUDA; }
-mlb_status mlb_cuda_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W) { NO_CUDA; }
-mlb_status mlb_cuda_add_channel_backward(float* dv, const float* dx, int N, int C, int HW) { NO_CUDA; }
-mlb_status mlb_cuda_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
-    NO_CUDA;
-}
 mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n) { NO_CUDA; }
-mlb_status mlb_cuda_linear_forward(float* out, const float* in, const float* weight, const float* bias, int B, int C,
-                                   int OC, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_linear_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                    const float* weight, int B, int C, int OC, mlb_gemm_precision prec) { NO_CUDA; }
-mlb_status mlb_cuda_activation_forward(float* out, const float* in, size_t n, mlb_activation act) { NO_CUDA; }
 mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act) { NO_CUDA; }
-mlb_status mlb_cuda_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act) {
-    NO_CUDA;
-}
-mlb_status mlb_cuda_layernorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
-                                      const float* bias, int N, int C, float eps) { NO_CUDA; }
-mlb_status mlb_cuda_groupnorm_forward(float* out, float* mean, float* rstd, const float* in, const float* weight,
-                                      const float* bias, int N, int C, int HW, int G, float eps, mlb_activation act) {
-    NO_CUDA;
-}
-mlb_status mlb_cuda_layernorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                       const float* weight, const float* mean, const float* rstd, int N, int C) { NO_CUDA; }
-mlb_status mlb_cuda_groupnorm_backward(float* din, float* dweight, float* dbias, const float* dout, const float* in,
-                                       const float* weight, const float* bias, const float* mean, const float* rstd,
-                                       int N, int C, int HW, int G, mlb_activation act) { NO_CUDA; }
 mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
                                       int C, int NH, int causal) { NO_CUDA; }
-mlb_status mlb_cuda_hashgrid_forward(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N) {
-    NO_CUDA;
-}
-mlb_status mlb_cuda_hashgrid_backward(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
-                                      const float* dout, const float* x, int N) { NO_CUDA; }
 mlb_status mlb_cuda_envlight_upload(mlb_cuda_envlight* out, const mlb_envlight* light) {
     memset(out, 0, sizeof *out);
     NO_CUDA;

@@ -21,6 +21,9 @@ static mlb_status cpu_zero(float* p, size_t n) {
     if (n) memset(p, 0, n * sizeof(float));
     return MLB_OK;
 }
+// host memory: uploading and downloading are copies
+#define cpu_upload cpu_copy
+#define cpu_download cpu_copy
 static mlb_status cpu_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
     for (size_t r = 0; r < rows; r++) memcpy(dst + r * dpitch, src + r * spitch, width * sizeof(float));
     return MLB_OK;
@@ -50,6 +53,11 @@ static mlb_status cpu_conv2d(const mlb_backend* be, float* out, const float* in,
 static mlb_status cpu_groupnorm(float* out, float* mean, float* rstd, const float* in, const float* w, const float* b,
                                 int N, int C, int HW, int G, float eps, mlb_activation act) {
     return groupnorm_forward(out, mean, rstd, in, w, b, N, C, HW, G, eps, act);
+}
+static mlb_status cpu_groupnorm_backward(float* din, float* dw, float* db, const float* dout, const float* in,
+                                         const float* w, const float* b, const float* mean, const float* rstd, int N,
+                                         int C, int HW, int G, mlb_activation act) {
+    return groupnorm_backward(din, dw, db, dout, in, w, b, mean, rstd, N, C, HW, G, act);
 }
 static mlb_status cpu_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
     layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
@@ -81,7 +89,7 @@ static mlb_status cpu_add_channel(float* x, const float* v, int N, int C, int HW
     }
     return MLB_OK;
 }
-static mlb_status cpu_transpose(float* out, const float* in, int N, int R, int S, int accumulate) {
+static mlb_status cpu_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) {
     transpose_last2(out, in, N, R, S, accumulate);
     return MLB_OK;
 }
@@ -94,7 +102,7 @@ static mlb_status cpu_geglu(float* out, const float* in, int rows, int C4) {
     }
     return MLB_OK;
 }
-static mlb_status cpu_upsample(float* out, const float* in, int N, int C, int H, int W) {
+static mlb_status cpu_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) {
     upsample_nearest2x_forward(out, in, N, C, H, W);
     return MLB_OK;
 }
@@ -123,7 +131,7 @@ static mlb_status cpu_geglu_backward(float* din, const float* dout, const float*
     }
     return MLB_OK;
 }
-static mlb_status cpu_upsample_backward(float* din, const float* dout, int N, int C, int H, int W) {
+static mlb_status cpu_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W) {
     upsample_nearest2x_backward(din, dout, N, C, H, W);
     return MLB_OK;
 }
@@ -248,22 +256,34 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
     return no_backward_stored();
 }
 
-// The CPU's tables differ only in their GEMM precision, the linear and conv ops and the attention.
-#define CPU_TABLE(prec, linear, linear_bwd, conv, conv_bwd, sdpa, sdpa_bwd)                                       \
-    {MLB_DEVICE_CPU, prec, cpu_alloc, cpu_release, cpu_copy, cpu_copy, cpu_copy_rows, cpu_zero, cpu_copy, linear, \
-     linear_bwd, conv, conv_bwd, cpu_groupnorm, groupnorm_backward, cpu_layernorm, cpu_activation, sdpa,          \
-     sdpa_bwd, cpu_add, cpu_add_channel, cpu_transpose, cpu_geglu, cpu_upsample, cpu_activation_backward, \
-     cpu_hashgrid, cpu_hashgrid_backward, cpu_adam, cpu_light_upload, cpu_light_free, cpu_shade, cpu_shade_backward, \
-     cpu_layernorm_stats, cpu_layernorm_backward, cpu_geglu_backward, cpu_upsample_backward, cpu_add_channel_backward}
-static const mlb_backend cpu_table =
-    CPU_TABLE(MLB_GEMM_FP32, cpu_linear, cpu_linear_backward, cpu_conv2d, cpu_conv2d_backward, cpu_sdpa,
-              cpu_sdpa_backward);
-static const mlb_backend cpu_bf16_table = CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16, cpu_linear_backward_bf16,
-                                                    cpu_conv2d_bf16, cpu_conv2d_backward_bf16, cpu_sdpa_bf16,
-                                                    cpu_sdpa_backward_bf16);
-static const mlb_backend cpu_bf16_stored_table =
-    CPU_TABLE(MLB_GEMM_BF16, cpu_linear_bf16_stored, cpu_linear_backward_bf16_stored, cpu_conv2d_bf16_stored,
-              cpu_conv2d_backward_bf16_stored, cpu_sdpa_bf16, cpu_sdpa_backward_bf16);
+// The stored-weights table's attention is the bf16 table's (no weights in it).
+#define cpu_sdpa_bf16_stored cpu_sdpa_bf16
+#define cpu_sdpa_backward_bf16_stored cpu_sdpa_backward_bf16
+
+// The CPU's tables differ only in their precision and their GEMM ops (cpu_<op>, cpu_<op>_bf16,
+// cpu_<op>_bf16_stored); every other op is cpu_<op>. Each entry is generated from the op list by
+// name, so no two ops can trade places.
+static const mlb_backend cpu_table = {
+    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name,
+#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
+#include "matlaber/backend_ops.def"
+};
+static const mlb_backend cpu_bf16_table = {
+    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16,
+#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
+#include "matlaber/backend_ops.def"
+};
+static const mlb_backend cpu_bf16_stored_table = {
+    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16_stored,
+#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
+#include "matlaber/backend_ops.def"
+};
 
 // ---- CUDA ----------------------------------------------------------------------------------------
 static mlb_status cuda_alloc(float** out, size_t n) {
@@ -280,36 +300,11 @@ static mlb_status cuda_download(float* host, const float* src, size_t n) {
     MLB_TRY(mlb_cuda_sync());
     return mlb_cuda_copy_to_host(host, src, n * sizeof(float));
 }
-static mlb_status cuda_linear(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
-                              int C, int OC) {
-    return mlb_cuda_linear_forward(out, in, w, b, B, C, OC, be->precision);
-}
 static mlb_status cuda_zero(float* p, size_t n) { return mlb_cuda_memset(p, 0, n * sizeof(float)); }
 static mlb_status cuda_copy(float* dst, const float* src, size_t n) { return mlb_cuda_copy_d2d(dst, src, n * sizeof(float)); }
-static mlb_status cuda_linear_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
-                                       const float* in, const float* w, int B, int C, int OC) {
-    return mlb_cuda_linear_backward(din, dw, db, dout, in, w, B, C, OC, be->precision);
-}
-static mlb_status cuda_conv2d_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
-                                       const float* in, const float* w, const mlb_conv2d* cv) {
-    return mlb_cuda_conv2d_backward(din, dw, db, dout, in, w, cv, be->precision);
-}
-static mlb_status cuda_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
-                              const mlb_conv2d* cv) {
-    return mlb_cuda_conv2d_forward(out, in, w, b, cv, be->precision);
-}
 
 static mlb_status cuda_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
     return mlb_cuda_layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
-}
-static mlb_status cuda_sdpa(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
-                            const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    return mlb_cuda_sdpa_forward(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
-}
-static mlb_status cuda_sdpa_backward(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
-                                     const float* out, const float* lse, const float* q, const float* k,
-                                     const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    return mlb_cuda_sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, be->precision);
 }
 
 static mlb_status cuda_light_upload(void** handle, const mlb_envlight* light) {
@@ -344,17 +339,43 @@ static mlb_status cuda_shade_backward(float* dkd, float* dks, float* dkr, float*
     return mlb_cuda_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
 }
 
-#define CUDA_TABLE(prec)                                                                                         \
-    {MLB_DEVICE_CUDA, prec, cuda_alloc, cuda_release, cuda_upload, cuda_download, mlb_cuda_copy_rows, cuda_zero,  \
-     cuda_copy, cuda_linear, cuda_linear_backward, cuda_conv2d, cuda_conv2d_backward, mlb_cuda_groupnorm_forward, \
-     mlb_cuda_groupnorm_backward, cuda_layernorm, mlb_cuda_activation_forward, cuda_sdpa, cuda_sdpa_backward,     \
-     mlb_cuda_add, mlb_cuda_add_channel, mlb_cuda_transpose_last2, mlb_cuda_geglu, mlb_cuda_upsample_nearest2x,  \
-     mlb_cuda_activation_backward, mlb_cuda_hashgrid_forward, mlb_cuda_hashgrid_backward, mlb_cuda_adam_update,   \
-     cuda_light_upload, cuda_light_free, cuda_shade, cuda_shade_backward, mlb_cuda_layernorm_forward,            \
-     mlb_cuda_layernorm_backward, mlb_cuda_geglu_backward, mlb_cuda_upsample_nearest2x_backward,                \
-     mlb_cuda_add_channel_backward}
-static const mlb_backend cuda_tables[4] = {CUDA_TABLE(MLB_GEMM_FP32), CUDA_TABLE(MLB_GEMM_TF32),
-                                           CUDA_TABLE(MLB_GEMM_FP16), CUDA_TABLE(MLB_GEMM_BF16)};
+// The GEMM ops at the table's precision: cuda_<op>(be, params) calls cuda_fn(args, be->precision).
+#define MLB_GEMM_OP(name, cuda_fn, params, args) \
+    static mlb_status cuda_##name(const mlb_backend* be, MLB_ARGS params) { return cuda_fn(MLB_ARGS args, be->precision); }
+#include "matlaber/backend_ops.def"
+
+// One table per GEMM precision, indexed by it: an op of the list calls its CUDA function, a GEMM
+// op the wrapper above, a memory or light op the hand-written cuda_<op>.
+static const mlb_backend cuda_tables[4] = {
+    [MLB_GEMM_FP32] = {
+        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP32,
+#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
+#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
+#include "matlaber/backend_ops.def"
+    },
+    [MLB_GEMM_TF32] = {
+        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_TF32,
+#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
+#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
+#include "matlaber/backend_ops.def"
+    },
+    [MLB_GEMM_FP16] = {
+        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP16,
+#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
+#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
+#include "matlaber/backend_ops.def"
+    },
+    [MLB_GEMM_BF16] = {
+        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_BF16,
+#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
+#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
+#include "matlaber/backend_ops.def"
+    },
+};
 
 const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
 const mlb_backend* mlb_backend_cpu_bf16_stored(void) { return &cpu_bf16_stored_table; }

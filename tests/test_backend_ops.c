@@ -1,0 +1,262 @@
+// Every op of every backend table (include/matlaber/backend_ops.def) against the CPU fp32 table on
+// the same random inputs. The op loop is generated from the op list, so a new op does not build
+// here until it has its case (tests/backend_op_cases*.h: a shape generator and a call).
+// Tables: the CPU fp32 table (the reference against itself: every CPU op once, NULL outputs and
+// ragged shapes included, which the sanitizer build checks), the CPU bf16 and bf16-stored tables,
+// and with a GPU the CUDA tables at fp32, tf32, fp16 and bf16 (without one that case skips;
+// scripts/gpu-parity.sh runs this test on a GPU). Each op runs on MLB_OPS_TRIALS shapes (default
+// 4): trial 0 with every size 1, then random ragged ones (1, primes, 2^k +- 1 or anything up to a
+// cap: never only multiples of 8, 16 or 32); optional outputs are NULL on some trials. The seed is
+// $MLB_TEST_SEED (default 1), printed.
+//
+// Compared: the relative L2 error ||got - ref|| / max(||ref||, 0.5 sqrt(n)) of each output (of
+// accumulated outputs, the increments over their random start, so the bound speaks of the gradient
+// itself); a value finite on one side only fails. The floor: the inputs are O(1) (uniform within
+// +-1 or so), so a term of a sum is about 0.5; where an output cancels to near 0 (a one-element
+// product plus a bias, the attention backward over two keys at head width 1) its rounding is
+// judged against that scale instead of against the cancelled result. Large outputs (RMS > 0.5)
+// are measured purely relatively. Bounds:
+//   CPU tables: every op but a GEMM is the fp32 table's own function: 0 (bitwise). GEMM outputs
+//     (linear, conv2d, sdpa and their backwards but the bias gradients, summed in double): bf16
+//     operands, u = 2^-8: 2e-2, the attention backward 3e-2 (three products chained through bf16
+//     copies of P and dS). On a CPU with AVX-512 BF16 also at least 1e-6 over an op's trials: it
+//     is bf16 and not the fp32 op in the wrong slot.
+//   CUDA tables (the bounds of the parity tests test_cuda_*):
+//     copies, adds, the transpose, the upsample: 0 (one thread per value, the CPU's float ops)
+//     elementwise with libm functions, the norms, the upsample's block sums: 1e-5 (CUDA's libm
+//       within 2 ulp of glibc's; statistics in double on both sides)
+//     sums in another order (hash grid, AdamW, bias gradients, add_channel's backward): 1e-5
+//     shading 1e-4, its gradients 1e-3 (float on the GPU, double on the CPU: test_cuda_shade)
+//     GEMM outputs by precision: fp32 1e-5, tf32 and fp16 3e-3, bf16 2e-2 (attention backward 3e-2)
+#include "backend_op_cases.h"
+#include "backend_op_cases_glue.h"
+
+typedef struct {
+    const char* name;
+    void (*setup)(op_case* c, draw* d, int trial);
+    mlb_status (*call)(const mlb_backend* be, float** p, const op_case* c);
+} op_test;
+static const op_test op_tests[] = {
+#define MLB_OP(name, cuda_fn, params) {#name, setup_##name, call_##name},
+#define MLB_GEMM_OP(name, cuda_fn, params, args) {#name, setup_##name, call_##name},
+#define MLB_DEVICE_OP(ret, name, params) {#name, setup_##name, call_##name},
+#include "matlaber/backend_ops.def"
+};
+enum { N_OPS = sizeof op_tests / sizeof op_tests[0] };
+
+static const char* prec_name[] = {"fp32", "tf32", "fp16", "bf16"};
+
+static double bound(const mlb_backend* be, bound_class cls) {
+    static const double gemm[] = {1e-5, 3e-3, 3e-3, 2e-2}, gemm3[] = {1e-5, 3e-3, 3e-3, 3e-2};
+    if (cls == B_GEMM) return gemm[be->precision];
+    if (cls == B_GEMM3) return gemm3[be->precision];
+    if (be->device == MLB_DEVICE_CPU) return 0;
+    switch (cls) {
+    case B_ELEM: case B_SUMS: return 1e-5;
+    case B_SHADE: return 1e-4;
+    case B_SHADE_GRAD: return 1e-3;
+    default: return 0;
+    }
+}
+
+// Relative L2 error of got against ref (of their increments over start, when given), floored as
+// the header says; *bad counts values finite on one side only (a NaN on both: an output neither
+// side writes, as the poison).
+#define TERM_SCALE 0.5
+static double rel_l2(const float* got, const float* ref, const float* start, size_t n, size_t* bad) {
+    double num = 0, den = 0;
+    size_t m = 0;
+    *bad = 0;
+    for (size_t i = 0; i < n; i++) {
+        double g = got[i], r = ref[i];
+        if (!isfinite(g) || !isfinite(r)) { *bad += !isfinite(g) != !isfinite(r); continue; }
+        if (start) g -= start[i], r -= start[i];
+        num += (g - r) * (g - r);
+        den += r * r;
+        m++;
+    }
+    double floor2 = TERM_SCALE * TERM_SCALE * (double)m;
+    return m ? sqrt(num / (den > floor2 ? den : floor2)) : 0;
+}
+
+// The worst of one op's trials on one table
+typedef struct {
+    double err, bound, ratio;   // the output with the largest err / bound (err when the bound is 0)
+    double gemm_max;            // the largest error of a GEMM output
+    char what[200];
+    int has_gemm;
+} worst;
+
+// One trial of one op on table be: the inputs drawn, the reference run on the CPU fp32 table, the
+// same call on be's buffers, every output compared.
+static void run_trial(const mlb_backend* be, const char* table, int oi, int trial, uint64_t seed, worst* w) {
+    const op_test* op = &op_tests[oi];
+    op_case c;
+    memset(&c, 0, sizeof c);
+    draw d = {seed, 1000 + 100 * (uint64_t)oi + trial, 0};
+    op->setup(&c, &d, trial);
+    float *h[MAXB] = {0}, *r[MAXB] = {0}, *g[MAXB] = {0}, *dev[MAXB] = {0};
+    int ok = 1;
+    for (int i = 0; i < c.nb; i++) {
+        const buf* b = &c.b[i];
+        if (b->r == NUL) continue;
+        h[i] = host_alloc(b->n), r[i] = host_alloc(b->n), g[i] = host_alloc(b->n);
+        if (!h[i] || !r[i] || !g[i]) { ok = 0; continue; }
+        if (b->r == OUT)
+            for (size_t k = 0; k < b->n; k++) h[i][k] = NAN;
+        else
+            fill_uniform(h[i], b->n, seed, ((uint64_t)oi << 16) | ((uint64_t)trial << 8) | (uint64_t)i, b->lo, b->hi);
+    }
+    REQUIRE(ok);
+    if (c.prep) c.prep(&c, h);
+    for (int i = 0; i < c.nb; i++)
+        if (h[i]) memcpy(r[i], h[i], c.b[i].n * sizeof(float));
+    mlb_status st = op->call(mlb_backend_cpu(), r, &c);
+    CHECK_MSG(st == MLB_OK, "%s reference on %s: %s", op->name, c.shape, mlb_last_error());
+    for (int i = 0; i < c.nb && ok; i++)
+        if (h[i] && (be->alloc(&dev[i], c.b[i].n) != MLB_OK || be->upload(dev[i], h[i], c.b[i].n) != MLB_OK)) ok = 0;
+    if (ok) {
+        st = op->call(be, dev, &c);
+        CHECK_MSG(st == MLB_OK, "%s %s on %s: %s", table, op->name, c.shape, mlb_last_error());
+        ok = st == MLB_OK;
+    } else {
+        CHECK_MSG(0, "%s %s: buffers on the device: %s", table, op->name, mlb_last_error());
+    }
+    for (int i = 0; i < c.nb && ok; i++)
+        if (h[i] && be->download(g[i], dev[i], c.b[i].n) != MLB_OK) {
+            CHECK_MSG(0, "%s %s: download: %s", table, op->name, mlb_last_error());
+            ok = 0;
+        }
+    for (int i = 0; i < c.nb && ok; i++) {
+        const buf* b = &c.b[i];
+        if (b->r != OUT && b->r != ACC) continue;
+        size_t bad;
+        double err = rel_l2(g[i], r[i], b->r == ACC ? h[i] : NULL, b->n, &bad), bd = bound(be, b->cls);
+        CHECK_MSG(bad == 0, "%s %s %s on %s: %zu values finite on one side only", table, op->name, b->name, c.shape,
+                  bad);
+        CHECK_MSG(err <= bd, "%s %s %s on %s: relative L2 error %.3e over %.0e", table, op->name, b->name, c.shape,
+                  err, bd);
+        double ratio = bd > 0 ? err / bd : err > 0 ? INFINITY : 0;
+        if (ratio >= w->ratio) {
+            w->err = err, w->bound = bd, w->ratio = ratio;
+            snprintf(w->what, sizeof w->what, "%s on %s", b->name, c.shape);
+        }
+        if (b->cls == B_GEMM || b->cls == B_GEMM3) {
+            w->has_gemm = 1;
+            if (err > w->gemm_max) w->gemm_max = err;
+        }
+    }
+    for (int i = 0; i < c.nb; i++) {
+        if (dev[i]) be->release(dev[i]);
+        free(h[i]), free(r[i]), free(g[i]);
+    }
+}
+
+static int n_trials(void) {
+    const char* s = getenv("MLB_OPS_TRIALS");
+    int n = s && *s ? atoi(s) : 4;
+    return n < 1 ? 1 : n;
+}
+
+static void check_table(const mlb_backend* be, const char* table) {
+    uint64_t seed = test_seed();
+    int trials = n_trials();
+    // bf16 for real: the CPU's bf16 kernels when it has AVX-512 BF16 (else they are fp32)
+    int bf16_cpu = be->device == MLB_DEVICE_CPU && be->precision == MLB_GEMM_BF16 && mlb_gemm_bf16_native();
+    for (int oi = 0; oi < N_OPS; oi++) {
+        worst w = {0, 0, -1, 0, "", 0};
+        for (int t = 0; t < trials; t++) run_trial(be, table, oi, t, seed, &w);
+        printf("  %-9s %-28s rel-L2 %.2e  bound %.0e  worst: %s\n", table, op_tests[oi].name, w.err, w.bound, w.what);
+        if (bf16_cpu && w.has_gemm)
+            CHECK_MSG(w.gemm_max >= 1e-6, "%s %s: error %.1e of the fp32 result: not bf16", table, op_tests[oi].name,
+                      w.gemm_max);
+    }
+}
+
+// Every field of every table set, from the list, and each table's device and precision.
+static void check_complete(const mlb_backend* be, mlb_device dev, mlb_gemm_precision p, const char* t) {
+    CHECK_MSG(be->device == dev && be->precision == p, "%s: device %d precision %d", t, be->device, be->precision);
+#define MLB_OP(name, cuda_fn, params) CHECK_MSG(be->name != NULL, "%s: %s is NULL", t, #name);
+#define MLB_GEMM_OP(name, cuda_fn, params, args) CHECK_MSG(be->name != NULL, "%s: %s is NULL", t, #name);
+#define MLB_DEVICE_OP(ret, name, params) CHECK_MSG(be->name != NULL, "%s: %s is NULL", t, #name);
+#include "matlaber/backend_ops.def"
+}
+
+TEST(tables_complete) {
+    check_complete(mlb_backend_cpu(), MLB_DEVICE_CPU, MLB_GEMM_FP32, "cpu fp32");
+    check_complete(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), MLB_DEVICE_CPU, MLB_GEMM_BF16, "cpu bf16");
+    check_complete(mlb_backend_cpu_bf16_stored(), MLB_DEVICE_CPU, MLB_GEMM_BF16, "cpu bf16 stored");
+    for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++)
+        check_complete(mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p), MLB_DEVICE_CUDA, (mlb_gemm_precision)p,
+                       prec_name[p]);
+    printf("  %d ops in each of 7 tables\n", (int)N_OPS);
+}
+
+TEST(cpu_fp32_table) { check_table(mlb_backend_cpu(), "cpu fp32"); }
+TEST(cpu_bf16_table) { check_table(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), "cpu bf16"); }
+
+// The bf16-stored table: the bf16 table's ops but the linear and conv GEMMs, which read weights
+// packed at load (their results the bf16 table's bit for bit) and have no backward.
+TEST(cpu_bf16_stored_table) {
+    const mlb_backend *st = mlb_backend_cpu_bf16_stored(), *bf = mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16);
+#define MLB_OP(name, cuda_fn, params) CHECK_MSG(st->name == bf->name, "%s is not the bf16 table's", #name);
+#define MLB_DEVICE_OP(ret, name, params) CHECK_MSG(st->name == bf->name, "%s is not the bf16 table's", #name);
+#include "matlaber/backend_ops.def"
+    CHECK(st->sdpa == bf->sdpa && st->sdpa_backward == bf->sdpa_backward);
+    float x[4] = {0}, gw[4] = {0};
+    mlb_conv2d cv = mlb_conv2d_make(1, 1, 2, 2, 1, 1, 1, 0);
+    CHECK(st->linear_backward(st, x, gw, NULL, x, x, x, 1, 2, 2) == MLB_ERR_UNSUPPORTED);
+    CHECK(st->conv2d_backward(st, x, gw, NULL, x, x, x, &cv) == MLB_ERR_UNSUPPORTED);
+    if (!mlb_bf16_packing_available()) SKIP("no AVX-512 BF16 here: no packed weights");
+    uint64_t seed = test_seed();
+    for (int t = 0; t < n_trials(); t++) {
+        draw d = {seed, 99, (uint64_t)t * 64};
+        int B = dim(&d, t, 70), C = dim(&d, t, 130), OC = dim(&d, t, 70);
+        float *in = host_alloc((size_t)B * C), *w = host_alloc((size_t)OC * C), *b = host_alloc(OC);
+        float *o1 = host_alloc((size_t)B * OC), *o2 = host_alloc((size_t)B * OC);
+        uint32_t* pw = calloc(mlb_bf16_linear_weight_words(OC, C) + 1, sizeof(uint32_t));
+        REQUIRE(in && w && b && o1 && o2 && pw);
+        fill_uniform(in, (size_t)B * C, seed, 1, -1, 1), fill_uniform(w, (size_t)OC * C, seed, 2, -0.5f, 0.5f);
+        fill_uniform(b, OC, seed, 3, -1, 1);
+        CHECK(mlb_bf16_pack_linear_weight(pw, w, OC, C));
+        CHECK(bf->linear(bf, o1, in, w, b, B, C, OC) == MLB_OK);
+        CHECK(st->linear(st, o2, in, (const float*)pw, b, B, C, OC) == MLB_OK);
+        CHECK_MSG(!memcmp(o1, o2, (size_t)B * OC * sizeof(float)), "linear B %d C %d OC %d: not the bf16 table's bits",
+                  B, C, OC);
+        free(in), free(w), free(b), free(o1), free(o2), free(pw);
+
+        mlb_conv2d v = draw_conv(&d, t);
+        size_t ni = (size_t)v.N * v.C * v.H * v.W, K = (size_t)v.C * v.KH * v.KW, no = conv_out_n(&v);
+        in = host_alloc(ni), w = host_alloc(v.OC * K), b = host_alloc(v.OC), o1 = host_alloc(no), o2 = host_alloc(no);
+        pw = calloc(mlb_bf16_conv_weight_words(v.OC, (int)K) + 1, sizeof(uint32_t));
+        REQUIRE(in && w && b && o1 && o2 && pw);
+        fill_uniform(in, ni, seed, 4, -1, 1), fill_uniform(w, v.OC * K, seed, 5, -0.3f, 0.3f);
+        fill_uniform(b, v.OC, seed, 6, -1, 1);
+        CHECK(mlb_bf16_pack_conv_weight(pw, w, v.OC, (int)K));
+        CHECK(bf->conv2d(bf, o1, in, w, b, &v) == MLB_OK);
+        CHECK(st->conv2d(st, o2, in, (const float*)pw, b, &v) == MLB_OK);
+        CHECK_MSG(!memcmp(o1, o2, no * sizeof(float)), "conv2d N %d C %d OC %d %dx%d: not the bf16 table's bits", v.N,
+                  v.C, v.OC, v.H, v.W);
+        free(in), free(w), free(b), free(o1), free(o2), free(pw);
+    }
+    printf("  packed linear and conv2d: the bf16 table's bits on %d shapes each\n", n_trials());
+}
+
+TEST(cuda_tables) {
+    REQUIRE_GPU();
+    for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++) {
+        char name[16];
+        snprintf(name, sizeof name, "cuda %s", prec_name[p]);
+        check_table(mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p), name);
+    }
+}
+
+int main(void) {
+    RUN(tables_complete);
+    RUN(cpu_fp32_table);
+    RUN(cpu_bf16_table);
+    RUN(cpu_bf16_stored_table);
+    RUN(cuda_tables);
+    free_test_light();
+    return test_summary();
+}

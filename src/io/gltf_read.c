@@ -14,7 +14,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include "matlaber/fileio.h"
 
 #define GLB_MAGIC 0x46546C67u   // "glTF"
@@ -720,10 +719,6 @@ mlb_status mlb_gltf_load(const char* path, mlb_mesh* out, const mlb_gltf_options
     if (info) memset(info, 0, sizeof *info);
     if (!path || !out) return mlb_fail(MLB_ERR_ARG, "mlb_gltf_load: NULL %s", path ? "output mesh" : "path");
     size_t max_bytes = opt && opt->max_bytes ? opt->max_bytes : MLB_GLTF_MAX_BYTES;
-    struct stat st;
-    if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && (unsigned long long)st.st_size > max_bytes)
-        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %lld bytes, more than the %zu allowed for a glTF file", path,
-                        (long long)st.st_size, max_bytes);
     char* data = NULL;
     size_t n = 0;
     MLB_TRY(mlb_read_file(path, &data, &n, max_bytes));   // its message names the path

@@ -121,6 +121,17 @@ TEST(config_round_trip_and_errors) {
     CHECK(c.coarse_to_fine == 0.5 && c.w_mat_spec == 0.1);
     REQUIRE(load_without_keys(&c, path, "coarse_to_fine", "material_smoothness_specular", &back) == MLB_OK);
     CHECK(back.coarse_to_fine == 0 && back.w_mat_spec == 0);
+    // "appearance_guidance_scale" saved and loaded; a run from before it ran both stages at
+    // guidance_scale, which 0 means
+    c.appearance_guidance_scale = 75;
+    REQUIRE(mlb_pipeline_config_save(&c, path) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.appearance_guidance_scale == 75);
+    REQUIRE(load_without_keys(&c, path, "appearance_guidance_scale", "coarse_to_fine", &back) == MLB_OK);
+    CHECK(back.appearance_guidance_scale == 0);
+    c.appearance_guidance_scale = -1;
+    CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
+    c.appearance_guidance_scale = 0;
     mlb_clear_error();
 }
 

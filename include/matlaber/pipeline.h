@@ -28,6 +28,7 @@ typedef struct {
     char model[MLB_PIPELINE_PATH];      // sds: the Stable Diffusion checkpoint (file or folder)
     char views_dir[MLB_PIPELINE_PATH];  // images: the views folder (docs/views.md)
     double guidance_scale;        // sds: 100
+    double appearance_guidance_scale;   // sds appearance stage: 0 = guidance_scale
     int latent_iters;             // sds geometry: steps fed as 64² [normal, mask] latents (default: iters / 3)
     int latent_size;              // sds geometry: their size, 0 = 64 (SD at 512²); the tiny preset: res / 8
     int geometry_t_min;           // sds geometry: the smallest timestep drawn, 0 = the guidance's (20)

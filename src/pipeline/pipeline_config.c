@@ -69,6 +69,10 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->geometry_t_min = 150;
         c->init_iters = 100;
         c->guidance_scale = 20.0; // 10 gives a cleaner shape but a washed-out, greenish gold
+        // The appearance stage at 20 paints gold as a saturated yellow diffuse on most shapes (a mug,
+        // vase, teapot: kd 0.8, ks 0.02); at 100 (the paper's) they come out metal and every material's
+        // RMSE drops, dielectrics stay dielectric (docs/benchmarks.md, "Appearance guidance scale")
+        c->appearance_guidance_scale = 100.0;
         c->env_height = 128;
         c->cube_size = 64;
         c->checkpoint_every = 50;
@@ -126,6 +130,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->preview_every < 0) bad = "preview interval must be >= 0";
     else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
+    else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
+        bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
     else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
     else if (c->precision[0] && mlb_gemm_precision_parse(c->precision, &prec) != MLB_OK)
@@ -175,6 +181,7 @@ static const field FIELDS[] = {
     FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // added 2026-11-27; before: 20
     FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // added 2026-11-27; before: 2^19
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
+    FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // added 2026-11-27; before: guidance_scale
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

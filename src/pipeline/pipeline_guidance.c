@@ -48,7 +48,8 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     gc.latent_size = c->latent_size;
     if (c->geometry_t_min > 0) gc.geometry_opt.t_min = c->geometry_t_min;
     gc.view_prompts = c->view_prompts;
-    gc.geometry_opt.guidance_scale = gc.appearance_opt.guidance_scale = (float)c->guidance_scale;
+    gc.geometry_opt.guidance_scale = (float)c->guidance_scale;
+    gc.appearance_opt.guidance_scale = (float)(c->appearance_guidance_scale > 0 ? c->appearance_guidance_scale : c->guidance_scale);
     gc.n_envs = c->n_envs;
     gc.orbit.fixed_env = c->fixed_env;
     gc.seed = c->seed;

@@ -76,6 +76,8 @@ static mlb_status check_same(const char* dir, const mlb_pipeline_config* want, c
     else if (want->geometry_iters != have->geometry_iters || want->appearance_iters != have->appearance_iters)
         what = "step counts (--preset / --steps-scale)";
     else if (want->res != have->res || want->views != have->views || want->grid != have->grid) what = "preset";
+    else if (want->guidance_scale != have->guidance_scale || want->appearance_guidance_scale != have->appearance_guidance_scale)
+        what = "guidance scale (a run from before the preset's appearance guidance scale: regenerate it)";
     if (!what) return MLB_OK;
     return mlb_fail(MLB_ERR_ARG, "%s holds a run made with another %s: remove it or give the benchmark another -o", dir, what);
 }

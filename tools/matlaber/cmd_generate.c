@@ -40,6 +40,7 @@ static const cli_option options[] = {
     {"no-view-prompts", 0, 'W', NULL, "generate: one prompt for every view (default: \", front view\" etc. by the camera)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
+    {"appearance-guidance-scale", 1, 'B', "X", "generate, paint: the appearance stage's, when it differs (default: --guidance-scale's; the tiny preset 100)"},
     {"geometry-t-min", 1, 'U', "T", "generate: the geometry stage's smallest SDS timestep (default 20)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
     {"export-texture", 1, 'T', "N", "texture size of RUN_DIR/final/asset.glb, written at the end (generate 1024;\n"
@@ -143,6 +144,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     }
     const char *out = NULL, *resume = NULL, *asset = NULL;
     const char* geometry_option = NULL;   // paint: the first geometry-stage option given (refused)
+    int appearance_scale_given = 0;
     long stop_after = 0, v;
     double x;
     int env_reset = 1;
@@ -187,7 +189,12 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (mlb_material_mode_parse(optarg, &c.material)) return cli_usage_error(command, "--material: expected latent or direct");
             break;
         case 'U': if (cli_parse_long(optarg, 0, 500, &v)) return cli_usage_error(command, "--geometry-t-min: expected 0..500"); c.geometry_t_min = (int)v; break;
-        case 'S': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000"); c.guidance_scale = x; break;
+        case 'S':
+            if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000");
+            c.guidance_scale = x;
+            if (is_paint && !appearance_scale_given) c.appearance_guidance_scale = 0;   // paint's one stage: this scale, not the preset's
+            break;
+        case 'B': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
         case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;

@@ -59,6 +59,22 @@ int mlb_gemm_bf16_native(void) {
     return cpu_has_bf16() && !force_fallback;
 }
 
+// Where mlb_gemm_bf16_image puts a conv's input: Hp padded rows of `row` values (stride_w phases of
+// Wq columns each); padded column X is value X % stride_w · Wq + X / stride_w of its row.
+typedef struct {
+    int Hp, sw, Wq;
+    size_t row;
+} image_layout;
+
+static image_layout layout_of(const mlb_conv2d* cv) {
+    image_layout l;
+    l.Hp = cv->H + cv->pad_top + cv->pad_bottom;
+    l.sw = cv->stride_w;
+    l.Wq = (cv->W + cv->pad_left + cv->pad_right + l.sw - 1) / l.sw;
+    l.row = (size_t)l.sw * l.Wq;
+    return l;
+}
+
 #ifdef MLB_BF16_KERNEL
 // 32 consecutive fp32 values x[at .. at + left) rounded to 32 bf16 (16 pair words), zero past `left`.
 BF16_TARGET static inline __m512i load32_bf16(const float* X, size_t at, int left) {
@@ -175,6 +191,128 @@ BF16_TARGET static void pack_im2col_block(uint32_t* out, int np, const float* im
             _mm512_storeu_si512(o, _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b[0], a[0])));
             _mm512_storeu_si512(o + 16, _mm512_permutexvar_epi16(weave, (__m512i)_mm512_cvtne2ps_pbh(b[1], a[1])));
             for (x += NR; x >= OW; x -= OW) y++;
+        }
+    }
+}
+
+// 32 bf16 -> the 16 of even index, then the 16 of odd index.
+static const uint16_t even_odd[32] = {0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30,
+                                      1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31};
+
+// Channels c0 .. c1 of img into the layout above: rows of the padding zero, each input row rounded
+// 16 values at a time (VCVTNEPS2BF16 rounds as VCVTNE2PS2BF16 does: the same bf16 as the panels
+// packed from fp32), then spread over the phases when strided.
+BF16_TARGET static void image_channels(const mlb_conv2d* cv, const float* img, int c0, int c1, uint16_t* out) {
+    const image_layout l = layout_of(cv);
+    const int W = cv->W, pl = cv->pad_left;
+    for (int c = c0; c < c1; c++)
+        for (int r = 0; r < l.Hp; r++) {
+            uint16_t* d = out + ((size_t)c * l.Hp + r) * l.row;
+            const int iy = r - cv->pad_top;
+            if (iy < 0 || iy >= cv->H) {
+                memset(d, 0, sizeof(uint16_t) * l.row);
+                continue;
+            }
+            const float* s = img + ((size_t)c * cv->H + iy) * W;
+            if (l.sw == 1) {
+                for (int x = 0; x < pl; x++) d[x] = 0;
+                for (int x = 0; x < W; x += 16) {
+                    const __mmask16 m = W - x >= 16 ? 0xFFFF : (__mmask16)((1u << (W - x)) - 1);
+                    _mm256_mask_storeu_epi16(d + pl + x, m, (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, s + x)));
+                }
+                for (size_t x = (size_t)pl + W; x < l.row; x++) d[x] = 0;
+                continue;
+            }
+            memset(d, 0, sizeof(uint16_t) * l.row);
+            if (l.sw == 2) {   // 32 values rounded, split into evens and odds, one store per phase
+                const __m512i split = _mm512_loadu_si512(even_odd);
+                const int pe = pl % 2, be = pl / 2, bo = (pl + 1) / 2;   // phase and start of the even ix, of the odd
+                for (int x = 0; x < W; x += 32) {
+                    const int n = W - x < 32 ? W - x : 32, ne = (n + 1) / 2, no = n / 2;
+                    const __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+                    const __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
+                    const __m512i v = _mm512_permutexvar_epi16(
+                        split, (__m512i)_mm512_cvtne2ps_pbh(_mm512_maskz_loadu_ps(m1, s + x + 16), _mm512_maskz_loadu_ps(m0, s + x)));
+                    _mm256_mask_storeu_epi16(d + (size_t)pe * l.Wq + be + x / 2, (__mmask16)((1u << ne) - 1),
+                                             _mm512_castsi512_si256(v));
+                    _mm256_mask_storeu_epi16(d + (size_t)(1 - pe) * l.Wq + bo + x / 2, (__mmask16)((1u << no) - 1),
+                                             _mm512_extracti64x4_epi64(v, 1));
+                }
+                continue;
+            }
+            uint16_t tmp[16];   // other strides: value by value, the phase and index stepped along
+            int ph = pl % l.sw, at = pl / l.sw;
+            for (int x = 0; x < W; x += 16) {
+                const int n = W - x < 16 ? W - x : 16;
+                const __mmask16 m = n == 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+                _mm256_storeu_si256((__m256i*)tmp, (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, s + x)));
+                for (int t = 0; t < n; t++) {
+                    d[(size_t)ph * l.Wq + at] = tmp[t];
+                    if (++ph == l.sw) { ph = 0; at++; }
+                }
+            }
+        }
+}
+
+// Interleave two rows of 32 bf16 (a: k, b: k + 1) into pair words: lanes 0-15, then 16-31.
+static const uint16_t weave_lo[32] = {0, 32, 1, 33, 2, 34, 3, 35, 4, 36, 5, 37, 6, 38, 7, 39,
+                                      8, 40, 9, 41, 10, 42, 11, 43, 12, 44, 13, 45, 14, 46, 15, 47};
+static const uint16_t weave_hi[32] = {16, 48, 17, 49, 18, 50, 19, 51, 20, 52, 21, 53, 22, 54, 23, 55,
+                                      24, 56, 25, 57, 26, 58, 27, 59, 28, 60, 29, 61, 30, 62, 31, 63};
+
+// pack_im2col_block from the image in bf16 (mlb_gemm_bf16_image): the same words. Panel by panel
+// (its writes in order): the panel's pixels fall in runs along output rows, found once; row k of a
+// run is then one masked load at the run's offset plus row k's (no edge tests: the padding is in
+// the image), two rows woven into pair words.
+BF16_TARGET static void pack_image_block(uint32_t* out, int np, const uint16_t* img, const mlb_conv2d* cv,
+                                         size_t pixel0, int R, int k0, int K) {
+    const image_layout l = layout_of(cv);
+    const int OW = mlb_conv2d_out_w(cv), KW = cv->KW, KHW = cv->KH * KW, panels = (R + NR - 1) / NR;
+    const ptrdiff_t pix_row = (ptrdiff_t)cv->stride_h * (ptrdiff_t)l.row;   // values from one output row to the next
+    ptrdiff_t koff[2 * KC];   // im2col row k0 + t = (c, i, j) starts at image value koff[t]
+    for (int t = 0; t < K; t++) {
+        const int k = k0 + t, c = k / KHW, i = k / KW % cv->KH, j = k % KW;
+        koff[t] = ((ptrdiff_t)c * l.Hp + i) * (ptrdiff_t)l.row + (ptrdiff_t)(j % l.sw) * l.Wq + j / l.sw;
+    }
+    const __m512i wlo = _mm512_loadu_si512(weave_lo), whi = _mm512_loadu_si512(weave_hi), zero = _mm512_setzero_si512();
+    const int pairs = K / 2;
+    for (int q = 0; q < panels; q++) {
+        const int lanes = R - q * NR < NR ? R - q * NR : NR;
+        ptrdiff_t roff[NR];   // run r: lanes rmask[r] read image value roff[r] + lane + koff[t]
+        __mmask32 rmask[NR];
+        int nr = 0;
+        const size_t pix = pixel0 + (size_t)q * NR;
+        int y = (int)(pix / (size_t)OW), x = (int)(pix % (size_t)OW);
+        for (int lane = 0; lane < lanes; y++, x = 0) {
+            const int len = OW - x < lanes - lane ? OW - x : lanes - lane;
+            rmask[nr] = (__mmask32)((len >= 32 ? 0xFFFFFFFFu : (1u << len) - 1) << lane);
+            roff[nr++] = (ptrdiff_t)y * pix_row + x - lane;
+            lane += len;
+        }
+        uint32_t* o = out + (size_t)q * np * NR;
+        if (nr == 1) {   // the panel within one output row (OW >= 32): one load per im2col row
+            const uint16_t* base = img + roff[0];
+            const __mmask32 m = rmask[0];
+            for (int p = 0; p < pairs; p++, o += NR) {
+                const __m512i a = _mm512_maskz_loadu_epi16(m, base + koff[2 * p]);
+                const __m512i b = _mm512_maskz_loadu_epi16(m, base + koff[2 * p + 1]);
+                _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, b));
+                _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, b));
+            }
+            if (K & 1) {
+                const __m512i a = _mm512_maskz_loadu_epi16(m, base + koff[K - 1]);
+                _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, zero));
+                _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, zero));
+            }
+            continue;
+        }
+        for (int p = 0; 2 * p < K; p++, o += NR) {
+            __m512i a = zero, b = zero;
+            for (int r = 0; r < nr; r++) a = _mm512_mask_loadu_epi16(a, rmask[r], img + roff[r] + koff[2 * p]);
+            if (2 * p + 1 < K)
+                for (int r = 0; r < nr; r++) b = _mm512_mask_loadu_epi16(b, rmask[r], img + roff[r] + koff[2 * p + 1]);
+            _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, b));
+            _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, b));
         }
     }
 }
@@ -296,6 +434,10 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
                        int r0) {
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad;
     const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
+    if (X->im2col && X->image) {
+        pack_image_block(out, np, X->image, X->im2col, X->offset + (size_t)r0, R, k0, nk);
+        return;
+    }
     if (X->im2col) {
         pack_im2col_block(out, np, X->data, X->im2col, X->offset + (size_t)r0, R, k0, nk);
         return;
@@ -310,6 +452,19 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
     }
 }
 #endif
+
+size_t mlb_gemm_bf16_image_len(const mlb_conv2d* cv) {
+    const image_layout l = layout_of(cv);
+    return (size_t)cv->C * l.Hp * l.row;
+}
+
+void mlb_gemm_bf16_image(const mlb_conv2d* cv, const float* img, int c0, int c1, uint16_t* out) {
+#ifdef MLB_BF16_KERNEL
+    image_channels(cv, img, c0, c1, out);
+#else
+    (void)cv; (void)img; (void)c0; (void)c1; (void)out;
+#endif
+}
 
 void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out) {
 #ifdef MLB_BF16_KERNEL

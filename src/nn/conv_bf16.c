@@ -73,14 +73,12 @@ static void conv_tiles(float* out, const float* in, const mlb_bf16_operand* w, c
                 const size_t p0 = (size_t)(t % tiles) * TILE_PIXELS;
                 const int np = plane - p0 < TILE_PIXELS ? (int)(plane - p0) : TILE_PIXELS;
                 float* o = out + (size_t)n * out_n + p0;
-                if (!accumulate)   // the sums are added to the bias, as over an im2col buffer
-                    for (int oc = 0; oc < OC; oc++) {
-                        const float b = bias ? bias[oc] : 0.0f;
-                        for (int p = 0; p < np; p++) o[(size_t)oc * plane + p] = b;
-                    }
                 const mlb_bf16_operand col = {in + (size_t)n * in_n, p0, (int)plane, NULL, cv,
                                               img16 ? img16 + (size_t)(n - n0) * img_len : NULL};
-                mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 1.0f, o, (int)plane);
+                // the sums added to the bias (to out with accumulate) as over an im2col buffer
+                if (accumulate) mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 1.0f, o, (int)plane);
+                else if (bias) mlb_gemm_bf16_kernel_bias(0, 0, OC, np, K, 1.0f, w, &col, 0.0f, bias, o, (int)plane);
+                else mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 0.0f, o, (int)plane);
             }
         }
     }

@@ -317,21 +317,26 @@ BF16_TARGET static void pack_image_block(uint32_t* out, int np, const uint16_t* 
     }
 }
 
-// One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
-// (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
-// C[m, n] (m <= MR, n <= NR) = alpha · sum + beta · C. A stored and reloaded fp32 sum is the same
-// sum: K blocking does not change a bit.
-BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
-                                     float* C, int ldc, int m, int n, float alpha, float beta) {
+// One RM x NR tile (RM <= MR rows of the MR-row panels) over kp pairs: the sums start from zero
+// (w_in NULL) or from the fp32 tile w_in (the K blocks before), and end in the fp32 tile w_out (K
+// blocks follow), or, with w_out NULL, as C[m, n] (m <= RM, n <= NR) = alpha · sum + beta · C, or
+// alpha · sum + bias[m] with bias (then C is not read: the same rounding as C = bias, beta = 1). A
+// stored and reloaded fp32 sum is the same sum: K blocking does not change a bit. RM is a constant
+// where it is inlined (micro_kernel below): a panel's last rows of a small M (the tiny model's 32,
+// 8, 3 channels) are not multiplied as 14, and each row's sums are the ones the 14-row tile makes.
+BF16_TARGET static inline __attribute__((always_inline)) void micro_body(const int RM, int kp, const uint32_t* a,
+                                                                         const uint32_t* b, const float* w_in,
+                                                                         float* w_out, float* C, int ldc, int m, int n,
+                                                                         float alpha, float beta, const float* bias) {
 #define ACC(i)                                                                                       \
-    __m512 c##i##0 = w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),                  \
-           c##i##1 = w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
+    __m512 c##i##0 = (i) < RM && w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),      \
+           c##i##1 = (i) < RM && w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
     ACC(0) ACC(1) ACC(2) ACC(3) ACC(4) ACC(5) ACC(6) ACC(7) ACC(8) ACC(9) ACC(10) ACC(11) ACC(12) ACC(13)
 #undef ACC
     for (int p = 0; p < kp; p++, a += MR, b += NR) {
         __m512bh b0 = (__m512bh)_mm512_loadu_si512(b), b1 = (__m512bh)_mm512_loadu_si512(b + 16);
 #define STEP(i)                                                             \
-    {                                                                       \
+    if ((i) < RM) {                                                         \
         __m512bh ai = (__m512bh)_mm512_set1_epi32((int)a[i]);               \
         c##i##0 = _mm512_dpbf16_ps(c##i##0, ai, b0);                        \
         c##i##1 = _mm512_dpbf16_ps(c##i##1, ai, b1);                        \
@@ -341,7 +346,7 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
 #undef STEP
     }
     if (w_out) {
-#define KEEP(i) _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1);
+#define KEEP(i) if ((i) < RM) { _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1); }
         KEEP(0) KEEP(1) KEEP(2) KEEP(3) KEEP(4) KEEP(5) KEEP(6) KEEP(7) KEEP(8) KEEP(9) KEEP(10) KEEP(11) KEEP(12)
         KEEP(13)
 #undef KEEP
@@ -352,10 +357,13 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
     const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
     // beta = 0 never reads C (NaN there is ignored, as BLAS does)
 #define PUT(i)                                                                                          \
-    if (i < m) {                                                                                        \
+    if ((i) < RM && (i) < m) {                                                                          \
         float* c = C + (size_t)(i) * ldc;                                                               \
         __m512 r0 = _mm512_mul_ps(va, c##i##0), r1 = _mm512_mul_ps(va, c##i##1);                        \
-        if (beta != 0) {                                                                                \
+        if (bias) {                                                                                     \
+            r0 = _mm512_add_ps(r0, _mm512_set1_ps(bias[i]));                                            \
+            r1 = _mm512_add_ps(r1, _mm512_set1_ps(bias[i]));                                            \
+        } else if (beta != 0) {                                                                         \
             r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);                                 \
             r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);                            \
         }                                                                                               \
@@ -364,6 +372,29 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
     }
     PUT(0) PUT(1) PUT(2) PUT(3) PUT(4) PUT(5) PUT(6) PUT(7) PUT(8) PUT(9) PUT(10) PUT(11) PUT(12) PUT(13)
 #undef PUT
+}
+
+#define MICRO(RM)                                                                                              \
+    BF16_TARGET static void micro_kernel_##RM(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, \
+                                              float* w_out, float* C, int ldc, int m, int n, float alpha,      \
+                                              float beta, const float* bias) {                                 \
+        micro_body(RM, kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias);                                \
+    }
+MICRO(2) MICRO(4) MICRO(6) MICRO(8) MICRO(10) MICRO(12) MICRO(14)
+#undef MICRO
+
+// The tile of a panel whose rows m (1 .. MR) are valid, as few rows as cover them.
+BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
+                                     float* C, int ldc, int m, int n, float alpha, float beta, const float* bias) {
+    switch ((m + 1) / 2) {
+    case 1: micro_kernel_2(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 2: micro_kernel_4(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 3: micro_kernel_6(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 4: micro_kernel_8(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 5: micro_kernel_10(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 6: micro_kernel_12(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    default: micro_kernel_14(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    }
 }
 #endif
 
@@ -478,9 +509,22 @@ void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_oper
 #endif
 }
 
+// C = bias per row and beta = 1: the bias of mlb_gemm_bf16_kernel_bias where the kernel does not run.
+static void fill_bias(float* C, int ldc, int M, int N, const float* bias, float* beta) {
+    for (int i = 0; i < M; i++)
+        for (int j = 0; j < N; j++) C[(size_t)i * ldc + j] = bias[i];
+    *beta = 1;
+}
+
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc) {
+    mlb_gemm_bf16_kernel_bias(ta, tb, M, N, K, alpha, A, B, beta, NULL, C, ldc);
+}
+
+void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                               const mlb_bf16_operand* B, float beta, const float* bias, float* C, int ldc) {
     if (!cpu_has_bf16()) {   // never: every caller checks first; still correct if one did not
+        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
         gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
         return;
     }
@@ -497,6 +541,7 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
         free(pb);
         free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
+        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
         if (A->data && B->data && !B->im2col) {
             cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
                         A->data + A->offset, A->ld, B->data + B->offset, B->ld, beta, C,
@@ -524,7 +569,8 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
                     int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
                     float* tile = w ? w + ((size_t)(q0 + q) * npanels + jp) * MR * NR : NULL;
                     micro_kernel(np, pak + (size_t)q * MR * np, pbk + (size_t)jp * NR * np, first ? NULL : tile,
-                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta);
+                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta,
+                                 bias ? bias + i0 : NULL);
                 }
             }
         }

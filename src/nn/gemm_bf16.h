@@ -48,6 +48,11 @@ int mlb_gemm_bf16_cpu_has(void);
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc);
 
+// The same with C = alpha·op(A)·op(B) + bias[i] per row i (beta ignored, C not read): as C = bias
+// with beta = 1, bit for bit, without writing C twice.
+void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                               const mlb_bf16_operand* B, float beta, const float* bias, float* C, int ldc);
+
 // op(X) packed whole (side_b 0: as A, R = M rows; 1: as B, R = N columns) into
 // mlb_gemm_bf16_packed_words(side_b, R, K) words, for an operand used by many products.
 size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K);

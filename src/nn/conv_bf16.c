@@ -16,6 +16,7 @@
 // GEMM into a K x pixels buffer then a col2im scatter.
 #include <stdint.h>
 #include <stdlib.h>
+#include "matlaber/conv_ops.h"   // the bf16 entry points defined here (conv2d_forward_bf16_packed, ..)
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "nn/conv_bf16.h"

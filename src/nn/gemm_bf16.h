@@ -6,7 +6,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "matlaber/conv_ops.h"
+#include "matlaber/conv_desc.h"
 
 // Rows of the kernel's register tile (its A panels); callers cutting M do it in multiples.
 #define MLB_GEMM_BF16_MR 14

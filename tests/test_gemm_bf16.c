@@ -374,6 +374,11 @@ static const conv_shape conv_shapes[] = {
     {1, 16, 70, 70, 33, 3, 3, 1, 1, 1, 1, 1, 1, "10 tiles of 512 pixels"},
     {1, 7, 8, 8, 9, 3, 3, 1, 1, 1, 2, 0, 1, "uneven pads"},
     {2, 9, 10, 37, 12, 1, 1, 1, 1, 0, 0, 0, 0, "1x1 (the image is the im2col)"},
+    {1, 30, 19, 21, 17, 3, 3, 2, 2, 1, 1, 1, 1, "the UNet's downsample: stride 2, odd left pad, two K blocks"},
+    {2, 3, 23, 70, 6, 3, 3, 3, 3, 1, 2, 0, 1, "stride 3, uneven pads"},
+    {1, 5, 40, 1, 4, 3, 3, 1, 1, 1, 1, 1, 1, "one column: 32 rows per panel"},
+    {1, 4, 9, 9, 5, 1, 1, 2, 2, 0, 0, 0, 0, "1x1 with stride 2"},
+    {3, 7, 33, 97, 10, 2, 4, 2, 1, 1, 3, 0, 2, "2x4 kernel, stride 2 down, 1 across, odd row length"},
 };
 
 TEST(conv_from_the_image) {

@@ -83,7 +83,7 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
             const int b = bh / NH, h = bh % NH;
             const float* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
             const float* vb = v + (size_t)b * Tk * ldkv + (size_t)h * hd;
-            const mlb_bf16_operand kop = {kb, 0, ldkv, kv_packed, NULL}, vop = {vb, 0, ldkv, kv_packed + kw, NULL};
+            const mlb_bf16_operand kop = {kb, 0, ldkv, kv_packed, NULL, NULL}, vop = {vb, 0, ldkv, kv_packed + kw, NULL, NULL};
 #pragma omp sections
             {
 #pragma omp section
@@ -96,7 +96,7 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
                 if (!S) continue;
                 const int t0 = blk * BLOCK_ROWS, nr = Tq - t0 < BLOCK_ROWS ? Tq - t0 : BLOCK_ROWS;
                 const float* qb = q + ((size_t)b * Tq + t0) * ldq + (size_t)h * hd;
-                const mlb_bf16_operand qop = {qb, 0, ldq, NULL, NULL}, sop = {S, 0, Tk, NULL, NULL};
+                const mlb_bf16_operand qop = {qb, 0, ldq, NULL, NULL, NULL}, sop = {S, 0, Tk, NULL, NULL, NULL};
                 mlb_gemm_bf16_kernel(0, 1, nr, Tk, hd, scale, &qop, &kop, 0.0f, S, Tk);
                 float inv[BLOCK_ROWS];
                 for (int i = 0; i < nr; i++) {

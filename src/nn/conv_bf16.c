@@ -16,6 +16,7 @@
 // GEMM into a K x pixels buffer then a col2im scatter.
 #include <stdint.h>
 #include <stdlib.h>
+#include "matlaber/conv_ops.h"   // the bf16 entry points defined here (conv2d_forward_bf16_packed, ..)
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "nn/conv_bf16.h"
@@ -37,27 +38,52 @@ int conv2d_bf16_implicit_applies(const mlb_conv2d* cv, int input_grad) {
     return 1;
 }
 
-// The tiles: out (+)= W · im2col(in), W packed whole (w->packed).
+// Bytes of input images converted to bf16 at a time (mlb_gemm_bf16_image): all of a tiny-preset
+// batch (4 x 32 x 130² values: 4.3 MB), a few of SD's 512² ones.
+#define IMAGE_BUDGET ((size_t)32 << 20)
+
+// The tiles: out (+)= W · im2col(in), W packed whole (w->packed). The input images are first
+// rounded to bf16 and padded once (mlb_gemm_bf16_image): each value is read by KH·KW im2col rows,
+// and from there a panel row is one load where the fp32 image took edge tests, masks and two
+// conversions per row (the packing cost as much as the multiply on small convs, by perf). Images
+// go in groups that fit IMAGE_BUDGET, each group one parallel region: convert, then the tiles.
 static void conv_tiles(float* out, const float* in, const mlb_bf16_operand* w, const float* bias, const mlb_conv2d* cv,
                        int accumulate) {
-    const int OC = cv->OC, K = cv->C * cv->KH * cv->KW;
+    const int OC = cv->OC, K = cv->C * cv->KH * cv->KW, C = cv->C;
     const size_t plane = (size_t)mlb_conv2d_out_h(cv) * mlb_conv2d_out_w(cv);
     const size_t in_n = (size_t)cv->C * cv->H * cv->W, out_n = (size_t)OC * plane;
-    const long tiles = (long)((plane + TILE_PIXELS - 1) / TILE_PIXELS), tasks = (long)cv->N * tiles;
-#pragma omp parallel for schedule(dynamic) if (tasks > 1)
-    for (long t = 0; t < tasks; t++) {
-        const int n = (int)(t / tiles);
-        const size_t p0 = (size_t)(t % tiles) * TILE_PIXELS;
-        const int np = plane - p0 < TILE_PIXELS ? (int)(plane - p0) : TILE_PIXELS;
-        float* o = out + (size_t)n * out_n + p0;
-        if (!accumulate)   // the sums are added to the bias, as over an im2col buffer
-            for (int oc = 0; oc < OC; oc++) {
-                const float b = bias ? bias[oc] : 0.0f;
-                for (int p = 0; p < np; p++) o[(size_t)oc * plane + p] = b;
+    const long tiles = (long)((plane + TILE_PIXELS - 1) / TILE_PIXELS);
+    const size_t img_len = mlb_gemm_bf16_image_len(cv);
+    size_t group = IMAGE_BUDGET / (img_len * sizeof(uint16_t));
+    if (group < 1) group = 1;
+    if (group > (size_t)cv->N) group = (size_t)cv->N;
+    // without memory for it the panels come from the fp32 images: the same bits
+    uint16_t* img16 = malloc(sizeof(uint16_t) * img_len * group);
+    for (int n0 = 0; n0 < cv->N; n0 += (int)group) {
+        const int nn = cv->N - n0 < (int)group ? cv->N - n0 : (int)group;
+        const long tasks = (long)nn * tiles, convs = img16 ? (long)nn * C : 0;
+#pragma omp parallel if (tasks > 1 || convs * (long)(in_n / C) >= 32768)
+        {
+#pragma omp for schedule(static)
+            for (long t = 0; t < convs; t++)
+                mlb_gemm_bf16_image(cv, in + (size_t)(n0 + t / C) * in_n, (int)(t % C), (int)(t % C) + 1,
+                                    img16 + (size_t)(t / C) * img_len);
+#pragma omp for schedule(dynamic)
+            for (long t = 0; t < tasks; t++) {
+                const int n = n0 + (int)(t / tiles);
+                const size_t p0 = (size_t)(t % tiles) * TILE_PIXELS;
+                const int np = plane - p0 < TILE_PIXELS ? (int)(plane - p0) : TILE_PIXELS;
+                float* o = out + (size_t)n * out_n + p0;
+                const mlb_bf16_operand col = {in + (size_t)n * in_n, p0, (int)plane, NULL, cv,
+                                              img16 ? img16 + (size_t)(n - n0) * img_len : NULL};
+                // the sums added to the bias (to out with accumulate) as over an im2col buffer
+                if (accumulate) mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 1.0f, o, (int)plane);
+                else if (bias) mlb_gemm_bf16_kernel_bias(0, 0, OC, np, K, 1.0f, w, &col, 0.0f, bias, o, (int)plane);
+                else mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 0.0f, o, (int)plane);
             }
-        const mlb_bf16_operand col = {in + (size_t)n * in_n, p0, (int)plane, NULL, cv};
-        mlb_gemm_bf16_kernel(0, 0, OC, np, K, 1.0f, w, &col, 1.0f, o, (int)plane);
+        }
     }
+    free(img16);
 }
 
 mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const float* weight, const float* bias,
@@ -66,7 +92,7 @@ mlb_status conv2d_bf16_implicit_forward(float* out, const float* in, const float
     if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
     const int OC = cv->OC, K = cv->C * cv->KH * cv->KW;
     uint32_t* packed = malloc(sizeof(uint32_t) * mlb_gemm_bf16_packed_words(0, OC, K));
-    mlb_bf16_operand w = {weight, 0, K, NULL, NULL};
+    mlb_bf16_operand w = {weight, 0, K, NULL, NULL, NULL};
     if (packed) mlb_gemm_bf16_pack(0, 0, OC, K, &w, packed);
     w.packed = packed;   // without memory for it each task packs its panels: the same bits
     conv_tiles(out, in, &w, bias, cv, accumulate);
@@ -80,7 +106,7 @@ mlb_status conv2d_forward_bf16_packed(float* out, const float* in, const uint32_
     if (!out || !in || !weight) return mlb_fail(MLB_ERR_ARG, "conv2d: NULL buffer");
     if (!mlb_gemm_bf16_cpu_has())
         return mlb_fail(MLB_ERR_UNSUPPORTED, "conv2d: a weight packed for the bf16 kernel needs a CPU with AVX-512 BF16");
-    const mlb_bf16_operand w = {NULL, 0, cv->C * cv->KH * cv->KW, weight, NULL};
+    const mlb_bf16_operand w = {NULL, 0, cv->C * cv->KH * cv->KW, weight, NULL, NULL};
     conv_tiles(out, in, &w, bias, cv, 0);
     return MLB_OK;
 }
@@ -89,7 +115,7 @@ size_t mlb_bf16_conv_weight_words(int OC, int K) { return mlb_gemm_bf16_packed_w
 
 int mlb_bf16_pack_conv_weight(uint32_t* out, const float* weight, int OC, int K) {
     if (!mlb_gemm_bf16_cpu_has()) return 0;
-    const mlb_bf16_operand w = {weight, 0, K, NULL, NULL};
+    const mlb_bf16_operand w = {weight, 0, K, NULL, NULL, NULL};
     mlb_gemm_bf16_pack(0, 0, OC, K, &w, out);
     return 1;
 }

@@ -2,7 +2,7 @@
 // conv2d_forward_bf16(_stored) and conv2d_backward_bf16 (conv_ops.c) where it applies.
 #ifndef MATLABER_NN_CONV_BF16_H
 #define MATLABER_NN_CONV_BF16_H
-#include "matlaber/conv_ops.h"
+#include "matlaber/conv_desc.h"
 
 // Whether it applies: a valid conv on a CPU with AVX-512 BF16 (a 1x1 conv too: then the "im2col" is
 // the image itself, and the same path gives the same bits as conv2d_forward_bf16_packed); for the

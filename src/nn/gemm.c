@@ -151,7 +151,7 @@ void FN(mlb_gemm)(int ta, int tb, int M, int N, int K, real alpha, const real* A
 // The bf16 kernel's shard: both operands fp32, rounded to bf16 as they are packed.
 static void bf16_shard(int ta, int tb, int M, int N, int K, float alpha, const float* A, size_t a_off, int lda,
                        const float* B, size_t b_off, int ldb, float beta, float* C, int ldc) {
-    mlb_bf16_operand a = {A, a_off, lda, NULL, NULL}, b = {B, b_off, ldb, NULL, NULL};
+    mlb_bf16_operand a = {A, a_off, lda, NULL, NULL, NULL}, b = {B, b_off, ldb, NULL, NULL, NULL};
     mlb_gemm_bf16_kernel(ta, tb, M, N, K, alpha, &a, &b, beta, C, ldc);
 }
 

@@ -59,6 +59,22 @@ int mlb_gemm_bf16_native(void) {
     return cpu_has_bf16() && !force_fallback;
 }
 
+// Where mlb_gemm_bf16_image puts a conv's input: Hp padded rows of `row` values (stride_w phases of
+// Wq columns each); padded column X is value X % stride_w · Wq + X / stride_w of its row.
+typedef struct {
+    int Hp, sw, Wq;
+    size_t row;
+} image_layout;
+
+static image_layout layout_of(const mlb_conv2d* cv) {
+    image_layout l;
+    l.Hp = cv->H + cv->pad_top + cv->pad_bottom;
+    l.sw = cv->stride_w;
+    l.Wq = (cv->W + cv->pad_left + cv->pad_right + l.sw - 1) / l.sw;
+    l.row = (size_t)l.sw * l.Wq;
+    return l;
+}
+
 #ifdef MLB_BF16_KERNEL
 // 32 consecutive fp32 values x[at .. at + left) rounded to 32 bf16 (16 pair words), zero past `left`.
 BF16_TARGET static inline __m512i load32_bf16(const float* X, size_t at, int left) {
@@ -179,21 +195,148 @@ BF16_TARGET static void pack_im2col_block(uint32_t* out, int np, const float* im
     }
 }
 
-// One MR x NR tile over kp pairs: the sums start from zero (w_in NULL) or from the fp32 tile w_in
-// (the K blocks before), and end in the fp32 tile w_out (K blocks follow), or, with w_out NULL, as
-// C[m, n] (m <= MR, n <= NR) = alpha · sum + beta · C. A stored and reloaded fp32 sum is the same
-// sum: K blocking does not change a bit.
-BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
-                                     float* C, int ldc, int m, int n, float alpha, float beta) {
+// 32 bf16 -> the 16 of even index, then the 16 of odd index.
+static const uint16_t even_odd[32] = {0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30,
+                                      1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31};
+
+// Channels c0 .. c1 of img into the layout above: rows of the padding zero, each input row rounded
+// 16 values at a time (VCVTNEPS2BF16 rounds as VCVTNE2PS2BF16 does: the same bf16 as the panels
+// packed from fp32), then spread over the phases when strided.
+BF16_TARGET static void image_channels(const mlb_conv2d* cv, const float* img, int c0, int c1, uint16_t* out) {
+    const image_layout l = layout_of(cv);
+    const int W = cv->W, pl = cv->pad_left;
+    for (int c = c0; c < c1; c++)
+        for (int r = 0; r < l.Hp; r++) {
+            uint16_t* d = out + ((size_t)c * l.Hp + r) * l.row;
+            const int iy = r - cv->pad_top;
+            if (iy < 0 || iy >= cv->H) {
+                memset(d, 0, sizeof(uint16_t) * l.row);
+                continue;
+            }
+            const float* s = img + ((size_t)c * cv->H + iy) * W;
+            if (l.sw == 1) {
+                for (int x = 0; x < pl; x++) d[x] = 0;
+                for (int x = 0; x < W; x += 16) {
+                    const __mmask16 m = W - x >= 16 ? 0xFFFF : (__mmask16)((1u << (W - x)) - 1);
+                    _mm256_mask_storeu_epi16(d + pl + x, m, (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, s + x)));
+                }
+                for (size_t x = (size_t)pl + W; x < l.row; x++) d[x] = 0;
+                continue;
+            }
+            memset(d, 0, sizeof(uint16_t) * l.row);
+            if (l.sw == 2) {   // 32 values rounded, split into evens and odds, one store per phase
+                const __m512i split = _mm512_loadu_si512(even_odd);
+                const int pe = pl % 2, be = pl / 2, bo = (pl + 1) / 2;   // phase and start of the even ix, of the odd
+                for (int x = 0; x < W; x += 32) {
+                    const int n = W - x < 32 ? W - x : 32, ne = (n + 1) / 2, no = n / 2;
+                    const __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+                    const __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
+                    const __m512i v = _mm512_permutexvar_epi16(
+                        split, (__m512i)_mm512_cvtne2ps_pbh(_mm512_maskz_loadu_ps(m1, s + x + 16), _mm512_maskz_loadu_ps(m0, s + x)));
+                    _mm256_mask_storeu_epi16(d + (size_t)pe * l.Wq + be + x / 2, (__mmask16)((1u << ne) - 1),
+                                             _mm512_castsi512_si256(v));
+                    _mm256_mask_storeu_epi16(d + (size_t)(1 - pe) * l.Wq + bo + x / 2, (__mmask16)((1u << no) - 1),
+                                             _mm512_extracti64x4_epi64(v, 1));
+                }
+                continue;
+            }
+            uint16_t tmp[16];   // other strides: value by value, the phase and index stepped along
+            int ph = pl % l.sw, at = pl / l.sw;
+            for (int x = 0; x < W; x += 16) {
+                const int n = W - x < 16 ? W - x : 16;
+                const __mmask16 m = n == 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+                _mm256_storeu_si256((__m256i*)tmp, (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, s + x)));
+                for (int t = 0; t < n; t++) {
+                    d[(size_t)ph * l.Wq + at] = tmp[t];
+                    if (++ph == l.sw) { ph = 0; at++; }
+                }
+            }
+        }
+}
+
+// Interleave two rows of 32 bf16 (a: k, b: k + 1) into pair words: lanes 0-15, then 16-31.
+static const uint16_t weave_lo[32] = {0, 32, 1, 33, 2, 34, 3, 35, 4, 36, 5, 37, 6, 38, 7, 39,
+                                      8, 40, 9, 41, 10, 42, 11, 43, 12, 44, 13, 45, 14, 46, 15, 47};
+static const uint16_t weave_hi[32] = {16, 48, 17, 49, 18, 50, 19, 51, 20, 52, 21, 53, 22, 54, 23, 55,
+                                      24, 56, 25, 57, 26, 58, 27, 59, 28, 60, 29, 61, 30, 62, 31, 63};
+
+// pack_im2col_block from the image in bf16 (mlb_gemm_bf16_image): the same words. Panel by panel
+// (its writes in order): the panel's pixels fall in runs along output rows, found once; row k of a
+// run is then one masked load at the run's offset plus row k's (no edge tests: the padding is in
+// the image), two rows woven into pair words.
+BF16_TARGET static void pack_image_block(uint32_t* out, int np, const uint16_t* img, const mlb_conv2d* cv,
+                                         size_t pixel0, int R, int k0, int K) {
+    const image_layout l = layout_of(cv);
+    const int OW = mlb_conv2d_out_w(cv), KW = cv->KW, KHW = cv->KH * KW, panels = (R + NR - 1) / NR;
+    const ptrdiff_t pix_row = (ptrdiff_t)cv->stride_h * (ptrdiff_t)l.row;   // values from one output row to the next
+    ptrdiff_t koff[2 * KC];   // im2col row k0 + t = (c, i, j) starts at image value koff[t]
+    for (int t = 0; t < K; t++) {
+        const int k = k0 + t, c = k / KHW, i = k / KW % cv->KH, j = k % KW;
+        koff[t] = ((ptrdiff_t)c * l.Hp + i) * (ptrdiff_t)l.row + (ptrdiff_t)(j % l.sw) * l.Wq + j / l.sw;
+    }
+    const __m512i wlo = _mm512_loadu_si512(weave_lo), whi = _mm512_loadu_si512(weave_hi), zero = _mm512_setzero_si512();
+    const int pairs = K / 2;
+    for (int q = 0; q < panels; q++) {
+        const int lanes = R - q * NR < NR ? R - q * NR : NR;
+        ptrdiff_t roff[NR];   // run r: lanes rmask[r] read image value roff[r] + lane + koff[t]
+        __mmask32 rmask[NR];
+        int nr = 0;
+        const size_t pix = pixel0 + (size_t)q * NR;
+        int y = (int)(pix / (size_t)OW), x = (int)(pix % (size_t)OW);
+        for (int lane = 0; lane < lanes; y++, x = 0) {
+            const int len = OW - x < lanes - lane ? OW - x : lanes - lane;
+            rmask[nr] = (__mmask32)((len >= 32 ? 0xFFFFFFFFu : (1u << len) - 1) << lane);
+            roff[nr++] = (ptrdiff_t)y * pix_row + x - lane;
+            lane += len;
+        }
+        uint32_t* o = out + (size_t)q * np * NR;
+        if (nr == 1) {   // the panel within one output row (OW >= 32): one load per im2col row
+            const uint16_t* base = img + roff[0];
+            const __mmask32 m = rmask[0];
+            for (int p = 0; p < pairs; p++, o += NR) {
+                const __m512i a = _mm512_maskz_loadu_epi16(m, base + koff[2 * p]);
+                const __m512i b = _mm512_maskz_loadu_epi16(m, base + koff[2 * p + 1]);
+                _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, b));
+                _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, b));
+            }
+            if (K & 1) {
+                const __m512i a = _mm512_maskz_loadu_epi16(m, base + koff[K - 1]);
+                _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, zero));
+                _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, zero));
+            }
+            continue;
+        }
+        for (int p = 0; 2 * p < K; p++, o += NR) {
+            __m512i a = zero, b = zero;
+            for (int r = 0; r < nr; r++) a = _mm512_mask_loadu_epi16(a, rmask[r], img + roff[r] + koff[2 * p]);
+            if (2 * p + 1 < K)
+                for (int r = 0; r < nr; r++) b = _mm512_mask_loadu_epi16(b, rmask[r], img + roff[r] + koff[2 * p + 1]);
+            _mm512_storeu_si512(o, _mm512_permutex2var_epi16(a, wlo, b));
+            _mm512_storeu_si512(o + 16, _mm512_permutex2var_epi16(a, whi, b));
+        }
+    }
+}
+
+// One RM x NR tile (RM <= MR rows of the MR-row panels) over kp pairs: the sums start from zero
+// (w_in NULL) or from the fp32 tile w_in (the K blocks before), and end in the fp32 tile w_out (K
+// blocks follow), or, with w_out NULL, as C[m, n] (m <= RM, n <= NR) = alpha · sum + beta · C, or
+// alpha · sum + bias[m] with bias (then C is not read: the same rounding as C = bias, beta = 1). A
+// stored and reloaded fp32 sum is the same sum: K blocking does not change a bit. RM is a constant
+// where it is inlined (micro_kernel below): a panel's last rows of a small M (the tiny model's 32,
+// 8, 3 channels) are not multiplied as 14, and each row's sums are the ones the 14-row tile makes.
+BF16_TARGET static inline __attribute__((always_inline)) void micro_body(const int RM, int kp, const uint32_t* a,
+                                                                         const uint32_t* b, const float* w_in,
+                                                                         float* w_out, float* C, int ldc, int m, int n,
+                                                                         float alpha, float beta, const float* bias) {
 #define ACC(i)                                                                                       \
-    __m512 c##i##0 = w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),                  \
-           c##i##1 = w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
+    __m512 c##i##0 = (i) < RM && w_in ? _mm512_loadu_ps(w_in + (i) * NR) : _mm512_setzero_ps(),      \
+           c##i##1 = (i) < RM && w_in ? _mm512_loadu_ps(w_in + (i) * NR + 16) : _mm512_setzero_ps();
     ACC(0) ACC(1) ACC(2) ACC(3) ACC(4) ACC(5) ACC(6) ACC(7) ACC(8) ACC(9) ACC(10) ACC(11) ACC(12) ACC(13)
 #undef ACC
     for (int p = 0; p < kp; p++, a += MR, b += NR) {
         __m512bh b0 = (__m512bh)_mm512_loadu_si512(b), b1 = (__m512bh)_mm512_loadu_si512(b + 16);
 #define STEP(i)                                                             \
-    {                                                                       \
+    if ((i) < RM) {                                                         \
         __m512bh ai = (__m512bh)_mm512_set1_epi32((int)a[i]);               \
         c##i##0 = _mm512_dpbf16_ps(c##i##0, ai, b0);                        \
         c##i##1 = _mm512_dpbf16_ps(c##i##1, ai, b1);                        \
@@ -203,7 +346,7 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
 #undef STEP
     }
     if (w_out) {
-#define KEEP(i) _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1);
+#define KEEP(i) if ((i) < RM) { _mm512_storeu_ps(w_out + (i) * NR, c##i##0); _mm512_storeu_ps(w_out + (i) * NR + 16, c##i##1); }
         KEEP(0) KEEP(1) KEEP(2) KEEP(3) KEEP(4) KEEP(5) KEEP(6) KEEP(7) KEEP(8) KEEP(9) KEEP(10) KEEP(11) KEEP(12)
         KEEP(13)
 #undef KEEP
@@ -214,10 +357,13 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
     const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
     // beta = 0 never reads C (NaN there is ignored, as BLAS does)
 #define PUT(i)                                                                                          \
-    if (i < m) {                                                                                        \
+    if ((i) < RM && (i) < m) {                                                                          \
         float* c = C + (size_t)(i) * ldc;                                                               \
         __m512 r0 = _mm512_mul_ps(va, c##i##0), r1 = _mm512_mul_ps(va, c##i##1);                        \
-        if (beta != 0) {                                                                                \
+        if (bias) {                                                                                     \
+            r0 = _mm512_add_ps(r0, _mm512_set1_ps(bias[i]));                                            \
+            r1 = _mm512_add_ps(r1, _mm512_set1_ps(bias[i]));                                            \
+        } else if (beta != 0) {                                                                         \
             r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);                                 \
             r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);                            \
         }                                                                                               \
@@ -226,6 +372,29 @@ BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* 
     }
     PUT(0) PUT(1) PUT(2) PUT(3) PUT(4) PUT(5) PUT(6) PUT(7) PUT(8) PUT(9) PUT(10) PUT(11) PUT(12) PUT(13)
 #undef PUT
+}
+
+#define MICRO(RM)                                                                                              \
+    BF16_TARGET static void micro_kernel_##RM(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, \
+                                              float* w_out, float* C, int ldc, int m, int n, float alpha,      \
+                                              float beta, const float* bias) {                                 \
+        micro_body(RM, kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias);                                \
+    }
+MICRO(2) MICRO(4) MICRO(6) MICRO(8) MICRO(10) MICRO(12) MICRO(14)
+#undef MICRO
+
+// The tile of a panel whose rows m (1 .. MR) are valid, as few rows as cover them.
+BF16_TARGET static void micro_kernel(int kp, const uint32_t* a, const uint32_t* b, const float* w_in, float* w_out,
+                                     float* C, int ldc, int m, int n, float alpha, float beta, const float* bias) {
+    switch ((m + 1) / 2) {
+    case 1: micro_kernel_2(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 2: micro_kernel_4(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 3: micro_kernel_6(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 4: micro_kernel_8(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 5: micro_kernel_10(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    case 6: micro_kernel_12(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    default: micro_kernel_14(kp, a, b, w_in, w_out, C, ldc, m, n, alpha, beta, bias); break;
+    }
 }
 #endif
 
@@ -296,6 +465,10 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
                        int r0) {
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad;
     const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC, k0 = 2 * p0, nk = K - k0 < 2 * np ? K - k0 : 2 * np;
+    if (X->im2col && X->image) {
+        pack_image_block(out, np, X->image, X->im2col, X->offset + (size_t)r0, R, k0, nk);
+        return;
+    }
     if (X->im2col) {
         pack_im2col_block(out, np, X->data, X->im2col, X->offset + (size_t)r0, R, k0, nk);
         return;
@@ -311,6 +484,19 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
 }
 #endif
 
+size_t mlb_gemm_bf16_image_len(const mlb_conv2d* cv) {
+    const image_layout l = layout_of(cv);
+    return (size_t)cv->C * l.Hp * l.row;
+}
+
+void mlb_gemm_bf16_image(const mlb_conv2d* cv, const float* img, int c0, int c1, uint16_t* out) {
+#ifdef MLB_BF16_KERNEL
+    image_channels(cv, img, c0, c1, out);
+#else
+    (void)cv; (void)img; (void)c0; (void)c1; (void)out;
+#endif
+}
+
 void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out) {
 #ifdef MLB_BF16_KERNEL
     if (R <= 0 || K <= 0) return;
@@ -323,9 +509,22 @@ void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_oper
 #endif
 }
 
+// C = bias per row and beta = 1: the bias of mlb_gemm_bf16_kernel_bias where the kernel does not run.
+static void fill_bias(float* C, int ldc, int M, int N, const float* bias, float* beta) {
+    for (int i = 0; i < M; i++)
+        for (int j = 0; j < N; j++) C[(size_t)i * ldc + j] = bias[i];
+    *beta = 1;
+}
+
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc) {
+    mlb_gemm_bf16_kernel_bias(ta, tb, M, N, K, alpha, A, B, beta, NULL, C, ldc);
+}
+
+void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                               const mlb_bf16_operand* B, float beta, const float* bias, float* C, int ldc) {
     if (!cpu_has_bf16()) {   // never: every caller checks first; still correct if one did not
+        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
         gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
         return;
     }
@@ -342,6 +541,7 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
         free(pb);
         free(w);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
+        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
         if (A->data && B->data && !B->im2col) {
             cblas_sgemm(CblasRowMajor, ta ? CblasTrans : CblasNoTrans, tb ? CblasTrans : CblasNoTrans, M, N, K, alpha,
                         A->data + A->offset, A->ld, B->data + B->offset, B->ld, beta, C,
@@ -369,7 +569,8 @@ void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, cons
                     int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
                     float* tile = w ? w + ((size_t)(q0 + q) * npanels + jp) * MR * NR : NULL;
                     micro_kernel(np, pak + (size_t)q * MR * np, pbk + (size_t)jp * NR * np, first ? NULL : tile,
-                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta);
+                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta,
+                                 bias ? bias + i0 : NULL);
                 }
             }
         }

@@ -6,7 +6,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "matlaber/conv_ops.h"
+#include "matlaber/conv_desc.h"
 
 // Rows of the kernel's register tile (its A panels); callers cutting M do it in multiples.
 #define MLB_GEMM_BF16_MR 14
@@ -18,13 +18,24 @@
 // im2col (B only, not transposed): op(B) is the im2col matrix of the conv's input, one fp32 image
 // [C, H, W] at data, gathered as it is packed (no buffer): row k = (c·KH + i)·KW + j, column j' =
 // output pixel offset + j' (y·OW + x).
+// image (with im2col, optional): the same image already in bf16 as mlb_gemm_bf16_image lays it
+// out; its panels are then plain loads (the same bits as from data).
 typedef struct {
     const float* data;
     size_t offset;
     int ld;
     const uint32_t* packed;
     const mlb_conv2d* im2col;
+    const uint16_t* image;
 } mlb_bf16_operand;
+
+// A conv's input image [C, H, W] in bf16, zero-padded and with the columns split by their phase
+// modulo the stride ([C][Hp][stride_w][Wq], Hp, Wp the padded sizes, Wq = ceil(Wp / stride_w)): each
+// im2col row's pixels along an output row are then consecutive values, read with one load and no
+// edge tests. mlb_gemm_bf16_image_len(cv) values per image; _image writes channels c0 .. c1 of
+// image img (fp32) into out (the whole image's buffer). CPU with AVX-512 BF16 only.
+size_t mlb_gemm_bf16_image_len(const mlb_conv2d* cv);
+void mlb_gemm_bf16_image(const mlb_conv2d* cv, const float* img, int c0, int c1, uint16_t* out);
 
 // Whether the CPU has AVX-512 BF16 (mlb_gemm_bf16_native() also says whether it is forced off). A
 // weight packed at load has no fp32 copy: its ops and packers check this one, and run the kernel
@@ -36,6 +47,11 @@ int mlb_gemm_bf16_cpu_has(void);
 // without AVX-512 BF16 an operand stored in bf16 is multiplied element by element (correct, slow).
 void mlb_gemm_bf16_kernel(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
                           const mlb_bf16_operand* B, float beta, float* C, int ldc);
+
+// The same with C = alpha·op(A)·op(B) + bias[i] per row i (beta ignored, C not read): as C = bias
+// with beta = 1, bit for bit, without writing C twice.
+void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha, const mlb_bf16_operand* A,
+                               const mlb_bf16_operand* B, float beta, const float* bias, float* C, int ldc);
 
 // op(X) packed whole (side_b 0: as A, R = M rows; 1: as B, R = N columns) into
 // mlb_gemm_bf16_packed_words(side_b, R, K) words, for an operand used by many products.

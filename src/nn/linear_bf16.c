@@ -31,7 +31,7 @@ static void linear_tiles(float* out, const float* in, const mlb_bf16_operand* w,
         for (int i = 0; i < m; i++)   // the sums are added to the bias (beta = 1), as linear_forward does
             for (int j = 0; j < OC; j++) o[(size_t)i * OC + j] = bias ? bias[j] : 0.0f;
         if (C <= 0) continue;
-        const mlb_bf16_operand a = {in, (size_t)r0 * C, C, NULL, NULL};
+        const mlb_bf16_operand a = {in, (size_t)r0 * C, C, NULL, NULL, NULL};
         mlb_gemm_bf16_kernel(0, 1, m, OC, C, 1.0f, &a, w, 1.0f, o, OC);
     }
 }
@@ -45,7 +45,7 @@ void linear_forward_bf16(float* out, const float* in, const float* weight, const
     uint32_t* packed = C > 0 ? malloc(sizeof(uint32_t) * mlb_bf16_linear_weight_words(OC, C)) : NULL;
     if (packed) mlb_bf16_pack_linear_weight(packed, weight, OC, C);
     // without memory for the packed weight each task packs its panels: the same bits
-    const mlb_bf16_operand w = {weight, 0, C, packed, NULL};
+    const mlb_bf16_operand w = {weight, 0, C, packed, NULL, NULL};
     linear_tiles(out, in, &w, bias, B, C, OC);
     free(packed);
 }
@@ -55,7 +55,7 @@ mlb_status linear_forward_bf16_packed(float* out, const float* in, const uint32_
     if (B <= 0 || OC <= 0) return MLB_OK;
     if (!mlb_gemm_bf16_cpu_has())
         return mlb_fail(MLB_ERR_UNSUPPORTED, "linear: a weight packed for the bf16 kernel needs a CPU with AVX-512 BF16");
-    const mlb_bf16_operand w = {NULL, 0, C, weight, NULL};
+    const mlb_bf16_operand w = {NULL, 0, C, weight, NULL, NULL};
     linear_tiles(out, in, &w, bias, B, C, OC);
     return MLB_OK;
 }
@@ -66,7 +66,7 @@ size_t mlb_bf16_linear_weight_words(int OC, int C) { return mlb_gemm_bf16_packed
 
 int mlb_bf16_pack_linear_weight(uint32_t* out, const float* weight, int OC, int C) {
     if (!mlb_gemm_bf16_cpu_has()) return 0;
-    const mlb_bf16_operand w = {weight, 0, C, NULL, NULL};
+    const mlb_bf16_operand w = {weight, 0, C, NULL, NULL, NULL};
     mlb_gemm_bf16_pack(1, 1, OC, C, &w, out);
     return 1;
 }

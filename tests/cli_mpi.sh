@@ -57,7 +57,7 @@ cat > "$P" << 'EOF'
 --name c --guidance-scale 30 a blue vase
 --name d a silver bowl
 EOF
-head -5 "$P" > "$T/first2.txt"
+head -4 "$P" > "$T/first2.txt"   # the comment, the blank line, prompts a and b
 expect 0 "--prompts on 1 process" -- $Q generate --prompts "$P" -o "$T/b1" $small
 grep -c '"status":[[:space:]]*"done"' "$T/b1/summary.json" | grep -qx 4 && ok "summary.json: 4 done" || bad "summary.json: not 4 done"
 grep -q "a blue vase" "$T/out" && ok "summary table names the prompts" || bad "no summary table"
@@ -71,6 +71,8 @@ for kv in 'a gold goblet.*skipped' 'a red mug.*skipped' 'a blue vase.*resumed' '
 done
 for r in a b c d; do same_run "prompt $r on 2 processes (with a rerun) = on 1" "$T/b1/$r" "$T/b2/$r"; done
 [ -e "$T/b2/.claims" ] && bad "claims left behind" || ok "no claims left behind"
-expect 2 "a prompt line with an unknown option" -- $Q generate --prompts <(echo "--bogus 1 x") -o "$T/b3" $small
+echo "--bogus 1 x" > "$T/bad.txt"
+expect 2 "a prompt line with an unknown option" -- $Q generate --prompts "$T/bad.txt" -o "$T/b3" $small
+err_has "names the line and the option" "line 1: --bogus"
 expect 2 "--prompts without -o" -- $Q generate --prompts "$P"
 finish

@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include "matlaber/brdf_ae.h"
 #include "matlaber/dist.h"
 #include "matlaber/dmtet.h"
@@ -14,6 +15,7 @@
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
 #include "matlaber/pipeline.h"
+#include "matlaber/progress.h"
 #include "matlaber/run_textured.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
@@ -181,6 +183,23 @@ static mlb_status pipeline_agree(mlb_status s) {
     return s;
 }
 
+// A stage's steps per second and what the processes spent in collectives (docs/benchmarks.md,
+// "Several processes"): a log line at the stage's end.
+typedef struct { double t0, cpu0; mlb_dist_stats d0; } stage_clock;
+static double cpu_seconds(void) { return (double)clock() / CLOCKS_PER_SEC; }   // this process, every thread
+static stage_clock stage_clock_start(void) { return (stage_clock){mlb_now_seconds(), cpu_seconds(), mlb_dist_stats_get()}; }
+static void stage_clock_report(const stage_clock* k, const char* stage, long steps) {
+    if (steps < 1) return;
+    double t = mlb_now_seconds() - k->t0;
+    mlb_dist_stats d = mlb_dist_stats_get();
+    double comm = d.seconds - k->d0.seconds;
+    double bytes = (double)(d.bytes - k->d0.bytes);
+    mlb_log(mlb_dist_rank() == 0 ? MLB_LOG_INFO : MLB_LOG_DEBUG,
+            "%s stage: %ld steps in %.2f s (%.3f steps/s); process %d of %d: %.3f CPU s per step, %.1f ms per step "
+            "in collectives (waiting included), %.0f bytes received per step", stage, steps, t, steps / t, mlb_dist_rank(),
+            mlb_dist_size(), (cpu_seconds() - k->cpu0) / steps, 1e3 * comm / steps, bytes / steps);
+}
+
 // ---- what both stages share: their optimiser state, resume and the end of a step ----------------
 typedef struct {
     mlb_stage stage;
@@ -280,6 +299,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
+    stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
         net->active_levels = active_levels_at(c, net, it);
         s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
@@ -294,6 +314,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
+    stage_clock_report(&clock, "geometry", r->result.geometry_steps);
     net->active_levels = 0;   // the surface the appearance stage and the outputs use: every level
     mlb_geofit_state_free(&st);
     free(views);
@@ -335,6 +356,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     app.part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
     double* losses = calloc((size_t)n, sizeof(double));
     if (!losses && !s) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->appearance_iters; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
         if (!s) s = pipeline_fix_env(r, views, n);
@@ -364,6 +386,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
+    stage_clock_report(&clock, "appearance", r->result.appearance_steps);
     mlb_appearance_free(&app);
     mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
     if (!s) s = left;

@@ -51,7 +51,7 @@ int mlb_dist_max_int(int v);
 mlb_status mlb_dist_barrier(void);
 
 // Time spent in and bytes received by the collectives above since the last reset (this rank).
-typedef struct { double seconds; uint64_t bytes; long calls; } mlb_dist_stats;
+typedef struct { double seconds, cpu_seconds; uint64_t bytes; long calls; } mlb_dist_stats;   // cpu: this process's CPU time inside them
 mlb_dist_stats mlb_dist_stats_get(void);
 void mlb_dist_stats_reset(void);
 

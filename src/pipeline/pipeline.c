@@ -192,12 +192,20 @@ static void stage_clock_report(const stage_clock* k, const char* stage, long ste
     if (steps < 1) return;
     double t = mlb_now_seconds() - k->t0;
     mlb_dist_stats d = mlb_dist_stats_get();
-    double comm = d.seconds - k->d0.seconds;
-    double bytes = (double)(d.bytes - k->d0.bytes);
-    mlb_log(mlb_dist_rank() == 0 ? MLB_LOG_INFO : MLB_LOG_DEBUG,
-            "%s stage: %ld steps in %.2f s (%.3f steps/s); process %d of %d: %.3f CPU s per step, %.1f ms per step "
-            "in collectives (waiting included), %.0f bytes received per step", stage, steps, t, steps / t, mlb_dist_rank(),
-            mlb_dist_size(), (cpu_seconds() - k->cpu0) / steps, 1e3 * comm / steps, bytes / steps);
+    // per process: the stages' own CPU time (outside the collectives) and the wall time inside them
+    double mine[2] = {(cpu_seconds() - k->cpu0 - (d.cpu_seconds - k->d0.cpu_seconds)) / steps,
+                      (d.seconds - k->d0.seconds) / steps};
+    double bytes = (double)(d.bytes - k->d0.bytes) / steps;
+    int size = mlb_dist_size();
+    double all[2 * 64];
+    double work_max = mine[0];
+    if (size > 1 && size <= 64 && mlb_dist_allgather_items(mine, all, size, sizeof mine) == MLB_OK)
+        for (int r = 0; r < size; r++) work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+    if (mlb_dist_rank() == 0)
+        mlb_log(MLB_LOG_INFO,
+                "%s stage: %ld steps in %.2f s (%.3f steps/s) on %d process%s: work %.3f CPU s per step (the busiest "
+                "process), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
+                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, 1e3 * mine[1], bytes);
 }
 
 // ---- what both stages share: their optimiser state, resume and the end of a step ----------------

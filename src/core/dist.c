@@ -96,8 +96,10 @@ int mlb_dist_rank(void) { return g_solo ? 0 : g_world_rank; }
 int mlb_dist_size(void) { return g_solo ? 1 : g_world_size; }
 void mlb_dist_solo(int solo) { g_solo = solo != 0; }
 static int collective(void) { return !g_solo && g_world_size > 1; }
+#ifdef MLB_HAVE_MPI
 // CPU time of this process (MPI busy-polls while it waits: that time is not the stages' work)
 static double cpu_now(void) { return (double)clock() / CLOCKS_PER_SEC; }
+#endif
 
 void mlb_dist_share_of(int n, int rank, int size, int* first, int* count) {
     if (size < 1) size = 1;

@@ -42,7 +42,24 @@ struct mlb_guidance {
                        int H, int W, float* dimages, double* loss);
     void (*destroy)(mlb_guidance* g);
     void* impl;
+    // Which of the step's views the next loss call covers, for a step guided a part at a time (one
+    // view per call, on whichever rank renders it: dist.h): images[0] is view part_first of a step
+    // of part_total views. Random draws are keyed by the view's index in the step, and loss and
+    // gradient are normalised by part_total, so the parts' gradients are the whole call's and their
+    // losses add up to its loss. part_total 0: the call is the whole step (views 0..n-1).
+    int part_first, part_total;
 };
+
+// g->loss on views [first, first + n) of a step of `total` views (the fields above, reset after).
+static inline mlb_status mlb_guidance_loss_part(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views,
+                                                int first, int n, int total, const float* images, int H, int W,
+                                                float* dimages, double* loss) {
+    g->part_first = first;
+    g->part_total = total;
+    mlb_status s = g->loss(g, stage, step, views, n, images, H, W, dimages, loss);
+    g->part_first = g->part_total = 0;
+    return s;
+}
 
 static inline void mlb_guidance_free(mlb_guidance* g) {
     if (g && g->destroy) g->destroy(g);

@@ -4,7 +4,8 @@
 // Chamfer distances, 2000 samples a side) done four ways, and one whole mlb_text3d_measure.
 // Every way must give the same bits; the tables say so. Wall seconds (best of the repeats) and the
 // process's CPU seconds (all threads), which tell a busy machine from a slow program. Prints tables;
-// docs/benchmarks.md has the recorded numbers.
+// docs/benchmarks.md has the recorded numbers. Runs as `matlaber` does (mlb_runtime_restart:
+// OMP_WAIT_POLICY=passive unless set, so idle threads sleep instead of spinning).
 //   build/bench/bench_mesh_distance [--quick]   (--quick: no brute-force text3d row, ~20 s less)
 #include <math.h>
 #include <omp.h>
@@ -17,6 +18,7 @@
 #include "matlaber/geometry.h"
 #include "matlaber/progress.h"
 #include "matlaber/text3d.h"
+#include "matlaber/threads.h"
 
 static double cpu_now(void) {
     struct timespec t;
@@ -106,12 +108,15 @@ static void cpu_model(char* out, size_t cap) {
 #define DIE() do { fprintf(stderr, "%s\n", mlb_last_error()); return 1; } while (0)
 
 int main(int argc, char** argv) {
+    mlb_runtime_restart(argv);
     int quick = argc > 1 && !strcmp(argv[1], "--quick");
     char cpu[256], load[64] = "?";
     cpu_model(cpu, sizeof cpu);
     FILE* lf = fopen("/proc/loadavg", "r");
     if (lf) { if (fgets(load, sizeof load, lf)) load[strcspn(load, "\n")] = 0; fclose(lf); }
-    printf("CPU: %s; %d OpenMP threads; load average at start: %s\n\n", cpu, omp_get_max_threads(), load);
+    const char* wait = getenv("OMP_WAIT_POLICY");
+    printf("CPU: %s; %d OpenMP threads, OMP_WAIT_POLICY=%s; load average at start: %s\n\n", cpu, omp_get_max_threads(),
+           wait ? wait : "(unset)", load);
 
     // ---- mlb_mesh_distance against the brute force ----
     // targets: UV spheres of radius 0.8 and a catalogue goblet; points: area-uniform samples of a

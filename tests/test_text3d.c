@@ -169,9 +169,21 @@ TEST(bench_smoke_tiny_sd) {
     // a rerun reuses the finished run and measures the same numbers
     mlb_text3d_row again;
     REQUIRE(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_OK);
-    CHECK(again.generated == 0 && again.seconds == row.seconds);
+    CHECK(again.generated == 0 && fabs(again.seconds - row.seconds) <= 1e-9 * row.seconds);   // through JSON text
     CHECK(again.scores.chamfer_prompted == row.scores.chamfer_prompted);
     CHECK(again.scores.material_rmse == row.scores.material_rmse);
+    // the same prompt named as a pair: the same folder, reused
+    mlb_text3d_bench_config bp = bc;
+    bp.n_classes = bp.n_materials = 0;
+    bp.n_pairs = 1;
+    bp.pair_class[0] = bc.classes[0];
+    bp.pair_material[0] = bc.materials[0];
+    mlb_text3d_row paired;
+    REQUIRE(mlb_text3d_bench_run(&bp, &paired, &n, &sum) == MLB_OK);
+    CHECK(n == 1 && paired.generated == 0 && !strcmp(paired.prompt, "a gold bowl"));
+    CHECK(paired.scores.chamfer_prompted == row.scores.chamfer_prompted);
+    bp.pair_material[0] = 99;   // out of the catalogue
+    CHECK(mlb_text3d_bench_run(&bp, &paired, &n, &sum) == MLB_ERR_ARG);
     // a failure recorded in the run's text3d.json is reused as such: a row, not the end of the run
     snprintf(path, sizeof path, "%s/bowl_gold/text3d.json", dir);
     REQUIRE(mlb_write_file_atomic(path, "{\"seconds\": 12, \"error\": \"no surface\"}\n", 39) == MLB_OK);

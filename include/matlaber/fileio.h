@@ -26,4 +26,9 @@ int mlb_is_file(const char* path);
 int mlb_is_dir(const char* path);
 int mlb_ends_with(const char* s, const char* suffix);
 
+// Room for `need` elements of `elem` bytes in *p, *cap elements now (capacity doubles from 256, so
+// appends are amortised O(1)); 0 on overflow or allocation failure, *p and *cap unchanged. The
+// parsers' growing arrays (OBJ, glTF).
+int mlb_reserve(void** p, size_t* cap, size_t need, size_t elem);
+
 #endif

@@ -22,6 +22,8 @@ mlb_status mlb_mesh_compute_normals(mlb_mesh* m);
 mlb_status mlb_mesh_weld_map(const float* pos, int n, int32_t* first);
 void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]);
 void mlb_mesh_normalize_unit_sphere(mlb_mesh* m);
+// The largest distance from c to a vertex (double arithmetic; 0 for a mesh without vertices).
+double mlb_mesh_radius_about(const mlb_mesh* m, const double c[3]);
 // A UV sphere at the origin with normals and uvs: `segments` around, `rings` from pole to pole.
 mlb_status mlb_mesh_uv_sphere(mlb_mesh* m, float radius, int segments, int rings);
 

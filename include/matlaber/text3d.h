@@ -23,6 +23,7 @@
 #include "matlaber/pipeline.h"
 
 #define MLB_TEXT3D_MAX_CLASSES 32
+#define MLB_TEXT3D_MAX_PAIRS (MLB_TEXT3D_MAX_CLASSES * MLB_TEXT3D_MAX_CLASSES)
 // The metal rule, on a BRDF's 7 numbers: metal when mean(ks) > 0.3 and mean(kd) < 0.15 (the
 // catalogue's metals have ks >= 0.5 and kd 0.01; its dielectrics ks <= 0.04).
 #define MLB_TEXT3D_METAL_KS 0.3
@@ -84,6 +85,8 @@ typedef struct {
     mlb_pipeline_config base;         // mlb_text3d_base_config (prompt filled per run)
     int classes[MLB_TEXT3D_MAX_CLASSES], n_classes;      // the subset (all when n_classes = 0)
     int materials[MLB_TEXT3D_MAX_CLASSES], n_materials;  // (all when n_materials = 0)
+    // explicit (class, material) pairs instead of the cross product (used when n_pairs > 0)
+    int pair_class[MLB_TEXT3D_MAX_PAIRS], pair_material[MLB_TEXT3D_MAX_PAIRS], n_pairs;
     int n_seeds;                      // truth shape seeds per class: 8
     const char* relight_env;          // a built-in name or file: "white" (built at the base config's
                                       //   env_height and cube_size, as the pipeline builds its lights)

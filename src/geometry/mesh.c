@@ -128,6 +128,19 @@ void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]) {
         }
 }
 
+double mlb_mesh_radius_about(const mlb_mesh* m, const double c[3]) {
+    double r2 = 0;
+    for (size_t i = 0; m && m->pos && i < (size_t)m->n_verts; i++) {
+        double d2 = 0;
+        for (int k = 0; k < 3; k++) {
+            double d = m->pos[3 * i + k] - c[k];
+            d2 += d * d;
+        }
+        if (d2 > r2) r2 = d2;
+    }
+    return sqrt(r2);
+}
+
 // Moves the centre of the bounding box to the origin and scales uniformly so that the farthest
 // vertex lies at distance 1 (just inside, after float rounding). Normals are unchanged (a uniform
 // scale keeps directions). A mesh whose vertices all coincide is only moved.
@@ -137,17 +150,8 @@ void mlb_mesh_normalize_unit_sphere(mlb_mesh* m) {
     mlb_mesh_bounds(m, lo, hi);
     double c[3];
     for (int k = 0; k < 3; k++) c[k] = 0.5 * ((double)lo[k] + (double)hi[k]);
-    double r2 = 0;
     size_t nv = (size_t)m->n_verts;
-    for (size_t i = 0; i < nv; i++) {
-        double d2 = 0;
-        for (int k = 0; k < 3; k++) {
-            double d = m->pos[3 * i + k] - c[k];
-            d2 += d * d;
-        }
-        if (d2 > r2) r2 = d2;
-    }
-    double r = sqrt(r2);
+    double r = mlb_mesh_radius_about(m, c);
     // The scale is nudged below 1/r so that rounding to float cannot put a vertex at 1 + 1 ulp.
     double s = r > 0 && isfinite(r) ? (1.0 - 1e-6) / r : 1.0;
     for (size_t i = 0; i < nv; i++)

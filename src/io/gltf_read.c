@@ -14,7 +14,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include "matlaber/fileio.h"
 
 #define GLB_MAGIC 0x46546C67u   // "glTF"
@@ -327,27 +326,13 @@ static mlb_status check_attr(reader* R, const acc_t* A, const char* what, const 
 
 // ---- the mesh under construction ----
 
-static int reserve(void** p, size_t* cap, size_t need, size_t elem) {
-    if (need <= *cap) return 1;
-    size_t c = *cap ? *cap : 1024;
-    while (c < need) {
-        if (c > SIZE_MAX / 2 / elem) return 0;
-        c *= 2;
-    }
-    void* q = realloc(*p, c * elem);
-    if (!q) return 0;
-    *p = q;
-    *cap = c;
-    return 1;
-}
-
 static int grow_verts(reader* R, size_t need) {
     size_t cap = R->cap_v;
-    if (!reserve((void**)&R->pos, &cap, need, 3 * sizeof(float))) return 0;
+    if (!mlb_reserve((void**)&R->pos, &cap, need, 3 * sizeof(float))) return 0;
     size_t c2 = R->cap_v;
-    if (!reserve((void**)&R->nrm, &c2, need, 3 * sizeof(float))) return 0;
+    if (!mlb_reserve((void**)&R->nrm, &c2, need, 3 * sizeof(float))) return 0;
     c2 = R->cap_v;
-    if (!reserve((void**)&R->uv, &c2, need, 2 * sizeof(float))) return 0;
+    if (!mlb_reserve((void**)&R->uv, &c2, need, 2 * sizeof(float))) return 0;
     R->cap_v = cap;
     return 1;
 }
@@ -403,7 +388,7 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
     if (n_tri > R->max_tris - R->nt)
         return gerr(R, MLB_ERR_UNSUPPORTED, "more than %zu triangles (at %s)", R->max_tris, pwhat);
     if (P.count > MAX_VERTS - R->nv) return gerr(R, MLB_ERR_UNSUPPORTED, "more than %zu vertices (at %s)", MAX_VERTS, pwhat);
-    if (!grow_verts(R, R->nv + P.count) || !reserve((void**)&R->tri, &R->cap_t, R->nt + n_tri, 3 * sizeof(int32_t)))
+    if (!grow_verts(R, R->nv + P.count) || !mlb_reserve((void**)&R->tri, &R->cap_t, R->nt + n_tri, 3 * sizeof(int32_t)))
         return gerr(R, MLB_ERR_NOMEM, "out of memory for %zu vertices", R->nv + P.count);
     // normals go through the inverse transpose: the cofactor matrix, times the sign of the determinant
     double C[9];
@@ -734,10 +719,6 @@ mlb_status mlb_gltf_load(const char* path, mlb_mesh* out, const mlb_gltf_options
     if (info) memset(info, 0, sizeof *info);
     if (!path || !out) return mlb_fail(MLB_ERR_ARG, "mlb_gltf_load: NULL %s", path ? "output mesh" : "path");
     size_t max_bytes = opt && opt->max_bytes ? opt->max_bytes : MLB_GLTF_MAX_BYTES;
-    struct stat st;
-    if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && (unsigned long long)st.st_size > max_bytes)
-        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %lld bytes, more than the %zu allowed for a glTF file", path,
-                        (long long)st.st_size, max_bytes);
     char* data = NULL;
     size_t n = 0;
     MLB_TRY(mlb_read_file(path, &data, &n, max_bytes));   // its message names the path

@@ -52,21 +52,6 @@ static const char* show(const char* s, char buf[48]) {
     return buf;
 }
 
-// Room for `need` elements of `elem` bytes in *p (capacity doubles, so appends are amortised O(1)).
-static int reserve(void** p, size_t* cap, size_t need, size_t elem) {
-    if (need <= *cap) return 1;
-    size_t c = *cap ? *cap : 256;
-    while (c < need) {
-        if (c > SIZE_MAX / 2 / elem) return 0;
-        c *= 2;
-    }
-    void* q = realloc(*p, c * elem);
-    if (!q) return 0;
-    *p = q;
-    *cap = c;
-    return 1;
-}
-
 // ---- numbers ----
 
 static const float pow10f_exact[11] = {1e0f, 1e1f, 1e2f, 1e3f, 1e4f, 1e5f, 1e6f, 1e7f, 1e8f, 1e9f, 1e10f};
@@ -161,7 +146,7 @@ static mlb_status stmt_v(parser* P, char** cur) {
     MLB_TRY(read_numbers(P, cur, "v", x, 7, &k));
     if (k < 3) return perr(P, MLB_ERR_FORMAT, "'v' needs 3 coordinates, got %d", k);
     if (P->n_pos >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d positions", INT32_MAX);
-    if (!reserve((void**)&P->pos, &P->cap_pos, 3 * (P->n_pos + 1), sizeof(float)))
+    if (!mlb_reserve((void**)&P->pos, &P->cap_pos, 3 * (P->n_pos + 1), sizeof(float)))
         return perr(P, MLB_ERR_NOMEM, "out of memory for %zu positions", P->n_pos + 1);
     memcpy(P->pos + 3 * P->n_pos, x, 3 * sizeof(float));   // w (x[3]) and colours (x[3..6]) are ignored
     P->n_pos++;
@@ -174,7 +159,7 @@ static mlb_status stmt_vt(parser* P, char** cur) {
     MLB_TRY(read_numbers(P, cur, "vt", x, 3, &k));
     if (k < 1) return perr(P, MLB_ERR_FORMAT, "'vt' needs at least 1 coordinate, got 0");
     if (P->n_tex >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d texture coordinates", INT32_MAX);
-    if (!reserve((void**)&P->tex, &P->cap_tex, 2 * (P->n_tex + 1), sizeof(float)))
+    if (!mlb_reserve((void**)&P->tex, &P->cap_tex, 2 * (P->n_tex + 1), sizeof(float)))
         return perr(P, MLB_ERR_NOMEM, "out of memory for %zu texture coordinates", P->n_tex + 1);
     P->tex[2 * P->n_tex] = x[0];
     P->tex[2 * P->n_tex + 1] = x[1];   // 0 when absent; the third (w) is ignored
@@ -188,7 +173,7 @@ static mlb_status stmt_vn(parser* P, char** cur) {
     MLB_TRY(read_numbers(P, cur, "vn", x, 3, &k));
     if (k != 3) return perr(P, MLB_ERR_FORMAT, "'vn' needs 3 components, got %d", k);
     if (P->n_nrm >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d normals", INT32_MAX);
-    if (!reserve((void**)&P->nrm, &P->cap_nrm, 3 * (P->n_nrm + 1), sizeof(float)))
+    if (!mlb_reserve((void**)&P->nrm, &P->cap_nrm, 3 * (P->n_nrm + 1), sizeof(float)))
         return perr(P, MLB_ERR_NOMEM, "out of memory for %zu normals", P->n_nrm + 1);
     memcpy(P->nrm + 3 * P->n_nrm, x, 3 * sizeof(float));
     P->n_nrm++;
@@ -260,7 +245,7 @@ static mlb_status stmt_f(parser* P, char** cur) {
         if (k >= 2) {   // fan: (first, previous, this)
             if (P->n_cor / 3 >= P->max_tris)
                 return perr(P, MLB_ERR_UNSUPPORTED, "more than %zu triangles (the limit)", P->max_tris);
-            if (!reserve((void**)&P->cor, &P->cap_cor, P->n_cor + 3, sizeof(corner)))
+            if (!mlb_reserve((void**)&P->cor, &P->cap_cor, P->n_cor + 3, sizeof(corner)))
                 return perr(P, MLB_ERR_NOMEM, "out of memory for %zu triangles", P->n_cor / 3 + 1);
             P->cor[P->n_cor++] = first;
             P->cor[P->n_cor++] = prev;
@@ -325,7 +310,7 @@ static mlb_status parse_text(parser* P, const char* text, size_t n) {
             if (l && s[l - 1] == '\r') l--;
             if (len + l + 1 > P->max_line)
                 return perr(P, MLB_ERR_FORMAT, "statement longer than %zu bytes (binary data, or raise max_line)", P->max_line);
-            if (!reserve((void**)&P->stmt, &P->stmt_cap, len + l + 1, 1))
+            if (!mlb_reserve((void**)&P->stmt, &P->stmt_cap, len + l + 1, 1))
                 return perr(P, MLB_ERR_NOMEM, "out of memory");
             for (size_t k = 0; k < l; k++) {
                 unsigned char ch = (unsigned char)s[k];

@@ -50,16 +50,7 @@ mlb_status mlb_paint_frame(const mlb_mesh* m, double centre[3], double* scale) {
             if (v > hi[k]) hi[k] = v;
         }
     for (int k = 0; k < 3; k++) centre[k] = 0.5 * lo[k] + 0.5 * hi[k];   // halves first: no overflow near FLT_MAX
-    double r2 = 0;
-    for (size_t i = 0; i < (size_t)m->n_verts; i++) {
-        double d2 = 0;
-        for (int k = 0; k < 3; k++) {
-            double d = m->pos[3 * i + k] - centre[k];
-            d2 += d * d;
-        }
-        if (d2 > r2) r2 = d2;
-    }
-    double r = sqrt(r2);
+    double r = mlb_mesh_radius_about(m, centre);
     if (!(r > 0) || !isfinite(MLB_PAINT_RADIUS / r))
         return mlb_fail(MLB_ERR_ARG, "the mesh has no extent (every vertex at one point)");
     *scale = MLB_PAINT_RADIUS / r;

@@ -196,6 +196,13 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     if (nc > MLB_TEXT3D_MAX_CLASSES || nm > MLB_TEXT3D_MAX_CLASSES) return mlb_fail(MLB_ERR_ARG, "text3d: catalogue too large");
     for (int i = 0; i < nc; i++) classes[i] = c->n_classes ? c->classes[i] : i;
     for (int i = 0; i < nm; i++) mats[i] = c->n_materials ? c->materials[i] : i;
+    if (c->n_pairs < 0 || c->n_pairs > MLB_TEXT3D_MAX_PAIRS) return mlb_fail(MLB_ERR_ARG, "text3d: %d pairs", c->n_pairs);
+    for (int i = 0; i < c->n_pairs; i++)
+        if (!mlb_catalogue_class_name(c->pair_class[i]) || !mlb_catalogue_material_name(c->pair_material[i]))
+            return mlb_fail(MLB_ERR_ARG, "text3d: pair %d out of range", i);
+    // prompt i: the i-th pair, or (class i / nm, material i % nm) of the cross product
+#define PROMPT_CLASS(i) (c->n_pairs ? c->pair_class[i] : classes[(i) / nm])
+#define PROMPT_MAT(i) (c->n_pairs ? c->pair_material[i] : mats[(i) % nm])
     // the metal rule must classify every catalogue material right from its truth, or the metal
     // column would measure the rule rather than the asset
     for (int m = 0; m < mlb_catalogue_n_materials(); m++)
@@ -210,9 +217,9 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         if (mlb_gemm_precision_parse(c->base.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
     }
     // every prompt and its run folder first: a folder made with other settings fails before any work
-    int total = nc * nm, n_gen = 0;
+    int total = c->n_pairs ? c->n_pairs : nc * nm, n_gen = 0;
     for (int i = 0; !s && i < total; i++) {
-        int cls = classes[i / nm], mat = mats[i % nm];
+        int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);
         mlb_text3d_row* row = &rows[i];
         memset(row, 0, sizeof *row);
         mlb_catalogue_caption(cls, mat, 0, row->prompt, sizeof row->prompt);   // view 0: no suffix
@@ -241,7 +248,7 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     if (!s) s = mlb_mkdir_p(c->out_dir);
     double gen_wall = 0;
     for (int i = 0; !s && i < total; i++) {
-        int cls = classes[i / nm], mat = mats[i % nm];
+        int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);
         mlb_text3d_row* row = &rows[i];
         if (c->progress) {
             char eta[32];
@@ -268,6 +275,8 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
                         row->scores.metal_pred ? "metal" : "dielectric", row->scores.relight_psnr);
         }
     }
+#undef PROMPT_CLASS
+#undef PROMPT_MAT
     mlb_envlight_free(&light);
     mlb_envmap_free(&env);
     mlb_text3d_truth_free(&truth);

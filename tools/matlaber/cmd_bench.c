@@ -13,6 +13,7 @@
 static const cli_option options[] = {
     {"classes", 1, 'c', "A,B,..", "the classes to prompt (default all)"},
     {"materials", 1, 'M', "X,Y,..", "the materials to prompt (default all)"},
+    {"pairs", 1, 'p', "C:M,..", "these class:material prompts instead (e.g. vase:gold,table:red)"},
     {"preset", 1, 'Q', "NAME", "the generation preset (default tiny)"},
     {"model", 1, 'm', "PATH", "Stable Diffusion folder or file (default the project's own model, as generate)"},
     {"seed", 1, 's', "S", "the runs' seed (default 0)"},
@@ -39,6 +40,23 @@ static int parse_list(const char* text, int* idx, int* n, mlb_status (*parse)(co
     return *n ? 0 : -1;
 }
 
+// "vase:gold,table:red" into the config's pairs. 0 on success.
+static int parse_pairs(const char* text, mlb_text3d_bench_config* bc) {
+    char buf[4096];
+    if (snprintf(buf, sizeof buf, "%s", text) >= (int)sizeof buf) return -1;
+    bc->n_pairs = 0;
+    for (char* tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+        char* colon = strchr(tok, ':');
+        if (!colon || bc->n_pairs >= MLB_TEXT3D_MAX_PAIRS) return -1;
+        *colon = 0;
+        if (mlb_catalogue_class_parse(tok, &bc->pair_class[bc->n_pairs]) ||
+            mlb_catalogue_material_parse(colon + 1, &bc->pair_material[bc->n_pairs]))
+            return -1;
+        bc->n_pairs++;
+    }
+    return bc->n_pairs ? 0 : -1;
+}
+
 static int bench_text3d(int argc, char** argv) {
     const char* cmd = "bench text3d";
     mlb_text3d_bench_config bc = mlb_text3d_bench_default();
@@ -59,6 +77,9 @@ static int bench_text3d(int argc, char** argv) {
         case 'M':
             if (parse_list(optarg, bc.materials, &bc.n_materials, mlb_catalogue_material_parse)) return cli_usage_error(cmd, "--materials: %s", mlb_last_error());
             break;
+        case 'p':
+            if (parse_pairs(optarg, &bc)) return cli_usage_error(cmd, "--pairs: expected class:material,... (%s)", mlb_last_error());
+            break;
         case 'Q': preset = optarg; break;
         case 'm': model = optarg; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(cmd, "--seed: expected a non-negative integer"); seed = (uint64_t)v; break;
@@ -71,7 +92,7 @@ static int bench_text3d(int argc, char** argv) {
         case 'o': bc.out_dir = optarg; break;
         case 'j': json = optarg; break;
         case 'h':
-            printf("usage: matlaber bench text3d [--classes A,B] [--materials X,Y] [-o DIR] [--json FILE] [options]\n\n"
+            printf("usage: matlaber bench text3d [--classes A,B] [--materials X,Y] | [--pairs C:M,..] [-o DIR] [--json FILE] [options]\n\n"
                    "Text to 3D against known truth: every catalogue prompt \"a {material} {class}\" (seen and held-out\n"
                    "pairs, docs/catalogue.md) is generated with one preset into DIR/<class>_<material> (a normal run:\n"
                    "export and view take it; a finished one is reused, a stopped one resumed) and measured: Chamfer\n"
@@ -92,8 +113,10 @@ static int bench_text3d(int argc, char** argv) {
     mlb_status s = mlb_text3d_base_config(&bc.base, preset, model, seed, scale, material, fixed_env, view_prompts);
     if (s) return cli_usage_error(cmd, "%s", mlb_last_error());
     bc.progress = mlb_log_get_level() <= MLB_LOG_INFO;
-    int cap = (bc.n_classes ? bc.n_classes : mlb_catalogue_n_classes()) *
-              (bc.n_materials ? bc.n_materials : mlb_catalogue_n_materials());
+    if (bc.n_pairs && (bc.n_classes || bc.n_materials)) return cli_usage_error(cmd, "--pairs replaces --classes and --materials");
+    int cap = bc.n_pairs ? bc.n_pairs
+                         : (bc.n_classes ? bc.n_classes : mlb_catalogue_n_classes()) *
+                               (bc.n_materials ? bc.n_materials : mlb_catalogue_n_materials());
     mlb_text3d_row* rows = calloc((size_t)cap, sizeof *rows);
     if (!rows) return cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), cmd);
     int n = 0;

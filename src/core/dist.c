@@ -110,6 +110,21 @@ void mlb_dist_share_of(int n, int rank, int size, int* first, int* count) {
 
 void mlb_dist_share(int n, int* first, int* count) { mlb_dist_share_of(n, mlb_dist_rank(), mlb_dist_size(), first, count); }
 
+void mlb_dist_share_batches_of(int n, int batch, int rank, int size, int* first, int* count) {
+    if (batch < 1 || batch > n) batch = n > 0 ? n : 1;
+    int nb = (n + batch - 1) / batch, b0, bc;
+    mlb_dist_share_of(nb, rank, size, &b0, &bc);
+    long a = (long)b0 * batch, e = (long)(b0 + bc) * batch;   // the last batch may be short
+    if (a > n) a = n;
+    if (e > n) e = n;
+    *first = (int)a;
+    *count = (int)(e - a);
+}
+
+void mlb_dist_share_batches(int n, int batch, int* first, int* count) {
+    mlb_dist_share_batches_of(n, batch, mlb_dist_rank(), mlb_dist_size(), first, count);
+}
+
 mlb_dist_stats mlb_dist_stats_get(void) { return g_stats; }
 void mlb_dist_stats_reset(void) { memset(&g_stats, 0, sizeof g_stats); }
 
@@ -148,18 +163,23 @@ mlb_status mlb_dist_allgatherv(const void* mine, void* all, const size_t* bytes)
 #endif
 }
 
-mlb_status mlb_dist_allgather_items(const void* mine, void* all, int n, size_t item_bytes) {
+mlb_status mlb_dist_allgather_batches(const void* mine, void* all, int n, int batch, size_t item_bytes) {
     int size = mlb_dist_size();
     size_t stack[16] = {0}, *bytes = size <= 16 ? stack : malloc(sizeof(size_t) * (size_t)size);
     if (!bytes) return mlb_fail(MLB_ERR_NOMEM, "allgather: out of memory");
     for (int r = 0; r < size; r++) {
         int f, c;
-        mlb_dist_share_of(n, r, size, &f, &c);
+        mlb_dist_share_batches_of(n, batch, r, size, &f, &c);
         bytes[r] = (size_t)c * item_bytes;
     }
     mlb_status s = mlb_dist_allgatherv(mine, all, bytes);
     if (bytes != stack) free(bytes);
     return s;
+}
+
+// batches of 1 are shared as items are
+mlb_status mlb_dist_allgather_items(const void* mine, void* all, int n, size_t item_bytes) {
+    return mlb_dist_allgather_batches(mine, all, n, 1, item_bytes);
 }
 
 mlb_status mlb_dist_bcast(void* buf, size_t bytes, int root) {

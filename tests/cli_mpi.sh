@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Several processes (docs/pipeline.md, "Many processes"): a short generate with the project's own
-# model on 2 MPI processes gives bitwise the asset of 1; a run stopped on 2 resumes on 1 and on 3
-# (4 views over 3: shares of 1, 1 and 2) to the same bytes; --prompts with 4 prompts on 2 processes
+# model gives bitwise the asset of 1 process on 2 and 3 processes for the same view micro-batch
+# (--view-batch K: the default, all 4 views in one call, on one of 2 processes while the other has
+# none; K 2 split 2 + 2 over 2; K 3, batches of 3 + 1, over 3, one process without a batch); a run
+# stopped on 2 resumes on 1 and on 3 to the same bytes; --prompts with 4 prompts on 2 processes
 # gives 4 run folders bitwise equal to the single-process ones, and a rerun after a stop finishes
 # only what was missing. Skips without mpirun, without an MPI build or without the model.
 set -u
@@ -32,20 +34,42 @@ same_run() {   # same_run NAME DIR_A DIR_B: the asset's bytes
 }
 
 expect 0 "1 process" -- $Q generate -p "a gold goblet" $small -o "$T/one"
-expect 0 "2 processes" -- $MPI -n 2 $Q generate -p "a gold goblet" $small -o "$T/two"
-same_run "2 processes give the asset of 1, bit for bit" "$T/one" "$T/two"
+grep -q '"view_batch":[[:space:]]*0' "$T/one/config.json" && ok "config.json: view_batch 0 (one call a step)" ||
+  bad "config.json lacks view_batch 0"
+# the default: the step's 4 views in one call, so one process guides them all and the other none
+expect 0 "2 processes, one batch of 4 views" -- $MPI -n 2 $Q generate -p "a gold goblet" $small -o "$T/two"
+err_has "says a process has no batch" "some have none"
+same_run "2 processes (one with no batch) give the asset of 1, bit for bit" "$T/one" "$T/two"
 cmp -s "$T/one/previews/geometry_000002.png" "$T/two/previews/geometry_000002.png" && ok "previews gather every view" ||
   bad "previews differ"
 grep -q '"view_prompts"' "$T/two/config.json" && ok "rank 0 wrote config.json" || bad "no config.json"
 
-# stopped on 2, resumed on 1 (geometry stage) and on 3 (appearance stage)
-expect 0 "2 processes, stopped after 3 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small --stop-after 3 -o "$T/s1"
+# micro-batches of 2 views: 2 calls a step on 1 process, one call on each of 2
+expect 0 "1 process, --view-batch 2" -- $Q generate -p "a gold goblet" $small --view-batch 2 -o "$T/k2"
+grep -q '"view_batch":[[:space:]]*2' "$T/k2/config.json" && ok "config.json: view_batch 2" || bad "config.json lacks view_batch 2"
+expect 0 "2 processes, --view-batch 2" -- $MPI -n 2 $Q generate -p "a gold goblet" $small --view-batch 2 -o "$T/k2two"
+same_run "--view-batch 2: 2 processes give the asset of 1, bit for bit" "$T/k2" "$T/k2two"
+for st in geometry_000002 appearance_000002; do
+  cmp -s "$T/k2/previews/$st.png" "$T/k2two/previews/$st.png" && ok "--view-batch 2: preview $st gathered from both" ||
+    bad "--view-batch 2: preview $st differs"
+done
+# batches of 3 + 1 over 3 processes: one has none, one guides 3 views, one 1
+expect 0 "1 process, --view-batch 3" -- $Q generate -p "a gold goblet" $small --view-batch 3 -o "$T/k3"
+expect 0 "3 processes, --view-batch 3" -- $MPI -n 3 $Q generate -p "a gold goblet" $small --view-batch 3 -o "$T/k3three"
+same_run "--view-batch 3: 3 processes give the asset of 1, bit for bit" "$T/k3" "$T/k3three"
+expect 2 "--view-batch 65 refused" -- $Q generate -p "a gold goblet" $small --view-batch 65 -o "$T/bad"
+err_has "names the option and its range" "view-batch: expected 0..64"
+
+# stopped on 2, resumed on 1 (geometry stage) and on 3 (appearance stage), the batch kept in config.json
+expect 0 "2 processes, --view-batch 2, stopped after 3 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small \
+  --view-batch 2 --stop-after 3 -o "$T/s1"
 [ -e "$T/s1/final/mesh.obj" ] && bad "a stopped run has final/" || ok "stopped run has no final/"
 expect 0 "resumed on 1 process" -- $Q generate --resume "$T/s1"
-same_run "stopped on 2, resumed on 1: the same asset" "$T/one" "$T/s1"
-expect 0 "2 processes, stopped after 5 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small --stop-after 5 -o "$T/s3"
+same_run "stopped on 2, resumed on 1: the same asset" "$T/k2" "$T/s1"
+expect 0 "2 processes, --view-batch 2, stopped after 5 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small \
+  --view-batch 2 --stop-after 5 -o "$T/s3"
 expect 0 "resumed on 3 processes" -- $MPI -n 3 $Q generate --resume "$T/s3"
-same_run "stopped on 2, resumed on 3: the same asset" "$T/one" "$T/s3"
+same_run "stopped on 2, resumed on 3: the same asset" "$T/k2" "$T/s3"
 
 # many prompts: one folder each, handed out as processes free up
 P="$T/prompts.txt"
@@ -75,10 +99,11 @@ echo "--bogus 1 x" > "$T/bad.txt"
 expect 2 "a prompt line with an unknown option" -- $Q generate --prompts "$T/bad.txt" -o "$T/b3" $small
 err_has "names the line and the option" "line 1: --bogus"
 expect 2 "--prompts without -o" -- $Q generate --prompts "$P"
-# paint on 2 processes: the views split as generate's; every process loads the mesh, rank 0 alone
+# paint on 2 processes: the views split as generate's (2 views, a call of 1 on each process); every
+# process loads the mesh, rank 0 alone
 # writes the run folder (input/mesh.obj included): the same bytes as 1 process, and a resume on 2
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n' > "$T/tet.obj"
-psmall="--res 32 --views 2 --appearance-iters 4 --checkpoint-every 2 --preview-every 2 --export-texture 32"
+psmall="--res 32 --views 2 --view-batch 1 --appearance-iters 4 --checkpoint-every 2 --preview-every 2 --export-texture 32"
 expect 0 "paint, 1 process" -- $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall -o "$T/p1"
 expect 0 "paint, 2 processes" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall -o "$T/p2"
 expect 0 "paint, 2 processes, stopped after 2 steps" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall \

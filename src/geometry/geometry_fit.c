@@ -290,7 +290,8 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
             for (int k = 0; k < 3; k++) pc[3 * (size_t)M + 3 * i + k] = st->dattr[4 * i + k];
     }
     if (dimages && st->part_count != 0) {
-        mlb_status g = mlb_dist_allgather_items(st->pieces + piece * (size_t)v0, st->pieces, n, piece * sizeof(real));
+        mlb_status g = mlb_dist_allgather_batches(st->pieces + piece * (size_t)v0, st->pieces, n, st->part_batch,
+                                                  piece * sizeof(real));
         if (!s) s = g;
     }
     if (s) return s;

@@ -56,7 +56,8 @@ struct FN(mlb_appearance_state) {
     mlb_raster_ctx* ctx;
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
-    int v0, v1, parted;                   // this process's views [v0, v1); parted: gather the rest
+    int v0, v1, parted, batch;            // this process's views [v0, v1); parted: gather the rest,
+                                          // held by the ranks in whole batches of `batch` views
     const int32_t* faces;
     int32_t *adj, *tri, *where, *start;   // start [n_views + 1]: first point of each view
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
@@ -210,7 +211,7 @@ static mlb_status FN(gather_points)(const struct FN(mlb_appearance_state)* s, re
     if (!bytes) return mlb_fail(MLB_ERR_NOMEM, "appearance: out of memory");
     for (int r = 0; r < size; r++) {
         int f, c;
-        mlb_dist_share_of(n, r, size, &f, &c);
+        mlb_dist_share_batches_of(n, s->batch, r, size, &f, &c);
         bytes[r] = sizeof(real) * (size_t)C * (size_t)(s->start[f + c] - s->start[f]);
     }
     mlb_status st = mlb_dist_allgatherv(buf + (size_t)C * (size_t)s->start[s->v0], buf, bytes);
@@ -268,6 +269,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // counts are gathered, so every rank knows where each view's samples start
     FN(part_range)(a, n, &s->v0, &s->v1);
     s->parted = a->part_count != 0;
+    s->batch = a->part_batch;
     int32_t* counts = s->start + 1;   // counts[v], then made into starts in place
     memset(s->start, 0, sizeof(int32_t) * (nv + 1));
     for (int v = s->v0; v < s->v1; v++) {
@@ -279,7 +281,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         for (size_t i = 0; i < P; i++) c += tri[i] >= 0;
         counts[v] = c;
     }
-    if (s->parted) MLB_TRY(mlb_dist_allgather_items(counts + s->v0, counts, n, sizeof(int32_t)));
+    if (s->parted) MLB_TRY(mlb_dist_allgather_batches(counts + s->v0, counts, n, s->batch, sizeof(int32_t)));
     size_t total = 0;
     for (int v = 0; v < n; v++) {
         total += (size_t)counts[v];

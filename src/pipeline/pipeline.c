@@ -362,12 +362,15 @@ static mlb_status appearance_stage(pipeline_run* r) {
         s = mlb_field_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
     }
-    // this process's views (dist.h); one guidance call per view, on any number of processes
+    // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
+    // guidance call each, the same calls on any number of processes
+    const int k = mlb_guidance_batch(r->g, n), nb = (n + k - 1) / k;
     int v0 = 0, cnt = n;
-    mlb_dist_share(n, &v0, &cnt);
+    mlb_dist_share_batches(n, k, &v0, &cnt);
     app.part_first = v0;
     app.part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
-    double* losses = calloc((size_t)n, sizeof(double));
+    app.part_batch = k;
+    double* losses = calloc((size_t)nb, sizeof(double));   // one per batch
     if (!losses && !s) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->appearance_iters; it++) {
@@ -380,15 +383,15 @@ static mlb_status appearance_stage(pipeline_run* r) {
         if (!s) s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
         double loss = 0, smooth = 0;
         if (!s) memset(dimages, 0, sizeof(float) * img * (size_t)n);
-        for (int v = v0; !s && v < v0 + cnt; v++)
-            s = mlb_guidance_loss_part(r->g, MLB_STAGE_APPEARANCE, it, views + v, v, 1, n, images + img * (size_t)v, c->res,
-                                       c->res, dimages + img * (size_t)v, &losses[v]);
+        if (!s)
+            s = mlb_guidance_loss_batches(r->g, MLB_STAGE_APPEARANCE, it, views, n, v0, cnt, images, c->res, c->res, dimages,
+                                          losses);
         s = pipeline_agree(s);   // the gathers below need every rank
-        if (!s && app.part_count != 0) s = mlb_dist_allgather_items(losses + v0, losses, n, sizeof(double));
-        for (int v = 0; !s && v < n; v++) loss += losses[v];   // in view order
+        if (!s && app.part_count != 0) s = mlb_dist_allgather_items(losses + v0 / k, losses, nb, sizeof(double));
+        for (int b = 0; !s && b < nb; b++) loss += losses[b];   // in view order
         if (!s) s = mlb_appearance_backward(&app, net, dimages);
         if (!s && app.part_count != 0 && preview_at(c, it))   // previews: every view's render
-            s = mlb_dist_allgather_items(images + img * (size_t)v0, images, n, img * sizeof(float));
+            s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
         if (!s && (c->w_mat > 0 || c->w_mat_spec > 0)) {
             s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
             if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->w_mat_spec, c->seed, it,
@@ -480,6 +483,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     r.dir = dir;
     r.c = c;
     r.g = g;
+    g->view_batch = c->view_batch;   // the guidance's calls: micro-batches of the config's size
     r.views = views;
     r.resume = resume;
     r.progress = progress;
@@ -514,8 +518,14 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
             pipeline_path(path, sizeof path, dir, "loss.csv");
             s = mlb_losslog_open(&r.log, path, LOG_COLUMNS, 3, resume_stage, resume_step);
         }
-        if (!s && mlb_dist_size() > 1)
-            mlb_log(MLB_LOG_INFO, "%d processes: views %d per step split among them", mlb_dist_size(), r.g->n_views);
+        if (!s && mlb_dist_size() > 1) {
+            int n = g->n_views, k = mlb_guidance_batch(g, n), nb = (n + k - 1) / k, size = mlb_dist_size();
+            mlb_log(nb < size ? MLB_LOG_WARN : MLB_LOG_INFO,
+                    "%d processes: %d views per step in %d batch%s of up to %d (--view-batch), whole batches to each "
+                    "process%s", size, n, nb, nb == 1 ? "" : "es", k,
+                    nb < size ? ": some have none and only repeat the networks' part (a smaller --view-batch splits the views)"
+                              : "");
+        }
     }
     s = pipeline_agree(s);
     mlb_geometry_config gc = mlb_geometry_default();

@@ -25,6 +25,9 @@ static const cli_option options[] = {
     {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
     {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
     {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
+    {"view-batch", 1, 'B', "K", "views per guidance call (default 0: all of a step's views in one call); under mpirun\n"
+                                "                           the batches go whole to the processes: any K gives the same bits on\n"
+                                "                           any number of processes, another K other bits (docs/pipeline.md)"},
     {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder or FILE.obj (default ellipsoid)"},
     {"init-iters", 1, 'J', "N", "steps of the SDF initialisation to the --init shape (default 400; tiny and cpu presets 200)"},
     {"coarse-to-fine", 1, 'C', "F", "hash-grid levels unlocked from 4 to all over this fraction of the geometry steps (default 0.5; 0 = all at once)"},
@@ -182,6 +185,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             else c.views = (int)v;
             break;
         case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
+        case 'B': if (cli_parse_long(optarg, 0, 64, &v)) return cli_usage_error(command, "--view-batch: expected 0..64 (0: all views in one call)"); c.view_batch = (int)v; break;
         case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
         case 'J': if (cli_parse_long(optarg, 0, 1000000, &v)) return cli_usage_error(command, "--init-iters: expected >= 0"); c.init_iters = (int)v; break;
         case 'C':

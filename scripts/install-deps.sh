@@ -14,6 +14,7 @@ PACKAGES=(
   clang libclang-rt-14-dev           # libFuzzer target for the safetensors reader (scripts/fuzz.sh)
   chromium                           # headless browser for the viewer test (tests/cli_viewer.sh)
   blender python3-numpy              # the Blender add-on's test (tests/cli_blender.sh); its glTF importer needs numpy
+  libopenmpi-dev openmpi-bin         # MPI: several processes on one asset or many (mpirun; tests/cli_mpi.sh)
 )
 # node and npm (three.js for `matlaber view`, the glTF-Validator and playwright-core for the tests;
 # scripts/build.sh runs npm ci in viewer/): Debian's packages only when the commands are missing, so

@@ -455,7 +455,8 @@ static int clone_net(mlb_geometry_net* dst, const mlb_geometry_net* src) {
 }
 
 // A guidance that is the fit's own L2 loss (w 1, 1) against fixed targets: the guided step must give
-// exactly the gradient of mlb_geofit_loss, and report the same losses.
+// exactly the gradient of mlb_geofit_loss, and report the same losses. It guides a part of a step
+// as guidance.h asks (the step calls it once per micro-batch of views).
 typedef struct { const float* targets; int calls; } l2_guidance;
 static mlb_status l2_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
                           int H, int W, float* dimages, double* loss) {
@@ -463,11 +464,13 @@ static mlb_status l2_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb
     u->calls++;
     if (stage != MLB_STAGE_GEOMETRY) return mlb_fail(MLB_ERR_ARG, "wrong stage");
     size_t p = (size_t)H * W;
-    double norm = 1.0 / ((double)n * p), L = 0;
+    int total = g->part_total > 0 ? g->part_total : n;
+    const float* targets = u->targets + (size_t)g->part_first * p * 4;
+    double norm = 1.0 / ((double)total * p), L = 0;
     for (int v = 0; v < n; v++) {
         double sum = 0;
         for (size_t i = (size_t)v * p * 4; i < (size_t)(v + 1) * p * 4; i++) {
-            double d = (double)images[i] - u->targets[i];
+            double d = (double)images[i] - targets[i];
             sum += d * d;
             if (dimages) dimages[i] += (float)(2.0 * d * norm);
         }
@@ -486,7 +489,7 @@ TEST(guided_step_equals_fit_loss) {
     REQUIRE(clone_net(&b, &a));
     mlb_tetgrid g;
     REQUIRE(mlb_tetgrid_create(&g, 16, a.cfg.scale) == MLB_OK);
-    enum { RES = 48, VIEWS = 2 };
+    enum { RES = 48, VIEWS = 3 };
     mlb_geofit_config c = fit_config();
     c.views = VIEWS;
     mlb_view views[VIEWS];
@@ -501,18 +504,27 @@ TEST(guided_step_equals_fit_loss) {
         REQUIRE(mlb_geofit_render_mesh(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
     }
     l2_guidance u = {targets, 0};
-    mlb_guidance gd = {"l2", VIEWS, NULL, l2_loss, NULL, &u};
+    mlb_guidance gd = {"l2", VIEWS, NULL, l2_loss, NULL, &u, 0, 0, 0};
     mlb_geofit_state st = {0};
     mlb_geofit_stats s1, s2;
     mlb_raster_ctx* ctx = mlb_raster_ctx_create();
     REQUIRE(ctx);
-    REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 3, views, RES, 1, 0.1, &s1, shown) == MLB_OK);
-    CHECK(u.calls == 1);
     geometry_net_zero_grad(&b);
     REQUIRE(mlb_geofit_loss(&b, &g, ctx, cams, VIEWS, targets, RES, 1, 1.0, 1.0, 0.1, 1, &s2) == MLB_OK);
-    CHECK(memcmp(a.grads, b.grads, sizeof(float) * a.n_params) == 0);
-    CHECK(s1.img == s2.img && s1.reg == s2.reg && s1.loss == s2.loss && s1.n_faces == s2.n_faces && s1.coverage == s2.coverage);
-    CHECK(memcmp(shown, st.images, sizeof(float) * RES * RES * 4 * VIEWS) == 0);
+    // micro-batches of views (view_batch): all 3 in one call (0, the default, and 3), 2 + 1, 1 + 1 + 1;
+    // this guidance treats views independently, so every batching gives the same bits
+    const int batch[4] = {0, 3, 2, 1}, calls[4] = {1, 1, 2, 3};
+    for (int i = 0; i < 4; i++) {
+        gd.view_batch = batch[i];
+        u.calls = 0;
+        REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 3, views, RES, 1, 0.1, &s1, shown) == MLB_OK);
+        CHECK_MSG(u.calls == calls[i], "view_batch %d: %d calls", batch[i], u.calls);
+        CHECK(memcmp(a.grads, b.grads, sizeof(float) * a.n_params) == 0);
+        CHECK(s1.img == s2.img && s1.reg == s2.reg && s1.loss == s2.loss && s1.n_faces == s2.n_faces &&
+              s1.coverage == s2.coverage);
+        CHECK(memcmp(shown, st.images, sizeof(float) * RES * RES * 4 * VIEWS) == 0);
+    }
+    gd.view_batch = 0;
     printf("  loss %.6f (img %.6f, reg %.4f), %d faces\n", s1.loss, s1.img, s1.reg, s1.n_faces);
     // the step's surface is the extracted mesh of the network
     mlb_mesh m, e;

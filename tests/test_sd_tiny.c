@@ -311,7 +311,7 @@ TEST(sds_step_on_latents_matches_direct) {
         REQUIRE(mlb_sds_create(u, vae, 0.18215f, ac, 0, &o, &s) == MLB_OK);
         REQUIRE(mlb_sds_set_cond(s, MLB_SDS_VIEW_NONE, cond, Tc) == MLB_OK);
         REQUIRE(mlb_sds_set_uncond(s, unc, Tc) == MLB_OK);
-        mlb_sds_input in = {z, B, 4, h, w, NULL, 0, ts, noise};
+        mlb_sds_input in = {z, B, 4, h, w, NULL, 0, ts, noise, 0, 0};
         memset(g, 0, nall * sizeof(float));
         float loss = -1;
         int tr_t[2];
@@ -343,7 +343,7 @@ TEST(sds_step_on_latents_matches_direct) {
         mlb_sds* s = NULL;
         REQUIRE(mlb_sds_create(u, NULL, 0.18215f, ac, 0, &o, &s) == MLB_OK);
         REQUIRE(mlb_sds_set_cond(s, 0, cond, Tc) == MLB_OK && mlb_sds_set_uncond(s, unc, Tc) == MLB_OK);
-        mlb_sds_input in = {z, B, 4, h, w, NULL, 0, ts, noise};
+        mlb_sds_input in = {z, B, 4, h, w, NULL, 0, ts, noise, 0, 0};
         memset(g, 0, nall * sizeof(float));
         float loss = -1;
         CHECK(mlb_sds_step(s, &in, g, &loss, NULL) == MLB_OK);
@@ -354,7 +354,7 @@ TEST(sds_step_on_latents_matches_direct) {
         CHECK_MSG(zeros > 0, "%d zeroed of %zu", zeros, nall);
         CHECK(!memcmp(g, want, nall * sizeof(float)));
         // with no VAE a 3-channel image is refused
-        mlb_sds_input im = {z, 1, 3, 64, 64, NULL, 0, NULL, NULL};
+        mlb_sds_input im = {z, 1, 3, 64, 64, NULL, 0, NULL, NULL, 0, 0};
         CHECK(mlb_sds_step(s, &im, NULL, NULL, NULL) == MLB_ERR_ARG);
         mlb_sds_free(s);
         mlb_clear_error();
@@ -368,7 +368,7 @@ TEST(sds_step_on_latents_matches_direct) {
         float *img = malloc(ni * sizeof(float)), *gi = calloc(ni, sizeof(float));
         REQUIRE(img && gi);
         mlb_rng_fill_uniform(img, ni, 6, 1, 0, 0, 1);
-        mlb_sds_input in = {img, 1, 3, 64, 64, NULL, 3, NULL, NULL};
+        mlb_sds_input in = {img, 1, 3, 64, 64, NULL, 3, NULL, NULL, 0, 0};
         float loss = -1;
         CHECK(mlb_sds_step(s, &in, gi, &loss, NULL) == MLB_OK);
         double nrm = 0;

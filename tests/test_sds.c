@@ -133,7 +133,7 @@ TEST(sds_matches_reference) {
           *gl = malloc(n * 4), *gi = calloc(nimg, 4), w[2];
     int tt[2];
     mlb_sds_trace tr = {lat, noisy, ec, eu, eg, gl, w, tt};
-    mlb_sds_input in = {image, B, 3, H, H, NULL, 0, t, noise};
+    mlb_sds_input in = {image, B, 3, H, H, NULL, 0, t, noise, 0, 0};
     float loss = 0;
     REQUIRE(mlb_sds_step(s, &in, gi, &loss, &tr) == MLB_OK);
     CHECK(tt[0] == t[0] && tt[1] == t[1]);
@@ -213,7 +213,7 @@ TEST(sds_sampling_and_latent_input) {
     mlb_sds_trace tr = {0};
     tr.t = t1;
     tr.grad_latent = gl;
-    mlb_sds_input in = {z, B, 4, h, h, views, 5, NULL, NULL};
+    mlb_sds_input in = {z, B, 4, h, h, views, 5, NULL, NULL, 0, 0};
     REQUIRE(mlb_sds_step(s, &in, g1, &l1, &tr) == MLB_OK);
     tr.t = t2;
     tr.grad_latent = NULL;
@@ -242,7 +242,7 @@ TEST(sds_sampling_and_latent_input) {
         REQUIRE(mlb_sd_model_encode_prompt(m, "low quality", emb) == MLB_OK);
         REQUIRE(mlb_sds_set_uncond(one, emb, MLB_CLIP_CONTEXT) == MLB_OK);
         int vv[3] = {v, v, v}, nn[3] = {MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE, MLB_SDS_VIEW_NONE};
-        mlb_sds_input a = {z, B, 4, h, h, vv, 5, NULL, NULL}, b = {z, B, 4, h, h, nn, 5, NULL, NULL};
+        mlb_sds_input a = {z, B, 4, h, h, vv, 5, NULL, NULL, 0, 0}, b = {z, B, 4, h, h, nn, 5, NULL, NULL, 0, 0};
         memset(ga, 0, n * 4);
         memset(gb, 0, n * 4);
         REQUIRE(mlb_sds_step(s, &a, ga, NULL, NULL) == MLB_OK);

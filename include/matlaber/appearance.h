@@ -33,6 +33,13 @@
     typedef struct {                                                                                 \
         mlb_fresnel fresnel;                     /* 0 = MLB_FRESNEL_PAPER (the paper's Fresnel) */     \
         struct N(mlb_appearance_state)* state;   /* private: the last render, kept for backward */    \
+        /* This process's views (dist.h): it rasterises, shades and backpropagates views            \
+           [part_first, part_first + part_count) only; the surface points and their material        \
+           gradients are gathered from the other ranks, so that every rank evaluates and trains the  \
+           material network on every view's points, in view order (the others' images stay 0).     \
+           The ranks hold whole batches of part_batch views (mlb_dist_share_batches; 0: one batch).  \
+           part_count 0: every view (one process), -1: none (a rank without a view this step). */   \
+        int part_first, part_count, part_batch;                                                      \
     } N(mlb_appearance);                                                                             \
     void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
     /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \

@@ -85,7 +85,14 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         R *aa, *daa, *dimg, *dbary;  /* per-view scratch [S,S,4], [S,S,4], [S,S,4], [S,S,2] */      \
         R *dattr, *dclip, *dverts, *dnrm;    /* [M,4], [M,4], [M,3], [M,3] */                       \
         R *dgpos, *dsdf, *ddeform;   /* [G,3], [G], [G,3] */                                        \
-        size_t cap_grid, cap_surf, cap_px, cap_views;   /* allocated sizes */                      \
+        R* pieces;                   /* [n, M, 6]: each view's share of dverts and dnrm */          \
+        size_t cap_grid, cap_surf, cap_px, cap_views, cap_pieces;   /* allocated sizes */          \
+        /* Set by the caller before the forward: this process renders views [part_first,            \
+           part_first + part_count) only (dist.h; the others' images stay 0) and the backward       \
+           gathers every view's piece from the other ranks, which hold whole batches of             \
+           part_batch views (mlb_dist_share_batches; 0: one batch). part_count 0: every view (no    \
+           gathers), -1: none. */                                                                   \
+        int part_first, part_count, part_batch;                                                     \
     } N(mlb_geofit_state);                                                                          \
     void N(mlb_geofit_state_free)(N(mlb_geofit_state)* st);   /* safe on a zeroed state */          \
     /* The network's surface (on grid g, deformation tanh(d)/(2·cells)) seen by cams[v], v < n:      \

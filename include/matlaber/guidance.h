@@ -42,7 +42,52 @@ struct mlb_guidance {
                        int H, int W, float* dimages, double* loss);
     void (*destroy)(mlb_guidance* g);
     void* impl;
+    // Which of the step's views the next loss call covers, for a step guided a part at a time (a
+    // micro-batch of views, on whichever rank renders it: dist.h): images[0] is view part_first of
+    // a step of part_total views. Random draws are keyed by the view's index in the step, and loss
+    // and gradient are normalised by part_total, so the parts' gradients are the whole call's and
+    // their losses add up to its loss. part_total 0: the call is the whole step (views 0..n-1).
+    int part_first, part_total;
+    // Views per loss call (set by the run's config, view_batch): a step's views are guided in
+    // micro-batches of this many, and the batches go whole to the processes (dist.h). 0 (or >=
+    // n_views): the whole step in one call. The bits depend on it (Stable Diffusion's UNet and VAE
+    // round differently at other batch sizes), never on the number of processes.
+    int view_batch;
 };
+
+// g->loss on views [first, first + n) of a step of `total` views (the fields above, reset after).
+static inline mlb_status mlb_guidance_loss_part(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views,
+                                                int first, int n, int total, const float* images, int H, int W,
+                                                float* dimages, double* loss) {
+    g->part_first = first;
+    g->part_total = total;
+    mlb_status s = g->loss(g, stage, step, views, n, images, H, W, dimages, loss);
+    g->part_first = g->part_total = 0;
+    return s;
+}
+
+// The micro-batch size for a step of n views: g->view_batch, or n when it is 0 or larger.
+static inline int mlb_guidance_batch(const mlb_guidance* g, int n) {
+    return g->view_batch > 0 && g->view_batch < n ? g->view_batch : n;
+}
+
+// Guides views [first, first + count) of a step of n views (whole micro-batches: first a multiple
+// of the batch size, as mlb_dist_share_batches gives a process its share), one loss call per
+// batch. images, dimages [n, H, W, 4]: the whole step's (dimages may be NULL); losses[b] = the loss
+// of batch b of the step's ceil(n / batch), written for this range's batches only.
+static inline mlb_status mlb_guidance_loss_batches(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views,
+                                                   int n, int first, int count, const float* images, int H, int W,
+                                                   float* dimages, double* losses) {
+    const int k = mlb_guidance_batch(g, n);
+    const size_t img = (size_t)H * W * 4;
+    mlb_status s = MLB_OK;
+    for (int v = first; !s && v < first + count; v += k) {
+        int m = first + count - v < k ? first + count - v : k;
+        s = mlb_guidance_loss_part(g, stage, step, views + v, v, m, n, images + img * (size_t)v, H, W,
+                                   dimages ? dimages + img * (size_t)v : NULL, &losses[v / k]);
+    }
+    return s;
+}
 
 static inline void mlb_guidance_free(mlb_guidance* g) {
     if (g && g->destroy) g->destroy(g);

@@ -35,6 +35,10 @@ typedef struct {
     int view_prompts;             // sds: ", front view" etc. by the camera (1, default); 0: one prompt
     uint64_t seed;                // 0
     int views;                    // views per step: 9
+    int view_batch;               // views per guidance call: the step's views in micro-batches of this
+                                  // many, each handed whole to one process (dist.h); 0 = all in one call.
+                                  // The bits depend on it (SD rounds differently per batch size), never
+                                  // on the number of processes
     int res;                      // render size: 512
     int ss;                       // supersampling: 1
     // geometry stage

@@ -86,6 +86,9 @@ typedef struct {
     long step;             // the iteration: seeds t and noise, and strategy 2's switch
     const int* t;          // [B] to override the sampled timesteps (tests), or NULL
     const float* noise;    // [B, 4, h, w] to override the sampled noise (tests), or NULL
+    int first;             // element b draws t and noise as element first + b of the step (0)
+    int total;             // the step's elements: gradient and loss are / total (0: B), so that a
+                           // batch split into parts gives the whole batch's gradients
 } mlb_sds_input;
 
 // grad_images [B, C, H, W] += d loss / d images (may be NULL: loss only, no VAE backward);

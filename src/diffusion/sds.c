@@ -151,6 +151,9 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
     if (!s || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
     const int B = in->B, C = in->C, H = in->H, W = in->W;
     if (B < 1 || B > MLB_SDS_MAX_BATCH) return mlb_fail(MLB_ERR_ARG, "SDS batch %d outside 1..%d", B, MLB_SDS_MAX_BATCH);
+    const int first = in->first, total = in->total > 0 ? in->total : B;
+    if (first < 0 || first + B > total || total > MLB_SDS_MAX_BATCH)
+        return mlb_fail(MLB_ERR_ARG, "SDS part: elements %d..%d of %d", first, first + B - 1, total);
     if (!s->cond[0] || !s->uncond) return mlb_fail(MLB_ERR_ARG, "SDS: the prompt and unconditional embeddings are not set");
     const int Lc = s->unet->cfg.in_channels;
     int h, w;
@@ -191,13 +194,13 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
             t = in->t[b];
             if (t < 0 || t > 999) { st = mlb_fail(MLB_ERR_ARG, "SDS timestep %d outside 0..999", t); goto done; }
         } else
-            t = s->opt.t_min + (int)mlb_rng_below(s->opt.seed, SDS_STREAM_T, (uint64_t)in->step * MLB_SDS_MAX_BATCH + (uint64_t)b,
+            t = s->opt.t_min + (int)mlb_rng_below(s->opt.seed, SDS_STREAM_T, (uint64_t)in->step * MLB_SDS_MAX_BATCH + (uint64_t)(first + b),
                                                   (uint32_t)(s->opt.t_max - s->opt.t_min + 1));
         ts[b] = t;
         tt[b] = tt[B + b] = (float)t;
         wt[b] = mlb_sds_weight(s->opt.weighting, s->ac[t], in->step, s->opt.coarse_iter);
         if (in->noise) memcpy(noise + b * n, in->noise + b * n, n * sizeof(float));
-        else mlb_rng_fill_normal(noise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step, (uint64_t)b * n, 0.0f, 1.0f);
+        else mlb_rng_fill_normal(noise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step, (uint64_t)(first + b) * n, 0.0f, 1.0f);
         mlb_add_noise(x2 + b * n, z + b * n, noise + b * n, n, s->ac[t]);
         memcpy(x2 + nall + b * n, x2 + b * n, n * sizeof(float));
         int v = in->views ? in->views[b] : MLB_SDS_VIEW_NONE;
@@ -229,13 +232,13 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
             l += (double)g * g;
         }
     if (tr && tr->grad_latent) memcpy(tr->grad_latent, grad, nall * sizeof(float));
-    if (loss) *loss = (float)(0.5 * l / B);
+    if (loss) *loss = (float)(0.5 * l / total);
     // 4. d loss / d images
     if (grad_images) {
         if (C == Lc) {
-            for (size_t i = 0; i < nall; i++) grad_images[i] += grad[i] / (float)B;
+            for (size_t i = 0; i < nall; i++) grad_images[i] += grad[i] / (float)total;
         } else {
-            float k = s->scaling_factor / (float)B;
+            float k = s->scaling_factor / (float)total;
             for (size_t i = 0; i < nall; i++) grad[i] *= k;   // d loss / d mean
             dimg = calloc((size_t)B * nimg, sizeof(float));
             if (!dimg) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step"); goto done; }

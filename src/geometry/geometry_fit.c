@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/dist.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
@@ -105,6 +106,7 @@ void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     free(st->aa); free(st->daa); free(st->dimg); free(st->dbary);
     free(st->dattr); free(st->dclip); free(st->dverts); free(st->dnrm);
     free(st->dgpos); free(st->dsdf); free(st->ddeform);
+    free(st->pieces);
     memset(st, 0, sizeof *st);
 }
 
@@ -156,6 +158,18 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
     return MLB_OK;
 }
 
+// The views this process renders: [*v0, *v1) of n (all of them unless the caller set a part).
+static void FN(part_range)(const FN(mlb_geofit_state)* st, int n, int* v0, int* v1) {
+    *v0 = 0;
+    *v1 = n;
+    if (st->part_count > 0 && st->part_first >= 0 && st->part_first + st->part_count <= n) {
+        *v0 = st->part_first;
+        *v1 = st->part_first + st->part_count;
+    } else if (st->part_count < 0) {   // a rank with no view of this step
+        *v0 = *v1 = st->part_first < n ? st->part_first : n;
+    }
+}
+
 mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
                                  mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, real* images,
                                  mlb_geofit_stats* stats) {
@@ -198,11 +212,14 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     }
     s = mlb_edge_topology(st->adj, st->surf.faces, F, M);
     if (s) return s;
-    // 3. every view, buffers kept
+    // 3. every view (of this process's part), buffers kept
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
     uint64_t hash = 1469598103934665603ull;
-    for (int v = 0; v < n; v++) {
-        st->vp[v] = cams[v].view_proj;
+    int v0, v1;
+    FN(part_range)(st, n, &v0, &v1);
+    if (st->part_count != 0) memset(st->images, 0, sizeof(real) * p * 4 * (size_t)n);
+    for (int v = 0; v < n; v++) st->vp[v] = cams[v].view_proj;
+    for (int v = v0; v < v1; v++) {
         real* clip = st->clip + (size_t)v * M * 4;
         FN(mlb_transform_points)(clip, st->surf.pos, M, &st->vp[v]);
         int32_t* tri = st->tri + (size_t)v * P;
@@ -232,9 +249,20 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     size_t G = (size_t)st->n_grid, p = (size_t)res * res, P = (size_t)Si * Si;
     const int32_t* faces = st->surf.faces;
     mlb_status s = MLB_OK;
-    memset(st->dverts, 0, sizeof(real) * (size_t)M * 3);
-    memset(st->dnrm, 0, sizeof(real) * (size_t)M * 3);
-    for (int v = 0; dimages && v < n; v++) {
+    // Each view's share of the surface gradients goes to its own piece [dverts 3M | dnrm 3M]; the
+    // pieces are gathered from the ranks that rendered them and added in view order: the sums the
+    // views made one after another into dverts and dnrm before, so one process gives the same bits,
+    // and any number of processes gives those of one.
+    int v0, v1;
+    FN(part_range)(st, n, &v0, &v1);
+    size_t piece = (size_t)M * 6;
+    if (dimages && piece * (size_t)n > st->cap_pieces) {
+        st->cap_pieces = 0;
+        if (!FN(grow)((void**)&st->pieces, piece * (size_t)n, sizeof(real)))
+            return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d surface vertices)", n, M);
+        st->cap_pieces = piece * (size_t)n;
+    }
+    for (int v = v0; dimages && v < v1; v++) {
         const real* dout = dimages + (size_t)v * p * 4;
         const real* daa = dout;
         if (ss > 1) {
@@ -254,10 +282,27 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
                                       st->adj, F, Si, Si);
         if (!s) s = FN(mlb_interpolate_backward)(st->ctx, st->dattr, st->dbary, st->dimg, st->attr, M, 4, tri, bary, faces, F, Si, Si);
         if (!s) s = FN(mlb_rasterize_backward)(st->ctx, st->dclip, st->dbary, NULL, tri, clip, M, faces, F, Si, Si);
-        if (s) return s;
-        FN(mlb_transform_points_backward)(st->dverts, st->dclip, M, &st->vp[v]);
+        if (s) break;   // (still joins the gather below: the other ranks wait in it)
+        real* pc = st->pieces + piece * (size_t)v;
+        memset(pc, 0, sizeof(real) * (size_t)M * 3);
+        FN(mlb_transform_points_backward)(pc, st->dclip, M, &st->vp[v]);
         for (int i = 0; i < M; i++)
-            for (int k = 0; k < 3; k++) st->dnrm[3 * i + k] += st->dattr[4 * i + k];
+            for (int k = 0; k < 3; k++) pc[3 * (size_t)M + 3 * i + k] = st->dattr[4 * i + k];
+    }
+    if (dimages && st->part_count != 0) {
+        mlb_status g = mlb_dist_allgather_batches(st->pieces + piece * (size_t)v0, st->pieces, n, st->part_batch,
+                                                  piece * sizeof(real));
+        if (!s) s = g;
+    }
+    if (s) return s;
+    memset(st->dverts, 0, sizeof(real) * (size_t)M * 3);
+    memset(st->dnrm, 0, sizeof(real) * (size_t)M * 3);
+    for (int v = 0; dimages && v < n; v++) {
+        const real* pc = st->pieces + piece * (size_t)v;
+        for (size_t j = 0; j < 3 * (size_t)M; j++) {
+            st->dverts[j] += pc[j];
+            st->dnrm[j] += pc[3 * (size_t)M + j];
+        }
     }
     s = FN(vertex_normals_backward)(st->dverts, st->dnrm, st->nsum, st->surf.pos, M, faces, F);
     if (s) return s;

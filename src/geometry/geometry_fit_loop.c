@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/dist.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
 
@@ -113,24 +114,50 @@ mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net,
     if (!st || !net || !grid || !g || !g->loss || !views || g->n_views < 1)
         return mlb_fail(MLB_ERR_ARG, "geometry step: bad arguments (NULL state, network, grid, guidance or views)");
     int n = g->n_views;
+    // This process's views (dist.h): whole micro-batches of g->view_batch views, one guidance call
+    // each (the same calls on any number of processes); the backward gathers the rest
+    const int k = mlb_guidance_batch(g, n), nb = (n + k - 1) / k;
+    int v0 = 0, cnt = n;
+    mlb_dist_share_batches(n, k, &v0, &cnt);
+    st->part_first = v0;
+    st->part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
+    st->part_batch = k;
     mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)n);
-    size_t N = (size_t)n * res * res * 4;
+    size_t img = (size_t)res * res * 4, N = (size_t)n * img;
     float* dimages = calloc(N ? N : 1, sizeof(float));
-    mlb_status s = cams && dimages ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory");
+    double* losses = calloc((size_t)nb, sizeof(double));   // one per batch
+    mlb_status s = cams && dimages && losses ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory");
     if (!s) {
         for (int v = 0; v < n; v++) cams[v] = views[v].cam;
         geometry_net_zero_grad(net);
-        s = mlb_geofit_forward(st, net, grid, ctx, cams, n, res, ss, images_out, stats);
+        s = mlb_geofit_forward(st, net, grid, ctx, cams, n, res, ss, NULL, stats);
     }
-    double loss = 0;
-    if (!s) s = g->loss(g, MLB_STAGE_GEOMETRY, step, views, n, st->images, res, res, dimages, &loss);
-    if (!s) s = mlb_geofit_backward(st, net, dimages, reg_weight);
+    if (!s) s = mlb_guidance_loss_batches(g, MLB_STAGE_GEOMETRY, step, views, n, v0, cnt, st->images, res, res, dimages, losses);
+    // every rank takes part in the gathers whatever happened here; a failure is agreed on at the step's end
+    if (st->part_count != 0) {   // the batches' losses, shared as the batches are
+        mlb_status gs = mlb_dist_allgather_items(losses + v0 / k, losses, nb, sizeof(double));
+        if (!s) s = gs;
+    }
+    if (!s || st->ok) {
+        mlb_status bs = mlb_geofit_backward(st, net, dimages, reg_weight);
+        if (!s) s = bs;
+    }
+    if (images_out && st->ok) {   // previews: every view's render (gathered only when asked)
+        mlb_status gs = st->part_count != 0 ? mlb_dist_allgather_batches(st->images + img * (size_t)v0, st->images, n, k,
+                                                                         img * sizeof(float))
+                                            : MLB_OK;
+        if (!s) s = gs;
+        memcpy(images_out, st->images, sizeof(float) * N);
+    }
     if (!s) {
+        double loss = 0;
+        for (int b = 0; b < nb; b++) loss += losses[b];   // in view order
         stats->img = loss;
         stats->loss = loss + reg_weight * stats->reg;
     } else
         s = mlb_fail_context(s, "geometry step %ld", step);
     free(cams);
     free(dimages);
+    free(losses);
     return s;
 }

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/appearance.h"
+#include "matlaber/dist.h"
 #include "matlaber/raster.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
@@ -55,6 +56,8 @@ struct FN(mlb_appearance_state) {
     mlb_raster_ctx* ctx;
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
+    int v0, v1, parted, batch;            // this process's views [v0, v1); parted: gather the rest,
+                                          // held by the ranks in whole batches of `batch` views
     const int32_t* faces;
     int32_t *adj, *tri, *where, *start;   // start [n_views + 1]: first point of each view
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
@@ -135,24 +138,30 @@ static mlb_status FN(check_mesh)(const mlb_mesh* mesh, int res, int ss, const ch
 
 // The split-sum shading of every view's samples: on the material network's device when it has one
 // (float build), else per view on the CPU.
+// Views [s->v0, s->v1) (this process's part). The device path sees the part as a render of its own
+// (starts relative to the part's first point).
 static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
                                   const mlb_envlight* const* lights, const mlb_view* views, mlb_fresnel fresnel) {
-    int n = s->n_views;
-    for (int v = 0; v < n; v++) {
+    int v0 = s->v0, v1 = s->v1;
+    for (int v = v0; v < v1; v++) {
         s->lights[v] = *lights[views[v].env];
         mlb_envlight_set_rotation(&s->lights[v], (float)(views[v].env_rotation_deg * (M_PI / 180.0)));
     }
 #ifndef MLB_F64
     if (net->dev) {
-        const mlb_envlight* source[n];
-        for (int v = 0; v < n; v++) source[v] = lights[views[v].env];
-        return appearance_device_shade(&s->dev, mlb_field_backend(net), s->rgb, s->kd, s->ks, s->kr, s->nrm,
-                                       s->vdir, s->start, n, s->lights, source, fresnel);
+        int m = v1 - v0;
+        const mlb_envlight* source[m > 0 ? m : 1];
+        int32_t rel[m + 1];
+        for (int v = 0; v < m; v++) source[v] = lights[views[v0 + v].env];
+        for (int v = 0; v <= m; v++) rel[v] = s->start[v0 + v] - s->start[v0];
+        size_t o = (size_t)s->start[v0];
+        return appearance_device_shade(&s->dev, mlb_field_backend(net), s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
+                                       s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, rel, m, s->lights + v0, source, fresnel);
     }
 #else
     (void)net;
 #endif
-    for (int v = 0; v < n; v++) {
+    for (int v = v0; v < v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
         if (m > 0)
@@ -166,11 +175,14 @@ static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(m
 static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
                                            real* dkd, real* dks, real* dkr, const real* drgb, mlb_fresnel fresnel) {
 #ifndef MLB_F64
-    if (net->dev) return appearance_device_shade_backward(s->dev, dkd, dks, dkr, drgb);
+    if (net->dev) {
+        size_t o = (size_t)s->start[s->v0];
+        return appearance_device_shade_backward(s->dev, dkd + 3 * o, dks + 3 * o, dkr + o, drgb + 3 * o);
+    }
 #else
     (void)net;
 #endif
-    for (int v = 0; v < s->n_views; v++) {
+    for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
         if (m > 0)
@@ -178,6 +190,33 @@ static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, c
                                    s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], fresnel));
     }
     return MLB_OK;
+}
+
+// The views this process renders: [*v0, *v1) of n (all unless the caller set a part).
+static void FN(part_range)(const FN(mlb_appearance)* a, int n, int* v0, int* v1) {
+    *v0 = 0;
+    *v1 = n;
+    if (a->part_count > 0 && a->part_first >= 0 && a->part_first + a->part_count <= n) {
+        *v0 = a->part_first;
+        *v1 = a->part_first + a->part_count;
+    } else if (a->part_count < 0) {   // a rank with no view of this step
+        *v0 = *v1 = a->part_first >= 0 && a->part_first < n ? a->part_first : n;
+    }
+}
+
+// buf [N, C] per covered sample, view-major: every rank's views' rows to every rank (dist.h).
+static mlb_status FN(gather_points)(const struct FN(mlb_appearance_state)* s, real* buf, int C) {
+    int size = mlb_dist_size(), n = s->n_views;
+    size_t* bytes = malloc(sizeof(size_t) * (size_t)size);
+    if (!bytes) return mlb_fail(MLB_ERR_NOMEM, "appearance: out of memory");
+    for (int r = 0; r < size; r++) {
+        int f, c;
+        mlb_dist_share_batches_of(n, s->batch, r, size, &f, &c);
+        bytes[r] = sizeof(real) * (size_t)C * (size_t)(s->start[f + c] - s->start[f]);
+    }
+    mlb_status st = mlb_dist_allgatherv(buf + (size_t)C * (size_t)s->start[s->v0], buf, bytes);
+    free(bytes);
+    return st;
 }
 
 mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const mlb_mesh* mesh,
@@ -226,18 +265,29 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     s->res = res;
     s->ss = ss;
 
-    // rasterize every view, count the covered samples
-    size_t total = 0;
-    for (int v = 0; v < n; v++) {
+    // rasterize every view (of this process's part), count the covered samples; the other ranks'
+    // counts are gathered, so every rank knows where each view's samples start
+    FN(part_range)(a, n, &s->v0, &s->v1);
+    s->parted = a->part_count != 0;
+    s->batch = a->part_batch;
+    int32_t* counts = s->start + 1;   // counts[v], then made into starts in place
+    memset(s->start, 0, sizeof(int32_t) * (nv + 1));
+    for (int v = s->v0; v < s->v1; v++) {
         real* clip = s->clip + 4 * (size_t)V * v;
         FN(mlb_transform_points)(clip, pos, V, &views[v].cam.view_proj);
         int32_t* tri = s->tri + P * v;
         MLB_TRY(FN(mlb_rasterize)(s->ctx, tri, bary + 2 * P * v, s->depth + P * v, NULL, clip, V, mesh->faces, F, S, S));
-        s->start[v] = (int32_t)total;
-        for (size_t i = 0; i < P; i++) total += tri[i] >= 0;
+        int32_t c = 0;
+        for (size_t i = 0; i < P; i++) c += tri[i] >= 0;
+        counts[v] = c;
+    }
+    if (s->parted) MLB_TRY(mlb_dist_allgather_batches(counts + s->v0, counts, n, s->batch, sizeof(int32_t)));
+    size_t total = 0;
+    for (int v = 0; v < n; v++) {
+        total += (size_t)counts[v];
         if (total > (size_t)INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%zu)", total);
     }
-    s->start[n] = (int32_t)total;
+    for (int v = 0; v < n; v++) s->start[v + 1] += s->start[v];
     int N = (int)total;
     size_t NN = total ? total : 1;
     s->where = abuf_get(&s->b[B_WHERE], sizeof(int32_t) * NN);
@@ -253,7 +303,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory (%d samples)", N);
 
     // surface points, normals and view directions of every covered sample, view-major
-    for (int v = 0; v < n; v++) {
+    for (int v = s->v0; v < s->v1; v++) {
         const int32_t* tri = s->tri + P * v;
         MLB_TRY(FN(mlb_interpolate)(pix, attr, V, ATTR_C, tri, bary + 2 * P * v, mesh->faces, F, S, S));
         int j = s->start[v];
@@ -265,8 +315,9 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         }
     }
     s->n_points = N;
+    if (s->parted) MLB_TRY(FN(gather_points)(s, s->pts, 3));
 
-    // the material of every sample in one batch
+    // the material of every sample in one batch (every view's, on every rank)
     if (N > 0) {
         if (keep_for_backward) MLB_TRY(FN(material_net_forward)(net, k, NULL, s->pts, N));
         else MLB_TRY(FN(material_net_eval)(net, s->pts, (size_t)N, k, NULL));
@@ -282,7 +333,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // shade; then sRGB, composite, antialias, downsample: per view
     MLB_TRY(FN(shade_views)(s, net, lights, views, a->fresnel));
     size_t p = (size_t)res * res;
-    for (int v = 0; v < n; v++) {
+    if (s->parted) memset(images, 0, sizeof(real) * 4 * p * nv);
+    for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         real* color = s->color + 4 * P * v;
         memset(color, 0, sizeof(real) * 4 * P);
@@ -323,7 +375,8 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
     memset(dkd, 0, sizeof(real) * 3 * NN);
     memset(dks, 0, sizeof(real) * 3 * NN);
     memset(dkr, 0, sizeof(real) * NN);
-    for (int v = 0; v < n; v++) {
+    (void)n;
+    for (int v = s->v0; v < s->v1; v++) {
         const real* dout = dimages + 4 * p * v;
         if (s->ss > 1) {
             memset(daa, 0, sizeof(real) * 4 * P);
@@ -340,13 +393,16 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
                 drgb[3 * (size_t)j + c] = dcolor[4 * (size_t)s->where[j] + c] * FN(srgb_clamped_d)(s->rgb[3 * (size_t)j + c]);
     }
     MLB_TRY(FN(shade_views_backward)(s, net, dkd, dks, dkr, drgb, a->fresnel));
-    for (int i = 0; i < N; i++) {
+    for (int i = s->start[s->v0]; i < s->start[s->v1]; i++) {
         for (int c = 0; c < 3; c++) {
             dk[7 * (size_t)i + c] = dkd[3 * (size_t)i + c];
             dk[7 * (size_t)i + 3 + c] = dks[3 * (size_t)i + c];
         }
         dk[7 * (size_t)i + 6] = dkr[i];
     }
+    // every view's material gradients to every rank: the network's backward over all points, the
+    // sums in point order, as on one process
+    if (s->parted) MLB_TRY(FN(gather_points)(s, dk, 7));
     return FN(material_net_backward)(net, dk, NULL);
 }
 

@@ -82,7 +82,9 @@ static mlb_status images_loss(mlb_guidance* g, mlb_stage stage, long step, const
         if (views[v].target < 0 || views[v].target >= d->n)
             return mlb_fail(MLB_ERR_ARG, "image guidance: view %d has target %d (the data set has %d)", v, views[v].target, d->n);
     size_t P = (size_t)H * W;
-    double norm = 1.0 / ((double)n * (double)P), total = 0;
+    // a part of a step (guidance.h) is normalised by the whole step's views
+    int n_step = g->part_total > 0 ? g->part_total : n;
+    double norm = 1.0 / ((double)n_step * (double)P), total = 0;
     double* rows = malloc(sizeof(double) * (size_t)H);   // per-row sums, added in order: thread-count independent
     if (!rows) return mlb_fail(MLB_ERR_NOMEM, "image guidance: out of memory");
     for (int v = 0; v < n; v++) {

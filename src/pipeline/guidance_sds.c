@@ -113,7 +113,7 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
     mlb_sds_weighting keep = opt->weighting;
     if (latent) opt->weighting = MLB_SDS_W_DREAMFUSION;   // Fantasia3D's latent phase
     if (dimages) memset(s->dx, 0, N * sizeof(float));
-    mlb_sds_input in = {s->x, n, C, h, w, vids, step, NULL, NULL};
+    mlb_sds_input in = {s->x, n, C, h, w, vids, step, NULL, NULL, g->part_first, g->part_total};
     float l = 0;
     mlb_status st = mlb_sds_step(sds, &in, dimages ? s->dx : NULL, &l, NULL);
     opt->weighting = keep;

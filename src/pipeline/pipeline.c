@@ -4,7 +4,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include "matlaber/brdf_ae.h"
+#include "matlaber/dist.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/envmap.h"
 #include "matlaber/fileio.h"
@@ -14,6 +16,7 @@
 #include "matlaber/obj.h"
 #include "matlaber/paint.h"
 #include "matlaber/pipeline.h"
+#include "matlaber/progress.h"
 #include "matlaber/run_textured.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
@@ -50,6 +53,40 @@ static mlb_status pipeline_state_load(const char* path, mlb_field* f, const char
     if (!s && k < 0) s = mlb_fail(MLB_ERR_FORMAT, "%s: negative step %lld", path, (long long)k);
     mlb_ckpt_meta_free(&meta);
     if (!s) f->step = (long)k;
+    return s;
+}
+
+// ---- several processes (dist.h) ------------------------------------------------------------------
+// Rank 0's parameters, moments and step to every rank.
+static mlb_status pipeline_field_bcast(mlb_field* f) {
+    if (mlb_dist_size() < 2) return MLB_OK;
+    size_t n = f->n_params * sizeof(float);
+    int64_t step = f->step;
+    mlb_status s = mlb_dist_bcast(f->params, n, 0);
+    if (!s) s = mlb_dist_bcast(f->adam_m, n, 0);
+    if (!s) s = mlb_dist_bcast(f->adam_v, n, 0);
+    if (!s) s = mlb_dist_bcast(&step, sizeof step, 0);
+    f->step = (long)step;
+    return s;
+}
+
+// Every rank computes the same step from the same numbers; on machines whose BLAS kernels round
+// differently the replicas would drift apart. At each checkpoint they compare a hash of their
+// parameters (8 bytes each) and stop the run if any differs.
+static mlb_status pipeline_check_replicas(const mlb_field* f, long it) {
+    int size = mlb_dist_size();
+    if (size < 2) return MLB_OK;
+    uint64_t h = 1469598103934665603ull;
+    const unsigned char* b = (const unsigned char*)f->params;
+    for (size_t i = 0; i < f->n_params * sizeof(float); i++) h = (h ^ b[i]) * 1099511628211ull;
+    uint64_t* all = malloc(sizeof(uint64_t) * (size_t)size);
+    if (!all) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
+    mlb_status s = mlb_dist_allgather_items(&h, all, size, sizeof(uint64_t));
+    for (int r = 1; !s && r < size; r++)
+        if (all[r] != all[0])
+            s = mlb_fail(MLB_ERR_NUMERIC, "step %ld: the parameters of rank %d differ from rank 0's (processes on CPUs whose "
+                                          "BLAS kernels round differently? run every rank on one kind of CPU)", it + 1, r);
+    free(all);
     return s;
 }
 
@@ -136,6 +173,42 @@ static double reg_weight(const mlb_pipeline_config* c, long it) {
 
 static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
 
+static int preview_at(const mlb_pipeline_config* c, long it) { return c->preview_every > 0 && (it + 1) % c->preview_every == 0; }
+
+// Several processes (dist.h): a step fails on every rank when it failed on one, so that none is
+// left waiting in a collective the others never reach.
+static mlb_status pipeline_agree(mlb_status s) {
+    if (mlb_dist_size() < 2) return s;
+    int any = mlb_dist_max_int(s != MLB_OK);
+    if (!s && any) s = mlb_fail(MLB_ERR_IO, "another process of this run failed (its message is above)");
+    return s;
+}
+
+// A stage's steps per second and what the processes spent in collectives (docs/benchmarks.md,
+// "Several processes"): a log line at the stage's end.
+typedef struct { double t0, cpu0; mlb_dist_stats d0; } stage_clock;
+static double cpu_seconds(void) { return (double)clock() / CLOCKS_PER_SEC; }   // this process, every thread
+static stage_clock stage_clock_start(void) { return (stage_clock){mlb_now_seconds(), cpu_seconds(), mlb_dist_stats_get()}; }
+static void stage_clock_report(const stage_clock* k, const char* stage, long steps) {
+    if (steps < 1) return;
+    double t = mlb_now_seconds() - k->t0;
+    mlb_dist_stats d = mlb_dist_stats_get();
+    // per process: the stages' own CPU time (outside the collectives) and the wall time inside them
+    double mine[2] = {(cpu_seconds() - k->cpu0 - (d.cpu_seconds - k->d0.cpu_seconds)) / steps,
+                      (d.seconds - k->d0.seconds) / steps};
+    double bytes = (double)(d.bytes - k->d0.bytes) / steps;
+    int size = mlb_dist_size();
+    double all[2 * 64];
+    double work_max = mine[0];
+    if (size > 1 && size <= 64 && mlb_dist_allgather_items(mine, all, size, sizeof mine) == MLB_OK)
+        for (int r = 0; r < size; r++) work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+    if (mlb_dist_rank() == 0)
+        mlb_log(MLB_LOG_INFO,
+                "%s stage: %ld steps in %.2f s (%.3f steps/s) on %d process%s: work %.3f CPU s per step (the busiest "
+                "process), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
+                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, 1e3 * mine[1], bytes);
+}
+
 // ---- what both stages share: their optimiser state, resume and the end of a step ----------------
 typedef struct {
     mlb_stage stage;
@@ -160,11 +233,17 @@ static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
 }
 
 // On resume with a checkpoint: loads it, *start = its step, *found = 1.
+// Several processes: rank 0 reads the checkpoint and sends it to the others (no shared file system
+// needed for the checkpoints; a run saved by N processes resumes on M).
 static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, int* found) {
     *start = 0;
-    *found = r->resume && mlb_is_file(ss->ckpt);
-    if (!*found) return MLB_OK;
-    mlb_status s = pipeline_state_load(ss->ckpt, ss->field, ss->name);
+    int head[2] = {r->resume && mlb_is_file(ss->ckpt), MLB_OK};
+    if (head[0] && mlb_dist_rank() == 0) head[1] = pipeline_state_load(ss->ckpt, ss->field, ss->name);
+    mlb_status s = mlb_dist_bcast(head, sizeof head, 0);
+    if (!s && head[1]) s = mlb_dist_rank() == 0 ? (mlb_status)head[1] : mlb_fail(MLB_ERR_IO, "rank 0 could not read %s", ss->ckpt);
+    *found = head[0];
+    if (s || !*found) return s;
+    s = pipeline_field_bcast(ss->field);
     if (s) return s;
     *start = ss->field->step;
     // the progress rate (and so the ETA) counts only the steps this invocation takes
@@ -178,7 +257,8 @@ static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, in
 static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, const double row[3], const float* images,
                                     int n_views, int* stop) {
     const mlb_pipeline_config* c = r->c;
-    mlb_status s = mlb_losslog_append(r->log, ss->stage, it, row);
+    const int writer = mlb_dist_rank() == 0;   // rank 0 writes the run folder; every rank keeps the same state
+    mlb_status s = writer ? mlb_losslog_append(r->log, ss->stage, it, row) : MLB_OK;
     if (ss->stage == MLB_STAGE_GEOMETRY) {
         r->result.geometry_loss = row[0];
         r->result.geometry_steps++;
@@ -186,12 +266,15 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
         r->result.appearance_loss = row[0];
         r->result.appearance_steps++;
     }
-    if (!s && c->preview_every > 0 && (it + 1) % c->preview_every == 0) s = pipeline_preview(r, ss->stage, it, images, n_views);
-    if (!s && ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters)) {
-        s = mlb_field_sync_host(ss->field);   // from the GPU (nothing to do on the host)
-        if (!s) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->name);
+    if (!s && writer && preview_at(c, it)) s = pipeline_preview(r, ss->stage, it, images, n_views);
+    if ((it + 1) % c->checkpoint_every == 0 || it + 1 == ss->iters) {
+        mlb_status hs = mlb_field_sync_host(ss->field);   // from the GPU (nothing to do on the host)
+        mlb_status rs = pipeline_check_replicas(ss->field, it);   // (a collective: every rank, whatever s)
+        if (!s) s = hs ? hs : rs;
+        if (!s && writer) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->name);
     }
-    pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
+    if (writer) pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
+    s = pipeline_agree(s);
     *stop = !s && pipeline_should_stop(r);
     return s;
 }
@@ -212,7 +295,8 @@ static mlb_status geometry_stage(pipeline_run* r) {
         memset(net->adam_m, 0, sizeof(float) * net->n_params);
         memset(net->adam_v, 0, sizeof(float) * net->n_params);
         net->step = 0;
-        s = pipeline_state_save(ss.ckpt, net, 0, ss.name);
+        s = mlb_dist_rank() == 0 ? pipeline_state_save(ss.ckpt, net, 0, ss.name) : MLB_OK;
+        s = pipeline_agree(s);
         if (s) return s;
     }
     r->geometry_start = start;
@@ -226,12 +310,14 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
+    stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
         net->active_levels = active_levels_at(c, net, it);
         s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
         mlb_geofit_stats stats;
         if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it),
-                                             &stats, images);
+                                             &stats, preview_at(c, it) ? images : NULL);
+        s = pipeline_agree(s);   // every rank fails together, or none does
         if (s) { s = mlb_fail_context(s, "geometry stage, step %ld", it); break; }
         geometry_net_update(net, &adam);
         double row[3] = {stats.img, stats.reg, stats.n_faces};
@@ -239,6 +325,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
+    stage_clock_report(&clock, "geometry", r->result.geometry_steps);
     net->active_levels = 0;   // the surface the appearance stage and the outputs use: every level
     mlb_geofit_state_free(&st);
     free(views);
@@ -275,6 +362,17 @@ static mlb_status appearance_stage(pipeline_run* r) {
         s = mlb_field_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
     }
+    // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
+    // guidance call each, the same calls on any number of processes
+    const int k = mlb_guidance_batch(r->g, n), nb = (n + k - 1) / k;
+    int v0 = 0, cnt = n;
+    mlb_dist_share_batches(n, k, &v0, &cnt);
+    app.part_first = v0;
+    app.part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
+    app.part_batch = k;
+    double* losses = calloc((size_t)nb, sizeof(double));   // one per batch
+    if (!losses && !s) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->appearance_iters; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
         if (!s) s = pipeline_fix_env(r, views, n);
@@ -284,23 +382,30 @@ static mlb_status appearance_stage(pipeline_run* r) {
         material_net_zero_grad(net);
         if (!s) s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
         double loss = 0, smooth = 0;
-        if (!s) {
-            memset(dimages, 0, sizeof(float) * img * (size_t)n);
-            s = r->g->loss(r->g, MLB_STAGE_APPEARANCE, it, views, n, images, c->res, c->res, dimages, &loss);
-        }
+        if (!s) memset(dimages, 0, sizeof(float) * img * (size_t)n);
+        if (!s)
+            s = mlb_guidance_loss_batches(r->g, MLB_STAGE_APPEARANCE, it, views, n, v0, cnt, images, c->res, c->res, dimages,
+                                          losses);
+        s = pipeline_agree(s);   // the gathers below need every rank
+        if (!s && app.part_count != 0) s = mlb_dist_allgather_items(losses + v0 / k, losses, nb, sizeof(double));
+        for (int b = 0; !s && b < nb; b++) loss += losses[b];   // in view order
         if (!s) s = mlb_appearance_backward(&app, net, dimages);
+        if (!s && app.part_count != 0 && preview_at(c, it))   // previews: every view's render
+            s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
         if (!s && (c->w_mat > 0 || c->w_mat_spec > 0)) {
             s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
             if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->w_mat_spec, c->seed, it,
                                                 1, &smooth);
         }
         if (!s) s = material_net_update(net, &adam);
+        s = pipeline_agree(s);
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
         double row[3] = {loss, smooth, r->scene.mesh.n_faces};
         int stop = 0;
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
+    stage_clock_report(&clock, "appearance", r->result.appearance_steps);
     mlb_appearance_free(&app);
     mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
     if (!s) s = left;
@@ -308,6 +413,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     free(images);
     free(dimages);
     free(pts);
+    free(losses);
     return s;
 }
 
@@ -364,43 +470,64 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     mlb_mesh input;
     memset(&input, 0, sizeof input);
     if (paint) {
-        s = paint_open(dir, &pc, resume, &input);
-        if (s) return s;
+        // every process loads the mesh (and finds the same frame: the load is deterministic), as each
+        // reads config.json and the model; a failure on one ends the run on all (no collective waits)
+        s = pipeline_agree(paint_open(dir, &pc, resume, &input));
+        if (s) {
+            mlb_mesh_free(&input);
+            return s;
+        }
     }
     pipeline_run r;
     memset(&r, 0, sizeof r);
     r.dir = dir;
     r.c = c;
     r.g = g;
+    g->view_batch = c->view_batch;   // the guidance's calls: micro-batches of the config's size
     r.views = views;
     r.resume = resume;
     r.progress = progress;
     char path[MLB_PIPELINE_PATH + 64];
-    if (resume) s = mlb_run_check_resume(dir);
-    else {
-        s = mlb_run_create(dir, c->overwrite);
+    // Several processes (dist.h): rank 0 alone creates and writes the run folder; the others hold
+    // the same networks and take the same steps
+    const int writer = mlb_dist_rank() == 0;
+    if (!writer) progress = r.progress = NULL;
+    if (writer) {
+        if (resume) s = mlb_run_check_resume(dir);
+        else {
+            s = mlb_run_create(dir, c->overwrite);
+            if (!s) {
+                pipeline_path(path, sizeof path, dir, "config.json");
+                s = mlb_pipeline_config_save(c, path);
+            }
+        }
+        const char* subdirs[] = {"checkpoints", "previews", "final", "input"};   // input: paint's mesh
+        for (int i = 0; !s && i < 3 + paint; i++) {
+            pipeline_path(path, sizeof path, dir, subdirs[i]);
+            s = mlb_mkdir_p(path);
+        }
+        if (!s && paint && !resume) {   // the run's own copy of the mesh, for resume and export
+            pipeline_path(path, sizeof path, dir, "input/mesh.obj");
+            s = mlb_paint_write_obj(path, &input);
+        }
+        // where a resumed run restarts: the loss log drops the rows after it
+        int resume_stage = -1;   // a fresh log
+        long resume_step = 0;
+        if (!s && resume) s = pipeline_resume_point(dir, &resume_stage, &resume_step);
         if (!s) {
-            pipeline_path(path, sizeof path, dir, "config.json");
-            s = mlb_pipeline_config_save(c, path);
+            pipeline_path(path, sizeof path, dir, "loss.csv");
+            s = mlb_losslog_open(&r.log, path, LOG_COLUMNS, 3, resume_stage, resume_step);
+        }
+        if (!s && mlb_dist_size() > 1) {
+            int n = g->n_views, k = mlb_guidance_batch(g, n), nb = (n + k - 1) / k, size = mlb_dist_size();
+            mlb_log(nb < size ? MLB_LOG_WARN : MLB_LOG_INFO,
+                    "%d processes: %d views per step in %d batch%s of up to %d (--view-batch), whole batches to each "
+                    "process%s", size, n, nb, nb == 1 ? "" : "es", k,
+                    nb < size ? ": some have none and only repeat the networks' part (a smaller --view-batch splits the views)"
+                              : "");
         }
     }
-    const char* subdirs[] = {"checkpoints", "previews", "final", "input"};
-    for (int i = 0; !s && i < 3 + paint; i++) {
-        pipeline_path(path, sizeof path, dir, subdirs[i]);
-        s = mlb_mkdir_p(path);
-    }
-    if (!s && paint && !resume) {
-        pipeline_path(path, sizeof path, dir, "input/mesh.obj");
-        s = mlb_paint_write_obj(path, &input);
-    }
-    // where a resumed run restarts: the loss log drops the rows after it
-    int resume_stage = -1;   // a fresh log
-    long resume_step = 0;
-    if (!s && resume) s = pipeline_resume_point(dir, &resume_stage, &resume_step);
-    if (!s) {
-        pipeline_path(path, sizeof path, dir, "loss.csv");
-        s = mlb_losslog_open(&r.log, path, LOG_COLUMNS, 3, resume_stage, resume_step);
-    }
+    s = pipeline_agree(s);
     mlb_geometry_config gc = mlb_geometry_default();
     gc.seed = c->seed + 1;
     if (c->hash_log2 > 0) gc.enc.table_size = 1u << c->hash_log2;
@@ -434,8 +561,8 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
         if (!s) s = appearance_stage(&r);
     }
     if (!s && geometry_done && !r.stopped) {
-        s = pipeline_write_final(&r);
-        if (!s && c->export_texture > 0) {   // the same as `matlaber export RUN_DIR -o final/asset.glb`
+        s = writer ? pipeline_write_final(&r) : MLB_OK;
+        if (!s && writer && c->export_texture > 0) {   // the same as `matlaber export RUN_DIR -o final/asset.glb`
             mlb_log(MLB_LOG_INFO, "writing %s/final/asset.glb (%d² textures)", dir, c->export_texture);
             pipeline_path(path, sizeof path, dir, "final/asset.glb");
             s = mlb_run_export_glb(dir, c->export_texture, path);
@@ -443,6 +570,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
                 s = mlb_fail_context(s, "writing %s (the run is complete; `matlaber export %s --texture-size N -o "
                                         "FILE.glb` retries with another size)", path, dir);
         }
+        s = pipeline_agree(s);   // the others wait for rank 0's final/
         if (!s) r.result.finished = 1;
     }
     if (progress && !s) mlb_progress_end(progress, r.result.finished ? "done" : "stopped");
@@ -457,7 +585,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     geometry_net_free(&r.geo);
     mlb_mesh_free(&input);
     if (r.log) mlb_losslog_close(r.log);
-    if (!s) {
+    if (!s && writer) {
         pipeline_path(path, sizeof path, dir, "loss.csv");
         char png[MLB_PIPELINE_PATH + 64];
         pipeline_path(png, sizeof png, dir, "loss.png");

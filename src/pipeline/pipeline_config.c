@@ -111,6 +111,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!strcmp(c->guidance, "sds") && !c->prompt[0]) bad = "score distillation needs a prompt (-p)";
     else if (!strcmp(c->guidance, "images") && !c->views_dir[0]) bad = "image guidance needs a views folder (--views)";
     else if (c->views < 1 || c->views > 64) bad = "views per step must be in 1..64";
+    else if (c->view_batch < 0 || c->view_batch > 64) bad = "view_batch must be 0 (all of a step's views in one call) or 1..64";
     else if (c->res < 16 || c->res > 2048 || c->res % 8) bad = "--res must be a multiple of 8 in 16..2048";
     else if (c->ss < 1 || c->ss > 4 || c->res * c->ss > 4096) bad = "supersampling must be 1..4 (res x ss <= 4096)";
     else if (c->geometry_iters < 0 || c->appearance_iters < 0) bad = "iteration counts must be >= 0";
@@ -180,6 +181,7 @@ static const field FIELDS[] = {
     FLD_OPT("latent_size", F_INT, latent_size, 0),                    // added 2026-11-27; before: 64
     FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // added 2026-11-27; before: 20
     FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // added 2026-11-27; before: 2^19
+    FLD_OPT("view_batch", F_INT, view_batch, 0),                      // added 2026-11-27; before: one call a step
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
     FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // added 2026-11-27; before: guidance_scale
     // paint runs only (written when paint_mesh is set; added 2026-11-27)

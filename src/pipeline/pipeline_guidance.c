@@ -23,7 +23,7 @@ static mlb_status owner_sample(mlb_guidance* g, mlb_stage stage, long step, mlb_
 static mlb_status owner_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n,
                              const float* images, int H, int W, float* dimages, double* loss) {
     sds_owner* o = g->impl;
-    return o->inner->loss(o->inner, stage, step, views, n, images, H, W, dimages, loss);
+    return mlb_guidance_loss_part(o->inner, stage, step, views, g->part_first, n, g->part_total, images, H, W, dimages, loss);
 }
 
 static void owner_destroy(mlb_guidance* g) {

@@ -42,6 +42,17 @@ int brdf_swatch_main(int argc, char** argv);
 int cmd_sd(int argc, char** argv);
 int sd_train_main(int argc, char** argv);
 int cmd_generate(int argc, char** argv);
+// Set by a command whose exit status every process agreed on (mpirun): main then ends normally
+// instead of aborting the other processes
+extern int cli_rc_agreed;
+// generate's option table: 1 when --name takes a value, 0 when not, -1 when generate has no such option
+int generate_option_arity(const char* name);
+// generate without progress bars or closing message (--prompts); GENERATE_STOPPED when the run
+// stopped at --stop-after
+#define GENERATE_STOPPED 3
+int generate_run_quiet(int argc, char** argv);
+// matlaber generate --prompts FILE -o DIR (cmd_prompts.c)
+int generate_prompts_main(int argc, char** argv);
 int cmd_fit(int argc, char** argv);
 int cmd_paint(int argc, char** argv);
 int cmd_relight_run(int argc, char** argv);

@@ -6,6 +6,7 @@
 #include <string.h>
 #include "cli.h"
 #include "matlaber/device.h"
+#include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/paint.h"
@@ -24,7 +25,11 @@ static const cli_option options[] = {
     {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
     {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
     {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
+    {"view-batch", 1, 'B', "K", "views per guidance call (default 0: all of a step's views in one call); under mpirun\n"
+                                "                           the batches go whole to the processes: any K gives the same bits on\n"
+                                "                           any number of processes, another K other bits (docs/pipeline.md)"},
     {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder or FILE.obj (default ellipsoid)"},
+    {"init-iters", 1, 'J', "N", "steps of the SDF initialisation to the --init shape (default 400; tiny and cpu presets 200)"},
     {"coarse-to-fine", 1, 'C', "F", "hash-grid levels unlocked from 4 to all over this fraction of the geometry steps (default 0.5; 0 = all at once)"},
     {"spec-smoothness", 1, 'K', "W", "material smoothness weight on ks and roughness (default 0.1; 0 = kd only, as the paper)"},
     {"geometry-iters", 1, 'G', "N", "geometry stage steps (generate 3000, fit 400)"},
@@ -40,7 +45,7 @@ static const cli_option options[] = {
     {"no-view-prompts", 0, 'W', NULL, "generate: one prompt for every view (default: \", front view\" etc. by the camera)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
-    {"appearance-guidance-scale", 1, 'B', "X", "generate, paint: the appearance stage's, when it differs (default: --guidance-scale's; the tiny preset 100)"},
+    {"appearance-guidance-scale", 1, 'E', "X", "generate, paint: the appearance stage's, when it differs (default: --guidance-scale's; the tiny preset 100)"},
     {"geometry-t-min", 1, 'U', "T", "generate: the geometry stage's smallest SDS timestep (default 20)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
     {"export-texture", 1, 'T', "N", "texture size of RUN_DIR/final/asset.glb, written at the end (generate 1024;\n"
@@ -53,7 +58,10 @@ static const cli_option options[] = {
     {"uv", 1, 'u', "keep|atlas", "paint: bake on the mesh's own UVs (keep, default; an atlas when it has none) or\n"
                                  "                           replace them with the project's atlas (atlas)"},
     {"asset", 1, 'a', "FILE", "paint: also write the result there (.glb, or .obj with .mtl and PNGs beside it)"},
-    {"out", 1, 'o', "RUN_DIR", "the run directory (must not exist or be empty)"},
+    {"out", 1, 'o', "RUN_DIR", "the run directory (must not exist or be empty); with --prompts the folder of the runs"},
+    {"prompts", 1, 'Z', "FILE", "generate: one prompt per line, one run folder each in -o DIR, handed to the processes\n"
+                                "                           as they free up (mpirun -n N); finished runs are skipped, stopped\n"
+                                "                           ones resumed; ends with a table and DIR/summary.json (docs/pipeline.md)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 
@@ -84,6 +92,17 @@ static int envs_from_views(mlb_pipeline_config* c) {
     mlb_views_meta_free(&m);
     return 0;
 }
+
+// --prompts (cmd_prompts.c) runs prompts through run_pipeline without progress bars or the closing
+// message (several processes would interleave them)
+static int g_batch;
+
+int generate_option_arity(const char* name) {
+    for (const cli_option* o = options; o->name; o++)
+        if (!strcmp(o->name, name)) return o->has_arg;
+    return -1;
+}
+
 
 // paint: --asset FILE, the finished run's asset written as .glb or OBJ + MTL (atomically; on failure
 // nothing is left).
@@ -168,8 +187,10 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             else c.views = (int)v;
             break;
         case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
+        case 'B': if (cli_parse_long(optarg, 0, 64, &v)) return cli_usage_error(command, "--view-batch: expected 0..64 (0: all views in one call)"); c.view_batch = (int)v; break;
         case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
-        case 'C': 
+        case 'J': if (cli_parse_long(optarg, 0, 1000000, &v)) return cli_usage_error(command, "--init-iters: expected >= 0"); c.init_iters = (int)v; break;
+        case 'C':
             if (cli_parse_double(optarg, 0, 1, &c.coarse_to_fine)) return cli_usage_error(command, "--coarse-to-fine: expected a fraction in [0, 1]");
             break;
         case 'K':
@@ -194,7 +215,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             c.guidance_scale = x;
             if (is_paint && !appearance_scale_given) c.appearance_guidance_scale = 0;   // paint's one stage: this scale, not the preset's
             break;
-        case 'B': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
+        case 'E': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
         case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;
@@ -214,6 +235,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
                 return cli_usage_error(command, "--asset %s: the name must end in .glb or .obj", optarg);
             asset = optarg;
             break;
+        case 'Z': return cli_usage_error(command, "--prompts is an option of generate");
         case 'h':
             if (is_paint)
                 printf("usage: matlaber paint --mesh FILE.obj|.glb|.gltf -p PROMPT [-m MODEL] -o RUN_DIR [--asset FILE.glb] [options]\n"
@@ -235,11 +257,17 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
                        "loss.csv + loss.png, previews/, checkpoints/ (docs/pipeline.md, docs/runs.md).\n\n");
             else
                 printf("usage: matlaber generate -p PROMPT -m MODEL -o RUN_DIR [options]\n"
-                       "       matlaber generate --resume RUN_DIR\n\n"
+                       "       matlaber generate --resume RUN_DIR\n"
+                       "       matlaber generate --prompts FILE -o DIR [options]\n"
+                       "       mpirun -n N matlaber generate ...   (srun -n N under Slurm)\n\n"
                        "Text to 3D with materials (the paper): DMTet geometry by score distillation on normal maps, then\n"
                        "a hash-grid material network predicting latent BRDF codes, decoded by the frozen BRDF prior and\n"
                        "shaded under rotating environments, again by score distillation. Defaults are the paper's\n"
-                       "(docs/pipeline.md); on a CPU use --preset cpu. Ends with RUN_DIR/final/asset.glb.\n\n");
+                       "(docs/pipeline.md); on a CPU use --preset cpu. Ends with RUN_DIR/final/asset.glb.\n\n"
+                       "Under mpirun the N processes share one run: each renders and guides its share of every step's\n"
+                       "views, and the result is bitwise the one process's (a run resumes on any number). With --prompts\n"
+                       "each process takes the next prompt when it is free. FILE: a prompt per line, optionally after\n"
+                       "options of this command (\"--seed 3 --name goblet3 a gold goblet\"); # starts a comment.\n\n");
             cli_print_options(stdout, options);
             return 0;
         default: return cli_usage_error(command, "unknown option");
@@ -294,11 +322,13 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
     s = mlb_pipeline_run(dir, &c, g, views, resume != NULL,
-                         mlb_log_get_level() <= MLB_LOG_INFO || mlb_progress_json() ? &progress : NULL, &result);
+                         !g_batch && (mlb_log_get_level() <= MLB_LOG_INFO || mlb_progress_json()) ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);
     if (s) return cli_fail(s, command);
     double seconds = mlb_now_seconds() - t0;
+    if (g_batch) return result.finished ? 0 : GENERATE_STOPPED;
+    if (mlb_dist_rank() > 0) return 0;   // rank 0 reports (and writes --asset) for every process of the run
     if (result.finished && asset) {
         int rc = write_asset(dir, c.export_texture > 0 ? c.export_texture : 1024, asset);
         if (rc) return rc;
@@ -337,6 +367,17 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     return 0;
 }
 
-int cmd_generate(int argc, char** argv) { return run_pipeline("generate", argc, argv, MODE_GENERATE); }
+int generate_run_quiet(int argc, char** argv) {
+    g_batch = 1;
+    int rc = run_pipeline("generate", argc, argv, MODE_GENERATE);
+    g_batch = 0;
+    return rc;
+}
+
+int cmd_generate(int argc, char** argv) {
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--prompts") || !strncmp(argv[i], "--prompts=", 10)) return generate_prompts_main(argc, argv);
+    return run_pipeline("generate", argc, argv, MODE_GENERATE);
+}
 int cmd_fit(int argc, char** argv) { return run_pipeline("fit", argc, argv, MODE_FIT); }
 int cmd_paint(int argc, char** argv) { return run_pipeline("paint", argc, argv, MODE_PAINT); }

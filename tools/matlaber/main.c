@@ -7,6 +7,7 @@
 #include <unistd.h>
 #include "cli.h"
 #include "matlaber/device.h"
+#include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
@@ -69,9 +70,26 @@ static void usage(FILE* out) {
 // the cores OpenBLAS's own GEMM threads needed (the VAE ran 8-35x slower on 2 cores; docs/vae.md);
 // GEMMs now run on OpenMP threads (mlb_gemm) and no longer care (docs/benchmarks.md), but passive
 // still leaves idle cores to other processes.
+static int run_command(int argc, char** argv);
+int cli_rc_agreed;
+
+// Under mpirun / srun every process runs the same command (docs/pipeline.md, "Many processes"):
+// MPI starts before the command and ends after it; a failure on one rank ends them all.
 int main(int argc, char** argv) {
     mlb_runtime_restart(argv);
     mlb_log_set_sink(mlb_log_file_sink, stderr);
+    if (mlb_dist_init(&argc, &argv) != MLB_OK) return cli_fail(MLB_ERR_UNSUPPORTED, "matlaber");
+    int rc = run_command(argc, argv);
+    if (rc != 0 && mlb_dist_world_size() > 1 && !cli_rc_agreed) {
+        fflush(stdout);
+        fflush(stderr);
+        mlb_dist_abort(rc);
+    }
+    mlb_dist_finalize();
+    return rc;
+}
+
+static int run_command(int argc, char** argv) {
     int i = 1, device_given = 0;
     // global options before the command
     while (i < argc && strncmp(argv[i], "--", 2) == 0) {
@@ -108,6 +126,8 @@ int main(int argc, char** argv) {
         i += 2;
     }
     if (i >= argc) { usage(stderr); return EXIT_USAGE; }
+    // ranks other than 0 say only what goes wrong (rank 0 reports for the run)
+    if (mlb_dist_world_rank() > 0 && mlb_log_get_level() < MLB_LOG_WARN) mlb_log_set_level(MLB_LOG_WARN);
     if (!device_given) {
         mlb_device d;
         mlb_status s = mlb_device_option(NULL, &d);   // $MATLABER_DEVICE, else auto

@@ -81,6 +81,20 @@ if [ -d "$R" ]; then
   for stage in 0 1; do   # loss.csv's stage column: 0 geometry, 1 appearance
     grep -q "^$stage," "$T/p/loss.csv" && ok "preset run: stage $stage steps in loss.csv" || bad "preset run: no stage $stage steps"
   done
+  # a single-file checkpoint carries no tokenizer: the error names both ways of giving one, either
+  # works, and the run's config keeps --tokenizer so that its resume finds it again
+  F="$D/sd_reference/sd1_tiny.safetensors"
+  expect 1 "generate from a single file without a tokenizer" -- env -u MATLABER_TOKENIZER $Q generate -p x -m "$F" \
+    --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s0"
+  err_has "names --tokenizer" "--tokenizer PATH or \$MATLABER_TOKENIZER"
+  expect 0 "generate from a single file, --tokenizer, stopped after a step" -- env -u MATLABER_TOKENIZER $Q generate \
+    -p "a golden goblet" -m "$F" --tokenizer "$R/tokenizer" --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 \
+    --views 1 --checkpoint-every 1 --stop-after 1 -o "$T/s1"
+  grep -q '"tokenizer":[[:space:]]*"[^"]*tokenizer"' "$T/s1/config.json" && ok "config keeps --tokenizer" || bad "config lacks the tokenizer"
+  expect 0 "resume the single-file run" -- env -u MATLABER_TOKENIZER $Q generate --resume "$T/s1"
+  [ -s "$T/s1/final/mesh.obj" ] && ok "single-file run finished" || bad "single-file run: no asset"
+  expect 0 "generate from a single file, \$MATLABER_TOKENIZER" -- env MATLABER_TOKENIZER="$R/tokenizer" $Q generate \
+    -p "a golden goblet" -m "$F" --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s2"
 else
   echo "skip: no shared sd_reference fixture for generate"
 fi

@@ -97,9 +97,11 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
         char tp[4200];
         const char* tpath = opt.tokenizer_path;
         if (!tpath && folder) { snprintf(tp, sizeof tp, "%s/tokenizer", path); tpath = tp; }
+        const char* env = getenv("MATLABER_TOKENIZER");   // a single file carries no tokenizer
+        if (!tpath && env && env[0]) tpath = env;
         if (!tpath) {
-            s = mlb_fail(MLB_ERR_ARG, "%s is a single file: the CLIP tokenizer path is needed (--tokenizer: the merges "
-                                      ".gz, a tokenizer/ folder or a diffusers model folder)", path);
+            s = mlb_fail(MLB_ERR_ARG, "%s is a single file: the CLIP tokenizer is needed (--tokenizer PATH or "
+                                      "$MATLABER_TOKENIZER: the merges .gz, a tokenizer/ folder or a diffusers model folder)", path);
             goto fail;
         }
         if ((s = mlb_tokenizer_load(tpath, &m->tokenizer)) != MLB_OK) { mlb_fail_context(s, "loading the tokenizer"); goto fail; }

@@ -184,6 +184,7 @@ static const field FIELDS[] = {
     FLD_OPT("view_batch", F_INT, view_batch, 0),                      // added 2026-11-27; before: one call a step
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
     FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // added 2026-11-27; before: guidance_scale
+    FLD_OPT("tokenizer", F_STR, tokenizer, 0),                        // added 2026-11-27; before: none (folders only)
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

@@ -37,6 +37,7 @@ static void owner_destroy(mlb_guidance* g) {
 static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     mlb_sd_model* model = NULL;
     mlb_sd_model_options mo = mlb_sd_model_default_options();
+    if (c->tokenizer[0]) mo.tokenizer_path = c->tokenizer;
     mlb_log(MLB_LOG_INFO, "loading %s", c->model);
     mlb_status s = mlb_sd_model_load(c->model, &mo, &model);
     if (s) return s;

@@ -45,6 +45,8 @@ static const cli_option options[] = {
     {"no-view-prompts", 0, 'W', NULL, "generate: one prompt for every view (default: \", front view\" etc. by the camera)"},
     {"material", 1, 'M', "latent|direct", "material network output: the prior's latent (default) or the 7-d BRDF"},
     {"guidance-scale", 1, 'S', "X", "generate: classifier-free guidance scale (100)"},
+    {"tokenizer", 1, 'k', "PATH", "generate, paint: the CLIP tokenizer of a single-file checkpoint (the merges .gz, a tokenizer/\n"
+                                  "                           folder or a diffusers folder; default $MATLABER_TOKENIZER; a diffusers model has its own)"},
     {"appearance-guidance-scale", 1, 'E', "X", "generate, paint: the appearance stage's, when it differs (default: --guidance-scale's; the tiny preset 100)"},
     {"geometry-t-min", 1, 'U', "T", "generate: the geometry stage's smallest SDS timestep (default 20)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
@@ -214,6 +216,10 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000");
             c.guidance_scale = x;
             if (is_paint && !appearance_scale_given) c.appearance_guidance_scale = 0;   // paint's one stage: this scale, not the preset's
+            break;
+        case 'k':
+            if (strlen(optarg) >= sizeof c.tokenizer) return cli_usage_error(command, "--tokenizer: path too long");
+            snprintf(c.tokenizer, sizeof c.tokenizer, "%s", optarg);
             break;
         case 'E': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;

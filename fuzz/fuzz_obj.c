@@ -5,7 +5,7 @@
 // unit length, bounds ordered, the unit-sphere fit inside radius 1. A broken promise aborts.
 //
 // Build and run (clang with libFuzzer, as scripts/fuzz.sh does for the safetensors target):
-//   srcs="src/io/obj.c src/geometry/mesh.c src/core/error.c src/core/fileio.c"
+//   srcs="src/io/obj.c src/mesh/mesh.c src/core/error.c src/core/fileio.c"
 //   flags="-std=c11 -D_GNU_SOURCE -g -O1 -Iinclude -fno-omit-frame-pointer"
 //   san="-fsanitize=address,undefined -fno-sanitize-recover=all"
 //   clang $flags $san -fsanitize=fuzzer fuzz/fuzz_obj.c $srcs -lm -o fuzz_obj

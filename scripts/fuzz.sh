@@ -23,9 +23,9 @@ done
 if [ -z "$cc" ]; then echo "fuzz.sh: clang not found (apt-get install clang-14 libclang-rt-14-dev)" >&2; exit 1; fi
 
 if [ "$target" = obj ]; then
-  srcs="src/io/obj.c src/geometry/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
+  srcs="src/io/obj.c src/mesh/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
 elif [ "$target" = gltf ]; then   # the exporter too, for the seeder's .glb
-  srcs="src/io/gltf_read.c src/export/gltf.c src/geometry/mesh.c src/geometry/primitives.c src/core/error.c src/core/fileio.c"
+  srcs="src/io/gltf_read.c src/export/gltf.c src/mesh/mesh.c src/mesh/primitives.c src/core/error.c src/core/fileio.c"
   libs="-lcjson -lpng -lm"
 else
   srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"; libs="-lcjson -lm"

@@ -12,7 +12,8 @@
 #include "matlaber/transformer_ops.h"
 
 // How an output is bounded; the numbers are in test_backend_ops.c's header.
-typedef enum { B_EXACT, B_ELEM, B_SUMS, B_SHADE, B_SHADE_GRAD, B_GEMM, B_GEMM3 } bound_class;
+// B_BITS: an int32 buffer (face ids), compared bit for bit on every table.
+typedef enum { B_EXACT, B_ELEM, B_SUMS, B_SHADE, B_SHADE_GRAD, B_GEMM, B_GEMM3, B_BITS } bound_class;
 // IN: read. OUT: written (NaN before, so a value not written shows). ACC: accumulated (+=; random
 // before, the increments are compared). NUL: passed as NULL (an optional output or input).
 typedef enum { IN, OUT, ACC, NUL } role;

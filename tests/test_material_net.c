@@ -283,7 +283,7 @@ TEST(save_load) {
     brdf_ae_free(&prior);
 }
 
-// The device path (src/nn/field_device.c: one batch, no shards, written against an op table) run
+// The device path (src/field/field_device.c: one batch, no shards, written against an op table) run
 // with the CPU's table agrees with the host path; test_cuda_material runs it with CUDA's.
 TEST(device_twin_on_cpu_table) {
     field_twin_check(mlb_backend_cpu(), MLB_FIELD_MATERIAL, MLB_MATERIAL_LATENT, 3000, 1e-5);

@@ -6,7 +6,7 @@
 // stream (the data stays on the GPU): mlb_cuda_sync() waits and reports an execution error;
 // MLB_CUDA_SYNC=1 in the environment synchronises after every launch (debugging).
 // A build without the CUDA part has the same functions, each failing with "built without CUDA"
-// (src/core/device.c), so callers need no #ifdef. docs/cuda.md: what is parity-tested where.
+// (src/nn/no_cuda.c), so callers need no #ifdef. docs/cuda.md: what is parity-tested where.
 #ifndef MATLABER_CUDA_OPS_H
 #define MATLABER_CUDA_OPS_H
 #include <stddef.h>
@@ -20,9 +20,7 @@
 #include "matlaber/shade.h"
 
 // ---- context ----
-// Makes GPU `index` current and creates its context (cudaSetDevice + cudaFree(0)): the first
-// call that can fail on a machine without a driver, so its error is the CUDA error string.
-mlb_status mlb_cuda_init(int index);
+// mlb_cuda_init: device.h (device selection calls it)
 mlb_status mlb_cuda_sync(void);                  // cudaDeviceSynchronize, checked
 mlb_status mlb_cuda_memset(void* dst, int value, size_t bytes);
 mlb_status mlb_cuda_copy_d2d(void* dst, const void* src, size_t bytes);

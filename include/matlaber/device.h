@@ -5,7 +5,6 @@
 #define MATLABER_DEVICE_H
 #include <stddef.h>
 #include "matlaber/error.h"
-#include "matlaber/nn.h"
 
 typedef enum { MLB_DEVICE_CPU = 0, MLB_DEVICE_CUDA = 1 } mlb_device;
 
@@ -56,6 +55,10 @@ const char* mlb_device_name(mlb_device d);   // "cpu" / "cuda"
 // given, which means $MATLABER_DEVICE if set, else "auto". Selects as mlb_device_select does.
 mlb_status mlb_device_option(const char* arg, mlb_device* out);
 #define MLB_DEVICE_OPTION_HELP "  --device D      cpu, cuda, cuda:N or auto (default: $MATLABER_DEVICE, else auto = cuda when a GPU is present)\n"
+
+// Makes GPU `index` current and creates its context (cudaSetDevice + cudaFree(0)): the first
+// call that can fail on a machine without a driver, so its error is the CUDA error string.
+mlb_status mlb_cuda_init(int index);
 
 // Host <-> device helpers for tests and tools.
 mlb_status mlb_cuda_malloc(void** ptr, size_t bytes);

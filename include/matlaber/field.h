@@ -11,7 +11,7 @@
 // thread count. Coarse to fine: levels >= active_levels give zero features and get no gradient.
 //
 // Exists as float (plain names) and double (name_f64, for the finite-difference tests). A float
-// field can run on another device (field_use_device, src/nn/field_device.c).
+// field can run on another device (field_use_device, src/field/field_device.c).
 #ifndef MATLABER_FIELD_H
 #define MATLABER_FIELD_H
 #include <stddef.h>
@@ -84,7 +84,7 @@ MLB_FIELD_DECLARE(double, MLB_FIELD_F64)
 #undef MLB_FIELD_F32
 #undef MLB_FIELD_F64
 
-// ---- on a device (float fields; src/nn/field_device.c) ----
+// ---- on a device (float fields; src/field/field_device.c) ----
 // Moves the trained parameters, their gradients, the Adam moments and the frozen decoder to the
 // device of `be` (backend.h), where field_forward/backward/zero_grad/update then run, the hash grid
 // and the MLPs over the whole batch (no shards). Points and outputs still cross as host arrays.
@@ -97,7 +97,7 @@ mlb_status mlb_field_sync_host(mlb_field* f);        // params, grads, adam_m, a
 mlb_status mlb_field_leave_device(mlb_field* f);     // syncs and frees the device copy
 const mlb_backend* mlb_field_backend(const mlb_field* f);   // NULL for a field on the host
 
-// ---- files (float fields; src/nn/field_io.c) ----
+// ---- files (float fields; src/field/field_io.c) ----
 // Tensors "encoding.table" [entries, F], "mlp.N.weight" [out, in] (and "mlp.N.bias" with biases),
 // "decoder.N.weight"/".bias" (latent mode) and, with_optimizer, "adam.m", "adam.v"; the config in
 // metadata under `prefix` ("geometry" or "material": prefix.levels, .features, .table_size,

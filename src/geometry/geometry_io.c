@@ -23,7 +23,7 @@ mlb_adam_config mlb_geometry_adam(double lr) {
     return a;
 }
 
-// ---- files: the field format (src/nn/field_io.c) under the prefix "geometry" ---------------------
+// ---- files: the field format (src/field/field_io.c) under the prefix "geometry" ---------------------
 
 mlb_status mlb_geometry_save(const mlb_geometry_net* net, const char* path, const mlb_st_meta* extra, size_t n_extra) {
     return mlb_field_save(net, path, 0, extra, n_extra);

@@ -1,4 +1,4 @@
-// The geometry network: a field (src/nn/field.c) whose 4 outputs are the SDF and a deformation
+// The geometry network: a field (src/field/field.c) whose 4 outputs are the SDF and a deformation
 // (include/matlaber/geometry.h, docs/geometry_init.md). Dual-compiled (float / double _f64), see
 // core/real.h.
 #include <stdlib.h>

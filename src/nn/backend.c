@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
 
 // ---- CPU -----------------------------------------------------------------------------------------
@@ -254,6 +255,37 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
                                                   const mlb_conv2d* cv) {
     (void)be; (void)din; (void)dw; (void)db; (void)dout; (void)in; (void)w; (void)cv;
     return no_backward_stored();
+}
+
+// The rasterizer's ops: raster.h's functions with a scratch context of their own per call.
+static mlb_status cpu_rasterize(int32_t* tri, float* bary, float* depth, const float* clip, int V, const int32_t* faces,
+                                int F, int H, int W) {
+    return mlb_rasterize(NULL, tri, bary, depth, NULL, clip, V, faces, F, H, W);
+}
+static mlb_status cpu_rasterize_backward(float* dclip, const float* dbary, const float* ddepth, const int32_t* tri,
+                                         const float* clip, int V, const int32_t* faces, int F, int H, int W) {
+    return mlb_rasterize_backward(NULL, dclip, dbary, ddepth, tri, clip, V, faces, F, H, W);
+}
+static mlb_status cpu_interpolate(float* out, const float* attr, int V, int C, const int32_t* tri, const float* bary,
+                                  const int32_t* faces, int F, int H, int W) {
+    return mlb_interpolate(out, attr, V, C, tri, bary, faces, F, H, W);
+}
+static mlb_status cpu_interpolate_backward(float* dattr, float* dbary, const float* dout, const float* attr, int V,
+                                           int C, const int32_t* tri, const float* bary, const int32_t* faces, int F,
+                                           int H, int W) {
+    return mlb_interpolate_backward(NULL, dattr, dbary, dout, attr, V, C, tri, bary, faces, F, H, W);
+}
+static mlb_status cpu_antialias(float* out, float* weights, const float* color, int C, const int32_t* tri,
+                                const float* depth, const float* clip, int V, const int32_t* faces, const int32_t* adj,
+                                int F, int H, int W) {
+    return mlb_antialias(NULL, out, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W);
+}
+static mlb_status cpu_antialias_backward(float* dcolor, float* dclip, const float* dout, const float* weights,
+                                         const float* color, int C, const int32_t* tri, const float* depth,
+                                         const float* clip, int V, const int32_t* faces, const int32_t* adj, int F,
+                                         int H, int W) {
+    return mlb_antialias_backward(NULL, dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces, adj, F,
+                                  H, W);
 }
 
 // The stored-weights table's attention is the bf16 table's (no weights in it).

@@ -1,4 +1,4 @@
-// The material network: a field (src/nn/field.c) whose outputs are k = (kd, ks, kr), through the
+// The material network: a field (src/field/field.c) whose outputs are k = (kd, ks, kr), through the
 // BRDF prior's frozen decoder (latent mode) or directly (include/matlaber/material_net.h,
 // docs/appearance.md). Dual-compiled (float / double _f64), see core/real.h.
 #include "matlaber/material_net.h"

@@ -47,7 +47,7 @@ mlb_status mlb_material_decode(const mlb_material_net* net, const float* z, size
     return material_net_decode(net, z, n, k);
 }
 
-// ---- files: the field format (src/nn/field_io.c) under the prefix "material" ----------------------
+// ---- files: the field format (src/field/field_io.c) under the prefix "material" ----------------------
 
 mlb_status mlb_material_save(const mlb_material_net* net, const char* path, int with_optimizer) {
     return mlb_field_save(net, path, with_optimizer, NULL, 0);

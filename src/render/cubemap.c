@@ -19,10 +19,12 @@
 #include <omp.h>
 #include <stdlib.h>
 #include <string.h>
+#include "render/shade_math.h"
 
 #define PI 3.14159265358979323846
 
-// Face f: major axis MA (sign SG), fx along axis IU (sign SU), fy along axis IV (sign SV).
+// Face f: major axis MA (sign SG), fx along axis IU (sign SU), fy along axis IV (sign SV). The build
+// side reads them here; the lookups use their closed forms in render/shade_math.h (shared with the GPU).
 static const int MA[6] = {0, 0, 1, 1, 2, 2};
 static const double SG[6] = {1, -1, 1, -1, 1, -1};
 static const int IU[6] = {2, 2, 0, 0, 0, 0};
@@ -65,15 +67,8 @@ static double texel_weight(int x, int y, int n, int exact_sa) {
     return exact_sa ? mlb_cube_texel_solid_angle_exact(x, y, n) : mlb_cube_texel_solid_angle(x, y, n);
 }
 
-static int dir_face(const double d[3]) {
-    double ax = fabs(d[0]), ay = fabs(d[1]), az = fabs(d[2]);
-    if (ax >= ay && ax >= az) return d[0] >= 0 ? 0 : 1;
-    if (ay >= az) return d[1] >= 0 ? 2 : 3;
-    return d[2] >= 0 ? 4 : 5;
-}
-
 void mlb_cube_dir_to_texel(const double dir[3], int n, int* face, double* x, double* y) {
-    int f = dir_face(dir);
+    int f = sm_dir_face(dir);
     double m = fabs(dir[MA[f]]);
     if (m == 0) m = 1;
     *face = f;
@@ -81,71 +76,9 @@ void mlb_cube_dir_to_texel(const double dir[3], int n, int* face, double* x, dou
     *y = (SV[f] * dir[IV[f]] / m + 1) * 0.5 * n - 0.5;
 }
 
-static const float* texel(const float* cube, int n, int f, int x, int y) {
-    return cube + (((size_t)f * n + y) * n + x) * 3;
-}
-
-static int clampi(int v, int lo, int hi) { return v < lo ? lo : v > hi ? hi : v; }
-
-// (x, y) with exactly one coordinate one step outside [0, n): the texel across that edge. The
-// point where the texel row meets the cube edge is projected onto the neighbouring face; the
-// edge texel there has the same position along the edge (the grids of two faces agree on it).
-static const float* texel_across(const float* cube, int n, int f, int x, int y) {
-    int out_x = x < 0 || x >= n;
-    double fx = out_x ? (x < 0 ? -1.0 : 1.0) : 2 * (x + 0.5) / n - 1;
-    double fy = out_x ? 2 * (y + 0.5) / n - 1 : (y < 0 ? -1.0 : 1.0);
-    double p[3];
-    face_point(f, fx, fy, p);
-    int ax = out_x ? IU[f] : IV[f];
-    int g = 2 * ax + (p[ax] < 0);
-    int tx = (int)floor((SU[g] * p[IU[g]] + 1) * 0.5 * n), ty = (int)floor((SV[g] * p[IV[g]] + 1) * 0.5 * n);
-    return texel(cube, n, g, clampi(tx, 0, n - 1), clampi(ty, 0, n - 1));
-}
-
-static const float* fetch(const float* cube, int n, int f, int x, int y, float corner[3]) {
-    int ix = x >= 0 && x < n, iy = y >= 0 && y < n;
-    if (ix && iy) return texel(cube, n, f, x, y);
-    if (ix || iy) return texel_across(cube, n, f, x, y);
-    int cx = clampi(x, 0, n - 1), cy = clampi(y, 0, n - 1);   // a cube corner: mean of the three texels there
-    const float* a = texel(cube, n, f, cx, cy);
-    const float* b = texel_across(cube, n, f, x, cy);
-    const float* c = texel_across(cube, n, f, cx, y);
-    for (int k = 0; k < 3; k++) corner[k] = (a[k] + b[k] + c[k]) / 3.0f;
-    return corner;
-}
-
+// The seamless lookup is the shading maths' (render/shade_math.h), shared with the GPU.
 void mlb_cube_sample(const float* cube, int n, const double d[3], double rgb[3], double jac[3][3]) {
-    int f = dir_face(d);
-    double m = fabs(d[MA[f]]);
-    double fx = SU[f] * d[IU[f]] / m, fy = SV[f] * d[IV[f]] / m;
-    if (!(m > 0) || !(fabs(fx) <= 1) || !(fabs(fy) <= 1)) {   // the zero vector, NaN or Inf
-        rgb[0] = rgb[1] = rgb[2] = 0;
-        if (jac) memset(jac, 0, 9 * sizeof(double));
-        return;
-    }
-    double px = (fx + 1) * 0.5 * n - 0.5, py = (fy + 1) * 0.5 * n - 0.5;
-    double x0f = floor(px), y0f = floor(py), tx = px - x0f, ty = py - y0f;
-    int x0 = (int)x0f, y0 = (int)y0f;
-    float cb[4][3];
-    const float* t00 = fetch(cube, n, f, x0, y0, cb[0]);
-    const float* t01 = fetch(cube, n, f, x0 + 1, y0, cb[1]);
-    const float* t10 = fetch(cube, n, f, x0, y0 + 1, cb[2]);
-    const float* t11 = fetch(cube, n, f, x0 + 1, y0 + 1, cb[3]);
-    for (int c = 0; c < 3; c++)
-        rgb[c] = (1 - ty) * ((1 - tx) * t00[c] + tx * t01[c]) + ty * ((1 - tx) * t10[c] + tx * t11[c]);
-    if (!jac) return;
-    // d px / d dir: px = (SU d[IU] / |d[MA]| + 1) n/2 - 1/2
-    double h = 0.5 * n, sg = d[MA[f]] >= 0 ? 1 : -1;
-    double dpx[3] = {0, 0, 0}, dpy[3] = {0, 0, 0};
-    dpx[IU[f]] = h * SU[f] / m;
-    dpx[MA[f]] = -h * fx * sg / m;
-    dpy[IV[f]] = h * SV[f] / m;
-    dpy[MA[f]] = -h * fy * sg / m;
-    for (int c = 0; c < 3; c++) {
-        double gx = (1 - ty) * (t01[c] - t00[c]) + ty * (t11[c] - t10[c]);
-        double gy = (1 - tx) * (t10[c] - t00[c]) + tx * (t11[c] - t01[c]);
-        for (int k = 0; k < 3; k++) jac[c][k] = gx * dpx[k] + gy * dpy[k];
-    }
+    sm_cube_sample(cube, n, d, rgb, jac);
 }
 
 // ---------------------------------------------------------------- building
@@ -186,8 +119,8 @@ static void pool2x2(float* dst, const float* src, int n) {   // src n x n faces 
         for (int x = 0; x < m; x++)
             for (int c = 0; c < 3; c++)
                 dst[(((size_t)f * m + y) * m + x) * 3 + c] =
-                    0.25f * (texel(src, n, f, 2 * x, 2 * y)[c] + texel(src, n, f, 2 * x + 1, 2 * y)[c] +
-                             texel(src, n, f, 2 * x, 2 * y + 1)[c] + texel(src, n, f, 2 * x + 1, 2 * y + 1)[c]);
+                    0.25f * (sm_texel(src, n, f, 2 * x, 2 * y)[c] + sm_texel(src, n, f, 2 * x + 1, 2 * y)[c] +
+                             sm_texel(src, n, f, 2 * x, 2 * y + 1)[c] + sm_texel(src, n, f, 2 * x + 1, 2 * y + 1)[c]);
     }
 }
 
@@ -368,7 +301,7 @@ static mlb_status prefilter(float* out, const float* src, int n, double rough, d
                     double dl[3], o[3];
                     if (j == 1) {
                         const geo* g = G[0] + (size_t)cy * cs + cx;
-                        const float* l = texel(src, cs, f, cx, cy);
+                        const float* l = sm_texel(src, cs, f, cx, cy);
                         geo_dir(g, f, dl);
                         for (int k = 0; k < 3; k++) o[k] = g->om * l[k];
                     } else {
@@ -452,7 +385,7 @@ static mlb_status prefilter(float* out, const float* src, int n, double rough, d
                                 fail = 1;
                                 continue;
                             }
-                            const float* l = texel(src, s, g, nx, ny);
+                            const float* l = sm_texel(src, s, g, nx, ny);
                             int k = il.nf++;
                             il.f[F_X][k] = (float)d[0], il.f[F_Y][k] = (float)d[1], il.f[F_Z][k] = (float)d[2];
                             il.f[F_OM][k] = (float)ge->om;
@@ -611,71 +544,16 @@ void mlb_envlight_set_rotation(mlb_envlight* light, float radians) {
 // ---------------------------------------------------------------- lookups
 
 double mlb_envlight_mip(const mlb_envlight* light, double r, double* dmip_dr) {
-    double l2 = light->n_levels - 2, m, dm;
-    if (!(r > 0.08)) {   // (NaN too)
-        m = 0;
-        dm = 0;
-    } else if (r < 0.5) {
-        m = (r - 0.08) / 0.42 * l2;
-        dm = l2 / 0.42;
-    } else {
-        m = ((r >= 1 ? 1 : r) - 0.5) / 0.5 + l2;
-        dm = r < 1 ? 2 : 0;
-    }
-    if (dmip_dr) *dmip_dr = dm;
-    return m;
-}
-
-// World -> map: d_local = R_y(-rotation) d; a Jacobian in map space maps back with the same matrix.
-static void to_local(const mlb_envlight* light, const double d[3], double out[3], double* c, double* s) {
-    if (light->rotation == light->rot_cached) {
-        *c = light->rot_cos;
-        *s = -light->rot_sin;
-    } else {   // rotation was assigned directly
-        *c = cos((double)light->rotation);
-        *s = -sin((double)light->rotation);
-    }
-    out[0] = *c * d[0] + *s * d[2];
-    out[1] = d[1];
-    out[2] = -*s * d[0] + *c * d[2];
-}
-
-static void jac_to_world(double jac[3][3], double c, double s) {   // jac_world = jac_local R
-    for (int ch = 0; ch < 3; ch++) {
-        double j0 = jac[ch][0], j2 = jac[ch][2];
-        jac[ch][0] = j0 * c - j2 * s;
-        jac[ch][2] = j0 * s + j2 * c;
-    }
+    return sm_envlight_mip(light->n_levels, r, dmip_dr);
 }
 
 void mlb_envlight_specular(const mlb_envlight* light, const double dir[3], double roughness, double rgb[3], double jac_dir[3][3],
                            double jac_r[3]) {
-    double d[3], c, s, dm;
-    to_local(light, dir, d, &c, &s);
-    double m = mlb_envlight_mip(light, roughness, &dm);
-    int L = light->n_levels;
-    int m0 = (int)floor(m);
-    if (m0 < 0) m0 = 0;
-    if (m0 > L - 1) m0 = L - 1;
-    int m1 = m0 + 1 < L ? m0 + 1 : m0;
-    double t = m0 == m1 ? 0 : m - m0;
-    double v0[3], v1[3] = {0, 0, 0}, j0[3][3], j1[3][3];
-    mlb_cube_sample(light->spec[m0], light->size[m0], d, v0, jac_dir ? j0 : NULL);
-    if (m1 != m0) mlb_cube_sample(light->spec[m1], light->size[m1], d, v1, jac_dir ? j1 : NULL);
-    else memcpy(v1, v0, sizeof v1);
-    for (int ch = 0; ch < 3; ch++) rgb[ch] = (1 - t) * v0[ch] + t * v1[ch];
-    if (jac_r)
-        for (int ch = 0; ch < 3; ch++) jac_r[ch] = m1 != m0 ? (v1[ch] - v0[ch]) * dm : 0;
-    if (jac_dir) {
-        for (int ch = 0; ch < 3; ch++)
-            for (int k = 0; k < 3; k++) jac_dir[ch][k] = m1 != m0 ? (1 - t) * j0[ch][k] + t * j1[ch][k] : j0[ch][k];
-        jac_to_world(jac_dir, c, s);
-    }
+    sm_light L = sm_light_of(light, NULL);
+    sm_envlight_specular(&L, dir, roughness, rgb, jac_dir, jac_r);
 }
 
 void mlb_envlight_diffuse(const mlb_envlight* light, const double n[3], double rgb[3], double jac_n[3][3]) {
-    double d[3], c, s;
-    to_local(light, n, d, &c, &s);
-    mlb_cube_sample(light->irr, light->irr_size, d, rgb, jac_n);
-    if (jac_n) jac_to_world(jac_n, c, s);
+    sm_light L = sm_light_of(light, NULL);
+    sm_envlight_diffuse(&L, n, rgb, jac_n);
 }

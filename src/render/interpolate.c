@@ -25,18 +25,7 @@ mlb_status FN(mlb_interpolate)(real* out, const real* attr, int n_verts, int C, 
     int n_pix = H * W;
 #pragma omp parallel for schedule(static) if (n_pix > 4096)
     for (int p = 0; p < n_pix; p++) {
-        real* o = out + (size_t)p * C;
-        int t = tri[p];
-        if (t < 0) {
-            for (int c = 0; c < C; c++) o[c] = 0;
-            continue;
-        }
-        const int32_t* f = faces + 3 * (size_t)t;
-        const real* a0 = attr + (size_t)f[0] * C;
-        const real* a1 = attr + (size_t)f[1] * C;
-        const real* a2 = attr + (size_t)f[2] * C;
-        real b0 = bary[2 * (size_t)p], b1 = bary[2 * (size_t)p + 1], b2 = (real)1 - b0 - b1;
-        for (int c = 0; c < C; c++) o[c] = b0 * a0[c] + b1 * a1[c] + b2 * a2[c];
+        rast_interpolate_pixel(out + (size_t)p * C, attr, C, tri[p], bary + 2 * (size_t)p, faces);
     }
     return MLB_OK;
 }
@@ -51,18 +40,7 @@ mlb_status FN(mlb_interpolate_backward)(mlb_raster_ctx* ctx, real* dattr, real* 
         for (int p = 0; p < n_pix; p++) {
             int t = tri[p];
             if (t < 0) continue;
-            const int32_t* f = faces + 3 * (size_t)t;
-            const real* a0 = attr + (size_t)f[0] * C;
-            const real* a1 = attr + (size_t)f[1] * C;
-            const real* a2 = attr + (size_t)f[2] * C;
-            const real* d = dout + (size_t)p * C;
-            double g0 = 0, g1 = 0;
-            for (int c = 0; c < C; c++) {
-                g0 += (double)d[c] * (a0[c] - a2[c]);
-                g1 += (double)d[c] * (a1[c] - a2[c]);
-            }
-            dbary[2 * (size_t)p] += (real)g0;
-            dbary[2 * (size_t)p + 1] += (real)g1;
+            rast_interpolate_dbary(dbary + 2 * (size_t)p, dout + (size_t)p * C, attr, C, t, faces);
         }
     }
     if (!dattr) return MLB_OK;

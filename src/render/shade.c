@@ -8,60 +8,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/rng.h"
+#include "render/shade_math.h"
 
 #define PI 3.14159265358979323846
 
 static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-
-// One point. With g == NULL only out is computed; otherwise the gradients of sum_c g[c] out[c]
-// are added to the non-NULL d* arguments.
-static void shade_point(const mlb_envlight* light, const float* lut, mlb_fresnel fm, const double kd[3], const double ks[3],
-                        double kr, const double n[3], const double v[3], double out[3], const double* g, double dkd[3],
-                        double dks[3], double* dkr, double dn[3], double dv[3]) {
-    double nv = dot3(n, v);
-    double nvc = nv < 1e-4 ? 1e-4 : nv > 1 ? 1 : nv, dnvc = nv > 1e-4 && nv < 1 ? 1 : 0;
-    double r[3];
-    for (int k = 0; k < 3; k++) r[k] = 2 * nv * n[k] - v[k];
-    double irr[3], spec[3], jirr[3][3], jsd[3][3], jsr[3], B[2], dBnv[2], dBr[2];
-    mlb_envlight_diffuse(light, n, irr, g ? jirr : NULL);
-    mlb_envlight_specular(light, r, kr, spec, g ? jsd : NULL, g ? jsr : NULL);
-    mlb_splitsum_lookup(lut, nv, kr, B, g ? dBnv : NULL, g ? dBr : NULL);
-    double x = 1 - nvc, x5 = x * x * x * x * x, dx5 = -5 * x * x * x * x * dnvc;   // d x^5 / d nv
-    double d_r[3] = {0, 0, 0}, d_kr = 0, d_nv = 0, dB0 = 0, dB1 = 0, d_n[3] = {0, 0, 0};
-    for (int c = 0; c < 3; c++) {
-        double f0 = ks[c], F = f0, dF_f0 = 1, dF_kr = 0, dF_nv = 0;
-        if (fm == MLB_FRESNEL_PAPER && 1 - kr > f0) {
-            F = f0 + (1 - kr - f0) * x5;
-            dF_f0 = 1 - x5;
-            dF_kr = -x5;
-            dF_nv = (1 - kr - f0) * dx5;
-        }
-        double sfac = F * B[0] + B[1];
-        out[c] = kd[c] * irr[c] + sfac * spec[c];
-        if (!g) continue;
-        double gc = g[c];
-        if (dkd) dkd[c] += gc * irr[c];
-        double dirr = gc * kd[c], dspec = gc * sfac, dS = gc * spec[c], dF = dS * B[0];
-        for (int k = 0; k < 3; k++) {
-            d_n[k] += dirr * jirr[c][k];
-            d_r[k] += dspec * jsd[c][k];
-        }
-        d_kr += dspec * jsr[c] + dF * dF_kr;
-        dB0 += dS * F;
-        dB1 += dS;
-        if (dks) dks[c] += dF * dF_f0;
-        d_nv += dF * dF_nv;
-    }
-    if (!g) return;
-    d_nv += dB0 * dBnv[0] + dB1 * dBnv[1];
-    d_kr += dB0 * dBr[0] + dB1 * dBr[1];
-    if (dkr) *dkr += d_kr;
-    double rn = dot3(d_r, n);   // r = 2 (n.v) n - v
-    for (int k = 0; k < 3; k++) {
-        if (dn) dn[k] += d_n[k] + 2 * v[k] * rn + 2 * nv * d_r[k] + d_nv * v[k];
-        if (dv) dv[k] += 2 * n[k] * rn - d_r[k] + d_nv * n[k];
-    }
-}
 
 static mlb_status check_args(const char* fn, int N, const mlb_envlight* light, const void* out, const void* kd, const void* ks,
                              const void* kr, const void* n, const void* v, const float** lut) {
@@ -77,13 +28,14 @@ mlb_status mlb_shade_forward(float* out, const float* kd, const float* ks, const
                              const mlb_envlight* light, mlb_fresnel fresnel) {
     const float* lut;
     MLB_TRY(check_args("mlb_shade_forward", N, light, out, kd, ks, kr, n, v, &lut));
+    const sm_light L = sm_light_of(light, lut);
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double a[3], b[3], nn[3], vv[3], o[3];
         for (int k = 0; k < 3; k++) {
             a[k] = kd[3 * i + k], b[k] = ks[3 * i + k], nn[k] = n[3 * i + k], vv[k] = v[3 * i + k];
         }
-        shade_point(light, lut, fresnel, a, b, kr[i], nn, vv, o, NULL, NULL, NULL, NULL, NULL, NULL);
+        sm_shade_point(&L, fresnel == MLB_FRESNEL_PAPER, a, b, kr[i], nn, vv, o, NULL, NULL, NULL, NULL, NULL, NULL);
         for (int k = 0; k < 3; k++) out[3 * i + k] = (float)o[k];
     }
     return MLB_OK;
@@ -94,6 +46,7 @@ mlb_status mlb_shade_backward(float* dkd, float* dks, float* dkr, float* dn, flo
                               mlb_fresnel fresnel) {
     const float* lut;
     MLB_TRY(check_args("mlb_shade_backward", N, light, dout, kd, ks, kr, n, v, &lut));
+    const sm_light L = sm_light_of(light, lut);
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double a[3], b[3], nn[3], vv[3], o[3], g[3];
@@ -101,7 +54,7 @@ mlb_status mlb_shade_backward(float* dkd, float* dks, float* dkr, float* dn, flo
         for (int k = 0; k < 3; k++) {
             a[k] = kd[3 * i + k], b[k] = ks[3 * i + k], nn[k] = n[3 * i + k], vv[k] = v[3 * i + k], g[k] = dout[3 * i + k];
         }
-        shade_point(light, lut, fresnel, a, b, kr[i], nn, vv, o, g, ga, gb, &gr, gn, gv);
+        sm_shade_point(&L, fresnel == MLB_FRESNEL_PAPER, a, b, kr[i], nn, vv, o, g, ga, gb, &gr, gn, gv);
         for (int k = 0; k < 3; k++) {
             if (dkd) dkd[3 * i + k] += (float)ga[k];
             if (dks) dks[3 * i + k] += (float)gb[k];
@@ -117,9 +70,10 @@ mlb_status mlb_shade_forward_f64(double* out, const double* kd, const double* ks
                                  const double* v, int N, const mlb_envlight* light, mlb_fresnel fresnel) {
     const float* lut;
     MLB_TRY(check_args("mlb_shade_forward_f64", N, light, out, kd, ks, kr, n, v, &lut));
+    const sm_light L = sm_light_of(light, lut);
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++)
-        shade_point(light, lut, fresnel, kd + 3 * i, ks + 3 * i, kr[i], n + 3 * i, v + 3 * i, out + 3 * i, NULL, NULL, NULL, NULL,
+        sm_shade_point(&L, fresnel == MLB_FRESNEL_PAPER, kd + 3 * i, ks + 3 * i, kr[i], n + 3 * i, v + 3 * i, out + 3 * i, NULL, NULL, NULL, NULL,
                     NULL, NULL);
     return MLB_OK;
 }
@@ -129,10 +83,11 @@ mlb_status mlb_shade_backward_f64(double* dkd, double* dks, double* dkr, double*
                                   const mlb_envlight* light, mlb_fresnel fresnel) {
     const float* lut;
     MLB_TRY(check_args("mlb_shade_backward_f64", N, light, dout, kd, ks, kr, n, v, &lut));
+    const sm_light L = sm_light_of(light, lut);
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double o[3];
-        shade_point(light, lut, fresnel, kd + 3 * i, ks + 3 * i, kr[i], n + 3 * i, v + 3 * i, o, dout + 3 * i,
+        sm_shade_point(&L, fresnel == MLB_FRESNEL_PAPER, kd + 3 * i, ks + 3 * i, kr[i], n + 3 * i, v + 3 * i, o, dout + 3 * i,
                     dkd ? dkd + 3 * i : NULL, dks ? dks + 3 * i : NULL, dkr ? dkr + i : NULL, dn ? dn + 3 * i : NULL,
                     dv ? dv + 3 * i : NULL);
     }

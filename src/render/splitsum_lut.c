@@ -24,6 +24,7 @@
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include "render/shade_math.h"
 
 #define PI 3.14159265358979323846
 enum { N_THETA = 24, N_PHI = 16 };
@@ -140,24 +141,5 @@ const float* mlb_splitsum_lut(void) {
 }
 
 void mlb_splitsum_lookup(const float* lut, double nv, double roughness, double b[2], double db_dnv[2], double db_dr[2]) {
-    const int n = MLB_LUT_SIZE;
-    if (!(nv >= 1e-4)) nv = 1e-4;   // (NaN too)
-    double px = nv * n - 0.5, py = roughness * n - 0.5;
-    int gx = px > 0 && px < n - 1, gy = py > 0 && py < n - 1;   // inside: the gradient is not clamped away
-    if (!(px > 0)) px = 0;
-    if (px > n - 1) px = n - 1;
-    if (!(py > 0)) py = 0;
-    if (py > n - 1) py = n - 1;
-    int x0 = (int)px, y0 = (int)py;
-    if (x0 > n - 2) x0 = n - 2;
-    if (y0 > n - 2) y0 = n - 2;
-    double tx = px - x0, ty = py - y0;
-    const float* r0 = lut + ((size_t)y0 * n + x0) * 2;
-    const float* r1 = r0 + (size_t)n * 2;
-    for (int k = 0; k < 2; k++) {
-        double t00 = r0[k], t01 = r0[2 + k], t10 = r1[k], t11 = r1[2 + k];
-        b[k] = (1 - ty) * ((1 - tx) * t00 + tx * t01) + ty * ((1 - tx) * t10 + tx * t11);
-        if (db_dnv) db_dnv[k] = gx ? ((1 - ty) * (t01 - t00) + ty * (t11 - t10)) * n : 0;
-        if (db_dr) db_dr[k] = gy ? ((1 - tx) * (t10 - t00) + tx * (t11 - t01)) * n : 0;
-    }
+    sm_splitsum_lookup(lut, nv, roughness, b, db_dnv, db_dr);
 }

@@ -7,7 +7,7 @@
 #include <string.h>
 #include "matlaber/brdf.h"
 #include "matlaber/field.h"
-#include "nn/field_internal.h"
+#include "field/field_internal.h"
 
 enum { K_DIM = 7, NET_MLP = 0, NET_DEC = 1 };
 

@@ -1,13 +1,13 @@
 // The neural field: hash grid → MLP (→ frozen decoder) (include/matlaber/field.h). Dual-compiled
 // (float / double _f64), see core/real.h. A float field on a device dispatches to its twin
-// (src/nn/field_device.c).
+// (src/field/field_device.c).
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/brdf.h"
 #include "matlaber/field.h"
 #include "core/real.h"
-#include "nn/field_internal.h"
+#include "field/field_internal.h"
 
 #define K_DIM 7
 #define Z_DIM MLB_LATENT_DIM

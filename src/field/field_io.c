@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/field.h"
-#include "nn/field_internal.h"
+#include "field/field_internal.h"
 
 enum { N_KEYS = 8 };
 static const char* const key_names[N_KEYS] = {"levels", "features", "table_size", "base_res", "per_level_scale",

@@ -21,7 +21,7 @@
 #include "matlaber/vae.h"
 
 typedef struct {
-    const char* tokenizer_path;   // NULL: <folder>/tokenizer for a diffusers folder, else $MATLABER_TOKENIZER (a single file needs one)
+    const char* tokenizer_path;   // NULL: <folder>/tokenizer where it exists, else $MATLABER_TOKENIZER (a single file needs one)
     int v_prediction;             // -1: from the configs (default), 0: epsilon, 1: v-prediction
     int load_text_encoder;        // 1 (default); 0 to skip it (and the tokenizer)
     int load_vae;                 // 1 (default)

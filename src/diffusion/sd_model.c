@@ -96,9 +96,14 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
         if ((s = mlb_text_encoder_load(path, NULL, &m->text)) != MLB_OK) { mlb_fail_context(s, "loading the text encoder"); goto fail; }
         char tp[4200];
         const char* tpath = opt.tokenizer_path;
-        if (!tpath && folder) { snprintf(tp, sizeof tp, "%s/tokenizer", path); tpath = tp; }
-        const char* env = getenv("MATLABER_TOKENIZER");   // a single file carries no tokenizer
+        // the folder's own tokenizer/, else $MATLABER_TOKENIZER (a single file carries none)
+        if (!tpath && folder) {
+            snprintf(tp, sizeof tp, "%s/tokenizer", path);
+            if (mlb_is_dir(tp) || mlb_is_file(tp)) tpath = tp;
+        }
+        const char* env = getenv("MATLABER_TOKENIZER");
         if (!tpath && env && env[0]) tpath = env;
+        if (!tpath && folder) tpath = tp;   // missing: its load names the path that was looked for
         if (!tpath) {
             s = mlb_fail(MLB_ERR_ARG, "%s is a single file: the CLIP tokenizer is needed (--tokenizer PATH or "
                                       "$MATLABER_TOKENIZER: the merges .gz, a tokenizer/ folder or a diffusers model folder)", path);

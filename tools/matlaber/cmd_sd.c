@@ -5,7 +5,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include "cli.h"
 #include "matlaber/image_write.h"
 #include "matlaber/log.h"
@@ -178,12 +177,6 @@ static int txt2img_main(int argc, char** argv) {
     if (!model_path) return cli_usage_error("sd txt2img", "-m MODEL is needed");
     if (!prompt) return cli_usage_error("sd txt2img", "-p PROMPT is needed");
     if (!out_path) return cli_usage_error("sd txt2img", "-o out.png is needed");
-    if (!tok_path) {
-        char probe[4200];
-        snprintf(probe, sizeof probe, "%s/tokenizer", model_path);
-        struct stat st;
-        if (stat(probe, &st) != 0) tok_path = getenv("MATLABER_TOKENIZER");
-    }
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     mo.tokenizer_path = tok_path;
     mo.v_prediction = vpred;

@@ -123,7 +123,13 @@ else
   echo "skip: no python3 for the .glb check"
 fi
 # a .glb as input (docs/paint.md): the asset just written, painted again, keeps the cube's corners
-expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red cube" $small --stop-after 1 -o "$T/g"
+grep -q '"appearance_guidance_scale":[[:space:]]*100,' "$T/a/config.json" && ok "the tiny preset paints at guidance 100" \
+  || bad "config: appearance_guidance_scale not the preset's 100"
+# paint has one stage: --guidance-scale alone is its scale, not overridden by the preset's appearance one
+expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red cube" $small --stop-after 1 \
+  --guidance-scale 30 -o "$T/g"
+grep -q '"guidance_scale":[[:space:]]*30,' "$T/g/config.json" && grep -q '"appearance_guidance_scale":[[:space:]]*0,' "$T/g/config.json" \
+  && ok "paint --guidance-scale sets its one stage" || bad "paint --guidance-scale: $(grep guidance_scale "$T/g/config.json")"
 corners "$T/g/input/mesh.obj" > "$T/g.txt"
 cmp -s "$T/in.txt" "$T/g.txt" && ok ".glb input: positions and UVs as in the original OBJ" \
   || { bad ".glb input corners differ"; diff "$T/in.txt" "$T/g.txt" | head; }

@@ -24,6 +24,7 @@
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "nn/gemm_bf16.h"
+#include "nn/softmax_avx512.h"
 
 // Queries per task. Measured on 2 Zen 4 cores before the per-head packing: 28 rows 52, 64 rows 77,
 // 256 rows 86 GFLOP/s per thread (then the keys were packed per block); not re-tuned since.
@@ -33,27 +34,6 @@
 #define MLB_ATT_KERNEL 1
 #include "nn/avx512_math.h"
 
-// Row p[0..n): p <- e^(p - max p); returns the max, *sum = sum of the new p (fp32, 16 partial sums
-// added in a fixed order).
-MLB_AVX512_TARGET static float softmax_row_unnormalised(float* p, int n, float* sum) {
-    __m512 m = _mm512_set1_ps(-INFINITY);
-    for (int s = 0; s < n; s += 16) {
-        __mmask16 k = n - s >= 16 ? 0xFFFF : (__mmask16)((1u << (n - s)) - 1);
-        m = _mm512_mask_max_ps(m, k, m, _mm512_maskz_loadu_ps(k, p + s));
-    }
-    float mx = _mm512_reduce_max_ps(m);
-    const __m512 vm = _mm512_set1_ps(mx);
-    __m512 acc = _mm512_setzero_ps();
-    for (int s = 0; s < n; s += 16) {
-        __mmask16 k = n - s >= 16 ? 0xFFFF : (__mmask16)((1u << (n - s)) - 1);
-        __m512 e = mlb_exp_nonpositive_ps(_mm512_sub_ps(_mm512_maskz_loadu_ps(k, p + s), vm));
-        e = _mm512_maskz_mov_ps(k, e);
-        _mm512_mask_storeu_ps(p + s, k, e);
-        acc = _mm512_add_ps(acc, e);
-    }
-    *sum = _mm512_reduce_add_ps(acc);
-    return mx;
-}
 #endif
 
 mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,
@@ -100,7 +80,7 @@ mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float
                 mlb_gemm_bf16_kernel(0, 1, nr, Tk, hd, scale, &qop, &kop, 0.0f, S, Tk);
                 float inv[BLOCK_ROWS];
                 for (int i = 0; i < nr; i++) {
-                    float sum, mx = softmax_row_unnormalised(S + (size_t)i * Tk, Tk, &sum);
+                    float sum, mx = mlb_softmax_row_avx512(S + (size_t)i * Tk, Tk, &sum);
                     inv[i] = 1.0f / sum;
                     if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = mx + logf(sum);
                 }

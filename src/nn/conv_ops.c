@@ -11,7 +11,9 @@
 #include "core/real.h"
 #ifndef MLB_F64
 #include "nn/conv_bf16.h"
+#include "nn/avx512_gate.h"
 #include "nn/groupnorm_avx512.h"
+#include "nn/softmax_avx512.h"
 #endif
 
 // Below this many values a loop stays on one thread (the fork/join costs more than the work).
@@ -270,7 +272,7 @@ static inline real FN(gn_act_d1)(mlb_activation act, real y) {
 // Whether the float pass runs a group through groupnorm_avx512.c (SiLU or identity, on a CPU with it).
 static int FN(gn_vectorised)(mlb_activation act) {
 #ifndef MLB_F64
-    return (act == MLB_ACT_IDENTITY || act == MLB_ACT_SILU) && mlb_groupnorm_vectorised();
+    return (act == MLB_ACT_IDENTITY || act == MLB_ACT_SILU) && mlb_avx512_kernels();
 #else
     (void)act;
     return 0;
@@ -471,6 +473,25 @@ static mlb_status FN(sdpa_check)(int B, int Tq, int Tk, int C, int NH, int ldq, 
 }
 
 
+// The float pass's softmax rows through softmax_avx512.c on a CPU with AVX-512 (the double pass,
+// the finite-difference reference, keeps libm's exp and double sums).
+static int FN(softmax_vectorised)(void) {
+#ifndef MLB_F64
+    return mlb_avx512_kernels();
+#else
+    return 0;
+#endif
+}
+
+static real FN(softmax_row_vectorised)(real* p, int n, float* sum) {
+#ifndef MLB_F64
+    return mlb_softmax_row_avx512(p, n, sum);
+#else
+    (void)p; (void)n; (void)sum;
+    return 0;
+#endif
+}
+
 mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, const real* v, int B, int Tq,
                              int Tk, int C, int NH, int ldq, int ldkv, real* ws) {
     MLB_TRY(FN(sdpa_check)(B, Tq, Tk, C, NH, ldq, ldkv));
@@ -486,6 +507,7 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
         ws = owned;
     }
     real* S = ws;
+    const int vec = FN(softmax_vectorised)();
     for (int b = 0; b < B; b++)
         for (int h = 0; h < NH; h++) {
             const real* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
@@ -497,10 +519,17 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     real* p = S + (size_t)i * Tk;
-                    real mx = p[0];
-                    for (int s = 1; s < Tk; s++) if (p[s] > mx) mx = p[s];
+                    real mx;
                     double sum = 0;
-                    for (int s = 0; s < Tk; s++) { p[s] = R_EXP(p[s] - mx); sum += (double)p[s]; }
+                    if (vec) {
+                        float sumf = 0;
+                        mx = FN(softmax_row_vectorised)(p, Tk, &sumf);
+                        sum = sumf;
+                    } else {
+                        mx = p[0];
+                        for (int s = 1; s < Tk; s++) if (p[s] > mx) mx = p[s];
+                        for (int s = 0; s < Tk; s++) { p[s] = R_EXP(p[s] - mx); sum += (double)p[s]; }
+                    }
                     real inv = (real)(1.0 / sum);
                     for (int s = 0; s < Tk; s++) p[s] *= inv;
                     if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = (real)((double)mx + log(sum));

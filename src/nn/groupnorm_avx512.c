@@ -10,35 +10,12 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include "matlaber/cpu.h"
 #include "nn/groupnorm_avx512.h"
-
-static int force_scalar = -1;   // -1: not read yet ($MATLABER_CPU_AVX512)
-
-void mlb_groupnorm_force_scalar(int on) { force_scalar = on ? 1 : 0; }
 
 #if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
 #define MLB_GN_KERNEL 1
 #include "nn/avx512_math.h"
 #endif
-
-int mlb_groupnorm_vectorised(void) {
-#ifdef MLB_GN_KERNEL
-    static int cpu_has = -1;
-    if (cpu_has < 0) {
-        mlb_cpu_info f;
-        mlb_cpu_detect(&f);
-        cpu_has = f.avx512f && f.avx512bw && f.avx512vl && f.avx512dq;
-    }
-    if (force_scalar < 0) {
-        const char* e = getenv("MATLABER_CPU_AVX512");
-        force_scalar = e && (!strcmp(e, "0") || !strcmp(e, "off"));
-    }
-    return cpu_has && !force_scalar;
-#else
-    return 0;
-#endif
-}
 
 #ifdef MLB_GN_KERNEL
 // acc += the 16 lanes of v widened to double (lanes outside k are zero in v).

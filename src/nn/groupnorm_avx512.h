@@ -1,12 +1,7 @@
 // Internal: group norm over one group, 16 fp32 lanes at a time (groupnorm_avx512.c), for the float
-// pass of groupnorm_forward / groupnorm_backward (conv_ops.c) when mlb_groupnorm_vectorised().
+// pass of groupnorm_forward / groupnorm_backward (conv_ops.c) when mlb_avx512_kernels() (avx512_gate.h).
 #ifndef MATLABER_NN_GROUPNORM_AVX512_H
 #define MATLABER_NN_GROUPNORM_AVX512_H
-
-// Whether the vectorised loops run here: a CPU with AVX-512 F/BW/VL/DQ and not forced off
-// (mlb_groupnorm_force_scalar, or $MATLABER_CPU_AVX512=0).
-int mlb_groupnorm_vectorised(void);
-void mlb_groupnorm_force_scalar(int on);
 
 // One group of Cg channels of HW values: x, out [Cg, HW]; w, b its Cg channels' affine (or NULL);
 // silu: apply SiLU after the affine (else identity). *mean, *rstd as groupnorm_forward's.

@@ -394,6 +394,39 @@ TEST(packed_tables_and_slots) {
     mlb_tetgrid_free(&g);
 }
 
+// The chunked scan against the plain running sum: empty, short, and long enough for its parallel
+// path, into another buffer and in place, on 1 and 2 threads.
+TEST(scan_i32) {
+    int saved = mlb_get_threads();
+    static const int sizes[] = {0, 1, 63, 64, 65, 1000, 300007};
+    for (size_t z = 0; z < sizeof sizes / sizeof sizes[0]; z++) {
+        int n = sizes[z];
+        int32_t* in = malloc(sizeof(int32_t) * (n + 1));
+        int32_t* ref = malloc(sizeof(int32_t) * (n + 1));
+        int32_t* out = malloc(sizeof(int32_t) * (n + 1));
+        REQUIRE(in && ref && out);
+        int32_t acc = 0;
+        for (int i = 0; i < n; i++) {
+            in[i] = (int32_t)(mlb_rng_uniform_f64(9, z, i) * 8);
+            ref[i] = acc;
+            acc += in[i];
+        }
+        ref[n] = acc;
+        for (int threads = 1; threads <= 2; threads++) {
+            mlb_set_threads(threads);
+            out[n] = -1;
+            mlb_scan_i32(out, in, n);
+            CHECK_MSG(!memcmp(out, ref, sizeof(int32_t) * (n + 1)), "n %d, %d threads", n, threads);
+            memcpy(out, in, sizeof(int32_t) * n);
+            out[n] = -1;
+            mlb_scan_i32(out, out, n);
+            CHECK_MSG(!memcmp(out, ref, sizeof(int32_t) * (n + 1)), "n %d in place, %d threads", n, threads);
+        }
+        mlb_set_threads(saved);
+        free(in), free(ref), free(out);
+    }
+}
+
 // A sphere SDF with noise on a grid of `cells`, exact zeros at every 9th vertex (inside).
 static void noisy_sphere(float* sdf, const mlb_tetgrid* g, uint64_t seed) {
     for (int v = 0; v < g->n_verts; v++) {
@@ -512,6 +545,7 @@ int main(void) {
     RUN(sdf_regulariser);
     RUN(vertex_normals);
     RUN(packed_tables_and_slots);
+    RUN(scan_i32);
     RUN(backward_gather_is_scatter);
     RUN(table_path_is_forward);
     return test_summary();

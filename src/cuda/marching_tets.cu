@@ -1,21 +1,21 @@
 // Marching tetrahedra's ops on the GPU (mt_ops.h's contracts, backend_ops.def): the CPU's own
-// per-element maths (mesh/marching_tets_math.h) in float, one thread per tet, edge slot or grid
-// vertex, compiled with -fmad=false (CMakeLists.txt) so that vertex positions, weights and the
-// gradients are the CPU's float bits. The surface's size is the caller's business: count, then
-// scan_i32 (exact integers, here on the device), then emit into buffers sized by the totals.
-// The backward gathers per grid vertex instead of scattering per surface vertex: each output has
-// one writer, and its terms are added in the CPU's order (mt_backward_vertex), so no atomics.
+// per-element maths (mesh/marching_tets_math.h) in float, one thread per tet and per grid vertex
+// (its seven edge slots), compiled with -fmad=false (CMakeLists.txt) so that vertex positions,
+// weights and the gradients are the CPU's float bits. The surface's size is the caller's business:
+// count, then scan_i32 (exact integers, here on the device), then emit into buffers sized by the
+// totals. The backward gathers per grid vertex instead of scattering per surface vertex: each
+// output has one writer, and its terms are added in the CPU's order (mt_backward_vertex), so no
+// atomics.
 #include "common.cuh"
 typedef float real;
 #include "mesh/marching_tets_math.h"
 
 // ---- count ----
 __global__ void mt_count_kernel(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets, int T,
-                                long long S, int n) {
-    for (long long i = blockIdx.x * (long long)blockDim.x + threadIdx.x; i < (S > T ? S : T);
-         i += (long long)gridDim.x * blockDim.x) {
+                                int V, int n) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < (V > T ? V : T); i += gridDim.x * blockDim.x) {
         if (i < T) tet_nf[i] = mt_num_tri(mt_case(sdf, tets + 4 * (size_t)i));
-        if (i < S) slot_nv[i] = mt_slot_count(sdf, i, n);
+        if (i < V) mt_count_slots(slot_nv, sdf, i, n);
     }
 }
 
@@ -27,9 +27,8 @@ static mlb_status mt_check(int T, int cells) {
 extern "C" mlb_status mlb_cuda_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf,
                                                    const int32_t* tets, int T, int cells) {
     MLB_TRY(mt_check(T, cells));
-    const int n = cells + 1;
-    const long long S = 7LL * n * n * n;
-    mt_count_kernel<<<mlb_grid((size_t)(S > T ? S : T), 256), 256>>>(tet_nf, slot_nv, sdf, tets, T, S, n);
+    const int n = cells + 1, V = n * n * n;
+    mt_count_kernel<<<mlb_grid((size_t)(V > T ? V : T), 256), 256>>>(tet_nf, slot_nv, sdf, tets, T, V, n);
     MLB_CUDA_LAUNCHED("marching tets count");
     return MLB_OK;
 }
@@ -113,14 +112,10 @@ extern "C" mlb_status mlb_cuda_scan_i32(int32_t* out, const int32_t* in, int n) 
 
 // ---- emit ----
 __global__ void mt_emit_kernel(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,
-                               const float* sdf, const int32_t* tets, int T, long long S, int n,
-                               const int32_t* tet_off, const int32_t* slot_off) {
-    for (long long i = blockIdx.x * (long long)blockDim.x + threadIdx.x; i < (S > T ? S : T);
-         i += (long long)gridDim.x * blockDim.x) {
-        if (i < S) {
-            int32_t k = slot_off[i], a, b;
-            if (slot_off[i + 1] != k && mt_slot_ends(i, n, &a, &b)) mt_emit_vertex(verts, vedge, weight, pos, sdf, a, b, k);
-        }
+                               const float* sdf, const int32_t* tets, int T, int V, int n, const int32_t* tet_off,
+                               const int32_t* slot_off) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < (V > T ? V : T); i += gridDim.x * blockDim.x) {
+        if (i < V) mt_emit_slots(verts, vedge, weight, pos, sdf, i, n, slot_off);
         if (i < T) {
             int cnt = tet_off[i + 1] - tet_off[i];
             const int32_t* tv = tets + 4 * (size_t)i;
@@ -133,9 +128,8 @@ extern "C" mlb_status mlb_cuda_marching_tets_emit(float* verts, int32_t* vedge, 
                                                   const float* pos, const float* sdf, const int32_t* tets, int T,
                                                   int cells, const int32_t* tet_off, const int32_t* slot_off) {
     MLB_TRY(mt_check(T, cells));
-    const int n = cells + 1;
-    const long long S = 7LL * n * n * n;
-    mt_emit_kernel<<<mlb_grid((size_t)(S > T ? S : T), 256), 256>>>(verts, vedge, weight, faces, pos, sdf, tets, T, S,
+    const int n = cells + 1, V = n * n * n;
+    mt_emit_kernel<<<mlb_grid((size_t)(V > T ? V : T), 256), 256>>>(verts, vedge, weight, faces, pos, sdf, tets, T, V,
                                                                      n, tet_off, slot_off);
     MLB_CUDA_LAUNCHED("marching tets emit");
     return MLB_OK;

@@ -67,11 +67,17 @@ MLB_HD int mt_slot_ends(int64_t s, int n, int32_t* a, int32_t* b) {
     *b = v + di + n * (dj + n * dk);
     return 1;
 }
-// 1 when slot s is an edge whose ends differ in occupancy: it carries a surface vertex.
-MLB_HD int32_t mt_slot_count(const real* sdf, int64_t s, int n) {
-    int32_t a, b;
-    if (!mt_slot_ends(s, n, &a, &b)) return 0;
-    return (sdf[a] > 0) != (sdf[b] > 0);
+// The counts of grid vertex v's seven slots (v their lower end), slot_nv[7 v .. 7 v + 6]: 1 on an
+// edge whose ends differ in occupancy (it carries a surface vertex), else 0 (no edge past the side).
+MLB_HD void mt_count_slots(int32_t* slot_nv, const real* sdf, int32_t v, int n) {
+    int i = v % n, j = (v / n) % n, k = v / (n * n);
+    int out = sdf[v] > 0;
+    for (int code = 1; code < 8; code++) {
+        int di = code & 1, dj = (code >> 1) & 1, dk = (code >> 2) & 1;
+        int32_t c = 0;
+        if (i + di < n && j + dj < n && k + dk < n) c = (sdf[v + di + n * (dj + n * dk)] > 0) != out;
+        slot_nv[7 * (int64_t)v + code - 1] = c;
+    }
 }
 
 // Surface vertex k on the edge (a, b): v = w_a p_a + w_b p_b, w_a = -s_b / (s_a - s_b),
@@ -85,6 +91,17 @@ MLB_HD void mt_emit_vertex(real* verts, int32_t* vedge, real* weight, const real
     vedge[2 * (size_t)k] = a;
     vedge[2 * (size_t)k + 1] = b;
     for (int d = 0; d < 3; d++) verts[3 * (size_t)k + d] = wa * pos[3 * (size_t)a + d] + wb * pos[3 * (size_t)b + d];
+}
+// The surface vertices on grid vertex v's seven slots, each at its scanned place.
+MLB_HD void mt_emit_slots(real* verts, int32_t* vedge, real* weight, const real* pos, const real* sdf, int32_t v, int n,
+                          const int32_t* slot_off) {
+    for (int code = 1; code < 8; code++) {
+        int64_t s = 7 * (int64_t)v + code - 1;
+        int32_t k = slot_off[s];
+        if (slot_off[s + 1] == k) continue;   // no vertex (or no edge: counted 0)
+        int di = code & 1, dj = (code >> 1) & 1, dk = (code >> 2) & 1;
+        mt_emit_vertex(verts, vedge, weight, pos, sdf, v, v + di + n * (dj + n * dk), k);
+    }
 }
 // The cnt faces of the tet with corners tv and case occ, from face `first` on, in table order;
 // each corner is the vertex of its edge's slot (slot_off: the exclusive scan of the slot counts).

@@ -10,36 +10,50 @@
 #define MT_PARALLEL_MIN 4096
 
 #ifndef MLB_F64
+// In 64 fixed chunks (their sums, the sums' scan, then each chunk's own): integers, so the result is
+// the sequential scan's on any thread count. Each chunk reads a value before writing its place, so
+// out may be in.
+#define SCAN_CHUNKS 64
 void mlb_scan_i32(int32_t* out, const int32_t* in, int n) {
-    int32_t acc = 0;
-    for (int i = 0; i < n; i++) {
-        int32_t c = in[i];   // read before the write: out may be in
-        out[i] = acc;
-        acc += c;
+    int32_t part[SCAN_CHUNKS];
+#pragma omp parallel for schedule(static) if (n >= 16 * MT_PARALLEL_MIN)
+    for (int c = 0; c < SCAN_CHUNKS; c++) {
+        int32_t s = 0;
+        for (int64_t i = (int64_t)n * c / SCAN_CHUNKS; i < (int64_t)n * (c + 1) / SCAN_CHUNKS; i++) s += in[i];
+        part[c] = s;
     }
-    out[n] = acc;
+    int32_t total = 0;
+    for (int c = 0; c < SCAN_CHUNKS; c++) {
+        int32_t s = part[c];
+        part[c] = total;
+        total += s;
+    }
+#pragma omp parallel for schedule(static) if (n >= 16 * MT_PARALLEL_MIN)
+    for (int c = 0; c < SCAN_CHUNKS; c++) {
+        int32_t acc = part[c];
+        for (int64_t i = (int64_t)n * c / SCAN_CHUNKS; i < (int64_t)n * (c + 1) / SCAN_CHUNKS; i++) {
+            int32_t x = in[i];
+            out[i] = acc;
+            acc += x;
+        }
+    }
+    out[n] = total;
 }
 #endif
 
 void FN(mlb_mt_count)(int32_t* tet_nf, int32_t* slot_nv, const real* sdf, const int32_t* tets, int T, int cells) {
-    const int n = cells + 1;
-    const int64_t S = 7 * (int64_t)n * n * n;
+    const int n = cells + 1, V = n * n * n;
 #pragma omp parallel for schedule(static) if (T >= MT_PARALLEL_MIN)
     for (int t = 0; t < T; t++) tet_nf[t] = mt_num_tri(mt_case(sdf, tets + 4 * (size_t)t));
-#pragma omp parallel for schedule(static) if (S >= MT_PARALLEL_MIN)
-    for (int64_t s = 0; s < S; s++) slot_nv[s] = mt_slot_count(sdf, s, n);
+#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
+    for (int v = 0; v < V; v++) mt_count_slots(slot_nv, sdf, v, n);
 }
 
 void FN(mlb_mt_emit)(real* verts, int32_t* vedge, real* weight, int32_t* faces, const real* pos, const real* sdf,
                      const int32_t* tets, int T, int cells, const int32_t* tet_off, const int32_t* slot_off) {
-    const int n = cells + 1;
-    const int64_t S = 7 * (int64_t)n * n * n;
-#pragma omp parallel for schedule(static) if (S >= MT_PARALLEL_MIN)
-    for (int64_t s = 0; s < S; s++) {
-        int32_t k = slot_off[s], a, b;
-        if (slot_off[s + 1] == k || !mt_slot_ends(s, n, &a, &b)) continue;
-        mt_emit_vertex(verts, vedge, weight, pos, sdf, a, b, k);
-    }
+    const int n = cells + 1, V = n * n * n;
+#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
+    for (int v = 0; v < V; v++) mt_emit_slots(verts, vedge, weight, pos, sdf, v, n, slot_off);
 #pragma omp parallel for schedule(static) if (T >= MT_PARALLEL_MIN)
     for (int t = 0; t < T; t++) {
         int cnt = tet_off[t + 1] - tet_off[t];

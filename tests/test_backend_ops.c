@@ -32,9 +32,13 @@
 //       ids bit for bit (B_BITS, the share of differing ids), barycentrics, depth, interpolated
 //       values and the barycentric gradient 0; the gradients summed over pixels (dclip, dattr) 1e-5.
 //       Not yet run on a GPU (docs/cuda.md).
+//     marching tets (src/cuda/marching_tets.cu, the CPU's maths without fused multiply-adds, the
+//       backward gathered in the CPU's order): counts, scans, vertex edges and faces bit for bit
+//       (B_BITS), vertices, weights and both gradients 0. Not yet run on a GPU.
 #include "backend_op_cases.h"
 #include "backend_op_cases_glue.h"
 #include "backend_op_cases_raster.h"
+#include "backend_op_cases_mt.h"
 
 typedef struct {
     const char* name;

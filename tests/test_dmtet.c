@@ -1,11 +1,17 @@
 // DMTet: the tet grid (orientation, conformity, volume, edges), marching tetrahedra on analytic
 // SDFs (closed manifold meshes, topology, outward faces, distance to the surface), and
-// finite-difference checks (double) of the marching-tets, deformation and regulariser backward.
+// finite-difference checks (double) of the marching-tets, deformation and regulariser backward;
+// the passes of mt_ops.h: the packed tables and edge slots, the GPU's gathered backward against the
+// CPU's scatter and the op-table path against marching_tets_forward, bit for bit.
 #include <stdint.h>
+#include "matlaber/backend.h"
 #include "matlaber/dmtet.h"
+#include "matlaber/mt_ops.h"
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
 #include "test.h"
+typedef float real;   // the scalar of the maths header (only its integer functions are used here)
+#include "mesh/marching_tets_math.h"
 
 static double signed_vol6(const float* a, const float* b, const float* c, const float* d) {
     double u[3], v[3], w[3];
@@ -357,6 +363,180 @@ TEST(vertex_normals) {
     mlb_tetgrid_free(&g);
 }
 
+// The tables packed for both devices (marching_tets_math.h) are reference.md's, and the edge slots
+// are mlb_tetgrid_edge_id's ids: the slots that are edges, in increasing order, are g.edges.
+TEST(packed_tables_and_slots) {
+    for (int c = 0; c < 16; c++) {
+        CHECK(mt_num_tri(c) == mlb_mt_num_triangles[c]);
+        for (int i = 0; i < 3 * mlb_mt_num_triangles[c]; i++)
+            CHECK_MSG(mt_row_entry(mt_row(c), i) == mlb_mt_triangle_table[c][i], "case %d entry %d", c, i);
+    }
+    for (int e = 0; e < 6; e++) CHECK(mt_edge_lo(e) == mlb_mt_tet_edges[e][0] && mt_edge_hi(e) == mlb_mt_tet_edges[e][1]);
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 4, 1.0f) == MLB_OK);
+    const int n = g.cells + 1;
+    int64_t e = 0;
+    for (int64_t s = 0; s < 7 * (int64_t)g.n_verts; s++) {
+        int32_t a, b;
+        if (!mt_slot_ends(s, n, &a, &b)) continue;
+        REQUIRE(e < g.n_edges);
+        CHECK_MSG(a == g.edges[2 * e] && b == g.edges[2 * e + 1], "slot %lld is not edge %lld", (long long)s, (long long)e);
+        CHECK(mt_slot_of(a, b, n) == s && mt_slot_of(b, a, n) == s && mlb_tetgrid_edge_id(&g, a, b) == s);
+        e++;
+    }
+    CHECK(e == g.n_edges);
+    for (int t = 0; t < g.n_tets; t++)
+        for (int k = 0; k < 6; k++) {
+            const int32_t* tv = g.tets + 4 * t;
+            int32_t a = tv[mt_edge_lo(k)], b = tv[mt_edge_hi(k)];
+            CHECK(mt_slot_of(a, b, n) == mlb_tetgrid_edge_id(&g, a, b));
+        }
+    mlb_tetgrid_free(&g);
+}
+
+// The chunked scan against the plain running sum: empty, short, and long enough for its parallel
+// path, into another buffer and in place, on 1 and 2 threads.
+TEST(scan_i32) {
+    int saved = mlb_get_threads();
+    static const int sizes[] = {0, 1, 63, 64, 65, 1000, 300007};
+    for (size_t z = 0; z < sizeof sizes / sizeof sizes[0]; z++) {
+        int n = sizes[z];
+        int32_t* in = malloc(sizeof(int32_t) * (n + 1));
+        int32_t* ref = malloc(sizeof(int32_t) * (n + 1));
+        int32_t* out = malloc(sizeof(int32_t) * (n + 1));
+        REQUIRE(in && ref && out);
+        int32_t acc = 0;
+        for (int i = 0; i < n; i++) {
+            in[i] = (int32_t)(mlb_rng_uniform_f64(9, z, i) * 8);
+            ref[i] = acc;
+            acc += in[i];
+        }
+        ref[n] = acc;
+        for (int threads = 1; threads <= 2; threads++) {
+            mlb_set_threads(threads);
+            out[n] = -1;
+            mlb_scan_i32(out, in, n);
+            CHECK_MSG(!memcmp(out, ref, sizeof(int32_t) * (n + 1)), "n %d, %d threads", n, threads);
+            memcpy(out, in, sizeof(int32_t) * n);
+            out[n] = -1;
+            mlb_scan_i32(out, out, n);
+            CHECK_MSG(!memcmp(out, ref, sizeof(int32_t) * (n + 1)), "n %d in place, %d threads", n, threads);
+        }
+        mlb_set_threads(saved);
+        free(in), free(ref), free(out);
+    }
+}
+
+// A sphere SDF with noise on a grid of `cells`, exact zeros at every 9th vertex (inside).
+static void noisy_sphere(float* sdf, const mlb_tetgrid* g, uint64_t seed) {
+    for (int v = 0; v < g->n_verts; v++) {
+        const float* p = g->verts + 3 * v;
+        sdf[v] = v % 9 == 4 ? 0.0f : sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 0.3f +
+                                     0.15f * (float)mlb_rng_normal_f64(seed, 1, v);
+    }
+}
+
+// The CUDA kernel's backward, a gather per grid vertex (compiled here for the host), adds every
+// term the CPU's scatter adds in the same order: the same bits, onto random values, with either
+// gradient NULL, in float and in double.
+TEST(backward_gather_is_scatter) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 7, 1.0f) == MLB_OK);
+    const int V = g.n_verts, T = g.n_tets;
+    const int64_t S = 7 * (int64_t)V;
+    float* sdf = malloc(sizeof(float) * V);
+    int32_t* tet_off = malloc(sizeof(int32_t) * (T + 1));
+    int32_t* slot_off = malloc(sizeof(int32_t) * (S + 1));
+    double *sdf64 = malloc(sizeof(double) * V), *pos64 = malloc(sizeof(double) * 3 * V);
+    REQUIRE(sdf && tet_off && slot_off && sdf64 && pos64);
+    noisy_sphere(sdf, &g, 5);
+    for (int v = 0; v < V; v++) sdf64[v] = sdf[v];
+    for (int i = 0; i < 3 * V; i++) pos64[i] = g.verts[i] + 0.01 * mlb_rng_normal_f64(5, 2, i);
+    mlb_mt_count(tet_off, slot_off, sdf, g.tets, T, g.cells);
+    mlb_scan_i32(tet_off, tet_off, T);
+    mlb_scan_i32(slot_off, slot_off, (int)S);
+    mlb_mt_surface s;
+    mlb_mt_surface_f64 s64;
+    REQUIRE(marching_tets_forward(&s, &g, g.verts, sdf) == MLB_OK);
+    REQUIRE(marching_tets_forward_f64(&s64, &g, pos64, sdf64) == MLB_OK);
+    const int M = s.n_verts;
+    REQUIRE(M > 50 && M == slot_off[S] && s64.n_verts == M);
+    float* dv = malloc(sizeof(float) * 3 * M);
+    double* dv64 = malloc(sizeof(double) * 3 * M);
+    float *p1 = malloc(sizeof(float) * 3 * V), *p2 = malloc(sizeof(float) * 3 * V);
+    float *q1 = malloc(sizeof(float) * V), *q2 = malloc(sizeof(float) * V);
+    double *P1 = malloc(sizeof(double) * 3 * V), *P2 = malloc(sizeof(double) * 3 * V);
+    double *Q1 = malloc(sizeof(double) * V), *Q2 = malloc(sizeof(double) * V);
+    REQUIRE(dv && dv64 && p1 && p2 && q1 && q2 && P1 && P2 && Q1 && Q2);
+    for (int i = 0; i < 3 * M; i++) dv64[i] = dv[i] = (float)mlb_rng_normal_f64(5, 3, i);
+    for (int null = 0; null < 3; null++) {   // 0: both, 1: dsdf NULL, 2: dpos NULL
+        for (int i = 0; i < 3 * V; i++) P1[i] = P2[i] = p1[i] = p2[i] = (float)mlb_rng_normal_f64(5, 4, i);
+        for (int i = 0; i < V; i++) Q1[i] = Q2[i] = q1[i] = q2[i] = (float)mlb_rng_normal_f64(5, 5, i);
+        float *dp1 = null == 2 ? NULL : p1, *dp2 = null == 2 ? NULL : p2;
+        float *ds1 = null == 1 ? NULL : q1, *ds2 = null == 1 ? NULL : q2;
+        mlb_mt_backward(dp1, ds1, dv, s.weight, s.edge, M, g.verts, sdf);
+        mlb_mt_backward_gather(dp2, ds2, dv, s.weight, g.verts, sdf, slot_off, g.cells);
+        CHECK_MSG(!memcmp(p1, p2, sizeof(float) * 3 * V), "float dpos differs (null %d)", null);
+        CHECK_MSG(!memcmp(q1, q2, sizeof(float) * V), "float dsdf differs (null %d)", null);
+        double *DP1 = null == 2 ? NULL : P1, *DP2 = null == 2 ? NULL : P2;
+        double *DS1 = null == 1 ? NULL : Q1, *DS2 = null == 1 ? NULL : Q2;
+        mlb_mt_backward_f64(DP1, DS1, dv64, s64.weight, s64.edge, M, pos64, sdf64);
+        mlb_mt_backward_gather_f64(DP2, DS2, dv64, s64.weight, pos64, sdf64, slot_off, g.cells);
+        CHECK_MSG(!memcmp(P1, P2, sizeof(double) * 3 * V), "double dpos differs (null %d)", null);
+        CHECK_MSG(!memcmp(Q1, Q2, sizeof(double) * V), "double dsdf differs (null %d)", null);
+    }
+    int touched = 0;
+    for (int i = 0; i < V; i++) touched += q1[i] != (float)mlb_rng_normal_f64(5, 5, i);
+    CHECK(touched > 20);
+    free(dv), free(dv64), free(p1), free(p2), free(q1), free(q2), free(P1), free(P2), free(Q1), free(Q2);
+    free(sdf), free(tet_off), free(slot_off), free(sdf64), free(pos64);
+    mt_surface_free(&s);
+    mt_surface_free_f64(&s64);
+    mlb_tetgrid_free(&g);
+}
+
+// marching tets through the CPU's op table (mlb_mt_device_*, what the geometry stage calls) is
+// marching_tets_forward and _backward bit for bit, including a second forward on the same handle
+// and an empty surface.
+TEST(table_path_is_forward) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 9, 1.0f) == MLB_OK);
+    const int V = g.n_verts;
+    float* sdf = malloc(sizeof(float) * V);
+    float* pos = malloc(sizeof(float) * 3 * V);
+    REQUIRE(sdf && pos);
+    for (int i = 0; i < 3 * V; i++) pos[i] = g.verts[i] + 0.02f * (float)mlb_rng_normal_f64(6, 1, i);
+    mlb_mt_device* d = NULL;
+    for (int round = 0; round < 3; round++) {
+        noisy_sphere(sdf, &g, 6 + round);
+        if (round == 2)
+            for (int v = 0; v < V; v++) sdf[v] = 1;   // nothing inside
+        mlb_mt_surface a, b;
+        REQUIRE(marching_tets_forward(&a, &g, pos, sdf) == MLB_OK);
+        REQUIRE(mlb_mt_device_forward(&d, mlb_backend_cpu(), &b, &g, pos, sdf) == MLB_OK);
+        const int M = a.n_verts, F = a.n_faces;
+        CHECK(b.n_verts == M && b.n_faces == F);
+        CHECK(round == 2 ? M == 0 : M > 100);
+        if (b.n_verts != M || b.n_faces != F) break;
+        CHECK(!memcmp(a.pos, b.pos, sizeof(float) * 3 * M) && !memcmp(a.faces, b.faces, sizeof(int32_t) * 3 * F));
+        CHECK(!memcmp(a.edge, b.edge, sizeof(int32_t) * 2 * M) && !memcmp(a.weight, b.weight, sizeof(float) * 2 * M));
+        float* dv = malloc(sizeof(float) * 3 * (M + 1));
+        float *p1 = calloc(3 * V, sizeof(float)), *p2 = calloc(3 * V, sizeof(float));
+        float *q1 = calloc(V, sizeof(float)), *q2 = calloc(V, sizeof(float));
+        REQUIRE(dv && p1 && p2 && q1 && q2);
+        for (int i = 0; i < 3 * M; i++) dv[i] = (float)mlb_rng_normal_f64(6, 2, i);
+        marching_tets_backward(p1, q1, &a, pos, sdf, dv);
+        REQUIRE(mlb_mt_device_backward(d, p2, q2, dv) == MLB_OK);
+        CHECK(!memcmp(p1, p2, sizeof(float) * 3 * V) && !memcmp(q1, q2, sizeof(float) * V));
+        free(dv), free(p1), free(p2), free(q1), free(q2);
+        mt_surface_free(&a);
+        mt_surface_free(&b);
+    }
+    mlb_mt_device_free(d);
+    free(sdf), free(pos);
+    mlb_tetgrid_free(&g);
+}
+
 int main(void) {
     RUN(tetgrid_structure);
     RUN(sphere_closed_outward_close);
@@ -364,5 +544,9 @@ int main(void) {
     RUN(marching_tets_backward_fd);
     RUN(sdf_regulariser);
     RUN(vertex_normals);
+    RUN(packed_tables_and_slots);
+    RUN(scan_i32);
+    RUN(backward_gather_is_scatter);
+    RUN(table_path_is_forward);
     return test_summary();
 }

@@ -92,6 +92,13 @@ mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src
 //   unlike the CPU's; relative differences ~1e-6); dx += one thread per point, levels in order
 //   (deterministic). Either may be NULL.
 // AdamW: mlb_cuda_adam_update, adam_update's contract.
+// marching tets (mt_ops.h; src/cuda/marching_tets.cu, built with -fmad=false over the CPU's maths,
+//   mesh/marching_tets_math.h): mlb_cuda_marching_tets_count a thread per tet and per grid vertex
+//   (its seven edge slots); mlb_cuda_scan_i32 on the device (tile sums, their scan in one block,
+//   the tiles; in place allowed); mlb_cuda_marching_tets_emit a thread per grid vertex and per
+//   tet, each writing its own outputs at its scanned place; mlb_cuda_marching_tets_backward a
+//   thread per grid vertex gathering its edges' terms in the CPU's order (no atomics): every
+//   output the CPU's bits.
 
 // ---- attention (transformer_ops.h attention_forward, without `att`) ----
 // Flash-style: tiles of 32 keys in shared memory, an online softmax per query row (running max and

@@ -81,4 +81,17 @@ MLB_DMTET_DECLARE(double, MLB_DMTET_F64)
 #undef MLB_DMTET_F32
 #undef MLB_DMTET_F64
 
+// Marching tets through an op table (backend.h; float): marching_tets_forward and _backward with
+// the passes of backend_ops.def on the table's device (count, scan_i32, emit, backward), host
+// buffers in and out. The handle (*d NULL at first) keeps the grid's tets and the last forward's
+// buffers on the device; the grid g must stay unchanged while it is used. With the CPU table the
+// results are marching_tets_forward's and _backward's bits.
+typedef struct mlb_backend mlb_backend;
+typedef struct mlb_mt_device mlb_mt_device;
+mlb_status mlb_mt_device_forward(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
+                                 const mlb_tetgrid* g, const float* pos, const float* sdf);
+// dpos [V,3] +=, dsdf [V] += (either may be NULL) for dverts [n_verts,3] of the last forward
+mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
+void mlb_mt_device_free(mlb_mt_device* d);   // safe on NULL
+
 #endif

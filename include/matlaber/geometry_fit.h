@@ -93,6 +93,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            part_batch views (mlb_dist_share_batches; 0: one batch). part_count 0: every view (no    \
            gathers), -1: none. */                                                                   \
         int part_first, part_count, part_batch;                                                     \
+        /* Set by the caller before the forward (float): the op table marching tets runs on (NULL:  \
+           the CPU's, mlb_backend_cpu); mt its buffers there (the state's own). The double build    \
+           calls marching_tets_forward_f64 directly. */                                             \
+        const mlb_backend* be;                                                                      \
+        mlb_mt_device* mt;                                                                          \
     } N(mlb_geofit_state);                                                                          \
     void N(mlb_geofit_state_free)(N(mlb_geofit_state)* st);   /* safe on a zeroed state */          \
     /* The network's surface (on grid g, deformation tanh(d)/(2·cells)) seen by cams[v], v < n:      \

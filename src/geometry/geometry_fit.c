@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend.h"
 #include "matlaber/dist.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
@@ -99,6 +100,7 @@ mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_
 void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     if (!st) return;
     FN(mt_surface_free)(&st->surf);
+    mlb_mt_device_free(st->mt);
     free(st->vp); free(st->images);
     free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
     free(st->nrm); free(st->nsum); free(st->attr); free(st->clip); free(st->adj);
@@ -189,7 +191,11 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     s = FN(geometry_net_forward)(net, st->sdf, st->deform, st->gv, g->n_verts);
     if (s) return s;
     FN(dmtet_deform_forward)(st->gpos, st->gv, st->deform, g->n_verts, grid_res);
+#ifdef MLB_F64
     s = FN(marching_tets_forward)(&st->surf, g, st->gpos, st->sdf);
+#else
+    s = mlb_mt_device_forward(&st->mt, st->be ? st->be : mlb_backend_cpu(), &st->surf, g, st->gpos, st->sdf);
+#endif
     if (s) return s;
     if (st->surf.n_faces == 0) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface (the SDF has one sign everywhere)");
     int M = st->surf.n_verts, F = st->surf.n_faces;
@@ -309,7 +315,12 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     memset(st->dgpos, 0, sizeof(real) * G * 3);
     memset(st->dsdf, 0, sizeof(real) * G);
     memset(st->ddeform, 0, sizeof(real) * G * 3);
+#ifdef MLB_F64
     FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, st->dverts);
+#else
+    s = mlb_mt_device_backward(st->mt, st->dgpos, st->dsdf, st->dverts);
+    if (s) return s;
+#endif
     FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
     if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
     FN(geometry_net_backward)(net, st->dsdf, st->ddeform);

@@ -34,6 +34,11 @@ mlb_status mlb_geometry_load(mlb_geometry_net* net, const char* path) { return m
 // ---- extraction --------------------------------------------------------------------------------
 
 mlb_status mlb_geometry_extract(mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out) {
+    return mlb_geometry_extract_on(mlb_backend_cpu(), net, grid, out);
+}
+
+mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net, const mlb_tetgrid* grid,
+                                   mlb_mesh* out) {
     memset(out, 0, sizeof *out);
     size_t V = (size_t)grid->n_verts;
     float* sdf = malloc(sizeof(float) * V);
@@ -42,10 +47,12 @@ mlb_status mlb_geometry_extract(mlb_geometry_net* net, const mlb_tetgrid* grid, 
     mlb_status s = (sdf && deform && pos) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "out of memory (%zu grid vertices)", V);
     if (!s) s = geometry_net_forward(net, sdf, deform, grid->verts, grid->n_verts);
     mlb_mt_surface surf = {0};
+    mlb_mt_device* mt = NULL;
     if (!s) {
         dmtet_deform_forward(pos, grid->verts, deform, grid->n_verts, (float)(2 * grid->cells));
-        s = marching_tets_forward(&surf, grid, pos, sdf);
+        s = mlb_mt_device_forward(&mt, be, &surf, grid, pos, sdf);
     }
+    mlb_mt_device_free(mt);
     if (!s && surf.n_faces == 0) s = mlb_fail(MLB_ERR_ARG, "no surface: the SDF has the same sign at every grid vertex");
     if (!s) s = mt_surface_to_mesh(&surf, out);
     mt_surface_free(&surf);

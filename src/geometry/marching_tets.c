@@ -1,10 +1,12 @@
 // Marching tetrahedra over a tet grid (reference.md §3) with backward to the SDF values and the
-// (deformed) grid positions; the DMTet deformation and the SDF sign regulariser.
+// (deformed) grid positions, made of the passes of mt_ops.h (src/mesh/mt_ops.c, which the op
+// tables run too); the DMTet deformation and the SDF sign regulariser.
 // Dual-compiled (float / double _f64), see core/real.h.
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/dmtet.h"
+#include "matlaber/mt_ops.h"
 #include "core/real.h"
 
 #define MT_PARALLEL_MIN 4096
@@ -21,125 +23,48 @@ void FN(mt_surface_free)(FN(mlb_mt_surface)* s) {
 
 mlb_status FN(marching_tets_forward)(FN(mlb_mt_surface)* out, const mlb_tetgrid* g, const real* pos,
                                      const real* sdf) {
+    // The passes of mt_ops.h on the host: count, scan (in place), emit. The scans number the
+    // vertices in grid-edge order and the faces tet by tet, whatever the thread count.
     memset(out, 0, sizeof *out);
-    const int V = g->n_verts, T = g->n_tets;
-    const int64_t E = g->n_edges;
-    int32_t* map = malloc(sizeof(int32_t) * 7 * (size_t)V);       // sparse edge id -> output vertex
-    int32_t* tet_first = malloc(sizeof(int32_t) * ((size_t)T + 1));   // first face of each tet
-    if (!map || !tet_first) {
-        free(map);
-        free(tet_first);
-        return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory for %d vertices", V);
+    const int T = g->n_tets;
+    const int64_t S = 7 * (int64_t)g->n_verts;   // edge slots
+    int32_t* slot_off = malloc(sizeof(int32_t) * ((size_t)S + 1));   // slot -> its vertex
+    int32_t* tet_off = malloc(sizeof(int32_t) * ((size_t)T + 1));    // tet -> its first face
+    if (!slot_off || !tet_off) {
+        free(slot_off);
+        free(tet_off);
+        return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory for %d vertices", g->n_verts);
     }
-    // 1. Count the sign-changing grid edges and the faces of every tet, in fixed chunks (the
-    //    numbering below is in edge / tet order whatever the thread count).
-    int64_t e_cnt[MT_CHUNKS + 1], t_cnt[MT_CHUNKS + 1];
-#pragma omp parallel for schedule(static) if (T >= MT_PARALLEL_MIN)
-    for (int c = 0; c < MT_CHUNKS; c++) {
-        int64_t m = 0;
-        for (int64_t e = E * c / MT_CHUNKS; e < E * (c + 1) / MT_CHUNKS; e++)
-            m += (sdf[g->edges[2 * e]] > 0) != (sdf[g->edges[2 * e + 1]] > 0);
-        e_cnt[c] = m;
-        int64_t f = 0;
-        for (int t = (int)((int64_t)T * c / MT_CHUNKS); t < (int)((int64_t)T * (c + 1) / MT_CHUNKS); t++) {
-            const int32_t* tv = g->tets + 4 * (size_t)t;
-            int occ = (sdf[tv[0]] > 0) | ((sdf[tv[1]] > 0) << 1) | ((sdf[tv[2]] > 0) << 2) | ((sdf[tv[3]] > 0) << 3);
-            tet_first[t] = (int32_t)f;   // within the chunk for now
-            f += mlb_mt_num_triangles[occ];
-        }
-        t_cnt[c] = f;
-    }
-    int64_t nv64 = 0, nf = 0;
-    for (int c = 0; c < MT_CHUNKS; c++) {
-        int64_t a = e_cnt[c], b = t_cnt[c];
-        e_cnt[c] = nv64;
-        t_cnt[c] = nf;
-        nv64 += a;
-        nf += b;
-    }
-    if (nf > INT32_MAX / 3 || nv64 > INT32_MAX / 3) {
-        free(map);
-        free(tet_first);
+    FN(mlb_mt_count)(tet_off, slot_off, sdf, g->tets, T, g->cells);
+    mlb_scan_i32(tet_off, tet_off, T);
+    mlb_scan_i32(slot_off, slot_off, (int)S);
+    const int32_t nv = slot_off[S], nf = tet_off[T];   // (at most 2 T and S: within int32 for cells <= 512)
+    if (nf > INT32_MAX / 3 || nv > INT32_MAX / 3) {
+        free(slot_off);
+        free(tet_off);
         return mlb_fail(MLB_ERR_ARG, "marching tets: surface too large (%lld faces)", (long long)nf);
     }
-    const int32_t nv = (int32_t)nv64;
-    tet_first[T] = (int32_t)nf;
     out->n_verts = nv;
-    out->n_faces = (int)nf;
+    out->n_faces = nf;
     out->pos = malloc(sizeof(real) * 3 * (size_t)(nv ? nv : 1));
     out->edge = malloc(sizeof(int32_t) * 2 * (size_t)(nv ? nv : 1));
     out->weight = malloc(sizeof(real) * 2 * (size_t)(nv ? nv : 1));
     out->faces = malloc(sizeof(int32_t) * 3 * (size_t)(nf ? nf : 1));
     if (!out->pos || !out->edge || !out->weight || !out->faces) {
-        free(map);
-        free(tet_first);
+        free(slot_off);
+        free(tet_off);
         FN(mt_surface_free)(out);
         return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory for %d vertices", nv);
     }
-    // 2. Number the vertices (edge order) and finish the per-tet face offsets. Only ids of
-    //    sign-changing edges are written to and read from the map.
-#pragma omp parallel for schedule(static) if (T >= MT_PARALLEL_MIN)
-    for (int c = 0; c < MT_CHUNKS; c++) {
-        int32_t k = (int32_t)e_cnt[c];
-        for (int64_t e = E * c / MT_CHUNKS; e < E * (c + 1) / MT_CHUNKS; e++) {
-            int32_t a = g->edges[2 * e], b = g->edges[2 * e + 1];
-            if ((sdf[a] > 0) == (sdf[b] > 0)) continue;
-            map[mlb_tetgrid_edge_id(g, a, b)] = k;
-            out->edge[2 * k] = a;
-            out->edge[2 * k + 1] = b;
-            k++;
-        }
-        for (int t = (int)((int64_t)T * c / MT_CHUNKS); t < (int)((int64_t)T * (c + 1) / MT_CHUNKS); t++)
-            tet_first[t] += (int32_t)t_cnt[c];
-    }
-    // 3. Vertex positions and interpolation weights.
-#pragma omp parallel for schedule(static) if (nv >= MT_PARALLEL_MIN)
-    for (int32_t i = 0; i < nv; i++) {
-        int32_t a = out->edge[2 * i], b = out->edge[2 * i + 1];
-        real sa = sdf[a], sb = sdf[b], den = sa - sb;
-        real wa = -sb / den, wb = sa / den;
-        out->weight[2 * i] = wa;
-        out->weight[2 * i + 1] = wb;
-        for (int d = 0; d < 3; d++) out->pos[3 * (size_t)i + d] = wa * pos[3 * (size_t)a + d] + wb * pos[3 * (size_t)b + d];
-    }
-    // 4. Faces, tet by tet in the table's order.
-#pragma omp parallel for schedule(static) if (T >= MT_PARALLEL_MIN)
-    for (int t = 0; t < T; t++) {
-        int cnt = tet_first[t + 1] - tet_first[t];
-        if (!cnt) continue;
-        const int32_t* tv = g->tets + 4 * (size_t)t;
-        int occ = (sdf[tv[0]] > 0) | ((sdf[tv[1]] > 0) << 1) | ((sdf[tv[2]] > 0) << 2) | ((sdf[tv[3]] > 0) << 3);
-        for (int c = 0; c < 3 * cnt; c++) {
-            const int* le = mlb_mt_tet_edges[mlb_mt_triangle_table[occ][c]];
-            int64_t id = mlb_tetgrid_edge_id(g, tv[le[0]], tv[le[1]]);
-            out->faces[3 * (size_t)tet_first[t] + c] = map[id];
-        }
-    }
-    free(map);
-    free(tet_first);
+    FN(mlb_mt_emit)(out->pos, out->edge, out->weight, out->faces, pos, sdf, g->tets, T, g->cells, tet_off, slot_off);
+    free(slot_off);
+    free(tet_off);
     return MLB_OK;
 }
 
 void FN(marching_tets_backward)(real* dpos, real* dsdf, const FN(mlb_mt_surface)* s, const real* pos,
                                 const real* sdf, const real* dverts) {
-    // Sequential: output vertices share grid vertices, and a fixed order keeps results exact.
-    for (int i = 0; i < s->n_verts; i++) {
-        int32_t a = s->edge[2 * i], b = s->edge[2 * i + 1];
-        const real* gv = dverts + 3 * (size_t)i;
-        if (dpos)
-            for (int d = 0; d < 3; d++) {
-                dpos[3 * (size_t)a + d] += s->weight[2 * i] * gv[d];
-                dpos[3 * (size_t)b + d] += s->weight[2 * i + 1] * gv[d];
-            }
-        if (dsdf) {
-            // v = (s_a p_b − s_b p_a)/(s_a − s_b): ∂v/∂s_a = s_b (p_a − p_b)/D², ∂v/∂s_b = s_a (p_b − p_a)/D²
-            real sa = sdf[a], sb = sdf[b], den = sa - sb, inv2 = 1 / (den * den);
-            real dot = 0;
-            for (int d = 0; d < 3; d++) dot += gv[d] * (pos[3 * (size_t)a + d] - pos[3 * (size_t)b + d]);
-            dsdf[a] += sb * dot * inv2;
-            dsdf[b] -= sa * dot * inv2;
-        }
-    }
+    FN(mlb_mt_backward)(dpos, dsdf, dverts, s->weight, s->edge, s->n_verts, pos, sdf);
 }
 
 mlb_status FN(mt_surface_to_mesh)(const FN(mlb_mt_surface)* s, mlb_mesh* m) {

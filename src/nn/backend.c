@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/mt_ops.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
 
@@ -286,6 +287,33 @@ static mlb_status cpu_antialias_backward(float* dcolor, float* dclip, const floa
                                          int H, int W) {
     return mlb_antialias_backward(NULL, dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces, adj, F,
                                   H, W);
+}
+
+// Marching tets: mt_ops.h's passes over host memory.
+static mlb_status cpu_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets,
+                                          int T, int cells) {
+    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
+    mlb_mt_count(tet_nf, slot_nv, sdf, tets, T, cells);
+    return MLB_OK;
+}
+static mlb_status cpu_scan_i32(int32_t* out, const int32_t* in, int n) {
+    if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
+    mlb_scan_i32(out, in, n);
+    return MLB_OK;
+}
+static mlb_status cpu_marching_tets_emit(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,
+                                         const float* sdf, const int32_t* tets, int T, int cells,
+                                         const int32_t* tet_off, const int32_t* slot_off) {
+    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
+    mlb_mt_emit(verts, vedge, weight, faces, pos, sdf, tets, T, cells, tet_off, slot_off);
+    return MLB_OK;
+}
+static mlb_status cpu_marching_tets_backward(float* dpos, float* dsdf, const float* dverts, const float* weight,
+                                             const int32_t* vedge, int nv, const float* pos, const float* sdf,
+                                             const int32_t* slot_off, int cells) {
+    (void)slot_off, (void)cells;   // the scatter needs only vedge
+    mlb_mt_backward(dpos, dsdf, dverts, weight, vedge, nv, pos, sdf);
+    return MLB_OK;
 }
 
 // The stored-weights table's attention is the bf16 table's (no weights in it).

@@ -309,6 +309,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     float* images = malloc(sizeof(float) * img * (size_t)n);
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
+    st.be = r->be;
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
@@ -534,6 +535,9 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     if (!s && !paint) s = geometry_net_init(&r.geo, &gc);
     if (!s && !paint) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
     r.ctx = mlb_raster_ctx_create();
+    // Marching tets run on the CPU's table: the geometry network, which makes their input, is on the
+    // host (docs/cuda.md "The renderer on the op table")
+    r.be = mlb_backend_cpu();
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
     if (!s && progress)
         mlb_progress_begin(progress, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit",
@@ -545,7 +549,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // painted mesh in the generation frame
     if (geometry_done) s = pipeline_scene_init(&r.scene, c, r.views);
     if (!s && geometry_done && paint) s = paint_scene_mesh(c, &input, &r.scene.mesh);
-    if (!s && geometry_done && !paint) s = mlb_geometry_extract(&r.geo, &r.grid, &r.scene.mesh);
+    if (!s && geometry_done && !paint) s = mlb_geometry_extract_on(r.be, &r.geo, &r.grid, &r.scene.mesh);
     if (!s && geometry_done && !paint) s = mlb_mesh_compute_normals(&r.scene.mesh);
     mlb_brdf_ae prior;
     memset(&prior, 0, sizeof prior);

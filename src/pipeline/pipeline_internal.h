@@ -3,6 +3,7 @@
 #ifndef MATLABER_PIPELINE_INTERNAL_H
 #define MATLABER_PIPELINE_INTERNAL_H
 #include "matlaber/appearance.h"
+#include "matlaber/backend.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/envmap.h"
 #include "matlaber/geometry.h"
@@ -30,6 +31,7 @@ typedef struct {
     mlb_geometry_net geo;
     mlb_tetgrid grid;
     mlb_raster_ctx* ctx;
+    const mlb_backend* be;   // the op table the geometry stage extracts its surface on (marching tets)
     mlb_material_net mat;
     pipeline_scene scene;
     long geometry_start;

@@ -1,0 +1,50 @@
+// Marching tetrahedra (DMTet's surface extraction, reference.md §3) as passes over plain buffers
+// with a fixed output size per pass, the contract of the op tables' marching_tets_* ops
+// (backend_ops.def) and the pieces geometry's marching_tets_forward is made of (docs/geometry.md):
+//
+//   count  per tet its number of triangles, per edge slot 1 when a surface vertex sits on it
+//   scan   exclusive prefix sums of both: every tet's first face, every slot's vertex, the totals
+//   emit   the vertices (with their edge and weights) and the faces, each at its scanned place
+//   backward  the gradient of the vertex positions to the SDF and the (deformed) grid positions
+//
+// The grid is mlb_tetgrid's (dmtet.h): `cells` cells per axis, V = (cells + 1)^3 vertices, the
+// tets [T, 4] it lists; S = 7 V edge slots (src/mesh/marching_tets_math.h: slot 7 a + code - 1 is
+// the edge from vertex a in direction code, mlb_tetgrid_edge_id). Occupancy is sdf > 0. Output order
+// is fixed by the scans: vertices in grid-edge order, faces tet by tet in table order, whatever the
+// device or thread count. Integer buffers are int32 (on a table: allocated through alloc as that
+// many floats). Passes over `real` exist as float (plain names) and double (_f64).
+#ifndef MATLABER_MT_OPS_H
+#define MATLABER_MT_OPS_H
+#include <stdint.h>
+
+// out[i] = in[0] + ... + in[i-1] for i <= n (out has n + 1 values: out[n] is the total). out may be
+// in (a buffer of n + 1). The total must fit in int32 (the callers bound it: slots < 2^31).
+void mlb_scan_i32(int32_t* out, const int32_t* in, int n);
+
+#define MLB_MT_OPS_DECLARE(R, N)                                                                       \
+    /* tet_nf [T] = the triangles of each tet's case (0, 1 or 2); slot_nv [7 V] = 1 on an edge whose  \
+       ends differ in occupancy, else 0 (slots that are no edge too). */                             \
+    void N(mlb_mt_count)(int32_t* tet_nf, int32_t* slot_nv, const R* sdf, const int32_t* tets, int T, int cells); \
+    /* With tet_off [T + 1] and slot_off [7 V + 1] the scans of count's outputs (nf = tet_off[T],     \
+       nv = slot_off[7 V]): verts [nv, 3], vedge [nv, 2] (its edge's ends a < b), weight [nv, 2]    \
+       (v = w0 p_a + w1 p_b), faces [nf, 3] (counter-clockwise seen from outside). pos [V, 3] the   \
+       deformed grid positions, sdf [V]. */                                                         \
+    void N(mlb_mt_emit)(R* verts, int32_t* vedge, R* weight, int32_t* faces, const R* pos, const R* sdf, \
+                        const int32_t* tets, int T, int cells, const int32_t* tet_off, const int32_t* slot_off); \
+    /* dpos [V, 3] += dverts . dv/dpos, dsdf [V] += dverts . dv/dsdf (either may be NULL) for dverts  \
+       [nv, 3]: sequential over the surface vertices, in order (they share grid vertices). */        \
+    void N(mlb_mt_backward)(R* dpos, R* dsdf, const R* dverts, const R* weight, const int32_t* vedge, int nv, \
+                            const R* pos, const R* sdf);                                              \
+    /* The same sums gathered per grid vertex (the CUDA kernel's form, slot_off from the forward):   \
+       the same bits as mlb_mt_backward (test_dmtet). */                                            \
+    void N(mlb_mt_backward_gather)(R* dpos, R* dsdf, const R* dverts, const R* weight, const R* pos, const R* sdf, \
+                                   const int32_t* slot_off, int cells);
+
+#define MLB_MT_OPS_F32(name) name
+#define MLB_MT_OPS_F64(name) name##_f64
+MLB_MT_OPS_DECLARE(float, MLB_MT_OPS_F32)
+MLB_MT_OPS_DECLARE(double, MLB_MT_OPS_F64)
+#undef MLB_MT_OPS_F32
+#undef MLB_MT_OPS_F64
+
+#endif

@@ -1,0 +1,157 @@
+// Marching tetrahedra's ops on the GPU (mt_ops.h's contracts, backend_ops.def): the CPU's own
+// per-element maths (mesh/marching_tets_math.h) in float, one thread per tet and per grid vertex
+// (its seven edge slots), compiled with -fmad=false (CMakeLists.txt) so that vertex positions,
+// weights and the gradients are the CPU's float bits. The surface's size is the caller's business:
+// count, then scan_i32 (exact integers, here on the device), then emit into buffers sized by the
+// totals. The backward gathers per grid vertex instead of scattering per surface vertex: each
+// output has one writer, and its terms are added in the CPU's order (mt_backward_vertex), so no
+// atomics.
+#include "common.cuh"
+typedef float real;
+#include "mesh/marching_tets_math.h"
+
+// ---- count ----
+__global__ void mt_count_kernel(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets, int T,
+                                int V, int n) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < (V > T ? V : T); i += gridDim.x * blockDim.x) {
+        if (i < T) tet_nf[i] = mt_num_tri(mt_case(sdf, tets + 4 * (size_t)i));
+        if (i < V) mt_count_slots(slot_nv, sdf, i, n);
+    }
+}
+
+static mlb_status mt_check(int T, int cells) {
+    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
+    return MLB_OK;
+}
+
+extern "C" mlb_status mlb_cuda_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf,
+                                                   const int32_t* tets, int T, int cells) {
+    MLB_TRY(mt_check(T, cells));
+    const int n = cells + 1, V = n * n * n;
+    mt_count_kernel<<<mlb_grid((size_t)(V > T ? V : T), 256), 256>>>(tet_nf, slot_nv, sdf, tets, T, V, n);
+    MLB_CUDA_LAUNCHED("marching tets count");
+    return MLB_OK;
+}
+
+// ---- scan: tiles of SCAN_TILE values, one per thread ----
+#define SCAN_TILE 1024
+
+// The exclusive scan of x over the block (SCAN_TILE threads); *total gets the block's sum. Warp
+// shuffles, then the warps' sums scanned by the first warp.
+__device__ int32_t block_exclusive_scan(int32_t x, int32_t* total) {
+    __shared__ int32_t warp_sum[SCAN_TILE / 32];
+    const int lane = threadIdx.x & 31, wid = threadIdx.x >> 5;
+    int32_t incl = x;
+    for (int o = 1; o < 32; o <<= 1) {
+        int32_t y = __shfl_up_sync(0xffffffffu, incl, o);
+        if (lane >= o) incl += y;
+    }
+    if (lane == 31) warp_sum[wid] = incl;
+    __syncthreads();
+    if (wid == 0) {
+        int32_t w = warp_sum[lane];   // SCAN_TILE / 32 == 32 warps
+        for (int o = 1; o < 32; o <<= 1) {
+            int32_t y = __shfl_up_sync(0xffffffffu, w, o);
+            if (lane >= o) w += y;
+        }
+        warp_sum[lane] = w;   // inclusive over the warps
+    }
+    __syncthreads();
+    int32_t r = (wid ? warp_sum[wid - 1] : 0) + incl - x;
+    *total = warp_sum[SCAN_TILE / 32 - 1];
+    __syncthreads();   // warp_sum may be written again by the caller's next call
+    return r;
+}
+
+__global__ void scan_tile_sums_kernel(int32_t* sums, const int32_t* in, int n) {
+    long long i = (long long)blockIdx.x * SCAN_TILE + threadIdx.x;
+    int32_t total;
+    block_exclusive_scan(i < n ? in[i] : 0, &total);
+    if (threadIdx.x == 0) sums[blockIdx.x] = total;
+}
+// One block: sums[0..nb) becomes its exclusive scan, tile after tile with a carry.
+__global__ void scan_sums_kernel(int32_t* sums, int nb) {
+    int32_t carry = 0;
+    for (int base = 0; base < nb; base += SCAN_TILE) {
+        int i = base + threadIdx.x;
+        int32_t total, x = i < nb ? sums[i] : 0;
+        int32_t e = block_exclusive_scan(x, &total);
+        if (i < nb) sums[i] = carry + e;
+        carry += total;
+    }
+}
+// Each tile's own scan plus the tiles before it; the thread of the last value writes the total.
+// Every tile reads only its own values before writing them, so out may be in.
+__global__ void scan_tiles_kernel(int32_t* out, const int32_t* in, int n, const int32_t* sums) {
+    long long i = (long long)blockIdx.x * SCAN_TILE + threadIdx.x;
+    int32_t total, x = i < n ? in[i] : 0;
+    int32_t e = block_exclusive_scan(x, &total) + sums[blockIdx.x];
+    if (i < n) out[i] = e;
+    if (i == n - 1) out[n] = e + x;
+}
+__global__ void scan_zero_kernel(int32_t* out) { out[0] = 0; }
+
+extern "C" mlb_status mlb_cuda_scan_i32(int32_t* out, const int32_t* in, int n) {
+    if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
+    if (n == 0) {
+        scan_zero_kernel<<<1, 1>>>(out);
+        MLB_CUDA_LAUNCHED("scan");
+        return MLB_OK;
+    }
+    int nb = (int)(((long long)n + SCAN_TILE - 1) / SCAN_TILE);
+    int32_t* sums;
+    MLB_TRY(mlb_cuda_scratch((void**)&sums, (size_t)nb * sizeof(int32_t)));
+    scan_tile_sums_kernel<<<nb, SCAN_TILE>>>(sums, in, n);
+    MLB_CUDA_LAUNCHED("scan tile sums");
+    scan_sums_kernel<<<1, SCAN_TILE>>>(sums, nb);
+    MLB_CUDA_LAUNCHED("scan sums");
+    scan_tiles_kernel<<<nb, SCAN_TILE>>>(out, in, n, sums);
+    MLB_CUDA_LAUNCHED("scan tiles");
+    return MLB_OK;
+}
+
+// ---- emit ----
+__global__ void mt_emit_kernel(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,
+                               const float* sdf, const int32_t* tets, int T, int V, int n, const int32_t* tet_off,
+                               const int32_t* slot_off) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < (V > T ? V : T); i += gridDim.x * blockDim.x) {
+        if (i < V) mt_emit_slots(verts, vedge, weight, pos, sdf, i, n, slot_off);
+        if (i < T) {
+            int cnt = tet_off[i + 1] - tet_off[i];
+            const int32_t* tv = tets + 4 * (size_t)i;
+            if (cnt) mt_emit_faces(faces, tv, mt_case(sdf, tv), tet_off[i], cnt, slot_off, n);
+        }
+    }
+}
+
+extern "C" mlb_status mlb_cuda_marching_tets_emit(float* verts, int32_t* vedge, float* weight, int32_t* faces,
+                                                  const float* pos, const float* sdf, const int32_t* tets, int T,
+                                                  int cells, const int32_t* tet_off, const int32_t* slot_off) {
+    MLB_TRY(mt_check(T, cells));
+    const int n = cells + 1, V = n * n * n;
+    mt_emit_kernel<<<mlb_grid((size_t)(V > T ? V : T), 256), 256>>>(verts, vedge, weight, faces, pos, sdf, tets, T, V,
+                                                                     n, tet_off, slot_off);
+    MLB_CUDA_LAUNCHED("marching tets emit");
+    return MLB_OK;
+}
+
+// ---- backward: a thread per grid vertex ----
+__global__ void mt_backward_kernel(float* dpos, float* dsdf, const float* dverts, const float* weight,
+                                   const float* pos, const float* sdf, const int32_t* slot_off, int n) {
+    const int V = n * n * n;
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        mt_backward_vertex(dpos, dsdf, v, dverts, weight, pos, sdf, slot_off, n);
+}
+
+extern "C" mlb_status mlb_cuda_marching_tets_backward(float* dpos, float* dsdf, const float* dverts,
+                                                      const float* weight, const int32_t* vedge, int nv,
+                                                      const float* pos, const float* sdf, const int32_t* slot_off,
+                                                      int cells) {
+    (void)vedge;   // the gather finds each vertex's edge from its slot
+    MLB_TRY(mt_check(0, cells));
+    if (nv <= 0 || (!dpos && !dsdf)) return MLB_OK;
+    const int n = cells + 1;
+    mt_backward_kernel<<<mlb_grid((size_t)n * n * n, 256), 256>>>(dpos, dsdf, dverts, weight, pos, sdf, slot_off, n);
+    MLB_CUDA_LAUNCHED("marching tets backward");
+    return MLB_OK;
+}

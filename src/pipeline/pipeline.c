@@ -200,14 +200,19 @@ static void stage_clock_report(const stage_clock* k, const char* stage, long ste
     double bytes = (double)(d.bytes - k->d0.bytes) / steps;
     int size = mlb_dist_size();
     double all[2 * 64];
-    double work_max = mine[0];
+    double work_max = mine[0], work_min = mine[0];
     if (size > 1 && size <= 64 && mlb_dist_allgather_items(mine, all, size, sizeof mine) == MLB_OK)
-        for (int r = 0; r < size; r++) work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+        for (int r = 0; r < size; r++) {
+            work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+            work_min = all[2 * r] < work_min ? all[2 * r] : work_min;
+        }
+    char least[64] = "";
+    if (size > 1) snprintf(least, sizeof least, "; the least busy %.3f", work_min);
     if (mlb_dist_rank() == 0)
         mlb_log(MLB_LOG_INFO,
                 "%s stage: %ld steps in %.2f s (%.3f steps/s) on %d process%s: work %.3f CPU s per step (the busiest "
-                "process), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
-                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, 1e3 * mine[1], bytes);
+                "process%s), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
+                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, least, 1e3 * mine[1], bytes);
 }
 
 // ---- what both stages share: their optimiser state, resume and the end of a step ----------------

@@ -5,9 +5,11 @@
 // How a step is shared: its n views are cut into micro-batches of a fixed size set by the run's
 // config (the guidance is called once per batch), and the batches into contiguous blocks, one per
 // rank in rank order (mlb_dist_share_batches). Each rank renders and guides its batches; the
-// per-view pieces (gradients at the narrowest point of the chain) and the per-batch losses are
-// gathered to every rank in view order (mlb_dist_allgatherv) and summed there in view order, so the
-// sum is the same float for any number of ranks, and every rank then takes the same optimiser step.
+// per-view pieces (geometry: gradients at the narrowest point of the chain) and the per-batch losses
+// are gathered to every rank in view order (mlb_dist_allgatherv) and summed there in view order, or
+// (appearance) each batch's parameter gradient is summed in batch order on every rank
+// (mlb_dist_sum_batches), so the sum is the same float for any number of ranks, and every rank then
+// takes the same optimiser step.
 //
 // A "solo" section (mlb_dist_solo) makes the calling rank a group of one: `--prompts` runs one
 // whole asset per rank that way.

@@ -12,7 +12,7 @@ M="$B/matlaber"
 T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
 args="generate -p \"a gold goblet\" --preset tiny --hash-table-log2 16 --init-iters 20 --geometry-iters $G \
 --appearance-iters $A --view-batch $K --export-texture 0 --preview-every 0 --checkpoint-every 100000"
-echo "cpu: $(grep -m1 '^model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "cpu: $(grep -m1 '^model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc --all) vCPUs; load $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "command: [mpirun -n 2] $M --threads 1 $args -o DIR"
 for r in $(seq 1 "$R"); do
   for n in 1 2; do

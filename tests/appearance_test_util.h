@@ -128,6 +128,12 @@ static inline void appearance_twin_check(const mlb_backend* be, int n, int res, 
         CHECK_PARITY(what, net[1].grads, grads0, net[0].n_enc, 10 * tol);
         snprintf(what, sizeof what, "step %d: MLP gradient", it);
         CHECK_PARITY(what, net[1].grads + net[0].n_enc, grads0 + net[0].n_enc, net[0].n_mlp, 10 * tol);
+        // the device's gradient to the host and back, as the pipeline sums several batches' (the
+        // update below would see zeros if the way back failed)
+        REQUIRE(mlb_field_grads_get(&net[1], grads0) == MLB_OK);
+        CHECK(!memcmp(grads0, net[1].grads, sizeof(float) * np));
+        material_net_zero_grad(&net[1]);
+        REQUIRE(mlb_field_grads_set(&net[1], grads0) == MLB_OK);
         for (int t = 0; t < 2; t++) REQUIRE(material_net_update(&net[t], &adam) == MLB_OK);
     }
     REQUIRE(mlb_field_leave_device(&net[1]) == MLB_OK);

@@ -2,7 +2,9 @@
 # Several processes (docs/pipeline.md, "Many processes"): a short generate with the project's own
 # model gives bitwise the asset of 1 process on 2 and 3 processes for the same view micro-batch
 # (--view-batch K: the default, all 4 views in one call, on one of 2 processes while the other has
-# none; K 2 split 2 + 2 over 2; K 3, batches of 3 + 1, over 3, one process without a batch); a run
+# none; K 2 split 2 + 2 over 2; K 3, batches of 3 + 1, over 3, one process without a batch; K 1 over
+# 3, one process with 2 batches: the appearance stage's per-batch material gradients summed in
+# batch order); a run
 # stopped on 2 resumes on 1 and on 3 to the same bytes; --prompts with 4 prompts on 2 processes
 # gives 4 run folders bitwise equal to the single-process ones, and a rerun after a stop finishes
 # only what was missing. Skips without mpirun, without an MPI build or without the model.
@@ -57,6 +59,11 @@ done
 expect 0 "1 process, --view-batch 3" -- $Q generate -p "a gold goblet" $small --view-batch 3 -o "$T/k3"
 expect 0 "3 processes, --view-batch 3" -- $MPI -n 3 $Q generate -p "a gold goblet" $small --view-batch 3 -o "$T/k3three"
 same_run "--view-batch 3: 3 processes give the asset of 1, bit for bit" "$T/k3" "$T/k3three"
+# batches of 1 over 3 processes: 1, 1, 2 batches; the last process sums its 2 batches' material
+# gradients with the others' in batch order, the material network run per batch (docs/pipeline.md)
+expect 0 "1 process, --view-batch 1" -- $Q generate -p "a gold goblet" $small --view-batch 1 -o "$T/k1"
+expect 0 "3 processes, --view-batch 1" -- $MPI -n 3 $Q generate -p "a gold goblet" $small --view-batch 1 -o "$T/k1three"
+same_run "--view-batch 1: 3 processes (one with 2 batches) give the asset of 1, bit for bit" "$T/k1" "$T/k1three"
 expect 2 "--view-batch 65 refused" -- $Q generate -p "a gold goblet" $small --view-batch 65 -o "$T/bad"
 err_has "names the option and its range" "view-batch: expected 0..64"
 

@@ -1,6 +1,7 @@
 // include/matlaber/dist.h as a build without MPI has it (src/core/dist.c compiled once more without
 // MLB_HAVE_MPI, CMakeLists.txt): one process whose collectives copy, and a clear refusal when a
 // launcher started several copies (mpirun / srun on a build without MPI).
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/dist.h"
@@ -61,6 +62,12 @@ TEST(shares_and_copies) {
     CHECK(!memcmp(mine, all2, sizeof mine));
     CHECK(mlb_dist_max_int(5) == 5);
     CHECK(mlb_dist_bcast(all, sizeof all, 0) == MLB_OK && mlb_dist_barrier() == MLB_OK);
+    // the batches' vectors added left to right, out = v_0 for one batch, out may be the first vector
+    float v[3][3] = {{1e8f, 1, -0.0f}, {-1e8f, 2, -0.0f}, {1, 3, -0.0f}}, sum[3];
+    CHECK(mlb_dist_sum_batches(v[0], sum, 3, 3) == MLB_OK);
+    CHECK(sum[0] == (1e8f + -1e8f) + 1 && sum[1] == 6 && sum[2] == 0 && signbit(sum[2]));
+    CHECK(mlb_dist_sum_batches(v[1], sum, 3, 1) == MLB_OK && !memcmp(sum, v[1], sizeof sum));
+    CHECK(mlb_dist_sum_batches(v[0], v[0], 3, 2) == MLB_OK && v[0][0] == 0 && v[0][1] == 3);
     mlb_dist_solo(1);
     CHECK(mlb_dist_size() == 1);
     mlb_dist_solo(0);

@@ -362,6 +362,34 @@ TEST(smoothness) {
         CHECK(net.grads[i] != 0);
     }
     CHECK(mlb_material_smoothness_f64(&net, pts, 0, sigma, weight, wspec, 42, 7, 0, &L) == MLB_ERR_ARG);
+    // shares of the points (the pipeline's per-batch shares): the whole's loss and gradient as sums;
+    // the one share of every point is the whole, bit for bit
+    double* whole = malloc(sizeof(double) * net.n_params);
+    double* parts = calloc(net.n_params, sizeof(double));
+    REQUIRE(whole && parts);
+    material_net_zero_grad_f64(&net);
+    REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 1, &L) == MLB_OK);
+    memcpy(whole, net.grads, sizeof(double) * net.n_params);
+    double Lsum = 0, Lone;
+    const int cut[4] = {0, 17, 17, n};   // an empty share included
+    for (int q = 0; q < 3; q++) {
+        double Lq;
+        material_net_zero_grad_f64(&net);
+        REQUIRE(mlb_material_smoothness_part_f64(&net, pts, n, cut[q], cut[q + 1] - cut[q], sigma, weight, wspec, 42, 7, 1,
+                                                 &Lq) == MLB_OK);
+        Lsum += Lq;
+        for (size_t i = 0; i < net.n_params; i++) parts[i] += net.grads[i];
+    }
+    CHECK_CLOSE(Lsum, L, 1e-12, 0);
+    double worst = 0;
+    for (size_t i = 0; i < net.n_params; i++) worst = fmax(worst, fabs(parts[i] - whole[i]));
+    CHECK_MSG(worst < 1e-12, "shares' gradients differ from the whole's by %g", worst);
+    material_net_zero_grad_f64(&net);
+    REQUIRE(mlb_material_smoothness_part_f64(&net, pts, n, 0, n, sigma, weight, wspec, 42, 7, 1, &Lone) == MLB_OK);
+    CHECK(Lone == L && !memcmp(net.grads, whole, sizeof(double) * net.n_params));
+    CHECK(mlb_material_smoothness_part_f64(&net, pts, n, 40, 11, sigma, weight, wspec, 42, 7, 0, &L) == MLB_ERR_ARG);
+    free(whole);
+    free(parts);
     material_net_free_f64(&net);
     brdf_ae_free(&prior);
 }

@@ -6,7 +6,8 @@
 //   per view: clip = view_proj · pos → rasterize at S = res·ss → interpolate world position and
 //             vertex normal per pixel → normalise the normal and turn it towards the camera (two-
 //             sided, as mlb_render_shaded) → v = (eye − p)/|eye − p|
-//   all views at once: k = material_net(p) at every covered pixel of every view (ONE batch)
+//   all views at once: k = material_net(p) at every covered pixel of every view (ONE batch; of
+//             the part's views with a part set)
 //   per view: split-sum shading (shade.h, Fresnel a->fresnel) under lights[view.env] rotated about
 //             +y by view.env_rotation_deg (absolute: the light's own rotation is replaced) →
 //             c = sRGB(clamp(L, 0, 1)) → [c·m, m] with m the 0/1 coverage (composite over black)
@@ -33,13 +34,12 @@
     typedef struct {                                                                                 \
         mlb_fresnel fresnel;                     /* 0 = MLB_FRESNEL_PAPER (the paper's Fresnel) */     \
         struct N(mlb_appearance_state)* state;   /* private: the last render, kept for backward */    \
-        /* This process's views (dist.h): it rasterises, shades and backpropagates views            \
-           [part_first, part_first + part_count) only; the surface points and their material        \
-           gradients are gathered from the other ranks, so that every rank evaluates and trains the  \
-           material network on every view's points, in view order (the others' images stay 0).     \
-           The ranks hold whole batches of part_batch views (mlb_dist_share_batches; 0: one batch).  \
-           part_count 0: every view (one process), -1: none (a rank without a view this step). */   \
-        int part_first, part_count, part_batch;                                                      \
+        /* A part of the step's views (dist.h: one micro-batch of a process's share): the render,   \
+           the material network's forward and the backward cover views [part_first, part_first +   \
+           part_count) only, their samples in one batch; the other views' images are left as they   \
+           are. No collectives: the pipeline sums the parts' parameter gradients (docs/pipeline.md). \
+           part_count 0: every view, -1: none. */                                                    \
+        int part_first, part_count;                                                                  \
     } N(mlb_appearance);                                                                             \
     void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
     /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \
@@ -53,7 +53,7 @@
     /* dimages [n, res, res, 4] (of the last render, kept) → net->grads += ∂(Σ dimages·images)/∂params. \
        The net's cache must still be the render's (no material_net_forward in between). */          \
     mlb_status N(mlb_appearance_backward)(N(mlb_appearance)* a, N(mlb_material_net)* net, const R* dimages); \
-    /* The last render's surface points [*n, 3] (covered samples of all views, view-major; NULL when  \
+    /* The last render's surface points [*n, 3] (covered samples of its views, view-major; NULL when  \
        none): e.g. where to evaluate the smoothness regulariser. Valid until the next render. */      \
     const R* N(mlb_appearance_points)(const N(mlb_appearance)* a, int* n);                           \
     /* Material smoothness (paper §3.4, nvdiffrec):                                                   \
@@ -67,7 +67,15 @@
        forward cache: call it after mlb_appearance_backward. *loss (may be NULL) receives L. */      \
     mlb_status N(mlb_material_smoothness)(N(mlb_material_net)* net, const R* pts, int n, double sigma,      \
                                           double weight, double weight_spec, uint64_t seed, long step,       \
-                                          int backward, double* loss);
+                                          int backward, double* loss);                               \
+    /* The term's share of points [first, first + count) of the n pts: its scales are the whole      \
+       term's (1/n), its noise the whole term's for those points, so the shares of a partition give  \
+       the whole loss and gradient as a sum (in another order: the whole is the one-share case).   \
+       count 0: nothing (*loss 0). */                                                                \
+    mlb_status N(mlb_material_smoothness_part)(N(mlb_material_net)* net, const R* pts, int n, int first,  \
+                                               int count, double sigma, double weight,                  \
+                                               double weight_spec, uint64_t seed, long step,           \
+                                               int backward, double* loss);
 
 #define MLB_APPEARANCE_F32(name) name
 #define MLB_APPEARANCE_F64(name) name##_f64

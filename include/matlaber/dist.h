@@ -5,9 +5,11 @@
 // How a step is shared: its n views are cut into micro-batches of a fixed size set by the run's
 // config (the guidance is called once per batch), and the batches into contiguous blocks, one per
 // rank in rank order (mlb_dist_share_batches). Each rank renders and guides its batches; the
-// per-view pieces (gradients at the narrowest point of the chain) and the per-batch losses are
-// gathered to every rank in view order (mlb_dist_allgatherv) and summed there in view order, so the
-// sum is the same float for any number of ranks, and every rank then takes the same optimiser step.
+// per-view pieces (geometry: gradients at the narrowest point of the chain) and the per-batch losses
+// are gathered to every rank in view order (mlb_dist_allgatherv) and summed there in view order, or
+// (appearance) each batch's parameter gradient is summed in batch order on every rank
+// (mlb_dist_sum_batches), so the sum is the same float for any number of ranks, and every rank then
+// takes the same optimiser step.
 //
 // A "solo" section (mlb_dist_solo) makes the calling rank a group of one: `--prompts` runs one
 // whole asset per rank that way.
@@ -54,6 +56,14 @@ mlb_status mlb_dist_allgatherv(const void* mine, void* all, const size_t* bytes)
 mlb_status mlb_dist_allgather_items(const void* mine, void* all, int n, size_t item_bytes);
 // The same for items shared in batches as mlb_dist_share_batches_of shares them.
 mlb_status mlb_dist_allgather_batches(const void* mine, void* all, int n, int batch, size_t item_bytes);
+// The sum of nb vectors of len floats, one per batch, the batches shared over the ranks as
+// mlb_dist_share_of shares nb items: mine [count · len] holds this rank's batches' vectors in batch
+// order (NULL or anything when it holds none). out [len] = v_0 + v_1 + ... + v_{nb-1}, added left to
+// right (out = v_0 when nb = 1), so the sum is the same float on every rank for any number of ranks.
+// The vectors travel in slices of at most MLB_DIST_SUM_SLICE floats each (scratch: nb slices), so
+// the memory does not grow with len. out may be mine (this rank's first vector).
+#define MLB_DIST_SUM_SLICE ((size_t)1 << 20)
+mlb_status mlb_dist_sum_batches(const float* mine, float* out, size_t len, int nb);
 mlb_status mlb_dist_bcast(void* buf, size_t bytes, int root);
 // The largest of every rank's value (status codes: nonzero anywhere is nonzero everywhere).
 int mlb_dist_max_int(int v);

@@ -95,6 +95,11 @@ MLB_FIELD_DECLARE(double, MLB_FIELD_F64)
 mlb_status mlb_field_use_device(mlb_field* f, const mlb_backend* be);
 mlb_status mlb_field_sync_host(mlb_field* f);        // params, grads, adam_m, adam_v to the host
 mlb_status mlb_field_leave_device(mlb_field* f);     // syncs and frees the device copy
+// The gradients (grads) to a host array and back, from or to the device where the field is there
+// (on the host: a copy, nothing when the array is f->grads): the pipeline sums several processes'
+// gradients on the host (docs/pipeline.md, "Several processes").
+mlb_status mlb_field_grads_get(mlb_field* f, float* out);
+mlb_status mlb_field_grads_set(mlb_field* f, const float* in);
 const mlb_backend* mlb_field_backend(const mlb_field* f);   // NULL for a field on the host
 
 // ---- files (float fields; src/field/field_io.c) ----

@@ -182,6 +182,46 @@ mlb_status mlb_dist_allgather_items(const void* mine, void* all, int n, size_t i
     return mlb_dist_allgather_batches(mine, all, n, 1, item_bytes);
 }
 
+// out[i] = v_0[i] + v_1[i] + ... in that order, element by element (the same on any thread count)
+static void sum_in_order(float* out, const float* v, size_t stride, size_t len, int nb) {
+#pragma omp parallel for schedule(static) if (len > 65536)
+    for (size_t i = 0; i < len; i++) {
+        float acc = v[i];
+        for (int b = 1; b < nb; b++) acc += v[(size_t)b * stride + i];
+        out[i] = acc;
+    }
+}
+
+mlb_status mlb_dist_sum_batches(const float* mine, float* out, size_t len, int nb) {
+    if (nb < 1 || !len) return MLB_OK;
+    if (!collective()) {   // every batch is here: v_b = mine + b · len
+        sum_in_order(out, mine, len, len, nb);
+        return MLB_OK;
+    }
+    int size = mlb_dist_size(), rank = mlb_dist_rank(), b0, bc;
+    mlb_dist_share_of(nb, rank, size, &b0, &bc);
+    size_t slice = len < MLB_DIST_SUM_SLICE ? len : MLB_DIST_SUM_SLICE;
+    float* all = malloc(sizeof(float) * slice * (size_t)nb);   // [nb, slice]: every batch's slice
+    size_t* bytes = malloc(sizeof(size_t) * (size_t)size);
+    if (!all || !bytes) { free(all); free(bytes); return mlb_fail(MLB_ERR_NOMEM, "gradient sum: out of memory (%d batches)", nb); }
+    mlb_status s = MLB_OK;
+    for (size_t a = 0; !s && a < len; a += slice) {
+        size_t m = len - a < slice ? len - a : slice;
+        for (int r = 0; r < size; r++) {
+            int f, c;
+            mlb_dist_share_of(nb, r, size, &f, &c);
+            bytes[r] = sizeof(float) * m * (size_t)c;
+        }
+        // this rank's slices, packed [bc, m] at its batches' place (read before out's slice is written)
+        for (int j = 0; j < bc; j++) memcpy(all + (size_t)(b0 + j) * m, mine + (size_t)j * len + a, sizeof(float) * m);
+        s = mlb_dist_allgatherv(all + (size_t)b0 * m, all, bytes);
+        if (!s) sum_in_order(out + a, all, m, m, nb);
+    }
+    free(all);
+    free(bytes);
+    return s;
+}
+
 mlb_status mlb_dist_bcast(void* buf, size_t bytes, int root) {
     if (!collective() || !bytes) return MLB_OK;
 #ifdef MLB_HAVE_MPI

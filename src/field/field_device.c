@@ -211,6 +211,26 @@ mlb_status mlb_field_sync_host(mlb_field* net) {
     return MLB_OK;
 }
 
+mlb_status mlb_field_grads_get(mlb_field* net, float* out) {
+    struct mlb_field_device* d = net->dev;
+    if (!d) {
+        if (out != net->grads) memcpy(out, net->grads, sizeof(float) * net->n_params);
+        return MLB_OK;
+    }
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    return d->be->download(out, d->grads, net->n_params);
+}
+
+mlb_status mlb_field_grads_set(mlb_field* net, const float* in) {
+    struct mlb_field_device* d = net->dev;
+    if (!d) {
+        if (in != net->grads) memcpy(net->grads, in, sizeof(float) * net->n_params);
+        return MLB_OK;
+    }
+    d->host_behind = 1;   // (the host's grads may be `in` itself: the other arrays are behind anyway)
+    return d->be->upload(d->grads, in, net->n_params);
+}
+
 mlb_status mlb_field_leave_device(mlb_field* net) {
     if (!net->dev) return MLB_OK;
     MLB_TRY(mlb_field_sync_host(net));

@@ -5,7 +5,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/appearance.h"
-#include "matlaber/dist.h"
 #include "matlaber/raster.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
@@ -56,8 +55,7 @@ struct FN(mlb_appearance_state) {
     mlb_raster_ctx* ctx;
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
-    int v0, v1, parted, batch;            // this process's views [v0, v1); parted: gather the rest,
-                                          // held by the ranks in whole batches of `batch` views
+    int v0, v1;                           // the views rendered: [v0, v1) (a part, or all)
     const int32_t* faces;
     int32_t *adj, *tri, *where, *start;   // start [n_views + 1]: first point of each view
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
@@ -171,7 +169,7 @@ static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(m
     return MLB_OK;
 }
 
-// dkd, dks, dkr (zeroed by the caller) += the shading's gradients from drgb, every view.
+// dkd, dks, dkr (zeroed by the caller) += the shading's gradients from drgb, the rendered views.
 static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
                                            real* dkd, real* dks, real* dkr, const real* drgb, mlb_fresnel fresnel) {
 #ifndef MLB_F64
@@ -192,7 +190,7 @@ static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, c
     return MLB_OK;
 }
 
-// The views this process renders: [*v0, *v1) of n (all unless the caller set a part).
+// The views rendered: [*v0, *v1) of n (all unless the caller set a part).
 static void FN(part_range)(const FN(mlb_appearance)* a, int n, int* v0, int* v1) {
     *v0 = 0;
     *v1 = n;
@@ -202,21 +200,6 @@ static void FN(part_range)(const FN(mlb_appearance)* a, int n, int* v0, int* v1)
     } else if (a->part_count < 0) {   // a rank with no view of this step
         *v0 = *v1 = a->part_first >= 0 && a->part_first < n ? a->part_first : n;
     }
-}
-
-// buf [N, C] per covered sample, view-major: every rank's views' rows to every rank (dist.h).
-static mlb_status FN(gather_points)(const struct FN(mlb_appearance_state)* s, real* buf, int C) {
-    int size = mlb_dist_size(), n = s->n_views;
-    size_t* bytes = malloc(sizeof(size_t) * (size_t)size);
-    if (!bytes) return mlb_fail(MLB_ERR_NOMEM, "appearance: out of memory");
-    for (int r = 0; r < size; r++) {
-        int f, c;
-        mlb_dist_share_batches_of(n, s->batch, r, size, &f, &c);
-        bytes[r] = sizeof(real) * (size_t)C * (size_t)(s->start[f + c] - s->start[f]);
-    }
-    mlb_status st = mlb_dist_allgatherv(buf + (size_t)C * (size_t)s->start[s->v0], buf, bytes);
-    free(bytes);
-    return st;
 }
 
 mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const mlb_mesh* mesh,
@@ -265,11 +248,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     s->res = res;
     s->ss = ss;
 
-    // rasterize every view (of this process's part), count the covered samples; the other ranks'
-    // counts are gathered, so every rank knows where each view's samples start
+    // rasterize every view of the part, count the covered samples (the other views have none)
     FN(part_range)(a, n, &s->v0, &s->v1);
-    s->parted = a->part_count != 0;
-    s->batch = a->part_batch;
     int32_t* counts = s->start + 1;   // counts[v], then made into starts in place
     memset(s->start, 0, sizeof(int32_t) * (nv + 1));
     for (int v = s->v0; v < s->v1; v++) {
@@ -281,7 +261,6 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         for (size_t i = 0; i < P; i++) c += tri[i] >= 0;
         counts[v] = c;
     }
-    if (s->parted) MLB_TRY(mlb_dist_allgather_batches(counts + s->v0, counts, n, s->batch, sizeof(int32_t)));
     size_t total = 0;
     for (int v = 0; v < n; v++) {
         total += (size_t)counts[v];
@@ -315,9 +294,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         }
     }
     s->n_points = N;
-    if (s->parted) MLB_TRY(FN(gather_points)(s, s->pts, 3));
 
-    // the material of every sample in one batch (every view's, on every rank)
+    // the material of every sample of the part in one batch
     if (N > 0) {
         if (keep_for_backward) MLB_TRY(FN(material_net_forward)(net, k, NULL, s->pts, N));
         else MLB_TRY(FN(material_net_eval)(net, s->pts, (size_t)N, k, NULL));
@@ -333,7 +311,6 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // shade; then sRGB, composite, antialias, downsample: per view
     MLB_TRY(FN(shade_views)(s, net, lights, views, a->fresnel));
     size_t p = (size_t)res * res;
-    if (s->parted) memset(images, 0, sizeof(real) * 4 * p * nv);
     for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         real* color = s->color + 4 * P * v;
@@ -393,35 +370,44 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
                 drgb[3 * (size_t)j + c] = dcolor[4 * (size_t)s->where[j] + c] * FN(srgb_clamped_d)(s->rgb[3 * (size_t)j + c]);
     }
     MLB_TRY(FN(shade_views_backward)(s, net, dkd, dks, dkr, drgb, a->fresnel));
-    for (int i = s->start[s->v0]; i < s->start[s->v1]; i++) {
+    for (int i = 0; i < N; i++) {
         for (int c = 0; c < 3; c++) {
             dk[7 * (size_t)i + c] = dkd[3 * (size_t)i + c];
             dk[7 * (size_t)i + 3 + c] = dks[3 * (size_t)i + c];
         }
         dk[7 * (size_t)i + 6] = dkr[i];
     }
-    // every view's material gradients to every rank: the network's backward over all points, the
-    // sums in point order, as on one process
-    if (s->parted) MLB_TRY(FN(gather_points)(s, dk, 7));
     return FN(material_net_backward)(net, dk, NULL);
 }
 
 mlb_status FN(mlb_material_smoothness)(FN(mlb_material_net)* net, const real* pts, int n, double sigma, double weight,
                                        double weight_spec, uint64_t seed, long step, int backward, double* loss) {
+    return FN(mlb_material_smoothness_part)(net, pts, n, 0, n, sigma, weight, weight_spec, seed, step, backward, loss);
+}
+
+// The points [first, first + count) of the n: the whole term's scales (1/n) and noise indices, so
+// that the parts of a partition add up to the whole (the same code, and bits, for the whole).
+mlb_status FN(mlb_material_smoothness_part)(FN(mlb_material_net)* net, const real* pts, int n, int first, int count,
+                                            double sigma, double weight, double weight_spec, uint64_t seed, long step,
+                                            int backward, double* loss) {
     if (loss) *loss = 0;
     if (n < 1 || n > INT32_MAX / 2 || !pts) return mlb_fail(MLB_ERR_ARG, "material smoothness: %d points", n);
+    if (first < 0 || count < 0 || first > n - count)
+        return mlb_fail(MLB_ERR_ARG, "material smoothness: points [%d, %d) of %d", first, first + count, n);
     if (!(sigma >= 0) || !isfinite(sigma) || !isfinite(weight) || !isfinite(weight_spec))
         return mlb_fail(MLB_ERR_ARG, "material smoothness: sigma %g, weights %g, %g", sigma, weight, weight_spec);
-    size_t nn = (size_t)n;
-    real* x = malloc(sizeof(real) * 6 * nn);    // [2n, 3]: the points, then the jittered points
-    real* k = malloc(sizeof(real) * 14 * nn);   // [2n, 7]
-    if (!x || !k) { free(x); free(k); return mlb_fail(MLB_ERR_NOMEM, "material smoothness: out of memory (%d points)", n); }
-    uint64_t base = (uint64_t)step << 32;
+    if (count == 0) return MLB_OK;
+    size_t nn = (size_t)count;
+    pts += 3 * (size_t)first;
+    real* x = malloc(sizeof(real) * 6 * nn);    // [2·count, 3]: the points, then the jittered points
+    real* k = malloc(sizeof(real) * 14 * nn);   // [2·count, 7]
+    if (!x || !k) { free(x); free(k); return mlb_fail(MLB_ERR_NOMEM, "material smoothness: out of memory (%d points)", count); }
+    uint64_t base = ((uint64_t)step << 32) + 3 * (uint64_t)first;
     for (size_t i = 0; i < 3 * nn; i++) {
         x[i] = pts[i];
         x[3 * nn + i] = pts[i] + (real)(sigma * mlb_rng_normal_f64(seed, STREAM_SMOOTH, base + i));
     }
-    mlb_status st = FN(material_net_forward)(net, k, NULL, x, 2 * n);
+    mlb_status st = FN(material_net_forward)(net, k, NULL, x, 2 * count);
     if (!st) {
         // channel c's scale: weight / 3n for kd (0-2), weight_spec / 4n for ks and kr (3-6)
         const double scale_kd = weight / (3.0 * n), scale_spec = weight_spec / (4.0 * n);

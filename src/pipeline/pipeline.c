@@ -20,6 +20,7 @@
 #include "matlaber/run_textured.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
+#include "matlaber/shade.h"
 #include "pipeline/pipeline_internal.h"
 
 // ---- optimiser state: one safetensors file per stage -----------------------------------------
@@ -199,14 +200,19 @@ static void stage_clock_report(const stage_clock* k, const char* stage, long ste
     double bytes = (double)(d.bytes - k->d0.bytes) / steps;
     int size = mlb_dist_size();
     double all[2 * 64];
-    double work_max = mine[0];
+    double work_max = mine[0], work_min = mine[0];
     if (size > 1 && size <= 64 && mlb_dist_allgather_items(mine, all, size, sizeof mine) == MLB_OK)
-        for (int r = 0; r < size; r++) work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+        for (int r = 0; r < size; r++) {
+            work_max = all[2 * r] > work_max ? all[2 * r] : work_max;
+            work_min = all[2 * r] < work_min ? all[2 * r] : work_min;
+        }
+    char least[64] = "";
+    if (size > 1) snprintf(least, sizeof least, "; the least busy %.3f", work_min);
     if (mlb_dist_rank() == 0)
         mlb_log(MLB_LOG_INFO,
                 "%s stage: %ld steps in %.2f s (%.3f steps/s) on %d process%s: work %.3f CPU s per step (the busiest "
-                "process), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
-                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, 1e3 * mine[1], bytes);
+                "process%s), rank 0 %.1f ms per step in collectives (waiting included), %.0f bytes received per step",
+                stage, steps, t, steps / t, size, size > 1 ? "es" : "", work_max, least, 1e3 * mine[1], bytes);
 }
 
 // ---- what both stages share: their optimiser state, resume and the end of a step ----------------
@@ -364,15 +370,31 @@ static mlb_status appearance_stage(pipeline_run* r) {
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
     }
     // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
-    // guidance call each, the same calls on any number of processes
+    // guidance call each, the same calls on any number of processes. Each batch is rendered, guided
+    // and backpropagated on its own (the material network over its samples only, with its share of
+    // the smoothness points), into a gradient of its own; the batches' gradients are then summed in
+    // batch order on every process (mlb_dist_sum_batches), so every process takes the same AdamW
+    // step and the bits depend on the batch size, not on the number of processes. One batch (the
+    // default) on one process is the gradient as it always was: nothing is copied or summed.
     const int k = mlb_guidance_batch(r->g, n), nb = (n + k - 1) / k;
-    int v0 = 0, cnt = n;
+    const int smooth_on = c->w_mat > 0 || c->w_mat_spec > 0;
+    int v0 = 0, cnt = n, b0 = 0, bc = nb;
     mlb_dist_share_batches(n, k, &v0, &cnt);
-    app.part_first = v0;
-    app.part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
-    app.part_batch = k;
-    double* losses = calloc((size_t)nb, sizeof(double));   // one per batch
+    mlb_dist_share(nb, &b0, &bc);   // the same batches, counted in batches
+    const int sum_grads = nb > 1 || mlb_dist_size() > 1;
+    // this process's batches' gradients [bc, n_params] where they cannot stay in net->grads (one batch
+    // on the host: the sum reads it there and writes the total over it)
+    const int own_in_place = bc == 1 && !mlb_field_backend(net);
+    float* mine = NULL;
+    if (!s && sum_grads && bc > 0 && !own_in_place) {
+        mine = malloc(sizeof(float) * net->n_params * (size_t)bc);
+        if (!mine) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory (%d gradients of %zu parameters)", bc, net->n_params);
+    }
+    double* losses = calloc(2 * (size_t)nb, sizeof(double));   // per batch: guidance, smoothness
     if (!losses && !s) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    // the shading's split-sum table, built once per process on first use (about 0.75 CPU s on the
+    // benchmark machine): before the clock, so that the stage report's work per step is the steps'
+    if (!s && !mlb_splitsum_lut()) s = mlb_fail_context(MLB_ERR_NOMEM, "appearance stage");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->appearance_iters; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
@@ -380,24 +402,35 @@ static mlb_status appearance_stage(pipeline_run* r) {
         // paint with image guidance: the views were taken of the mesh as given; move their cameras
         // into the frame the mesh was moved into (SDS cameras are the frame's own)
         for (int i = 0; !s && paint_images && i < n; i++) s = mlb_paint_frame_camera(c->paint_centre, c->paint_scale, &views[i].cam);
-        material_net_zero_grad(net);
-        if (!s) s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
-        double loss = 0, smooth = 0;
-        if (!s) memset(dimages, 0, sizeof(float) * img * (size_t)n);
-        if (!s)
-            s = mlb_guidance_loss_batches(r->g, MLB_STAGE_APPEARANCE, it, views, n, v0, cnt, images, c->res, c->res, dimages,
-                                          losses);
-        s = pipeline_agree(s);   // the gathers below need every rank
-        if (!s && app.part_count != 0) s = mlb_dist_allgather_items(losses + v0 / k, losses, nb, sizeof(double));
-        for (int b = 0; !s && b < nb; b++) loss += losses[b];   // in view order
-        if (!s) s = mlb_appearance_backward(&app, net, dimages);
-        if (!s && app.part_count != 0 && preview_at(c, it))   // previews: every view's render
-            s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
-        if (!s && (c->w_mat > 0 || c->w_mat_spec > 0)) {
+        if (!s && cnt > 0) memset(dimages + img * (size_t)v0, 0, sizeof(float) * img * (size_t)cnt);
+        if (!s && smooth_on && bc > 0)   // every process draws the same points, each smooths its batches' share
             s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
-            if (!s) s = mlb_material_smoothness(net, pts, SMOOTH_POINTS, c->mat_sigma, c->w_mat, c->w_mat_spec, c->seed, it,
-                                                1, &smooth);
+        for (int j = 0; !s && j < bc; j++) {
+            int b = b0 + j, f = b * k, m = n - f < k ? n - f : k, p0, pc;
+            material_net_zero_grad(net);
+            app.part_first = f;
+            app.part_count = m;
+            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
+            if (!s) s = mlb_guidance_loss_batches(r->g, MLB_STAGE_APPEARANCE, it, views, n, f, m, images, c->res, c->res,
+                                                  dimages, losses);
+            if (!s) s = mlb_appearance_backward(&app, net, dimages);
+            mlb_dist_share_of(SMOOTH_POINTS, b, nb, &p0, &pc);
+            if (!s && smooth_on)
+                s = mlb_material_smoothness_part(net, pts, SMOOTH_POINTS, p0, pc, c->mat_sigma, c->w_mat, c->w_mat_spec,
+                                                 c->seed, it, 1, &losses[nb + b]);
+            if (!s && mine) s = mlb_field_grads_get(net, mine + net->n_params * (size_t)j);
         }
+        s = pipeline_agree(s);   // the collectives below need every rank
+        if (!s && sum_grads) {
+            s = mlb_dist_sum_batches(mine ? mine : net->grads, net->grads, net->n_params, nb);
+            if (!s && mlb_field_backend(net)) s = mlb_field_grads_set(net, net->grads);
+        }
+        double loss = 0, smooth = 0;   // the batches' losses, shared as the batches are
+        if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + b0, losses, nb, sizeof(double));
+        if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + nb + b0, losses + nb, nb, sizeof(double));
+        for (int b = 0; !s && b < nb; b++) { loss += losses[b]; smooth += losses[nb + b]; }   // in batch order
+        if (!s && mlb_dist_size() > 1 && preview_at(c, it))   // previews: every view's render
+            s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
         if (!s) s = material_net_update(net, &adam);
         s = pipeline_agree(s);
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
@@ -415,6 +448,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     free(dimages);
     free(pts);
     free(losses);
+    free(mine);
     return s;
 }
 

@@ -22,6 +22,7 @@
 #ifndef MATLABER_APPEARANCE_H
 #define MATLABER_APPEARANCE_H
 #include <stdint.h>
+#include "matlaber/backend.h"
 #include "matlaber/envmap.h"
 #include "matlaber/error.h"
 #include "matlaber/guidance.h"
@@ -40,6 +41,10 @@
            are. No collectives: the pipeline sums the parts' parameter gradients (docs/pipeline.md). \
            part_count 0: every view, -1: none. */                                                    \
         int part_first, part_count;                                                                  \
+        /* The op table rasterize, interpolate, antialias and its backward run on (float; NULL: the  \
+           CPU's; the double build calls the CPU's _f64 functions): the run's (pipeline_run.be). The \
+           shading runs on the material network's device (mlb_field_backend). */                    \
+        const mlb_backend* be;                                                                       \
     } N(mlb_appearance);                                                                             \
     void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
     /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \
@@ -91,5 +96,10 @@ MLB_APPEARANCE_DECLARE(double, MLB_APPEARANCE_F64)
 // antialiased coverage (background 0).
 mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh, const mlb_view* view, int res,
                                float* kd_img, float* ks_img, float* kr_img, float* normal_img);
+// The same with the raster ops of table be (NULL: the CPU's). The mesh and the maps are host
+// buffers, so be is the CPU's for now (docs/cuda.md "The renderer on the op table").
+mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
+                                  const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
+                                  float* normal_img);
 
 #endif

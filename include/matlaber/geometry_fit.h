@@ -93,9 +93,10 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            part_batch views (mlb_dist_share_batches; 0: one batch). part_count 0: every view (no    \
            gathers), -1: none. */                                                                   \
         int part_first, part_count, part_batch;                                                     \
-        /* Set by the caller before the forward (float): the op table marching tets runs on (NULL:  \
-           the CPU's, mlb_backend_cpu); mt its buffers there (the state's own). The double build    \
-           calls marching_tets_forward_f64 directly. */                                             \
+        /* Set by the caller before the forward (float): the op table marching tets and the views' \
+           rasterize, interpolate, antialias and their backwards run on (NULL: the CPU's,          \
+           mlb_backend_cpu); mt its buffers there (the state's own). The double build calls the    \
+           CPU's _f64 functions directly. */                                                        \
         const mlb_backend* be;                                                                      \
         mlb_mt_device* mt;                                                                          \
     } N(mlb_geofit_state);                                                                          \
@@ -117,6 +118,10 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
        seen by cam: rasterize at res·ss, interpolate, antialias, downsample. ctx may be NULL. */   \
     mlb_status N(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, R* out, const mlb_mesh* m,            \
                                          const mlb_camera* cam, int res, int ss);                   \
+    /* The same with the raster ops of table be (NULL: the CPU's; the double build ignores it):     \
+       the mesh, its normals and out stay host buffers, so be is the CPU's for now (docs/cuda.md). */ \
+    mlb_status N(mlb_geofit_render_mesh_on)(const mlb_backend* be, mlb_raster_ctx* ctx, R* out,      \
+                                            const mlb_mesh* m, const mlb_camera* cam, int res, int ss); \
     /* The L2 loss of the network's surface against targets[v·res·res·4] seen by cams[v],          \
        v < n_views, with regulariser weight reg_weight (forward + loss + backward above).          \
        backward != 0: net->grads += ∂L/∂params (zero them first). An empty surface is an error.  */ \

@@ -14,6 +14,7 @@
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
+#include "nn/raster_table.h"
 
 
 // One view's buffers at the render size S = res·ss (forward kept for the backward).
@@ -53,12 +54,13 @@ static mlb_status FN(geofit_view_alloc)(FN(geofit_view)* v, int res, int ss, int
 }
 
 // Forward of one view: attr [V,4] = [normal, 1] at clip [V,4] → v->out [res,res,4].
-static mlb_status FN(geofit_view_forward)(mlb_raster_ctx* ctx, FN(geofit_view)* v, const real* attr, const real* clip,
-                                         int nv, const int32_t* faces, const int32_t* adj, int nf, int res, int ss) {
+static mlb_status FN(geofit_view_forward)(const mlb_backend* be, mlb_raster_ctx* ctx, FN(geofit_view)* v,
+                                         const real* attr, const real* clip, int nv, const int32_t* faces,
+                                         const int32_t* adj, int nf, int res, int ss) {
     int S = res * ss;
-    mlb_status s = FN(mlb_rasterize)(ctx, v->tri, v->bary, v->depth, NULL, clip, nv, faces, nf, S, S);
-    if (!s) s = FN(mlb_interpolate)(v->img, attr, nv, 4, v->tri, v->bary, faces, nf, S, S);
-    if (!s) s = FN(mlb_antialias)(ctx, v->aa, v->weights, v->img, 4, v->tri, v->depth, clip, nv, faces, adj, nf, S, S);
+    mlb_status s = FN(rt_rasterize)(be, ctx, v->tri, v->bary, v->depth, clip, nv, faces, nf, S, S);
+    if (!s) s = FN(rt_interpolate)(be, v->img, attr, nv, 4, v->tri, v->bary, faces, nf, S, S);
+    if (!s) s = FN(rt_antialias)(be, ctx, v->aa, v->weights, v->img, 4, v->tri, v->depth, clip, nv, faces, adj, nf, S, S);
     if (!s && ss > 1) FN(mlb_downsample_box)(v->out, v->aa, res, res, 4, ss);
     return s;
 }
@@ -70,6 +72,11 @@ static uint64_t FN(geofit_hash)(uint64_t h, const int32_t* tri, size_t n) {
 
 mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_mesh* m, const mlb_camera* cam, int res,
                                      int ss) {
+    return FN(mlb_geofit_render_mesh_on)(NULL, ctx, out, m, cam, res, ss);
+}
+
+mlb_status FN(mlb_geofit_render_mesh_on)(const mlb_backend* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
+                                        const mlb_camera* cam, int res, int ss) {
     size_t V = (size_t)m->n_verts;
     real* pos = malloc(sizeof(real) * V * 3);
     real* nrm = malloc(sizeof(real) * V * 3);
@@ -88,7 +95,7 @@ mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_
         }
         FN(mlb_transform_points)(clip, pos, m->n_verts, &cam->view_proj);
         s = mlb_edge_topology(adj, m->faces, m->n_faces, m->n_verts);
-        if (!s) s = FN(geofit_view_forward)(ctx, &v, attr, clip, m->n_verts, m->faces, adj, m->n_faces, res, ss);
+        if (!s) s = FN(geofit_view_forward)(be, ctx, &v, attr, clip, m->n_verts, m->faces, adj, m->n_faces, res, ss);
         if (!s) memcpy(out, v.out, sizeof(real) * (size_t)res * res * 4);
         FN(geofit_view_free)(&v);
     }
@@ -233,9 +240,9 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
         real *weights = st->weights + (size_t)v * P * 2, *out = st->images + (size_t)v * p * 4;
         real* aa = ss == 1 ? out : st->aa;
         int Si = st->S;
-        s = FN(mlb_rasterize)(ctx, tri, bary, depth, NULL, clip, M, st->surf.faces, F, Si, Si);
-        if (!s) s = FN(mlb_interpolate)(img, st->attr, M, 4, tri, bary, st->surf.faces, F, Si, Si);
-        if (!s) s = FN(mlb_antialias)(ctx, aa, weights, img, 4, tri, depth, clip, M, st->surf.faces, st->adj, F, Si, Si);
+        s = FN(rt_rasterize)(st->be, ctx, tri, bary, depth, clip, M, st->surf.faces, F, Si, Si);
+        if (!s) s = FN(rt_interpolate)(st->be, img, st->attr, M, 4, tri, bary, st->surf.faces, F, Si, Si);
+        if (!s) s = FN(rt_antialias)(st->be, ctx, aa, weights, img, 4, tri, depth, clip, M, st->surf.faces, st->adj, F, Si, Si);
         if (s) return s;
         if (ss > 1) FN(mlb_downsample_box)(out, aa, res, res, 4, ss);
         hash = FN(geofit_hash)(hash, tri, P);
@@ -284,10 +291,11 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
         memset(st->dbary, 0, sizeof(real) * P * 2);
         memset(st->dclip, 0, sizeof(real) * (size_t)M * 4);
         memset(st->dattr, 0, sizeof(real) * (size_t)M * 4);
-        s = FN(mlb_antialias_backward)(st->ctx, st->dimg, st->dclip, daa, weights, img, 4, tri, depth, clip, M, faces,
-                                      st->adj, F, Si, Si);
-        if (!s) s = FN(mlb_interpolate_backward)(st->ctx, st->dattr, st->dbary, st->dimg, st->attr, M, 4, tri, bary, faces, F, Si, Si);
-        if (!s) s = FN(mlb_rasterize_backward)(st->ctx, st->dclip, st->dbary, NULL, tri, clip, M, faces, F, Si, Si);
+        s = FN(rt_antialias_backward)(st->be, st->ctx, st->dimg, st->dclip, daa, weights, img, 4, tri, depth, clip, M,
+                                     faces, st->adj, F, Si, Si);
+        if (!s) s = FN(rt_interpolate_backward)(st->be, st->ctx, st->dattr, st->dbary, st->dimg, st->attr, M, 4, tri, bary,
+                                               faces, F, Si, Si);
+        if (!s) s = FN(rt_rasterize_backward)(st->be, st->ctx, st->dclip, st->dbary, NULL, tri, clip, M, faces, F, Si, Si);
         if (s) break;   // (still joins the gather below: the other ranks wait in it)
         real* pc = st->pieces + piece * (size_t)v;
         memset(pc, 0, sizeof(real) * (size_t)M * 3);

@@ -8,6 +8,7 @@
 #include "matlaber/raster.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
+#include "nn/raster_table.h"
 #include "appearance_device.h"
 
 #ifdef MLB_F64
@@ -52,7 +53,7 @@ enum {
 
 struct FN(mlb_appearance_state) {
     abuf b[B_COUNT];
-    mlb_raster_ctx* ctx;
+    mlb_raster_ctx* ctx;                  // the double pass's raster scratch (the float one goes through a->be)
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
     int v0, v1;                           // the views rendered: [v0, v1) (a part, or all)
@@ -256,7 +257,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         real* clip = s->clip + 4 * (size_t)V * v;
         FN(mlb_transform_points)(clip, pos, V, &views[v].cam.view_proj);
         int32_t* tri = s->tri + P * v;
-        MLB_TRY(FN(mlb_rasterize)(s->ctx, tri, bary + 2 * P * v, s->depth + P * v, NULL, clip, V, mesh->faces, F, S, S));
+        MLB_TRY(FN(rt_rasterize)(a->be, s->ctx, tri, bary + 2 * P * v, s->depth + P * v, clip, V, mesh->faces, F, S, S));
         int32_t c = 0;
         for (size_t i = 0; i < P; i++) c += tri[i] >= 0;
         counts[v] = c;
@@ -284,7 +285,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // surface points, normals and view directions of every covered sample, view-major
     for (int v = s->v0; v < s->v1; v++) {
         const int32_t* tri = s->tri + P * v;
-        MLB_TRY(FN(mlb_interpolate)(pix, attr, V, ATTR_C, tri, bary + 2 * P * v, mesh->faces, F, S, S));
+        MLB_TRY(FN(rt_interpolate)(a->be, pix, attr, V, ATTR_C, tri, bary + 2 * P * v, mesh->faces, F, S, S));
         int j = s->start[v];
         for (size_t i = 0; i < P; i++) {
             if (tri[i] < 0) continue;
@@ -323,8 +324,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         real* clip = s->clip + 4 * (size_t)V * v;
         real* out = images + 4 * p * v;
         real* dst = ss == 1 ? out : aa;
-        MLB_TRY(FN(mlb_antialias)(s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v, clip, V,
-                                  mesh->faces, s->adj, F, S, S));
+        MLB_TRY(FN(rt_antialias)(a->be, s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
+                                 clip, V, mesh->faces, s->adj, F, S, S));
         if (ss > 1) FN(mlb_downsample_box)(out, aa, res, res, 4, ss);
     }
     s->kept = keep_for_backward != 0;
@@ -361,9 +362,9 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
             dout = daa;
         }
         memset(dcolor, 0, sizeof(real) * 4 * P);
-        MLB_TRY(FN(mlb_antialias_backward)(s->ctx, dcolor, NULL, dout, s->weights + 2 * P * v, s->color + 4 * P * v, 4,
-                                           s->tri + P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v, V, s->faces,
-                                           s->adj, F, S, S));
+        MLB_TRY(FN(rt_antialias_backward)(a->be, s->ctx, dcolor, NULL, dout, s->weights + 2 * P * v, s->color + 4 * P * v,
+                                          4, s->tri + P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v, V, s->faces,
+                                          s->adj, F, S, S));
         // colour = sRGB(clamp(L)) at covered samples (the coverage channel does not depend on the material)
         for (int j = s->start[v]; j < s->start[v + 1]; j++)
             for (int c = 0; c < 3; c++)
@@ -442,6 +443,12 @@ mlb_status FN(mlb_material_smoothness_part)(FN(mlb_material_net)* net, const rea
 #ifndef MLB_F64
 mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh, const mlb_view* view, int res,
                                float* kd_img, float* ks_img, float* kr_img, float* normal_img) {
+    return mlb_appearance_maps_on(NULL, net, mesh, view, res, kd_img, ks_img, kr_img, normal_img);
+}
+
+mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
+                                  const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
+                                  float* normal_img) {
     MLB_TRY(check_mesh(mesh, res, 1, "appearance maps"));
     enum { C = 11 };   // kd 3, ks 3, kr 1, normal 3, coverage 1
     int V = mesh->n_verts, F = mesh->n_faces;
@@ -459,16 +466,15 @@ mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh
     float* aa = malloc(sizeof(float) * C * P);
     float *pts = NULL, *k = NULL;
     int32_t* where = NULL;
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
-    mlb_status s = (attr && clip && adj && tri && bary && depth && pix && img && aa && ctx)
+    mlb_status s = (attr && clip && adj && tri && bary && depth && pix && img && aa)
                        ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory (%dx%d)", res, res);
     if (!s) s = mesh_attr(&st, mesh, attr);
     if (!s) s = mlb_edge_topology(adj, mesh->faces, F, V);
     if (!s) {
         mlb_transform_points(clip, mesh->pos, V, &view->cam.view_proj);
-        s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, V, mesh->faces, F, res, res);
+        s = rt_rasterize(be, NULL, tri, bary, depth, clip, V, mesh->faces, F, res, res);
     }
-    if (!s) s = mlb_interpolate(pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
+    if (!s) s = rt_interpolate(be, pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
     size_t N = 0;
     for (size_t i = 0; !s && i < P; i++) N += tri[i] >= 0;
     if (!s) {
@@ -494,7 +500,7 @@ mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh
             memcpy(o, k + 7 * j, sizeof(float) * 7);
             o[10] = 1;
         }
-        s = mlb_antialias(ctx, aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
+        s = rt_antialias(be, NULL, aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
     }
     if (!s) {
         for (size_t i = 0; i < P; i++) {
@@ -510,7 +516,6 @@ mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh
     free(st.b[B_NORMALS].p);
     free(attr); free(clip); free(adj); free(tri); free(bary); free(depth); free(pix); free(img); free(aa);
     free(pts); free(k); free(where);
-    mlb_raster_ctx_free(ctx);
     return s;
 }
 #endif

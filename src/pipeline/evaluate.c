@@ -7,6 +7,8 @@
 #include "matlaber/raster.h"
 #include "matlaber/render.h"
 #include "matlaber/shade.h"
+#include "core/real.h"
+#include "nn/raster_table.h"
 
 // Evaluation views: azimuths all round, elevations −15°, 20°, 50° in turn (what target views show).
 static const double EVAL_ELEVATIONS[3] = {-15, 20, 50};
@@ -18,13 +20,14 @@ static mlb_status eval_camera(mlb_camera* cam, double azimuth0_deg, int v, int n
 }
 
 // out [res², D] = the vertex attribute attr [V, D] of mesh m seen by cam, per pixel; tri [res²] gets
-// each pixel's face (−1: background). clip [V, 4], bary [res², 2], depth [res²]: scratch.
-static mlb_status eval_interpolate(mlb_raster_ctx* ctx, float* out, const float* attr, int D, const mlb_mesh* m,
+// each pixel's face (−1: background). clip [V, 4], bary [res², 2], depth [res²]: scratch. Through
+// table be (NULL: the CPU's); the measures read tri and out on the host, so their callers pass NULL.
+static mlb_status eval_interpolate(const mlb_backend* be, float* out, const float* attr, int D, const mlb_mesh* m,
                                    const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary,
                                    float* depth) {
     mlb_transform_points(clip, m->pos, m->n_verts, &cam->view_proj);
-    mlb_status s = mlb_rasterize(ctx, tri, bary, depth, NULL, clip, m->n_verts, m->faces, m->n_faces, res, res);
-    if (!s) s = mlb_interpolate(out, attr, m->n_verts, D, tri, bary, m->faces, m->n_faces, res, res);
+    mlb_status s = rt_rasterize(be, NULL, tri, bary, depth, clip, m->n_verts, m->faces, m->n_faces, res, res);
+    if (!s) s = rt_interpolate(be, out, attr, m->n_verts, D, tri, bary, m->faces, m->n_faces, res, res);
     return s;
 }
 
@@ -49,15 +52,14 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
     float* pos = malloc(sizeof(float) * 3 * P);
     float* pts = malloc(sizeof(float) * 3 * P);
     float* k = malloc(sizeof(float) * 7 * P);
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
-    mlb_status s = (clip && tri && bary && depth && pos && pts && k && ctx) ? MLB_OK
-                                                                            : mlb_fail(MLB_ERR_NOMEM, "albedo evaluation: out of memory");
+    mlb_status s = (clip && tri && bary && depth && pos && pts && k) ? MLB_OK
+                                                                     : mlb_fail(MLB_ERR_NOMEM, "albedo evaluation: out of memory");
     double se = 0;
     size_t count = 0;
     for (int v = 0; !s && v < n_views; v++) {
         mlb_camera cam;
         s = eval_camera(&cam, 0, v, n_views);
-        if (!s) s = eval_interpolate(ctx, pos, fit->pos, 3, fit, &cam, res, clip, tri, bary, depth);
+        if (!s) s = eval_interpolate(NULL, pos, fit->pos, 3, fit, &cam, res, clip, tri, bary, depth);
         if (s) break;
         size_t m = 0;
         for (size_t p = 0; p < P; p++)
@@ -80,7 +82,6 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
         if (psnr) *psnr = mse > 0 ? 10.0 * log10(1.0 / mse) : INFINITY;
         if (rmse) *rmse = sqrt(mse);
     }
-    mlb_raster_ctx_free(ctx);
     free(clip); free(tri); free(bary); free(depth); free(pos); free(pts); free(k);
     return s;
 }
@@ -99,8 +100,7 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
     float* bary = malloc(sizeof(float) * 2 * P);
     float* depth = malloc(sizeof(float) * P);
     float* n2 = malloc(sizeof(float) * 6 * P);
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
-    mlb_status s = (clip && tri && bary && depth && n2 && ctx) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "normal evaluation: out of memory");
+    mlb_status s = (clip && tri && bary && depth && n2) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "normal evaluation: out of memory");
     for (int i = 0; !s && i < 2; i++) {
         nrm[i] = meshes[i]->normal;
         if (nrm[i]) continue;
@@ -117,7 +117,7 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
         // both meshes' interpolated normals; a pixel counts where both cover it (the background
         // interpolates to zero, and so may a degenerate blend: both are left out)
         for (int i = 0; !s && i < 2; i++) {
-            s = eval_interpolate(ctx, n2 + 3 * P * i, nrm[i], 3, meshes[i], &cam, res, clip, tri, bary, depth);
+            s = eval_interpolate(NULL, n2 + 3 * P * i, nrm[i], 3, meshes[i], &cam, res, clip, tri, bary, depth);
             for (size_t p = 0; !s && p < P; p++)
                 if (tri[p] < 0) memset(n2 + 3 * (P * i + p), 0, sizeof(float) * 3);
         }
@@ -134,7 +134,6 @@ mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_vi
     if (!s && count == 0) s = mlb_fail(MLB_ERR_ARG, "normal evaluation: no pixel is covered by both meshes");
     if (!s && mean_deg) *mean_deg = sum / (double)count;
     if (!s && covered) *covered = count;
-    mlb_raster_ctx_free(ctx);
     free(own[0]); free(own[1]); free(clip); free(tri); free(bary); free(depth); free(n2);
     return s;
 }

@@ -363,6 +363,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     float* pts = malloc(sizeof(float) * 3 * SMOOTH_POINTS);
     mlb_appearance app;
     memset(&app, 0, sizeof app);
+    app.be = r->be;
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     // On a GPU the material network, its optimiser and the shading run there (fp32: the MLP is small)
     if (!s && mlb_device_current() == MLB_DEVICE_CUDA) {

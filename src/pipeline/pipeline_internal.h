@@ -31,7 +31,7 @@ typedef struct {
     mlb_geometry_net geo;
     mlb_tetgrid grid;
     mlb_raster_ctx* ctx;
-    const mlb_backend* be;   // the op table the geometry stage extracts its surface on (marching tets)
+    const mlb_backend* be;   // the op table the stages' marching tets and raster ops run on
     mlb_material_net mat;
     pipeline_scene scene;
     long geometry_start;

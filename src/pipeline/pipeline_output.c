@@ -151,13 +151,14 @@ static mlb_status write_final_renders(pipeline_run* r) {
     float* sheet = malloc(sizeof(float) * p * 3 * 5 * FINAL_VIEWS);   // rows: normal, shaded, kd, ks, kr
     mlb_appearance app;
     memset(&app, 0, sizeof app);
+    app.be = r->be;
     if (!shaded || !normal || !maps || !sheet) s = mlb_fail(MLB_ERR_NOMEM, "final renders: out of memory");
     if (!s) s = mlb_appearance_render(&app, &r->mat, &r->scene.mesh, r->scene.light_ptrs, views, FINAL_VIEWS, res, 2, shaded, 0);
     char path[MLB_PIPELINE_PATH + 64], rel[64];
     for (int v = 0; !s && v < FINAL_VIEWS; v++) {
         float* row = sheet;   // tile index = kind * FINAL_VIEWS + v
-        s = mlb_geofit_render_mesh(r->ctx, normal, &r->scene.mesh, &views[v].cam, res, 2);
-        if (!s) s = mlb_appearance_maps(&r->mat, &r->scene.mesh, &views[v], res, maps, maps + 3 * p, maps + 6 * p, maps + 7 * p);
+        s = mlb_geofit_render_mesh_on(r->be, r->ctx, normal, &r->scene.mesh, &views[v].cam, res, 2);
+        if (!s) s = mlb_appearance_maps_on(r->be, &r->mat, &r->scene.mesh, &views[v], res, maps, maps + 3 * p, maps + 6 * p, maps + 7 * p);
         if (s) break;
         display_rgb(row + p * 3 * (0 * FINAL_VIEWS + v), normal, p, MLB_STAGE_GEOMETRY);
         display_rgb(row + p * 3 * (1 * FINAL_VIEWS + v), shaded + p * 4 * v, p, MLB_STAGE_APPEARANCE);

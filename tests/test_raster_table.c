@@ -1,0 +1,176 @@
+// The stages' rasterizer calls go through the op table they are handed (issue 24; docs/cuda.md "The
+// stages on the table"): a copy of the CPU table that counts its raster ops is given to the geometry
+// fit's state, the appearance renderer and the final renders' _on functions. Each op must be called
+// through it, and the results must be the bits of the same call with NULL (the CPU table).
+#include <stdint.h>
+#include "matlaber/appearance.h"
+#include "matlaber/backend.h"
+#include "matlaber/geometry.h"
+#include "matlaber/geometry_fit.h"
+#include "matlaber/rng.h"
+#include "appearance_test_util.h"
+#include "material_test_util.h"
+#include "test.h"
+
+enum { OP_RAST, OP_RAST_B, OP_INTERP, OP_INTERP_B, OP_AA, OP_AA_B, OP_COUNT };
+static int calls[OP_COUNT];
+static mlb_backend spy;
+
+static mlb_status spy_rasterize(int32_t* tri, float* bary, float* depth, const float* clip, int V, const int32_t* faces,
+                                int F, int H, int W) {
+    calls[OP_RAST]++;
+    return mlb_backend_cpu()->rasterize(tri, bary, depth, clip, V, faces, F, H, W);
+}
+static mlb_status spy_rasterize_backward(float* dclip, const float* dbary, const float* ddepth, const int32_t* tri,
+                                         const float* clip, int V, const int32_t* faces, int F, int H, int W) {
+    calls[OP_RAST_B]++;
+    return mlb_backend_cpu()->rasterize_backward(dclip, dbary, ddepth, tri, clip, V, faces, F, H, W);
+}
+static mlb_status spy_interpolate(float* out, const float* attr, int V, int C, const int32_t* tri, const float* bary,
+                                  const int32_t* faces, int F, int H, int W) {
+    calls[OP_INTERP]++;
+    return mlb_backend_cpu()->interpolate(out, attr, V, C, tri, bary, faces, F, H, W);
+}
+static mlb_status spy_interpolate_backward(float* dattr, float* dbary, const float* dout, const float* attr, int V,
+                                           int C, const int32_t* tri, const float* bary, const int32_t* faces, int F,
+                                           int H, int W) {
+    calls[OP_INTERP_B]++;
+    return mlb_backend_cpu()->interpolate_backward(dattr, dbary, dout, attr, V, C, tri, bary, faces, F, H, W);
+}
+static mlb_status spy_antialias(float* out, float* weights, const float* color, int C, const int32_t* tri,
+                                const float* depth, const float* clip, int V, const int32_t* faces, const int32_t* adj,
+                                int F, int H, int W) {
+    calls[OP_AA]++;
+    return mlb_backend_cpu()->antialias(out, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W);
+}
+static mlb_status spy_antialias_backward(float* dcolor, float* dclip, const float* dout, const float* weights,
+                                         const float* color, int C, const int32_t* tri, const float* depth,
+                                         const float* clip, int V, const int32_t* faces, const int32_t* adj, int F,
+                                         int H, int W) {
+    calls[OP_AA_B]++;
+    return mlb_backend_cpu()->antialias_backward(dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces,
+                                                 adj, F, H, W);
+}
+
+static const mlb_backend* spy_table(void) {
+    spy = *mlb_backend_cpu();
+    spy.rasterize = spy_rasterize;
+    spy.rasterize_backward = spy_rasterize_backward;
+    spy.interpolate = spy_interpolate;
+    spy.interpolate_backward = spy_interpolate_backward;
+    spy.antialias = spy_antialias;
+    spy.antialias_backward = spy_antialias_backward;
+    memset(calls, 0, sizeof calls);
+    return &spy;
+}
+
+static int same(const void* a, const void* b, size_t bytes) { return memcmp(a, b, bytes) == 0; }
+
+TEST(geometry_stage_calls_the_table) {
+    const mlb_backend* be = spy_table();
+    mlb_geometry_config c = mlb_geometry_default();
+    c.enc = (mlb_hashgrid_config){4, 2, 256, 4, 1.5};
+    c.hidden = 8;
+    mlb_geometry_net net = {0};
+    REQUIRE(geometry_net_init(&net, &c) == MLB_OK);
+    mlb_shape sh;
+    float axes[3] = {1.0f, 0.8f, 0.9f};
+    mlb_shape_ellipsoid(&sh, 0.8f, axes);
+    mlb_shape_fit_config fc = mlb_shape_fit_default();
+    fc.iters = 60; fc.batch = 1024; fc.pool = 2048;
+    REQUIRE(mlb_geometry_fit_shape(&net, &sh, &fc, NULL, NULL) == MLB_OK);
+    mlb_shape_free(&sh);
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 8, c.scale) == MLB_OK);
+    enum { RES = 24, SS = 2, VIEWS = 3 };
+    mlb_camera cams[VIEWS];
+    for (int v = 0; v < VIEWS; v++)
+        REQUIRE(mlb_camera_orbit(&cams[v], 40.0 + 110 * v, 25.0 - 20 * v, 3.0, NULL, 45.0, 1.0, 0.1, 100.0) == MLB_OK);
+    size_t m = (size_t)VIEWS * RES * RES * 4;
+    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)}, *dimg = malloc(sizeof(float) * m);
+    float* grads = malloc(sizeof(float) * net.n_params);
+    for (int t = 0; t < 2; t++) {   // t 0: NULL (the CPU table), t 1: the spy
+        mlb_geofit_state st;
+        memset(&st, 0, sizeof st);
+        st.be = t ? be : NULL;
+        geometry_net_zero_grad(&net);
+        REQUIRE(mlb_geofit_forward(&st, &net, &g, NULL, cams, VIEWS, RES, SS, img[t], NULL) == MLB_OK);
+        if (t == 0)
+            for (size_t i = 0; i < m; i++) dimg[i] = img[0][i] - 0.5f;
+        REQUIRE(mlb_geofit_backward(&st, &net, dimg, 0.1) == MLB_OK);
+        if (t == 0) memcpy(grads, net.grads, sizeof(float) * net.n_params);
+        mlb_geofit_state_free(&st);
+    }
+    CHECK(same(img[0], img[1], sizeof(float) * m));
+    CHECK(same(grads, net.grads, sizeof(float) * net.n_params));
+    for (int op = 0; op < OP_COUNT; op++) CHECK(calls[op] == VIEWS);
+    // the final normal maps
+    mlb_mesh sphere = {0};
+    REQUIRE(mlb_mesh_uv_sphere(&sphere, 0.8f, 24, 12) == MLB_OK);
+    memset(calls, 0, sizeof calls);
+    REQUIRE(mlb_geofit_render_mesh(NULL, img[0], &sphere, &cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh_on(be, NULL, img[1], &sphere, &cams[0], RES, SS) == MLB_OK);
+    CHECK(same(img[0], img[1], sizeof(float) * RES * RES * 4));
+    CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
+    mlb_mesh_free(&sphere);
+    free(img[0]); free(img[1]); free(dimg); free(grads);
+    mlb_tetgrid_free(&g);
+    geometry_net_free(&net);
+}
+
+TEST(appearance_calls_the_table) {
+    const mlb_backend* be = spy_table();
+    scene sc;
+    REQUIRE(scene_init(&sc, 32, 16));
+    mlb_brdf_ae prior;
+    REQUIRE(random_prior(&prior));
+    mlb_material_config c = mlb_material_default();
+    c.enc = (mlb_hashgrid_config){8, 2, 1 << 12, 4, 1.5};
+    c.hidden = 16;
+    c.seed = 11;
+    mlb_material_net net;
+    REQUIRE(material_net_init(&net, &c, &prior) == MLB_OK);
+    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.3f * mlb_rng_normal(21, 0, i);
+    enum { N = 3, RES = 24, SS = 2 };
+    mlb_view views[N];
+    make_views(views, N);
+    size_t m = (size_t)N * RES * RES * 4;
+    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)}, *dimg = malloc(sizeof(float) * m);
+    float* grads = malloc(sizeof(float) * net.n_params);
+    for (int t = 0; t < 2; t++) {
+        mlb_appearance app;
+        memset(&app, 0, sizeof app);
+        app.be = t ? be : NULL;
+        material_net_zero_grad(&net);
+        REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, N, RES, SS, img[t], 1) == MLB_OK);
+        if (t == 0)
+            for (size_t i = 0; i < m; i++) dimg[i] = img[0][i] - 0.3f;
+        REQUIRE(mlb_appearance_backward(&app, &net, dimg) == MLB_OK);
+        if (t == 0) memcpy(grads, net.grads, sizeof(float) * net.n_params);
+        mlb_appearance_free(&app);
+    }
+    CHECK(same(img[0], img[1], sizeof(float) * m));
+    CHECK(same(grads, net.grads, sizeof(float) * net.n_params));
+    CHECK(calls[OP_RAST] == N && calls[OP_INTERP] == N && calls[OP_AA] == N && calls[OP_AA_B] == N);
+    CHECK(calls[OP_RAST_B] == 0 && calls[OP_INTERP_B] == 0);   // the mesh is fixed: no geometry gradient
+    // the final material maps
+    size_t p = (size_t)RES * RES;
+    float* maps[2] = {malloc(sizeof(float) * p * 10), malloc(sizeof(float) * p * 10)};
+    memset(calls, 0, sizeof calls);
+    for (int t = 0; t < 2; t++)
+        REQUIRE(mlb_appearance_maps_on(t ? be : NULL, &net, &sc.mesh, &views[1], RES, maps[t], maps[t] + 3 * p,
+                                       maps[t] + 6 * p, maps[t] + 7 * p) == MLB_OK);
+    CHECK(same(maps[0], maps[1], sizeof(float) * p * 10));
+    CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
+    free(maps[0]); free(maps[1]);
+    free(img[0]); free(img[1]); free(dimg); free(grads);
+    material_net_free(&net);
+    brdf_ae_free(&prior);
+    scene_free(&sc);
+}
+
+int main(void) {
+    RUN(geometry_stage_calls_the_table);
+    RUN(appearance_calls_the_table);
+    return test_summary();
+}

@@ -133,7 +133,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
-    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder or an OBJ file";
+    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus or an OBJ file";
     else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
     else if (c->precision[0] && mlb_gemm_precision_parse(c->precision, &prec) != MLB_OK)
         bad = "precision must be empty (the program's) or one of --precision's names";

@@ -199,7 +199,7 @@ int cmd_geometry(int argc, char** argv) {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         FILE* o = argc < 2 ? stderr : stdout;
         fprintf(o, "usage: matlaber geometry init|extract [options]  ('matlaber geometry <sub> --help')\n"
-                   "  init      fit the geometry network's SDF to an ellipsoid, a cylinder or a mesh\n"
+                   "  init      fit the geometry network's SDF to an ellipsoid, a cylinder, a torus or a mesh\n"
                    "  extract   the network's marching-tets surface as an OBJ\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }

@@ -33,6 +33,13 @@ expect 0 "init from a mesh" -- $M geometry init --shape "$T/tet.obj" $SMALL -o "
 expect 0 "init a cylinder on the 128 grid" -- $M geometry init --shape cylinder --grid 128 --iters 20 --batch 3072 --levels 4 --table-log2 12 -o "$T/c.safetensors"
 expect 0 "extract uses the file's grid" -- $M geometry extract -i "$T/c.safetensors" -o "$T/c.obj"
 grep -q "grid 128" "$T/out" && ok "grid 128 from the metadata" || bad "grid: $(cat "$T/out")"
+# a torus: genus 1, so V - E + F = 0 on the extracted surface (the hole is there)
+expect 0 "init a torus" -- $M geometry init --shape torus --iters 150 --batch 3072 --levels 4 --table-log2 12 -o "$T/o.safetensors"
+expect 0 "extract the torus" -- $M geometry extract -i "$T/o.safetensors" -o "$T/o.obj"
+chi=$(awk '/^v /{v++} /^f /{f++; for (i = 2; i <= 4; i++) { split($i, a, "/"); x[i] = a[1] }
+        for (i = 2; i <= 4; i++) { j = i == 4 ? 2 : i + 1; p = x[i] < x[j] ? x[i] "," x[j] : x[j] "," x[i]; if (!(p in e)) { e[p] = 1; n++ } } }
+        END{print v - n + f}' "$T/o.obj")
+[ "$chi" = 0 ] && ok "the torus keeps its hole (Euler characteristic 0)" || bad "torus Euler characteristic $chi"
 
 # errors
 expect 2 "init needs -o" -- $M geometry init --shape ellipsoid

@@ -220,6 +220,20 @@ TEST(analytic_sdfs) {
     worst = 0;
     for (int i = 0; i < 256; i++) worst = fmax(worst, fabs(e[i]));
     CHECK_MSG(worst < 1e-5, "cylinder sdf on its surface up to %g", worst);
+    mlb_shape_torus(&s, 0.9f / 0.8f);   // major 0.6, minor 0.3, in the xy plane: the hole along z
+    float tp[12] = {0, 0, 0, 0.6f, 0, 0, 0, 1.0f, 0, 0, 0.6f, 0.5f};
+    mlb_shape_sdf(&s, tp, e, 4);
+    CHECK_CLOSE(e[0], 0.3, 0, 1e-6);    // the centre of the hole is outside
+    CHECK_CLOSE(e[1], -0.3, 0, 1e-6);   // the middle of the tube
+    CHECK_CLOSE(e[2], 0.1, 0, 1e-6);
+    CHECK_CLOSE(e[3], 0.2, 0, 1e-6);    // in front of the tube's top
+    mlb_shape_surface_samples(&s, q, 256, 1, 2);
+    mlb_shape_sdf(&s, q, e, 256);
+    worst = 0;
+    double mean_z2 = 0;
+    for (int i = 0; i < 256; i++) worst = fmax(worst, fabs(e[i])), mean_z2 += (double)q[3 * i + 2] * q[3 * i + 2] / 256;
+    CHECK_MSG(worst < 1e-5, "torus sdf on its surface up to %g", worst);
+    CHECK_MSG(mean_z2 > 0.2 * 0.09 && mean_z2 < 0.8 * 0.09, "torus samples cover the tube (mean z² %g of r² 0.09)", mean_z2);
 }
 
 static void cube_mesh(mlb_mesh* m, int drop_top) {

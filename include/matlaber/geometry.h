@@ -70,12 +70,13 @@ mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net,
                                    mlb_mesh* out);
 
 // ---- shapes and their signed distance (shape_init.c) ---------------------------------------
-typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH } mlb_shape_kind;
+typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS } mlb_shape_kind;
 typedef struct {
     mlb_shape_kind kind;
     float radii[3];        // ellipsoid semi-axes
     float cyl_radius;      // capped cylinder about the y axis, y ∈ [−h/2, h/2]
     float cyl_height;
+    float torus_major, torus_minor;   // torus in the xy plane (hole along z, facing the front camera)
     mlb_mesh mesh;         // MLB_SHAPE_MESH: owned copy (positions + faces), already placed
     double mesh_area;      // total area (for sampling)
 } mlb_shape;
@@ -84,6 +85,11 @@ typedef struct {
 void mlb_shape_ellipsoid(mlb_shape* s, float scale, const float* axes);
 // Capped cylinder of radius 0.75·scale and height 0.8·scale about y (reference.md §3).
 void mlb_shape_cylinder(mlb_shape* s, float scale);
+// Torus in the xy plane about the z axis (its hole faces the front camera at azimuth 0): major
+// radius 0.6·scale·0.8/0.9, minor 0.3·scale·0.8/0.9 (outer radius 0.8·scale, the scale of a mesh init).
+// A genus-1 start: score distillation closes a hole through silhouette gradients, but has no
+// gradient that opens one in a genus-0 surface (docs/pipeline.md, Init).
+void mlb_shape_torus(mlb_shape* s, float scale);
 // A copy of m normalised to the unit sphere (mlb_mesh_normalize_unit_sphere), times scale.
 mlb_status mlb_shape_from_mesh(mlb_shape* s, const mlb_mesh* m, float scale);
 void mlb_shape_free(mlb_shape* s);   // safe on a zeroed shape

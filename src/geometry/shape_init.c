@@ -27,6 +27,13 @@ void mlb_shape_cylinder(mlb_shape* s, float scale) {
     s->cyl_height = 0.8f * scale;
 }
 
+void mlb_shape_torus(mlb_shape* s, float scale) {
+    memset(s, 0, sizeof *s);
+    s->kind = MLB_SHAPE_TORUS;
+    s->torus_major = 0.6f * scale * (0.8f / 0.9f);
+    s->torus_minor = 0.3f * scale * (0.8f / 0.9f);
+}
+
 static double tri_area(const float* a, const float* b, const float* c) {
     double u[3], v[3];
     for (int k = 0; k < 3; k++) { u[k] = (double)b[k] - a[k]; v[k] = (double)c[k] - a[k]; }
@@ -211,6 +218,9 @@ void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n) {
             k0 = sqrt(k0);
             k1 = sqrt(k1);
             out[i] = k1 > 0 ? (float)(k0 * (k0 - 1.0) / k1) : -fminf(s->radii[0], fminf(s->radii[1], s->radii[2]));
+        } else if (s->kind == MLB_SHAPE_TORUS) {
+            double dq = sqrt((double)q[0] * q[0] + (double)q[1] * q[1]) - s->torus_major;
+            out[i] = (float)(sqrt(dq * dq + (double)q[2] * q[2]) - s->torus_minor);
         } else {
             double dr = sqrt((double)q[0] * q[0] + (double)q[2] * q[2]) - s->cyl_radius;
             double dy = fabs((double)q[1]) - 0.5 * s->cyl_height;
@@ -261,6 +271,18 @@ void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t see
             len = sqrt(len);
             if (!(len > 1e-12)) { g[0] = 1; g[1] = g[2] = 0; len = 1; }
             for (int k = 0; k < 3; k++) p[3 * i + k] = (float)(s->radii[k] * g[k] / len);
+        } else if (s->kind == MLB_SHAPE_TORUS) {
+            // area-uniform: the tube angle v with density ∝ R + r cos v (rejection on a few draws)
+            double R = s->torus_major, r = s->torus_minor, u = 0, v = 0;
+            for (uint64_t k = 0; k < 16; k++) {
+                mlb_u32x4 w = mlb_rng_words(seed, stream, (uint64_t)i * 16 + k);
+                u = 2 * M_PI * mlb_u32_to_unit(w.v[0]);
+                v = 2 * M_PI * mlb_u32_to_unit(w.v[1]);
+                if (mlb_u32_to_unit(w.v[2]) * (R + r) <= R + r * cos(v)) break;
+            }
+            p[3 * i] = (float)((R + r * cos(v)) * cos(u));
+            p[3 * i + 1] = (float)((R + r * cos(v)) * sin(u));
+            p[3 * i + 2] = (float)(r * sin(v));
         } else {
             double R = s->cyl_radius, H = s->cyl_height;
             double side = 2 * M_PI * R * H, cap = M_PI * R * R;

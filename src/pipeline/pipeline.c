@@ -145,6 +145,8 @@ static mlb_status init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c
         mlb_shape_ellipsoid(&shape, 1.0f, axes);
     } else if (!strcmp(c->init, "cylinder")) {
         mlb_shape_cylinder(&shape, 1.0f);
+    } else if (!strcmp(c->init, "torus")) {
+        mlb_shape_torus(&shape, 1.0f);
     } else {
         mlb_mesh m;
         memset(&m, 0, sizeof m);

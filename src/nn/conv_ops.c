@@ -473,23 +473,24 @@ static mlb_status FN(sdpa_check)(int B, int Tq, int Tk, int C, int NH, int ldq, 
 }
 
 
-// The float pass's softmax rows through softmax_avx512.c on a CPU with AVX-512 (the double pass,
-// the finite-difference reference, keeps libm's exp and double sums).
-static int FN(softmax_vectorised)(void) {
+// Row p[0..n): p <- e^(p - max p); returns the max, *sum = the sum of the new p. The float pass
+// takes softmax_avx512.c's row on a CPU with AVX-512 (fp32 partial sums); the double pass, the
+// finite-difference reference, keeps libm's exp and a double sum.
+static real FN(softmax_row_exp)(real* p, int n, double* sum) {
 #ifndef MLB_F64
-    return mlb_avx512_kernels();
-#else
-    return 0;
+    if (mlb_avx512_kernels()) {
+        float sumf;
+        real mx = mlb_softmax_row_avx512(p, n, &sumf);
+        *sum = sumf;
+        return mx;
+    }
 #endif
-}
-
-static real FN(softmax_row_vectorised)(real* p, int n, float* sum) {
-#ifndef MLB_F64
-    return mlb_softmax_row_avx512(p, n, sum);
-#else
-    (void)p; (void)n; (void)sum;
-    return 0;
-#endif
+    real mx = p[0];
+    for (int s = 1; s < n; s++) if (p[s] > mx) mx = p[s];
+    double acc = 0;
+    for (int s = 0; s < n; s++) { p[s] = R_EXP(p[s] - mx); acc += (double)p[s]; }
+    *sum = acc;
+    return mx;
 }
 
 mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, const real* v, int B, int Tq,
@@ -507,7 +508,6 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
         ws = owned;
     }
     real* S = ws;
-    const int vec = FN(softmax_vectorised)();
     for (int b = 0; b < B; b++)
         for (int h = 0; h < NH; h++) {
             const real* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
@@ -519,17 +519,8 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
                 for (int i = 0; i < nr; i++) {
                     real* p = S + (size_t)i * Tk;
-                    real mx;
-                    double sum = 0;
-                    if (vec) {
-                        float sumf = 0;
-                        mx = FN(softmax_row_vectorised)(p, Tk, &sumf);
-                        sum = sumf;
-                    } else {
-                        mx = p[0];
-                        for (int s = 1; s < Tk; s++) if (p[s] > mx) mx = p[s];
-                        for (int s = 0; s < Tk; s++) { p[s] = R_EXP(p[s] - mx); sum += (double)p[s]; }
-                    }
+                    double sum;
+                    real mx = FN(softmax_row_exp)(p, Tk, &sum);
                     real inv = (real)(1.0 / sum);
                     for (int s = 0; s < Tk; s++) p[s] *= inv;
                     if (lse) lse[((size_t)b * NH + h) * Tq + t0 + i] = (real)((double)mx + log(sum));

@@ -90,6 +90,22 @@ TEST(train_threads_resume) {
         path(b, "resumed", files[i]);
         CHECK_MSG(same_file(a, b), "%s differs after stop and resume", files[i]);
     }
+    // continued from a model folder over its untouched VAE (--init DIR --vae-steps 0), on new
+    // renders: the VAE and its latent scale are the ones the UNet was trained with, to the byte
+    char d4[300];
+    snprintf(d4, sizeof d4, "%s/continued", root);
+    c = tiny(d4);
+    c.init_dir = d1;
+    c.vae_steps = 0;
+    c.unet_steps = 2;
+    c.seed = 7;
+    REQUIRE(mlb_sd_train(be, &c) == MLB_OK);
+    const char* vae_files[] = {"vae/diffusion_pytorch_model.safetensors", "vae/config.json"};
+    for (int i = 0; i < 2; i++) {
+        path(a, "one", vae_files[i]);
+        path(b, "continued", vae_files[i]);
+        CHECK_MSG(same_file(a, b), "%s changed in a UNet-only continuation", vae_files[i]);
+    }
     // the folder is a model the program reads like a user's
     mlb_sd_model_options o = mlb_sd_model_default_options();
     o.device = MLB_DEVICE_CPU;

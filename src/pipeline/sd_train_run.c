@@ -151,9 +151,11 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     // the VAE: host model (initial values, the file written), device model, device gradients
     mlb_vae_config vc = c->vae;
     vc.scaling_factor = 1.0f;
+    float init_scale = 0.0f;   // the scale a UNet from --init was trained at
     if (!s && c->init_dir) {   // a trained model's weights as the start
         snprintf(p, sizeof p, "%s/vae", c->init_dir);
         if (!(s = mlb_vae_load(p, NULL, &hv))) {
+            init_scale = hv->cfg.scaling_factor;
             vc = hv->cfg;
             vc.scaling_factor = hv->cfg.scaling_factor = 1.0f;
         }
@@ -214,7 +216,9 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
         s = mlb_fail(MLB_ERR_NOMEM, "sd train: out of memory for the latents");
     if (!s && !stopped) s = mlb_sd_encode_dataset(be, dv, &d, lat_rgb, lat_geo);
     if (!s && !stopped) {
-        float sf = latent_scale(lat_rgb, nl);
+        // a UNet continued over an untouched VAE keeps the scale it learned at; otherwise this
+        // data's scale (a few tenths of a percent apart between renders of the catalogue)
+        float sf = init_scale > 0.0f && PV.total == 0 ? init_scale : latent_scale(lat_rgb, nl);
         for (size_t i = 0; i < nl; i++) { lat_rgb[i] *= sf; lat_geo[i] *= sf; }
         hv->cfg.scaling_factor = sf;
         mlb_log(MLB_LOG_INFO, "sd train: latent scale %.5f (the appearance latents' standard deviation is %.4f)", sf, 1.0 / sf);

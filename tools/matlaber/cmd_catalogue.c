@@ -85,8 +85,8 @@ static mlb_status write_obj(const char* path, const mlb_mesh* m, const char* wha
 static const cli_option export_options[] = {
     {"class", 1, 'c', "NAME", "object class ('matlaber catalogue list')"},
     {"seed", 1, 's', "S", "shape seed (default 0: the canonical shape)"},
-    {"material", 1, 'm', "NAME", "also the material: a textured asset (UV atlas, constant kd / ks / roughness maps)\n"
-                                 "as .glb, or .obj with .mtl and PNGs, written as `matlaber export` writes a run"},
+    {"material", 1, 'm', "NAME", "with the material: a textured asset (UV atlas, constant kd / ks / roughness\n"
+                                 "                           maps) as .glb, or .obj + .mtl + PNGs, as `matlaber export` writes a run"},
     {"out", 1, 'o', "FILE", "output: .obj (without --material: positions, normals, faces), or .glb with --material"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};

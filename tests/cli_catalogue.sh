@@ -24,6 +24,26 @@ awk '/^v /{r=sqrt($2*$2+$3*$3+$4*$4); if (r>0.9001) b++} END{exit b>0}' "$T/mug.
 awk '/^v /{n++; x[n]=$2; y[n]=$3; if ($3>ym) ym=$3} END{for(i=1;i<=n;i++) if (y[i]>ym-0.01) {s+=x[i]; c++}; exit !(c>0 && s/c < -0.05)}' "$T/mug.obj" \
   && ok "the mug's handle is on +x" || bad "handle side"
 expect 0 "the exported OBJ loads back" -- $M render --mesh "$T/mug.obj" --size 16 --cube 64 --supersample 1 -o "$T/mug.png"
+# the truth of "a gold goblet" as a textured asset (what tests/cli_blender.sh imports into Blender)
+expect 0 "export a gold goblet as .glb" -- $M catalogue export --class goblet --material gold -o "$T/gold.glb"
+[ "$(head -c 4 "$T/gold.glb")" = "glTF" ] && ok ".glb magic" || bad ".glb magic: $(head -c 4 "$T/gold.glb" | od -c | head -1)"
+if command -v python3 > /dev/null; then
+  python3 - "$T/gold.glb" <<'PY' && ok ".glb: one material goblet_gold, metallic 0, KHR_materials_specular, 3 images" || bad ".glb contents"
+import json, struct, sys
+b = open(sys.argv[1], "rb").read()
+magic, version, length = struct.unpack_from("<III", b, 0)
+n, kind = struct.unpack_from("<II", b, 12)
+assert version == 2 and length == len(b) and kind == 0x4E4F534A, (version, length, len(b), hex(kind))
+g = json.loads(b[20:20 + n])
+(mat,) = g["materials"]
+assert mat["name"] == "goblet_gold" and mat["pbrMetallicRoughness"]["metallicFactor"] == 0
+assert "specularColorTexture" in mat["extensions"]["KHR_materials_specular"]
+assert len(g["images"]) == 3 and g["accessors"][0]["count"] >= 4658
+PY
+fi
+expect 0 "export a red mug as OBJ + MTL" -- $M catalogue export --class mug --material red -o "$T/red_mug.obj"
+[ -s "$T/red_mug.mtl" ] && [ "$(png_size "$T/red_mug_ks.png")" = "256x256" ] && grep -q '^vt ' "$T/red_mug.obj" \
+  && ok "OBJ with uvs, MTL and 256² maps" || bad "red mug files: $(ls "$T")"
 expect 0 "render 3 views" -- $M catalogue render --class goblet --material gold --views 3 --res 32 -o "$T/r"
 [ "$(png_size "$T/r/rgb_002.png")" = "32x32" ] && [ "$(png_size "$T/r/normal_002.png")" = "32x32" ] && ok "PNGs 32x32" || bad "PNG sizes"
 grep -q '"caption": "a gold goblet, front view"' "$T/r/captions.json" && grep -q '"caption": "a gold goblet, side view"' "$T/r/captions.json" \
@@ -35,11 +55,15 @@ expect 0 "render orbit views" -- $M catalogue render --class table --material st
 expect 2 "unknown subcommand" -- $M catalogue draw
 expect 2 "export needs --class" -- $M catalogue export -o "$T/x.obj"
 expect 2 "render needs -o" -- $M catalogue render --class mug --material red
+expect 2 "a .glb without --material" -- $M catalogue export --class mug -o "$T/x.glb"
+err_has "says --material is needed" "needs --material"
+expect 1 "unknown material in export" -- $M catalogue export --class mug --material plutonium -o "$T/x.glb"
+err_has "export names the unknown material" "plutonium"
 expect 1 "unknown class" -- $M catalogue export --class spaceship -o "$T/x.obj"
 err_has "unknown class names it" "spaceship"
 err_has "unknown class lists the classes" "goblet"
 expect 1 "unknown material" -- $M catalogue render --class mug --material plutonium -o "$T/x"
 err_has "unknown material names it" "plutonium"
 expect 2 "bad --env" -- $M catalogue render --class mug --material red --env moon -o "$T/x"
-[ ! -e "$T/x.obj" ] && [ ! -e "$T/x" ] && ok "failures write nothing" || bad "a failure left an output"
+[ ! -e "$T/x.obj" ] && [ ! -e "$T/x" ] && [ ! -e "$T/x.glb" ] && ok "failures write nothing" || bad "a failure left an output"
 finish

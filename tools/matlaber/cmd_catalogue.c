@@ -7,8 +7,10 @@
 #include "cli.h"
 #include "matlaber/cameras.h"
 #include "matlaber/catalogue.h"
+#include "matlaber/export.h"
 #include "matlaber/fileio.h"
 #include "matlaber/sds.h"
+#include "matlaber/uv_atlas.h"
 #include "matlaber/views.h"
 
 static int catalogue_list(int argc, char** argv) {
@@ -83,12 +85,42 @@ static mlb_status write_obj(const char* path, const mlb_mesh* m, const char* wha
 static const cli_option export_options[] = {
     {"class", 1, 'c', "NAME", "object class ('matlaber catalogue list')"},
     {"seed", 1, 's', "S", "shape seed (default 0: the canonical shape)"},
-    {"out", 1, 'o', "FILE.obj", "output OBJ (positions, normals, faces)"},
+    {"material", 1, 'm', "NAME", "with the material: a textured asset (UV atlas, constant kd / ks / roughness\n"
+                                 "                           maps) as .glb, or .obj + .mtl + PNGs, as `matlaber export` writes a run"},
+    {"out", 1, 'o', "FILE", "output: .obj (without --material: positions, normals, faces), or .glb with --material"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 
+// The truth as a textured asset, for viewers and Blender to show next to a generated one: the mesh
+// unwrapped (the writers need uvs) and the material's constant BRDF in every texel. 256² because the
+// atlas's gutter is measured at the texture size; constant maps compress to a few hundred bytes.
+static mlb_status write_asset(const char* path, const mlb_mesh* m, int mat, const char* name) {
+    enum { S = 256 };
+    const float* k = mlb_catalogue_material_brdf(mat);
+    mlb_uv_options opt = mlb_uv_default();
+    opt.texture_size = S;
+    mlb_uv_mesh uv;
+    MLB_TRY(mlb_uv_unwrap(m, &opt, &uv, NULL));
+    float *kd = malloc(sizeof(float) * 3 * S * S), *ks = malloc(sizeof(float) * 3 * S * S), *kr = malloc(sizeof(float) * S * S);
+    mlb_status s = MLB_OK;
+    if (!kd || !ks || !kr) s = mlb_fail(MLB_ERR_NOMEM, "out of memory for %d² maps", S);
+    else {
+        for (int i = 0; i < S * S; i++) {
+            for (int c = 0; c < 3; c++) { kd[3 * i + c] = k[c]; ks[3 * i + c] = k[3 + c]; }
+            kr[i] = k[6];
+        }
+        mlb_asset a = {uv.mesh.n_verts, uv.mesh.n_faces, uv.mesh.pos, uv.mesh.normal, uv.mesh.uv, uv.mesh.faces, S, kd, ks, kr, name};
+        s = mlb_ends_with(path, ".glb") ? mlb_export_glb(path, &a) : mlb_export_obj(path, &a);
+    }
+    free(kd);
+    free(ks);
+    free(kr);
+    mlb_uv_mesh_free(&uv);
+    return s;
+}
+
 static int catalogue_export(int argc, char** argv) {
-    const char *cls_name = NULL, *out = NULL;
+    const char *cls_name = NULL, *mat_name = NULL, *out = NULL;
     long seed = 0;
     const struct option* table = cli_getopt_table(export_options);
     optind = 1;
@@ -97,11 +129,14 @@ static int catalogue_export(int argc, char** argv) {
         switch (ch) {
         case 'c': cls_name = optarg; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &seed)) return cli_usage_error("catalogue export", "--seed: expected a non-negative integer"); break;
+        case 'm': mat_name = optarg; break;
         case 'o': out = optarg; break;
         case 'h':
-            printf("usage: matlaber catalogue export --class NAME [--seed S] -o FILE.obj\n\n"
+            printf("usage: matlaber catalogue export --class NAME [--seed S] [--material NAME] -o FILE.obj|FILE.glb\n\n"
                    "The class's mesh for a shape seed, in the generation frame (+y up, centred, farthest vertex at\n"
-                   "0.9, front towards +z: the azimuth-0 camera).\n\n");
+                   "0.9, front towards +z: the azimuth-0 camera). With --material, the truth of a caption as an\n"
+                   "asset (\"a gold goblet\": --class goblet --material gold -o goblet_gold.glb), mapped to glTF as\n"
+                   "docs/export.md says.\n\n");
             cli_print_options(stdout, export_options);
             return 0;
         default: return cli_usage_error("catalogue export", "unknown option");
@@ -109,15 +144,23 @@ static int catalogue_export(int argc, char** argv) {
     }
     if (optind < argc) return cli_usage_error("catalogue export", "unexpected argument '%s'", argv[optind]);
     if (!cls_name) return cli_usage_error("catalogue export", "--class NAME is required (%s)", mlb_catalogue_class_list());
-    if (!out) return cli_usage_error("catalogue export", "-o FILE.obj is required");
-    int c;
+    if (!out) return cli_usage_error("catalogue export", "-o FILE.obj (or FILE.glb with --material) is required");
+    int glb = mlb_ends_with(out, ".glb");
+    if (glb && !mat_name) return cli_usage_error("catalogue export", "a .glb needs --material NAME (%s)", mlb_catalogue_material_list());
+    int c, mat = -1;
     mlb_status s = mlb_catalogue_class_parse(cls_name, &c);
     if (s) return cli_fail(s, "--class");
+    if (mat_name && (s = mlb_catalogue_material_parse(mat_name, &mat)) != MLB_OK) return cli_fail(s, "--material");
     mlb_mesh m;
     s = mlb_catalogue_mesh(c, (uint64_t)seed, &m);
     char what[64];
-    snprintf(what, sizeof what, "%s seed %ld", cls_name, seed);
-    if (!s) s = write_obj(out, &m, what);
+    if (mat >= 0) snprintf(what, sizeof what, "%s %s seed %ld", mat_name, cls_name, seed);
+    else snprintf(what, sizeof what, "%s seed %ld", cls_name, seed);
+    if (!s && mat >= 0) {
+        char name[64];
+        snprintf(name, sizeof name, "%s_%s", cls_name, mat_name);
+        s = write_asset(out, &m, mat, name);
+    } else if (!s) s = write_obj(out, &m, what);
     if (!s) printf("wrote %s: %s, %d vertices, %d faces\n", out, what, m.n_verts, m.n_faces);
     mlb_mesh_free(&m);
     return s ? cli_fail(s, out) : 0;
@@ -246,7 +289,7 @@ int cmd_catalogue(int argc, char** argv) {
         FILE* o = argc < 2 ? stderr : stdout;
         fprintf(o, "usage: matlaber catalogue list|export|render [options]  ('matlaber catalogue <sub> --help')\n"
                    "  list      classes, materials (7-d BRDF) and the held-out pairs (--json)\n"
-                   "  export    a class's mesh for a shape seed as an OBJ\n"
+                   "  export    a class's mesh for a shape seed as an OBJ; with a material as .glb or OBJ + MTL\n"
                    "  render    rgb and normal images with captions, as the pipeline's stages see them\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }

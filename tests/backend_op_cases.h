@@ -360,4 +360,55 @@ static mlb_status call_sdpa_backward(const mlb_backend* be, float** p, const op_
                              s[5], s[6]);
 }
 
+// ---- self-attention with the causal mask (the text encoder's): s = B, T, C, NH, ld, causal, fused ----
+// Fused trials read q, k and v from one [B, T, ld >= 3C] buffer at offsets 0, C, 2C (the encoder's
+// qkv), the others from three [B, T, ld >= C] buffers. Causal on all trials but 2; several heads
+// from trial 1 on. CUDA's online softmax sums in another order than the CPU's rows (B_SUMS).
+static void setup_attention(op_case* c, draw* d, int t) {
+    int B = t ? pick(d, 1, 3) : 1, NH = t ? pick(d, 2, 4) : 1, hd = dim(d, t, 40), C = NH * hd, T = dim(d, t, 80);
+    int causal = t != 2, fused = t % 2 == 1, ld = (fused ? 3 * C : C) + (t ? pick(d, 0, 3) : 0);
+    int* s = c->s;
+    s[0] = B, s[1] = T, s[2] = C, s[3] = NH, s[4] = ld, s[5] = causal, s[6] = fused;
+    size_t nt = (size_t)B * T;
+    OUT_("out", nt * C, B_SUMS);
+    if (fused) {
+        IN_("qkv", nt * ld, -1.5f, 1.5f);
+    } else {
+        IN_("q", nt * ld, -1.5f, 1.5f);
+        IN_("k", nt * ld, -1.5f, 1.5f);
+        IN_("v", nt * ld, -1, 1);
+    }
+    snprintf(c->shape, sizeof c->shape, "B %d T %d C %d NH %d ld %d%s%s", B, T, C, NH, ld, causal ? " causal" : "",
+             fused ? " fused" : "");
+}
+static mlb_status call_attention(const mlb_backend* be, float** p, const op_case* c) {
+    const int* s = c->s;
+    const float *q = p[1], *k = s[6] ? p[1] + s[2] : p[2], *v = s[6] ? p[1] + 2 * s[2] : p[3];
+    return be->attention(p[0], q, k, v, s[4], s[0], s[1], s[2], s[3], s[5]);
+}
+
+// ---- token + position embedding: s = B, T, C, V; tokens an int32 buffer drawn in [0, V) ----
+static void prep_embedding(const op_case* c, float** h) {
+    for (size_t i = 0; i < c->b[1].n; i++) {
+        int32_t id = (int32_t)h[1][i];
+        if (id >= c->s[3]) id = c->s[3] - 1;
+        memcpy(&h[1][i], &id, sizeof id);
+    }
+}
+static void setup_embedding(op_case* c, draw* d, int t) {
+    int B = dim(d, t, 3), T = dim(d, t, 80), C = dim(d, t, 100), V = dim(d, t, 300);
+    int* s = c->s;
+    s[0] = B, s[1] = T, s[2] = C, s[3] = V;
+    OUT_("out", (size_t)B * T * C, B_EXACT);
+    IN_("tokens", (size_t)B * T, 0, (float)V);
+    IN_("wte", (size_t)V * C, -1, 1);
+    OPT_IN("wpe", (size_t)(T + 2) * C, -1, 1, t == 2);   // more positions than T, as CLIP's 77
+    c->prep = prep_embedding;
+    snprintf(c->shape, sizeof c->shape, "B %d T %d C %d V %d%s", B, T, C, V, t == 2 ? " no wpe" : "");
+}
+static mlb_status call_embedding(const mlb_backend* be, float** p, const op_case* c) {
+    const int* s = c->s;
+    return be->embedding(p[0], (const int32_t*)p[1], p[2], p[3], s[0], s[1], s[2], s[3]);
+}
+
 #endif

@@ -7,7 +7,8 @@
 // scripts/gpu-parity.sh runs this test on a GPU). Each op runs on MLB_OPS_TRIALS shapes (default
 // 4): trial 0 with every size 1, then random ragged ones (1, primes, 2^k +- 1 or anything up to a
 // cap: never only multiples of 8, 16 or 32); optional outputs are NULL on some trials. The seed is
-// $MLB_TEST_SEED (default 1), printed.
+// $MLB_TEST_SEED (default 1), printed. The attention op is also checked against a naive double
+// attention on every table (cpu_/cuda_attention_vs_double).
 //
 // Compared: the relative L2 error ||got - ref|| / max(||ref||, 0.5 sqrt(n)) of each output (of
 // accumulated outputs, the increments over their random start, so the bound speaks of the gradient
@@ -28,6 +29,7 @@
 //     sums in another order (hash grid, AdamW, bias gradients, add_channel's backward): 1e-5
 //     shading 1e-4, its gradients 1e-3 (float on the GPU, double on the CPU: test_cuda_shade)
 //     GEMM outputs by precision: fp32 1e-5, tf32 and fp16 3e-3, bf16 2e-2 (attention backward 3e-2)
+//     the causal self-attention (fp32 at every precision, an online softmax): 1e-5; the embedding 0
 //     the rasterizer (src/cuda/raster.cu runs the CPU's maths without fused multiply-adds): face
 //       ids bit for bit (B_BITS, the share of differing ids), barycentrics, depth, interpolated
 //       values and the barycentric gradient 0; the gradients summed over pixels (dclip, dattr) 1e-5.
@@ -258,6 +260,85 @@ TEST(cpu_bf16_stored_table) {
     printf("  packed linear and conv2d: the bf16 table's bits on %d shapes each\n", n_trials());
 }
 
+// The attention op of every table against a naive double attention written here (the op loop
+// above compares tables with the CPU fp32 one, which cannot catch that op being wrong itself):
+// ragged T, several heads, fused and separate q/k/v, causal and not. The scores are O(1), so a
+// float result is within a few 1e-7 of the double one; 1e-5 bounds every table (all fp32).
+static void naive_attention(double* out, const float* q, const float* k, const float* v, int ld, int B, int T, int C,
+                            int NH, int causal) {
+    int hd = C / NH;
+    double* p = malloc((size_t)T * sizeof(double));
+    for (int b = 0; b < B; b++)
+        for (int h = 0; h < NH; h++)
+            for (int t = 0; t < T; t++) {
+                const float* qt = q + ((size_t)b * T + t) * ld + (size_t)h * hd;
+                int n = causal ? t + 1 : T;
+                double mx = -INFINITY, sum = 0;
+                for (int s = 0; s < n; s++) {
+                    const float* ks = k + ((size_t)b * T + s) * ld + (size_t)h * hd;
+                    double dot = 0;
+                    for (int i = 0; i < hd; i++) dot += (double)qt[i] * ks[i];
+                    p[s] = dot / sqrt((double)hd);
+                    if (p[s] > mx) mx = p[s];
+                }
+                for (int s = 0; s < n; s++) sum += p[s] = exp(p[s] - mx);
+                double* o = out + ((size_t)b * T + t) * C + (size_t)h * hd;
+                for (int i = 0; i < hd; i++) {
+                    double a = 0;
+                    for (int s = 0; s < n; s++) a += p[s] / sum * v[((size_t)b * T + s) * ld + (size_t)h * hd + i];
+                    o[i] = a;
+                }
+            }
+    free(p);
+}
+
+static void attention_vs_double(const mlb_backend* be, const char* table) {
+    static const struct { int B, T, NH, hd, fused, causal; } cases[] = {
+        {2, 13, 3, 5, 1, 1}, {1, 77, 4, 16, 1, 1}, {3, 1, 2, 3, 0, 1}, {2, 33, 5, 7, 0, 1}, {1, 29, 3, 9, 1, 0},
+    };
+    uint64_t seed = test_seed();
+    for (int ci = 0; ci < (int)(sizeof cases / sizeof cases[0]); ci++) {
+        int B = cases[ci].B, T = cases[ci].T, NH = cases[ci].NH, C = NH * cases[ci].hd, causal = cases[ci].causal;
+        int fused = cases[ci].fused, ld = (fused ? 3 * C : C) + 1;
+        size_t nin = (size_t)B * T * ld, nout = (size_t)B * T * C;
+        float *hq = host_alloc(fused ? nin : 3 * nin), *got = host_alloc(nout), *dq = NULL, *dout = NULL;
+        double* ref = malloc(nout * sizeof(double));
+        REQUIRE(hq && got && ref);
+        fill_uniform(hq, fused ? nin : 3 * nin, seed, 500 + ci, -1.5f, 1.5f);
+        const float *q = hq, *k = fused ? hq + C : hq + nin, *v = fused ? hq + 2 * C : hq + 2 * nin;
+        naive_attention(ref, q, k, v, ld, B, T, C, NH, causal);
+        size_t nbuf = fused ? nin : 3 * nin;
+        REQUIRE(be->alloc(&dq, nbuf) == MLB_OK && be->alloc(&dout, nout) == MLB_OK);
+        REQUIRE(be->upload(dq, hq, nbuf) == MLB_OK);
+        CHECK(be->attention(dout, dq, dq + (k - hq), dq + (v - hq), ld, B, T, C, NH, causal) == MLB_OK);
+        REQUIRE(be->download(got, dout, nout) == MLB_OK);
+        double e = 0;
+        for (size_t i = 0; i < nout; i++) {
+            double d = fabs(got[i] - ref[i]);
+            if (!(d <= e)) e = d;   // a NaN stays
+        }
+        CHECK_MSG(e <= 1e-5, "%s attention B %d T %d C %d NH %d%s%s: max abs error %.3e vs double", table, B, T, C, NH,
+                  causal ? " causal" : "", fused ? " fused" : "", e);
+        printf("  %-9s attention B %d T %2d C %2d NH %d%-7s%-6s max abs vs double %.2e\n", table, B, T, C, NH,
+               causal ? " causal" : "", fused ? " fused" : "", e);
+        be->release(dq), be->release(dout);
+        free(hq), free(got), free(ref);
+    }
+}
+
+TEST(cpu_attention_vs_double) {
+    attention_vs_double(mlb_backend_cpu(), "cpu fp32");
+    attention_vs_double(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), "cpu bf16");
+}
+TEST(cuda_attention_vs_double) {
+    REQUIRE_GPU();
+    for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++) {
+        char name[16];
+        snprintf(name, sizeof name, "cuda %s", prec_name[p]);
+        attention_vs_double(mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p), name);
+    }
+}
+
 TEST(cuda_tables) {
     REQUIRE_GPU();
     for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++) {
@@ -272,6 +353,8 @@ int main(void) {
     RUN(cpu_fp32_table);
     RUN(cpu_bf16_table);
     RUN(cpu_bf16_stored_table);
+    RUN(cpu_attention_vs_double);
+    RUN(cuda_attention_vs_double);
     RUN(cuda_tables);
     free_test_light();
     return test_summary();

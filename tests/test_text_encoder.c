@@ -1,15 +1,18 @@
 // The SD text encoders (text_encoder.h). Without shared data: a tiny random model written by the
 // test in every layout and dtype (outputs agree bitwise and with a naive double forward), the
-// causal mask, overrides, threads, error messages. With $MLB_SHARED_DATA: the sd_reference
+// causal mask, overrides, threads, error messages, the op tables (the CPU fp32 table gives the
+// bits of the CPU ops called directly; the bf16 table is within a bound of the double forward). With $MLB_SHARED_DATA: the sd_reference
 // fixtures (README there): SD1/SD2 single files and diffusers files vs ref_text_sd1/2, half weights
 // vs ref_sd1_halfweights, and the project tokenizer vs the fixtures' tokens.
 #include <stdint.h>
 #include <unistd.h>
+#include "matlaber/backend.h"
 #include "matlaber/half.h"
 #include "matlaber/safetensors.h"
 #include "matlaber/text_encoder.h"
 #include "matlaber/threads.h"
 #include "matlaber/tokenizer.h"
+#include "matlaber/transformer_ops.h"
 #include "test.h"
 
 // ---- a tiny random model -----------------------------------------------------------------------------
@@ -521,6 +524,93 @@ TEST(tiny_errors) {
     free(m);
 }
 
+// ---- the op tables ----------------------------------------------------------------------------------------
+// The encoder as it was before it ran on the op table: the CPU ops called directly, in the same
+// order on the same buffers. The CPU fp32 table must give these bits.
+static mlb_status direct_forward(const mlb_text_encoder* te, const int* tok, int B, int T, float* out, float* states,
+                                 int n_states) {
+    const int W = te->width, M = te->mlp, BT = B * T;
+    const size_t n = (size_t)BT * W;
+    float* ws = malloc(((size_t)6 * W + M) * (size_t)BT * sizeof(float));
+    if (!ws) return MLB_ERR_NOMEM;
+    float *x = ws, *h = x + n, *a = h + n, *qkv = a + n, *m = qkv + 3 * n;
+    mlb_status s = embedding_forward(x, tok, te->token_embedding, te->position_embedding, B, T, W, te->vocab);
+    if (states && n_states > 0) memcpy(states, x, n * sizeof(float));
+    for (int l = 0; !s && l < te->n_layers; l++) {
+        const mlb_text_layer* y = &te->layers[l];
+        layernorm_forward(h, NULL, NULL, x, y->ln1_w, y->ln1_b, BT, W, te->ln_eps);
+        linear_forward(qkv, h, y->qkv_w, y->qkv_b, BT, W, 3 * W);
+        s = attention_forward(a, NULL, qkv, qkv + W, qkv + 2 * W, 3 * W, B, T, W, te->n_heads, 1);
+        linear_forward(h, a, y->out_w, y->out_b, BT, W, W);
+        for (size_t i = 0; i < n; i++) x[i] += h[i];
+        layernorm_forward(h, NULL, NULL, x, y->ln2_w, y->ln2_b, BT, W, te->ln_eps);
+        linear_forward(m, h, y->fc1_w, y->fc1_b, BT, W, M);
+        activation_forward(m, m, (size_t)BT * M, te->act);
+        linear_forward(h, m, y->fc2_w, y->fc2_b, BT, M, W);
+        for (size_t i = 0; i < n; i++) x[i] += h[i];
+        if (states && l + 1 < n_states) memcpy(states + (size_t)(l + 1) * n, x, n * sizeof(float));
+    }
+    if (!s) layernorm_forward(out, NULL, NULL, x, te->ln_final_w, te->ln_final_b, BT, W, te->ln_eps);
+    free(ws);
+    return s;
+}
+
+// bf16 operands (u = 2^-8) in every linear layer of the tiny model: the output (after the final
+// LayerNorm, values O(1)) within 5e-2 of the double forward; measured 2.1e-2 (and 2.1e-2 from
+// PyTorch's fp32 on the sd_reference SD1 model).
+#define BF16_TOL 5e-2
+
+TEST(tiny_op_tables) {
+    const mlb_backend *cpu = mlb_backend_cpu(), *bf16 = mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16);
+    enum { B = 3, T = TNC - 1 };   // T ragged: not the 12 positions
+    int tok[B * T];
+    tiny_tokens(tok, B, T);
+    for (int v = 0; v < 2; v++) {   // SD1 (quick_gelu, every layer) and SD2 (gelu, penultimate)
+        tiny_model* m = tiny_make(11 + v);
+        const char* path = tmp_path(v ? "tables_sd2.safetensors" : "tables_sd1.safetensors");
+        REQUIRE(tiny_write(m, v ? LAY_OPENCLIP : LAY_LDM, MLB_DT_F32, path, 1, NULL, NULL) == MLB_OK);
+        mlb_text_encoder *te = NULL, *copy = NULL;
+        REQUIRE(mlb_text_encoder_load(path, NULL, &te) == MLB_OK);
+        CHECK(te->device == MLB_DEVICE_CPU);
+        int L = te->n_layers;
+        static float want[B * T * TW], got[B * T * TW], ws[(TL + 1) * B * T * TW], gs[(TL + 1) * B * T * TW];
+        memset(ws, 0, sizeof ws), memset(gs, 0, sizeof gs);
+        REQUIRE(direct_forward(te, tok, B, T, want, ws, L + 1) == MLB_OK);
+        CHECK(mlb_text_encoder_forward_on(cpu, te, tok, B, T, got, gs, L + 1) == MLB_OK);
+        CHECK_MSG(memcmp(want, got, sizeof got) == 0, "%s: the CPU fp32 table is not the CPU ops' bits", path);
+        CHECK_MSG(memcmp(ws, gs, sizeof gs) == 0, "%s: hidden states differ from the CPU ops'", path);
+        memset(got, 0, sizeof got);
+        CHECK(mlb_text_encoder_forward(te, tok, B, T, got) == MLB_OK);
+        CHECK(memcmp(want, got, sizeof got) == 0);
+        // a copy through mlb_text_encoder_to_device (to the CPU: the carving and the upload)
+        REQUIRE(mlb_text_encoder_to_device(te, MLB_DEVICE_CPU, &copy) == MLB_OK);
+        CHECK(copy->params != te->params && copy->layers[L - 1].fc2_b - copy->params == te->layers[L - 1].fc2_b - te->params);
+        memset(got, 0, sizeof got);
+        CHECK(mlb_text_encoder_forward_on(cpu, copy, tok, B, T, got, NULL, 0) == MLB_OK);
+        CHECK(memcmp(want, got, sizeof got) == 0);
+        mlb_text_encoder_free(copy);
+        // the bf16 table against the double forward, and not the fp32 result where bf16 is real
+        double ref[B * T * TW];
+        naive_forward(m, L, v, tok, B, T, ref);
+        double e32 = max_abs_fd(want, ref, B * T * TW);
+        CHECK(mlb_text_encoder_forward_on(bf16, te, tok, B, T, got, NULL, 0) == MLB_OK);
+        double e16 = max_abs_fd(got, ref, B * T * TW), d = max_abs_ff(got, want, B * T * TW, NULL);
+        printf("  tiny %s on T %d: fp32 table vs double %.3g (bitwise the CPU ops), bf16 table vs double %.3g "
+               "(bound %.0e), bf16 vs fp32 %.3g\n", v ? "SD2" : "SD1", T, e32, e16, BF16_TOL, d);
+        CHECK(e32 < 1e-5);
+        CHECK(e16 < BF16_TOL);
+        if (mlb_gemm_bf16_native()) CHECK_MSG(d > 1e-6, "the bf16 table gave the fp32 result (%.3g)", d);
+        // what the tables refuse
+        const mlb_backend* gpu = mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32);
+        CHECK_ERR(mlb_text_encoder_forward_on(gpu, te, tok, B, T, got, NULL, 0), MLB_ERR_ARG,
+                  "text encoder: the weights are on the cpu, the ops on the cuda (mlb_text_encoder_to_device)");
+        CHECK(mlb_text_encoder_forward_on(mlb_backend_cpu_bf16_stored(), te, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        CHECK(mlb_text_encoder_forward_on(NULL, te, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        mlb_text_encoder_free(te);
+        free(m);
+    }
+}
+
 // ---- against the sd_reference fixtures ----------------------------------------------------------------
 static const char* ref_path(const char* name) {
     static char buf[8][1200];
@@ -629,6 +719,13 @@ TEST(ref_sd1) {
         snprintf(what, sizeof what, "SD1 debug.hidden_states[%d]", l);
         CHECK(report(what, states + l * n, ref_states + l * n, n, NULL) < REF_TOL);
     }
+    // the CPU's bf16 table (bf16 operands in the linear layers) within BF16_TOL of PyTorch's fp32
+    mlb_text_encoder* te = NULL;
+    REQUIRE(mlb_text_encoder_load(paths[0], NULL, &te) == MLB_OK);
+    CHECK(mlb_text_encoder_forward_on(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), te, tok, B, T, out, NULL, 0) ==
+          MLB_OK);
+    mlb_text_encoder_free(te);
+    CHECK(report("SD1 hidden, CPU bf16 table", out, hidden, n, NULL) < BF16_TOL);
     free(hidden); free(ref_states); free(out); free(states);
 }
 
@@ -748,6 +845,7 @@ int main(void) {
     RUN(tiny_half_dtypes);
     RUN(tiny_causal_and_threads);
     RUN(tiny_errors);
+    RUN(tiny_op_tables);
     RUN(ref_tokens);
     RUN(ref_sd1);
     RUN(ref_sd2);

@@ -84,6 +84,12 @@ mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src
 //   backwards (+=): mlb_cuda_geglu_backward per element; mlb_cuda_upsample_nearest2x_backward the
 //   2x2 block sums in the CPU's order; mlb_cuda_add_channel_backward the per-channel sums by one
 //   warp per (n, c) in double (a fixed order: deterministic, not the CPU's bits).
+// self-attention (src/cuda/attention.cu): mlb_cuda_attention_forward, attention_forward's contract
+//   without `att` (declared from the op list, `attention`), flash-style: tiles of 32 keys in shared
+//   memory, an online softmax per query row (running max and sum in float), never the T x T
+//   matrix. Head width hd = C / NH up to 512. fp32 at every table precision.
+// embedding (src/cuda/tensor.cu): mlb_cuda_embedding, a thread per output value, the CPU's float
+//   add: the CPU's bits; a token outside [0, V) gets a row of NaN (the kernel cannot fail).
 // hash-grid encoding (hashgrid.h): g gives the layout (g->params is ignored: params is the device
 //   copy of the table). mlb_cuda_hashgrid_forward out[N, L*F] (level-major) for x[N,3]: the same
 //   float arithmetic as the CPU (no FMA contraction), so corner indices and weights agree bitwise;
@@ -100,12 +106,6 @@ mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src
 //   thread per grid vertex gathering its edges' terms in the CPU's order (no atomics): every
 //   output the CPU's bits.
 
-// ---- attention (transformer_ops.h attention_forward, without `att`) ----
-// Flash-style: tiles of 32 keys in shared memory, an online softmax per query row (running max and
-// sum in float), never the T x T matrix. Head width hd = C / NH up to 512. Same q/k/v/ld layout
-// and causal flag as attention_forward; out [B,T,C].
-mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
-                                      int C, int NH, int causal);
 // out = f(in), d1 = f'(in) (d1 may be NULL)
 mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act);
 // With cuDNN in the build (src/cuda/conv_cudnn.cu) the forward and the input gradient of a

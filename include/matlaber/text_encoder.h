@@ -10,6 +10,7 @@
 #ifndef MATLABER_TEXT_ENCODER_H
 #define MATLABER_TEXT_ENCODER_H
 #include <stddef.h>
+#include "matlaber/device.h"
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "matlaber/safetensors.h"
@@ -63,6 +64,7 @@ typedef struct {
     mlb_text_layer* layers;    // [n_layers]
     float *ln_final_w, *ln_final_b;   // [W]
     float* params;             // one float32 buffer holding every tensor above
+    mlb_device device;         // where params lives: the CPU unless mlb_text_encoder_to_device
     size_t n_params;
     char heads_from[32];       // "option", "config.json", "ldm_config", "width/64"
     char source[1200];         // what was loaded: file, layout, sizes
@@ -80,7 +82,10 @@ mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_option
 // config_path: a diffusers config.json or NULL (opt->config_path is used when this is NULL).
 mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* config_path,
                                     const mlb_text_encoder_options* opt, mlb_text_encoder** out);
-void mlb_text_encoder_free(mlb_text_encoder* te);   // NULL is fine
+void mlb_text_encoder_free(mlb_text_encoder* te);   // NULL is fine; frees device weights on their device
+// A copy of the CPU encoder src with its weights on device d (one upload of params), for
+// mlb_text_encoder_forward_on with that device's table. MLB_ERR_NOMEM / MLB_ERR_DEVICE.
+mlb_status mlb_text_encoder_to_device(const mlb_text_encoder* src, mlb_device d, mlb_text_encoder** out);
 
 // The padding token the variant's tokenizer uses: 49407 (SD1) or 0 (SD2).
 int mlb_text_encoder_pad_id(const mlb_text_encoder* te);
@@ -97,5 +102,14 @@ mlb_status mlb_text_encoder_forward(const mlb_text_encoder* te, const int* token
 // hidden_states). n_states <= n_layers + 1; states may be NULL (n_states ignored).
 mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int* tokens, int B, int T,
                                            float* out, float* states, int n_states);
+// forward_states on the ops of `be` (backend.h): te must be on be->device (mlb_text_encoder_to_device;
+// the CPU tables use the host weights as they are); tokens, out and states stay on the host (the
+// tokens are checked there, the rest crosses once). The two functions above are this with the CPU's
+// fp32 table, whose results are those of the CPU ops called directly, bit for bit. The CPU's bf16
+// table runs the linear layers on bf16 operands (the attention stays fp32); its bf16-stored table
+// is refused (these weights are fp32).
+struct mlb_backend;
+mlb_status mlb_text_encoder_forward_on(const struct mlb_backend* be, const mlb_text_encoder* te, const int* tokens,
+                                       int B, int T, float* out, float* states, int n_states);
 
 #endif

@@ -1,6 +1,7 @@
-// The glue between a network's layers on the device: residual and per-channel adds, the NCHW <->
-// token transpose, GEGLU, nearest 2x upsampling and strided row copies (channel concatenation).
-// The contracts of the CPU code they mirror (conv_ops.h, src/nn/backend.c); each output value is
+// The glue between a network's layers on the device: the token + position embedding, residual and
+// per-channel adds, the NCHW <-> token transpose, GEGLU, nearest 2x upsampling and strided row
+// copies (channel concatenation). The contracts of the CPU code they mirror (conv_ops.h,
+// transformer_ops.h, src/nn/backend.c); each output value is
 // written by one thread with the CPU's float operations, so results agree bitwise except GEGLU
 // (erfcf on the device, erfc in libm: a few ulps).
 #include "act.cuh"
@@ -15,6 +16,30 @@ extern "C" mlb_status mlb_cuda_add(float* y, const float* x, size_t n) {
     if (!n) return MLB_OK;
     add_kernel<<<mlb_grid(n, 256), 256>>>(y, x, n);
     MLB_CUDA_LAUNCHED("add_kernel");
+    return MLB_OK;
+}
+
+// out[bt, c] = wte[tokens[bt], c] + wpe[bt % T, c] (wpe may be NULL): embedding_forward's float add,
+// a thread per value; a token outside [0, V) gets NaN (the CPU op fails on it instead)
+__global__ void embedding_kernel(float* out, const int32_t* tokens, const float* wte, const float* wpe, int T, int C,
+                                 int V, size_t n) {
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
+        size_t bt = i / C, c = i - bt * C;
+        int id = tokens[bt];
+        if (id < 0 || id >= V) { out[i] = __int_as_float(0x7fc00000); continue; }
+        float e = wte[(size_t)id * C + c];
+        out[i] = wpe ? e + wpe[(bt % T) * C + c] : e;
+    }
+}
+
+extern "C" mlb_status mlb_cuda_embedding(float* out, const int32_t* tokens, const float* wte, const float* wpe, int B,
+                                         int T, int C, int V) {
+    if (B < 0 || T < 0 || C < 0 || V < 0)
+        return mlb_fail(MLB_ERR_ARG, "mlb_cuda_embedding: bad shape B %d, T %d, C %d, vocabulary %d", B, T, C, V);
+    size_t n = (size_t)B * T * C;
+    if (!n) return MLB_OK;
+    embedding_kernel<<<mlb_grid(n, 256), 256>>>(out, tokens, wte, wpe, T, C, V, n);
+    MLB_CUDA_LAUNCHED("embedding_kernel");
     return MLB_OK;
 }
 

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include "matlaber/backend.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/schedule.h"
@@ -146,7 +147,11 @@ mlb_status mlb_sd_model_encode_prompt(const mlb_sd_model* m, const char* prompt,
     if (!m->text || !m->tokenizer) return mlb_fail(MLB_ERR_ARG, "the model's text encoder is not loaded");
     int ids[MLB_CLIP_CONTEXT];
     MLB_TRY(mlb_tokenizer_encode(m->tokenizer, prompt, ids, MLB_CLIP_CONTEXT, m->pad_id, NULL));
-    return mlb_text_encoder_forward(m->text, ids, 1, MLB_CLIP_CONTEXT, out);
+    // No op table in scope: the model holds none (the UNet and the VAE keep their own, mirror_ops),
+    // and the text encoder's weights stay on the host. So the CPU's fp32 table, whatever --device
+    // and --precision say: a prompt is encoded a handful of times per run, and its conditioning is
+    // the same on every machine.
+    return mlb_text_encoder_forward_on(mlb_backend_cpu(), m->text, ids, 1, MLB_CLIP_CONTEXT, out, NULL, 0);
 }
 
 mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_prediction, const float* ctx_uncond,

@@ -8,11 +8,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include "matlaber/backend.h"
 #include "matlaber/fileio.h"
 #include "matlaber/sd_files.h"
 #include "matlaber/text_encoder.h"
 #include "matlaber/tokenizer.h"
-#include "matlaber/transformer_ops.h"
 
 #define TE_PATH_MAX 1100
 #define TE_CONFIG_MAX (1 << 20)   // bytes of config.json / ldm_config accepted
@@ -262,22 +262,15 @@ static mlb_status check_config_size(const char* cfg_path, const char* key, int c
 
 static void carve(float** p, float** dst, size_t n) { *dst = *p; *p += n; }
 
-static mlb_status load_weights(mlb_text_encoder* te, const mlb_safetensors* st, const te_names* nm) {
+// The tensors' pointers into te->params (on whichever device it is), in the order the loader fills
+// them: te->layers [n_layers] allocated, sizes set.
+static void carve_weights(mlb_text_encoder* te) {
     int64_t W = te->width, M = te->mlp, V = te->vocab, NC = te->n_ctx, L = te->n_layers;
-    size_t per_layer = (size_t)(4 * W + 3 * W * W + 3 * W + W * W + W + M * W + M + W * M + W);
-    te->n_params = (size_t)(V * W + NC * W + 2 * W) + (size_t)L * per_layer;
-    te->params = malloc(te->n_params * sizeof(float));
-    te->layers = calloc((size_t)(L > 0 ? L : 1), sizeof(mlb_text_layer));
-    if (!te->params || !te->layers)
-        return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the text encoder's %zu parameters (%.1f MB as float32)",
-                        mlb_st_path(st), te->n_params, te->n_params * 4.0 / 1e6);
     float* p = te->params;
     carve(&p, &te->token_embedding, (size_t)(V * W));
     carve(&p, &te->position_embedding, (size_t)(NC * W));
     carve(&p, &te->ln_final_w, (size_t)W);
     carve(&p, &te->ln_final_b, (size_t)W);
-    MLB_TRY(load_tensor(st, nm, N_TOK, -1, te->token_embedding, V, W));
-    MLB_TRY(load_tensor(st, nm, N_POS, -1, te->position_embedding, NC, W));
     for (int l = 0; l < L; l++) {
         mlb_text_layer* y = &te->layers[l];
         carve(&p, &y->ln1_w, (size_t)W);
@@ -294,6 +287,23 @@ static mlb_status load_weights(mlb_text_encoder* te, const mlb_safetensors* st, 
         carve(&p, &y->fc2_b, (size_t)W);
         y->q_w = y->qkv_w; y->k_w = y->qkv_w + W * W; y->v_w = y->qkv_w + 2 * W * W;
         y->q_b = y->qkv_b; y->k_b = y->qkv_b + W;     y->v_b = y->qkv_b + 2 * W;
+    }
+}
+
+static mlb_status load_weights(mlb_text_encoder* te, const mlb_safetensors* st, const te_names* nm) {
+    int64_t W = te->width, M = te->mlp, V = te->vocab, NC = te->n_ctx, L = te->n_layers;
+    size_t per_layer = (size_t)(4 * W + 3 * W * W + 3 * W + W * W + W + M * W + M + W * M + W);
+    te->n_params = (size_t)(V * W + NC * W + 2 * W) + (size_t)L * per_layer;
+    te->params = malloc(te->n_params * sizeof(float));
+    te->layers = calloc((size_t)(L > 0 ? L : 1), sizeof(mlb_text_layer));
+    if (!te->params || !te->layers)
+        return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the text encoder's %zu parameters (%.1f MB as float32)",
+                        mlb_st_path(st), te->n_params, te->n_params * 4.0 / 1e6);
+    carve_weights(te);
+    MLB_TRY(load_tensor(st, nm, N_TOK, -1, te->token_embedding, V, W));
+    MLB_TRY(load_tensor(st, nm, N_POS, -1, te->position_embedding, NC, W));
+    for (int l = 0; l < L; l++) {
+        mlb_text_layer* y = &te->layers[l];
         MLB_TRY(load_tensor(st, nm, N_LN1_W, l, y->ln1_w, W, 0));
         MLB_TRY(load_tensor(st, nm, N_LN1_B, l, y->ln1_b, W, 0));
         if (nm->layout == MLB_TEXT_LAYOUT_OPENCLIP) {   // in_proj = concat(q, k, v) along the rows
@@ -461,20 +471,50 @@ mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_option
 
 void mlb_text_encoder_free(mlb_text_encoder* te) {
     if (!te) return;
-    free(te->params);
+    if (te->device == MLB_DEVICE_CPU) free(te->params);
+    else mlb_backend_for(te->device, MLB_GEMM_FP32)->release(te->params);
     free(te->layers);
     free(te);
 }
 
-// ---- forward --------------------------------------------------------------------------------------
-static void add_inplace(float* x, const float* y, size_t n) {
-#pragma omp parallel for schedule(static) if (n >= 32768)
-    for (size_t i = 0; i < n; i++) x[i] += y[i];
+mlb_status mlb_text_encoder_to_device(const mlb_text_encoder* src, mlb_device d, mlb_text_encoder** out) {
+    if (!src || !out) return mlb_fail(MLB_ERR_ARG, "mlb_text_encoder_to_device: NULL argument");
+    *out = NULL;
+    if (src->device != MLB_DEVICE_CPU)
+        return mlb_fail(MLB_ERR_ARG, "mlb_text_encoder_to_device: the source must be on the CPU");
+    const mlb_backend* be = mlb_backend_for(d, MLB_GEMM_FP32);
+    mlb_text_encoder* te = malloc(sizeof *te);
+    if (!te) return mlb_fail(MLB_ERR_NOMEM, "text encoder: out of memory");
+    *te = *src;
+    te->device = MLB_DEVICE_CPU;   // until params holds the device's buffer (free frees by it)
+    te->params = NULL;
+    te->layers = calloc((size_t)(te->n_layers > 0 ? te->n_layers : 1), sizeof(mlb_text_layer));
+    mlb_status s = te->layers ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "text encoder: out of memory");
+    float* p = NULL;
+    if (!s) s = be->alloc(&p, te->n_params);
+    if (!s) {
+        te->params = p, te->device = d;
+        carve_weights(te);
+        s = be->upload(te->params, src->params, te->n_params);
+    }
+    if (s) {
+        mlb_text_encoder_free(te);
+        return mlb_fail_context(s, "moving the text encoder to the %s", mlb_device_name(d));
+    }
+    *out = te;
+    return MLB_OK;
 }
 
-mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int* tokens, int B, int T,
-                                           float* out, float* states, int n_states) {
+// ---- forward --------------------------------------------------------------------------------------
+mlb_status mlb_text_encoder_forward_on(const mlb_backend* be, const mlb_text_encoder* te, const int* tokens, int B,
+                                       int T, float* out, float* states, int n_states) {
+    if (!be) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL backend");
     if (!te) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL model");
+    if (te->device != be->device)
+        return mlb_fail(MLB_ERR_ARG, "text encoder: the weights are on the %s, the ops on the %s "
+                        "(mlb_text_encoder_to_device)", mlb_device_name(te->device), mlb_device_name(be->device));
+    if (be == mlb_backend_cpu_bf16_stored())
+        return mlb_fail(MLB_ERR_ARG, "text encoder: its weights are fp32, not packed bf16 (use the CPU's bf16 table)");
     if (B < 0 || T < 0) return mlb_fail(MLB_ERR_ARG, "text encoder: bad shape [%d, %d]", B, T);
     if (T > te->n_ctx)
         return mlb_fail(MLB_ERR_ARG, "text encoder: %d tokens per sequence, more than the %d positions", T, te->n_ctx);
@@ -488,36 +528,56 @@ mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int
     const int W = te->width, M = te->mlp, NH = te->n_heads;
     const int BT = B * T;
     const size_t n = (size_t)BT * W;
-    float* ws = malloc(((size_t)6 * W + M) * (size_t)BT * sizeof(float));
-    if (!ws) return mlb_fail(MLB_ERR_NOMEM, "text encoder: out of memory for a batch of %d", B);
+    // the tokens are checked here, on the host: the device's embedding cannot report one
+    for (int i = 0; i < BT; i++)
+        if (tokens[i] < 0 || tokens[i] >= te->vocab)
+            return mlb_fail(MLB_ERR_ARG, "text encoder: token %d at [%d, %d] is outside the vocabulary [0, %d)",
+                            tokens[i], i / T, i % T, te->vocab);
+    _Static_assert(sizeof(int) == sizeof(int32_t) && sizeof(int32_t) == sizeof(float), "tokens travel as floats");
+    float* ws = NULL;   // on be's device
+    MLB_TRY(be->alloc(&ws, ((size_t)6 * W + M + 1) * (size_t)BT));
     float* x = ws;               // [BT, W] residual stream
     float* h = x + n;            // [BT, W] layer norm output / projection output
     float* a = h + n;            // [BT, W] attention output
     float* qkv = a + n;          // [BT, 3W]
     float* m = qkv + 3 * n;      // [BT, M]
-    mlb_status s = embedding_forward(x, tokens, te->token_embedding, te->position_embedding, B, T, W, te->vocab);
-    if (s) { free(ws); return mlb_fail_context(s, "text encoder"); }
-    if (states && n_states > 0) memcpy(states, x, n * sizeof(float));
-    for (int l = 0; l < te->n_layers; l++) {
+    int32_t* tok = (int32_t*)(m + (size_t)BT * M);   // [BT]
+    int l = -1;   // the layer running (-1: none), for the error's context
+    mlb_status s;
+#define CK(e) do { if ((s = (e)) != MLB_OK) goto done; } while (0)
+    CK(be->upload((float*)tok, (const float*)tokens, (size_t)BT));
+    CK(be->embedding(x, tok, te->token_embedding, te->position_embedding, B, T, W, te->vocab));
+    if (states && n_states > 0) CK(be->download(states, x, n));
+    for (l = 0; l < te->n_layers; l++) {
         const mlb_text_layer* y = &te->layers[l];
-        layernorm_forward(h, NULL, NULL, x, y->ln1_w, y->ln1_b, BT, W, te->ln_eps);
-        linear_forward(qkv, h, y->qkv_w, y->qkv_b, BT, W, 3 * W);
-        s = attention_forward(a, NULL, qkv, qkv + W, qkv + 2 * W, 3 * W, B, T, W, NH, 1);
-        if (s) { free(ws); return mlb_fail_context(s, "text encoder layer %d", l); }
-        linear_forward(h, a, y->out_w, y->out_b, BT, W, W);
-        add_inplace(x, h, n);
-        layernorm_forward(h, NULL, NULL, x, y->ln2_w, y->ln2_b, BT, W, te->ln_eps);
-        linear_forward(m, h, y->fc1_w, y->fc1_b, BT, W, M);
-        activation_forward(m, m, (size_t)BT * M, te->act);
-        linear_forward(h, m, y->fc2_w, y->fc2_b, BT, M, W);
-        add_inplace(x, h, n);
-        if (states && l + 1 < n_states) memcpy(states + (size_t)(l + 1) * n, x, n * sizeof(float));
+        CK(be->layernorm(h, x, y->ln1_w, y->ln1_b, BT, W, te->ln_eps));
+        CK(be->linear(be, qkv, h, y->qkv_w, y->qkv_b, BT, W, 3 * W));
+        CK(be->attention(a, qkv, qkv + W, qkv + 2 * W, 3 * W, B, T, W, NH, 1));
+        CK(be->linear(be, h, a, y->out_w, y->out_b, BT, W, W));
+        CK(be->add(x, h, n));
+        CK(be->layernorm(h, x, y->ln2_w, y->ln2_b, BT, W, te->ln_eps));
+        CK(be->linear(be, m, h, y->fc1_w, y->fc1_b, BT, W, M));
+        CK(be->activation(m, m, (size_t)BT * M, te->act));
+        CK(be->linear(be, h, m, y->fc2_w, y->fc2_b, BT, M, W));
+        CK(be->add(x, h, n));
+        if (states && l + 1 < n_states) CK(be->download(states + (size_t)(l + 1) * n, x, n));
     }
-    layernorm_forward(out, NULL, NULL, x, te->ln_final_w, te->ln_final_b, BT, W, te->ln_eps);
-    free(ws);
+    l = -1;
+    CK(be->layernorm(h, x, te->ln_final_w, te->ln_final_b, BT, W, te->ln_eps));
+    CK(be->download(out, h, n));
+#undef CK
+done:
+    be->release(ws);
+    if (s && l >= 0) return mlb_fail_context(s, "text encoder layer %d", l);
+    if (s) return mlb_fail_context(s, "text encoder");
     return MLB_OK;
 }
 
+mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int* tokens, int B, int T,
+                                           float* out, float* states, int n_states) {
+    return mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tokens, B, T, out, states, n_states);
+}
+
 mlb_status mlb_text_encoder_forward(const mlb_text_encoder* te, const int* tokens, int B, int T, float* out) {
-    return mlb_text_encoder_forward_states(te, tokens, B, T, out, NULL, 0);
+    return mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tokens, B, T, out, NULL, 0);
 }

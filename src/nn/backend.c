@@ -80,6 +80,14 @@ static mlb_status cpu_sdpa_backward(const mlb_backend* be, float* dq, float* dk,
     (void)be;
     return sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
 }
+static mlb_status cpu_attention(float* out, const float* q, const float* k, const float* v, int ld, int B, int T, int C,
+                               int NH, int causal) {
+    return attention_forward(out, NULL, q, k, v, ld, B, T, C, NH, causal);
+}
+static mlb_status cpu_embedding(float* out, const int32_t* tokens, const float* wte, const float* wpe, int B, int T,
+                               int C, int V) {
+    return embedding_forward(out, (const int*)tokens, wte, wpe, B, T, C, V);
+}
 static mlb_status cpu_add(float* y, const float* x, size_t n) {
     for (size_t i = 0; i < n; i++) y[i] += x[i];
     return MLB_OK;

@@ -47,8 +47,6 @@ void mlb_cuda_flash_rows(int rows) { (void)rows; }
 int mlb_cuda_cudnn_version(void) { return 0; }
 mlb_status mlb_cuda_convert(void* dst, mlb_cuda_dtype dst_type, const float* src, size_t n) { NO_CUDA; }
 mlb_status mlb_cuda_activation_forward_d1(float* out, float* d1, const float* in, size_t n, mlb_activation act) { NO_CUDA; }
-mlb_status mlb_cuda_attention_forward(float* out, const float* q, const float* k, const float* v, int ld, int B, int T,
-                                      int C, int NH, int causal) { NO_CUDA; }
 mlb_status mlb_cuda_envlight_upload(mlb_cuda_envlight* out, const mlb_envlight* light) {
     memset(out, 0, sizeof *out);
     NO_CUDA;

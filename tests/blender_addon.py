@@ -121,7 +121,7 @@ if out is not None:
 bpy.ops.object.select_all(action="DESELECT")
 src.select_set(True)
 bpy.context.view_layer.objects.active = src
-st.extra = "--appearance-iters 40 --res 32 --views 1 --export-texture 64 --preview-every 0 --checkpoint-every 1"
+st.extra = "--appearance-iters 40 --res 32 --views 1 --export-texture 64 --preview-every 5 --checkpoint-every 1"
 check(bpy.ops.matlaber.paint_selected() == {"FINISHED"}, "second paint started")
 reached = wait(addon, 300, until=lambda j: st.progress >= 5.0)   # 2 of 40 steps
 check(reached and addon.job() is not None, "running at %.0f%% (ETA %s)" % (st.progress, st.eta))
@@ -137,6 +137,11 @@ check(bpy.ops.matlaber.resume() == {"FINISHED"}, "Resume")
 check(wait(addon, 300), "the resumed run finished")
 check(st.status.startswith("Done"), "resumed run done (%s %s)" % (st.status, st.error))
 check(len(bpy.data.objects) == before + 1, "the resumed run's result imported")
+# the panel shows the run's newest preview sheet (every 5 steps: the last one at step 40)
+shown = addon.preview_path(st)
+check(os.path.basename(shown) == "appearance_000040.png" and os.path.dirname(shown) == os.path.join(run, "previews"),
+      "the panel shows the newest preview (%s)" % shown)
+check("run" in addon._previews, "the preview loaded into the panel's preview collection")
 with open(os.path.join(run, "loss.csv")) as f:
     rows = [line for line in f if line[:1].isdigit()]
 check(len(rows) == 40, "loss.csv has the 40 steps once each (%d rows)" % len(rows))

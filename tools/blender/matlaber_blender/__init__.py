@@ -1,6 +1,7 @@
 # matlaber in Blender (docs/blender.md): a sidebar panel in the 3D view that runs the installed
 # `matlaber` program in the background, "Generate object" (text to 3D) or "Paint selected mesh" (the
-# appearance stage on your mesh), shows its progress and ETA from `matlaber --progress json`, can
+# appearance stage on your mesh), shows its progress and ETA from `matlaber --progress json` and
+# its newest preview sheet, can
 # cancel and resume a run, and imports the finished .glb with Blender's own glTF importer where the
 # selected object was.
 #
@@ -82,6 +83,7 @@ class MatlaberSettings(bpy.types.PropertyGroup):
     source: StringProperty(default="")          # paint: the painted object's name
     source_matrix: StringProperty(default="")   # where the result goes (16 numbers, JSON)
     error: StringProperty(name="Error", default="")
+    preview: StringProperty(default="")         # the preview sheet shown in the panel: "PATH@MTIME"
 
 
 # ---- the background job ------------------------------------------------------------------------
@@ -116,6 +118,9 @@ class Job:
 
 
 _job = None
+_previews = None   # bpy.utils.previews collection: the panel's picture of the run ("run")
+_preview_checked = 0.0
+
 
 
 def job():
@@ -173,6 +178,35 @@ def _handle_line(st, j, name, line):
         j.tail = (j.tail + [line])[-8:]
 
 
+def update_preview(st, settle=0.5):
+    """Shows the run's newest preview sheet (RUN/previews/*.png, written every preview_every steps)
+    in the panel. A file younger than `settle` seconds may still be being written: it waits."""
+    global _preview_checked
+    _preview_checked = time.time()
+    d = os.path.join(st.run_dir, "previews") if st.run_dir else ""
+    try:
+        files = [os.path.join(d, f) for f in os.listdir(d) if f.endswith(".png")] if d else []
+        stamped = [(os.path.getmtime(f), f) for f in files]
+    except OSError:   # no folder yet, or a file removed under us
+        return
+    ready = [x for x in stamped if time.time() - x[0] >= settle]
+    if not ready:
+        return
+    mtime, newest = max(ready)
+    key = "%s@%.3f" % (newest, mtime)
+    if key == st.preview:
+        return
+    if _previews is not None:
+        _previews.clear()   # load() refuses a key it holds; force_reload: the same path may hold a new sheet
+        _previews.load("run", newest, "IMAGE", force_reload=True)
+    st.preview = key
+
+
+def preview_path(st):
+    """The file shown in the panel, or ''."""
+    return st.preview.rsplit("@", 1)[0] if st.preview else ""
+
+
 def poll(context=None):
     """Processes the job's output; at the end imports the result or reports the error. Returns True
     while the job runs (the timer's and the tests' loop condition)."""
@@ -188,9 +222,12 @@ def poll(context=None):
     except queue.Empty:
         pass
     if not j.finished():
+        if time.time() - _preview_checked >= 1.0:
+            update_preview(st)
         _redraw()
         return True
     _job = None
+    update_preview(st, settle=0.0)   # the process has ended: every file is whole
     rc = j.proc.returncode
     if j.cancelled:
         st.status = "Cancelled: Resume continues from the last checkpoint"
@@ -234,6 +271,8 @@ def start(context, args, command, run_dir):
     st = context.scene.matlaber
     st.status, st.error, st.eta, st.progress = "Starting", "", "", 0.0
     st.run_dir, st.run_command, st.run_args = run_dir, command, json.dumps(args)
+    if not st.preview.startswith(os.path.join(run_dir, "")):   # a resume keeps its run's picture
+        st.preview = ""
     _job = Job(args)
     if not bpy.app.background:
         bpy.app.timers.register(_timer, first_interval=0.25)
@@ -720,6 +759,10 @@ class MATLABER_PT_panel(bpy.types.Panel):
             row.operator(MATLABER_OT_resume.bl_idname, icon="PLAY")
             if st.error:
                 box.label(text=st.error, icon="ERROR")
+            if st.preview and _previews is not None and "run" in _previews:
+                box.template_icon(icon_value=_previews["run"].icon_id, scale=9.0)
+                stage, _, step = os.path.splitext(os.path.basename(preview_path(st)))[0].partition("_")
+                box.label(text="%s, step %s" % (stage, step.lstrip("0") or "0"))
 
 
 CLASSES = (MatlaberPreferences, MatlaberSettings, MATLABER_OT_report, MATLABER_OT_generate, MATLABER_OT_paint,
@@ -727,6 +770,9 @@ CLASSES = (MatlaberPreferences, MatlaberSettings, MATLABER_OT_report, MATLABER_O
 
 
 def register():
+    global _previews
+    import bpy.utils.previews
+    _previews = bpy.utils.previews.new()
     for c in CLASSES:
         bpy.utils.register_class(c)
     bpy.types.Scene.matlaber = PointerProperty(type=MatlaberSettings)
@@ -740,3 +786,7 @@ def unregister():
     del bpy.types.Scene.matlaber
     for c in reversed(CLASSES):
         bpy.utils.unregister_class(c)
+    global _previews
+    if _previews is not None:
+        bpy.utils.previews.remove(_previews)
+        _previews = None

@@ -504,7 +504,7 @@ TEST(guided_step_equals_fit_loss) {
         REQUIRE(mlb_geofit_render_mesh(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
     }
     l2_guidance u = {targets, 0};
-    mlb_guidance gd = {"l2", VIEWS, NULL, l2_loss, NULL, &u, 0, 0, 0};
+    mlb_guidance gd = {.kind = "l2", .n_views = VIEWS, .loss = l2_loss, .impl = &u};
     mlb_geofit_state st = {0};
     mlb_geofit_stats s1, s2;
     mlb_raster_ctx* ctx = mlb_raster_ctx_create();

@@ -164,6 +164,17 @@ TEST(presets) {
     snprintf(c.precision, sizeof c.precision, "int8");
     CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "precision") != NULL);
+    // the tiny preset lets the model pick the start; image guidance has no model to ask
+    mlb_pipeline_config t = mlb_pipeline_default();
+    REQUIRE(mlb_pipeline_preset(&t, "tiny") == MLB_OK);
+    CHECK(!strcmp(t.init, "auto"));
+    snprintf(t.prompt, sizeof t.prompt, "a ring");
+    snprintf(t.model, sizeof t.model, "/models/tiny");
+    CHECK(mlb_pipeline_validate(&t) == MLB_OK);
+    snprintf(t.guidance, sizeof t.guidance, "images");
+    snprintf(t.views_dir, sizeof t.views_dir, "/views");
+    CHECK(mlb_pipeline_validate(&t) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "--init auto") != NULL);
     CHECK(mlb_pipeline_preset(&c, "fast") == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "fast") && strstr(mlb_last_error(), MLB_PIPELINE_PRESETS));
     mlb_clear_error();

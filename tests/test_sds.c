@@ -132,11 +132,27 @@ TEST(sds_matches_reference) {
     float *lat = malloc(n * 4), *noisy = malloc(n * 4), *ec = malloc(n * 4), *eu = malloc(n * 4), *eg = malloc(n * 4),
           *gl = malloc(n * 4), *gi = calloc(nimg, 4), w[2];
     int tt[2];
-    mlb_sds_trace tr = {lat, noisy, ec, eu, eg, gl, w, tt};
+    double err_c[2], err_u[2];
+    mlb_sds_trace tr = {lat, noisy, ec, eu, eg, gl, w, tt, err_c, err_u};
     mlb_sds_input in = {image, B, 3, H, H, NULL, 0, t, noise, 0, 0};
     float loss = 0;
     REQUIRE(mlb_sds_step(s, &in, gi, &loss, &tr) == MLB_OK);
     CHECK(tt[0] == t[0] && tt[1] == t[1]);
+    // the denoising errors (the diffusion classifier's terms) from the reference's eps and the noise
+    for (int b = 0; b < B; b++) {
+        size_t k = n / B;
+        double rc = 0, ru = 0;
+        for (size_t i = 0; i < k; i++) {
+            double dc = (double)r_ec[b * k + i] - noise[b * k + i], du = (double)r_eu[b * k + i] - noise[b * k + i];
+            rc += dc * dc;
+            ru += du * du;
+        }
+        rc /= (double)k;
+        ru /= (double)k;
+        printf("  element %d: denoising error cond %.6f (reference %.6f), uncond %.6f (%.6f)\n", b, err_c[b], rc, err_u[b], ru);
+        CHECK_CLOSE(err_c[b], rc, 1e-4, 1e-4);
+        CHECK_CLOSE(err_u[b], ru, 1e-4, 1e-4);
+    }
     CMP("w", w, r_w, 2, 3e-7);   // 1 - ac in float: an ulp or two
     CMP("latent", lat, r_lat, n, 1e-4);
     CMP("noisy_latent", noisy, r_noisy, n, 1e-4);

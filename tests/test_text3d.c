@@ -203,7 +203,11 @@ TEST(bench_smoke_tiny_sd) {
     REQUIRE(mlb_read_file(path, &text, &len, 1 << 20) == MLB_OK);
     CHECK(strstr(text, "failed: no surface") && strstr(text, "1 of 1 generations failed"));
     free(text);
-    // another ablation into the same folder is refused, naming it
+    // another ablation or starting shape into the same folder is refused, naming it
+    snprintf(bc.base.init, sizeof bc.base.init, "torus");
+    CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "bowl_gold") && strstr(mlb_last_error(), "--init"));
+    snprintf(bc.base.init, sizeof bc.base.init, "auto");
     bc.base.fixed_env = 1;
     CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "bowl_gold") != NULL);

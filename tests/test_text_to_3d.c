@@ -3,7 +3,8 @@
 // "a red bowl" nearer the bowls than the goblets. The whole loop (view prompts, classifier-free
 // guidance, the timestep weighting, the VAE encoder's backward, the sign of the SDS gradient) has to
 // be right for both to hold: with the gradient's sign flipped, both runs end nearer the wrong class
-// (checked once by hand, docs/sd_train.md). Skips when the model is absent (models/matlaber-tiny or
+// (checked once by hand, docs/sd_train.md). And --init auto starts a ring from the torus and a goblet
+// from the ellipsoid. Skips when the model is absent (models/matlaber-tiny or
 // $MATLABER_MODEL) and under the sanitizers (minutes of arithmetic, covered by the modules' tests).
 #include <stdio.h>
 #include <stdlib.h>
@@ -98,7 +99,63 @@ TEST(prompt_shapes_the_object) {
     CHECK(system(cmd) == 0);
 }
 
+// The geometry stage's step-0 checkpoint (the fitted starting shape) of `prompt` from `init`.
+static int init_checkpoint(const char* model, const char* prompt, const char* init, const char* dir, char** bytes,
+                           long* size) {
+    mlb_pipeline_config c = mlb_pipeline_default();
+    if (mlb_pipeline_preset(&c, "tiny")) return 0;
+    snprintf(c.prompt, sizeof c.prompt, "%s", prompt);
+    snprintf(c.model, sizeof c.model, "%s", model);
+    snprintf(c.init, sizeof c.init, "%s", init);
+    c.appearance_iters = 0;
+    c.stop_after = 1;   // stopped as if killed after a step: the checkpoint holds the initial shape
+    c.seed = 5;
+    mlb_guidance* g = NULL;
+    if (mlb_pipeline_validate(&c) || mlb_pipeline_make_guidance(&c, &g, NULL)) { printf("  %s\n", mlb_last_error()); return 0; }
+    mlb_pipeline_result res;
+    mlb_status s = mlb_pipeline_run(dir, &c, g, NULL, 0, NULL, &res);
+    mlb_guidance_free(g);
+    if (s) { printf("  run: %s\n", mlb_last_error()); return 0; }
+    char path[400];
+    snprintf(path, sizeof path, "%s/checkpoints/geometry.safetensors", dir);
+    FILE* f = fopen(path, "rb");
+    if (!f) return 0;
+    fseek(f, 0, SEEK_END);
+    *size = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    *bytes = malloc((size_t)*size);
+    int ok = *bytes && fread(*bytes, 1, (size_t)*size, f) == (size_t)*size;
+    fclose(f);
+    snprintf(path, sizeof path, "rm -rf %s", dir);
+    return ok && system(path) == 0;
+}
+
+// --init auto (docs/pipeline.md, Init): the model's score picks the torus for a ring and the
+// ellipsoid for a goblet, and the chosen start is bitwise the one --init names.
+TEST(auto_init_follows_the_prompt) {
+#ifdef MLB_TEST_SANITIZED
+    SKIP("a model's worth of arithmetic under the sanitizers");
+#endif
+    const char* model = model_path();
+    if (!model) SKIP("the project's own model is not there (models/matlaber-tiny, $MATLABER_MODEL)");
+    const char* cases[2][2] = {{"a blue ring", "torus"}, {"a red goblet", "ellipsoid"}};
+    for (int k = 0; k < 2; k++) {
+        char d1[256], d2[256], *a = NULL, *b = NULL;
+        long na = 0, nb = 0;
+        snprintf(d1, sizeof d1, "/tmp/mlb_autoinit_%d_%d", (int)getpid(), k);
+        snprintf(d2, sizeof d2, "/tmp/mlb_fixedinit_%d_%d", (int)getpid(), k);
+        REQUIRE(init_checkpoint(model, cases[k][0], "auto", d1, &a, &na));
+        REQUIRE(init_checkpoint(model, cases[k][0], cases[k][1], d2, &b, &nb));
+        int same = na == nb && memcmp(a, b, (size_t)na) == 0;
+        printf("  \"%s\": --init auto %s --init %s\n", cases[k][0], same ? "is bitwise" : "differs from", cases[k][1]);
+        CHECK(same);
+        free(a);
+        free(b);
+    }
+}
+
 int main(void) {
+    RUN(auto_init_follows_the_prompt);
     RUN(prompt_shapes_the_object);
     return test_summary();
 }

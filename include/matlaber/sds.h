@@ -77,6 +77,9 @@ typedef struct {
     float *latent, *noisy_latent, *eps_cond, *eps_uncond, *eps_guided, *grad_latent;
     float* w;   // [B]
     int* t;     // [B]
+    // [B] the UNet's denoising errors before guidance: mean over the latent's elements of
+    // (eps_cond - eps)^2 and (eps_uncond - eps)^2 (a diffusion classifier's terms: mlb_guidance score)
+    double *err_cond, *err_uncond;
 } mlb_sds_trace;
 
 typedef struct {

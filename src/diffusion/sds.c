@@ -220,6 +220,16 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
         if (tr->eps_uncond) memcpy(tr->eps_uncond, e2 + nall, nall * sizeof(float));
         if (tr->w) memcpy(tr->w, wt, (size_t)B * sizeof(float));
         if (tr->t) memcpy(tr->t, ts, (size_t)B * sizeof(int));
+        for (int b = 0; b < B && (tr->err_cond || tr->err_uncond); b++) {
+            double ec = 0, eu = 0;
+            for (size_t i = 0; i < n; i++) {
+                double dc = (double)e2[b * n + i] - noise[b * n + i], du = (double)e2[nall + b * n + i] - noise[b * n + i];
+                ec += dc * dc;
+                eu += du * du;
+            }
+            if (tr->err_cond) tr->err_cond[b] = ec / (double)n;
+            if (tr->err_uncond) tr->err_uncond[b] = eu / (double)n;
+        }
     }
     mlb_cfg_combine(e2, e2 + nall, e2, nall, s->opt.guidance_scale);
     if (tr && tr->eps_guided) memcpy(tr->eps_guided, e2, nall * sizeof(float));

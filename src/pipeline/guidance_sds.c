@@ -78,9 +78,11 @@ static mlb_status sds_sample_views(mlb_guidance* g, mlb_stage stage, long step, 
     return MLB_OK;
 }
 
-static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
-                           int H, int W, float* dimages, double* loss) {
-    sds_guidance* s = g->impl;
+// images [n, H, W, 4] of `stage` at `step` → s->x [n, *C, *h, *w], what the model sees: [normal,
+// mask] resized to latents in the latent phase, 0.5 (normal + mask) (geometry) or the colour
+// (appearance) otherwise; vids[n] the views' prompts. Grows s->x and s->dx as needed.
+static mlb_status to_model_input(sds_guidance* s, mlb_stage stage, long step, const mlb_view* views, int n,
+                                 const float* images, int H, int W, int* vids, int* Cp, int* hp, int* wp) {
     if (!images || !views || n < 1 || n > MLB_SDS_MAX_BATCH || H < 1 || W < 1)
         return mlb_fail(MLB_ERR_ARG, "SDS guidance: bad batch (%d views of %dx%d)", n, W, H);
     if (stage != MLB_STAGE_GEOMETRY && stage != MLB_STAGE_APPEARANCE) return mlb_fail(MLB_ERR_ARG, "SDS guidance: stage %d", (int)stage);
@@ -96,10 +98,8 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
         s->cap = s->x && s->dx ? N : 0;
         if (!s->cap) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory (%d views of %dx%d)", n, W, H);
     }
-    int vids[MLB_SDS_MAX_BATCH];
     for (int b = 0; b < n; b++)
         vids[b] = s->c.view_prompts ? mlb_sds_view_for(views[b].azimuth_deg, views[b].elevation_deg) : MLB_SDS_VIEW_NONE;
-    // images [n, H, W, 4] → x [n, C, h, w]
     if (latent) mlb_area_resize_nhwc_to_nchw(s->x, images, n, H, W, 4, L, L);
     else
         for (int b = 0; b < n; b++)
@@ -108,6 +108,20 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
                 for (int c = 0; c < 3; c++)
                     s->x[((size_t)b * 3 + c) * HW + i] = stage == MLB_STAGE_GEOMETRY ? 0.5f * (px[c] + px[3]) : px[c];
             }
+    *Cp = C;
+    *hp = h;
+    *wp = w;
+    return MLB_OK;
+}
+
+static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
+                           int H, int W, float* dimages, double* loss) {
+    sds_guidance* s = g->impl;
+    int vids[MLB_SDS_MAX_BATCH], C, h, w;
+    MLB_TRY(to_model_input(s, stage, step, views, n, images, H, W, vids, &C, &h, &w));
+    int latent = C == 4;
+    const int L = h;
+    size_t N = (size_t)n * C * h * w, HW = (size_t)H * W;
     mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
     mlb_sds_options* opt = mlb_sds_options_of(sds);
     mlb_sds_weighting keep = opt->weighting;
@@ -132,6 +146,32 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
                     else d[c] += gx;
                 }
             }
+    return MLB_OK;
+}
+
+// The diffusion classifier's score (guidance.h): SCORE_DRAWS timesteps per view, spread evenly over
+// the stage's range, noise from a step number no run reaches, so every call draws the same.
+#define SCORE_DRAWS 4
+#define SCORE_STEP (1L << 40)
+static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
+                            int W, double* per_view) {
+    sds_guidance* s = g->impl;
+    int vids[MLB_SDS_MAX_BATCH], C, h, w, t[MLB_SDS_MAX_BATCH];
+    MLB_TRY(to_model_input(s, stage, 0, views, n, images, H, W, vids, &C, &h, &w));
+    mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
+    const mlb_sds_options* opt = stage == MLB_STAGE_GEOMETRY ? &s->c.geometry_opt : &s->c.appearance_opt;
+    double ec[MLB_SDS_MAX_BATCH], eu[MLB_SDS_MAX_BATCH];
+    for (int b = 0; b < n; b++) per_view[b] = 0;
+    for (int j = 0; j < SCORE_DRAWS; j++) {
+        for (int b = 0; b < n; b++) t[b] = opt->t_min + (int)((opt->t_max - opt->t_min) * (j + 0.5) / SCORE_DRAWS);
+        mlb_sds_input in = {s->x, n, C, h, w, vids, SCORE_STEP + j, t, NULL, 0, 0};
+        mlb_sds_trace tr = {0};
+        tr.err_cond = ec;
+        tr.err_uncond = eu;
+        mlb_status st = mlb_sds_step(sds, &in, NULL, NULL, &tr);
+        if (st) return mlb_fail_context(st, "SDS guidance: scoring %d renders", n);
+        for (int b = 0; b < n; b++) per_view[b] += (eu[b] - ec[b]) / SCORE_DRAWS;
+    }
     return MLB_OK;
 }
 
@@ -200,6 +240,7 @@ mlb_status mlb_guidance_sds_create_from(mlb_sds* geometry, mlb_sds* appearance, 
     g->n_views = c->views;
     g->sample_views = sds_sample_views;
     g->loss = sds_loss;
+    g->score = sds_score;
     g->destroy = sds_destroy;
     g->impl = s;
     *out = g;

@@ -134,39 +134,6 @@ static void pipeline_scene_free(pipeline_scene* sc) {
     memset(sc, 0, sizeof *sc);
 }
 
-static mlb_status init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, mlb_progress* progress) {
-    mlb_shape shape;
-    memset(&shape, 0, sizeof shape);
-    mlb_status s = MLB_OK;
-    if (!strcmp(c->init, "ellipsoid")) {
-        // a sphere of radius 0.5 (semi-axes 0.5): inside every target placed in the unit sphere, so
-        // the geometry stage grows it outward (docs/pipeline.md, Init)
-        const float axes[3] = {0.5f, 0.5f, 0.5f};
-        mlb_shape_ellipsoid(&shape, 1.0f, axes);
-    } else if (!strcmp(c->init, "cylinder")) {
-        mlb_shape_cylinder(&shape, 1.0f);
-    } else if (!strcmp(c->init, "torus")) {
-        mlb_shape_torus(&shape, 1.0f);
-    } else {
-        mlb_mesh m;
-        memset(&m, 0, sizeof m);
-        s = mlb_obj_load(c->init, &m);
-        if (!s) s = mlb_shape_from_mesh(&shape, &m, 0.8f);
-        mlb_mesh_free(&m);
-        if (s) return mlb_fail_context(s, "--init %s", c->init);
-    }
-    mlb_shape_fit_config fc = mlb_shape_fit_default();
-    fc.iters = c->init_iters;
-    fc.seed = c->seed + 1;
-    double final_loss = 0;
-    net->active_levels = active_levels_at(c, net, 0);   // the initial shape in the levels step 0 sees
-    s = mlb_geometry_fit_shape(net, &shape, &fc, progress, &final_loss);
-    net->active_levels = 0;
-    mlb_shape_free(&shape);
-    if (!s) mlb_log(MLB_LOG_INFO, "shape init (%s): SDF MSE %.3g after %d steps", c->init, final_loss, fc.iters);
-    return s;
-}
-
 static double reg_weight(const mlb_pipeline_config* c, long it) {
     double span = c->reg_frac * c->geometry_iters;
     double t = span > 0 ? it / span : 1.0;
@@ -297,7 +264,9 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (!found) {
-        s = init_shape(net, c, NULL);
+        const char* init = c->init;
+        int levels = active_levels_at(c, net, 0);
+        s = strcmp(init, "auto") ? pipeline_init_shape(net, c, init, levels) : pipeline_choose_init(r, levels, &init);
         if (s) return s;
         // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
         memset(net->adam_m, 0, sizeof(float) * net->n_params);

@@ -68,11 +68,11 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->hash_log2 = 16;        // 16 cells per axis need no 2^19-entry tables: dense Adam was 14% of a step
         c->geometry_t_min = 150;
         c->init_iters = 100;
-        // init stays the ellipsoid and grid 32 (issue 26, docs/benchmarks.md "Tables and rings"): --init
-        // torus wins both rings (ring 0.0227 / 0.0224 instead of bottles) but turns the green teapot into
-        // a vase and the 7 control prompts' median Chamfer 0.0254 -> 0.0332; grid 48/64 keep a table's
-        // surface alive but shredded (table by 1-8% over the mushroom, or not): tables fail because the
-        // model draws no table in the normal-colour form the geometry stage is guided in
+        // The model picks the start (docs/pipeline.md, Init): a ring from the torus (a hole cannot
+        // open from the ellipsoid), everything else from the ellipsoid as before. A fixed torus won
+        // both rings but turned the green teapot into a vase (docs/benchmarks.md "Tables and rings",
+        // "Choosing the starting shape"). Grid 32: 48 and 64 keep a table's surface alive but shredded.
+        snprintf(c->init, sizeof c->init, "auto");
         c->guidance_scale = 20.0; // 10 gives a cleaner shape but a washed-out, greenish gold
         // The appearance stage at 20 paints gold as a saturated yellow diffuse on most shapes (a mug,
         // vase, teapot: kd 0.8, ks 0.02); at 100 (the paper's) they come out metal and every material's
@@ -138,7 +138,9 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
-    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus or an OBJ file";
+    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, auto or an OBJ file";
+    else if (!strcmp(c->init, "auto") && strcmp(c->guidance, "sds") != 0)
+        bad = "--init auto picks the shape by the diffusion model's score: it needs SDS guidance (a prompt), not images";
     else if (c->export_texture < 0 || c->export_texture > 16384) bad = "export texture size must be 0 (none) or 1..16384";
     else if (c->precision[0] && mlb_gemm_precision_parse(c->precision, &prec) != MLB_OK)
         bad = "precision must be empty (the program's) or one of --precision's names";

@@ -26,6 +26,12 @@ static mlb_status owner_loss(mlb_guidance* g, mlb_stage stage, long step, const 
     return mlb_guidance_loss_part(o->inner, stage, step, views, g->part_first, n, g->part_total, images, H, W, dimages, loss);
 }
 
+static mlb_status owner_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
+                              int W, double* per_view) {
+    sds_owner* o = g->impl;
+    return o->inner->score(o->inner, stage, views, n, images, H, W, per_view);
+}
+
 static void owner_destroy(mlb_guidance* g) {
     sds_owner* o = g->impl;
     mlb_guidance_free(o->inner);
@@ -71,6 +77,7 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     *g = *inner;   // kind, n_views
     g->sample_views = owner_sample;
     g->loss = owner_loss;
+    g->score = owner_score;
     g->destroy = owner_destroy;
     g->impl = o;
     *out = g;

@@ -73,6 +73,7 @@ static mlb_status check_same(const char* dir, const mlb_pipeline_config* want, c
     else if (want->fixed_env != have->fixed_env) what = "--fixed-env";
     else if (want->view_prompts != have->view_prompts) what = "--no-view-prompts";
     else if (want->seed != have->seed) what = "seed";
+    else if (strcmp(want->init, have->init)) what = "starting shape (--init)";
     else if (want->geometry_iters != have->geometry_iters || want->appearance_iters != have->appearance_iters)
         what = "step counts (--preset / --steps-scale)";
     else if (want->res != have->res || want->views != have->views || want->grid != have->grid) what = "preset";
@@ -397,6 +398,7 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddStringToObject(j, "model", c->base.model);
     cJSON_AddStringToObject(j, "ablation", mlb_text3d_ablation_name(&c->base, abl, sizeof abl));
     cJSON_AddNumberToObject(j, "seed", (double)c->base.seed);
+    cJSON_AddStringToObject(j, "init", c->base.init);
     cJSON_AddNumberToObject(j, "geometry_iters", c->base.geometry_iters);
     cJSON_AddNumberToObject(j, "appearance_iters", c->base.appearance_iters);
     cJSON_AddNumberToObject(j, "views", c->base.views);

@@ -21,6 +21,7 @@ static const cli_option options[] = {
     {"material", 1, 'a', "latent|direct", "the material network's output (direct: the no-prior ablation)"},
     {"fixed-env", 0, 'F', NULL, "ablation: one light, never rotated"},
     {"no-view-prompts", 0, 'W', NULL, "ablation: one prompt for every view"},
+    {"init", 1, 'I', "SHAPE", "the starting shape (generate's --init; default the preset's: auto for tiny)"},
     {"shape-seeds", 1, 'K', "K", "truth shapes per class, seeds 0..K-1 (default 8)"},
     {"relight-env", 1, 'e', "NAME|FILE", "the unseen relighting light (default white)"},
     {"out", 1, 'o', "DIR", "the run folders, DIR/<class>_<material> (default bench-text3d); a rerun resumes"},
@@ -60,7 +61,7 @@ static int parse_pairs(const char* text, mlb_text3d_bench_config* bc) {
 static int bench_text3d(int argc, char** argv) {
     const char* cmd = "bench text3d";
     mlb_text3d_bench_config bc = mlb_text3d_bench_default();
-    const char *preset = "tiny", *model = NULL, *json = NULL;
+    const char *preset = "tiny", *model = NULL, *json = NULL, *init = NULL;
     long v;
     double x, scale = 1.0;
     uint64_t seed = 0;
@@ -87,6 +88,7 @@ static int bench_text3d(int argc, char** argv) {
         case 'a': if (mlb_material_mode_parse(optarg, &material)) return cli_usage_error(cmd, "--material: expected latent or direct"); break;
         case 'F': fixed_env = 1; break;
         case 'W': view_prompts = 0; break;
+        case 'I': init = optarg; break;
         case 'K': if (cli_parse_long(optarg, 1, 1024, &v)) return cli_usage_error(cmd, "--shape-seeds: expected 1..1024"); bc.n_seeds = (int)v; break;
         case 'e': bc.relight_env = optarg; break;
         case 'o': bc.out_dir = optarg; break;
@@ -111,6 +113,10 @@ static int bench_text3d(int argc, char** argv) {
     if (!model) model = cli_default_model();
     if (!model) return cli_usage_error(cmd, "--model is required: the project's own model is not there (docs/sd_train.md)");
     mlb_status s = mlb_text3d_base_config(&bc.base, preset, model, seed, scale, material, fixed_env, view_prompts);
+    if (!s && init) {
+        if (strlen(init) >= sizeof bc.base.init) return cli_usage_error(cmd, "--init: a path of at most %zu bytes", sizeof bc.base.init - 1);
+        snprintf(bc.base.init, sizeof bc.base.init, "%s", init);
+    }
     if (s) return cli_usage_error(cmd, "%s", mlb_last_error());
     bc.progress = mlb_log_get_level() <= MLB_LOG_INFO;
     if (bc.n_pairs && (bc.n_classes || bc.n_materials)) return cli_usage_error(cmd, "--pairs replaces --classes and --materials");

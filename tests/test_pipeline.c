@@ -171,6 +171,14 @@ TEST(presets) {
     snprintf(t.prompt, sizeof t.prompt, "a ring");
     snprintf(t.model, sizeof t.model, "/models/tiny");
     CHECK(mlb_pipeline_validate(&t) == MLB_OK);
+    snprintf(t.init, sizeof t.init, "auto:ellipsoid,cylinder,/meshes/cup.obj");
+    CHECK(mlb_pipeline_validate(&t) == MLB_OK);
+    const char* bad_lists[3] = {"auto:", "auto:torus,,cylinder", "auto:torus,"};
+    for (int i = 0; i < 3; i++) {
+        snprintf(t.init, sizeof t.init, "%s", bad_lists[i]);
+        CHECK(mlb_pipeline_validate(&t) == MLB_ERR_ARG);
+    }
+    snprintf(t.init, sizeof t.init, "auto");
     snprintf(t.guidance, sizeof t.guidance, "images");
     snprintf(t.views_dir, sizeof t.views_dir, "/views");
     CHECK(mlb_pipeline_validate(&t) == MLB_ERR_ARG);

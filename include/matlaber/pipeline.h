@@ -47,7 +47,8 @@ typedef struct {
     double geometry_lr;           // 1e-3 (AdamW, betas 0.9/0.99, eps 1e-15)
     int grid;                     // DMTet grid as Fantasia3D names it (128 → 64 cells per axis)
     int hash_log2;                // both networks' hash tables: 2^hash_log2 entries per hashed level, 0 = 19 (the paper's)
-    char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder" or an OBJ file
+    char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder", "torus", an OBJ file, or "auto" / "auto:A,B,.." (the
+                                  // candidate the model scores best: docs/pipeline.md, Init)
     int init_iters;               // SDF initialisation steps: 400
     double coarse_to_fine;        // hash-grid levels unlocked from 4 to all over this fraction of the
                                   // geometry steps (0: all levels from the start)
@@ -92,6 +93,10 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
+// 1 when init is "auto" or "auto:A,B,..": the model picks the start among candidates.
+static inline int mlb_pipeline_init_is_auto(const char* init) {
+    return init[0] == 'a' && init[1] == 'u' && init[2] == 't' && init[3] == 'o' && (init[4] == 0 || init[4] == ':');
+}
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);

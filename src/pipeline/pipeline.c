@@ -264,9 +264,8 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (!found) {
-        const char* init = c->init;
         int levels = active_levels_at(c, net, 0);
-        s = strcmp(init, "auto") ? pipeline_init_shape(net, c, init, levels) : pipeline_choose_init(r, levels, &init);
+        s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels) : pipeline_init_shape(net, c, c->init, levels);
         if (s) return s;
         // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
         memset(net->adam_m, 0, sizeof(float) * net->n_params);

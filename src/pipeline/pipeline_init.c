@@ -44,20 +44,21 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
     return s;
 }
 
-// --init auto: each primitive is fitted and rendered as the geometry stage's first steps see it
+// --init auto: each candidate is fitted and rendered as the geometry stage's first steps see it
 // (their views, at least AUTO_VIEWS of them) and scored by the guidance per view (guidance.h,
 // score: how much better the prompt explains a render than the unconditional text does). The first
-// candidate, the ellipsoid, is the default; another replaces it only when its score beats the
-// ellipsoid's by more than AUTO_Z standard errors of the paired per-view differences (the views'
-// draws are shared, so the difference is the shapes'), the clearest such win if several do. 3, not
-// 2: the views of one shape are not independent draws, and the best of several candidates is
-// taken. The chosen one is fitted again from the network's starting state: the same bits as --init
-// NAME. No cylinder: the model prefers it for bottles, mugs and bowls, and a bottle from it ended a
-// vase (docs/benchmarks.md, "Choosing the starting shape").
+// candidate (the ellipsoid unless --init auto:A,B,.. names others) is the default; another replaces
+// it only when its score beats the first's by more than AUTO_Z standard errors of the paired
+// per-view differences (the views' draws are shared, so the difference is the shapes'), the
+// clearest such win if several do. 3, not 2: the views of one shape are not independent draws, and
+// the best of several candidates is taken. Each fit starts from the network's state as it came, so
+// the start is the same bits as --init NAME. No cylinder by default: the model prefers it for
+// bottles, mugs and bowls, and a bottle from it ended a vase (docs/benchmarks.md, "Choosing the
+// starting shape").
 #define AUTO_VIEWS 16
 #define AUTO_Z 3.0
-static const char* const AUTO_CANDIDATES[] = {"ellipsoid", "torus"};
-#define N_AUTO (int)(sizeof AUTO_CANDIDATES / sizeof AUTO_CANDIDATES[0])
+#define AUTO_MAX 8
+static const char* const AUTO_DEFAULT = "ellipsoid,torus";
 
 static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, double* per_view) {
     const mlb_pipeline_config* c = r->c;
@@ -75,76 +76,77 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
     return s;
 }
 
-typedef struct {
-    float* p;   // [3, n_params] parameters, Adam's moments
-    long step;
-} net_state;
-
-static void net_state_put(mlb_geometry_net* net, const net_state* k) {
-    const size_t np = net->n_params;
-    memcpy(net->params, k->p, sizeof(float) * np);
-    memcpy(net->adam_m, k->p + np, sizeof(float) * np);
-    memcpy(net->adam_v, k->p + 2 * np, sizeof(float) * np);
-    net->step = k->step;
-}
-
-mlb_status pipeline_choose_init(pipeline_run* r, int active_levels, const char** chosen) {
+mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
     mlb_geometry_net* net = &r->geo;
-    *chosen = NULL;
     if (!g->score) return mlb_fail(MLB_ERR_UNSUPPORTED, "--init auto needs score distillation (%s guidance cannot score a shape)", g->kind);
+    // the candidates: "auto" or "auto:A,B,.." (names or OBJ files)
+    char list[MLB_PIPELINE_PATH];
+    const char* names[AUTO_MAX];
+    int N = 0;
+    snprintf(list, sizeof list, "%s", c->init[4] == ':' ? c->init + 5 : AUTO_DEFAULT);
+    for (char *save = NULL, *tok = strtok_r(list, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        if (N == AUTO_MAX) return mlb_fail(MLB_ERR_ARG, "--init %s: more than %d candidates", c->init, AUTO_MAX);
+        names[N++] = tok;
+    }
+    if (N < 1) return mlb_fail(MLB_ERR_ARG, "--init %s: no candidates", c->init);
     int per = g->n_views, steps = (AUTO_VIEWS + per - 1) / per, n = steps * per;
     if (n > MLB_SDS_MAX_BATCH) { steps = MLB_SDS_MAX_BATCH / per; n = steps * per; }
     const size_t np = net->n_params;
     mlb_view* views = calloc((size_t)n, sizeof *views);
-    double* sc = malloc(sizeof(double) * (size_t)n * N_AUTO);   // [N_AUTO, n] per-view scores
-    net_state start = {malloc(sizeof(float) * 3 * np), net->step};
-    mlb_status s = views && sc && start.p ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
+    double* sc = malloc(sizeof(double) * (size_t)n * N);   // [N, n] per-view scores
+    // the network as it came (parameters, Adam's moments) and the leading candidate's parameters
+    float* start = malloc(sizeof(float) * 3 * np);
+    float* lead = malloc(sizeof(float) * np);
+    const long step0 = net->step;
+    mlb_status s = views && sc && start && lead ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
     if (!s) {
-        memcpy(start.p, net->params, sizeof(float) * np);
-        memcpy(start.p + np, net->adam_m, sizeof(float) * np);
-        memcpy(start.p + 2 * np, net->adam_v, sizeof(float) * np);
+        memcpy(start, net->params, sizeof(float) * np);
+        memcpy(start + np, net->adam_m, sizeof(float) * np);
+        memcpy(start + 2 * np, net->adam_v, sizeof(float) * np);
     }
     for (int k = 0; !s && k < steps; k++) s = g->sample_views(g, MLB_STAGE_GEOMETRY, k, views + (size_t)k * per);
-    for (int i = 0; !s && i < N_AUTO; i++) {
-        net_state_put(net, &start);
-        s = pipeline_init_shape(net, c, AUTO_CANDIDATES[i], active_levels);
+    int best = 0;
+    double mean[AUTO_MAX] = {0}, se[AUTO_MAX] = {0};
+    for (int i = 0; !s && i < N; i++) {
+        memcpy(net->params, start, sizeof(float) * np);
+        memcpy(net->adam_m, start + np, sizeof(float) * np);
+        memcpy(net->adam_v, start + 2 * np, sizeof(float) * np);
+        net->step = step0;
+        s = pipeline_init_shape(net, c, names[i], active_levels);
         net->active_levels = active_levels;
         if (!s) s = score_shape(r, views, n, sc + (size_t)i * n);
         net->active_levels = 0;
-    }
-    // the paired differences against the ellipsoid: mean and standard error
-    int best = 0;
-    double mean[N_AUTO] = {0}, se[N_AUTO] = {0};
-    for (int i = 1; !s && i < N_AUTO; i++) {
+        if (s) break;
+        // the paired differences against the first candidate: mean and standard error
         double m = 0, v = 0;
         for (int k = 0; k < n; k++) m += sc[(size_t)i * n + k] - sc[k];
         m /= n;
         for (int k = 0; k < n; k++) { double d = sc[(size_t)i * n + k] - sc[k] - m; v += d * d; }
         mean[i] = m;
         se[i] = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
-        if (mean[i] > AUTO_Z * se[i] && (best == 0 || mean[i] / se[i] > mean[best] / se[best])) best = i;
+        if (i == 0 || (mean[i] > AUTO_Z * se[i] && (best == 0 || mean[i] / se[i] > mean[best] / se[best]))) {
+            best = i;
+            memcpy(lead, net->params, sizeof(float) * np);
+        }
     }
     if (!s) {
-        char line[512];
+        // the chosen fit as --init NAME leaves it (Adam's state after the fit is dropped by the caller)
+        memcpy(net->params, lead, sizeof(float) * np);
+        char line[1024];
         int len = 0;
         double m0 = 0;
         for (int k = 0; k < n; k++) m0 += sc[k] / n;
-        len += snprintf(line, sizeof line, "ellipsoid %+.5f", m0);
-        for (int i = 1; i < N_AUTO && len < (int)sizeof line; i++)
-            len += snprintf(line + len, sizeof line - (size_t)len, ", %s %+.5f (%+.5f +- %.5f)", AUTO_CANDIDATES[i],
-                            m0 + mean[i], mean[i], se[i]);
-        mlb_log(MLB_LOG_INFO, "--init auto: the prompt's score on %d views: %s; starting from the %s", n, line,
-                AUTO_CANDIDATES[best]);
-        *chosen = AUTO_CANDIDATES[best];
-        if (best != N_AUTO - 1) {   // the network holds the last candidate: fit the chosen one again
-            net_state_put(net, &start);
-            s = pipeline_init_shape(net, c, *chosen, active_levels);
-        }
+        len += snprintf(line, sizeof line, "%s %+.5f", names[0], m0);
+        for (int i = 1; i < N && len < (int)sizeof line; i++)
+            len += snprintf(line + len, sizeof line - (size_t)len, ", %s %+.5f (%+.5f +- %.5f)", names[i], m0 + mean[i],
+                            mean[i], se[i]);
+        mlb_log(MLB_LOG_INFO, "--init auto: the prompt's score on %d views: %s; starting from the %s", n, line, names[best]);
     }
     free(views);
     free(sc);
-    free(start.p);
-    return s ? mlb_fail_context(s, "--init auto") : MLB_OK;
+    free(start);
+    free(lead);
+    return s ? mlb_fail_context(s, "--init %s", c->init) : MLB_OK;
 }

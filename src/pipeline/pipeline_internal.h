@@ -44,8 +44,8 @@ typedef struct {
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
-// --init auto: fits r->geo to the primitive the guidance scores best for the prompt; *chosen = its name.
-mlb_status pipeline_choose_init(pipeline_run* r, int active_levels, const char** chosen);
+// --init auto[:A,B,..]: fits r->geo to the candidate the guidance scores best for the prompt.
+mlb_status pipeline_choose_init(pipeline_run* r, int active_levels);
 
 // pipeline_output.c
 // out = dir/rel

@@ -125,6 +125,74 @@ TEST(truth_as_asset_scores_perfectly) {
     mlb_text3d_truth_free(&t);
 }
 
+// m's mirror image across x = 0 (both: m and it together), positions and faces, winding kept outward.
+static void mirror_x(const mlb_mesh* m, int both, mlb_mesh* out) {
+    int k = both ? 2 : 1, V = m->n_verts, F = m->n_faces;
+    memset(out, 0, sizeof *out);
+    out->n_verts = V * k;
+    out->n_faces = F * k;
+    out->pos = malloc(sizeof(float) * 3 * (size_t)V * k);
+    out->faces = malloc(sizeof(int32_t) * 3 * (size_t)F * k);
+    for (int c = 0; c < k; c++) {
+        int flip = c == k - 1;   // the last copy is the mirror image
+        for (int i = 0; i < V; i++)
+            for (int j = 0; j < 3; j++) out->pos[3 * ((size_t)c * V + i) + j] = (flip && j == 0 ? -1 : 1) * m->pos[3 * i + j];
+        for (int f = 0; f < F; f++) {
+            int32_t* o = out->faces + 3 * ((size_t)c * F + f);
+            const int32_t* q = m->faces + 3 * f;
+            o[0] = q[0] + c * V;
+            o[1] = (flip ? q[2] : q[1]) + c * V;
+            o[2] = (flip ? q[1] : q[2]) + c * V;
+        }
+    }
+}
+
+// Janus: a catalogue mug is neither two-faced nor mirrored; its mirror image (the handle on -x) is
+// mirrored; the mug with its mirror image (a handle on each side) is two-faced; a ring has no
+// side to double.
+TEST(janus_measure) {
+    mlb_text3d_truth t;
+    REQUIRE(mlb_text3d_truth_create(&t, 4) == MLB_OK);
+    mlb_envmap env = {0};
+    mlb_envlight light = {0};
+    REQUIRE(open_white(&env, &light));
+    mlb_text3d_measure_config mc = small_measure();
+    int mug, ring, red;
+    REQUIRE(mlb_catalogue_class_parse("mug", &mug) == MLB_OK);
+    REQUIRE(mlb_catalogue_class_parse("ring", &ring) == MLB_OK);
+    REQUIRE(mlb_catalogue_material_parse("red", &red) == MLB_OK);
+    CHECK(mlb_catalogue_class_mirror_axis(mug) == 0 && mlb_catalogue_class_mirror_axis(ring) == -1);
+    mlb_mesh m, mm[2];
+    REQUIRE(mlb_catalogue_mesh(mug, 2, &m) == MLB_OK);
+    mirror_x(&m, 0, &mm[0]);
+    mirror_x(&m, 1, &mm[1]);
+    const mlb_mesh* assets[3] = {&m, &mm[0], &mm[1]};
+    const int want_janus[3] = {0, 0, 1}, want_mirrored[3] = {0, 1, 0};
+    for (int a = 0; a < 3; a++) {
+        REQUIRE(assets[a]->pos && assets[a]->faces);
+        float* k = material_everywhere(assets[a], red);
+        mlb_text3d_scores sc;
+        REQUIRE(mlb_text3d_measure(&t, assets[a], k, mug, red, &light, &mc, &sc) == MLB_OK);
+        printf("  mug asset %d: Chamfer to the truth %.5f, its mirror %.5f, both %.5f: janus %d, mirrored %d\n", a,
+               sc.chamfer_truth, sc.chamfer_mirror, sc.chamfer_both, sc.janus, sc.mirrored);
+        CHECK(sc.janus == want_janus[a] && sc.mirrored == want_mirrored[a]);
+        free(k);
+    }
+    mlb_mesh_free(&m);
+    mlb_mesh_free(&mm[0]);
+    mlb_mesh_free(&mm[1]);
+    REQUIRE(mlb_catalogue_mesh(ring, 1, &m) == MLB_OK);
+    float* k = material_everywhere(&m, red);
+    mlb_text3d_scores sc;
+    REQUIRE(mlb_text3d_measure(&t, &m, k, ring, red, &light, &mc, &sc) == MLB_OK);
+    CHECK(sc.janus == -1 && sc.mirrored == -1 && isnan(sc.chamfer_both));
+    free(k);
+    mlb_mesh_free(&m);
+    mlb_envlight_free(&light);
+    mlb_envmap_free(&env);
+    mlb_text3d_truth_free(&t);
+}
+
 // The whole benchmark path (generate through the library, measure, report, JSON, resume) on the
 // random tiny SD fixture at a few steps: the plumbing, not the numbers.
 TEST(bench_smoke_tiny_sd) {
@@ -218,6 +286,7 @@ int main(void) {
     RUN(median_brdf);
     RUN(base_config);
     RUN(truth_as_asset_scores_perfectly);
+    RUN(janus_measure);
     RUN(bench_smoke_tiny_sd);
     return test_summary();
 }

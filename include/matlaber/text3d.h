@@ -59,6 +59,12 @@ typedef struct {
     double material_rmse;         // over the 7 numbers, against the material's truth
     int metal_truth, metal_pred, metal_ok;
     double relight_psnr;          // dB, under the light given to the measure
+    // Janus (classes with a mirror axis, mlb_catalogue_class_mirror_axis; else janus = −1): the
+    // asset's Chamfer distance (absolute, not relative: the doubled shape's box is wider) to the
+    // truth instance T, to its mirror image M and to both together T ∪ M. janus = 1 when T ∪ M is
+    // the nearest of the three (the one-sided part on both sides), mirrored = 1 when M is.
+    int janus, mirrored;
+    double chamfer_truth, chamfer_mirror, chamfer_both;
 } mlb_text3d_scores;
 
 // Per-channel median of k [n, 7] into out.
@@ -114,6 +120,8 @@ typedef struct {
     double median_chamfer;            // to the prompted class
     double material_rmse_seen, material_rmse_held_out;   // means
     double relight_psnr;              // mean
+    int n_janus_measured;             // assets of classes with a mirror axis (text3d_scores janus)
+    int n_janus, n_mirrored;          //   of which two-faced, mirrored
     double seconds;                   // the whole invocation
 } mlb_text3d_summary;
 

@@ -71,6 +71,57 @@ mlb_status mlb_text3d_median_brdf(const float* k, size_t n, float out[7]) {
     return MLB_OK;
 }
 
+// m's mirror image across the plane axis = 0 (winding reversed, so it stays outward); with both
+// != 0, m and its mirror image as one mesh. Positions and faces only.
+static mlb_status mirrored_mesh(const mlb_mesh* m, int axis, int both, mlb_mesh* out) {
+    memset(out, 0, sizeof *out);
+    int V = m->n_verts, F = m->n_faces, k = both ? 2 : 1;
+    out->pos = malloc(sizeof(float) * 3 * (size_t)V * k);
+    out->faces = malloc(sizeof(int32_t) * 3 * (size_t)F * k);
+    if (!out->pos || !out->faces) { mlb_mesh_free(out); return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory"); }
+    out->n_verts = V * k;
+    out->n_faces = F * k;
+    float* mp = out->pos + (both ? 3 * (size_t)V : 0);
+    int32_t* mf = out->faces + (both ? 3 * (size_t)F : 0);
+    int32_t off = both ? V : 0;
+    if (both) {
+        memcpy(out->pos, m->pos, sizeof(float) * 3 * (size_t)V);
+        memcpy(out->faces, m->faces, sizeof(int32_t) * 3 * (size_t)F);
+    }
+    for (int i = 0; i < V; i++)
+        for (int j = 0; j < 3; j++) mp[3 * i + j] = j == axis ? -m->pos[3 * i + j] : m->pos[3 * i + j];
+    for (int f = 0; f < F; f++) {
+        mf[3 * f + 0] = m->faces[3 * f + 0] + off;
+        mf[3 * f + 1] = m->faces[3 * f + 2] + off;
+        mf[3 * f + 2] = m->faces[3 * f + 1] + off;
+    }
+    return MLB_OK;
+}
+
+// The Janus part of the scores (text3d.h) against the truth instance tm.
+static mlb_status measure_janus(const mlb_mesh* mesh, const mlb_mesh* tm, int axis, const mlb_text3d_measure_config* mc,
+                                mlb_text3d_scores* out) {
+    out->janus = out->mirrored = -1;
+    out->chamfer_truth = out->chamfer_mirror = out->chamfer_both = NAN;
+    if (axis < 0) return MLB_OK;
+    mlb_mesh mir, both;
+    mlb_status s = mirrored_mesh(tm, axis, 0, &mir);
+    if (!s) s = mirrored_mesh(tm, axis, 1, &both);
+    mlb_chamfer_result r[3];
+    if (!s) s = mlb_chamfer(mesh, tm, mc->chamfer_samples, mc->chamfer_seed, &r[0]);
+    if (!s) s = mlb_chamfer(mesh, &mir, mc->chamfer_samples, mc->chamfer_seed, &r[1]);
+    if (!s) s = mlb_chamfer(mesh, &both, mc->chamfer_samples, mc->chamfer_seed, &r[2]);
+    mlb_mesh_free(&mir);
+    mlb_mesh_free(&both);
+    if (s) return mlb_fail_context(s, "text3d measure: the mirror images");
+    out->chamfer_truth = r[0].chamfer;
+    out->chamfer_mirror = r[1].chamfer;
+    out->chamfer_both = r[2].chamfer;
+    out->janus = r[2].chamfer < r[0].chamfer && r[2].chamfer < r[1].chamfer;
+    out->mirrored = !out->janus && r[1].chamfer < r[0].chamfer;
+    return MLB_OK;
+}
+
 mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, const float* k, int cls, int mat,
                               const mlb_envlight* light, const mlb_text3d_measure_config* mc, mlb_text3d_scores* out) {
     memset(out, 0, sizeof *out);
@@ -112,6 +163,8 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     out->metal_ok = out->metal_truth == out->metal_pred;
     // relighting against the truth instance: prompted class, its best seed, the true material
     const mlb_mesh* tm = &t->meshes[cls * t->n_seeds + (int)out->best_seed[cls]];
+    s = measure_janus(mesh, tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
+    if (s) return s;
     float* tk = malloc(sizeof(float) * 7 * (size_t)tm->n_verts);
     if (!tk) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
     for (int i = 0; i < tm->n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);

@@ -135,6 +135,8 @@ static void failed_scores(mlb_text3d_scores* sc, int cls, int mat) {
     sc->metal_truth = mlb_catalogue_material_metal(mat);
     sc->metal_pred = !sc->metal_truth;   // no call made: the opposite of the truth, as counted
     sc->relight_psnr = NAN;
+    sc->janus = sc->mirrored = -1;
+    sc->chamfer_truth = sc->chamfer_mirror = sc->chamfer_both = NAN;
 }
 
 // Generates the prompt into dir: fresh, resumed, or nothing to do when it finished before.
@@ -321,6 +323,7 @@ void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb
         if (failed) continue;
         measured++;
         psnr += sc->relight_psnr;
+        if (sc->janus >= 0) o->n_janus_measured++, o->n_janus += sc->janus, o->n_mirrored += sc->mirrored;
         if (sc->held_out) measured_held++, rmse_held += sc->material_rmse;
         else measured_seen++, rmse_seen += sc->material_rmse;
     }
@@ -383,6 +386,14 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
             num_or_dash(a[1], sum->class_acc_held_out, 2), sum->metal_acc, sum->median_chamfer,
             num_or_dash(a[2], sum->material_rmse_seen, 3), num_or_dash(a[3], sum->material_rmse_held_out, 3),
             sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt));
+    if (sum->n_janus_measured) {   // the classes whose two sides differ: is the far side's part doubled?
+        fprintf(f, "\nJanus (mug, stool, teapot: the one-sided part mirrored onto the other side is nearer than the truth):\n"
+                   "%d of %d assets two-faced, %d mirrored", sum->n_janus, sum->n_janus_measured, sum->n_mirrored);
+        const char* sep = ": ";
+        for (int i = 0; i < n; i++)
+            if (!rows[i].error[0] && rows[i].scores.janus == 1) { fprintf(f, "%s%s", sep, rows[i].prompt); sep = ", "; }
+        fprintf(f, ".\n");
+    }
 }
 
 mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows,
@@ -435,6 +446,13 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
         cJSON_AddBoolToObject(r, "metal_pred", sc->metal_pred);
         cJSON_AddBoolToObject(r, "metal_ok", sc->metal_ok);
         cJSON_AddNumberToObject(r, "relight_psnr", sc->relight_psnr);
+        if (sc->janus >= 0) {   // absolute Chamfer distances to the truth, its mirror image and both
+            cJSON_AddBoolToObject(r, "janus", sc->janus);
+            cJSON_AddBoolToObject(r, "mirrored", sc->mirrored);
+            cJSON_AddNumberToObject(r, "chamfer_truth", sc->chamfer_truth);
+            cJSON_AddNumberToObject(r, "chamfer_mirror", sc->chamfer_mirror);
+            cJSON_AddNumberToObject(r, "chamfer_both", sc->chamfer_both);
+        }
         cJSON_AddNumberToObject(r, "seconds", rows[i].seconds);   // null when unknown
         cJSON_AddBoolToObject(r, "generated", rows[i].generated);
         cJSON_AddItemToArray(arr, r);
@@ -452,6 +470,9 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddNumberToObject(su, "material_rmse_seen", sum->material_rmse_seen);
     cJSON_AddNumberToObject(su, "material_rmse_held_out", sum->material_rmse_held_out);
     cJSON_AddNumberToObject(su, "relight_psnr_mean", sum->relight_psnr);
+    cJSON_AddNumberToObject(su, "janus_measured", sum->n_janus_measured);
+    cJSON_AddNumberToObject(su, "janus", sum->n_janus);
+    cJSON_AddNumberToObject(su, "mirrored", sum->n_mirrored);
     cJSON_AddNumberToObject(su, "seconds", sum->seconds);
     cJSON_AddItemToObject(j, "summary", su);
     mlb_status s = mlb_run_write_json(path, j);

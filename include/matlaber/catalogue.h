@@ -45,9 +45,9 @@ int mlb_catalogue_n_classes(void);
 const char* mlb_catalogue_class_name(int c);        // "goblet", ...; NULL when out of range
 int mlb_catalogue_class_symmetric(int c);           // 1: a surface of revolution about +y
 // The axis (0 x, 2 z) whose mirror puts a non-symmetric class's one-sided part on the other side
-// (the mug's handle, the teapot's spout and handle: x; the stool's front leg: z), the shape a
-// two-faced (Janus) asset doubles; −1 when the mirror maps the class onto itself (symmetric
-// classes, the table, the ring).
+// (the mug's handle, the teapot's spout and handle: x), the shape a two-faced (Janus) asset
+// doubles; −1 when the mirror maps the class onto itself (symmetric classes, the table, the ring)
+// or tells nothing (the stool: catalogue.c).
 int mlb_catalogue_class_mirror_axis(int c);
 mlb_status mlb_catalogue_class_parse(const char* name, int* c);   // MLB_ERR_ARG listing the names
 const char* mlb_catalogue_class_list(void);          // "goblet, vase, ..."

@@ -387,7 +387,7 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
             num_or_dash(a[2], sum->material_rmse_seen, 3), num_or_dash(a[3], sum->material_rmse_held_out, 3),
             sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt));
     if (sum->n_janus_measured) {   // the classes whose two sides differ: is the far side's part doubled?
-        fprintf(f, "\nJanus (mug, stool, teapot: the one-sided part mirrored onto the other side is nearer than the truth):\n"
+        fprintf(f, "\nJanus (mug, teapot: the one-sided part mirrored onto the other side is nearer than the truth):\n"
                    "%d of %d assets two-faced, %d mirrored", sum->n_janus, sum->n_janus_measured, sum->n_mirrored);
         const char* sep = ": ";
         for (int i = 0; i < n; i++)

@@ -147,6 +147,21 @@ done:
     return st;
 }
 
+mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* h, int* w) {
+    const int Lc = s->unet->cfg.in_channels;
+    if (C == Lc) { *h = H; *w = W; }
+    else if (s->vae && C == s->vae->cfg.in_channels) {
+        *h = mlb_vae_latent_size(&s->vae->cfg, H);
+        *w = mlb_vae_latent_size(&s->vae->cfg, W);
+        if (*h < 1 || *w < 1) return mlb_fail(MLB_ERR_ARG, "SDS image %dx%d is too small for the VAE", W, H);
+    } else
+        return mlb_fail(MLB_ERR_ARG, "SDS input has %d channels: expected %d (images in [0, 1]%s) or %d (latents)", C,
+                        s->vae ? s->vae->cfg.in_channels : 3, s->vae ? "" : ", needs a VAE", Lc);
+    int mult = 1 << (s->unet->cfg.n_levels - 1);
+    if (*h % mult || *w % mult) return mlb_fail(MLB_ERR_ARG, "SDS latent %dx%d is not a multiple of %d (the UNet's downsampling)", *w, *h, mult);
+    return MLB_OK;
+}
+
 mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* tr) {
     if (!s || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
     const int B = in->B, C = in->C, H = in->H, W = in->W;
@@ -157,16 +172,7 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
     if (!s->cond[0] || !s->uncond) return mlb_fail(MLB_ERR_ARG, "SDS: the prompt and unconditional embeddings are not set");
     const int Lc = s->unet->cfg.in_channels;
     int h, w;
-    if (C == Lc) { h = H; w = W; }
-    else if (s->vae && C == s->vae->cfg.in_channels) {
-        h = mlb_vae_latent_size(&s->vae->cfg, H);
-        w = mlb_vae_latent_size(&s->vae->cfg, W);
-        if (h < 1 || w < 1) return mlb_fail(MLB_ERR_ARG, "SDS image %dx%d is too small for the VAE", W, H);
-    } else
-        return mlb_fail(MLB_ERR_ARG, "SDS input has %d channels: expected %d (images in [0, 1]%s) or %d (latents)", C,
-                        s->vae ? s->vae->cfg.in_channels : 3, s->vae ? "" : ", needs a VAE", Lc);
-    int mult = 1 << (s->unet->cfg.n_levels - 1);
-    if (h % mult || w % mult) return mlb_fail(MLB_ERR_ARG, "SDS latent %dx%d is not a multiple of %d (the UNet's downsampling)", w, h, mult);
+    MLB_TRY(mlb_sds_latent_shape(s, C, H, W, &h, &w));
     const size_t n = (size_t)Lc * h * w, nimg = (size_t)C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;
     float *z = malloc(nall * sizeof(float)), *noise = malloc(nall * sizeof(float));

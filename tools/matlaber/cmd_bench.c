@@ -102,7 +102,7 @@ static int bench_text3d(int argc, char** argv) {
                    "right when the prompted one is nearest), the median BRDF on the surface against the material's\n"
                    "(RMSE over the 7 numbers; metal when mean ks > %.2f and mean kd < %.2f), and relighting PSNR\n"
                    "against the prompted class's best seed in the true material under a light no run saw.\n"
-                   "Writes DIR/report.md. A full run is 88 generations (about 37 s each with --preset tiny on 2 idle cores: ~55 min).\n\n",
+                   "Writes DIR/report.md. A full run is 88 generations (about 41 s each with --preset tiny on 2 idle cores: ~60 min).\n\n",
                    MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
             cli_print_options(stdout, options);
             return 0;

@@ -71,14 +71,33 @@ TEST(base_config) {
     CHECK(mlb_text3d_base_config(&c, "tiny", "MODEL", 0, 0, MLB_MATERIAL_LATENT, 0, 1) == MLB_ERR_ARG);
 }
 
+// What the measure tests share: the truth at 4 seeds, the white light, the small measure.
+typedef struct {
+    mlb_text3d_truth t;
+    mlb_envmap env;
+    mlb_envlight light;
+    mlb_text3d_measure_config mc;
+} measure_fixture;
+
+static int fixture_open(measure_fixture* f) {
+    memset(f, 0, sizeof *f);
+    f->mc = small_measure();
+    return mlb_text3d_truth_create(&f->t, 4) == MLB_OK && open_white(&f->env, &f->light);
+}
+
+static void fixture_close(measure_fixture* f) {
+    mlb_envlight_free(&f->light);
+    mlb_envmap_free(&f->env);
+    mlb_text3d_truth_free(&f->t);
+}
+
 // A catalogue mesh as the asset: the true class, seed 3 (one of the truth's seeds), true material.
 TEST(truth_as_asset_scores_perfectly) {
-    mlb_text3d_truth t;
-    REQUIRE(mlb_text3d_truth_create(&t, 4) == MLB_OK);
-    mlb_envmap env = {0};
-    mlb_envlight light = {0};
-    REQUIRE(open_white(&env, &light));
-    mlb_text3d_measure_config mc = small_measure();
+    measure_fixture fx;
+    REQUIRE(fixture_open(&fx));
+    const mlb_text3d_truth* t = &fx.t;
+    const mlb_envlight* light = &fx.light;
+    const mlb_text3d_measure_config* mc = &fx.mc;
     int cls, gold, white;
     REQUIRE(mlb_catalogue_class_parse("mug", &cls) == MLB_OK);
     REQUIRE(mlb_catalogue_material_parse("gold", &gold) == MLB_OK);
@@ -88,11 +107,11 @@ TEST(truth_as_asset_scores_perfectly) {
     float* k = material_everywhere(&m, gold);
     REQUIRE(k);
     mlb_text3d_scores sc;
-    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, gold, &light, &mc, &sc) == MLB_OK);
+    REQUIRE(mlb_text3d_measure(t, &m, k, cls, gold, light, mc, &sc) == MLB_OK);
     CHECK(sc.class_ok && sc.nearest == cls);
     CHECK(sc.best_seed[cls] == 3);
     CHECK_MSG(sc.chamfer_prompted < 1e-4, "Chamfer to its own class %g", sc.chamfer_prompted);
-    for (int c = 0; c < t.n_classes; c++)
+    for (int c = 0; c < t->n_classes; c++)
         if (c != cls) CHECK_MSG(sc.chamfer[c] > 0.01, "%s: %g", mlb_catalogue_class_name(c), sc.chamfer[c]);
     CHECK(sc.material_rmse == 0);
     CHECK(sc.metal_truth && sc.metal_pred && sc.metal_ok);
@@ -101,7 +120,7 @@ TEST(truth_as_asset_scores_perfectly) {
     double perfect = sc.relight_psnr;
 
     // the same gold asset prompted as white: the material is wrong, and so is metal/dielectric
-    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, white, &light, &mc, &sc) == MLB_OK);
+    REQUIRE(mlb_text3d_measure(t, &m, k, cls, white, light, mc, &sc) == MLB_OK);
     CHECK(sc.class_ok);
     CHECK_MSG(sc.material_rmse > 0.3, "RMSE %g", sc.material_rmse);
     CHECK(!sc.metal_truth && sc.metal_pred && !sc.metal_ok);
@@ -114,15 +133,13 @@ TEST(truth_as_asset_scores_perfectly) {
     REQUIRE(mlb_catalogue_class_parse("bowl", &bowl) == MLB_OK);
     REQUIRE(mlb_catalogue_mesh(bowl, 3, &m) == MLB_OK);
     k = material_everywhere(&m, white);
-    REQUIRE(mlb_text3d_measure(&t, &m, k, cls, white, &light, &mc, &sc) == MLB_OK);
+    REQUIRE(mlb_text3d_measure(t, &m, k, cls, white, light, mc, &sc) == MLB_OK);
     CHECK(!sc.class_ok && sc.nearest == bowl);
     CHECK(sc.chamfer_prompted > 10 * sc.chamfer[bowl]);
     CHECK(sc.material_rmse == 0 && sc.metal_ok);
     free(k);
     mlb_mesh_free(&m);
-    mlb_envlight_free(&light);
-    mlb_envmap_free(&env);
-    mlb_text3d_truth_free(&t);
+    fixture_close(&fx);
 }
 
 // m's mirror image across x = 0 (both: m and it together), positions and faces, winding kept outward.
@@ -151,12 +168,11 @@ static void mirror_x(const mlb_mesh* m, int both, mlb_mesh* out) {
 // mirrored; the mug with its mirror image (a handle on each side) is two-faced; a ring has no
 // side to double.
 TEST(janus_measure) {
-    mlb_text3d_truth t;
-    REQUIRE(mlb_text3d_truth_create(&t, 4) == MLB_OK);
-    mlb_envmap env = {0};
-    mlb_envlight light = {0};
-    REQUIRE(open_white(&env, &light));
-    mlb_text3d_measure_config mc = small_measure();
+    measure_fixture fx;
+    REQUIRE(fixture_open(&fx));
+    const mlb_text3d_truth* t = &fx.t;
+    const mlb_envlight* light = &fx.light;
+    const mlb_text3d_measure_config* mc = &fx.mc;
     int mug, ring, red;
     REQUIRE(mlb_catalogue_class_parse("mug", &mug) == MLB_OK);
     REQUIRE(mlb_catalogue_class_parse("ring", &ring) == MLB_OK);
@@ -172,7 +188,7 @@ TEST(janus_measure) {
         REQUIRE(assets[a]->pos && assets[a]->faces);
         float* k = material_everywhere(assets[a], red);
         mlb_text3d_scores sc;
-        REQUIRE(mlb_text3d_measure(&t, assets[a], k, mug, red, &light, &mc, &sc) == MLB_OK);
+        REQUIRE(mlb_text3d_measure(t, assets[a], k, mug, red, light, mc, &sc) == MLB_OK);
         printf("  mug asset %d: Chamfer to the truth %.5f, its mirror %.5f, both %.5f: janus %d, mirrored %d\n", a,
                sc.chamfer_truth, sc.chamfer_mirror, sc.chamfer_both, sc.janus, sc.mirrored);
         CHECK(sc.janus == want_janus[a] && sc.mirrored == want_mirrored[a]);
@@ -184,13 +200,11 @@ TEST(janus_measure) {
     REQUIRE(mlb_catalogue_mesh(ring, 1, &m) == MLB_OK);
     float* k = material_everywhere(&m, red);
     mlb_text3d_scores sc;
-    REQUIRE(mlb_text3d_measure(&t, &m, k, ring, red, &light, &mc, &sc) == MLB_OK);
+    REQUIRE(mlb_text3d_measure(t, &m, k, ring, red, light, mc, &sc) == MLB_OK);
     CHECK(sc.janus == -1 && sc.mirrored == -1 && isnan(sc.chamfer_both));
     free(k);
     mlb_mesh_free(&m);
-    mlb_envlight_free(&light);
-    mlb_envmap_free(&env);
-    mlb_text3d_truth_free(&t);
+    fixture_close(&fx);
 }
 
 // The whole benchmark path (generate through the library, measure, report, JSON, resume) on the

@@ -94,9 +94,7 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
 // 1 when init is "auto" or "auto:A,B,..": the model picks the start among candidates.
-static inline int mlb_pipeline_init_is_auto(const char* init) {
-    return init[0] == 'a' && init[1] == 'u' && init[2] == 't' && init[3] == 'o' && (init[4] == 0 || init[4] == ':');
-}
+int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);

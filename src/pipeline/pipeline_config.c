@@ -108,6 +108,8 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
 
 int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? c->grid / 2 : 1; }
 
+int mlb_pipeline_init_is_auto(const char* init) { return !strncmp(init, "auto", 4) && (init[4] == 0 || init[4] == ':'); }
+
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     const char* bad = NULL;
     mlb_gemm_precision prec;

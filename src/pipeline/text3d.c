@@ -104,15 +104,13 @@ static mlb_status measure_janus(const mlb_mesh* mesh, const mlb_mesh* tm, int ax
     out->janus = out->mirrored = -1;
     out->chamfer_truth = out->chamfer_mirror = out->chamfer_both = NAN;
     if (axis < 0) return MLB_OK;
-    mlb_mesh mir, both;
-    mlb_status s = mirrored_mesh(tm, axis, 0, &mir);
-    if (!s) s = mirrored_mesh(tm, axis, 1, &both);
+    mlb_mesh target[3] = {*tm};   // T (borrowed), M, T ∪ M: the asset's samples and BVH made once for the three
+    mlb_status s = mirrored_mesh(tm, axis, 0, &target[1]);
+    if (!s) s = mirrored_mesh(tm, axis, 1, &target[2]);
     mlb_chamfer_result r[3];
-    if (!s) s = mlb_chamfer(mesh, tm, mc->chamfer_samples, mc->chamfer_seed, &r[0]);
-    if (!s) s = mlb_chamfer(mesh, &mir, mc->chamfer_samples, mc->chamfer_seed, &r[1]);
-    if (!s) s = mlb_chamfer(mesh, &both, mc->chamfer_samples, mc->chamfer_seed, &r[2]);
-    mlb_mesh_free(&mir);
-    mlb_mesh_free(&both);
+    if (!s) s = mlb_chamfer_many(mesh, target, NULL, 3, mc->chamfer_samples, mc->chamfer_seed, r);
+    mlb_mesh_free(&target[1]);
+    mlb_mesh_free(&target[2]);
     if (s) return mlb_fail_context(s, "text3d measure: the mirror images");
     out->chamfer_truth = r[0].chamfer;
     out->chamfer_mirror = r[1].chamfer;

@@ -5,13 +5,15 @@
 #   scripts/gpu-parity.sh --fetch-debs   HERE (Debian 12, with network): downloads the -dev packages the
 #                                        build needs into build-gpu-debs/ (ignored by git), for a GPU
 #                                        machine that cannot install anything
-#   scripts/gpu-parity.sh [--bench [--cudnn-baseline]] [--memcheck] [--pipeline]
+#   scripts/gpu-parity.sh [--bench [--cudnn-baseline] | --bench-kernels] [--memcheck] [--pipeline]
 #                                        ON THE GPU MACHINE, in the repository root: configures
 #                                        build-gpu/ (CUDA on, sm_90 unless MLB_CUDA_ARCH says otherwise),
 #                                        unpacks build-gpu-debs/*.deb into a private prefix when a
 #                                        dependency is missing, builds the CUDA tests (and bench_cuda),
 #                                        runs them and prints a table. Logs go to $OUT when set.
 #                                        --memcheck runs each test under compute-sanitizer memcheck.
+#                                        --bench-kernels: bench_cuda and bench_render_ops alone (no
+#                                        full-size UNet/VAE benches; --bench runs all of them).
 #   scripts/gpu-parity.sh --train [...]   ON THE GPU MACHINE: also builds matlaber and trains the project's
 #                                        own model there (`sd train`, arguments from MLB_TRAIN_ARGS), then
 #                                        samples it (`sd txt2img`); the model folder comes back as
@@ -41,11 +43,12 @@ train=0
 for a in "$@"; do
   case $a in
     --bench) bench=1 ;;
+    --bench-kernels) bench=2 ;;   # bench_cuda and bench_render_ops only
     --memcheck) memcheck=1 ;;   # every test under compute-sanitizer (out-of-bounds, races: slower)
     --pipeline) pipeline=1 ;;   # bench_pipeline with full-size random SD 1.5 on the GPU, 9 views at 512² (~2 min)
     --cudnn-baseline) cudnn_baseline=1 ;;   # with --bench: the UNet and VAE benches again with MLB_CUDNN=0
     --train) train=1 ;;   # sd train on the GPU (MLB_TRAIN_ARGS), the model folder back under $OUT
-    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench [--cudnn-baseline]] [--memcheck] [--pipeline] [--train]]" >&2; exit 2 ;;
+    *) echo "usage: scripts/gpu-parity.sh [--fetch-debs | [--bench [--cudnn-baseline] | --bench-kernels] [--memcheck] [--pipeline] [--train]]" >&2; exit 2 ;;
   esac
 done
 
@@ -123,9 +126,11 @@ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DMLB_CUDA=ON -DCMAKE_CUDA_COM
 grep -E "matlaber: (CUDA part|cuDNN)" "$out/configure.log" | tee -a "$log"
 grep -q "matlaber: CUDA part ON" "$out/configure.log" || { say "gpu-parity: the CUDA part is off"; exit 2; }
 # test_backend_ops: every op of every CUDA table against the CPU's (its CPU part runs everywhere)
-tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c test_backend_ops.c | sed 's/\.c$//')}   # MLB_GPU_TESTS="test_cuda_x ...": only those
+# test_text_encoder: its tiny_cuda_tables case (the encoder on the CUDA tables) skips without a GPU
+tests=${MLB_GPU_TESTS:-$(cd tests && ls test_cuda_*.c test_backend_ops.c test_text_encoder.c | sed 's/\.c$//')}   # MLB_GPU_TESTS="test_cuda_x ...": only those
 targets=$tests
-[ $bench = 1 ] && targets="$targets bench_cuda bench_cuda_unet bench_cuda_vae"
+[ $bench = 1 ] && targets="$targets bench_cuda bench_render_ops bench_cuda_unet bench_cuda_vae"
+[ $bench = 2 ] && targets="$targets bench_cuda bench_render_ops"
 [ $pipeline = 1 ] && targets="$targets bench_pipeline"
 [ $train = 1 ] && targets="$targets matlaber"
 jobs=${MLB_JOBS:-$(nproc 2> /dev/null || echo 4)}
@@ -157,8 +162,11 @@ for t in $tests; do
   cat "$out/$t.log" >> "$log"
   summary+=$(printf '%-24s %-9s %4d.%01d s' "$t" "$status" $((ms / 1000)) $((ms % 1000 / 100)))$'\n'
 done
-if [ $bench = 1 ]; then
+if [ $bench -ge 1 ]; then
   (cd "$build" && ./bench/bench_cuda) 2>&1 | tee "$out/bench_cuda.log" | tee -a "$log"
+  (cd "$build" && ./bench/bench_render_ops) 2>&1 | tee "$out/bench_render_ops.log" | tee -a "$log"
+fi
+if [ $bench = 1 ]; then
   (cd "$build" && ./bench/bench_cuda_unet) 2>&1 | tee "$out/bench_cuda_unet.log" | tee -a "$log"
   (cd "$build" && ./bench/bench_cuda_vae) 2>&1 | tee "$out/bench_cuda_vae.log" | tee -a "$log"
   # the baseline of the fused attention kernel: every sdpa on the batched GEMMs (bench_cuda times both itself)

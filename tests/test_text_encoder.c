@@ -14,6 +14,7 @@
 #include "matlaber/tokenizer.h"
 #include "matlaber/transformer_ops.h"
 #include "test.h"
+#include "cuda_test_util.h"
 
 // ---- a tiny random model -----------------------------------------------------------------------------
 enum { TV = 40, TNC = 12, TW = 16, TNH = 2, TM = 24, TL = 3 };
@@ -611,6 +612,49 @@ TEST(tiny_op_tables) {
     }
 }
 
+// The encoder on the CUDA tables (weights moved with mlb_text_encoder_to_device), hidden states
+// included, against the CPU fp32 table: fp32 and tf32 GEMMs, and bf16, against the double forward
+// with the CPU bf16 table's bound. Skips without a GPU (scripts/gpu-parity.sh runs it there).
+TEST(tiny_cuda_tables) {
+    REQUIRE_GPU();
+    enum { B = 3, T = TNC - 1 };
+    int tok[B * T];
+    tiny_tokens(tok, B, T);
+    for (int v = 0; v < 2; v++) {
+        tiny_model* m = tiny_make(21 + v);
+        const char* path = tmp_path(v ? "cuda_sd2.safetensors" : "cuda_sd1.safetensors");
+        REQUIRE(tiny_write(m, v ? LAY_OPENCLIP : LAY_LDM, MLB_DT_F32, path, 1, NULL, NULL) == MLB_OK);
+        mlb_text_encoder *te = NULL, *dev = NULL;
+        REQUIRE(mlb_text_encoder_load(path, NULL, &te) == MLB_OK);
+        REQUIRE(mlb_text_encoder_to_device(te, MLB_DEVICE_CUDA, &dev) == MLB_OK);
+        CHECK(dev->device == MLB_DEVICE_CUDA);
+        int L = te->n_layers;
+        static float want[B * T * TW], got[B * T * TW], ws[(TL + 1) * B * T * TW], gs[(TL + 1) * B * T * TW];
+        REQUIRE(mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tok, B, T, want, ws, L + 1) == MLB_OK);
+        double ref[B * T * TW];
+        naive_forward(m, L, v, tok, B, T, ref);
+        const mlb_gemm_precision precs[3] = {MLB_GEMM_FP32, MLB_GEMM_TF32, MLB_GEMM_BF16};
+        const double bounds[3] = {1e-5, 1e-2, BF16_TOL};
+        for (int k = 0; k < 3; k++) {
+            const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CUDA, precs[k]);
+            memset(got, 0xFF, sizeof got), memset(gs, 0xFF, sizeof gs);   // NaN: an unwritten value fails
+            CHECK(mlb_text_encoder_forward_on(be, dev, tok, B, T, got, gs, L + 1) == MLB_OK);
+            // the output is layer-normed (O(1)); the residual stream grows: its error relative to its largest value
+            double smax, e = max_abs_ff(got, want, B * T * TW, NULL);
+            double es = max_abs_ff(gs, ws, (size_t)(L + 1) * B * T * TW, &smax) / (smax > 1 ? smax : 1);
+            double ed = max_abs_fd(got, ref, B * T * TW);
+            printf("  tiny %s on cuda %s: vs the CPU fp32 table %.3g (states %.3g of max %.3g), vs double %.3g (bound %.0e)\n",
+                   v ? "SD2" : "SD1", k == 0 ? "fp32" : k == 1 ? "tf32" : "bf16", e, es, smax, ed, bounds[k]);
+            CHECK(e < bounds[k] && es < bounds[k] && ed < bounds[k]);
+        }
+        // the CUDA weights refused by the CPU table
+        CHECK(mlb_text_encoder_forward_on(mlb_backend_cpu(), dev, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        mlb_text_encoder_free(dev);
+        mlb_text_encoder_free(te);
+        free(m);
+    }
+}
+
 // ---- against the sd_reference fixtures ----------------------------------------------------------------
 static const char* ref_path(const char* name) {
     static char buf[8][1200];
@@ -846,6 +890,7 @@ int main(void) {
     RUN(tiny_causal_and_threads);
     RUN(tiny_errors);
     RUN(tiny_op_tables);
+    RUN(tiny_cuda_tables);
     RUN(ref_tokens);
     RUN(ref_sd1);
     RUN(ref_sd2);

@@ -70,13 +70,14 @@ mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net,
                                    mlb_mesh* out);
 
 // ---- shapes and their signed distance (shape_init.c) ---------------------------------------
-typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS } mlb_shape_kind;
+typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS, MLB_SHAPE_BOX } mlb_shape_kind;
 typedef struct {
     mlb_shape_kind kind;
     float radii[3];        // ellipsoid semi-axes
     float cyl_radius;      // capped cylinder about the y axis, y ∈ [−h/2, h/2]
     float cyl_height;
     float torus_major, torus_minor;   // torus in the xy plane (hole along z, facing the front camera)
+    float box_half[3];     // box centred at the origin, half-extents along x, y, z
     mlb_mesh mesh;         // MLB_SHAPE_MESH: owned copy (positions + faces), already placed
     double mesh_area;      // total area (for sampling)
 } mlb_shape;
@@ -90,6 +91,14 @@ void mlb_shape_cylinder(mlb_shape* s, float scale);
 // A genus-1 start: score distillation closes a hole through silhouette gradients, but has no
 // gradient that opens one in a genus-0 surface (docs/pipeline.md, Init).
 void mlb_shape_torus(mlb_shape* s, float scale);
+// A flat slab (a box) centred at the origin: half-extents (0.9, 0.075, 0.55)·scale·0.8/|(0.9, 0.075,
+// 0.55)|, i.e. 1.36 x 0.11 x 0.83 at scale 1, corners at radius 0.8·scale (a mesh init's size). A
+// table top's plate: from it the geometry stage grows legs down, where from the ellipsoid the
+// tiny preset loses a table's surface (docs/pipeline.md, Init).
+void mlb_shape_slab(mlb_shape* s, float scale);
+// The built-in shape called `name` ("ellipsoid": radius scale, "cylinder", "torus", "slab") into *s:
+// 1, or 0 (s untouched) when name is none of them (a file, say).
+int mlb_shape_builtin(mlb_shape* s, const char* name, float scale);
 // A copy of m normalised to the unit sphere (mlb_mesh_normalize_unit_sphere), times scale.
 mlb_status mlb_shape_from_mesh(mlb_shape* s, const mlb_mesh* m, float scale);
 void mlb_shape_free(mlb_shape* s);   // safe on a zeroed shape

@@ -34,6 +34,23 @@ void mlb_shape_torus(mlb_shape* s, float scale) {
     s->torus_minor = 0.3f * scale * (0.8f / 0.9f);
 }
 
+void mlb_shape_slab(mlb_shape* s, float scale) {
+    memset(s, 0, sizeof *s);
+    s->kind = MLB_SHAPE_BOX;
+    const float half[3] = {0.9f, 0.075f, 0.55f};
+    float k = 0.8f * scale / sqrtf(half[0] * half[0] + half[1] * half[1] + half[2] * half[2]);
+    for (int i = 0; i < 3; i++) s->box_half[i] = half[i] * k;
+}
+
+int mlb_shape_builtin(mlb_shape* s, const char* name, float scale) {
+    if (!strcmp(name, "ellipsoid")) mlb_shape_ellipsoid(s, scale, NULL);
+    else if (!strcmp(name, "cylinder")) mlb_shape_cylinder(s, scale);
+    else if (!strcmp(name, "torus")) mlb_shape_torus(s, scale);
+    else if (!strcmp(name, "slab")) mlb_shape_slab(s, scale);
+    else return 0;
+    return 1;
+}
+
 static double tri_area(const float* a, const float* b, const float* c) {
     double u[3], v[3];
     for (int k = 0; k < 3; k++) { u[k] = (double)b[k] - a[k]; v[k] = (double)c[k] - a[k]; }
@@ -221,6 +238,15 @@ void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n) {
         } else if (s->kind == MLB_SHAPE_TORUS) {
             double dq = sqrt((double)q[0] * q[0] + (double)q[1] * q[1]) - s->torus_major;
             out[i] = (float)(sqrt(dq * dq + (double)q[2] * q[2]) - s->torus_minor);
+        } else if (s->kind == MLB_SHAPE_BOX) {
+            // exact: the distance to the box outside, the (negative) largest face distance inside
+            double d[3], out2 = 0, inside = -INFINITY;
+            for (int k = 0; k < 3; k++) {
+                d[k] = fabs((double)q[k]) - s->box_half[k];
+                out2 += d[k] > 0 ? d[k] * d[k] : 0;
+                inside = fmax(inside, d[k]);
+            }
+            out[i] = (float)(sqrt(out2) + fmin(inside, 0.0));
         } else {
             double dr = sqrt((double)q[0] * q[0] + (double)q[2] * q[2]) - s->cyl_radius;
             double dy = fabs((double)q[1]) - 0.5 * s->cyl_height;
@@ -283,6 +309,16 @@ void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t see
             p[3 * i] = (float)((R + r * cos(v)) * cos(u));
             p[3 * i + 1] = (float)((R + r * cos(v)) * sin(u));
             p[3 * i + 2] = (float)(r * sin(v));
+        } else if (s->kind == MLB_SHAPE_BOX) {
+            // area-uniform: a face pair by its area, a side by one bit, a point uniform on it
+            const float* h = s->box_half;
+            double a[3] = {h[1] * (double)h[2], h[0] * (double)h[2], h[0] * (double)h[1]};   // faces normal to x, y, z
+            mlb_u32x4 w = mlb_rng_words(seed, stream, (uint64_t)i);
+            double u = mlb_u32_to_unit(w.v[0]) * (a[0] + a[1] + a[2]);
+            int axis = u < a[0] ? 0 : u < a[0] + a[1] ? 1 : 2, e1 = (axis + 1) % 3, e2 = (axis + 2) % 3;
+            p[3 * i + axis] = (w.v[3] & 1) ? h[axis] : -h[axis];
+            p[3 * i + e1] = (float)(h[e1] * (2 * mlb_u32_to_unit(w.v[1]) - 1));
+            p[3 * i + e2] = (float)(h[e2] * (2 * mlb_u32_to_unit(w.v[2]) - 1));
         } else {
             double R = s->cyl_radius, H = s->cyl_height;
             double side = 2 * M_PI * R * H, cap = M_PI * R * R;

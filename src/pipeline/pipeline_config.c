@@ -140,7 +140,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
-    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, auto[:A,B,..] or an OBJ file";
+    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, slab, auto[:A,B,..] or an OBJ file";
     else if (mlb_pipeline_init_is_auto(c->init) && c->init[4] == ':' &&
              (!c->init[5] || strstr(c->init, ",,") || c->init[strlen(c->init) - 1] == ','))
         bad = "--init auto:A,B,..: the candidates are names or OBJ files separated by commas, none empty";

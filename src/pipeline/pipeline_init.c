@@ -1,5 +1,5 @@
 // The geometry stage's starting shape (docs/pipeline.md, Init): the SDF network fitted to an
-// ellipsoid, a cylinder, a torus or the user's mesh, or (--init auto) to whichever of the
+// ellipsoid, a cylinder, a torus, a slab or the user's mesh, or (--init auto) to whichever of the
 // primitives the guidance's model finds most like the prompt.
 #include <math.h>
 #include <stdio.h>
@@ -20,11 +20,7 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
         // the geometry stage grows it outward (docs/pipeline.md, Init)
         const float axes[3] = {0.5f, 0.5f, 0.5f};
         mlb_shape_ellipsoid(&shape, 1.0f, axes);
-    } else if (!strcmp(init, "cylinder")) {
-        mlb_shape_cylinder(&shape, 1.0f);
-    } else if (!strcmp(init, "torus")) {
-        mlb_shape_torus(&shape, 1.0f);
-    } else {
+    } else if (!mlb_shape_builtin(&shape, init, 1.0f)) {   // cylinder, torus, slab: else a file
         mlb_mesh m;
         memset(&m, 0, sizeof m);
         s = mlb_obj_load(init, &m);

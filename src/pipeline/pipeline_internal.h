@@ -41,7 +41,7 @@ typedef struct {
 } pipeline_run;
 
 // pipeline_init.c
-// Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus" or an OBJ file) in the
+// Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
 // --init auto[:A,B,..]: fits r->geo to the candidate the guidance scores best for the prompt.

@@ -91,7 +91,7 @@ MLB_FIELD_DECLARE(double, MLB_FIELD_F64)
 // While there, the host's params, grads, adam_m and adam_v are behind: mlb_field_sync_host brings
 // them up to date (checkpoints, the end of a stage); eval refuses a field whose host copy is
 // behind. The CPU table is allowed (the same code on host memory: the CPU tests of this path).
-// Coarse to fine (active_levels) is not on the device yet: a forward with it is MLB_ERR_ARG.
+// Coarse to fine (active_levels) runs there too: the table's hash grid over the active levels only.
 mlb_status mlb_field_use_device(mlb_field* f, const mlb_backend* be);
 mlb_status mlb_field_sync_host(mlb_field* f);        // params, grads, adam_m, adam_v to the host
 mlb_status mlb_field_leave_device(mlb_field* f);     // syncs and frees the device copy

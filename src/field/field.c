@@ -237,7 +237,8 @@ static void FN(mask_levels)(const FN(mlb_field)* f, real* feat, int n) {
 
 // The encoding as far as the active levels reach: a copy whose level count stops there (the output
 // stride, out_dim, stays L·F), so that the masked levels cost nothing; with all levels, the encoding.
-static FN(mlb_hashgrid) FN(active_enc)(const FN(mlb_field)* f) {
+// The device path (field_device.c) hands the same copy to its table's hash-grid ops.
+FN(mlb_hashgrid) FN(field_active_enc)(const FN(mlb_field)* f) {
     FN(mlb_hashgrid) g = f->enc;
     if (f->active_levels > 0 && f->active_levels < g.cfg.n_levels) g.cfg.n_levels = f->active_levels;
     return g;
@@ -250,7 +251,7 @@ static const real* FN(run)(const FN(mlb_field)* f, FN(mlb_mlp_cache)* cache, FN(
                            real* feat, const real* pos, int n, real* y, int need_d1) {
     real inv = (real)(1.0 / f->cfg.scale);
     for (size_t i = 0; i < 3 * (size_t)n; i++) x[i] = pos[i] * inv + (real)0.5;   // the grid box → [0,1]^3
-    const FN(mlb_hashgrid) enc = FN(active_enc)(f);
+    const FN(mlb_hashgrid) enc = FN(field_active_enc)(f);
     FN(hashgrid_forward)(&enc, feat, x, n);
     FN(mask_levels)(f, feat, n);   // the inactive levels' columns, which the call above did not write
     const real* out = FN(mlp_forward_sharded)(&f->mlp, cache, feat, n, need_d1);
@@ -302,7 +303,7 @@ mlb_status FN(field_backward)(FN(mlb_field)* f, const real* dy, real* dpos) {
     FN(mask_levels)(f, f->dfeat, n);
     real* dx = NULL;
     if (dpos) { dx = f->dy; memset(dx, 0, sizeof(real) * 3 * (size_t)n); }   // ds is no longer needed
-    const FN(mlb_hashgrid) enc = FN(active_enc)(f);   // the masked levels' gradients are zero: skipped
+    const FN(mlb_hashgrid) enc = FN(field_active_enc)(f);   // the masked levels' gradients are zero: skipped
     FN(hashgrid_backward)(&enc, f->grads, dx, f->dfeat, f->x, n);
     if (dpos) {
         real inv = (real)(1.0 / f->cfg.scale);

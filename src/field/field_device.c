@@ -31,13 +31,10 @@ struct mlb_field_device {
 static mlb_activation layer_act(const mlb_mlp* m, int l) { return l == m->n_layers - 1 ? m->out_act : m->hidden_act; }
 static int latent(const mlb_field* f) { return f->cfg.kind == MLB_FIELD_MATERIAL && f->cfg.mode == MLB_MATERIAL_LATENT; }
 static int net_count(const mlb_field* net) { return latent(net) ? 2 : 1; }
-// The coarse-to-fine mask is not on the device yet (field.h)
-static mlb_status check_levels(const mlb_field* f) {
-    int a = f->active_levels, L = f->enc.cfg.n_levels;
-    if (a > 0 && a < L)
-        return mlb_fail(MLB_ERR_ARG, "field on a device: coarse to fine (%d of %d levels active) runs on the host only", a, L);
-    return MLB_OK;
-}
+// Coarse to fine: levels >= active_levels give zero features. The table's hash-grid ops get the
+// encoding cut to the active levels (field_active_enc: the stride stays L·F), so the inactive
+// columns are never written: they are zeroed first, and the backward leaves their table entries alone.
+static int masked(const mlb_field* f) { return f->active_levels > 0 && f->active_levels < f->enc.cfg.n_levels; }
 
 static void release_batch(struct mlb_field_device* d) {
     const mlb_backend* be = d->be;
@@ -126,13 +123,14 @@ mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float*
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
-    MLB_TRY(check_levels(net));
     MLB_TRY(reserve(net, n));
     net->n = 0;
     float inv = (float)(1.0 / net->cfg.scale);
     for (size_t i = 0; i < 3 * (size_t)n; i++) d->host[i] = pos[i] * inv + 0.5f;   // the grid box → [0,1]^3
     MLB_TRY(be->upload(d->x, d->host, 3 * (size_t)n));
-    MLB_TRY(be->hashgrid(&net->enc, d->params, d->feat, d->x, n));
+    const mlb_hashgrid enc = field_active_enc(net);
+    if (masked(net)) MLB_TRY(be->zero(d->feat, (size_t)net->enc.out_dim * n));
+    MLB_TRY(be->hashgrid(&enc, d->params, d->feat, d->x, n));
     const float *out, *s;
     MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, &out));
     s = out;
@@ -171,7 +169,8 @@ mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
     }
     MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
     if (dpos) MLB_TRY(be->zero(d->dx, 3 * N));
-    MLB_TRY(be->hashgrid_backward(&net->enc, d->params, d->grads, dpos ? d->dx : NULL, d->dfeat, d->x, n));
+    const mlb_hashgrid enc = field_active_enc(net);
+    MLB_TRY(be->hashgrid_backward(&enc, d->params, d->grads, dpos ? d->dx : NULL, d->dfeat, d->x, n));
     d->host_behind = 1;
     if (dpos) {
         MLB_TRY(be->download(d->host, d->dx, 3 * N));

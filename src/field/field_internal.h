@@ -8,6 +8,11 @@
 void field_map_to_ranges(float* k, const float* s, int n);
 void field_map_to_ranges_f64(double* k, const double* s, int n);
 
+// The hash grid of the active levels only (coarse to fine: f->active_levels; the output stride
+// stays L·F): what the forward encodes and the backward differentiates
+mlb_hashgrid field_active_enc(const mlb_field* f);
+mlb_hashgrid_f64 field_active_enc_f64(const mlb_field_f64* f);
+
 void field_device_free(struct mlb_field_device* d);
 mlb_status field_device_forward(mlb_field* f, float* y, float* z, const float* pos, int n);
 mlb_status field_device_backward(mlb_field* f, const float* dy, float* dpos);

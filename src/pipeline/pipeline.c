@@ -335,9 +335,9 @@ static mlb_status appearance_stage(pipeline_run* r) {
     memset(&app, 0, sizeof app);
     app.be = r->be;
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
-    // On a GPU the material network, its optimiser and the shading run there (fp32: the MLP is small)
-    if (!s && mlb_device_current() == MLB_DEVICE_CUDA) {
-        s = mlb_field_use_device(net, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
+    // the material network, its optimiser and the shading on the run's field table (a GPU's)
+    if (!s && r->field_be) {
+        s = mlb_field_use_device(net, r->field_be);
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
     }
     // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
@@ -543,6 +543,9 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // Marching tets run on the CPU's table: the geometry network, which makes their input, is on the
     // host (docs/cuda.md "The renderer on the op table")
     r.be = mlb_backend_cpu();
+    // The run's one reading of the program's device (--device): on a GPU the material network, its
+    // AdamW and the shading run there, in fp32 whatever --precision says (the MLPs are small)
+    r.field_be = mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
     if (!s && progress)
         mlb_progress_begin(progress, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit",

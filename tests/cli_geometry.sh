@@ -40,13 +40,13 @@ chi=$(awk '/^v /{v++} /^f /{f++; for (i = 2; i <= 4; i++) { split($i, a, "/"); x
         for (i = 2; i <= 4; i++) { j = i == 4 ? 2 : i + 1; p = x[i] < x[j] ? x[i] "," x[j] : x[j] "," x[i]; if (!(p in e)) { e[p] = 1; n++ } } }
         END{print v - n + f}' "$T/o.obj")
 [ "$chi" = 0 ] && ok "the torus keeps its hole (Euler characteristic 0)" || bad "torus Euler characteristic $chi"
-# the slab: a flat plate (1.36 x 0.11 x 0.83): the extracted surface's box within a cell of it
+# the slab: a flat plate placed high (1.28 x 0.11 x 0.78 at y 0.18..0.28): the extracted surface's box within a cell of it
 expect 0 "init a slab" -- $M geometry init --shape slab --iters 150 --batch 3072 --levels 4 --table-log2 12 -o "$T/s.safetensors"
 expect 0 "extract the slab" -- $M geometry extract -i "$T/s.safetensors" -o "$T/s.obj"
 awk '/^v /{for (k = 2; k <= 4; k++) { if (!(k in lo) || $k < lo[k]) lo[k] = $k; if (!(k in hi) || $k > hi[k]) hi[k] = $k } }
-     END{d = 2.1 / 32; exit !(hi[2] - lo[2] > 1.36 - 2 * d && hi[2] - lo[2] < 1.36 + 2 * d && hi[3] - lo[3] < 0.11 + 2 * d &&
-                             hi[4] - lo[4] > 0.83 - 2 * d && hi[4] - lo[4] < 0.83 + 2 * d)}' "$T/s.obj" \
-  && ok "the slab's surface is a 1.36 x 0.11 x 0.83 plate" || bad "slab extent off: $(head -c 300 "$T/s.obj")"
+     END{d = 2.1 / 32; exit !(hi[2] - lo[2] > 1.28 - 2 * d && hi[2] - lo[2] < 1.28 + 2 * d && hi[3] - lo[3] < 0.11 + 2 * d &&
+                             lo[3] > 0.18 - d && hi[3] < 0.28 + d && hi[4] - lo[4] > 0.78 - 2 * d && hi[4] - lo[4] < 0.78 + 2 * d)}' "$T/s.obj" \
+  && ok "the slab's surface is a 1.28 x 0.11 x 0.78 plate at y 0.18..0.28" || bad "slab extent off: $(head -c 300 "$T/s.obj")"
 
 # errors
 expect 2 "init needs -o" -- $M geometry init --shape ellipsoid

@@ -243,39 +243,47 @@ static void cube_mesh(mlb_mesh* m, int drop_top);
 TEST(shape_slab) {
     mlb_shape s, ms;
     CHECK(mlb_shape_builtin(&s, "slab", 1.0f) == 1 && s.kind == MLB_SHAPE_BOX);
-    const float* h = s.box_half;
-    CHECK_CLOSE(sqrt((double)h[0] * h[0] + (double)h[1] * h[1] + (double)h[2] * h[2]), 0.8, 0, 1e-6);   // a mesh init's radius
+    const float *h = s.box_half, *ctr = s.box_center;
+    double top = (double)ctr[1] + h[1];   // the box (±0.9, ±0.4, ±0.55)·k around it: corners at 0.8
+    CHECK_CLOSE(sqrt((double)h[0] * h[0] + top * top + (double)h[2] * h[2]), 0.8, 0, 1e-6);
     CHECK_CLOSE(h[0] / h[2], 0.9 / 0.55, 0, 1e-6);
+    CHECK_CLOSE(ctr[1] / h[1], 0.325 / 0.075, 0, 1e-5);   // high: y 0.25..0.4 of 0.4
+    CHECK(ctr[0] == 0 && ctr[2] == 0);
     mlb_mesh box;
     cube_mesh(&box, 0);
     for (int i = 0; i < box.n_verts; i++)
         for (int k = 0; k < 3; k++) box.pos[3 * i + k] *= h[k];
-    REQUIRE(mlb_shape_from_mesh(&ms, &box, 0.8f) == MLB_OK);   // normalised: the same box (its corners at 0.8)
+    float r = sqrtf(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);
+    REQUIRE(mlb_shape_from_mesh(&ms, &box, r) == MLB_OK);   // normalised to its own radius: the same box, centred
     enum { N = 400 };
-    static float p[3 * N], a[N], b[N];
-    for (int i = 0; i < 3 * N; i++) p[i] = (float)(mlb_rng_uniform_f64(5, 1, (uint64_t)i) * 2.4 - 1.2) * (i % 3 == 1 ? 0.1f : 1.0f);
+    static float p[3 * N], pc[3 * N], a[N], b[N];
+    for (int i = 0; i < 3 * N; i++) {   // around the slab: x, z in ±1.2, y within 0.1 of its centre
+        p[i] = (float)(mlb_rng_uniform_f64(5, 1, (uint64_t)i) * 2.4 - 1.2) * (i % 3 == 1 ? 0.1f : 1.0f) + ctr[i % 3];
+        pc[i] = p[i] - ctr[i % 3];
+    }
     mlb_shape_sdf(&s, p, a, N);
-    mlb_shape_sdf(&ms, p, b, N);
+    mlb_shape_sdf(&ms, pc, b, N);
     double worst = 0;
     int inside = 0;
     for (int i = 0; i < N; i++) worst = fmax(worst, fabs((double)a[i] - b[i])), inside += a[i] < 0;
     CHECK_MSG(worst < 1e-5, "slab sdf vs the box mesh's: up to %g", worst);
     CHECK_MSG(inside > 10 && inside < N - 10, "both signs drawn (%d inside of %d)", inside, N);
-    float c[3] = {0, 0, 0};
-    mlb_shape_sdf(&s, c, a, 1);
-    CHECK_CLOSE(a[0], -h[1], 0, 1e-7);   // the centre: the thickness's half to the top and bottom
+    float c[6] = {ctr[0], ctr[1], ctr[2], 0, 0, 0};
+    mlb_shape_sdf(&s, c, a, 2);
+    CHECK_CLOSE(a[0], -h[1], 0, 1e-7);                   // its centre: the thickness's half to top and bottom
+    CHECK_CLOSE(a[1], (double)ctr[1] - h[1], 0, 1e-7);   // the origin: below its underside
     // surface samples: on the surface, and on the top/bottom faces by their share of the area
     enum { M = 4096 };
     static float q[3 * M], e[M];
     mlb_shape_surface_samples(&s, q, M, 1, 2);
     mlb_shape_sdf(&s, q, e, M);
     worst = 0;
-    int top = 0;
-    for (int i = 0; i < M; i++) worst = fmax(worst, fabs(e[i])), top += fabsf(q[3 * i + 1]) == h[1];
+    int tops = 0;
+    for (int i = 0; i < M; i++) worst = fmax(worst, fabs(e[i])), tops += fabsf(q[3 * i + 1] - ctr[1]) > h[1] - 1e-6f;
     double share = (double)h[0] * h[2] / ((double)h[1] * h[2] + (double)h[0] * h[2] + (double)h[0] * h[1]);
     double sd = sqrt(share * (1 - share) / M);
     CHECK_MSG(worst < 1e-6, "slab sdf on its surface up to %g", worst);
-    CHECK_MSG(fabs((double)top / M - share) < 5 * sd, "top and bottom hold %.4f of the samples, their area %.4f", (double)top / M, share);
+    CHECK_MSG(fabs((double)tops / M - share) < 5 * sd, "top and bottom hold %.4f of the samples, their area %.4f", (double)tops / M, share);
     CHECK(mlb_shape_builtin(&s, "slab.obj", 1.0f) == 0);   // a file name is no built-in
     mlb_shape_free(&ms);
     mlb_mesh_free(&box);

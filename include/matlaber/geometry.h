@@ -77,7 +77,7 @@ typedef struct {
     float cyl_radius;      // capped cylinder about the y axis, y ∈ [−h/2, h/2]
     float cyl_height;
     float torus_major, torus_minor;   // torus in the xy plane (hole along z, facing the front camera)
-    float box_half[3];     // box centred at the origin, half-extents along x, y, z
+    float box_center[3], box_half[3];   // box: centre and half-extents along x, y, z
     mlb_mesh mesh;         // MLB_SHAPE_MESH: owned copy (positions + faces), already placed
     double mesh_area;      // total area (for sampling)
 } mlb_shape;
@@ -91,10 +91,11 @@ void mlb_shape_cylinder(mlb_shape* s, float scale);
 // A genus-1 start: score distillation closes a hole through silhouette gradients, but has no
 // gradient that opens one in a genus-0 surface (docs/pipeline.md, Init).
 void mlb_shape_torus(mlb_shape* s, float scale);
-// A flat slab (a box) centred at the origin: half-extents (0.9, 0.075, 0.55)·scale·0.8/|(0.9, 0.075,
-// 0.55)|, i.e. 1.36 x 0.11 x 0.83 at scale 1, corners at radius 0.8·scale (a mesh init's size). A
-// table top's plate: from it the geometry stage grows legs down, where from the ellipsoid the
-// tiny preset loses a table's surface (docs/pipeline.md, Init).
+// A flat slab (a box) placed high, like a table top: x ±0.9, y 0.25..0.4, z ±0.55 times
+// k = 0.8·scale/|(0.9, 0.4, 0.55)| (the box (±0.9, ±0.4, ±0.55) it sits in has its corners at
+// radius 0.8·scale, a mesh init's size): 1.28 x 0.11 x 0.78 at y 0.18..0.28 at scale 1. From it
+// the geometry stage grows legs down, where from the ellipsoid the tiny preset loses a table's
+// surface, and from the same plate at mid-height it lost every stool (docs/pipeline.md, Init).
 void mlb_shape_slab(mlb_shape* s, float scale);
 // The built-in shape called `name` ("ellipsoid": radius scale, "cylinder", "torus", "slab") into *s:
 // 1, or 0 (s untouched) when name is none of them (a file, say).

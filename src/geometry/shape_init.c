@@ -37,9 +37,10 @@ void mlb_shape_torus(mlb_shape* s, float scale) {
 void mlb_shape_slab(mlb_shape* s, float scale) {
     memset(s, 0, sizeof *s);
     s->kind = MLB_SHAPE_BOX;
-    const float half[3] = {0.9f, 0.075f, 0.55f};
-    float k = 0.8f * scale / sqrtf(half[0] * half[0] + half[1] * half[1] + half[2] * half[2]);
+    const float half[3] = {0.9f, 0.075f, 0.55f}, center_y = 0.325f, reach_y = 0.4f;
+    float k = 0.8f * scale / sqrtf(half[0] * half[0] + reach_y * reach_y + half[2] * half[2]);
     for (int i = 0; i < 3; i++) s->box_half[i] = half[i] * k;
+    s->box_center[1] = center_y * k;
 }
 
 int mlb_shape_builtin(mlb_shape* s, const char* name, float scale) {
@@ -242,7 +243,7 @@ void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n) {
             // exact: the distance to the box outside, the (negative) largest face distance inside
             double d[3], out2 = 0, inside = -INFINITY;
             for (int k = 0; k < 3; k++) {
-                d[k] = fabs((double)q[k]) - s->box_half[k];
+                d[k] = fabs((double)q[k] - s->box_center[k]) - s->box_half[k];
                 out2 += d[k] > 0 ? d[k] * d[k] : 0;
                 inside = fmax(inside, d[k]);
             }
@@ -316,9 +317,10 @@ void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t see
             mlb_u32x4 w = mlb_rng_words(seed, stream, (uint64_t)i);
             double u = mlb_u32_to_unit(w.v[0]) * (a[0] + a[1] + a[2]);
             int axis = u < a[0] ? 0 : u < a[0] + a[1] ? 1 : 2, e1 = (axis + 1) % 3, e2 = (axis + 2) % 3;
-            p[3 * i + axis] = (w.v[3] & 1) ? h[axis] : -h[axis];
-            p[3 * i + e1] = (float)(h[e1] * (2 * mlb_u32_to_unit(w.v[1]) - 1));
-            p[3 * i + e2] = (float)(h[e2] * (2 * mlb_u32_to_unit(w.v[2]) - 1));
+            const float* c = s->box_center;
+            p[3 * i + axis] = c[axis] + ((w.v[3] & 1) ? h[axis] : -h[axis]);
+            p[3 * i + e1] = (float)(c[e1] + h[e1] * (2 * mlb_u32_to_unit(w.v[1]) - 1));
+            p[3 * i + e2] = (float)(c[e2] + h[e2] * (2 * mlb_u32_to_unit(w.v[2]) - 1));
         } else {
             double R = s->cyl_radius, H = s->cyl_height;
             double side = 2 * M_PI * R * H, cap = M_PI * R * R;

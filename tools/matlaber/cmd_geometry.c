@@ -12,7 +12,7 @@
 
 static const cli_option init_options[] = {
     {"shape", 1, 'S', "SHAPE", "ellipsoid, cylinder, torus, slab or FILE.obj (normalised to the unit sphere)"},
-    {"shape-scale", 1, 'k', "X", "scale of the shape (default 1: ellipsoid radius 1, cylinder r 0.75 h 0.8, torus outer radius 0.8, slab 1.36 x 0.11 x 0.83)"},
+    {"shape-scale", 1, 'k', "X", "scale of the shape (default 1: ellipsoid radius 1, cylinder r 0.75 h 0.8, torus outer radius 0.8, slab 1.28 x 0.11 x 0.78 at y 0.18..0.28)"},
     {"grid", 1, 'g', "64|128", "tet grid of the extraction (32 or 64 cells; default 64), kept in the file"},
     {"iters", 1, 'i', "N", "Adam steps (default 400)"},
     {"batch", 1, 'b', "N", "points per step (default 12288)"},

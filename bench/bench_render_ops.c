@@ -106,7 +106,7 @@ static float* dev_alloc(const mlb_backend* be, size_t n) {
 }
 
 // One table's rows: marching tets, then the raster ops on its surface. secs[] receives the times.
-static void run_table(const char* label, const mlb_backend* be, const mlb_tetgrid* g, const float* pos, const float* sdf,
+static void run_table(const mlb_backend* be, const mlb_tetgrid* g, const float* pos, const float* sdf,
                       double secs[8], int* n_faces) {
     bench b = {0};
     b.be = be, b.g = g, b.pos = pos, b.sdf = sdf;
@@ -159,7 +159,6 @@ static void run_table(const char* label, const mlb_backend* be, const mlb_tetgri
     op_fn ops[6] = {op_rasterize, op_interpolate, op_antialias, op_antialias_backward, op_interpolate_backward,
                     op_rasterize_backward};
     for (int k = 0; k < 6; k++) secs[2 + k] = time_s(ops[k], &b, be, sync);
-    (void)label;
 
     float** bufs[] = {&b.faces, &b.adj, &b.attr, &b.daa, &b.dimg, &b.dbary, &b.dclip, &b.dattr, &sync};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; i++) be->release(*bufs[i]);
@@ -202,8 +201,8 @@ int main(int argc, char** argv) {
                             "9 views", "9 views", "9 views"};
     double cpu_s[8], gpu_s[8] = {0};
     int nf_cpu = 0, nf_gpu = 0;
-    run_table("cpu", mlb_backend_cpu(), &g, g.verts, sdf, cpu_s, &nf_cpu);
-    if (gpu) run_table("cuda", mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), &g, g.verts, sdf, gpu_s, &nf_gpu);
+    run_table(mlb_backend_cpu(), &g, g.verts, sdf, cpu_s, &nf_cpu);
+    if (gpu) run_table(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), &g, g.verts, sdf, gpu_s, &nf_gpu);
     printf("surface: %d faces%s\n", nf_cpu, gpu && nf_gpu != nf_cpu ? " (DIFFERENT ON THE GPU)" : "");
     printf("%-24s %12s %12s %8s  %s\n", "op", "CPU ms", "CUDA ms", "ratio", "");
     double tc = 0, tg = 0;

@@ -94,9 +94,9 @@ typedef struct {
                            // batch split into parts gives the whole batch's gradients
 } mlb_sds_input;
 
-// The latent [4, *h, *w] the UNet sees for a [C, H, W] input (the VAE's for C = 3, the input's own
-// for latents); MLB_ERR_ARG naming what does not fit.
-mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* h, int* w);
+// The latent [*c, *h, *w] the UNet sees for a [C, H, W] input (the VAE's for C = 3, the input's own
+// for latents; *c the UNet's input channels, c may be NULL); MLB_ERR_ARG naming what does not fit.
+mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, int* h, int* w);
 // grad_images [B, C, H, W] += d loss / d images (may be NULL: loss only, no VAE backward);
 // *loss (may be NULL) = 0.5 sum(grad^2) / B. trace may be NULL.
 mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* trace);

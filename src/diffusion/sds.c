@@ -147,8 +147,9 @@ done:
     return st;
 }
 
-mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* h, int* w) {
+mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, int* h, int* w) {
     const int Lc = s->unet->cfg.in_channels;
+    if (c) *c = Lc;
     if (C == Lc) { *h = H; *w = W; }
     else if (s->vae && C == s->vae->cfg.in_channels) {
         *h = mlb_vae_latent_size(&s->vae->cfg, H);
@@ -172,7 +173,7 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
     if (!s->cond[0] || !s->uncond) return mlb_fail(MLB_ERR_ARG, "SDS: the prompt and unconditional embeddings are not set");
     const int Lc = s->unet->cfg.in_channels;
     int h, w;
-    MLB_TRY(mlb_sds_latent_shape(s, C, H, W, &h, &w));
+    MLB_TRY(mlb_sds_latent_shape(s, C, H, W, NULL, &h, &w));
     const size_t n = (size_t)Lc * h * w, nimg = (size_t)C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;
     float *z = malloc(nall * sizeof(float)), *noise = malloc(nall * sizeof(float));

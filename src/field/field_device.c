@@ -34,7 +34,6 @@ static int net_count(const mlb_field* net) { return latent(net) ? 2 : 1; }
 // Coarse to fine: levels >= active_levels give zero features. The table's hash-grid ops get the
 // encoding cut to the active levels (field_active_enc: the stride stays L·F), so the inactive
 // columns are never written: they are zeroed first, and the backward leaves their table entries alone.
-static int masked(const mlb_field* f) { return f->active_levels > 0 && f->active_levels < f->enc.cfg.n_levels; }
 
 static void release_batch(struct mlb_field_device* d) {
     const mlb_backend* be = d->be;
@@ -129,7 +128,7 @@ mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float*
     for (size_t i = 0; i < 3 * (size_t)n; i++) d->host[i] = pos[i] * inv + 0.5f;   // the grid box → [0,1]^3
     MLB_TRY(be->upload(d->x, d->host, 3 * (size_t)n));
     const mlb_hashgrid enc = field_active_enc(net);
-    if (masked(net)) MLB_TRY(be->zero(d->feat, (size_t)net->enc.out_dim * n));
+    if (enc.cfg.n_levels < net->enc.cfg.n_levels) MLB_TRY(be->zero(d->feat, (size_t)net->enc.out_dim * n));
     MLB_TRY(be->hashgrid(&enc, d->params, d->feat, d->x, n));
     const float *out, *s;
     MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, &out));

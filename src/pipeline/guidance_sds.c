@@ -156,21 +156,21 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
 static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
                             int W, double* per_view) {
     sds_guidance* s = g->impl;
-    int vids[MLB_SDS_MAX_BATCH], C, h, w, lh, lw, t[MLB_SDS_MAX_BATCH];
+    int vids[MLB_SDS_MAX_BATCH], C, h, w, lc, lh, lw, t[MLB_SDS_MAX_BATCH];
     MLB_TRY(to_model_input(s, stage, 0, views, n, images, H, W, vids, &C, &h, &w));
     mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
     const mlb_sds_options* opt = stage == MLB_STAGE_GEOMETRY ? &s->c.geometry_opt : &s->c.appearance_opt;
-    MLB_TRY(mlb_sds_latent_shape(sds, C, h, w, &lh, &lw));
+    MLB_TRY(mlb_sds_latent_shape(sds, C, h, w, &lc, &lh, &lw));
     // the renders are encoded once (the first draw's latents), the later draws take those latents
     // as they are: the same bits as encoding every time
-    float* z = malloc(sizeof(float) * 4 * (size_t)n * lh * lw);
+    float* z = malloc(sizeof(float) * (size_t)lc * n * lh * lw);
     if (!z) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory scoring %d renders", n);
     double ec[MLB_SDS_MAX_BATCH], eu[MLB_SDS_MAX_BATCH];
     for (int b = 0; b < n; b++) per_view[b] = 0;
     mlb_status st = MLB_OK;
     for (int j = 0; !st && j < SCORE_DRAWS; j++) {
         for (int b = 0; b < n; b++) t[b] = opt->t_min + (int)((opt->t_max - opt->t_min) * (j + 0.5) / SCORE_DRAWS);
-        mlb_sds_input in = {j ? z : s->x, n, j ? 4 : C, j ? lh : h, j ? lw : w, vids, SCORE_STEP + j, t, NULL, 0, 0};
+        mlb_sds_input in = {j ? z : s->x, n, j ? lc : C, j ? lh : h, j ? lw : w, vids, SCORE_STEP + j, t, NULL, 0, 0};
         mlb_sds_trace tr = {0};
         tr.latent = j ? NULL : z;
         tr.err_cond = ec;

@@ -52,9 +52,10 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // bottles, mugs and bowls, and a bottle from it ended a vase (docs/benchmarks.md, "Choosing the
 // starting shape"). No slab by default either: every table comes out a table from it (1 of 8
 // from the ellipsoid) and at seed 0 the model picks it for just the tables and three bowls, but
-// other seeds' draws (views, noise) give it mugs and stools too (at seed 3 every mug picks it, and a mug from it lost
-// its surface), and on views spread evenly over the orbit a green mug takes it at every seed: a
-// look alone cannot tell which start will grow (docs/benchmarks.md, "A slab start for tables").
+// other seeds' draws (views, noise) give it mugs and stools too (at seed 3 every mug picks it,
+// and a mug from it lost its surface), and on views spread evenly over the orbit a green mug
+// takes it at every seed: a look alone cannot tell which start will grow (docs/benchmarks.md,
+// "A slab start for tables").
 #define AUTO_VIEWS 16
 #define AUTO_Z 3.0
 #define AUTO_MAX 8

@@ -15,6 +15,8 @@ err_has "the error names the class" "unknown class 'nope'"
 expect 2 "unknown material" -- $M bench text3d --materials plastic --model /nonexistent
 err_has "the error names the material" "plastic"
 expect 2 "bad steps scale" -- $M bench text3d --steps-scale 0 --model /nonexistent
+expect 2 "bad shape fit" -- $M bench text3d --shape-fit -1 --model /nonexistent
+err_has "the error names the option" "--shape-fit"
 expect 2 "bad preset" -- $M bench text3d --preset huge --model /nonexistent
 err_has "the error names the presets" "tiny"
 expect 1 "a missing model fails" -- $M bench text3d --classes bowl --materials gold --model "$T/none" -o "$T/b"

@@ -151,6 +151,51 @@ TEST(meshes) {
         }
 }
 
+// The parameter path: a seed's fractions build that seed's mesh bit for bit; fractions outside
+// [0, 1] build the clamped shape; each parameter changes the shape; bad calls are refused.
+TEST(mesh_params) {
+    for (int c = 0; c < mlb_catalogue_n_classes(); c++) {
+        const char* name = mlb_catalogue_class_name(c);
+        int n = mlb_catalogue_class_n_params(c);
+        CHECK_MSG(n >= 2 && n <= MLB_CATALOGUE_MAX_PARAMS, "%s: %d parameters", name, n);
+        float u[MLB_CATALOGUE_MAX_PARAMS];
+        for (uint64_t seed = 0; seed < 3; seed++) {
+            REQUIRE(mlb_catalogue_seed_params(c, seed, u) == n);
+            for (int k = 0; k < n; k++) CHECK(u[k] >= 0 && u[k] <= 1);
+            mlb_mesh a, b;
+            REQUIRE(mlb_catalogue_mesh(c, seed, &a) == MLB_OK);
+            REQUIRE(mlb_catalogue_mesh_params(c, u, &b) == MLB_OK);
+            CHECK_MSG(a.n_verts == b.n_verts && a.n_faces == b.n_faces && !memcmp(a.pos, b.pos, sizeof(float) * 3 * a.n_verts) &&
+                          !memcmp(a.faces, b.faces, sizeof(int32_t) * 3 * a.n_faces),
+                      "%s seed %llu: the parameter path differs", name, (unsigned long long)seed);
+            mlb_mesh_free(&a);
+            mlb_mesh_free(&b);
+        }
+        // clamping: -3 and 7 build the shapes of 0 and 1
+        float lo[MLB_CATALOGUE_MAX_PARAMS], lo_out[MLB_CATALOGUE_MAX_PARAMS];
+        for (int k = 0; k < n; k++) lo[k] = 0, lo_out[k] = k % 2 ? -3.0f : 0.0f;
+        mlb_mesh a, b;
+        REQUIRE(mlb_catalogue_mesh_params(c, lo, &a) == MLB_OK);
+        REQUIRE(mlb_catalogue_mesh_params(c, lo_out, &b) == MLB_OK);
+        CHECK_MSG(a.n_verts == b.n_verts && !memcmp(a.pos, b.pos, sizeof(float) * 3 * a.n_verts), "%s: not clamped", name);
+        mlb_mesh_free(&b);
+        for (int k = 0; k < n; k++) {   // every parameter moves some vertex
+            float v[MLB_CATALOGUE_MAX_PARAMS];
+            memcpy(v, lo, sizeof v);
+            v[k] = 1;
+            REQUIRE(mlb_catalogue_mesh_params(c, v, &b) == MLB_OK);
+            CHECK_MSG(b.n_verts != a.n_verts || memcmp(a.pos, b.pos, sizeof(float) * 3 * a.n_verts), "%s: parameter %d does nothing", name, k);
+            mlb_mesh_free(&b);
+        }
+        mlb_mesh_free(&a);
+    }
+    mlb_mesh m;
+    CHECK(mlb_catalogue_class_n_params(-1) == 0 && mlb_catalogue_class_n_params(mlb_catalogue_n_classes()) == 0);
+    CHECK(mlb_catalogue_mesh_params(0, NULL, &m) == MLB_ERR_ARG);
+    float u[MLB_CATALOGUE_MAX_PARAMS] = {0};
+    CHECK(mlb_catalogue_mesh_params(99, u, &m) == MLB_ERR_ARG);
+}
+
 // Classes are told apart: the Chamfer distance between two classes' canonical shapes is well above
 // the distance between a class's canonical shape and its seeded variations.
 TEST(classes_distinguishable) {
@@ -271,6 +316,7 @@ int main(void) {
     RUN(held_out);
     RUN(captions);
     RUN(meshes);
+    RUN(mesh_params);
     RUN(classes_distinguishable);
     RUN(samples);
     RUN(renders);

@@ -142,6 +142,55 @@ TEST(truth_as_asset_scores_perfectly) {
     fixture_close(&fx);
 }
 
+// The shape fit: members of a class that are none of the truth's seeds (seeds 1000+, the truth has
+// 0..3) measured with the best seed alone and with the fit. The fit must come much nearer (a
+// mug's radius, height and handle scale together into the frame, one ridge that steps along single
+// parameters cannot climb: the random directions must), and find the ring's two parameters, which
+// its shape tells exactly; the fitted prompted class is what relighting compares against, so the
+// PSNR must not drop; a class far from the nearest is left unfitted, at its best seed.
+TEST(shape_fit_finds_the_member) {
+    measure_fixture fx;
+    REQUIRE(fixture_open(&fx));
+    int red;
+    REQUIRE(mlb_catalogue_material_parse("red", &red) == MLB_OK);
+    const char* names[3] = {"mug", "goblet", "ring"};
+    for (int i = 0; i < 3; i++) {
+        int cls;
+        REQUIRE(mlb_catalogue_class_parse(names[i], &cls) == MLB_OK);
+        uint64_t seed = 1000 + (uint64_t)i;
+        float truth_u[MLB_CATALOGUE_MAX_PARAMS];
+        int n = mlb_catalogue_seed_params(cls, seed, truth_u);
+        mlb_mesh m;
+        REQUIRE(mlb_catalogue_mesh(cls, seed, &m) == MLB_OK);
+        float* k = material_everywhere(&m, red);
+        REQUIRE(k);
+        mlb_text3d_measure_config seeds_only = fx.mc;
+        seeds_only.fit_rounds = 0;
+        mlb_text3d_scores a, b;
+        REQUIRE(mlb_text3d_measure(&fx.t, &m, k, cls, red, &fx.light, &seeds_only, &a) == MLB_OK);
+        REQUIRE(mlb_text3d_measure(&fx.t, &m, k, cls, red, &fx.light, &fx.mc, &b) == MLB_OK);
+        double du = 0;
+        for (int j = 0; j < n; j++) du = fmax(du, fabs(b.shape_u[cls][j] - truth_u[j]));
+        printf("  %s seed %llu: best seed %llu %.5f, fitted %.5f (largest parameter error %.3f); relit %.2f -> %.2f dB\n",
+               names[i], (unsigned long long)seed, (unsigned long long)a.best_seed[cls], a.chamfer_prompted,
+               b.chamfer_prompted, du, a.relight_psnr, b.relight_psnr);
+        CHECK(a.class_ok && b.class_ok && b.fitted[cls] && !a.fitted[cls]);
+        CHECK_MSG(b.chamfer_prompted < 0.5 * a.chamfer_prompted, "%s: fitted %g against %g", names[i], b.chamfer_prompted,
+                  a.chamfer_prompted);
+        if (!strcmp(names[i], "ring")) CHECK_MSG(du < 0.02, "ring: parameters off by %g", du);
+        CHECK_MSG(b.relight_psnr >= a.relight_psnr - 0.1, "%s: relit %g dB against %g", names[i], b.relight_psnr, a.relight_psnr);
+        for (int c = 0; c < fx.t.n_classes; c++)   // classes not fitted keep their best seed's parameters
+            if (!b.fitted[c]) {
+                float u[MLB_CATALOGUE_MAX_PARAMS];
+                int nc = mlb_catalogue_seed_params(c, b.best_seed[c], u);
+                CHECK(!memcmp(u, b.shape_u[c], sizeof(float) * (size_t)nc) && b.chamfer[c] > fx.mc.fit_margin * b.chamfer[cls]);
+            }
+        free(k);
+        mlb_mesh_free(&m);
+    }
+    fixture_close(&fx);
+}
+
 // m's mirror image across x = 0 (both: m and it together), positions and faces, winding kept outward.
 static void mirror_x(const mlb_mesh* m, int both, mlb_mesh* out) {
     int k = both ? 2 : 1, V = m->n_verts, F = m->n_faces;
@@ -300,6 +349,7 @@ int main(void) {
     RUN(median_brdf);
     RUN(base_config);
     RUN(truth_as_asset_scores_perfectly);
+    RUN(shape_fit_finds_the_member);
     RUN(janus_measure);
     RUN(bench_smoke_tiny_sd);
     return test_summary();

@@ -53,6 +53,15 @@ mlb_status mlb_catalogue_class_parse(const char* name, int* c);   // MLB_ERR_ARG
 const char* mlb_catalogue_class_list(void);          // "goblet, vase, ..."
 // The mesh of class c with shape parameters drawn from seed (0: canonical). Deterministic.
 mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out);
+// The same shapes by their parameters: each a fraction u in [0, 1] of its range (values outside
+// are clamped), as many as mlb_catalogue_class_n_params(c) (at most MLB_CATALOGUE_MAX_PARAMS; 0
+// when c is out of range). mlb_catalogue_seed_params writes the fractions seed draws and returns
+// their count, so mlb_catalogue_mesh_params(c, u) is bitwise mlb_catalogue_mesh(c, seed). A fit
+// of the class to a mesh (the text-to-3D benchmark's) searches over u.
+#define MLB_CATALOGUE_MAX_PARAMS 8
+int mlb_catalogue_class_n_params(int c);
+int mlb_catalogue_seed_params(int c, uint64_t seed, float u[MLB_CATALOGUE_MAX_PARAMS]);
+mlb_status mlb_catalogue_mesh_params(int c, const float* u, mlb_mesh* out);
 
 // ---- materials ----
 int mlb_catalogue_n_materials(void);

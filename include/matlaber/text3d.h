@@ -17,6 +17,7 @@
 #include <stdint.h>
 #include <stdio.h>
 #include "matlaber/envmap.h"
+#include "matlaber/catalogue.h"
 #include "matlaber/error.h"
 #include "matlaber/geometry.h"
 #include "matlaber/mesh.h"
@@ -45,13 +46,22 @@ typedef struct {
     uint64_t chamfer_seed;   // 7
     int relight_views;       // 4 views (the evaluation orbit of evaluate.h) from azimuth 30°
     int relight_res;         // 128
+    // The fit of the class's shape parameters (catalogue.h) from its best seed, a pattern search
+    // of at most fit_rounds rounds (0: the best seed alone), for the prompted class and every class
+    // whose best seed is within fit_margin times the nearest class's: 64 rounds, 1.5.
+    int fit_rounds;
+    double fit_margin;
 } mlb_text3d_measure_config;
 mlb_text3d_measure_config mlb_text3d_measure_default(void);
 
 typedef struct {
     int cls, mat, held_out;
-    double chamfer[MLB_TEXT3D_MAX_CLASSES];   // relative Chamfer to each class (best seed)
+    // relative Chamfer to each class's best-fitting member, measured on fresh samples (chamfer_seed
+    // + 1) after the search (on chamfer_seed's): the best seed, then the fit when fitted[c]
+    double chamfer[MLB_TEXT3D_MAX_CLASSES];
     uint64_t best_seed[MLB_TEXT3D_MAX_CLASSES];
+    int fitted[MLB_TEXT3D_MAX_CLASSES];
+    float shape_u[MLB_TEXT3D_MAX_CLASSES][MLB_CATALOGUE_MAX_PARAMS];   // that member's parameters
     int nearest;                  // the class of the smallest distance
     int class_ok;                 // nearest == cls
     double chamfer_prompted;      // chamfer[cls]

@@ -198,12 +198,16 @@ done:
 }
 
 // ---- shape parameters -----------------------------------------------------------------------------
-// Parameter k of class c: lo + (hi − lo)·u, u = 0.5 for seed 0 (canonical), else Philox.
-typedef struct { uint64_t seed; int cls, k; } params;
+// Parameter k of class c: lo + (hi − lo)·u, u given (clamped to [0, 1]: a fit's search) or drawn
+// from the seed: 0.5 for seed 0 (canonical), else Philox.
+typedef struct { uint64_t seed; const float* u; int cls, k; } params;
+static float seed_fraction(uint64_t seed, int cls, int k) {
+    return seed ? (float)mlb_rng_uniform_f64(seed, 0xCA7A0000ull + (uint64_t)cls, (uint64_t)k) : 0.5f;
+}
 static float P(params* q, float lo, float hi) {
-    double u = q->seed ? mlb_rng_uniform_f64(q->seed, 0xCA7A0000ull + (uint64_t)q->cls, (uint64_t)q->k) : 0.5;
+    float u = q->u ? fminf(fmaxf(q->u[q->k], 0.0f), 1.0f) : seed_fraction(q->seed, q->cls, q->k);
     q->k++;
-    return lo + (hi - lo) * (float)u;
+    return lo + (hi - lo) * u;
 }
 
 // A quarter ellipse from (r0, y0) to (r1, y1), n points appended to prof at *np (the start excluded):
@@ -391,14 +395,29 @@ static void teapot(builder* b, params* q) {
 typedef void (*shape_fn)(builder*, params*);
 static const shape_fn SHAPES[MLB_CATALOGUE_N_CLASSES] = {goblet, vase, bowl, mug, bottle, mushroom, table, stool, lamp, ring, teapot};
 
-mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out) {
+// How many parameters each shape function draws (P calls, none conditional); checked at every build.
+static const int N_PARAMS[MLB_CATALOGUE_N_CLASSES] = {6, 6, 3, 6, 5, 4, 6, 5, 6, 2, 5};
+
+int mlb_catalogue_class_n_params(int c) { return c >= 0 && c < MLB_CATALOGUE_N_CLASSES ? N_PARAMS[c] : 0; }
+
+int mlb_catalogue_seed_params(int c, uint64_t seed, float u[MLB_CATALOGUE_MAX_PARAMS]) {
+    int n = mlb_catalogue_class_n_params(c);
+    for (int k = 0; k < n; k++) u[k] = seed_fraction(seed, c, k);
+    return n;
+}
+
+static mlb_status build(int c, uint64_t seed, const float* u, mlb_mesh* out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_catalogue_mesh: NULL mesh");
     memset(out, 0, sizeof *out);
     if (c < 0 || c >= MLB_CATALOGUE_N_CLASSES)
         return mlb_fail(MLB_ERR_ARG, "catalogue: class %d out of range 0..%d", c, MLB_CATALOGUE_N_CLASSES - 1);
     builder b = {0};
-    params q = {seed, c, 0};
+    params q = {seed, u, c, 0};
     SHAPES[c](&b, &q);
+    if (q.k != N_PARAMS[c]) {
+        free(b.pos); free(b.faces);
+        return mlb_fail(MLB_ERR_ARG, "catalogue: a %s draws %d parameters, N_PARAMS says %d", mlb_catalogue_class_name(c), q.k, N_PARAMS[c]);
+    }
     if (b.oom || !b.nv || !b.nf) {
         free(b.pos); free(b.faces);
         return mlb_fail(MLB_ERR_NOMEM, "catalogue: out of memory building a %s", mlb_catalogue_class_name(c));
@@ -425,4 +444,11 @@ mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out) {
     mlb_status s = mlb_mesh_compute_normals(out);
     if (s) mlb_mesh_free(out);
     return s;
+}
+
+mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out) { return build(c, seed, NULL, out); }
+
+mlb_status mlb_catalogue_mesh_params(int c, const float* u, mlb_mesh* out) {
+    if (!u) return mlb_fail(MLB_ERR_ARG, "mlb_catalogue_mesh_params: NULL parameters");
+    return build(c, 0, u, out);
 }

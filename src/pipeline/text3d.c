@@ -7,6 +7,7 @@
 #include "matlaber/catalogue.h"
 #include "matlaber/evaluate.h"
 #include "matlaber/geometry.h"
+#include "matlaber/rng.h"
 #include "matlaber/text3d.h"
 
 int mlb_text3d_is_metal(const float k[7]) {
@@ -49,7 +50,8 @@ void mlb_text3d_truth_free(mlb_text3d_truth* t) {
 }
 
 mlb_text3d_measure_config mlb_text3d_measure_default(void) {
-    mlb_text3d_measure_config m = {.chamfer_samples = 2000, .chamfer_seed = 7, .relight_views = 4, .relight_res = 128};
+    mlb_text3d_measure_config m = {.chamfer_samples = 2000, .chamfer_seed = 7, .relight_views = 4, .relight_res = 128,
+                                   .fit_rounds = 64, .fit_margin = 1.5};
     return m;
 }
 
@@ -120,6 +122,111 @@ static mlb_status measure_janus(const mlb_mesh* mesh, const mlb_mesh* tm, int ax
     return MLB_OK;
 }
 
+// Chamfer results r[j] of the asset against class c[j] built with parameters u[j] (j < m),
+// samples from seed: the meshes of a fit's round, or of the final measure, built and measured together.
+static mlb_status chamfer_params(const mlb_mesh* asset, const int* c, const float (*u)[MLB_CATALOGUE_MAX_PARAMS], int m,
+                                 int samples, uint64_t seed, mlb_chamfer_result* r) {
+    mlb_mesh* mesh = calloc((size_t)m, sizeof(mlb_mesh));
+    mlb_mesh_bvh* bvh = calloc((size_t)m, sizeof(mlb_mesh_bvh));
+    mlb_status s = mesh && bvh ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    for (int j = 0; !s && j < m; j++) {
+        s = mlb_catalogue_mesh_params(c[j], u[j], &mesh[j]);
+        if (!s) s = mlb_mesh_bvh_build(&bvh[j], &mesh[j]);
+    }
+    if (!s) s = mlb_chamfer_many(asset, mesh, bvh, m, samples, seed, r);
+    for (int j = 0; mesh && bvh && j < m; j++) { mlb_mesh_free(&mesh[j]); mlb_mesh_bvh_free(&bvh[j]); }
+    free(mesh);
+    free(bvh);
+    return s;
+}
+
+// A pattern search over class c's shape parameters from u (in place; *rel its relative Chamfer,
+// lowered). Every round tries each parameter one step up and down and as many random directions
+// of the same length (some parameters only matter together: the frame's scaling to a fixed radius
+// makes a mug's radius, height and handle one ridge that single steps cannot climb), all measured
+// together, and moves to the nearest shape if it is nearer, else halves the step, from 1/8 of a
+// range down to 1/128. Deterministic: the same samples every round, Philox directions, ties to
+// the lowest index.
+#define FIT_STREAM 0xF17C0000ull
+static mlb_status fit_class(const mlb_mesh* asset, int c, const mlb_text3d_measure_config* mc, float u[MLB_CATALOGUE_MAX_PARAMS],
+                            double* rel) {
+    enum { MAXC = 4 * MLB_CATALOGUE_MAX_PARAMS };
+    const int n = mlb_catalogue_class_n_params(c);
+    float cand[MAXC][MLB_CATALOGUE_MAX_PARAMS];
+    int cc[MAXC];
+    mlb_chamfer_result r[MAXC];
+    for (int j = 0; j < MAXC; j++) cc[j] = c;
+    float step = 0.125f;
+    for (int round = 0; round < mc->fit_rounds && step >= 1.0f / 128; round++) {
+        int m = 0;
+        for (int k = 0; k < 2 * n; k++) {   // ± each parameter
+            float v = fminf(fmaxf(u[k / 2] + (k % 2 ? step : -step), 0.0f), 1.0f);
+            if (v == u[k / 2]) continue;   // at the range's end
+            memcpy(cand[m], u, sizeof cand[m]);
+            cand[m++][k / 2] = v;
+        }
+        for (int d = 0; d < 2 * n; d++) {   // random directions, step long
+            float dir[MLB_CATALOGUE_MAX_PARAMS];
+            double len = 0;
+            for (int k = 0; k < n; k++) {
+                dir[k] = mlb_rng_normal(mc->chamfer_seed, FIT_STREAM + (uint64_t)c, ((uint64_t)round * MAXC + (uint64_t)d) * MLB_CATALOGUE_MAX_PARAMS + (uint64_t)k);
+                len += (double)dir[k] * dir[k];
+            }
+            memcpy(cand[m], u, sizeof cand[m]);
+            for (int k = 0; k < n; k++) cand[m][k] = fminf(fmaxf(u[k] + step * dir[k] / (float)sqrt(len + 1e-30), 0.0f), 1.0f);
+            m++;
+        }
+        mlb_status s = chamfer_params(asset, cc, (const float(*)[MLB_CATALOGUE_MAX_PARAMS])cand, m, mc->chamfer_samples,
+                                      mc->chamfer_seed, r);
+        if (s) return mlb_fail_context(s, "text3d measure: fitting a %s", mlb_catalogue_class_name(c));
+        int best = -1;
+        for (int j = 0; j < m; j++)
+            if (r[j].relative < (best < 0 ? *rel : r[best].relative)) best = j;
+        if (best < 0) { step *= 0.5f; continue; }
+        memcpy(u, cand[best], sizeof cand[best]);
+        *rel = r[best].relative;
+    }
+    return MLB_OK;
+}
+
+// The shape part of the scores: the best seed of every class, then the fit of the classes that
+// can matter (the prompted one and every one whose best seed is within fit_margin of the nearest),
+// then every class's final shape measured again on fresh samples (chamfer_seed + 1), so that the
+// numbers reported are not the ones the search was steered by.
+static mlb_status measure_shape(const mlb_text3d_truth* t, const mlb_mesh* mesh, int cls, const mlb_text3d_measure_config* mc,
+                                mlb_text3d_scores* out) {
+    // all classes x seeds in one call (the asset's samples and BVH made once, the truths' BVHs are
+    // the truth's, the targets shared out over the threads)
+    int nt = t->n_classes * t->n_seeds;
+    mlb_chamfer_result* cr = malloc(sizeof(mlb_chamfer_result) * (size_t)nt);
+    if (!cr) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    mlb_status s = mlb_chamfer_many(mesh, t->meshes, t->bvh, nt, mc->chamfer_samples, mc->chamfer_seed, cr);
+    if (s) { free(cr); return mlb_fail_context(s, "text3d measure: shape"); }
+    double seed_best = INFINITY;
+    for (int c = 0; c < t->n_classes; c++) {
+        out->chamfer[c] = INFINITY;
+        for (int seed = 0; seed < t->n_seeds; seed++) {
+            const mlb_chamfer_result* r = &cr[c * t->n_seeds + seed];
+            if (r->relative < out->chamfer[c]) { out->chamfer[c] = r->relative; out->best_seed[c] = (uint64_t)seed; }
+        }
+        mlb_catalogue_seed_params(c, out->best_seed[c], out->shape_u[c]);
+        seed_best = fmin(seed_best, out->chamfer[c]);
+    }
+    free(cr);
+    for (int c = 0; c < t->n_classes; c++) {
+        out->fitted[c] = mc->fit_rounds > 0 && (c == cls || out->chamfer[c] <= mc->fit_margin * seed_best);
+        if (out->fitted[c] && (s = fit_class(mesh, c, mc, out->shape_u[c], &out->chamfer[c]))) return s;
+    }
+    int all[MLB_TEXT3D_MAX_CLASSES];
+    mlb_chamfer_result r[MLB_TEXT3D_MAX_CLASSES];
+    for (int c = 0; c < t->n_classes; c++) all[c] = c;
+    s = chamfer_params(mesh, all, (const float(*)[MLB_CATALOGUE_MAX_PARAMS])out->shape_u, t->n_classes, mc->chamfer_samples,
+                       mc->chamfer_seed + 1, r);
+    if (s) return mlb_fail_context(s, "text3d measure: shape");
+    for (int c = 0; c < t->n_classes; c++) out->chamfer[c] = r[c].relative;
+    return MLB_OK;
+}
+
 mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, const float* k, int cls, int mat,
                               const mlb_envlight* light, const mlb_text3d_measure_config* mc, mlb_text3d_scores* out) {
     memset(out, 0, sizeof *out);
@@ -130,24 +237,11 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     out->cls = cls;
     out->mat = mat;
     out->held_out = mlb_catalogue_held_out(cls, mat);
-    // shape: the best seed of every class; the nearest class names what the asset looks like. All
-    // classes x seeds in one call (the asset's samples and BVH made once, the truths' BVHs are the
-    // truth's, the targets shared out over the threads).
-    int nt = t->n_classes * t->n_seeds;
-    mlb_chamfer_result* cr = malloc(sizeof(mlb_chamfer_result) * (size_t)nt);
-    if (!cr) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
-    mlb_status s = mlb_chamfer_many(mesh, t->meshes, t->bvh, nt, mc->chamfer_samples, mc->chamfer_seed, cr);
-    if (s) { free(cr); return mlb_fail_context(s, "text3d measure: shape"); }
-    out->nearest = -1;
-    for (int c = 0; c < t->n_classes; c++) {
-        out->chamfer[c] = INFINITY;
-        for (int seed = 0; seed < t->n_seeds; seed++) {
-            const mlb_chamfer_result* r = &cr[c * t->n_seeds + seed];
-            if (r->relative < out->chamfer[c]) { out->chamfer[c] = r->relative; out->best_seed[c] = (uint64_t)seed; }
-        }
-        if (out->nearest < 0 || out->chamfer[c] < out->chamfer[out->nearest]) out->nearest = c;
-    }
-    free(cr);
+    mlb_status s = measure_shape(t, mesh, cls, mc, out);
+    if (s) return s;
+    out->nearest = 0;
+    for (int c = 1; c < t->n_classes; c++)
+        if (out->chamfer[c] < out->chamfer[out->nearest]) out->nearest = c;
     out->class_ok = out->nearest == cls;
     out->chamfer_prompted = out->chamfer[cls];
     // material: the median over the vertices (robust to the odd stray texel of a seam)
@@ -159,16 +253,19 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     out->metal_truth = mlb_catalogue_material_metal(mat);
     out->metal_pred = mlb_text3d_is_metal(out->median_k);
     out->metal_ok = out->metal_truth == out->metal_pred;
-    // relighting against the truth instance: prompted class, its best seed, the true material
-    const mlb_mesh* tm = &t->meshes[cls * t->n_seeds + (int)out->best_seed[cls]];
-    s = measure_janus(mesh, tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
-    if (s) return s;
-    float* tk = malloc(sizeof(float) * 7 * (size_t)tm->n_verts);
-    if (!tk) return mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
-    for (int i = 0; i < tm->n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
-    s = mlb_eval_relight(tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
+    // relighting against the truth instance: the prompted class's fitted shape, the true material
+    mlb_mesh tm;
+    s = mlb_catalogue_mesh_params(cls, out->shape_u[cls], &tm);
+    if (s) return mlb_fail_context(s, "text3d measure: the truth instance");
+    s = measure_janus(mesh, &tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
+    float* tk = s ? NULL : malloc(sizeof(float) * 7 * (size_t)tm.n_verts);
+    if (!s && !tk) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    for (int i = 0; !s && i < tm.n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
+    if (!s) s = mlb_eval_relight(&tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
+    if (s && tk) s = mlb_fail_context(s, "text3d measure: relighting");
     free(tk);
-    return s ? mlb_fail_context(s, "text3d measure: relighting") : MLB_OK;
+    mlb_mesh_free(&tm);
+    return s;
 }
 
 mlb_status mlb_text3d_measure_run(const mlb_text3d_truth* t, const char* run_dir, int cls, int mat,

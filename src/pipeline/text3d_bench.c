@@ -353,11 +353,12 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
     char abl[64];
     fprintf(f, "# Text to 3D against known truth\n\n"
                "Model %s; %d + %d steps (geometry + appearance), %d views at %d², seed %llu; ablation: %s.\n"
-               "Chamfer: relative to the truth's bounding-box diagonal, best of %d shape seeds per class.\n"
+               "Chamfer: relative to the truth's bounding-box diagonal, to each class's best-fitting member (the\n"
+               "best of %d shape seeds, then %d rounds of a fit of its shape parameters).\n"
                "Relighting under `%s` (no run saw it). Metal: mean ks > %.2f and mean kd < %.2f of the median BRDF.\n\n",
             c->base.model, c->base.geometry_iters, c->base.appearance_iters, c->base.views, c->base.res,
             (unsigned long long)c->base.seed, mlb_text3d_ablation_name(&c->base, abl, sizeof abl), c->n_seeds,
-            c->relight_env, MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
+            c->measure.fit_rounds, c->relight_env, MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
     fprintf(f, "| prompt | split | nearest class | Chamfer to prompted | class | material RMSE | metal | relight PSNR | time |\n"
                "|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < n; i++) {
@@ -415,6 +416,7 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddNumberToObject(j, "views", c->base.views);
     cJSON_AddNumberToObject(j, "res", c->base.res);
     cJSON_AddNumberToObject(j, "shape_seeds", c->n_seeds);
+    cJSON_AddNumberToObject(j, "shape_fit_rounds", c->measure.fit_rounds);
     cJSON_AddStringToObject(j, "relight_env", c->relight_env);
     for (int i = 0; i < n; i++) {
         const mlb_text3d_scores* sc = &rows[i].scores;
@@ -434,6 +436,10 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
         cJSON_AddNumberToObject(r, "chamfer_prompted", sc->chamfer_prompted);
         cJSON_AddNumberToObject(r, "chamfer_nearest", sc->nearest >= 0 ? sc->chamfer[sc->nearest] : INFINITY);
         cJSON_AddBoolToObject(r, "class_ok", sc->class_ok);
+        if (!rows[i].error[0]) {   // the prompted class's best-fitting member (catalogue.h's fractions)
+            cJSON* tu = cJSON_CreateFloatArray(sc->shape_u[sc->cls], mlb_catalogue_class_n_params(sc->cls));
+            if (tu) cJSON_AddItemToObject(r, "truth_params", tu);
+        }
         cJSON* by = cJSON_AddObjectToObject(r, "chamfer_by_class");
         for (int k = 0; by && k < mlb_catalogue_n_classes(); k++)
             cJSON_AddNumberToObject(by, mlb_catalogue_class_name(k), sc->chamfer[k]);

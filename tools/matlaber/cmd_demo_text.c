@@ -17,7 +17,7 @@
 #define DEMO_VIEWS 4
 #define DEMO_RES 192
 
-// The truth (the class's best-fitting seed in the true material) and the asset under `light`, four
+// The truth (the class's best-fitting member in the true material) and the asset under `light`, four
 // views each: DIR/compare.png (top row the truth, bottom row the result).
 static mlb_status side_by_side(const char* out, const mlb_text3d_row* row, const mlb_envlight* light, double* psnr) {
     const mlb_text3d_scores* sc = &row->scores;
@@ -25,7 +25,7 @@ static mlb_status side_by_side(const char* out, const mlb_text3d_row* row, const
     mlb_run_asset a;
     memset(&a, 0, sizeof a);
     float *tk = NULL, *fk = NULL, *img = NULL;
-    mlb_status s = mlb_catalogue_mesh(sc->cls, sc->best_seed[sc->cls], &truth);
+    mlb_status s = mlb_catalogue_mesh_params(sc->cls, sc->shape_u[sc->cls], &truth);
     if (!s) s = mlb_run_asset_load(&a, row->run_dir);
     if (!s) {
         tk = malloc(sizeof(float) * 7 * (size_t)truth.n_verts);

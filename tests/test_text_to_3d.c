@@ -3,9 +3,9 @@
 // "a red bowl" nearer the bowls than the goblets. The whole loop (view prompts, classifier-free
 // guidance, the timestep weighting, the VAE encoder's backward, the sign of the SDS gradient) has to
 // be right for both to hold: with the gradient's sign flipped, both runs end nearer the wrong class
-// (checked once by hand, docs/sd_train.md). And --init auto starts a ring from the torus and a goblet
-// from the ellipsoid. Skips when the model is absent (models/matlaber-tiny or
-// $MATLABER_MODEL) and under the sanitizers (minutes of arithmetic, covered by the modules' tests).
+// (checked once by hand, docs/sd_train.md). And --init auto starts a ring from the torus, a table
+// from the slab and a goblet from the ellipsoid. Skips when the model is absent (models/matlaber-tiny
+// or $MATLABER_MODEL) and under the sanitizers (minutes of arithmetic, covered by the modules' tests).
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -130,16 +130,17 @@ static int init_checkpoint(const char* model, const char* prompt, const char* in
     return ok && system(path) == 0;
 }
 
-// --init auto (docs/pipeline.md, Init): the model's score picks the torus for a ring and the
-// ellipsoid for a goblet, and the chosen start is bitwise the one --init names.
+// --init auto (docs/pipeline.md, Init): the model's score picks the torus for a ring, the slab for
+// a table (both after the look-ahead: each beat the ellipsoid at the start) and the ellipsoid for
+// a goblet, and the chosen start is bitwise the one --init names (the look-ahead leaves no trace).
 TEST(auto_init_follows_the_prompt) {
 #ifdef MLB_TEST_SANITIZED
     SKIP("a model's worth of arithmetic under the sanitizers");
 #endif
     const char* model = model_path();
     if (!model) SKIP("the project's own model is not there (models/matlaber-tiny, $MATLABER_MODEL)");
-    const char* cases[2][2] = {{"a blue ring", "torus"}, {"a red goblet", "ellipsoid"}};
-    for (int k = 0; k < 2; k++) {
+    const char* cases[3][2] = {{"a blue ring", "torus"}, {"a red table", "slab"}, {"a red goblet", "ellipsoid"}};
+    for (int k = 0; k < 3; k++) {
         char d1[256], d2[256], *a = NULL, *b = NULL;
         long na = 0, nb = 0;
         snprintf(d1, sizeof d1, "/tmp/mlb_autoinit_%d_%d", (int)getpid(), k);

@@ -117,7 +117,7 @@ static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_con
 // Coarse-to-fine hash grid: the first COARSE_LEVELS levels from the start, one more level at a time
 // until all are active at coarse_to_fine × geometry_iters (0: all levels from the start). 0 = all.
 #define COARSE_LEVELS 4
-static int active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
+int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
     const int L = net->enc.cfg.n_levels;
     const double span = c->coarse_to_fine * c->geometry_iters;
     if (!(span > 0) || L <= COARSE_LEVELS) return 0;
@@ -134,7 +134,7 @@ static void pipeline_scene_free(pipeline_scene* sc) {
     memset(sc, 0, sizeof *sc);
 }
 
-static double reg_weight(const mlb_pipeline_config* c, long it) {
+double pipeline_reg_weight(const mlb_pipeline_config* c, long it) {
     double span = c->reg_frac * c->geometry_iters;
     double t = span > 0 ? it / span : 1.0;
     if (t > 1) t = 1;
@@ -264,7 +264,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (!found) {
-        int levels = active_levels_at(c, net, 0);
+        int levels = pipeline_active_levels_at(c, net, 0);
         s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels) : pipeline_init_shape(net, c, c->init, levels);
         if (s) return s;
         // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
@@ -289,10 +289,10 @@ static mlb_status geometry_stage(pipeline_run* r) {
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
-        net->active_levels = active_levels_at(c, net, it);
+        net->active_levels = pipeline_active_levels_at(c, net, it);
         s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
         mlb_geofit_stats stats;
-        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it),
+        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, pipeline_reg_weight(c, it),
                                              &stats, preview_at(c, it) ? images : NULL);
         s = pipeline_agree(s);   // every rank fails together, or none does
         if (s) { s = mlb_fail_context(s, "geometry stage, step %ld", it); break; }

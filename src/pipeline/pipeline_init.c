@@ -47,21 +47,27 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // it only when its score beats the first's by more than AUTO_Z standard errors of the paired
 // per-view differences (the views' draws are shared, so the difference is the shapes'), the
 // clearest such win if several do. 3, not 2: the views of one shape are not independent draws, and
-// the best of several candidates is taken. Each fit starts from the network's state as it came, so
+// the best of several candidates is taken.
+//
+// A look at the start cannot tell which start will grow: at some seeds the model likes a high
+// slab for mugs and stools as well as tables, and a mug from it loses its surface. So when a
+// candidate wins, the first and every winner are looked ahead: AUTO_AHEAD steps of the geometry
+// stage itself (its views, noise and learning rate, Adam fresh), then scored again on the same
+// views. A candidate whose surface vanishes on the way is out; the rule above is applied again to
+// the rest (the first still alive is the reference). Each fit starts from the network's state as
+// it came, and the chosen candidate's fit (not its look-ahead) is what the stage starts from, so
 // the start is the same bits as --init NAME. No cylinder by default: the model prefers it for
 // bottles, mugs and bowls, and a bottle from it ended a vase (docs/benchmarks.md, "Choosing the
-// starting shape"). No slab by default either: every table comes out a table from it (1 of 8
-// from the ellipsoid) and at seed 0 the model picks it for just the tables and three bowls, but
-// other seeds' draws (views, noise) give it mugs and stools too (at seed 3 every mug picks it,
-// and a mug from it lost its surface), and on views spread evenly over the orbit a green mug
-// takes it at every seed: a look alone cannot tell which start will grow (docs/benchmarks.md,
-// "A slab start for tables").
+// starting shape").
 #define AUTO_VIEWS 16
 #define AUTO_Z 3.0
 #define AUTO_MAX 8
-static const char* const AUTO_DEFAULT = "ellipsoid,torus";
+#define AUTO_AHEAD 20
+static const char* const AUTO_DEFAULT = "ellipsoid,torus,slab";
 
-static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, double* per_view) {
+// The guidance's per-view scores of the network's surface; *vanished = 1 (and MLB_OK, no scores)
+// when it has none.
+static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, double* per_view, int* vanished) {
     const mlb_pipeline_config* c = r->c;
     mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)n);
     if (!cams) return mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
@@ -71,10 +77,80 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
     st.be = r->be;
     mlb_geofit_stats stats;
     mlb_status s = mlb_geofit_forward(&st, &r->geo, &r->grid, r->ctx, cams, n, c->res, c->ss, NULL, &stats);
-    if (!s) s = r->g->score(r->g, MLB_STAGE_GEOMETRY, views, n, st.images, c->res, c->res, per_view);
+    *vanished = s && st.surf.n_faces == 0;   // marching tets found no surface
+    if (*vanished) s = MLB_OK;
+    else if (!s) s = r->g->score(r->g, MLB_STAGE_GEOMETRY, views, n, st.images, c->res, c->res, per_view);
     mlb_geofit_state_free(&st);
     free(cams);
     return s;
+}
+
+// The geometry stage's first `steps` steps from the network's state, Adam fresh; *vanished = 1
+// (and MLB_OK) when the surface is gone on the way (after the last step: score_shape says so).
+static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_geometry_net* net = &r->geo;
+    memset(net->adam_m, 0, sizeof(float) * net->n_params);
+    memset(net->adam_v, 0, sizeof(float) * net->n_params);
+    net->step = 0;
+    *vanished = 0;
+    mlb_adam_config adam = mlb_geometry_adam(c->geometry_lr);
+    int n = r->g->n_views;
+    mlb_view* views = calloc((size_t)n, sizeof *views);
+    mlb_geofit_state st;
+    memset(&st, 0, sizeof st);
+    st.be = r->be;
+    mlb_status s = views ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
+    for (long it = 0; !s && it < steps; it++) {
+        net->active_levels = pipeline_active_levels_at(c, net, it);
+        s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
+        mlb_geofit_stats stats;
+        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss,
+                                             pipeline_reg_weight(c, it), &stats, NULL);
+        if (s && st.surf.n_faces == 0) { *vanished = 1; s = MLB_OK; break; }   // marching tets found no surface
+        if (!s) geometry_net_update(net, &adam);
+    }
+    net->active_levels = 0;
+    mlb_geofit_state_free(&st);
+    free(views);
+    return s;
+}
+
+// The candidate the rule picks among those with alive[i] (scores sc [N, n]); -1 when none is alive.
+// mean/se: the paired differences against the reference, for the log.
+static int pick(const double* sc, int N, int n, const int* alive, double* mean, double* se) {
+    int ref = -1, best = -1;
+    for (int i = 0; i < N && ref < 0; i++)
+        if (alive[i]) ref = best = i;
+    for (int i = ref + 1; ref >= 0 && i < N; i++) {
+        mean[i] = se[i] = NAN;
+        if (!alive[i]) continue;
+        double m = 0, v = 0;
+        for (int k = 0; k < n; k++) m += sc[(size_t)i * n + k] - sc[(size_t)ref * n + k];
+        m /= n;
+        for (int k = 0; k < n; k++) { double d = sc[(size_t)i * n + k] - sc[(size_t)ref * n + k] - m; v += d * d; }
+        mean[i] = m;
+        se[i] = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
+        if (mean[i] > AUTO_Z * se[i] && (best == ref || mean[i] / se[i] > mean[best] / se[best])) best = i;
+    }
+    return best;
+}
+
+static void log_scores(const char* when, const char* const* names, const double* sc, int N, int n, const int* alive,
+                       const int* vanished, const double* mean, const double* se, int best) {
+    char line[1024];
+    int len = snprintf(line, sizeof line, "--init auto: %s on %d views:", when, n);
+    int ref = -1;
+    for (int i = 0; i < N && len < (int)sizeof line; i++) {
+        if (vanished && vanished[i]) { len += snprintf(line + len, sizeof line - (size_t)len, " %s vanished;", names[i]); continue; }
+        if (!alive[i]) continue;
+        double m = 0;
+        for (int k = 0; k < n; k++) m += sc[(size_t)i * n + k] / n;
+        if (ref < 0) { ref = i; len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f;", names[i], m); }
+        else len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f (%+.5f +- %.5f);", names[i], m, mean[i], se[i]);
+    }
+    if (best >= 0) mlb_log(MLB_LOG_INFO, "%s best: the %s", line, names[best]);
+    else mlb_log(MLB_LOG_INFO, "%s none left", line);
 }
 
 mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
@@ -97,57 +173,64 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     const size_t np = net->n_params;
     mlb_view* views = calloc((size_t)n, sizeof *views);
     double* sc = malloc(sizeof(double) * (size_t)n * N);   // [N, n] per-view scores
-    // the network as it came (parameters, Adam's moments) and the leading candidate's parameters
+    // the network as it came (parameters, Adam's moments) and every candidate's fitted parameters
     float* start = malloc(sizeof(float) * 3 * np);
-    float* lead = malloc(sizeof(float) * np);
+    float* fit = malloc(sizeof(float) * np * N);
     const long step0 = net->step;
-    mlb_status s = views && sc && start && lead ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
+    mlb_status s = views && sc && start && fit ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
     if (!s) {
         memcpy(start, net->params, sizeof(float) * np);
         memcpy(start + np, net->adam_m, sizeof(float) * np);
         memcpy(start + 2 * np, net->adam_v, sizeof(float) * np);
     }
     for (int k = 0; !s && k < steps; k++) s = g->sample_views(g, MLB_STAGE_GEOMETRY, k, views + (size_t)k * per);
-    int best = 0;
-    double mean[AUTO_MAX] = {0}, se[AUTO_MAX] = {0};
+    int vanished[AUTO_MAX] = {0};
     for (int i = 0; !s && i < N; i++) {
         memcpy(net->params, start, sizeof(float) * np);
         memcpy(net->adam_m, start + np, sizeof(float) * np);
         memcpy(net->adam_v, start + 2 * np, sizeof(float) * np);
         net->step = step0;
         s = pipeline_init_shape(net, c, names[i], active_levels);
+        if (!s) memcpy(fit + (size_t)i * np, net->params, sizeof(float) * np);
         net->active_levels = active_levels;
-        if (!s) s = score_shape(r, views, n, sc + (size_t)i * n);
+        if (!s) s = score_shape(r, views, n, sc + (size_t)i * n, &vanished[i]);   // (a fit with no surface: out)
         net->active_levels = 0;
-        if (s) break;
-        // the paired differences against the first candidate: mean and standard error
-        double m = 0, v = 0;
-        for (int k = 0; k < n; k++) m += sc[(size_t)i * n + k] - sc[k];
-        m /= n;
-        for (int k = 0; k < n; k++) { double d = sc[(size_t)i * n + k] - sc[k] - m; v += d * d; }
-        mean[i] = m;
-        se[i] = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
-        if (i == 0 || (mean[i] > AUTO_Z * se[i] && (best == 0 || mean[i] / se[i] > mean[best] / se[best]))) {
-            best = i;
-            memcpy(lead, net->params, sizeof(float) * np);
+    }
+    int alive[AUTO_MAX], best = 0;
+    double mean[AUTO_MAX], se[AUTO_MAX];
+    for (int i = 0; i < N; i++) alive[i] = !vanished[i];
+    if (!s) {
+        best = pick(sc, N, n, alive, mean, se);
+        log_scores("the prompt's score", names, sc, N, n, alive, vanished, mean, se, best);
+    }
+    int ref = 0;
+    while (ref < N && !alive[ref]) ref++;
+    if (!s && best != ref && best >= 0) {   // the reference and every candidate that beat it, looked ahead
+        for (int i = ref + 1; i < N; i++) alive[i] = alive[i] && mean[i] > AUTO_Z * se[i];
+        for (int i = 0; !s && i < N; i++) {
+            if (!alive[i]) continue;
+            memcpy(net->params, fit + (size_t)i * np, sizeof(float) * np);
+            s = look_ahead(r, AUTO_AHEAD, &vanished[i]);
+            if (!s && !vanished[i]) s = score_shape(r, views, n, sc + (size_t)i * n, &vanished[i]);
+            if (!s && vanished[i]) alive[i] = 0;
+        }
+        if (!s) {
+            best = pick(sc, N, n, alive, mean, se);
+            char when[64];
+            snprintf(when, sizeof when, "after %d steps, the score", AUTO_AHEAD);
+            log_scores(when, names, sc, N, n, alive, vanished, mean, se, best);
         }
     }
+    if (best < 0) best = 0;   // every one vanished: the default, whose stage then says so
     if (!s) {
-        // the chosen fit as --init NAME leaves it (Adam's state after the fit is dropped by the caller)
-        memcpy(net->params, lead, sizeof(float) * np);
-        char line[1024];
-        int len = 0;
-        double m0 = 0;
-        for (int k = 0; k < n; k++) m0 += sc[k] / n;
-        len += snprintf(line, sizeof line, "%s %+.5f", names[0], m0);
-        for (int i = 1; i < N && len < (int)sizeof line; i++)
-            len += snprintf(line + len, sizeof line - (size_t)len, ", %s %+.5f (%+.5f +- %.5f)", names[i], m0 + mean[i],
-                            mean[i], se[i]);
-        mlb_log(MLB_LOG_INFO, "--init auto: the prompt's score on %d views: %s; starting from the %s", n, line, names[best]);
+        // the chosen fit as --init NAME leaves it (Adam's state, the step: the caller starts them fresh)
+        memcpy(net->params, fit + (size_t)best * np, sizeof(float) * np);
+        net->step = step0;
+        mlb_log(MLB_LOG_INFO, "--init auto: starting from the %s", names[best]);
     }
     free(views);
     free(sc);
     free(start);
-    free(lead);
+    free(fit);
     return s ? mlb_fail_context(s, "--init %s", c->init) : MLB_OK;
 }

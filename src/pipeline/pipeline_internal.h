@@ -41,6 +41,12 @@ typedef struct {
     mlb_pipeline_result result;
 } pipeline_run;
 
+// pipeline.c
+// The hash grid's active levels at geometry step it (coarse to fine; 0 = all), and the
+// regulariser's weight there.
+int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it);
+double pipeline_reg_weight(const mlb_pipeline_config* c, long it);
+
 // pipeline_init.c
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).

@@ -13,7 +13,7 @@
 static const cli_option init_options[] = {
     {"shape", 1, 'S', "SHAPE", "ellipsoid, cylinder, torus, slab or FILE.obj (normalised to the unit sphere)"},
     {"shape-scale", 1, 'k', "X", "scale of the shape (default 1: ellipsoid radius 1, cylinder r 0.75 h 0.8, torus outer radius 0.8, slab 1.28 x 0.11 x 0.78 at y 0.18..0.28)"},
-    {"grid", 1, 'g', "64|128", "tet grid of the extraction (32 or 64 cells; default 64), kept in the file"},
+    {"grid", 1, 'g', "32|64|128", "tet grid of the extraction (16, 32 or 64 cells; default 64; 32 is the tiny preset's), kept in the file"},
     {"iters", 1, 'i', "N", "Adam steps (default 400)"},
     {"batch", 1, 'b', "N", "points per step (default 12288)"},
     {"lr", 1, 'l', "X", "learning rate (default 1e-2)"},
@@ -39,7 +39,7 @@ static int geometry_init(int argc, char** argv) {
         switch (c) {
         case 'S': shape_arg = optarg; break;
         case 'k': if (cli_parse_double(optarg, 1e-3, 10, &x)) return cli_usage_error("geometry init", "--shape-scale: expected 0.001..10"); shape_scale = x; break;
-        case 'g': if (cli_parse_long(optarg, 64, 128, &v) || (v != 64 && v != 128)) return cli_usage_error("geometry init", "--grid: expected 64 or 128"); grid = v; break;
+        case 'g': if (cli_parse_long(optarg, 32, 128, &v) || (v != 32 && v != 64 && v != 128)) return cli_usage_error("geometry init", "--grid: expected 32, 64 or 128"); grid = v; break;
         case 'i': if (cli_parse_long(optarg, 1, 1000000, &v)) return cli_usage_error("geometry init", "--iters: expected 1..1000000"); fit.iters = (int)v; break;
         case 'b': if (cli_parse_long(optarg, 3, 1 << 22, &v)) return cli_usage_error("geometry init", "--batch: expected 3..4194304"); fit.batch = (int)v; break;
         case 'l': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error("geometry init", "--lr: expected a positive number"); fit.lr = x; break;
@@ -123,7 +123,7 @@ static int geometry_init(int argc, char** argv) {
 
 static const cli_option extract_options[] = {
     {"in", 1, 'i', "FILE", "geometry network (from 'matlaber geometry init')"},
-    {"grid", 1, 'g', "64|128", "tet grid (default: the file's, else 64)"},
+    {"grid", 1, 'g', "32|64|128", "tet grid (default: the file's, else 64)"},
     {"out", 1, 'o', "FILE", "output OBJ"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
@@ -156,9 +156,9 @@ static int geometry_extract(int argc, char** argv) {
         switch (c) {
         case 'i': in = optarg; break;
         case 'o': out = optarg; break;
-        case 'g': if (cli_parse_long(optarg, 64, 128, &v) || (v != 64 && v != 128)) return cli_usage_error("geometry extract", "--grid: expected 64 or 128"); grid = v; break;
+        case 'g': if (cli_parse_long(optarg, 32, 128, &v) || (v != 32 && v != 64 && v != 128)) return cli_usage_error("geometry extract", "--grid: expected 32, 64 or 128"); grid = v; break;
         case 'h':
-            printf("usage: matlaber geometry extract -i FILE.safetensors -o mesh.obj [--grid 64|128]\n\n"
+            printf("usage: matlaber geometry extract -i FILE.safetensors -o mesh.obj [--grid 32|64|128]\n\n"
                    "Evaluates the geometry network at the tet grid's vertices (sdf and deformation) and writes\n"
                    "the marching-tetrahedra surface as an OBJ with vertex normals.\n\n");
             cli_print_options(stdout, extract_options);
@@ -173,6 +173,7 @@ static int geometry_extract(int argc, char** argv) {
         if (mlb_st_open(&st, in) == MLB_OK) {
             const char* t = mlb_st_metadata(st, "geometry.grid");
             if (t && strcmp(t, "128") == 0) grid = 128;
+            if (t && strcmp(t, "32") == 0) grid = 32;
             mlb_st_close(st);
         }
         if (!grid) grid = 64;

@@ -1,13 +1,16 @@
 // The two-stage pipeline end to end (include/matlaber/pipeline.h): config files, a small image-
 // guided fit that recovers a known albedo, resume equivalence, and score distillation with a tiny
-// random Stable Diffusion UNet + VAE written by the test.
+// random Stable Diffusion UNet + VAE written by the test, and --init auto's look-ahead with a guidance
+// written by the test.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include "matlaber/cameras.h"
 #include "matlaber/evaluate.h"
 #include "matlaber/fileio.h"
+#include "matlaber/log.h"
 #include "matlaber/guidance_sds.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/threads.h"
@@ -392,6 +395,102 @@ TEST(sds_generate_two_steps_per_stage) {
     mlb_unet_free(u);
 }
 
+// ---- --init auto's look-ahead with a guidance written by the test --------------------------------
+// It scores a render by how little of the image the object covers, so the flat slab beats the
+// ellipsoid at once, and its loss is 0: in the look-ahead only the SDF regulariser acts, which at a
+// working learning rate erases the thin slab (as it erases a table from a blob) and leaves the
+// ellipsoid; at a learning rate too small to move anything the slab stays the choice. Either way
+// the stage starts bitwise from the chosen candidate's own fit (--init NAME).
+static mlb_status cov_sample_views(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
+    const mlb_orbit_config* orbit = g->impl;
+    for (int v = 0; v < g->n_views; v++) MLB_TRY(mlb_orbit_sample(&views[v], orbit, 5, (int)stage, step, v));
+    return MLB_OK;
+}
+static mlb_status cov_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
+                           int H, int W, float* dimages, double* loss) {
+    (void)g, (void)stage, (void)step, (void)views, (void)n, (void)images, (void)H, (void)W, (void)dimages;
+    *loss = 0;
+    return MLB_OK;
+}
+static mlb_status cov_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
+                            int W, double* per_view) {
+    (void)g, (void)stage, (void)views;
+    for (int v = 0; v < n; v++) {
+        double sum = 0;
+        for (size_t i = 0; i < (size_t)H * W; i++) sum += images[4 * ((size_t)v * H * W + i) + 3];
+        per_view[v] = -sum / ((double)H * W);
+    }
+    return MLB_OK;
+}
+
+// The --init auto lines of the log, kept by the test's sink.
+static char auto_log[4096];
+static void keep_auto_lines(mlb_log_level level, const char* message, void* user) {
+    (void)level, (void)user;
+    if (strstr(message, "--init auto") && strlen(auto_log) + strlen(message) + 2 < sizeof auto_log) {
+        strcat(auto_log, message);
+        strcat(auto_log, "\n");
+    }
+}
+
+// The geometry checkpoint a run leaves after its first step (the fitted start), or NULL.
+static char* start_of(const char* run, const char* init, double lr, long* size) {
+    mlb_orbit_config orbit = mlb_orbit_default();
+    mlb_guidance g = {.kind = "sds", .n_views = 2, .sample_views = cov_sample_views, .loss = cov_loss, .score = cov_score, .impl = &orbit};
+    mlb_pipeline_config c = mlb_pipeline_default();
+    snprintf(c.prompt, sizeof c.prompt, "a flat thing");
+    snprintf(c.model, sizeof c.model, "(a guidance written by the test)");
+    snprintf(c.init, sizeof c.init, "%s", init);
+    c.res = 32;
+    c.views = 2;
+    c.grid = 32;
+    c.hash_log2 = 14;
+    c.init_iters = 60;
+    c.geometry_iters = 40;
+    c.geometry_lr = lr;
+    c.appearance_iters = 0;
+    c.stop_after = 1;   // stopped as if killed after a step: the checkpoint holds the start
+    c.preview_every = 0;
+    mlb_pipeline_result r;
+    if (mlb_pipeline_run(run, &c, &g, NULL, 0, NULL, &r)) { printf("  %s: %s\n", init, mlb_last_error()); return NULL; }
+    char path[700];
+    snprintf(path, sizeof path, "%s/checkpoints/geometry.safetensors", run);
+    char* bytes = NULL;
+    size_t n = 0;
+    if (mlb_read_file(path, &bytes, &n, 1 << 28)) return NULL;
+    *size = (long)n;
+    return bytes;
+}
+
+TEST(auto_init_looks_ahead) {
+    const double lrs[2] = {1e-9, 3e-3};
+    const char* expect[2] = {"slab", "ellipsoid"};
+    for (int k = 0; k < 2; k++) {
+        char run_auto[512], run_fixed[512];
+        snprintf(run_auto, sizeof run_auto, "%s/auto_%d", tmpdir, k);
+        snprintf(run_fixed, sizeof run_fixed, "%s/fixed_%d", tmpdir, k);
+        long na = 0, nb = 0;
+        auto_log[0] = 0;
+        mlb_log_level level = mlb_log_get_level();
+        mlb_log_set_level(MLB_LOG_INFO);
+        mlb_log_set_sink(keep_auto_lines, NULL);
+        char* a = start_of(run_auto, "auto:ellipsoid,slab", lrs[k], &na);
+        mlb_log_set_sink(NULL, NULL);
+        mlb_log_set_level(level);
+        char* b = start_of(run_fixed, expect[k], lrs[k], &nb);
+        REQUIRE(a && b);
+        printf("  lr %g:\n%s", lrs[k], auto_log);
+        CHECK(strstr(auto_log, "16 views: ellipsoid") && strstr(auto_log, "best: the slab\n"));   // the start: the slab
+        CHECK(strstr(auto_log, "after 20 steps") != NULL);
+        if (k == 0) CHECK(!strstr(auto_log, "vanished") && strstr(auto_log, "starting from the slab"));
+        else CHECK(strstr(auto_log, "slab vanished") && !strstr(auto_log, "ellipsoid vanished") &&
+                   strstr(auto_log, "starting from the ellipsoid"));
+        CHECK_MSG(na == nb && !memcmp(a, b, (size_t)na), "the start differs from --init %s", expect[k]);
+        free(a);
+        free(b);
+    }
+}
+
 int main(void) {
     const char* base = getenv("TMPDIR");
     snprintf(tmpdir, sizeof tmpdir, "%s/mlb_pipeline_XXXXXX", base && *base ? base : "/tmp");
@@ -401,6 +500,7 @@ int main(void) {
     RUN(image_fit_recovers_a_known_albedo);
     RUN(resume_reaches_the_uninterrupted_result);
     RUN(sds_generate_two_steps_per_stage);
+    RUN(auto_init_looks_ahead);
     char cmd[400];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
     if (system(cmd)) return 1;

@@ -117,7 +117,7 @@ static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_con
 // Coarse-to-fine hash grid: the first COARSE_LEVELS levels from the start, one more level at a time
 // until all are active at coarse_to_fine × geometry_iters (0: all levels from the start). 0 = all.
 #define COARSE_LEVELS 4
-int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
+static int active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
     const int L = net->enc.cfg.n_levels;
     const double span = c->coarse_to_fine * c->geometry_iters;
     if (!(span > 0) || L <= COARSE_LEVELS) return 0;
@@ -134,7 +134,7 @@ static void pipeline_scene_free(pipeline_scene* sc) {
     memset(sc, 0, sizeof *sc);
 }
 
-double pipeline_reg_weight(const mlb_pipeline_config* c, long it) {
+static double reg_weight(const mlb_pipeline_config* c, long it) {
     double span = c->reg_frac * c->geometry_iters;
     double t = span > 0 ? it / span : 1.0;
     if (t > 1) t = 1;
@@ -255,6 +255,19 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
 }
 
 // ---- geometry stage ----------------------------------------------------------------------------
+mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const mlb_adam_config* adam, long it,
+                                  mlb_view* views, mlb_geofit_stats* stats, float* images) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_geometry_net* net = &r->geo;
+    net->active_levels = active_levels_at(c, net, it);
+    mlb_status s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
+    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it), stats,
+                                         images);
+    s = pipeline_agree(s);   // every rank fails together, or none does
+    if (!s) geometry_net_update(net, adam);
+    return s;
+}
+
 static mlb_status geometry_stage(pipeline_run* r) {
     const mlb_pipeline_config* c = r->c;
     mlb_geometry_net* net = &r->geo;
@@ -264,7 +277,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (!found) {
-        int levels = pipeline_active_levels_at(c, net, 0);
+        int levels = active_levels_at(c, net, 0);
         s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels) : pipeline_init_shape(net, c, c->init, levels);
         if (s) return s;
         // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
@@ -289,14 +302,9 @@ static mlb_status geometry_stage(pipeline_run* r) {
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
-        net->active_levels = pipeline_active_levels_at(c, net, it);
-        s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
         mlb_geofit_stats stats;
-        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, pipeline_reg_weight(c, it),
-                                             &stats, preview_at(c, it) ? images : NULL);
-        s = pipeline_agree(s);   // every rank fails together, or none does
+        s = pipeline_geometry_step(r, &st, &adam, it, views, &stats, preview_at(c, it) ? images : NULL);
         if (s) { s = mlb_fail_context(s, "geometry stage, step %ld", it); break; }
-        geometry_net_update(net, &adam);
         double row[3] = {stats.img, stats.reg, stats.n_faces};
         int stop = 0;
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);

@@ -88,13 +88,12 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
 // The geometry stage's first `steps` steps from the network's state, Adam fresh; *vanished = 1
 // (and MLB_OK) when the surface is gone on the way (after the last step: score_shape says so).
 static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
-    const mlb_pipeline_config* c = r->c;
     mlb_geometry_net* net = &r->geo;
     memset(net->adam_m, 0, sizeof(float) * net->n_params);
     memset(net->adam_v, 0, sizeof(float) * net->n_params);
     net->step = 0;
     *vanished = 0;
-    mlb_adam_config adam = mlb_geometry_adam(c->geometry_lr);
+    mlb_adam_config adam = mlb_geometry_adam(r->c->geometry_lr);
     int n = r->g->n_views;
     mlb_view* views = calloc((size_t)n, sizeof *views);
     mlb_geofit_state st;
@@ -102,13 +101,9 @@ static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
     st.be = r->be;
     mlb_status s = views ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
     for (long it = 0; !s && it < steps; it++) {
-        net->active_levels = pipeline_active_levels_at(c, net, it);
-        s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
         mlb_geofit_stats stats;
-        if (!s) s = mlb_geometry_guided_step(&st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss,
-                                             pipeline_reg_weight(c, it), &stats, NULL);
+        s = pipeline_geometry_step(r, &st, &adam, it, views, &stats, NULL);
         if (s && st.surf.n_faces == 0) { *vanished = 1; s = MLB_OK; break; }   // marching tets found no surface
-        if (!s) geometry_net_update(net, &adam);
     }
     net->active_levels = 0;
     mlb_geofit_state_free(&st);

@@ -42,10 +42,12 @@ typedef struct {
 } pipeline_run;
 
 // pipeline.c
-// The hash grid's active levels at geometry step it (coarse to fine; 0 = all), and the
-// regulariser's weight there.
-int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it);
-double pipeline_reg_weight(const mlb_pipeline_config* c, long it);
+// Geometry step `it` of the run's schedule (the hash grid's active levels, the step's views, the
+// regulariser's weight, every rank agreeing on the outcome), then the Adam update when it worked.
+// images: the step's renders for a preview, or NULL. The stage and --init auto's look-ahead both
+// step through it. On a failure st->surf tells whether marching tets found no surface.
+mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const mlb_adam_config* adam, long it,
+                                  mlb_view* views, mlb_geofit_stats* stats, float* images);
 
 // pipeline_init.c
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab" or an OBJ file) in the

@@ -258,11 +258,13 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     s = mlb_catalogue_mesh_params(cls, out->shape_u[cls], &tm);
     if (s) return mlb_fail_context(s, "text3d measure: the truth instance");
     s = measure_janus(mesh, &tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
-    float* tk = s ? NULL : malloc(sizeof(float) * 7 * (size_t)tm.n_verts);
-    if (!s && !tk) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
-    for (int i = 0; !s && i < tm.n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
-    if (!s) s = mlb_eval_relight(&tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
-    if (s && tk) s = mlb_fail_context(s, "text3d measure: relighting");
+    float* tk = NULL;
+    if (!s && !(tk = malloc(sizeof(float) * 7 * (size_t)tm.n_verts))) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
+    if (!s) {
+        for (int i = 0; i < tm.n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
+        s = mlb_eval_relight(&tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
+        if (s) s = mlb_fail_context(s, "text3d measure: relighting");
+    }
     free(tk);
     mlb_mesh_free(&tm);
     return s;

@@ -7,7 +7,7 @@
 #include "matlaber/conv_ops.h"
 #include "matlaber/error.h"
 #include "matlaber/threads.h"
-#include "nn/avx512_gate.h"
+#include "nn/simd_rows.h"
 #include "test.h"
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -360,18 +360,18 @@ TEST(sdpa_forward_backward) {
         float* of = falloc(no);
         for (size_t i = 0; i < nq; i++) qf[i] = (float)qbuf[i];
         for (size_t i = 0; i < 2 * nkv; i++) qf[nq + i] = (float)kvbuf[i];
-        // the float pass's softmax both ways: libm's exp, and the AVX-512 rows where the CPU has them
+        // the float pass's softmax every way the CPU has: libm's exp, the AVX2 and the AVX-512 rows
         double eff = 0;
-        for (int vec = 0; vec <= 1; vec++) {
-            mlb_avx512_force_scalar(!vec);
-            if (vec && !mlb_avx512_kernels()) break;
+        for (int vec = MLB_SIMD_SCALAR; vec <= MLB_SIMD_AVX512; vec++) {
+            mlb_simd_force(vec);
+            if ((int)mlb_simd_kernels() != vec) break;
             REQUIRE(sdpa_forward(of, NULL, qf, fused ? qf + C : qf + nq, fused ? qf + 2 * C : qf + nq + nkv, B, Tq,
                                  Tk, C, NH, ldq, ldkv, NULL) == MLB_OK);
             double e = max_abs_fd(of, ref, no);
-            CHECK_MSG(e < 1e-5, "case %d float forward (%s softmax): %.3g", ci, vec ? "AVX-512" : "scalar", e);
+            CHECK_MSG(e < 1e-5, "case %d float forward (%s softmax): %.3g", ci, mlb_simd_name(vec), e);
             eff = fmax(eff, e);
         }
-        mlb_avx512_force_scalar(0);
+        mlb_simd_force(-1);
         // backward: L = sum(out * R)
         fill(NULL, R, no, 1, 0);
         double* dqbuf = dalloc(nq);
@@ -411,13 +411,16 @@ TEST(sdpa_forward_backward) {
     }
 }
 
-// The float pass (vectorised on a CPU with AVX-512, groupnorm_avx512.c, and its scalar loops) against
-// the double one: forward, input gradient and the affine's gradients, ragged and VAE-sized groups.
+// The float pass (its scalar loops, and simd_rows.inc in 8 and 16 lanes where the CPU has them)
+// against the double one: forward, input gradient and the affine's gradients, ragged and VAE-sized groups.
 TEST(groupnorm_float_paths_vs_double) {
     static const int shapes[][4] = {{2, 12, 10, 4}, {1, 8, 37, 2}, {1, 4, 1, 2}, {2, 64, 4096, 32}, {1, 6, 17, 1}};
-    for (int vec = 0; vec <= 1; vec++) {
-        mlb_avx512_force_scalar(!vec);
-        if (vec && !mlb_avx512_kernels()) { printf("  group norm: no AVX-512 here, vectorised path not run\n"); break; }
+    for (int vec = MLB_SIMD_SCALAR; vec <= MLB_SIMD_AVX512; vec++) {
+        mlb_simd_force(vec);
+        if ((int)mlb_simd_kernels() != vec) {
+            printf("  group norm: no %s here, that path not run\n", mlb_simd_name(vec));
+            break;
+        }
         double worst_fwd = 0, worst_bwd = 0;
         for (size_t si = 0; si < sizeof shapes / sizeof shapes[0]; si++)
             for (int silu = 0; silu <= 1; silu++)
@@ -458,10 +461,47 @@ TEST(groupnorm_float_paths_vs_double) {
                     free(x); free(o); free(R); free(dx); free(w); free(b); free(dw); free(db); free(mean); free(rstd);
                     free(xf); free(of); free(Rf); free(dxf); free(wf); free(bf); free(dwf); free(dbf); free(meanf); free(rstdf);
                 }
-        printf("  group norm, float %s vs double: forward %.3g, backward %.3g (relative)\n", vec ? "AVX-512" : "scalar",
+        printf("  group norm, float %s vs double: forward %.3g, backward %.3g (relative)\n", mlb_simd_name(vec),
                worst_fwd, worst_bwd);
     }
-    mlb_avx512_force_scalar(0);
+    mlb_simd_force(-1);
+}
+
+// The vectorised rows' exp (simd_rows.inc) against libm's in double, for every kernel the CPU has:
+// ragged lengths, scores down to 100 below the max, where e^x is subnormal and rounded once.
+TEST(softmax_rows_vs_double) {
+    static const int lengths[] = {1, 7, 8, 9, 17, 203};
+    float q[203], p[203];
+    for (int i = 0; i < 203; i++) q[i] = -100.0f * (float)((i * 37) % 203) / 202.0f + 0.25f;   // max 0.25 at i 0
+    int levels = 0;
+    for (int lv = MLB_SIMD_AVX2; lv <= MLB_SIMD_AVX512; lv++) {
+        mlb_simd_force(lv);
+        if ((int)mlb_simd_kernels() != lv) break;
+        levels++;
+        double worst = 0;
+        for (size_t li = 0; li < sizeof lengths / sizeof lengths[0]; li++) {
+            const int n = lengths[li];
+            memcpy(p, q, sizeof p);
+            float sum, mx = mlb_softmax_row((mlb_simd_level)lv, p, n, &sum);
+            CHECK_MSG(mx == 0.25f, "%s n %d: max %g", mlb_simd_name(lv), n, mx);
+            double ref_sum = 0;
+            for (int i = 0; i < n; i++) {
+                double t = exp((double)q[i] - (double)mx);
+                ref_sum += t;
+                double err = fabs((double)p[i] - t);
+                // relative 1e-6 (polynomial 1.3e-7 + the fp32 steps), plus half the smallest subnormal
+                CHECK_MSG(err <= 1e-6 * t + 0x1p-150, "%s n %d, i %d: e^%g = %.9g, libm %.9g", mlb_simd_name(lv), n, i,
+                          (double)q[i] - mx, p[i], t);
+                if (t >= 0x1p-126) worst = fmax(worst, err / t);
+            }
+            for (int i = n; i < 203; i++) CHECK_MSG(p[i] == q[i], "%s n %d: wrote past the row at %d", mlb_simd_name(lv), n, i);
+            CHECK_MSG(fabs(sum - ref_sum) <= 1e-6 * ref_sum, "%s n %d: sum %.9g, libm %.9g", mlb_simd_name(lv), n, sum,
+                      ref_sum);
+        }
+        printf("  softmax rows, %s: exp within %.3g (relative) of libm's over [-100, 0]\n", mlb_simd_name(lv), worst);
+    }
+    if (!levels) printf("  softmax rows: no AVX2 here, not run\n");
+    mlb_simd_force(-1);
 }
 
 TEST(error_messages) {
@@ -495,6 +535,7 @@ int main(void) {
     RUN(groupnorm_float_paths_vs_double);
     RUN(upsample_and_transpose);
     RUN(sdpa_forward_backward);
+    RUN(softmax_rows_vs_double);
     RUN(error_messages);
     return test_summary();
 }

@@ -24,7 +24,7 @@
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "nn/gemm_bf16.h"
-#include "nn/softmax_avx512.h"
+#include "nn/simd_rows.h"
 
 // Queries per task. Measured on 2 Zen 4 cores before the per-head packing: 28 rows 52, 64 rows 77,
 // 256 rows 86 GFLOP/s per thread (then the keys were packed per block); not re-tuned since.

@@ -9,11 +9,9 @@
 #include "matlaber/error.h"
 #include "matlaber/nn.h"
 #include "core/real.h"
+#include "nn/simd_rows.h"
 #ifndef MLB_F64
 #include "nn/conv_bf16.h"
-#include "nn/avx512_gate.h"
-#include "nn/groupnorm_avx512.h"
-#include "nn/softmax_avx512.h"
 #endif
 
 // Below this many values a loop stays on one thread (the fork/join costs more than the work).
@@ -269,13 +267,14 @@ static inline real FN(gn_act_d1)(mlb_activation act, real y) {
     return FN(mlb_act_d1)(act, y);
 }
 
-// Whether the float pass runs a group through groupnorm_avx512.c (SiLU or identity, on a CPU with it).
-static int FN(gn_vectorised)(mlb_activation act) {
+// The kernels the float pass runs a group through (simd_rows.h: SiLU or identity, on a CPU with
+// AVX2 or AVX-512), or scalar.
+static mlb_simd_level FN(gn_vectorised)(mlb_activation act) {
 #ifndef MLB_F64
-    return (act == MLB_ACT_IDENTITY || act == MLB_ACT_SILU) && mlb_avx512_kernels();
+    return act == MLB_ACT_IDENTITY || act == MLB_ACT_SILU ? mlb_simd_kernels() : MLB_SIMD_SCALAR;
 #else
     (void)act;
-    return 0;
+    return MLB_SIMD_SCALAR;
 #endif
 }
 
@@ -294,7 +293,7 @@ mlb_status FN(groupnorm_forward)(real* out, real* mean, real* rstd, const real* 
     if (!out || !in) return mlb_fail(MLB_ERR_ARG, "group norm: NULL buffer");
     const int Cg = C / G;
     const size_t M = (size_t)Cg * HW;
-    const int vec = FN(gn_vectorised)(act);
+    const mlb_simd_level vec = FN(gn_vectorised)(act);
     (void)vec;   // the double pass never vectorises
 #pragma omp parallel for schedule(static) if ((size_t)N * C * HW >= COPS_PARALLEL_MIN)
     for (int ng = 0; ng < N * G; ng++) {
@@ -304,7 +303,7 @@ mlb_status FN(groupnorm_forward)(real* out, real* mean, real* rstd, const real* 
         if (vec) {
             const int c0 = (ng % G) * Cg;
             double m, r;
-            mlb_groupnorm_forward_group(o, &m, &r, x, weight ? weight + c0 : NULL, bias ? bias + c0 : NULL, Cg, HW,
+            mlb_groupnorm_forward_group(vec, o, &m, &r, x, weight ? weight + c0 : NULL, bias ? bias + c0 : NULL, Cg, HW,
                                         eps, act == MLB_ACT_SILU);
             if (mean) mean[ng] = (real)m;
             if (rstd) rstd[ng] = (real)r;
@@ -342,7 +341,7 @@ mlb_status FN(groupnorm_backward)(real* din, real* dweight, real* dbias, const r
     if (!dout || !in || !mean || !rstd) return mlb_fail(MLB_ERR_ARG, "group norm backward: NULL buffer");
     const int Cg = C / G;
     const size_t M = (size_t)Cg * HW;
-    const int vec = FN(gn_vectorised)(act);
+    const mlb_simd_level vec = FN(gn_vectorised)(act);
     (void)vec;   // the double pass never vectorises
     double* part = NULL;   // [N, C, 2]: per image and channel, sum gy * xhat and sum gy
     if (dweight || dbias) {
@@ -358,7 +357,7 @@ mlb_status FN(groupnorm_backward)(real* din, real* dweight, real* dbias, const r
 #ifndef MLB_F64
         if (vec) {
             const int c0 = g * Cg;
-            mlb_groupnorm_backward_group(din ? din + (size_t)ng * M : NULL, part ? part + ((size_t)n * C + c0) * 2 : NULL,
+            mlb_groupnorm_backward_group(vec, din ? din + (size_t)ng * M : NULL, part ? part + ((size_t)n * C + c0) * 2 : NULL,
                                          d, x, weight ? weight + c0 : NULL, bias ? bias + c0 : NULL, m, r, Cg, HW,
                                          act == MLB_ACT_SILU);
             continue;
@@ -474,13 +473,14 @@ static mlb_status FN(sdpa_check)(int B, int Tq, int Tk, int C, int NH, int ldq, 
 
 
 // Row p[0..n): p <- e^(p - max p); returns the max, *sum = the sum of the new p. The float pass
-// takes softmax_avx512.c's row on a CPU with AVX-512 (fp32 partial sums); the double pass, the
+// takes simd_rows.h's row on a CPU with AVX2 or AVX-512 (fp32 partial sums); the double pass, the
 // finite-difference reference, keeps libm's exp and a double sum.
 static real FN(softmax_row_exp)(real* p, int n, double* sum) {
 #ifndef MLB_F64
-    if (mlb_avx512_kernels()) {
+    const mlb_simd_level lv = mlb_simd_kernels();
+    if (lv != MLB_SIMD_SCALAR) {
         float sumf;
-        real mx = mlb_softmax_row_avx512(p, n, &sumf);
+        real mx = mlb_softmax_row(lv, p, n, &sumf);
         *sum = sumf;
         return mx;
     }

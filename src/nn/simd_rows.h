@@ -1,0 +1,50 @@
+// Internal: the CPU's vectorised fp32 row kernels (simd_rows.inc, compiled as simd_avx512.c and
+// simd_avx2.c) and the one switch that picks them (simd_gate.c), for the float pass of group norm
+// and of the attention's softmax (conv_ops.c) and for the bf16 attention (attention_bf16.c).
+#ifndef MATLABER_NN_SIMD_ROWS_H
+#define MATLABER_NN_SIMD_ROWS_H
+#include <stddef.h>
+
+#if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
+#define MLB_SIMD_X86 1
+#endif
+
+typedef enum { MLB_SIMD_SCALAR = 0, MLB_SIMD_AVX2 = 1, MLB_SIMD_AVX512 = 2 } mlb_simd_level;
+
+// The widest kernels this CPU runs: AVX-512 F/BW/VL/DQ, else AVX2 with FMA, else the scalar loops;
+// capped by $MATLABER_CPU_AVX512=0 (at AVX2) and $MATLABER_CPU_AVX2=0 (at scalar), read once, and
+// by mlb_simd_force.
+mlb_simd_level mlb_simd_kernels(void);
+// Tests: cap the level at `level` (a lower one where the CPU lacks it), or -1 for the default again.
+void mlb_simd_force(int level);
+const char* mlb_simd_name(mlb_simd_level level);   // "scalar", "AVX2", "AVX-512"
+
+// One group of Cg channels of HW values: x, out [Cg, HW]; w, b its Cg channels' affine (or NULL);
+// silu: SiLU after the affine (else identity). *mean, *rstd as groupnorm_forward's. Runs the kernel
+// of `level` (not scalar).
+void mlb_groupnorm_forward_group(mlb_simd_level level, float* out, double* mean, double* rstd, const float* x,
+                                 const float* w, const float* b, int Cg, int HW, float eps, int silu);
+
+// Its backward given the forward's mean and rstd: part[cc] = {sum gy·xhat, sum gy} per channel
+// (or NULL), and dx += the input gradient (dx NULL: sums only).
+void mlb_groupnorm_backward_group(mlb_simd_level level, float* dx, double* part, const float* dout, const float* x,
+                                  const float* w, const float* b, float mean, float rstd, int Cg, int HW, int silu);
+
+// Row p[0..n) (n >= 1): p <- e^(p - max p); returns the max, *sum = the sum of the new p (fp32, one
+// partial sum per lane added in a fixed order).
+float mlb_softmax_row(mlb_simd_level level, float* p, int n, float* sum);
+
+#ifdef MLB_SIMD_X86
+// The kernels themselves (call only where mlb_simd_kernels() is at least their level).
+void mlb_groupnorm_forward_group_avx512(float* out, double* mean, double* rstd, const float* x, const float* w,
+                                        const float* b, int Cg, int HW, float eps, int silu);
+void mlb_groupnorm_forward_group_avx2(float* out, double* mean, double* rstd, const float* x, const float* w,
+                                      const float* b, int Cg, int HW, float eps, int silu);
+void mlb_groupnorm_backward_group_avx512(float* dx, double* part, const float* dout, const float* x, const float* w,
+                                         const float* b, float mean, float rstd, int Cg, int HW, int silu);
+void mlb_groupnorm_backward_group_avx2(float* dx, double* part, const float* dout, const float* x, const float* w,
+                                       const float* b, float mean, float rstd, int Cg, int HW, int silu);
+float mlb_softmax_row_avx512(float* p, int n, float* sum);
+float mlb_softmax_row_avx2(float* p, int n, float* sum);
+#endif
+#endif

@@ -7,7 +7,8 @@
 # batch order); a run
 # stopped on 2 resumes on 1 and on 3 to the same bytes; --prompts with 4 prompts on 2 processes
 # gives 4 run folders bitwise equal to the single-process ones, and a rerun after a stop finishes
-# only what was missing. Skips without mpirun, without an MPI build or without the model.
+# only what was missing; bench text3d shares its prompts among 2 processes to the numbers of 1.
+# Skips without mpirun, without an MPI build or without the model.
 set -u
 M=${1:?usage: cli_mpi.sh path/to/matlaber}
 . "$(dirname "$0")/lib_cli.sh"
@@ -106,6 +107,20 @@ echo "--bogus 1 x" > "$T/bad.txt"
 expect 2 "a prompt line with an unknown option" -- $Q generate --prompts "$T/bad.txt" -o "$T/b3" $small
 err_has "names the line and the option" "line 1: --bogus"
 expect 2 "--prompts without -o" -- $Q generate --prompts "$P"
+# bench text3d on 2 processes: prompt i to process i mod 2, each generated and measured alone; the
+# table and JSON (rank 0's) hold the numbers of 1 process, and the run folders its bytes
+B="bench text3d --pairs vase:gold,mug:red --init ellipsoid --steps-scale 0.02 --shape-fit 0 --shape-seeds 2"
+expect 0 "bench text3d, 1 process" -- $Q $B -o "$T/t1" --json "$T/t1.json"
+expect 0 "bench text3d, 2 processes" -- $MPI -n 2 $Q --log-level info $B -o "$T/t2" --json "$T/t2.json"
+err_has "process 0 took the first prompt" "(process 0) 'a gold vase'"
+grep -q "'a red mug' (seen) into" "$T/err" && bad "process 0 generated the second prompt too" || ok "the second prompt went to process 1"
+[ "$(grep -c '^report:' "$T/out")" = 1 ] && ok "one process prints the report" || bad "report printed $(grep -c '^report:' "$T/out") times"
+grep -q '"processes":[[:space:]]*2' "$T/t2.json" && ok "the JSON says 2 processes" || bad "the JSON lacks processes 2"
+if diff <(sed "s#$T/t1#D#g" "$T/t1.json" | grep -v -e '"seconds"' -e '"processes"') \
+        <(sed "s#$T/t2#D#g" "$T/t2.json" | grep -v -e '"seconds"' -e '"processes"') > "$T/diff"; then
+  ok "bench text3d on 2 processes: the numbers of 1"
+else bad "bench text3d on 2 processes differs: $(head -5 "$T/diff")"; fi
+for r in vase_gold mug_red; do same_run "bench text3d: $r on 2 processes = on 1" "$T/t1/$r" "$T/t2/$r"; done
 # paint on 2 processes: the views split as generate's (2 views, a call of 1 on each process); every
 # process loads the mesh, rank 0 alone
 # writes the run folder (input/mesh.obj included): the same bytes as 1 process, and a resume on 2

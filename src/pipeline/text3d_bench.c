@@ -8,6 +8,7 @@
 #include <string.h>
 #include "matlaber/catalogue.h"
 #include "matlaber/device.h"
+#include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
@@ -188,9 +189,41 @@ static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipe
     return MLB_OK;
 }
 
+// Every process's rows to every process: process r ran prompts r, r + N, ... and finished the first
+// done_of[r] of them (its rows in rows[] on that process); done[i] = 1 for every row finished by
+// any. Rows are plain data (no pointers), so they travel as bytes.
+static mlb_status gather_rows(mlb_text3d_row* rows, unsigned char* done, int total, int done_here, int rank,
+                              int size) {
+    int* done_of = calloc((size_t)size, sizeof *done_of);
+    size_t* bytes = calloc((size_t)size, sizeof *bytes);
+    mlb_text3d_row* mine = calloc((size_t)done_here + 1, sizeof *mine);
+    mlb_text3d_row* all = calloc((size_t)total + 1, sizeof *all);
+    mlb_status s = done_of && bytes && mine && all ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "text3d: out of memory gathering rows");
+    if (!s) {
+        done_of[rank] = done_here;
+        s = mlb_dist_allgather_items(&done_of[rank], done_of, size, sizeof(int));
+    }
+    if (!s) {
+        for (int k = 0; k < done_here; k++) mine[k] = rows[rank + k * size];
+        for (int r = 0; r < size; r++) bytes[r] = (size_t)done_of[r] * sizeof(mlb_text3d_row);
+        s = mlb_dist_allgatherv(mine, all, bytes);
+    }
+    if (!s) {
+        size_t at = 0;
+        for (int r = 0; r < size; r++)
+            for (int k = 0; k < done_of[r]; k++) {
+                rows[r + k * size] = all[at++];
+                done[r + k * size] = 1;
+            }
+    }
+    free(done_of); free(bytes); free(mine); free(all);
+    return s;
+}
+
 mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row* rows, int* n_rows,
                                 mlb_text3d_summary* summary) {
     *n_rows = 0;
+    const int rank = mlb_dist_world_rank(), size = mlb_dist_world_size();
     double t0 = mlb_now_seconds();
     int classes[MLB_TEXT3D_MAX_CLASSES], mats[MLB_TEXT3D_MAX_CLASSES];
     int nc = c->n_classes, nm = c->n_materials;
@@ -250,26 +283,41 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     s = mlb_text3d_truth_create(&truth, c->n_seeds);
     if (!s) s = mlb_envmap_open(&env, c->relight_env, 1.0f, c->base.env_height, NULL);
     if (!s) s = mlb_envlight_build(&light, &env, &lo);
-    if (!s) s = mlb_mkdir_p(c->out_dir);
+    if (!s && rank == 0) s = mlb_mkdir_p(c->out_dir);
+    if (size > 1) {   // every process learns whether the folder exists before any run goes in it
+        int bad = mlb_dist_max_int(s != MLB_OK);
+        if (bad && !s) s = mlb_fail(MLB_ERR_IO, "text3d: another process could not start");
+    }
+    // Several processes (mpirun): prompt i goes to process i mod N, which generates it as a group of
+    // one (mlb_dist_solo: its views are not split) and measures it; the rows meet on every process
+    // afterwards. A run is the same bytes on any number of processes or threads (test_pipeline).
     double gen_wall = 0;
-    for (int i = 0; !s && i < total; i++) {
+    int done_here = 0, mine = 0;
+    unsigned char* done = calloc((size_t)total + 1, 1);
+    if (!done) return mlb_fail(MLB_ERR_NOMEM, "text3d: out of memory");   // (before any collective)
+    for (int i = rank; i < total; i += size) mine++;
+    for (int i = rank; !s && i < total; i += size) {
         int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);
         mlb_text3d_row* row = &rows[i];
         if (c->progress) {
-            char eta[32];
-            if (n_gen) mlb_format_duration(gen_wall / n_gen * (total - i), eta, sizeof eta);
+            char eta[32], who[32] = "";
+            if (n_gen) mlb_format_duration(gen_wall / n_gen * (mine - done_here), eta, sizeof eta);
             else snprintf(eta, sizeof eta, "?");
-            mlb_log(MLB_LOG_INFO, "== [%d/%d] '%s' (%s) into %s; ETA %s", i + 1, total, row->prompt,
+            if (size > 1) snprintf(who, sizeof who, " (process %d)", rank);
+            mlb_log(MLB_LOG_INFO, "== [%d/%d]%s '%s' (%s) into %s; ETA %s", i + 1, total, who, row->prompt,
                     mlb_catalogue_held_out(cls, mat) ? "held out" : "seen", row->run_dir, eta);
         }
         double t1 = mlb_now_seconds();
         mlb_pipeline_config want = c->base;
         snprintf(want.prompt, sizeof want.prompt, "%s", row->prompt);
+        mlb_dist_solo(1);
         s = generate_one(c, &want, row->run_dir, row);
+        mlb_dist_solo(0);
         if (!s && row->error[0]) failed_scores(&row->scores, cls, mat);
         else if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
         if (!s) {
-            *n_rows = i + 1;
+            done_here++;
+            done[i] = 1;
             // the ETA from every prompt whose generation time is known (an earlier invocation's too)
             if (row->generated) { n_gen++; gen_wall += mlb_now_seconds() - t1; }
             else if (isfinite(row->seconds)) { n_gen++; gen_wall += row->seconds; }
@@ -280,13 +328,23 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
                         row->scores.metal_pred ? "metal" : "dielectric", row->scores.relight_psnr);
         }
     }
+    if (size > 1) {   // every process gets here, an error or not: the gathers are collective
+        mlb_status sg = gather_rows(rows, done, total, done_here, rank, size);
+        int bad = mlb_dist_max_int(s != MLB_OK);
+        if (!s) s = sg;
+        if (bad && !s) s = mlb_fail(MLB_ERR_ARG, "text3d: another process stopped with an error (see its message above)");
+    }
+    // the rows done: the prompts before the first that is not
+    *n_rows = 0;
+    while (*n_rows < total && done[*n_rows]) (*n_rows)++;
+    free(done);
 #undef PROMPT_CLASS
 #undef PROMPT_MAT
     mlb_envlight_free(&light);
     mlb_envmap_free(&env);
     mlb_text3d_truth_free(&truth);
     mlb_text3d_summarise(rows, *n_rows, mlb_now_seconds() - t0, summary);
-    if (!s) {   // the report beside the runs
+    if (!s && rank == 0) {   // the report beside the runs
         char p[MLB_PIPELINE_PATH + 64];
         snprintf(p, sizeof p, "%s/report.md", c->out_dir);
         mlb_atomic_file af;
@@ -382,11 +440,12 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
                    "the RMSE and PSNR means).\n", sum->n_failed, sum->n);
     fprintf(f, "\n%d prompts (%d seen, %d held out): class accuracy %.2f (seen %s, held out %s); metal accuracy %.2f;\n"
                "median Chamfer to the prompted class %.4f; material RMSE seen %s, held out %s; relighting %.2f dB mean;\n"
-               "total time %s.\n",
+               "total time %s on %d process%s.\n",
             sum->n, sum->n_seen, sum->n_held_out, sum->class_acc, num_or_dash(a[0], sum->class_acc_seen, 2),
             num_or_dash(a[1], sum->class_acc_held_out, 2), sum->metal_acc, sum->median_chamfer,
             num_or_dash(a[2], sum->material_rmse_seen, 3), num_or_dash(a[3], sum->material_rmse_held_out, 3),
-            sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt));
+            sum->relight_psnr, mlb_format_duration(sum->seconds, tt, sizeof tt), mlb_dist_world_size(),
+            mlb_dist_world_size() > 1 ? "es" : "");
     if (sum->n_janus_measured) {   // the classes whose two sides differ: is the far side's part doubled?
         fprintf(f, "\nJanus (mug, teapot: the one-sided part mirrored onto the other side is nearer than the truth):\n"
                    "%d of %d assets two-faced, %d mirrored", sum->n_janus, sum->n_janus_measured, sum->n_mirrored);
@@ -480,6 +539,7 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddNumberToObject(su, "janus", sum->n_janus);
     cJSON_AddNumberToObject(su, "mirrored", sum->n_mirrored);
     cJSON_AddNumberToObject(su, "seconds", sum->seconds);
+    cJSON_AddNumberToObject(su, "processes", mlb_dist_world_size());   // prompts shared among them
     cJSON_AddItemToObject(j, "summary", su);
     mlb_status s = mlb_run_write_json(path, j);
     cJSON_Delete(j);

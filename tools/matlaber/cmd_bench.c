@@ -7,6 +7,7 @@
 #include <string.h>
 #include "cli.h"
 #include "matlaber/catalogue.h"
+#include "matlaber/dist.h"
 #include "matlaber/log.h"
 #include "matlaber/text3d.h"
 
@@ -130,16 +131,18 @@ static int bench_text3d(int argc, char** argv) {
     if (!rows) return cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), cmd);
     int n = 0;
     mlb_text3d_summary sum;
-    s = mlb_text3d_bench_run(&bc, rows, &n, &sum);
-    if (n) {
+    s = mlb_text3d_bench_run(&bc, rows, &n, &sum);   // on several processes: every row on every one
+    const int lead = mlb_dist_world_rank() == 0;       // which alone prints and writes the JSON
+    if (n && lead) {
         printf("\n");
         mlb_text3d_print(stdout, &bc, rows, n, &sum);
     }
-    mlb_status sj = json && n ? mlb_text3d_write_json(json, &bc, rows, n, &sum) : MLB_OK;
+    mlb_status sj = json && n && lead ? mlb_text3d_write_json(json, &bc, rows, n, &sum) : MLB_OK;
     free(rows);
+    cli_rc_agreed = !sj;   // the run's status is agreed by every process (a failed JSON is rank 0's own)
     if (s) return cli_fail(s, cmd);
     if (sj) return cli_fail(sj, cmd);
-    printf("\nreport: %s/report.md%s%s\n", bc.out_dir, json ? ", JSON: " : "", json ? json : "");
+    if (lead) printf("\nreport: %s/report.md%s%s\n", bc.out_dir, json ? ", JSON: " : "", json ? json : "");
     return 0;
 }
 

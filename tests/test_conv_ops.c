@@ -504,6 +504,50 @@ TEST(softmax_rows_vs_double) {
     mlb_simd_force(-1);
 }
 
+// GEGLU's rows (simd_rows.inc, Φ from a fit of erfc) against GELU in double with libm's erfc, for
+// every kernel the CPU has: forward and both input gradients, ragged rows, gates far into both tails.
+TEST(geglu_rows_vs_double) {
+    enum { N = 203 };
+    float a[N], g[N], d[N], out[N], da[N], dg[N];
+    for (int j = 0; j < N; j++) {
+        g[j] = -12.0f + 24.0f * (float)((j * 53) % N) / (float)(N - 1);
+        a[j] = (0.5f + (float)(j % 7) * 0.25f) * (j % 2 ? -1.0f : 1.0f);   // never 0
+        d[j] = 1.0f - (float)(j % 5) * 0.3f;
+    }
+    int levels = 0;
+    for (int lv = MLB_SIMD_AVX2; lv <= MLB_SIMD_AVX512; lv++) {
+        mlb_simd_force(lv);
+        if ((int)mlb_simd_kernels() != lv) break;
+        levels++;
+        double wf = 0, wb = 0;
+        for (int n = 1; n <= N; n += n < 20 ? 1 : 61) {
+            for (int j = 0; j < N; j++) { out[j] = -7; da[j] = 0.5f; dg[j] = -0.25f; }
+            mlb_geglu_row((mlb_simd_level)lv, out, a, g, n);
+            mlb_geglu_backward_row((mlb_simd_level)lv, da, dg, d, a, g, n);
+            for (int j = 0; j < n; j++) {
+                double x = g[j], cdf = 0.5 * erfc(-x / sqrt(2.0)), pdf = exp(-0.5 * x * x) / sqrt(2 * M_PI);
+                double ef = fabs(out[j] - a[j] * x * cdf) / (fabs(a[j]) * (1 + fabs(x)));
+                double eda = fabs(da[j] - (0.5 + d[j] * x * cdf)) / (fabs(d[j]) * (1 + fabs(x)) + 1);
+                double edg = fabs(dg[j] - (-0.25 + d[j] * a[j] * (cdf + x * pdf))) / (fabs(d[j] * a[j]) * (1 + fabs(x)) + 1);
+                CHECK_MSG(ef < 1e-6 && eda < 1e-6 && edg < 1e-6, "%s n %d gate %g: forward %.3g, da %.3g, dgate %.3g",
+                          mlb_simd_name(lv), n, x, ef, eda, edg);
+                wf = fmax(wf, ef);
+                wb = fmax(wb, fmax(eda, edg));
+                // the left tail keeps its relative accuracy (Φ(-12) ~ 2e-33 is a normal float), up to the
+                // rounding of the exponent -x²/2 - 1.27 + P(t) (about an ulp of it: 1.5e-6 at x = -5, 9e-6 at -12)
+                if (x < 0) CHECK_MSG(fabs(out[j] / (a[j] * x * cdf) - 1) < 4e-7 + 1.2e-7 * 0.5 * x * x,
+                                     "%s gate %g: tail %.9g vs %.9g", mlb_simd_name(lv), x, out[j], a[j] * x * cdf);
+            }
+            for (int j = n; j < N; j++)
+                CHECK_MSG(out[j] == -7 && da[j] == 0.5f && dg[j] == -0.25f, "%s n %d: wrote past the row", mlb_simd_name(lv), n);
+        }
+        printf("  GEGLU rows, %s: forward within %.3g, backward %.3g (relative to the terms) of double\n",
+               mlb_simd_name(lv), wf, wb);
+    }
+    if (!levels) printf("  GEGLU rows: no AVX2 here, not run\n");
+    mlb_simd_force(-1);
+}
+
 TEST(error_messages) {
     mlb_conv2d cv = conv_case(1, 2, 1, 1, 3, 3, 3, 1, 1, 0, 0, 0, 0);
     float x[2] = {0}, w[54] = {0}, o[27];
@@ -536,6 +580,7 @@ int main(void) {
     RUN(upsample_and_transpose);
     RUN(sdpa_forward_backward);
     RUN(softmax_rows_vs_double);
+    RUN(geglu_rows_vs_double);
     RUN(error_messages);
     return test_summary();
 }

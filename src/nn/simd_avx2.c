@@ -28,6 +28,12 @@ static inline SIMD_TARGET vf v_add(vf a, vf b) { return _mm256_add_ps(a, b); }
 static inline SIMD_TARGET vf v_sub(vf a, vf b) { return _mm256_sub_ps(a, b); }
 static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm256_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm256_max_ps(a, b); }
+static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm256_div_ps(a, b); }
+static inline SIMD_TARGET vf v_abs(vf a) { return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), a); }
+// where x < 0 the lanes of if_neg, elsewhere those of if_not
+static inline SIMD_TARGET vf v_select_negative(vf x, vf if_neg, vf if_not) {
+    return _mm256_blendv_ps(if_not, if_neg, _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ));
+}
 static inline SIMD_TARGET vf v_fmadd(vf a, vf b, vf c) { return _mm256_fmadd_ps(a, b, c); }
 static inline SIMD_TARGET vf v_fmsub(vf a, vf b, vf c) { return _mm256_fmsub_ps(a, b, c); }
 static inline SIMD_TARGET float v_reduce_add(vf a) {

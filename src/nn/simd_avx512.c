@@ -28,6 +28,12 @@ static inline SIMD_TARGET vf v_add(vf a, vf b) { return _mm512_add_ps(a, b); }
 static inline SIMD_TARGET vf v_sub(vf a, vf b) { return _mm512_sub_ps(a, b); }
 static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm512_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm512_max_ps(a, b); }
+static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm512_div_ps(a, b); }
+static inline SIMD_TARGET vf v_abs(vf a) { return _mm512_abs_ps(a); }
+// where x < 0 the lanes of if_neg, elsewhere those of if_not
+static inline SIMD_TARGET vf v_select_negative(vf x, vf if_neg, vf if_not) {
+    return _mm512_mask_mov_ps(if_not, _mm512_cmp_ps_mask(x, _mm512_setzero_ps(), _CMP_LT_OQ), if_neg);
+}
 static inline SIMD_TARGET vf v_fmadd(vf a, vf b, vf c) { return _mm512_fmadd_ps(a, b, c); }
 static inline SIMD_TARGET vf v_fmsub(vf a, vf b, vf c) { return _mm512_fmsub_ps(a, b, c); }
 static inline SIMD_TARGET float v_reduce_add(vf a) { return _mm512_reduce_add_ps(a); }

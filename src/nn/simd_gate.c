@@ -70,3 +70,24 @@ float mlb_softmax_row(mlb_simd_level level, float* p, int n, float* sum) {
     abort();
 #endif
 }
+
+void mlb_geglu_row(mlb_simd_level level, float* out, const float* a, const float* gate, int n) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_geglu_row_avx512(out, a, gate, n);
+    else mlb_geglu_row_avx2(out, a, gate, n);
+#else
+    (void)level; (void)out; (void)a; (void)gate; (void)n;
+    abort();
+#endif
+}
+
+void mlb_geglu_backward_row(mlb_simd_level level, float* da, float* dgate, const float* dout, const float* a,
+                            const float* gate, int n) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_geglu_backward_row_avx512(da, dgate, dout, a, gate, n);
+    else mlb_geglu_backward_row_avx2(da, dgate, dout, a, gate, n);
+#else
+    (void)level; (void)da; (void)dgate; (void)dout; (void)a; (void)gate; (void)n;
+    abort();
+#endif
+}

@@ -34,6 +34,13 @@ void mlb_groupnorm_backward_group(mlb_simd_level level, float* dx, double* part,
 // partial sum per lane added in a fixed order).
 float mlb_softmax_row(mlb_simd_level level, float* p, int n, float* sum);
 
+// GEGLU over one row of n: out = a · GELU(gate) (exact GELU, x Φ(x)), and its backward that adds
+// dout · GELU(gate) to da and dout · a · GELU'(gate) to dgate. Φ from a fit of erfc (fractional
+// error < 1.2e-7; simd_rows.inc), not libm's erfcf.
+void mlb_geglu_row(mlb_simd_level level, float* out, const float* a, const float* gate, int n);
+void mlb_geglu_backward_row(mlb_simd_level level, float* da, float* dgate, const float* dout, const float* a,
+                            const float* gate, int n);
+
 #ifdef MLB_SIMD_X86
 // The kernels themselves (call only where mlb_simd_kernels() is at least their level).
 void mlb_groupnorm_forward_group_avx512(float* out, double* mean, double* rstd, const float* x, const float* w,
@@ -46,5 +53,9 @@ void mlb_groupnorm_backward_group_avx2(float* dx, double* part, const float* dou
                                        const float* b, float mean, float rstd, int Cg, int HW, int silu);
 float mlb_softmax_row_avx512(float* p, int n, float* sum);
 float mlb_softmax_row_avx2(float* p, int n, float* sum);
+void mlb_geglu_row_avx512(float* out, const float* a, const float* gate, int n);
+void mlb_geglu_row_avx2(float* out, const float* a, const float* gate, int n);
+void mlb_geglu_backward_row_avx512(float* da, float* dgate, const float* dout, const float* a, const float* gate, int n);
+void mlb_geglu_backward_row_avx2(float* da, float* dgate, const float* dout, const float* a, const float* gate, int n);
 #endif
 #endif

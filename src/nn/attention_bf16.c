@@ -32,8 +32,6 @@
 
 #if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
 #define MLB_ATT_KERNEL 1
-#include "nn/avx512_math.h"
-
 #endif
 
 mlb_status sdpa_forward_bf16(float* out, float* lse, const float* q, const float* k, const float* v, int B, int Tq,

@@ -1,22 +1,24 @@
 // simd_rows.inc in 8 fp32 lanes (AVX2 + FMA): group norm's float pass and the attention's row
 // softmax on CPUs without AVX-512, where the scalar loops and libm's expf were ~20% of a `tiny`
-// generation (docs/benchmarks.md). The exp and sigmoid are the AVX-512 ones' bits lane for lane;
+// generation (docs/benchmarks.md). The exp and sigmoid give the 16-lane kernels' bits lane for lane;
 // the sums are split over other lanes, so results differ from the 16-lane kernels by rounding.
 #include <math.h>
 #include <stddef.h>
 #include "nn/simd_rows.h"
 
 #ifdef MLB_SIMD_X86
-#include "nn/avx2_math.h"
+#include <immintrin.h>
 
-#define SIMD_TARGET MLB_AVX2_TARGET
+#define SIMD_TARGET __attribute__((target("avx2,fma")))
 #define SIMD_LANES 8
 #define SIMD_NAME(f) f##_avx2
 typedef __m256 vf;
 typedef __m256i vmask;
 typedef __m256d vd;
 
-static inline SIMD_TARGET vmask v_lanes(size_t n) { return mlb_lanes8(n); }
+static inline SIMD_TARGET vmask v_lanes(size_t n) {
+    return _mm256_cmpgt_epi32(_mm256_set1_epi32(n >= 8 ? 8 : (int)n), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+}
 static inline SIMD_TARGET vf v_loadz(vmask k, const float* p) { return _mm256_maskload_ps(p, k); }
 static inline SIMD_TARGET vf v_load_or(vmask k, const float* p, float fill) {
     return _mm256_blendv_ps(_mm256_set1_ps(fill), _mm256_maskload_ps(p, k), _mm256_castsi256_ps(k));
@@ -46,8 +48,17 @@ static inline SIMD_TARGET float v_reduce_max(vf a) {
     s = _mm_max_ps(s, _mm_movehl_ps(s, s));
     return _mm_cvtss_f32(_mm_max_ss(s, _mm_movehdup_ps(s)));
 }
-static inline SIMD_TARGET vf v_exp_nonpositive(vf x) { return mlb_exp_nonpositive_ps8(x); }
-static inline SIMD_TARGET vf v_sigmoid(vf y) { return mlb_sigmoid_ps8(y); }
+static inline SIMD_TARGET vf v_fnmadd(vf a, vf b, vf c) { return _mm256_fnmadd_ps(a, b, c); }
+static inline SIMD_TARGET vf v_round(vf a) { return _mm256_round_ps(a, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC); }
+// 2^n built in the exponent field, applied as two factors 2^(n/2) (each >= 2^-75: normal) so that a
+// subnormal result is rounded once, as VSCALEFPS rounds it: the 16-lane kernels' bits
+static inline SIMD_TARGET __m256 pow2i(__m256i n) {
+    return _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(n, _mm256_set1_epi32(127)), 23));
+}
+static inline SIMD_TARGET vf v_scale_pow2(vf p, vf n) {
+    const __m256i ni = _mm256_cvtps_epi32(n), n1 = _mm256_srai_epi32(ni, 1);   // n1 = floor(n / 2)
+    return _mm256_mul_ps(_mm256_mul_ps(p, pow2i(n1)), pow2i(_mm256_sub_epi32(ni, n1)));
+}
 
 static inline SIMD_TARGET vd vd_zero(void) { return _mm256_setzero_pd(); }
 static inline SIMD_TARGET vd vd_set1(double a) { return _mm256_set1_pd(a); }

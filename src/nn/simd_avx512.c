@@ -7,16 +7,16 @@
 #include "nn/simd_rows.h"
 
 #ifdef MLB_SIMD_X86
-#include "nn/avx512_math.h"
+#include <immintrin.h>
 
-#define SIMD_TARGET MLB_AVX512_TARGET
+#define SIMD_TARGET __attribute__((target("avx512f,avx512bw,avx512vl,avx512dq")))
 #define SIMD_LANES 16
 #define SIMD_NAME(f) f##_avx512
 typedef __m512 vf;
 typedef __mmask16 vmask;
 typedef __m512d vd;
 
-static inline SIMD_TARGET vmask v_lanes(size_t n) { return mlb_lanes16(n); }
+static inline SIMD_TARGET vmask v_lanes(size_t n) { return n >= 16 ? (vmask)0xFFFF : (vmask)((1u << n) - 1); }
 static inline SIMD_TARGET vf v_loadz(vmask k, const float* p) { return _mm512_maskz_loadu_ps(k, p); }
 static inline SIMD_TARGET vf v_load_or(vmask k, const float* p, float fill) {
     return _mm512_mask_loadu_ps(_mm512_set1_ps(fill), k, p);
@@ -38,8 +38,9 @@ static inline SIMD_TARGET vf v_fmadd(vf a, vf b, vf c) { return _mm512_fmadd_ps(
 static inline SIMD_TARGET vf v_fmsub(vf a, vf b, vf c) { return _mm512_fmsub_ps(a, b, c); }
 static inline SIMD_TARGET float v_reduce_add(vf a) { return _mm512_reduce_add_ps(a); }
 static inline SIMD_TARGET float v_reduce_max(vf a) { return _mm512_reduce_max_ps(a); }
-static inline SIMD_TARGET vf v_exp_nonpositive(vf x) { return mlb_exp_nonpositive_ps(x); }
-static inline SIMD_TARGET vf v_sigmoid(vf y) { return mlb_sigmoid_ps(y); }
+static inline SIMD_TARGET vf v_fnmadd(vf a, vf b, vf c) { return _mm512_fnmadd_ps(a, b, c); }
+static inline SIMD_TARGET vf v_round(vf a) { return _mm512_roundscale_ps(a, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC); }
+static inline SIMD_TARGET vf v_scale_pow2(vf p, vf n) { return _mm512_scalef_ps(p, n); }
 
 static inline SIMD_TARGET vd vd_zero(void) { return _mm512_setzero_pd(); }
 static inline SIMD_TARGET vd vd_set1(double a) { return _mm512_set1_pd(a); }

@@ -273,6 +273,8 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         }
     }
     if (s) return s;
+    unsigned char* done = calloc((size_t)total + 1, 1);   // [total]: the rows finished (by any process)
+    if (!done) return mlb_fail(MLB_ERR_NOMEM, "text3d: out of memory");   // (before any collective)
     // the relighting light at the runs' own environment resolution (the tiny preset's is small)
     mlb_text3d_truth truth;
     mlb_envmap env = {0};
@@ -293,8 +295,6 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     // afterwards. A run is the same bytes on any number of processes or threads (test_pipeline).
     double gen_wall = 0;
     int done_here = 0, mine = 0;
-    unsigned char* done = calloc((size_t)total + 1, 1);
-    if (!done) return mlb_fail(MLB_ERR_NOMEM, "text3d: out of memory");   // (before any collective)
     for (int i = rank; i < total; i += size) mine++;
     for (int i = rank; !s && i < total; i += size) {
         int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);

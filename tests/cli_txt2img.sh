@@ -22,6 +22,11 @@ printf '\x10\x00\x00\x00\x00\x00\x00\x00{}              ' > "$T/empty.safetensor
 expect 1 "empty checkpoint" -- $M sd txt2img -m "$T/empty.safetensors" -p x -o "$T/a.png"
 err_has "empty checkpoint names the file" "empty.safetensors"
 [ -e "$T/a.png" ] && bad "no output after errors" || ok "no output after errors"
+# bf16 asked for by name where the CPU cannot: one warning; a preset's own bf16 (no option) says nothing
+expect 0 "--precision bf16 without the CPU's bf16" -- env MATLABER_CPU_BF16=0 $M --device cpu --precision bf16 device
+err_has "the fallback warned" "warn. --precision bf16: off (.MATLABER_CPU_BF16); the CPU computes in fp32"
+expect 0 "no --precision" -- env MATLABER_CPU_BF16=0 $M --device cpu device
+grep -q 'warn' "$T/err" && bad "a warning without --precision: $(cat "$T/err")" || ok "no warning without --precision"
 
 D=${MLB_SHARED_DATA:-$(dirname "$0")/../../shared/data}
 R="$D/sd_reference"

@@ -15,7 +15,6 @@
 #include <pthread.h>
 #include "matlaber/nn.h"
 #include "core/real.h"
-#include "matlaber/log.h"
 #include "nn/gemm_bf16.h"
 
 #ifdef MLB_F64
@@ -157,13 +156,7 @@ static void bf16_shard(int ta, int tb, int M, int N, int K, float alpha, const f
 
 void mlb_gemm_bf16(int ta, int tb, int M, int N, int K, float alpha, const float* A, int lda, const float* B,
                    int ldb, float beta, float* C, int ldc) {
-    if (!mlb_gemm_bf16_native()) {   // no AVX-512 BF16 here (or forced off): the fp32 GEMM, said once
-        static int told;
-        if (!told) {
-            told = 1;
-            mlb_log(MLB_LOG_INFO, "bf16 GEMM: %s; computing in fp32",
-                    getenv("MATLABER_CPU_BF16") ? "off ($MATLABER_CPU_BF16)" : "this CPU has no AVX-512 BF16");
-        }
+    if (!mlb_gemm_bf16_native()) {   // no AVX-512 BF16 here (or forced off): the fp32 GEMM (the callers say so)
         mlb_gemm(ta, tb, M, N, K, alpha, A, lda, B, ldb, beta, C, ldc);
         return;
     }

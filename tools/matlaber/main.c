@@ -10,6 +10,7 @@
 #include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
+#include "matlaber/nn.h"
 #include "matlaber/progress.h"
 #include "matlaber/threads.h"
 
@@ -133,6 +134,11 @@ static int run_command(int argc, char** argv) {
         mlb_status s = mlb_device_option(NULL, &d);   // $MATLABER_DEVICE, else auto
         if (s) return cli_fail(s, "$MATLABER_DEVICE");
     }
+    // asked for by name where the CPU cannot: said once here (a preset's own bf16 falls back quietly)
+    if (mlb_gemm_precision_chosen() && mlb_gemm_precision_current() == MLB_GEMM_BF16 &&
+        mlb_device_current() == MLB_DEVICE_CPU && !mlb_gemm_bf16_native())
+        mlb_log(MLB_LOG_WARN, "--precision bf16: %s; the CPU computes in fp32",
+                getenv("MATLABER_CPU_BF16") ? "off ($MATLABER_CPU_BF16)" : "this CPU has no AVX-512 BF16");
     const char* cmd = argv[i];
     int sub_argc = argc - i;
     char** sub_argv = argv + i;

@@ -2,7 +2,9 @@
 // in fp32 and with bf16 GEMM operands (the CPU's bf16 table, backend.h), each followed by a profile
 // of one forward: every op of the table timed and its GEMM FLOPs counted, so the table says where
 // the time goes. Weights uniform in [-0.02, 0.02] made in memory (no file: the time does not
-// depend on them). Usage: bench_unet_cpu [--reps N] [--batch N] [--latent N]. docs/benchmarks.md.
+// depend on them). Usage: bench_unet_cpu [--reps N] [--batch N] [--latent N] [--model UNET]: with
+// --model, that UNet (a file or a diffusers folder, e.g. models/matlaber-tiny/unet) instead of SD 1.5.
+// docs/benchmarks.md.
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,11 +42,13 @@ static void profile(const mlb_unet* u, float* out, const float* x, const float* 
 int main(int argc, char** argv) {
     mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
     int reps = 1, N = 2, L = 64;
+    const char* model = NULL;
     for (int i = 1; i < argc; i++) {
         if (i + 1 < argc && !strcmp(argv[i], "--reps")) reps = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--batch")) N = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--latent")) L = atoi(argv[++i]);
-        else { fprintf(stderr, "usage: bench_unet_cpu [--reps 1] [--batch 2] [--latent 64]\n"); return 2; }
+        else if (i + 1 < argc && !strcmp(argv[i], "--model")) model = argv[++i];
+        else { fprintf(stderr, "usage: bench_unet_cpu [--reps 1] [--batch 2] [--latent 64] [--model UNET]\n"); return 2; }
     }
     if (reps < 1) reps = 1;
     if (N < 1) N = 1;
@@ -54,12 +58,19 @@ int main(int argc, char** argv) {
     mlb_cpu_detect(&cpu);
     mlb_unet_config cfg = mlb_unet_sd15_config();
     mlb_unet* u;
-    TRY(mlb_unet_create(&cfg, MLB_DEVICE_CPU, &u));
-    mlb_rng_fill_uniform(u->params, u->n_params, 7, 1, 0, -0.02f, 0.02f);
-    printf("bench_unet_cpu: %s, %d threads, OpenBLAS kernels %s, bf16 GEMM %s; SD 1.5 UNet (%.1f M params), batch %d, "
-           "latent %d², context 77 x 768; best of %d\n", cpu.model, omp_get_max_threads(), mlb_blas_corename(),
-           mlb_gemm_bf16_native() ? "AVX-512 BF16" : "none (fp32 fallback)", u->n_params / 1e6, N, L, reps);
-    size_t nx = (size_t)N * 4 * L * L, nc = (size_t)N * 77 * 768;
+    if (model) {
+        TRY(mlb_unet_load(model, NULL, &u));
+        cfg = u->cfg;
+    } else {
+        TRY(mlb_unet_create(&cfg, MLB_DEVICE_CPU, &u));
+        mlb_rng_fill_uniform(u->params, u->n_params, 7, 1, 0, -0.02f, 0.02f);
+    }
+    printf("bench_unet_cpu: %s, %d threads, OpenBLAS kernels %s, bf16 GEMM %s; %s UNet (%.1f M params), batch %d, "
+           "latent %d², context 77 x %d; best of %d\n", cpu.model, omp_get_max_threads(), mlb_blas_corename(),
+           mlb_gemm_bf16_native() ? "AVX-512 BF16" : "none (fp32 fallback)", model ? model : "SD 1.5",
+           u->n_params / 1e6, N, L, cfg.context_dim, reps);
+    if (cfg.in_channels != 4 || cfg.out_channels != 4) { fprintf(stderr, "bench_unet_cpu: not a 4-channel UNet\n"); return 1; }
+    size_t nx = (size_t)N * 4 * L * L, nc = (size_t)N * 77 * cfg.context_dim;
     float *x = malloc(nx * 4), *ctx = malloc(nc * 4), *out = malloc(nx * 4), *ref = malloc(nx * 4), t[64];
     if (!x || !ctx || !out || !ref || N > 64) return 1;
     mlb_rng_fill_uniform(x, nx, 7, 2, 0, -1, 1);

@@ -4,8 +4,9 @@
 // architecture with random weights at small sizes; and an estimate for the real VAE at 512² from
 // the GEMM FLOP count and this machine's measured GEMM rate. Prints tables; see docs/vae.md.
 //   build/bench/bench_vae [tiny-vae-path] [--sd512]    (--sd512 also times the real size at 512²)
-//   build/bench/bench_vae --profile S [--precision fp32|bf16]: only where the time of the real VAE goes
-//     at S² (encode with its cache, its backward to the image, decode), each op of the CPU's table timed.
+//   build/bench/bench_vae --profile S [--batch B] [--precision fp32|bf16] [VAE]: only where the time of the
+//     real VAE (or the VAE given) goes at B x S² (encode with its cache, its backward to the image,
+//     decode), each op of the CPU's table timed.
 #include <cblas.h>
 #include <omp.h>
 #include <stdio.h>
@@ -85,10 +86,19 @@ fail:
     return 1;
 }
 
+// The VAE named on the command line (an argument that is no option nor an option's value), or NULL.
+static const char* positional_path(int argc, char** argv) {
+    for (int i = 1; i < argc; i++) {
+        if (argv[i][0] != '-') return argv[i];
+        if (strcmp(argv[i], "--sd512")) i++;   // every other option takes a value
+    }
+    return NULL;
+}
+
 static const char* find_tiny(int argc, char** argv) {
     static char p[2048];
     struct stat s;
-    for (int i = 1; i < argc; i++) if (argv[i][0] != '-') return argv[i];
+    if (positional_path(argc, argv)) return positional_path(argc, argv);
     const char* env = getenv("MLB_SHARED_DATA");
     const char* bases[] = {env, "../shared/data", "../../shared/data", "../../../shared/data"};
     for (int i = 0; i < 4; i++) {
@@ -102,17 +112,20 @@ static const char* find_tiny(int argc, char** argv) {
 // Where the real SD VAE's time goes at S² on the CPU: encode (with the cache), its backward to the
 // image and decode, once each through the profiling copy of the CPU's op table (unet_profile.h),
 // after a first encode + backward that is not timed.
-static int profile_sd_vae(int S, mlb_gemm_precision prec) {
+static int profile_sd_vae(int S, int B, const char* path, mlb_gemm_precision prec) {
     mlb_vae_config g = mlb_vae_sd_config();
     mlb_vae* v = NULL;
-    if (S % 8 || mlb_vae_create(&g, &v) || mlb_vae_use_device(v, MLB_DEVICE_CPU, prec)) {
-        fprintf(stderr, "bench_vae: --profile %d: %s\n", S, S % 8 ? "the size must be a multiple of 8" : mlb_last_error());
+    mlb_status made = S % 8 || B < 1 ? MLB_ERR_ARG : path ? mlb_vae_load(path, NULL, &v) : mlb_vae_create(&g, &v);
+    if (made || mlb_vae_use_device(v, MLB_DEVICE_CPU, prec)) {
+        fprintf(stderr, "bench_vae: --profile %d: %s\n", S,
+                S % 8 || B < 1 ? "the size must be a multiple of 8, the batch positive" : mlb_last_error());
         mlb_vae_free(v);
         return 1;
     }
-    mlb_vae_init_random(v, 1, 1.0f);
+    if (path) g = v->cfg;
+    else mlb_vae_init_random(v, 1, 1.0f);
     int h = mlb_vae_latent_size(&g, S);
-    size_t ni = (size_t)3 * S * S, nz = (size_t)4 * h * h;
+    size_t ni = (size_t)B * 3 * S * S, nz = (size_t)B * 4 * h * h;
     float *img = malloc(ni * 4), *dimg = calloc(ni, 4), *mean = malloc(nz * 4), *dm = malloc(nz * 4);
     mlb_rng_fill_uniform(img, ni, 3, 1, 0, -1, 1);
     mlb_rng_fill_normal(dm, nz, 3, 2, 0, 0, 1);
@@ -126,19 +139,19 @@ static int profile_sd_vae(int S, mlb_gemm_precision prec) {
     mlb_vae_cache cache = {0};
     // one encode + backward first, unprofiled: an SDS loop's steady state (the cache, with the
     // scratch at its end, allocated and its pages mapped by an earlier step)
-    int rc = mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(v, &cache, dm, NULL, dimg);
+    int rc = mlb_vae_encode(v, img, B, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(v, &cache, dm, NULL, dimg);
     if (rc) fprintf(stderr, "bench_vae: warm-up: %s\n", mlb_last_error());
     for (int pass = 0; pass < 3 && !rc; pass++) {
         profile_wrap(keep ? keep : mlb_backend_cpu(), &w);
         v->mirror_ops = &w;
         double t0 = mlb_now_seconds();
-        mlb_status s = pass == 0 ? mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache)
+        mlb_status s = pass == 0 ? mlb_vae_encode(v, img, B, S, S, mean, NULL, &cache)
                      : pass == 1 ? mlb_vae_encode_backward(v, &cache, dm, NULL, dimg)
-                                 : mlb_vae_decode(v, mean, 1, h, h, img);
+                                 : mlb_vae_decode(v, mean, B, h, h, img);
         double dt = mlb_now_seconds() - t0;
         v->mirror_ops = keep;
         if (s) { fprintf(stderr, "bench_vae: %s: %s\n", what[pass], mlb_last_error()); rc = 1; break; }
-        printf("\nprofile, SD VAE %s, 1 x %d², %s GEMMs on the CPU (%.2f s):\n", what[pass], S,
+        printf("\nprofile, %s VAE %s, %d x %d², %s GEMMs on the CPU (%.2f s):\n", path ? path : "SD", what[pass], B, S,
                mlb_gemm_precision_name(prec), dt);
         profile_print(names);
     }
@@ -153,17 +166,18 @@ int main(int argc, char** argv) {
     // default spin-wait after every OpenMP loop takes the second core from OpenBLAS's GEMM threads
     // (5-15x slower on 2 cores, docs/vae.md), and both are read only when the runtimes load.
     mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
-    int sd512 = 0, profile_size = 0;
+    int sd512 = 0, profile_size = 0, profile_batch = 1;
     mlb_gemm_precision prec = MLB_GEMM_FP32;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--sd512")) sd512 = 1;
         else if (i + 1 < argc && !strcmp(argv[i], "--profile")) profile_size = atoi(argv[++i]);
+        else if (i + 1 < argc && !strcmp(argv[i], "--batch")) profile_batch = atoi(argv[++i]);
         else if (i + 1 < argc && !strcmp(argv[i], "--precision") && mlb_gemm_precision_parse(argv[++i], &prec)) {
             fprintf(stderr, "bench_vae: %s\n", mlb_last_error());
             return 2;
         }
     }
-    if (profile_size > 0) return profile_sd_vae(profile_size, prec);
+    if (profile_size > 0) return profile_sd_vae(profile_size, profile_batch, positional_path(argc, argv), prec);
     int threads = omp_get_max_threads();
     mlb_set_threads(threads);
     const char* wp = getenv("OMP_WAIT_POLICY");

@@ -665,7 +665,7 @@ int main(int argc, char** argv) {
         uo.seed = 1;
         mlb_vae_config vc = mlb_vae_sd_config();
         mlb_status s = mlb_unet_write_random(&uc, &uo, pu);
-        mlb_unet_options lo = {NULL, device == MLB_DEVICE_CPU && precision == MLB_GEMM_BF16};   // as sd_model.c
+        mlb_unet_options lo = mlb_unet_options_for(device, precision);   // as the program loads it
         if (!s) s = mlb_unet_load(pu, &lo, &tu);
         if (!s) s = mlb_vae_create(&vc, &tv);
         if (!s) {

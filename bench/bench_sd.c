@@ -274,7 +274,7 @@ int main(int argc, char** argv) {
         if (mlb_unet_write_random(&c, &o, pu)) { rc = fail("writing the UNet"); goto out; }
         double t1 = mlb_now_seconds();
         mlb_unet* u = NULL;
-        mlb_unet_options uo = {NULL, prec == MLB_GEMM_BF16};   // as the program loads it (sd_model.c)
+        mlb_unet_options uo = mlb_unet_options_for(MLB_DEVICE_CPU, prec);   // as the program loads it
         if (mlb_unet_load(pu, &uo, &u)) { rc = fail("loading the UNet"); goto out; }
         if (mlb_unet_use_device(u, MLB_DEVICE_CPU, prec)) { rc = fail("UNet precision"); mlb_unet_free(u); goto out; }
         double t2 = mlb_now_seconds();

@@ -4,6 +4,7 @@
 // through mlb_st_open_memory and through mlb_st_open on a written file.
 #include "test.h"
 #include "matlaber/fileio.h"
+#include "matlaber/cpu.h"
 #include "matlaber/half.h"
 #include "matlaber/safetensors.h"
 #include <dirent.h>
@@ -90,6 +91,31 @@ TEST(f16_vs_compiler) {
     CHECK_MSG(bad == 0, "%d conversions differ from _Float16", bad);
 }
 #endif
+
+// The array conversion (F16C where the CPU has it, in parallel blocks) gives the scalar loop's bits
+// for every pattern, from an unaligned source, over lengths that end mid-vector and span blocks.
+TEST(f16_array_matches_scalar) {
+    size_t n = (size_t)65536 * 9 + 5;   // > two 2^18-value blocks
+    unsigned char* raw = malloc(2 * n + 1);
+    float *fast = malloc(n * sizeof(float)), *slow = malloc(n * sizeof(float));
+    REQUIRE(raw && fast && slow);
+    for (size_t i = 0; i < n; i++) { uint16_t h = (uint16_t)(i * 40503u); memcpy(raw + 1 + 2 * i, &h, 2); }
+    size_t lens[] = {0, 1, 7, 8, 9, 65536 + 3, n};
+    int bad = 0;
+    for (int k = 0; k < 7; k++) {
+        memset(fast, 0xA5, n * sizeof(float));
+        memset(slow, 0x5A, n * sizeof(float));
+        mlb_f16_to_f32_array(fast, raw + 1, lens[k]);
+        mlb_f16_to_f32_array_scalar(slow, raw + 1, lens[k]);
+        if (memcmp(fast, slow, lens[k] * sizeof(float))) bad++;
+        if (lens[k] < n && memcmp(fast + lens[k], (unsigned char[4]){0xA5, 0xA5, 0xA5, 0xA5}, 4)) bad++;   // no write past n
+    }
+    CHECK_MSG(bad == 0, "%d lengths differ from the scalar conversion", bad);
+    mlb_cpu_info f;
+    mlb_cpu_detect(&f);
+    printf("  f16 -> f32 arrays: %s path, every bit pattern as the scalar loop\n", f.f16c ? "F16C" : "scalar");
+    free(raw); free(fast); free(slow);
+}
 
 TEST(bf16_exhaustive) {
     static const struct { float f; uint16_t h; } k[] = {
@@ -486,6 +512,13 @@ TEST(read_drops_pages_keeps_data) {
         CHECK(mlb_st_read_f32(st, "big", out, N) == MLB_OK && memcmp(out, w, sizeof(float) * N) == 0);
     }
     CHECK(memcmp(mlb_st_find(st, "big")->data, w, sizeof(float) * N) == 0);
+    // the bytes as stored, only for the dtype and size asked (pages dropped the same way)
+    memset(out, 0, sizeof(float) * N);
+    CHECK(mlb_st_read_raw(st, "big", MLB_DT_F32, out, sizeof(float) * N) == MLB_OK && memcmp(out, w, sizeof(float) * N) == 0);
+    CHECK(mlb_st_read_raw(st, "big", MLB_DT_F16, out, sizeof(float) * N) == MLB_ERR_FORMAT);
+    CHECK(strstr(mlb_last_error(), "tensor 'big' is F32, 24000 bytes; expected F16") != NULL);
+    CHECK(mlb_st_read_raw(st, "big", MLB_DT_F32, out, sizeof(float) * N - 4) == MLB_ERR_FORMAT);
+    CHECK(mlb_st_read_raw(st, "nope", MLB_DT_F32, out, 4) == MLB_ERR_NOT_FOUND);
     CHECK(mlb_st_read_f32(st, "head", out, 3) == MLB_OK && memcmp(out, w, 3 * sizeof(float)) == 0);
     mlb_st_close(st);
     unlink(path);
@@ -687,6 +720,7 @@ int main(void) {
 #ifdef __FLT16_MANT_DIG__
     RUN(f16_vs_compiler);
 #endif
+    RUN(f16_array_matches_scalar);
     RUN(bf16_exhaustive);
     RUN(malformed_size_and_length);
     RUN(malformed_text);

@@ -10,12 +10,14 @@
 // bf16 (mlb_unet_options.bf16_weights), which then refuses every other device and precision; fp16
 // and tf32 on the CPU (and going back to fp32) give the fp32 bits exactly; with the fp32 fallback
 // forced, bf16 = fp32 bits.
-// Skipped (saying why) on a CPU without AVX-512 BF16, except the fp32 checks.
+// And the UNet's weights kept as the file's F16 values (mlb_unet_options.f16_weights): the fp32 bits.
+// Skipped (saying why) on a CPU without AVX-512 BF16, except the fp32 and f16-weight checks.
 #include "test.h"
 #include <omp.h>
 #include "matlaber/backend.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
+#include "matlaber/sd_folder.h"
 #include "matlaber/unet.h"
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
@@ -75,7 +77,7 @@ static void unet_case(int sd2) {
         omp_set_num_threads(threads);
         CHECK_MSG(!memcmp(got, got1, nx * 4), "bf16 UNet: 1 thread differs from 2");
         // loaded with its linear and conv weights stored in bf16: the same bits at half the memory
-        mlb_unet_options o16 = {NULL, 1};
+        mlb_unet_options o16 = {NULL, 1, 0};
         mlb_unet* u16 = NULL;
         CHECK_MSG(mlb_unet_load(path, &o16, &u16) == MLB_OK, "%s", mlb_last_error());
         if (u16) {
@@ -105,6 +107,59 @@ static void unet_case(int sd2) {
     CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
     free(x); free(ctx); free(ref); free(got); free(got1);
     mlb_unet_free(u);
+}
+
+// Weights kept as the file's F16 values (mlb_unet_options.f16_weights, what the program does on a CPU
+// without AVX-512 BF16): the fp32 bits at half the weights' memory; an F32 file loads fp32 instead
+// (keeping it half would round it); and such a UNet refuses what needs fp32 weights.
+TEST(unet_f16_weights) {
+    mlb_unet_config cfg = mlb_unet_tiny_config(0);
+    const char* dir = test_tmpdir("sd_f16w");
+    char p16[600], p32[600];
+    snprintf(p16, sizeof p16, "%s/random_f16.safetensors", dir);
+    snprintf(p32, sizeof p32, "%s/random_f32.safetensors", dir);
+    mlb_unet_random_options o = mlb_unet_random_default_options();
+    o.seed = 21;
+    o.dtype = MLB_DT_F16;
+    REQUIRE(mlb_unet_write_random(&cfg, &o, p16) == MLB_OK);
+    o.dtype = MLB_DT_F32;
+    REQUIRE(mlb_unet_write_random(&cfg, &o, p32) == MLB_OK);
+    mlb_unet_options keep16 = {NULL, 0, 1};
+    mlb_unet *ref_u = NULL, *u16 = NULL, *u32 = NULL;
+    REQUIRE(mlb_unet_load(p16, NULL, &ref_u) == MLB_OK);
+    CHECK_MSG(mlb_unet_load(p16, &keep16, &u16) == MLB_OK, "%s", mlb_last_error());
+    CHECK_MSG(mlb_unet_load(p32, &keep16, &u32) == MLB_OK, "%s", mlb_last_error());
+    if (!u16 || !u32) { mlb_unet_free(ref_u); mlb_unet_free(u16); mlb_unet_free(u32); return; }
+    CHECK(u16->f16_weights && !u32->f16_weights && !ref_u->f16_weights);
+    CHECK(mlb_unet_param_count(u16) == mlb_unet_param_count(ref_u));
+    const int N = 2, H = 16, W = 8, Tc = 5;
+    size_t nx = (size_t)N * 4 * H * W, nc = (size_t)N * Tc * cfg.context_dim;
+    float *x = malloc(nx * 4), *ctx = malloc(nc * 4), *ref = malloc(nx * 4), *got = malloc(nx * 4), t[2] = {11.0f, 640.0f};
+    REQUIRE(x && ctx && ref && got);
+    fill(x, nx, 3);
+    fill(ctx, nc, 4);
+    CHECK(mlb_unet_forward(ref_u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    memset(got, 0, nx * 4);
+    CHECK(mlb_unet_forward(u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK_MSG(!memcmp(got, ref, nx * 4), "f16-stored weights changed the fp32 bits");
+    // fp32 (and bf16 where the CPU lacks it) keep the stored table; what needs fp32 weights refuses
+    CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK);
+    CHECK(mlb_unet_forward(u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
+    CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_UNSUPPORTED);
+    CHECK(mlb_unet_forward_on(mlb_backend_cpu(), u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+    mlb_unet* moved = NULL;
+    CHECK(mlb_unet_to_device(u16, MLB_DEVICE_CPU, &moved) == MLB_ERR_UNSUPPORTED && !moved);
+    char out_dir[700];
+    snprintf(out_dir, sizeof out_dir, "%s/saved", dir);
+    CHECK(mlb_unet_save_folder(u16, out_dir, MLB_DT_F16) == MLB_ERR_ARG);
+    // and the program's choice: f16 on a CPU that does not compute bf16 natively, never off the CPU
+    mlb_unet_options cpu = mlb_unet_options_for(MLB_DEVICE_CPU, MLB_GEMM_FP32), gpu = mlb_unet_options_for(MLB_DEVICE_CUDA, MLB_GEMM_FP16);
+    CHECK(cpu.f16_weights && !cpu.bf16_weights && !gpu.f16_weights && !gpu.bf16_weights);
+    mlb_unet_options cpu_bf16 = mlb_unet_options_for(MLB_DEVICE_CPU, MLB_GEMM_BF16);
+    CHECK(cpu_bf16.bf16_weights == mlb_gemm_bf16_native() && cpu_bf16.f16_weights == !mlb_gemm_bf16_native());
+    printf("  tiny SD1 UNet with f16 weights: the fp32 bits; an F32 file loads fp32\n");
+    free(x); free(ctx); free(ref); free(got);
+    mlb_unet_free(ref_u); mlb_unet_free(u16); mlb_unet_free(u32);
 }
 
 TEST(unet_sd1) {
@@ -173,6 +228,7 @@ TEST(vae) {
 }
 
 int main(void) {
+    RUN(unet_f16_weights);
     RUN(unet_sd1);
     RUN(unet_sd2);
     RUN(vae);

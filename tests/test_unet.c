@@ -217,7 +217,7 @@ TEST(errors) {
         }
         snprintf(out, sizeof out, "%s/broken%d.safetensors", dir, mode);
         REQUIRE(mlb_st_write(out, e, k, NULL, 0) == MLB_OK);
-        mlb_unet_options opt = {ref_path("sd1_diffusers/unet/config.json"), 0};
+        mlb_unet_options opt = {ref_path("sd1_diffusers/unet/config.json"), 0, 0};
         mlb_status s = mlb_unet_load(out, &opt, &u);
         CHECK(s == (mode == 0 ? MLB_ERR_NOT_FOUND : MLB_ERR_FORMAT) && u == NULL);
         CHECK(strstr(mlb_last_error(), "up_blocks.1.attentions.2.transformer_blocks.0.attn2.to_v.weight") != NULL);

@@ -48,5 +48,9 @@ const mlb_backend* mlb_backend_cpu(void);
 // behind the weight pointers; mlb_unet_options.bf16_weights): the bf16 table's results bit for bit,
 // at half the weights' memory; the backward of linear and conv fails (MLB_ERR_UNSUPPORTED).
 const mlb_backend* mlb_backend_cpu_bf16_stored(void);
+// The CPU's fp32 table for a model whose linear and conv weights are IEEE half in memory (uint16_t
+// behind the weight pointers; mlb_unet_options.f16_weights), widened per call: the fp32 table's
+// results bit for bit. No backward through those weights.
+const mlb_backend* mlb_backend_cpu_f16_stored(void);
 
 #endif

@@ -9,7 +9,7 @@ typedef struct {
     char vendor[16];  // "GenuineIntel", "AuthenticAMD", ...
     int family, model_id;   // display family and model (family 25 = AMD Zen 3/4, 26 = Zen 5)
     // Instruction sets usable here: the CPU has them and the OS saves their registers.
-    int avx2, fma, avx512f, avx512bw, avx512vl, avx512dq, avx512cd, avx512_bf16, avx512_fp16;
+    int avx2, fma, f16c, avx512f, avx512bw, avx512vl, avx512dq, avx512cd, avx512_bf16, avx512_fp16;
     int amx_tile, amx_bf16;   // AMX tiles (Linux must also grant them per process: arch_prctl)
 } mlb_cpu_info;
 

@@ -15,7 +15,8 @@ uint16_t mlb_f32_to_bf16(float f);
 
 // Arrays. `src` may be unaligned (it is read with memcpy), so these accept pointers straight
 // into a safetensors mapping. dst and src must not overlap.
-void mlb_f16_to_f32_array(float* dst, const void* src, size_t n);
+void mlb_f16_to_f32_array(float* dst, const void* src, size_t n);   // F16C where the CPU has it, threaded
+void mlb_f16_to_f32_array_scalar(float* dst, const void* src, size_t n);   // the portable loop (tests)
 void mlb_f32_to_f16_array(void* dst, const float* src, size_t n);
 void mlb_bf16_to_f32_array(float* dst, const void* src, size_t n);
 void mlb_f32_to_bf16_array(void* dst, const float* src, size_t n);

@@ -47,6 +47,9 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt, 
 void mlb_sd_model_free(mlb_sd_model* m);   // NULL is fine
 // Frees the tokenizer and text encoder once the prompts are encoded (saves their memory).
 void mlb_sd_model_drop_text(mlb_sd_model* m);
+// Frees the UNet once sampling is done, before the VAE decodes (txt2img: the decoder's activations at
+// 512² then share the memory with the VAE alone, not with SD 1.5's 1.7-3.4 GB of UNet weights).
+void mlb_sd_model_drop_unet(mlb_sd_model* m);
 
 // The text conditioning of one prompt: out [77, text width] (tokenised with the model's padding).
 mlb_status mlb_sd_model_encode_prompt(const mlb_sd_model* m, const char* prompt, float* out);

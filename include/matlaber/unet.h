@@ -79,9 +79,10 @@ typedef struct {
 struct mlb_unet {
     mlb_unet_config cfg;
     mlb_device device;                              // where params live (CPU unless mlb_unet_to_device)
-    float* params;                                  // with bf16_weights: ndim >= 2 tensors hold uint16_t
+    float* params;                                  // with bf16/f16_weights: ndim >= 2 tensors hold 16-bit values
     size_t n_params;                                // parameters (not floats of storage)
     int bf16_weights;                               // mlb_unet_options.bf16_weights, when it took effect
+    int f16_weights;                                // mlb_unet_options.f16_weights, when it took effect
     float *time1_w, *time1_b, *time2_w, *time2_b;   // [TE, block_out[0]], [TE, TE]
     float *conv_in_w, *conv_in_b;                   // [block_out[0], in, 3, 3]
     mlb_unet_resnet down_res[MLB_UNET_MAX_LEVELS][MLB_UNET_MAX_LAYERS];
@@ -108,7 +109,18 @@ typedef struct {
     // mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_BF16) on fp32 weights). Needs AVX-512 BF16:
     // elsewhere the weights load in fp32 (said in the log) and bf16_weights stays 0 in the UNet.
     int bf16_weights;
+    // 1: keep the linear and conv weights as the IEEE half values the file stores (half the memory)
+    // and run on the CPU's fp32 ops, each call widening its weight (mlb_backend_cpu_f16_stored: the
+    // same bits as fp32 weights). Only when every such weight is F16 in the file (else fp32, said in
+    // the log: rounding F32 weights would change the results); ignored with bf16_weights in effect.
+    // No backward, no other device.
+    int f16_weights;
 } mlb_unet_options;
+
+// How the program loads a UNet that is to run on device d at GEMM precision prec (sd_model.c and the
+// benches): on the CPU, bf16 weights where it computes bf16 natively, else the file's F16 weights
+// kept half; elsewhere fp32 (config_path NULL).
+mlb_unet_options mlb_unet_options_for(mlb_device d, mlb_gemm_precision prec);
 
 // `path`: see above. opt may be NULL. *out is NULL on failure.
 mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet** out);

@@ -45,10 +45,11 @@ void mlb_cpu_detect(mlb_cpu_info* info) {
     int base_family = (a >> 8) & 0xf, base_model = (a >> 4) & 0xf;
     info->family = base_family == 0xf ? base_family + (int)((a >> 20) & 0xff) : base_family;
     info->model_id = (base_family == 0x6 || base_family == 0xf) ? (int)(((a >> 16) & 0xf) << 4) + base_model : base_model;
-    int osxsave = (c >> 27) & 1, fma = (c >> 12) & 1;
+    int osxsave = (c >> 27) & 1, fma = (c >> 12) & 1, f16c = (c >> 29) & 1;
     unsigned long long xcr0 = osxsave ? read_xcr0() : 0;
     int os_avx = (xcr0 & 0x6) == 0x6, os_avx512 = os_avx && (xcr0 & 0xe0) == 0xe0;
     int os_amx = (xcr0 & 0x60000) == 0x60000;
+    info->f16c = os_avx && f16c;
     if (max_leaf < 7) return;
     unsigned int b7 = 0, c7 = 0, d7 = 0, a71 = 0, b71 = 0, c71 = 0, d71 = 0;
     __get_cpuid_count(7, 0, &a, &b7, &c7, &d7);
@@ -70,7 +71,7 @@ void mlb_cpu_detect(mlb_cpu_info* info) {
 
 void mlb_cpu_feature_string(const mlb_cpu_info* f, char* buf, size_t size) {
     const struct { int on; const char* name; } list[] = {
-        {f->avx2, "avx2"}, {f->fma, "fma"}, {f->avx512f, "avx512f"}, {f->avx512bw, "avx512bw"},
+        {f->avx2, "avx2"}, {f->fma, "fma"}, {f->f16c, "f16c"}, {f->avx512f, "avx512f"}, {f->avx512bw, "avx512bw"},
         {f->avx512vl, "avx512vl"}, {f->avx512dq, "avx512dq"}, {f->avx512cd, "avx512cd"},
         {f->avx512_bf16, "avx512_bf16"}, {f->avx512_fp16, "avx512_fp16"}, {f->amx_tile, "amx_tile"},
         {f->amx_bf16, "amx_bf16"}};

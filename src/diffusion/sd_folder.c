@@ -154,7 +154,7 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dt
     if (!u || !dir) return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: NULL argument");
     if (dtype != MLB_DT_F32 && dtype != MLB_DT_F16 && dtype != MLB_DT_BF16)
         return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: dtype %s (F32, F16 or BF16)", mlb_dtype_name(dtype));
-    if (u->device != MLB_DEVICE_CPU || u->bf16_weights)
+    if (u->device != MLB_DEVICE_CPU || u->bf16_weights || u->f16_weights)
         return mlb_fail(MLB_ERR_ARG, "mlb_unet_save_folder: the UNet must be on the host in fp32");
     MLB_TRY(mlb_mkdir_p(dir));
     size_t n = 0;

@@ -26,6 +26,12 @@ void mlb_sd_model_drop_text(mlb_sd_model* m) {
     m->text = NULL;
 }
 
+void mlb_sd_model_drop_unet(mlb_sd_model* m) {
+    if (!m) return;
+    mlb_unet_free(m->unet);
+    m->unet = NULL;
+}
+
 void mlb_sd_model_free(mlb_sd_model* m) {
     if (!m) return;
     mlb_sd_model_drop_text(m);
@@ -73,8 +79,11 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     // a GPU, or bf16 on the CPU (its only other precision: fp16 and tf32 stay fp32 there); bf16 on a
     // CPU that has it keeps the UNet's weights in bf16 (half the memory, the same results)
     int cpu_bf16 = opt.device == MLB_DEVICE_CPU && opt.precision == MLB_GEMM_BF16;
-    mlb_unet_options uo = {NULL, cpu_bf16 && mlb_gemm_bf16_native()};
+    mlb_unet_options uo = mlb_unet_options_for(opt.device, opt.precision);
     if ((s = mlb_unet_load(path, &uo, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }
+    if (m->unet->f16_weights)
+        mlb_log(MLB_LOG_INFO, "UNet weights kept in f16 as the file stores them (%.0f MB; widened per call, fp32 results)",
+                m->unet->n_params * 2e-6);
     if (opt.device != MLB_DEVICE_CPU || cpu_bf16) {
         if ((s = mlb_unet_use_device(m->unet, opt.device, opt.precision)) != MLB_OK) {
             mlb_fail_context(s, "moving the UNet to the %s", mlb_device_name(opt.device));

@@ -149,9 +149,12 @@ mlb_status unet_check(const mlb_backend* be, const mlb_unet* u, int N, int H, in
     if (u->device != be->device)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: the weights are on the %s, the ops on the %s (mlb_unet_to_device)",
                         mlb_device_name(u->device), mlb_device_name(be->device));
-    if (u->bf16_weights != (be == mlb_backend_cpu_bf16_stored()))
+    const mlb_backend* stored_ops = u->bf16_weights ? mlb_backend_cpu_bf16_stored()
+                                  : u->f16_weights  ? mlb_backend_cpu_f16_stored() : NULL;
+    if (stored_ops != (be == mlb_backend_cpu_bf16_stored() || be == mlb_backend_cpu_f16_stored() ? be : NULL))
         return mlb_fail(MLB_ERR_ARG, "UNet forward: weights stored in %s, ops for weights in %s",
-                        u->bf16_weights ? "bf16" : "fp32", u->bf16_weights ? "fp32" : "bf16");
+                        u->bf16_weights ? "bf16" : u->f16_weights ? "f16" : "fp32",
+                        be == mlb_backend_cpu_bf16_stored() ? "bf16" : be == mlb_backend_cpu_f16_stored() ? "f16" : "fp32");
     int n = u->cfg.n_levels, f = 1 << (n - 1);
     if (N < 1 || H < 1 || W < 1 || Tc < 1)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: batch %d, latent %dx%d, context length %d must be positive", N, H, W, Tc);

@@ -115,7 +115,7 @@ mlb_status mlb_unet_backward(const mlb_backend* be, const mlb_unet* u, const mlb
     mlb_unet_tape* tp = (mlb_unet_tape*)tape;   // its scratch is written; the activations are not
     if (!tp->ready) return mlb_fail(MLB_ERR_ARG, "UNet backward: no forward_train on this tape");
     if (tp->device != be->device || u->device != be->device || g->device != be->device || u->bf16_weights ||
-        g->bf16_weights)
+        g->bf16_weights || u->f16_weights || g->f16_weights)
         return mlb_fail(MLB_ERR_ARG, "UNet backward: the UNet, its gradients, the tape and the ops must be on one device, in fp32");
     if (memcmp(&tp->cfg, &u->cfg, sizeof u->cfg) || memcmp(&g->cfg, &u->cfg, sizeof u->cfg))
         return mlb_fail(MLB_ERR_ARG, "UNet backward: the tape or the gradients belong to another configuration");

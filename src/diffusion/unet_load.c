@@ -186,30 +186,41 @@ typedef struct {
     float* tmp;   // bf16 weights: one tensor read in fp32 before rounding (the largest one)
     size_t tmp_n;
     int as_linear; // the weights registered now run as linear layers whatever their dimensions
+    int not_f16;   // f16 weights asked for: linear/conv weights the file does not store as F16 (pass 0)
 } loader;
 
 // With bf16 weights the linear ([OC, C], or [OC, C, 1, 1] run as linear) and conv ([OC, C, KH, KW])
 // weights are rounded to bf16 and packed for the bf16 kernel (mlb_bf16_pack_linear_weight / _conv_weight: uint32_t words of two
 // bf16 values, about n / 2 floats of storage), so that no call packs them again.
+// With f16 weights (all of them F16 in the file) the same weights are kept as the file's uint16_t
+// values, (n + 1) / 2 floats of storage, for mlb_backend_cpu_f16_stored to widen per call.
 static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a, int64_t b, int64_t c, int64_t e) {
     int64_t shape[4] = {a, b, c, e};
     size_t n = 1;
     for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
     int half = L->u->bf16_weights && (ndim == 2 || ndim == 4), linear = ndim == 2 || L->as_linear;
+    int f16 = L->u->f16_weights && (ndim == 2 || ndim == 4);
     int K = half ? (int)(n / (size_t)a) : 0;   // the conv's C·KH·KW or the linear's C
-    size_t slots = !half ? n : linear ? mlb_bf16_linear_weight_words((int)a, K) : mlb_bf16_conv_weight_words((int)a, K);
+    size_t slots = f16 ? (n + 1) / 2
+                 : !half ? n : linear ? mlb_bf16_linear_weight_words((int)a, K) : mlb_bf16_conv_weight_words((int)a, K);
+    char name[512];
     if (L->pass == 0) {
         L->n += n;
         L->slots += slots;
         if (half && n > L->tmp_n) L->tmp_n = n;
+        if (f16) {
+            tensor_name(name, sizeof name, L->u, d);
+            const mlb_st_tensor* t = mlb_st_find(L->st, name);
+            if (!t || t->dtype != MLB_DT_F16) L->not_f16++;
+        }
         return MLB_OK;
     }
     *dst = L->p;
     L->p += slots;
     if (L->pass == 2) return MLB_OK;
-    char name[512];
     tensor_name(name, sizeof name, L->u, d);
     MLB_TRY(mlb_st_expect(L->st, name, ndim, shape));
+    if (f16) return mlb_st_read_raw(L->st, name, MLB_DT_F16, *dst, n * sizeof(uint16_t));
     if (!half) return mlb_st_read_f32(L->st, name, *dst, n);
     MLB_TRY(mlb_st_read_f32(L->st, name, L->tmp, n));
     if (linear) mlb_bf16_pack_linear_weight((uint32_t*)*dst, L->tmp, (int)a, K);   // the CPU has it: checked
@@ -344,7 +355,7 @@ static mlb_status heads_for(const mlb_unet_config* c, const unet_cfg_file* f, in
 }
 
 mlb_status mlb_unet_from_st(const mlb_safetensors* st, const char* config_path, mlb_unet** out) {
-    mlb_unet_options o = {config_path, 0};
+    mlb_unet_options o = {config_path, 0, 0};
     return mlb_unet_from_st_opt(st, &o, out);
 }
 
@@ -356,7 +367,7 @@ mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_option
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     mlb_unet_config* c = &u->cfg;
     mlb_status s = MLB_OK;
-    loader L = {u, st, 0, 0, 0, NULL, NULL, 0, 0};
+    loader L = {u, st, 0, 0, 0, NULL, NULL, 0, 0, 0};
     if (mlb_st_find(st, LDM_PREFIX "input_blocks.0.0.weight")) c->layout = MLB_UNET_LAYOUT_LDM;
     else if (mlb_st_find(st, "conv_in.weight")) c->layout = MLB_UNET_LAYOUT_DIFFUSERS;
     else { s = mlb_fail(MLB_ERR_FORMAT, "%s: no UNet found (neither 'conv_in.weight' nor '" LDM_PREFIX "input_blocks.0.0.weight')", mlb_st_path(st)); goto fail; }
@@ -385,7 +396,15 @@ mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_option
         if (mlb_bf16_packing_available()) u->bf16_weights = 1;
         else mlb_log(MLB_LOG_INFO, "%s: bf16 weights asked for, but this CPU has no AVX-512 BF16: loading fp32", mlb_st_path(st));
     }
+    u->f16_weights = opt && opt->f16_weights && !u->bf16_weights;
     if ((s = walk(&L)) != MLB_OK) goto fail;
+    if (u->f16_weights && L.not_f16) {   // widening F32 weights to keep them half would round them
+        mlb_log(MLB_LOG_INFO, "%s: %d linear/conv weights are not F16 in the file: the UNet's weights load in fp32",
+                mlb_st_path(st), L.not_f16);
+        u->f16_weights = 0;
+        L.n = L.slots = L.tmp_n = 0;
+        if ((s = walk(&L)) != MLB_OK) goto fail;
+    }
     u->n_params = L.n;
     u->params = malloc(L.slots * sizeof(float));
     L.tmp = L.tmp_n ? malloc(L.tmp_n * sizeof(float)) : NULL;
@@ -395,6 +414,7 @@ mlb_status mlb_unet_from_st_opt(const mlb_safetensors* st, const mlb_unet_option
     if ((s = walk(&L)) != MLB_OK) goto fail;
     free(L.tmp);
     if (u->bf16_weights) u->mirror_ops = mlb_backend_cpu_bf16_stored();
+    if (u->f16_weights) u->mirror_ops = mlb_backend_cpu_f16_stored();
     *out = u;
     return MLB_OK;
 fail:
@@ -439,7 +459,7 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
         }
     }
     const char* cp = opt && opt->config_path ? opt->config_path : (cfg[0] ? cfg : NULL);
-    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0};
+    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
     mlb_status s = mlb_unet_from_st_opt(st, &o, out);
     mlb_st_close(st);
     return s;
@@ -460,7 +480,7 @@ mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** ou
     if (!u) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the UNet");
     u->cfg = *c;
     u->device = d;
-    loader L = {u, NULL, 0, 0, 0, NULL, NULL, 0, 0};
+    loader L = {u, NULL, 0, 0, 0, NULL, NULL, 0, 0, 0};
     mlb_status s = walk(&L);
     if (s == MLB_OK) {
         u->n_params = L.n;
@@ -479,9 +499,20 @@ mlb_status mlb_unet_create(const mlb_unet_config* c, mlb_device d, mlb_unet** ou
     return MLB_OK;
 }
 
+mlb_unet_options mlb_unet_options_for(mlb_device d, mlb_gemm_precision prec) {
+    mlb_unet_options o = {NULL, 0, 0};
+    if (d != MLB_DEVICE_CPU) return o;
+    o.bf16_weights = prec == MLB_GEMM_BF16 && mlb_gemm_bf16_native();
+    o.f16_weights = !o.bf16_weights;
+    return o;
+}
+
 mlb_status mlb_unet_to_device(const mlb_unet* src, mlb_device d, mlb_unet** out) {
     if (!src || !out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_to_device: NULL argument");
     if (src->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_unet_to_device: the source must be on the CPU");
+    if (src->bf16_weights || src->f16_weights)
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "mlb_unet_to_device: the UNet keeps its weights in %s; load it in fp32",
+                        src->bf16_weights ? "bf16" : "f16");
     MLB_TRY(mlb_unet_create(&src->cfg, d, out));
     mlb_status s = mlb_backend_for(d, MLB_GEMM_FP32)->upload((*out)->params, src->params, src->n_params);
     if (s != MLB_OK) {
@@ -500,6 +531,12 @@ mlb_status mlb_unet_use_device(mlb_unet* u, mlb_device d, mlb_gemm_precision pre
         if (d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16) return MLB_OK;
         return mlb_fail(MLB_ERR_UNSUPPORTED, "this UNet keeps its weights in bf16 (loaded with bf16_weights): it runs "
                         "only on the CPU in bf16; load it again for %s on the %s", mlb_gemm_precision_name(prec),
+                        mlb_device_name(d));
+    }
+    if (u->f16_weights) {   // the CPU's fp32 ops (its bf16 ones are fp32 without AVX-512 BF16)
+        if (d == MLB_DEVICE_CPU && (prec != MLB_GEMM_BF16 || !mlb_gemm_bf16_native())) return MLB_OK;
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "this UNet keeps its weights in f16 (loaded with f16_weights): it runs "
+                        "only on the CPU in fp32; load it again for %s on the %s", mlb_gemm_precision_name(prec),
                         mlb_device_name(d));
     }
     mlb_unet_free(u->mirror);

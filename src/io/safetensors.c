@@ -571,6 +571,18 @@ mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* o
     return MLB_OK;
 }
 
+mlb_status mlb_st_read_raw(const mlb_safetensors* st, const char* name, mlb_dtype dtype, void* out, size_t nbytes) {
+    if (!st || !name || (nbytes && !out)) return mlb_fail(MLB_ERR_ARG, "mlb_st_read_raw: NULL argument");
+    const mlb_st_tensor* t = mlb_st_find(st, name);
+    if (!t) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no tensor named '%s'", st->path, name);
+    if (t->dtype != dtype || t->nbytes != nbytes)
+        return mlb_fail(MLB_ERR_FORMAT, "%s: tensor '%s' is %s, %zu bytes; expected %s, %zu bytes", st->path, name,
+                        mlb_dtype_name(t->dtype), t->nbytes, mlb_dtype_name(dtype), nbytes);
+    if (nbytes) memcpy(out, t->data, nbytes);
+    drop_pages(st, t);
+    return MLB_OK;
+}
+
 mlb_status mlb_st_expect(const mlb_safetensors* st, const char* name, int ndim, const int64_t* shape) {
     if (!st || !name || ndim < 0 || (ndim > 0 && !shape))
         return mlb_fail(MLB_ERR_ARG, "mlb_st_expect: bad arguments");

@@ -208,6 +208,7 @@ static int txt2img_main(int argc, char** argv) {
                            (float)cfg, NULL, NULL, &pr);
     mlb_progress_end(&pr, NULL);
     if (s) { rc = cli_fail(s, "sampling"); goto done; }
+    mlb_sd_model_drop_unet(m);
     stage = mlb_now_seconds();
     if ((s = mlb_sd_decode_latent(m->vae, m->scaling_factor, latent, h, h, img))) { rc = cli_fail(s, "decoding the latent"); goto done; }
     mlb_log(MLB_LOG_INFO, "latent decoded (%.2fs)", mlb_now_seconds() - stage);

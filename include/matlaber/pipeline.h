@@ -86,7 +86,8 @@ typedef struct {
 mlb_pipeline_config mlb_pipeline_default(void);
 // A named set of settings over the defaults (docs/pipeline.md, "Presets"): "paper" (the defaults:
 // the paper's schedule, 9 views at 512², for a GPU) or "cpu" (1 view, 256² renders, a short
-// schedule sized by measurement to finish within an hour on 2 cores with SD 1.5, bf16 GEMMs,
+// schedule sized by measurement to finish within an hour on 2 cores with SD 1.5 and AVX-512 BF16
+// (about 1.5 h where the CPU lacks it and computes fp32), bf16 GEMMs,
 // frequent checkpoints). MLB_ERR_ARG naming the presets for any other name.
 mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 #define MLB_PIPELINE_PRESETS "paper, cpu, tiny"

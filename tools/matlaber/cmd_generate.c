@@ -17,8 +17,9 @@
 static const cli_option options[] = {
     {"preset", 1, 'Q', "NAME", "generate: paper (default: the paper's schedule, 9 views at 512², for a GPU), tiny (the\n"
                                "                           project's own model: 4 views at 128², 16² latents) or cpu\n"
-                               "                           (1 view at 256², a short schedule, bf16: within an hour on 2 cores\n"
-                               "                           with SD 1.5); options after it override it (docs/pipeline.md)"},
+                               "                           (1 view at 256², a short schedule, bf16: with SD 1.5 within an hour\n"
+                               "                           on 2 cores with AVX-512 BF16, about 1.5 h on 2 AVX2 cores); options\n"
+                               "                           after it override it (docs/pipeline.md)"},
     {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"
                               "                           project's own model (models/matlaber-tiny or $MATLABER_MODEL) with --preset tiny"},

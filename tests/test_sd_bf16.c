@@ -147,6 +147,8 @@ TEST(unet_f16_weights) {
     CHECK(mlb_unet_forward(u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
     CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_UNSUPPORTED);
     CHECK(mlb_unet_forward_on(mlb_backend_cpu(), u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_unet_forward_on(mlb_backend_cpu_f16_stored(), ref_u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "weights stored in fp32, ops for weights in f16") != NULL);
     mlb_unet* moved = NULL;
     CHECK(mlb_unet_to_device(u16, MLB_DEVICE_CPU, &moved) == MLB_ERR_UNSUPPORTED && !moved);
     char out_dir[700];

@@ -77,7 +77,8 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     if (!m) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     mlb_status s;
     // a GPU, or bf16 on the CPU (its only other precision: fp16 and tf32 stay fp32 there); bf16 on a
-    // CPU that has it keeps the UNet's weights in bf16 (half the memory, the same results)
+    // CPU that has it keeps the UNet's weights in bf16, any other CPU load the file's F16 weights as
+    // they are (half the memory either way, the same results: mlb_unet_options_for)
     int cpu_bf16 = opt.device == MLB_DEVICE_CPU && opt.precision == MLB_GEMM_BF16;
     mlb_unet_options uo = mlb_unet_options_for(opt.device, opt.precision);
     if ((s = mlb_unet_load(path, &uo, &m->unet)) != MLB_OK) { mlb_fail_context(s, "loading the UNet"); goto fail; }

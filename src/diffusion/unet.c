@@ -149,9 +149,11 @@ mlb_status unet_check(const mlb_backend* be, const mlb_unet* u, int N, int H, in
     if (u->device != be->device)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: the weights are on the %s, the ops on the %s (mlb_unet_to_device)",
                         mlb_device_name(u->device), mlb_device_name(be->device));
+    // weights stored in 16 bits run on their own table only, fp32 weights on any other
     const mlb_backend* stored_ops = u->bf16_weights ? mlb_backend_cpu_bf16_stored()
                                   : u->f16_weights  ? mlb_backend_cpu_f16_stored() : NULL;
-    if (stored_ops != (be == mlb_backend_cpu_bf16_stored() || be == mlb_backend_cpu_f16_stored() ? be : NULL))
+    int be_stored = be == mlb_backend_cpu_bf16_stored() || be == mlb_backend_cpu_f16_stored();
+    if (stored_ops ? be != stored_ops : be_stored)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: weights stored in %s, ops for weights in %s",
                         u->bf16_weights ? "bf16" : u->f16_weights ? "f16" : "fp32",
                         be == mlb_backend_cpu_bf16_stored() ? "bf16" : be == mlb_backend_cpu_f16_stored() ? "f16" : "fp32");

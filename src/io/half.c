@@ -1,4 +1,5 @@
-// float16 / bfloat16 <-> float32 by bit manipulation: portable, no F16C needed, exact rounding.
+// float16 / bfloat16 <-> float32 by bit manipulation: portable, no F16C needed, exact rounding; the
+// float16 -> float32 array conversion also in F16C's 8 lanes where the CPU has them (the same values).
 #include "matlaber/half.h"
 #include <string.h>
 #if defined(__x86_64__) || defined(__i386__)
@@ -78,7 +79,7 @@ static void f16_to_f32_scalar(float* dst, const unsigned char* s, size_t n) {
 
 #if defined(__x86_64__) || defined(__i386__)
 // F16C's VCVTPH2PS, 8 values an instruction: the same values as the scalar conversion (both exact;
-// NaNs quieted alike; test_half checks every bit pattern). Where a model's F16 weights stay F16 in
+// NaNs quieted alike; test_safetensors' f16_array_matches_scalar checks every bit pattern). Where a model's F16 weights stay F16 in
 // memory and are widened per call (mlb_unet_options.f16_weights) this runs over every weight of
 // every UNet forward.
 __attribute__((target("avx,f16c"))) static void f16_to_f32_f16c(float* dst, const unsigned char* s, size_t n) {

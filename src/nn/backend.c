@@ -283,7 +283,7 @@ static mlb_status cpu_conv2d_backward_bf16_stored(const mlb_backend* be, float* 
 // Each call widens its weight to fp32 (exactly, F16C) and runs the fp32 op: the fp32 table's bits
 // with half the weights' memory (SD 1.5's UNet 1.7 instead of 3.4 GB on CPUs without AVX-512 BF16).
 // The widened weight goes to one buffer per calling thread, grown to the largest weight and kept:
-// a fresh allocation per call page-faulted every weight in again (+24% on SD 1.5's CFG step).
+// a fresh allocation per call would page-fault every weight's 4 bytes in again on every forward.
 static _Thread_local float* widened_buf;
 static _Thread_local size_t widened_cap;
 static mlb_status widened(float** out, const float* w, size_t n) {

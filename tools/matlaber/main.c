@@ -6,6 +6,7 @@
 #include <string.h>
 #include <unistd.h>
 #include "cli.h"
+#include "matlaber/cpu.h"
 #include "matlaber/device.h"
 #include "matlaber/dist.h"
 #include "matlaber/fileio.h"
@@ -136,9 +137,12 @@ static int run_command(int argc, char** argv) {
     }
     // asked for by name where the CPU cannot: said once here (a preset's own bf16 falls back quietly)
     if (mlb_gemm_precision_chosen() && mlb_gemm_precision_current() == MLB_GEMM_BF16 &&
-        mlb_device_current() == MLB_DEVICE_CPU && !mlb_gemm_bf16_native())
+        mlb_device_current() == MLB_DEVICE_CPU && !mlb_gemm_bf16_native()) {
+        mlb_cpu_info cpu;
+        mlb_cpu_detect(&cpu);
         mlb_log(MLB_LOG_WARN, "--precision bf16: %s; the CPU computes in fp32",
-                getenv("MATLABER_CPU_BF16") ? "off ($MATLABER_CPU_BF16)" : "this CPU has no AVX-512 BF16");
+                cpu.avx512_bf16 ? "off ($MATLABER_CPU_BF16)" : "this CPU has no AVX-512 BF16");
+    }
     const char* cmd = argv[i];
     int sub_argc = argc - i;
     char** sub_argv = argv + i;

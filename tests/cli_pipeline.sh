@@ -23,7 +23,10 @@ expect 1 "interp of non-runs" -- $M interp "$T/a" "$T/b"
 
 # a small data set of the goblet, and small fits of it
 expect 0 "render a views folder" -- $Q render --goblet --views-out "$T/v" --views 8 --res 32 --env sky,studio --seed 2
-small="--res 32 --grid 24 --geometry-iters 6 --appearance-iters 6 --views-per-step 2 --checkpoint-every 2 --preview-every 3"
+# the SDF initialisation's steps and the hash tables cut small (defaults 400 steps, 2^19 entries: most
+# of each run's time, most of all under the sanitizers); what these runs check is the plumbing
+fast="--init-iters 40 --hash-table-log2 14"
+small="$fast --res 32 --grid 24 --geometry-iters 6 --appearance-iters 6 --views-per-step 2 --checkpoint-every 2 --preview-every 3"
 expect 0 "fit (uninterrupted)" -- $Q fit --views "$T/v" $small -o "$T/a"
 for f in config.json loss.csv loss.png final/mesh.obj final/mesh_ks.obj final/mesh_roughness.obj final/material.safetensors \
          final/views.png previews/geometry_000003.png previews/appearance_000006.png; do
@@ -55,13 +58,13 @@ expect 0 "export glb" -- $Q export "$T/a" --format glb --texture-size 128 -o "$T
 D=${MLB_SHARED_DATA:-$(dirname "$0")/../../shared/data}
 R="$D/sd_reference/sd1_diffusers"
 if [ -d "$R" ]; then
-  expect 0 "generate, 2 steps per stage, tiny SD" -- $Q generate -p "a golden goblet" -m "$R" --res 64 --grid 16 \
+  expect 0 "generate, 2 steps per stage, tiny SD" -- $Q generate -p "a golden goblet" -m "$R" $fast --res 64 --grid 16 \
     --geometry-iters 2 --appearance-iters 2 --views 2 --preview-every 1 -o "$T/g"
   [ -s "$T/g/final/mesh.obj" ] && ok "generate wrote the asset" || bad "generate: no asset"
   [ -s "$T/g/previews/geometry_000001.png" ] && ok "geometry preview" || bad "no geometry preview"
   grep -q '"prompt":[[:space:]]*"a golden goblet"' "$T/g/config.json" && ok "config records the prompt" || bad "config lacks the prompt"
   grep -q '"view_prompts":[[:space:]]*1' "$T/g/config.json" && ok "view prompts on by default" || bad "config: view_prompts not 1"
-  expect 0 "generate --no-view-prompts, stopped after its first step" -- $Q generate -p "a golden goblet" -m "$R" \
+  expect 0 "generate --no-view-prompts, stopped after its first step" -- $Q generate -p "a golden goblet" -m "$R" $fast \
     --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 2 --no-view-prompts --stop-after 1 -o "$T/g2"
   grep -q '"view_prompts":[[:space:]]*0' "$T/g2/config.json" && ok "--no-view-prompts recorded" || bad "config: view_prompts not 0"
   # the cpu preset, shortened: both stages (the geometry's latent and VAE phases), stopped after a
@@ -69,7 +72,7 @@ if [ -d "$R" ]; then
   expect 2 "unknown preset" -- $M generate --preset fast -p x -m "$R" -o "$T/p0"
   err_has "unknown preset lists the presets" "paper, cpu"
   expect 0 "generate --preset cpu, stopped after 3 steps" -- $Q generate --preset cpu -p "a golden goblet" -m "$R" \
-    --geometry-iters 3 --appearance-iters 2 --checkpoint-every 2 --export-texture 512 --stop-after 3 -o "$T/p"
+    $fast --geometry-iters 3 --appearance-iters 2 --checkpoint-every 2 --export-texture 512 --stop-after 3 -o "$T/p"
   for kv in '"views":[[:space:]]*1,' '"res":[[:space:]]*256,' '"grid":[[:space:]]*64,' '"precision":[[:space:]]*"bf16"' \
             '"latent_iters":[[:space:]]*1,' '"checkpoint_every":[[:space:]]*2,' '"export_texture":[[:space:]]*512,'; do
     grep -q "$kv" "$T/p/config.json" && ok "preset run: $kv" || bad "preset run config lacks $kv"
@@ -88,13 +91,13 @@ if [ -d "$R" ]; then
     --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s0"
   err_has "names --tokenizer" "--tokenizer PATH or \$MATLABER_TOKENIZER"
   expect 0 "generate from a single file, --tokenizer, stopped after a step" -- env -u MATLABER_TOKENIZER $Q generate \
-    -p "a golden goblet" -m "$F" --tokenizer "$R/tokenizer" --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 \
+    -p "a golden goblet" -m "$F" --tokenizer "$R/tokenizer" $fast --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 \
     --views 1 --checkpoint-every 1 --stop-after 1 -o "$T/s1"
   grep -q '"tokenizer":[[:space:]]*"[^"]*tokenizer"' "$T/s1/config.json" && ok "config keeps --tokenizer" || bad "config lacks the tokenizer"
   expect 0 "resume the single-file run" -- env -u MATLABER_TOKENIZER $Q generate --resume "$T/s1"
   [ -s "$T/s1/final/mesh.obj" ] && ok "single-file run finished" || bad "single-file run: no asset"
   expect 0 "generate from a single file, \$MATLABER_TOKENIZER" -- env MATLABER_TOKENIZER="$R/tokenizer" $Q generate \
-    -p "a golden goblet" -m "$F" --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s2"
+    -p "a golden goblet" -m "$F" $fast --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s2"
 else
   echo "skip: no shared sd_reference fixture for generate"
 fi

@@ -6,7 +6,9 @@ pass=0; fail=0
 ok() { pass=$((pass+1)); echo "ok   $1"; }
 bad() { fail=$((fail+1)); echo "FAIL $1"; }
 # expect CODE NAME -- command...: the command exits with CODE (stdout in $T/out, stderr in $T/err)
-expect() { local code=$1 name=$2; shift 3; "$@" > "$T/out" 2> "$T/err"; local rc=$?
+# (a command of 5 s or more says how long it took: where a slow CI run spends its time)
+expect() { local code=$1 name=$2 t0=$SECONDS; shift 3; "$@" > "$T/out" 2> "$T/err"; local rc=$?
+  [ $((SECONDS - t0)) -ge 5 ] && name="$name [$((SECONDS - t0)) s]"
   if [ "$rc" = "$code" ]; then ok "$name"; else bad "$name (exit $rc, expected $code)"; cat "$T/err"; fi; }
 # err_has NAME TEXT: the last command's stderr contains TEXT
 err_has() { if grep -q -- "$2" "$T/err"; then ok "$1"; else bad "$1: stderr lacks '$2'"; cat "$T/err"; fi; }

@@ -72,7 +72,7 @@ static void make_views(mlb_view* v, int n) {
 }
 
 // Renders n views of the sphere with two copies of one random latent-mode network, one on the
-// host and one moved to `be`'s device, for `steps` AdamW steps (eps 1e-4, so that the update is
+// host and one moved to `be`'s device (and rendered with `be`), for `steps` AdamW steps (eps 1e-4, so that the update is
 // smooth in the gradient and rounding cannot flip a step's sign), each comparing the images, the
 // gradients and then the parameters (relative L2 within tol), and the material smoothness term.
 // The loss is ½|image − 0.3|² (from the host's image): a coherent gradient, which a ReLU flipped by
@@ -103,6 +103,7 @@ static inline void appearance_twin_check(const mlb_backend* be, int n, int res, 
     REQUIRE(mlb_mesh_sample_surface(&sc.mesh, pts, SP, 5, 0) == MLB_OK);
     mlb_appearance app[2];
     memset(app, 0, sizeof app);
+    app[1].be = be;   // the render on the network's table: its buffers there too
     mlb_adam_config adam = mlb_material_adam(1e-2);
     adam.eps = 1e-4;
     for (int it = 0; it < steps; it++) {

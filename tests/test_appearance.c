@@ -11,6 +11,7 @@
 #include "matlaber/rng.h"
 #include "matlaber/threads.h"
 #include "appearance_test_util.h"
+#include "guarded_table.h"
 #include "material_test_util.h"
 #include "test.h"
 
@@ -398,6 +399,17 @@ TEST(smoothness) {
 // runs, on host memory) agree with the host path; test_cuda_material runs it on a GPU.
 TEST(device_twin_on_cpu_table) { appearance_twin_check(mlb_backend_cpu(), 3, 48, 2, 3, 1e-5); }
 
+// The render, its backward and the network on a table whose buffers the host cannot touch outside
+// its ops (guarded_table.h): a host access would end the test with SIGSEGV; the results are the
+// CPU table's, checked against the host path as above; every buffer given back at the end.
+TEST(render_stays_on_its_table) {
+    const mlb_backend* g = guarded_table();
+    long ops = guard_ops;
+    appearance_twin_check(g, 3, 32, 2, 2, 1e-5);
+    CHECK(guard_ops - ops > 100);
+    CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);
+}
+
 int main(void) {
     RUN(fd_whole_chain_f64);
     RUN(matches_render_shaded);
@@ -405,5 +417,6 @@ int main(void) {
     RUN(thread_count_independent);
     RUN(smoothness);
     RUN(device_twin_on_cpu_table);
+    RUN(render_stays_on_its_table);
     return test_summary();
 }

@@ -41,6 +41,7 @@
 #include "backend_op_cases_glue.h"
 #include "backend_op_cases_raster.h"
 #include "backend_op_cases_mt.h"
+#include "backend_op_cases_samples.h"
 
 typedef struct {
     const char* name;

@@ -101,6 +101,12 @@ mlb_status mlb_field_leave_device(mlb_field* f);     // syncs and frees the devi
 mlb_status mlb_field_grads_get(mlb_field* f, float* out);
 mlb_status mlb_field_grads_set(mlb_field* f, const float* in);
 const mlb_backend* mlb_field_backend(const mlb_field* f);   // NULL for a field on the host
+// The forward and backward of a field on a device over buffers on that device (the appearance
+// renderer's samples): pos [n,3] → y [n,7] (material; [n,4] geometry), the cache as
+// field_forward's; the backward takes dy there and leaves the points' gradient uncomputed.
+// MLB_ERR_ARG for a field on the host.
+mlb_status mlb_field_forward_on_device(mlb_field* f, float* y, const float* pos, int n);
+mlb_status mlb_field_backward_on_device(mlb_field* f, const float* dy);
 
 // ---- files (float fields; src/field/field_io.c) ----
 // Tensors "encoding.table" [entries, F], "mlp.N.weight" [out, in] (and "mlp.N.bias" with biases),

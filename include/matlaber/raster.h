@@ -58,6 +58,8 @@ void mlb_raster_ctx_free(mlb_raster_ctx* ctx);   // NULL is fine
 // share an edge the lowest other face id is used. Depends only on faces: build once per mesh and
 // reuse for every view. O(F) time.
 mlb_status mlb_edge_topology(int32_t* adj, const int32_t* faces, int n_faces, int n_verts);
+// flags[i] = tri[i] >= 0 (the covered pixels; raster_api.inc "samples"), n pixels
+void mlb_covered_flags(int32_t* flags, const int32_t* tri, long n);
 
 #define MLB_REAL float
 #define MLB_FN(name) name

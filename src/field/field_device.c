@@ -118,6 +118,20 @@ static mlb_status mlp_backward_on(struct mlb_field_device* d, int k, const mlb_m
     return MLB_OK;
 }
 
+// The forward over d->x (the points mapped to [0,1]^3): *out the MLP's output, *s the network's
+// last (the decoder's in latent mode), both on the device.
+static mlb_status forward_mapped(mlb_field* net, int n, const float** out, const float** s) {
+    struct mlb_field_device* d = net->dev;
+    const mlb_backend* be = d->be;
+    const mlb_hashgrid enc = field_active_enc(net);
+    if (enc.cfg.n_levels < net->enc.cfg.n_levels) MLB_TRY(be->zero(d->feat, (size_t)net->enc.out_dim * n));
+    MLB_TRY(be->hashgrid(&enc, d->params, d->feat, d->x, n));
+    MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, out));
+    *s = *out;
+    if (latent(net)) MLB_TRY(mlp_forward_on(d, NET_DEC, *out, n, s));
+    return MLB_OK;
+}
+
 mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float* pos, int n) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
@@ -127,13 +141,8 @@ mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float*
     float inv = (float)(1.0 / net->cfg.scale);
     for (size_t i = 0; i < 3 * (size_t)n; i++) d->host[i] = pos[i] * inv + 0.5f;   // the grid box → [0,1]^3
     MLB_TRY(be->upload(d->x, d->host, 3 * (size_t)n));
-    const mlb_hashgrid enc = field_active_enc(net);
-    if (enc.cfg.n_levels < net->enc.cfg.n_levels) MLB_TRY(be->zero(d->feat, (size_t)net->enc.out_dim * n));
-    MLB_TRY(be->hashgrid(&enc, d->params, d->feat, d->x, n));
     const float *out, *s;
-    MLB_TRY(mlp_forward_on(d, NET_MLP, d->feat, n, &out));
-    s = out;
-    if (latent(net)) MLB_TRY(mlp_forward_on(d, NET_DEC, out, n, &s));
+    MLB_TRY(forward_mapped(net, n, &out, &s));
     if (y && net->cfg.kind == MLB_FIELD_GEOMETRY) {
         MLB_TRY(be->download(y, out, 4 * (size_t)n));
     } else if (y) {
@@ -145,12 +154,63 @@ mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float*
     return MLB_OK;
 }
 
+// The output ranges of the material channels as affine_columns' columns: k = lo + (hi - lo) s
+static void range_columns(double* scale, double* shift) {
+    for (int c = 0; c < K_DIM; c++) {
+        scale[c] = mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c];
+        shift[c] = mlb_brdf_range_lo[c];
+    }
+}
+
+mlb_status mlb_field_forward_on_device(mlb_field* net, float* y, const float* pos, int n) {
+    struct mlb_field_device* d = net->dev;
+    if (!d) return mlb_fail(MLB_ERR_ARG, "field forward on the device: the field is on the host");
+    if (n < 0) return mlb_fail(MLB_ERR_ARG, "field forward on the device: %d points", n);
+    const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    MLB_TRY(reserve(net, n));
+    net->n = 0;
+    // the grid box → [0,1]^3 in float, as the host's copy of the points is mapped
+    const double inv = (float)(1.0 / net->cfg.scale), inv3[3] = {inv, inv, inv}, half[3] = {0.5, 0.5, 0.5};
+    MLB_TRY(be->affine_columns(d->x, pos, (size_t)n, 3, inv3, half, 1));
+    const float *out, *s;
+    MLB_TRY(forward_mapped(net, n, &out, &s));
+    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
+        MLB_TRY(be->copy(y, out, 4 * (size_t)n));
+    } else {
+        double scale[K_DIM], shift[K_DIM];
+        range_columns(scale, shift);
+        MLB_TRY(be->affine_columns(y, s, (size_t)n, K_DIM, scale, shift, 0));
+    }
+    net->n = n;
+    return MLB_OK;
+}
+
+// The backward from d->ds (the gradient at the network's last outputs); dx on the device when
+// with_dx (the points' gradient in [0,1]^3 units), else not computed.
+static mlb_status backward_from_ds(mlb_field* net, int with_dx) {
+    struct mlb_field_device* d = net->dev;
+    const mlb_backend* be = d->be;
+    int n = net->n;
+    const float* dout = d->ds;
+    if (latent(net)) {   // dz through the frozen decoder
+        const mlb_mlp* mlp = &d->net[NET_MLP];
+        MLB_TRY(mlp_backward_on(d, NET_DEC, NULL, d->post[NET_MLP][mlp->n_layers - 1], d->ds, d->dz, n));
+        dout = d->dz;
+    }
+    MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
+    if (with_dx) MLB_TRY(be->zero(d->dx, 3 * (size_t)n));
+    const mlb_hashgrid enc = field_active_enc(net);
+    MLB_TRY(be->hashgrid_backward(&enc, d->params, d->grads, with_dx ? d->dx : NULL, d->dfeat, d->x, n));
+    d->host_behind = 1;
+    return MLB_OK;
+}
+
 mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
-    int n = net->n;
-    size_t N = (size_t)n;
+    size_t N = (size_t)net->n;
     if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
         MLB_TRY(be->upload(d->ds, dy, 4 * N));
     } else {
@@ -160,23 +220,29 @@ mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
                 d->host[i * K_DIM + c] = dy[i * K_DIM + c] * (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
         MLB_TRY(be->upload(d->ds, d->host, K_DIM * N));
     }
-    const float* dout = d->ds;
-    if (latent(net)) {   // dz through the frozen decoder
-        const mlb_mlp* mlp = &d->net[NET_MLP];
-        MLB_TRY(mlp_backward_on(d, NET_DEC, NULL, d->post[NET_MLP][mlp->n_layers - 1], d->ds, d->dz, n));
-        dout = d->dz;
-    }
-    MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
-    if (dpos) MLB_TRY(be->zero(d->dx, 3 * N));
-    const mlb_hashgrid enc = field_active_enc(net);
-    MLB_TRY(be->hashgrid_backward(&enc, d->params, d->grads, dpos ? d->dx : NULL, d->dfeat, d->x, n));
-    d->host_behind = 1;
+    MLB_TRY(backward_from_ds(net, dpos != NULL));
     if (dpos) {
         MLB_TRY(be->download(d->host, d->dx, 3 * N));
         float inv = (float)(1.0 / net->cfg.scale);
         for (size_t i = 0; i < 3 * N; i++) dpos[i] += d->host[i] * inv;
     }
     return MLB_OK;
+}
+
+mlb_status mlb_field_backward_on_device(mlb_field* net, const float* dy) {
+    struct mlb_field_device* d = net->dev;
+    if (!d) return mlb_fail(MLB_ERR_ARG, "field backward on the device: the field is on the host");
+    const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    size_t N = (size_t)net->n;
+    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
+        MLB_TRY(be->copy(d->ds, dy, 4 * N));
+    } else {   // ds = dk·(hi − lo) in float, as the host's copy is scaled
+        double scale[K_DIM];
+        for (int c = 0; c < K_DIM; c++) scale[c] = (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
+        MLB_TRY(be->affine_columns(d->ds, dy, N, K_DIM, scale, NULL, 1));
+    }
+    return backward_from_ds(net, 0);
 }
 
 void field_device_zero_grad(mlb_field* net) {

@@ -346,6 +346,49 @@ static mlb_status cpu_antialias_backward(float* dcolor, float* dclip, const floa
                                   H, W);
 }
 
+// The appearance renderer's samples: raster_api.inc's passes over host memory.
+static mlb_status cpu_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
+    mlb_covered_flags(flags, tri, (long)n);
+    return MLB_OK;
+}
+static mlb_status cpu_gather_samples(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
+                                     const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
+    mlb_gather_samples(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez);
+    return MLB_OK;
+}
+static mlb_status cpu_composite_srgb(float* color, const float* rgb, const int32_t* where, int m) {
+    mlb_composite_srgb(color, rgb, where, m);
+    return MLB_OK;
+}
+static mlb_status cpu_composite_srgb_backward(float* drgb, const float* dcolor, const float* rgb, const int32_t* where,
+                                              int m) {
+    mlb_composite_srgb_backward(drgb, dcolor, rgb, where, m);
+    return MLB_OK;
+}
+static mlb_status cpu_downsample_box(float* out, const float* in, int H, int W, int C, int s) {
+    mlb_downsample_box(out, in, H, W, C, s);
+    return MLB_OK;
+}
+static mlb_status cpu_downsample_box_backward(float* din, const float* dout, int H, int W, int C, int s) {
+    mlb_downsample_box_backward(din, dout, H, W, C, s);
+    return MLB_OK;
+}
+static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, const double* scale,
+                                     const double* shift, int in_float) {
+    if (C < 1 || C > 8) return mlb_fail(MLB_ERR_ARG, "affine_columns: %d columns (1..8)", C);
+    if (in_float) {
+        float a[8], b[8];
+        for (int c = 0; c < C; c++) a[c] = (float)scale[c], b[c] = shift ? (float)shift[c] : 0;
+        for (size_t i = 0; i < n; i++)
+            for (int c = 0; c < C; c++) y[i * C + c] = shift ? x[i * C + c] * a[c] + b[c] : x[i * C + c] * a[c];
+        return MLB_OK;
+    }
+    for (size_t i = 0; i < n; i++)
+        for (int c = 0; c < C; c++)
+            y[i * C + c] = (float)(shift ? shift[c] + scale[c] * (double)x[i * C + c] : scale[c] * (double)x[i * C + c]);
+    return MLB_OK;
+}
+
 // Marching tets: mt_ops.h's passes over host memory.
 static mlb_status cpu_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets,
                                           int T, int cells) {

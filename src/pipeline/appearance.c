@@ -9,7 +9,7 @@
 #include "matlaber/rng.h"
 #include "core/real.h"
 #include "nn/raster_table.h"
-#include "appearance_device.h"
+#include "nn/table_ops.h"
 
 #ifdef MLB_F64
 #define SHADE_FORWARD mlb_shade_forward_f64
@@ -20,21 +20,9 @@
 #endif
 
 #define STREAM_SMOOTH 0x5A17
-enum { ATTR_C = 6 };   // per vertex: position 3, normal 3
+enum { ATTR_C = 6, MAX_LIGHTS = 64 };   // per vertex: position 3, normal 3
 
-// ---- linear → sRGB with the clamp to [0, 1] ------------------------------------------------------
-static inline real FN(srgb_clamped)(real x) {
-    if (!(x > 0)) return 0;   // (NaN too)
-    if (x >= 1) return 1;
-    return x <= (real)0.0031308 ? (real)12.92 * x : (real)1.055 * R_POW(x, (real)(1.0 / 2.4)) - (real)0.055;
-}
-// d srgb_clamped / dx (0 where clamped)
-static inline real FN(srgb_clamped_d)(real x) {
-    if (!(x > 0) || x >= 1) return 0;
-    return x <= (real)0.0031308 ? (real)12.92 : (real)(1.055 / 2.4) * R_POW(x, (real)(1.0 / 2.4 - 1.0));
-}
-
-// ---- growable scratch ----------------------------------------------------------------------------
+// ---- growable host scratch ------------------------------------------------------------------------
 typedef struct { void* p; size_t cap; } abuf;
 static void* abuf_get(abuf* b, size_t bytes) {
     if (bytes > b->cap || !b->p) {
@@ -45,32 +33,57 @@ static void* abuf_get(abuf* b, size_t bytes) {
     return b->p;
 }
 
+// host scratch, then the buffers on the render's table (int32 ones cast from real)
+enum { H_ATTR, H_POS, H_CLIP, H_ADJ, H_NORMALS, H_START, H_LIGHTS, H_KEYS, H_COUNT };
 enum {
-    B_ATTR, B_POS, B_NORMALS, B_CLIP, B_ADJ, B_TRI, B_BARY, B_DEPTH, B_COLOR, B_WEIGHTS, B_AA, B_PIX, B_WHERE, B_START,
-    B_PTS, B_NRM, B_VDIR, B_K, B_KD, B_KS, B_KR, B_RGB, B_LIGHTS,
-    B_DAA, B_DCOLOR, B_DRGB, B_DKD, B_DKS, B_DKR, B_DK, B_COUNT
+    D_ATTR, D_CLIP, D_FACES, D_ADJ, D_TRI, D_BARY, D_DEPTH, D_COLOR, D_WEIGHTS, D_AA, D_PIX, D_OUT, D_INDEX,
+    D_WHERE, D_PTS, D_NRM, D_VDIR, D_K, D_KD, D_KS, D_KR, D_RGB,
+    D_DAA, D_DCOLOR, D_DRGB, D_DKD, D_DKS, D_DKR, D_DK, D_COUNT
 };
 
 struct FN(mlb_appearance_state) {
-    abuf b[B_COUNT];
-    mlb_raster_ctx* ctx;                  // the double pass's raster scratch (the float one goes through a->be)
+    abuf h[H_COUNT];
+    FN(tbuf) d[D_COUNT];
+    const mlb_backend* tb;                // the table d[] was allocated on (float)
+    mlb_raster_ctx* ctx;                  // the double pass's raster scratch (the float one goes through the table)
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
     int v0, v1;                           // the views rendered: [v0, v1) (a part, or all)
-    const int32_t* faces;
-    int32_t *adj, *tri, *where, *start;   // start [n_views + 1]: first point of each view
+    int32_t *adj, *tri, *where, *start;   // on the table but start [n_views + 1] (host): first sample of each view
+    int32_t* faces;
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
     real *pts, *nrm, *vdir, *kd, *ks, *kr, *rgb;
-    mlb_envlight* lights;                 // [n_views]: copies with the view's rotation
-    appearance_device* dev;               // the shading on the material network's device (float)
+    mlb_envlight* lights;                 // [n_views] (host): copies with the view's rotation
+    const mlb_envlight** light_keys;      // [n_views] (host): the lights they are copies of
+    int n_handles;                        // the lights made usable on the table (float), keyed by address
+    const mlb_envlight* handle_key[MAX_LIGHTS];
+    void* handle[MAX_LIGHTS];
 };
+
+// The table of the float pass (NULL: the CPU's); the double pass has none
+static const mlb_backend* FN(render_table)(const FN(mlb_appearance)* a) {
+#ifdef MLB_F64
+    (void)a;
+    return mlb_backend_cpu();
+#else
+    return a->be ? a->be : mlb_backend_cpu();
+#endif
+}
+
+static void FN(release_table)(struct FN(mlb_appearance_state)* s) {
+    if (!s->tb) return;
+    for (int i = 0; i < D_COUNT; i++) FN(tbuf_free)(s->tb, &s->d[i]);
+    for (int i = 0; i < s->n_handles; i++) s->tb->light_free(s->handle[i]);
+    s->n_handles = 0;
+    s->tb = NULL;
+}
 
 void FN(mlb_appearance_free)(FN(mlb_appearance)* a) {
     struct FN(mlb_appearance_state)* s = a->state;
     if (s) {
-        for (int i = 0; i < B_COUNT; i++) free(s->b[i].p);
+        FN(release_table)(s);
+        for (int i = 0; i < H_COUNT; i++) free(s->h[i].p);
         mlb_raster_ctx_free(s->ctx);
-        appearance_device_free(s->dev);
         free(s);
     }
     a->state = NULL;
@@ -83,13 +96,13 @@ const real* FN(mlb_appearance_points)(const FN(mlb_appearance)* a, int* n) {
 }
 
 // Vertex attributes [V,6] = (position, normal) of the mesh in real; normals computed when absent.
-static mlb_status FN(mesh_attr)(struct FN(mlb_appearance_state)* s, const mlb_mesh* mesh, real* attr) {
+static mlb_status FN(mesh_attr)(abuf* normals, const mlb_mesh* mesh, real* attr) {
     const float* vn = mesh->normal;
     if (!vn) {   // a shallow copy gets the normals; the caller's mesh stays as it is
         mlb_mesh tmp = *mesh;
         tmp.normal = NULL;
         MLB_TRY(mlb_mesh_compute_normals(&tmp));
-        float* keep = abuf_get(&s->b[B_NORMALS], sizeof(float) * 3 * (size_t)mesh->n_verts);
+        float* keep = abuf_get(normals, sizeof(float) * 3 * (size_t)mesh->n_verts);
         if (!keep) { free(tmp.normal); return mlb_fail(MLB_ERR_NOMEM, "appearance: out of memory"); }
         memcpy(keep, tmp.normal, sizeof(float) * 3 * (size_t)mesh->n_verts);
         free(tmp.normal);
@@ -103,29 +116,6 @@ static mlb_status FN(mesh_attr)(struct FN(mlb_appearance_state)* s, const mlb_me
     return MLB_OK;
 }
 
-// Surface point, unit normal turned towards the eye and unit view direction of an interpolated
-// pixel a = (position, normal): the computation of mlb_render_shaded, in double.
-static void FN(pixel_geometry)(const real* a, const double eye[3], real* p, real* nrm, real* v) {
-    double vv[3], nn[3], lv = 0, ln = 0, dot = 0;
-    for (int c = 0; c < 3; c++) {
-        vv[c] = eye[c] - (double)a[c];
-        nn[c] = (double)a[3 + c];
-        lv += vv[c] * vv[c];
-        ln += nn[c] * nn[c];
-    }
-    lv = sqrt(lv);
-    ln = sqrt(ln);
-    if (!(lv > 0) || !(ln > 0)) { nn[0] = vv[0]; nn[1] = vv[1]; nn[2] = vv[2]; ln = lv; }
-    if (!(lv > 0)) { lv = ln = 1; vv[0] = nn[0] = 0; vv[1] = nn[1] = 0; vv[2] = nn[2] = 1; }
-    for (int c = 0; c < 3; c++) { vv[c] /= lv; nn[c] /= ln; dot += vv[c] * nn[c]; }
-    double flip = dot < 0 ? -1 : 1;   // two-sided: shade the side the camera sees
-    for (int c = 0; c < 3; c++) {
-        p[c] = a[c];
-        nrm[c] = (real)(flip * nn[c]);
-        v[c] = (real)vv[c];
-    }
-}
-
 static mlb_status FN(check_mesh)(const mlb_mesh* mesh, int res, int ss, const char* who) {
     if (!mesh || !mesh->pos || !mesh->faces || mesh->n_verts < 1 || mesh->n_faces < 1)
         return mlb_fail(MLB_ERR_ARG, "%s: empty mesh", who);
@@ -135,58 +125,59 @@ static mlb_status FN(check_mesh)(const mlb_mesh* mesh, int res, int ss, const ch
     return MLB_OK;
 }
 
-// The split-sum shading of every view's samples: on the material network's device when it has one
-// (float build), else per view on the CPU.
-// Views [s->v0, s->v1) (this process's part). The device path sees the part as a render of its own
-// (starts relative to the part's first point).
-static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
-                                  const mlb_envlight* const* lights, const mlb_view* views, mlb_fresnel fresnel) {
-    int v0 = s->v0, v1 = s->v1;
-    for (int v = v0; v < v1; v++) {
+#ifndef MLB_F64
+// The handle of `light` on the render's table, made on first use (kept for the state's life).
+static mlb_status light_handle(struct mlb_appearance_state* s, const mlb_envlight* light, void** handle) {
+    for (int i = 0; i < s->n_handles; i++)
+        if (s->handle_key[i] == light) { *handle = s->handle[i]; return MLB_OK; }
+    if (s->n_handles == MAX_LIGHTS) return mlb_fail(MLB_ERR_ARG, "appearance: more than %d environment lights", MAX_LIGHTS);
+    MLB_TRY(s->tb->light_upload(&s->handle[s->n_handles], light));
+    s->handle_key[s->n_handles] = light;
+    *handle = s->handle[s->n_handles++];
+    return MLB_OK;
+}
+#endif
+
+// The split-sum shading of views [s->v0, s->v1): the table's shade under each view's light turned
+// by its rotation (float), the CPU's double shading of the turned copies (double).
+static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const mlb_envlight* const* lights,
+                                  const mlb_view* views, mlb_fresnel fresnel) {
+    for (int v = s->v0; v < s->v1; v++) {
         s->lights[v] = *lights[views[v].env];
         mlb_envlight_set_rotation(&s->lights[v], (float)(views[v].env_rotation_deg * (M_PI / 180.0)));
-    }
-#ifndef MLB_F64
-    if (net->dev) {
-        int m = v1 - v0;
-        const mlb_envlight* source[m > 0 ? m : 1];
-        int32_t rel[m + 1];
-        for (int v = 0; v < m; v++) source[v] = lights[views[v0 + v].env];
-        for (int v = 0; v <= m; v++) rel[v] = s->start[v0 + v] - s->start[v0];
-        size_t o = (size_t)s->start[v0];
-        return appearance_device_shade(&s->dev, mlb_field_backend(net), s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
-                                       s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, rel, m, s->lights + v0, source, fresnel);
-    }
-#else
-    (void)net;
-#endif
-    for (int v = v0; v < v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
-        if (m > 0)
-            MLB_TRY(SHADE_FORWARD(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
-                                  &s->lights[v], fresnel));
+        if (m == 0) continue;
+#ifdef MLB_F64
+        MLB_TRY(SHADE_FORWARD(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
+                              &s->lights[v], fresnel));
+#else
+        void* h;
+        MLB_TRY(light_handle(s, s->light_keys[v], &h));
+        MLB_TRY(s->tb->shade(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
+                             h, s->lights[v].rotation, fresnel));
+#endif
     }
     return MLB_OK;
 }
 
-// dkd, dks, dkr (zeroed by the caller) += the shading's gradients from drgb, the rendered views.
-static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, const FN(mlb_material_net)* net,
-                                           real* dkd, real* dks, real* dkr, const real* drgb, mlb_fresnel fresnel) {
-#ifndef MLB_F64
-    if (net->dev) {
-        size_t o = (size_t)s->start[s->v0];
-        return appearance_device_shade_backward(s->dev, dkd + 3 * o, dks + 3 * o, dkr + o, drgb + 3 * o);
-    }
-#else
-    (void)net;
-#endif
+// dkd, dks, dkr (zeroed by the caller) += the shading's gradients from drgb, views [v0, v1).
+static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, real* dkd, real* dks, real* dkr,
+                                           const real* drgb, mlb_fresnel fresnel) {
     for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
-        if (m > 0)
-            MLB_TRY(SHADE_BACKWARD(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
-                                   s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], fresnel));
+        if (m == 0) continue;
+#ifdef MLB_F64
+        MLB_TRY(SHADE_BACKWARD(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
+                               s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], fresnel));
+#else
+        void* h;
+        MLB_TRY(light_handle(s, s->light_keys[v], &h));
+        MLB_TRY(s->tb->shade_backward(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o,
+                                      s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, h,
+                                      s->lights[v].rotation, fresnel));
+#endif
     }
     return MLB_OK;
 }
@@ -203,6 +194,27 @@ static void FN(part_range)(const FN(mlb_appearance)* a, int n, int* v0, int* v1)
     }
 }
 
+// The material of the N samples, k [N,7] on the table: the net on the table's device runs there,
+// a net on the host runs on the samples in place (the CPU's table: host memory).
+static mlb_status FN(material_of_samples)(struct FN(mlb_appearance_state)* s, FN(mlb_material_net)* net, real* k,
+                                          int N, int keep) {
+#ifndef MLB_F64
+    const mlb_backend* nb = mlb_field_backend(net);
+    if (nb) {
+        if (nb->device != s->tb->device)
+            return mlb_fail(MLB_ERR_ARG, "appearance render: the material network is on the %s, the render on the %s",
+                            mlb_device_name(nb->device), mlb_device_name(s->tb->device));
+        if (!keep) return mlb_fail(MLB_ERR_ARG, "appearance render: a render without backward needs the network on the host");
+        return mlb_field_forward_on_device(net, k, s->pts, N);
+    }
+    if (s->tb->device != MLB_DEVICE_CPU)
+        return mlb_fail(MLB_ERR_ARG, "appearance render: the material network is on the host, the render on the %s",
+                        mlb_device_name(s->tb->device));
+#endif
+    if (keep) return FN(material_net_forward)(net, k, NULL, s->pts, N);
+    return FN(material_net_eval)(net, s->pts, (size_t)N, k, NULL);
+}
+
 mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const mlb_mesh* mesh,
                                      const mlb_envlight* const* lights, const mlb_view* views, int n, int res, int ss,
                                      real* images, int keep_for_backward) {
@@ -217,116 +229,122 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         if (!a->state) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
     }
     struct FN(mlb_appearance_state)* s = a->state;
+    const mlb_backend* tb = FN(render_table)(a);
+    if (s->tb != tb) FN(release_table)(s);   // buffers of another device
+    s->tb = tb;
     s->kept = 0;
     s->n_points = 0;
     if (!s->ctx && !(s->ctx = mlb_raster_ctx_create())) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
     int S = res * ss, V = mesh->n_verts, F = mesh->n_faces;
-    size_t P = (size_t)S * S, nv = (size_t)n;
-    real* attr = abuf_get(&s->b[B_ATTR], sizeof(real) * ATTR_C * (size_t)V);
-    s->clip = abuf_get(&s->b[B_CLIP], sizeof(real) * 4 * (size_t)V * nv);
-    s->adj = abuf_get(&s->b[B_ADJ], sizeof(int32_t) * 3 * (size_t)F);
-    s->tri = abuf_get(&s->b[B_TRI], sizeof(int32_t) * P * nv);
-    real* bary = abuf_get(&s->b[B_BARY], sizeof(real) * 2 * P * nv);
-    s->depth = abuf_get(&s->b[B_DEPTH], sizeof(real) * P * nv);
-    s->color = abuf_get(&s->b[B_COLOR], sizeof(real) * 4 * P * nv);
-    s->weights = abuf_get(&s->b[B_WEIGHTS], sizeof(real) * 2 * P * nv);
-    real* aa = abuf_get(&s->b[B_AA], sizeof(real) * 4 * P);
-    real* pix = abuf_get(&s->b[B_PIX], sizeof(real) * ATTR_C * P);
-    s->start = abuf_get(&s->b[B_START], sizeof(int32_t) * (nv + 1));
-    s->lights = abuf_get(&s->b[B_LIGHTS], sizeof(mlb_envlight) * nv);
-    if (!attr || !s->clip || !s->adj || !s->tri || !bary || !s->depth || !s->color || !s->weights || !aa || !pix || !s->start ||
-        !s->lights)
-        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory (%d views at %dx%d)", n, S, S);
-    real* pos = abuf_get(&s->b[B_POS], sizeof(real) * 3 * (size_t)V);
-    if (!pos) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
-    MLB_TRY(FN(mesh_attr)(s, mesh, attr));
+    size_t P = (size_t)S * S, nv = (size_t)n, p = (size_t)res * res;
+    FN(part_range)(a, n, &s->v0, &s->v1);
+    size_t nr = (size_t)(s->v1 - s->v0);   // the views rendered
+    // the mesh and the cameras on the host (small), then on the table
+    real* attr_h = abuf_get(&s->h[H_ATTR], sizeof(real) * ATTR_C * (size_t)V);
+    real* clip_h = abuf_get(&s->h[H_CLIP], sizeof(real) * 4 * (size_t)V * nv);
+    int32_t* adj_h = abuf_get(&s->h[H_ADJ], sizeof(int32_t) * 3 * (size_t)F);
+    s->start = abuf_get(&s->h[H_START], sizeof(int32_t) * (nv + 1));
+    s->lights = abuf_get(&s->h[H_LIGHTS], sizeof(mlb_envlight) * nv);
+    s->light_keys = abuf_get(&s->h[H_KEYS], sizeof(mlb_envlight*) * nv);
+    real* pos = abuf_get(&s->h[H_POS], sizeof(real) * 3 * (size_t)V);
+    if (!attr_h || !pos || !clip_h || !adj_h || !s->start || !s->lights || !s->light_keys)
+        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
+    MLB_TRY(FN(mesh_attr)(&s->h[H_NORMALS], mesh, attr_h));
     for (size_t i = 0; i < 3 * (size_t)V; i++) pos[i] = (real)mesh->pos[i];
-    MLB_TRY(mlb_edge_topology(s->adj, mesh->faces, F, V));
-    s->faces = mesh->faces;
+    MLB_TRY(mlb_edge_topology(adj_h, mesh->faces, F, V));
+    real* attr = FN(tbuf_get)(tb, &s->d[D_ATTR], ATTR_C * (size_t)V);
+    s->clip = FN(tbuf_get)(tb, &s->d[D_CLIP], 4 * (size_t)V * nv);
+    s->faces = (int32_t*)FN(tbuf_get)(tb, &s->d[D_FACES], 3 * (size_t)F);
+    s->adj = (int32_t*)FN(tbuf_get)(tb, &s->d[D_ADJ], 3 * (size_t)F);
+    s->tri = (int32_t*)FN(tbuf_get)(tb, &s->d[D_TRI], P * nv);
+    real* bary = FN(tbuf_get)(tb, &s->d[D_BARY], 2 * P * nv);
+    s->depth = FN(tbuf_get)(tb, &s->d[D_DEPTH], P * nv);
+    s->color = FN(tbuf_get)(tb, &s->d[D_COLOR], 4 * P * nv);
+    s->weights = FN(tbuf_get)(tb, &s->d[D_WEIGHTS], 2 * P * nv);
+    real* aa = FN(tbuf_get)(tb, &s->d[D_AA], 4 * P);
+    real* pix = FN(tbuf_get)(tb, &s->d[D_PIX], ATTR_C * P);
+    real* out = FN(tbuf_get)(tb, &s->d[D_OUT], 4 * p);
+    int32_t* index = (int32_t*)FN(tbuf_get)(tb, &s->d[D_INDEX], P * nr + 1);
+    if (!attr || !s->clip || !s->faces || !s->adj || !s->tri || !bary || !s->depth || !s->color || !s->weights || !aa ||
+        !pix || !out || !index)
+        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (%d views at %dx%d)",
+                        mlb_device_name(tb->device), n, S, S);
+    MLB_TRY(FN(t_upload)(tb, attr, attr_h, ATTR_C * (size_t)V));
+    MLB_TRY(FN(t_upload_i32)(tb, s->faces, mesh->faces, 3 * (size_t)F));
+    MLB_TRY(FN(t_upload_i32)(tb, s->adj, adj_h, 3 * (size_t)F));
     s->V = V;
     s->F = F;
     s->n_views = n;
     s->res = res;
     s->ss = ss;
 
-    // rasterize every view of the part, count the covered samples (the other views have none)
-    FN(part_range)(a, n, &s->v0, &s->v1);
-    int32_t* counts = s->start + 1;   // counts[v], then made into starts in place
-    memset(s->start, 0, sizeof(int32_t) * (nv + 1));
+    // rasterize every view of the part; each covered pixel's sample index from the scan of the
+    // coverage over the part's views (view-major, pixel order); the other views have no samples
     for (int v = s->v0; v < s->v1; v++) {
-        real* clip = s->clip + 4 * (size_t)V * v;
-        FN(mlb_transform_points)(clip, pos, V, &views[v].cam.view_proj);
-        int32_t* tri = s->tri + P * v;
-        MLB_TRY(FN(rt_rasterize)(a->be, s->ctx, tri, bary + 2 * P * v, s->depth + P * v, clip, V, mesh->faces, F, S, S));
-        int32_t c = 0;
-        for (size_t i = 0; i < P; i++) c += tri[i] >= 0;
-        counts[v] = c;
+        real* ch = clip_h + 4 * (size_t)V * v;
+        FN(mlb_transform_points)(ch, pos, V, &views[v].cam.view_proj);
+        s->light_keys[v] = lights[views[v].env];
+        MLB_TRY(FN(t_upload)(tb, s->clip + 4 * (size_t)V * v, ch, 4 * (size_t)V));
+        MLB_TRY(FN(rt_rasterize)(tb, s->ctx, s->tri + P * v, bary + 2 * P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v,
+                                 V, s->faces, F, S, S));
     }
-    size_t total = 0;
-    for (int v = 0; v < n; v++) {
-        total += (size_t)counts[v];
-        if (total > (size_t)INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%zu)", total);
+    if ((long)P * (long)nr > INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%zu)", P * nr);
+    MLB_TRY(T_COVERED(tb, index, s->tri + P * s->v0, P * nr));
+    MLB_TRY(T_SCAN(tb, index, index, (int)(P * nr)));
+    for (int v = 0; v <= n; v++) {   // the views' first samples: P·nr + 1 scanned values, n + 1 read
+        int w = v < s->v0 ? s->v0 : v > s->v1 ? s->v1 : v;
+#ifdef MLB_F64
+        s->start[v] = index[P * (size_t)(w - s->v0)];
+#else
+        float got;
+        MLB_TRY(tb->download(&got, (const float*)(index + P * (size_t)(w - s->v0)), 1));
+        memcpy(&s->start[v], &got, sizeof(int32_t));
+#endif
     }
-    for (int v = 0; v < n; v++) s->start[v + 1] += s->start[v];
-    int N = (int)total;
-    size_t NN = total ? total : 1;
-    s->where = abuf_get(&s->b[B_WHERE], sizeof(int32_t) * NN);
-    s->pts = abuf_get(&s->b[B_PTS], sizeof(real) * 3 * NN);
-    s->nrm = abuf_get(&s->b[B_NRM], sizeof(real) * 3 * NN);
-    s->vdir = abuf_get(&s->b[B_VDIR], sizeof(real) * 3 * NN);
-    real* k = abuf_get(&s->b[B_K], sizeof(real) * 7 * NN);
-    s->kd = abuf_get(&s->b[B_KD], sizeof(real) * 3 * NN);
-    s->ks = abuf_get(&s->b[B_KS], sizeof(real) * 3 * NN);
-    s->kr = abuf_get(&s->b[B_KR], sizeof(real) * NN);
-    s->rgb = abuf_get(&s->b[B_RGB], sizeof(real) * 3 * NN);
+    int N = s->start[n];
+    size_t NN = N ? (size_t)N : 1;
+    s->where = (int32_t*)FN(tbuf_get)(tb, &s->d[D_WHERE], NN);
+    s->pts = FN(tbuf_get)(tb, &s->d[D_PTS], 3 * NN);
+    s->nrm = FN(tbuf_get)(tb, &s->d[D_NRM], 3 * NN);
+    s->vdir = FN(tbuf_get)(tb, &s->d[D_VDIR], 3 * NN);
+    real* k = FN(tbuf_get)(tb, &s->d[D_K], 7 * NN);
+    s->kd = FN(tbuf_get)(tb, &s->d[D_KD], 3 * NN);
+    s->ks = FN(tbuf_get)(tb, &s->d[D_KS], 3 * NN);
+    s->kr = FN(tbuf_get)(tb, &s->d[D_KR], NN);
+    s->rgb = FN(tbuf_get)(tb, &s->d[D_RGB], 3 * NN);
     if (!s->where || !s->pts || !s->nrm || !s->vdir || !k || !s->kd || !s->ks || !s->kr || !s->rgb)
-        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory (%d samples)", N);
+        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (%d samples)", mlb_device_name(tb->device), N);
 
-    // surface points, normals and view directions of every covered sample, view-major
+    // surface points, normals and view directions of every covered sample
     for (int v = s->v0; v < s->v1; v++) {
         const int32_t* tri = s->tri + P * v;
-        MLB_TRY(FN(rt_interpolate)(a->be, pix, attr, V, ATTR_C, tri, bary + 2 * P * v, mesh->faces, F, S, S));
-        int j = s->start[v];
-        for (size_t i = 0; i < P; i++) {
-            if (tri[i] < 0) continue;
-            FN(pixel_geometry)(pix + ATTR_C * i, views[v].cam.eye, s->pts + 3 * (size_t)j, s->nrm + 3 * (size_t)j,
-                               s->vdir + 3 * (size_t)j);
-            s->where[j++] = (int32_t)i;
-        }
+        const double* eye = views[v].cam.eye;
+        MLB_TRY(FN(rt_interpolate)(tb, pix, attr, V, ATTR_C, tri, bary + 2 * P * v, s->faces, F, S, S));
+        MLB_TRY(T_GATHER(tb, s->pts, s->nrm, s->vdir, s->where, pix, tri, index + P * (size_t)(v - s->v0), (int)P,
+                         eye[0], eye[1], eye[2]));
     }
     s->n_points = N;
 
-    // the material of every sample of the part in one batch
+    // the material of every sample of the part in one batch, split into kd, ks, kr
     if (N > 0) {
-        if (keep_for_backward) MLB_TRY(FN(material_net_forward)(net, k, NULL, s->pts, N));
-        else MLB_TRY(FN(material_net_eval)(net, s->pts, (size_t)N, k, NULL));
-    }
-    for (int i = 0; i < N; i++) {
-        for (int c = 0; c < 3; c++) {
-            s->kd[3 * (size_t)i + c] = k[7 * (size_t)i + c];
-            s->ks[3 * (size_t)i + c] = k[7 * (size_t)i + 3 + c];
-        }
-        s->kr[i] = k[7 * (size_t)i + 6];
+        MLB_TRY(FN(material_of_samples)(s, net, k, N, keep_for_backward));
+        MLB_TRY(FN(t_copy_rows)(tb, s->kd, 3, k, 7, 3, NN));
+        MLB_TRY(FN(t_copy_rows)(tb, s->ks, 3, k + 3, 7, 3, NN));
+        MLB_TRY(FN(t_copy_rows)(tb, s->kr, 1, k + 6, 7, 1, NN));
     }
 
     // shade; then sRGB, composite, antialias, downsample: per view
-    MLB_TRY(FN(shade_views)(s, net, lights, views, a->fresnel));
-    size_t p = (size_t)res * res;
+    MLB_TRY(FN(shade_views)(s, lights, views, a->fresnel));
     for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         real* color = s->color + 4 * P * v;
-        memset(color, 0, sizeof(real) * 4 * P);
-        for (int j = j0; j < j0 + m; j++) {
-            real* c = color + 4 * (size_t)s->where[j];
-            for (int ch = 0; ch < 3; ch++) c[ch] = FN(srgb_clamped)(s->rgb[3 * (size_t)j + ch]);
-            c[3] = 1;
-        }
-        real* clip = s->clip + 4 * (size_t)V * v;
-        real* out = images + 4 * p * v;
+        MLB_TRY(FN(t_zero)(tb, color, 4 * P));
+        if (m > 0) MLB_TRY(T_COMPOSITE(tb, color, s->rgb + 3 * (size_t)j0, s->where + j0, m));
         real* dst = ss == 1 ? out : aa;
-        MLB_TRY(FN(rt_antialias)(a->be, s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
-                                 clip, V, mesh->faces, s->adj, F, S, S));
-        if (ss > 1) FN(mlb_downsample_box)(out, aa, res, res, 4, ss);
+        MLB_TRY(FN(rt_antialias)(tb, s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
+                                 s->clip + 4 * (size_t)V * v, V, s->faces, s->adj, F, S, S));
+        if (ss > 1) MLB_TRY(T_DOWNSAMPLE(tb, out, aa, res, res, 4, ss));
+        MLB_TRY(FN(t_download)(tb, images + 4 * p * v, out, 4 * p));
     }
     s->kept = keep_for_backward != 0;
     return MLB_OK;
@@ -335,49 +353,50 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
 mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const real* dimages) {
     struct FN(mlb_appearance_state)* s = a->state;
     if (!s || !s->kept) return mlb_fail(MLB_ERR_ARG, "appearance backward: no render kept for backward");
-    int N = s->n_points, n = s->n_views, S = s->res * s->ss, V = s->V, F = s->F;
+    int N = s->n_points, S = s->res * s->ss, V = s->V, F = s->F;
     if (N == 0) return MLB_OK;   // nothing covered: no material was seen
     if (net->n != N)
         return mlb_fail(MLB_ERR_ARG, "appearance backward: the material network's cache holds %d points, the render %d "
                                      "(another forward ran in between)", net->n, N);
+    const mlb_backend* tb = s->tb;
     size_t P = (size_t)S * S, p = (size_t)s->res * s->res, NN = (size_t)N;
-    real* daa = s->ss > 1 ? abuf_get(&s->b[B_DAA], sizeof(real) * 4 * P) : NULL;
-    real* dcolor = abuf_get(&s->b[B_DCOLOR], sizeof(real) * 4 * P);
-    real* drgb = abuf_get(&s->b[B_DRGB], sizeof(real) * 3 * NN);
-    real* dkd = abuf_get(&s->b[B_DKD], sizeof(real) * 3 * NN);
-    real* dks = abuf_get(&s->b[B_DKS], sizeof(real) * 3 * NN);
-    real* dkr = abuf_get(&s->b[B_DKR], sizeof(real) * NN);
-    real* dk = abuf_get(&s->b[B_DK], sizeof(real) * 7 * NN);
+    real* dout = s->d[D_OUT].p;   // the forward's output image, free now: each view's dimage goes there
+    real* daa = s->ss > 1 ? FN(tbuf_get)(tb, &s->d[D_DAA], 4 * P) : NULL;
+    real* dcolor = FN(tbuf_get)(tb, &s->d[D_DCOLOR], 4 * P);
+    real* drgb = FN(tbuf_get)(tb, &s->d[D_DRGB], 3 * NN);
+    real* dkd = FN(tbuf_get)(tb, &s->d[D_DKD], 3 * NN);
+    real* dks = FN(tbuf_get)(tb, &s->d[D_DKS], 3 * NN);
+    real* dkr = FN(tbuf_get)(tb, &s->d[D_DKR], NN);
+    real* dk = FN(tbuf_get)(tb, &s->d[D_DK], 7 * NN);
     if ((s->ss > 1 && !daa) || !dcolor || !drgb || !dkd || !dks || !dkr || !dk)
-        return mlb_fail(MLB_ERR_NOMEM, "appearance backward: out of memory");
-    memset(dkd, 0, sizeof(real) * 3 * NN);
-    memset(dks, 0, sizeof(real) * 3 * NN);
-    memset(dkr, 0, sizeof(real) * NN);
-    (void)n;
+        return mlb_fail(MLB_ERR_NOMEM, "appearance backward: out of memory on the %s", mlb_device_name(tb->device));
+    MLB_TRY(FN(t_zero)(tb, drgb, 3 * NN));
+    MLB_TRY(FN(t_zero)(tb, dkd, 3 * NN));
+    MLB_TRY(FN(t_zero)(tb, dks, 3 * NN));
+    MLB_TRY(FN(t_zero)(tb, dkr, NN));
     for (int v = s->v0; v < s->v1; v++) {
-        const real* dout = dimages + 4 * p * v;
+        MLB_TRY(FN(t_upload)(tb, dout, dimages + 4 * p * v, 4 * p));
+        const real* dimg = dout;
         if (s->ss > 1) {
-            memset(daa, 0, sizeof(real) * 4 * P);
-            FN(mlb_downsample_box_backward)(daa, dout, s->res, s->res, 4, s->ss);
-            dout = daa;
+            MLB_TRY(FN(t_zero)(tb, daa, 4 * P));
+            MLB_TRY(T_DOWNSAMPLE_BACKWARD(tb, daa, dout, s->res, s->res, 4, s->ss));
+            dimg = daa;
         }
-        memset(dcolor, 0, sizeof(real) * 4 * P);
-        MLB_TRY(FN(rt_antialias_backward)(a->be, s->ctx, dcolor, NULL, dout, s->weights + 2 * P * v, s->color + 4 * P * v,
+        MLB_TRY(FN(t_zero)(tb, dcolor, 4 * P));
+        MLB_TRY(FN(rt_antialias_backward)(tb, s->ctx, dcolor, NULL, dimg, s->weights + 2 * P * v, s->color + 4 * P * v,
                                           4, s->tri + P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v, V, s->faces,
                                           s->adj, F, S, S));
         // colour = sRGB(clamp(L)) at covered samples (the coverage channel does not depend on the material)
-        for (int j = s->start[v]; j < s->start[v + 1]; j++)
-            for (int c = 0; c < 3; c++)
-                drgb[3 * (size_t)j + c] = dcolor[4 * (size_t)s->where[j] + c] * FN(srgb_clamped_d)(s->rgb[3 * (size_t)j + c]);
+        int j0 = s->start[v], m = s->start[v + 1] - j0;
+        if (m > 0) MLB_TRY(T_COMPOSITE_BACKWARD(tb, drgb + 3 * (size_t)j0, dcolor, s->rgb + 3 * (size_t)j0, s->where + j0, m));
     }
-    MLB_TRY(FN(shade_views_backward)(s, net, dkd, dks, dkr, drgb, a->fresnel));
-    for (int i = 0; i < N; i++) {
-        for (int c = 0; c < 3; c++) {
-            dk[7 * (size_t)i + c] = dkd[3 * (size_t)i + c];
-            dk[7 * (size_t)i + 3 + c] = dks[3 * (size_t)i + c];
-        }
-        dk[7 * (size_t)i + 6] = dkr[i];
-    }
+    MLB_TRY(FN(shade_views_backward)(s, dkd, dks, dkr, drgb, a->fresnel));
+    MLB_TRY(FN(t_copy_rows)(tb, dk, 7, dkd, 3, 3, NN));
+    MLB_TRY(FN(t_copy_rows)(tb, dk + 3, 7, dks, 3, 3, NN));
+    MLB_TRY(FN(t_copy_rows)(tb, dk + 6, 7, dkr, 1, 1, NN));
+#ifndef MLB_F64
+    if (mlb_field_backend(net)) return mlb_field_backward_on_device(net, dk);
+#endif
     return FN(material_net_backward)(net, dk, NULL);
 }
 
@@ -453,8 +472,7 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
     enum { C = 11 };   // kd 3, ks 3, kr 1, normal 3, coverage 1
     int V = mesh->n_verts, F = mesh->n_faces;
     size_t P = (size_t)res * res;
-    struct mlb_appearance_state st;   // only for its normals buffer
-    memset(&st, 0, sizeof st);
+    abuf normals = {0};
     float* attr = malloc(sizeof(float) * ATTR_C * (size_t)V);
     float* clip = malloc(sizeof(float) * 4 * (size_t)V);
     int32_t* adj = malloc(sizeof(int32_t) * 3 * (size_t)F);
@@ -464,11 +482,11 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
     float* pix = malloc(sizeof(float) * ATTR_C * P);
     float* img = malloc(sizeof(float) * C * P);
     float* aa = malloc(sizeof(float) * C * P);
-    float *pts = NULL, *k = NULL;
-    int32_t* where = NULL;
-    mlb_status s = (attr && clip && adj && tri && bary && depth && pix && img && aa)
+    float *pts = NULL, *nrm = NULL, *vdir = NULL, *k = NULL;
+    int32_t *where = NULL, *index = malloc(sizeof(int32_t) * (P + 1));
+    mlb_status s = (attr && clip && adj && tri && bary && depth && pix && img && aa && index)
                        ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory (%dx%d)", res, res);
-    if (!s) s = mesh_attr(&st, mesh, attr);
+    if (!s) s = mesh_attr(&normals, mesh, attr);
     if (!s) s = mlb_edge_topology(adj, mesh->faces, F, V);
     if (!s) {
         mlb_transform_points(clip, mesh->pos, V, &view->cam.view_proj);
@@ -476,28 +494,28 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
     }
     if (!s) s = rt_interpolate(be, pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
     size_t N = 0;
-    for (size_t i = 0; !s && i < P; i++) N += tri[i] >= 0;
-    if (!s) {
+    if (!s) {   // the covered pixels' samples, as the render gathers them
+        mlb_covered_flags(index, tri, (long)P);
+        mlb_scan_i32(index, index, (int)P);
+        N = (size_t)index[P];
         pts = malloc(sizeof(float) * 3 * (N ? N : 1));
+        nrm = malloc(sizeof(float) * 3 * (N ? N : 1));
+        vdir = malloc(sizeof(float) * 3 * (N ? N : 1));
         k = malloc(sizeof(float) * 7 * (N ? N : 1));
         where = malloc(sizeof(int32_t) * (N ? N : 1));
-        if (!pts || !k || !where) s = mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory");
+        if (!pts || !nrm || !vdir || !k || !where) s = mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory");
     }
     if (!s) {
-        memset(img, 0, sizeof(float) * C * P);
-        size_t j = 0;
-        for (size_t i = 0; i < P; i++) {
-            if (tri[i] < 0) continue;
-            float v[3];
-            pixel_geometry(pix + ATTR_C * i, view->cam.eye, pts + 3 * j, img + C * i + 7, v);
-            where[j++] = (int32_t)i;
-        }
+        mlb_gather_samples(pts, nrm, vdir, where, pix, tri, index, (int)P, view->cam.eye[0], view->cam.eye[1],
+                           view->cam.eye[2]);
         if (N) s = material_net_eval(net, pts, N, k, NULL);
     }
     if (!s) {
+        memset(img, 0, sizeof(float) * C * P);
         for (size_t j = 0; j < N; j++) {
             float* o = img + C * (size_t)where[j];
             memcpy(o, k + 7 * j, sizeof(float) * 7);
+            memcpy(o + 7, nrm + 3 * j, sizeof(float) * 3);
             o[10] = 1;
         }
         s = rt_antialias(be, NULL, aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
@@ -513,9 +531,9 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
             if (kr_img) kr_img[i] = o[6];
         }
     }
-    free(st.b[B_NORMALS].p);
+    free(normals.p);
     free(attr); free(clip); free(adj); free(tri); free(bary); free(depth); free(pix); free(img); free(aa);
-    free(pts); free(k); free(where);
+    free(pts); free(nrm); free(vdir); free(k); free(where); free(index);
     return s;
 }
 #endif

@@ -341,12 +341,13 @@ static mlb_status appearance_stage(pipeline_run* r) {
     float* pts = malloc(sizeof(float) * 3 * SMOOTH_POINTS);
     mlb_appearance app;
     memset(&app, 0, sizeof app);
-    app.be = r->be;
+    // the renderer, the material network, its optimiser and the shading on the run's field table (a
+    // GPU's): only the mesh and the cameras go up, the images come down
+    app.be = r->field_be ? r->field_be : r->be;
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
-    // the material network, its optimiser and the shading on the run's field table (a GPU's)
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
-        if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: material network and shading on the GPU");
+        if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");
     }
     // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
     // guidance call each, the same calls on any number of processes. Each batch is rendered, guided

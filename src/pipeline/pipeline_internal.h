@@ -32,7 +32,7 @@ typedef struct {
     mlb_tetgrid grid;
     mlb_raster_ctx* ctx;
     const mlb_backend* be;   // the op table the stages' marching tets and raster ops run on
-    const mlb_backend* field_be;   // the material network's and shading's table (CUDA fp32 on a GPU), NULL: the host
+    const mlb_backend* field_be;   // the appearance stage's table (CUDA fp32 on a GPU), NULL: the host
     mlb_material_net mat;
     pipeline_scene scene;
     long geometry_start;

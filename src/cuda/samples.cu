@@ -1,0 +1,143 @@
+// The appearance renderer's per-sample passes on the GPU (backend_ops.def "samples"): the CPU's
+// src/render/raster_samples.c and raster_composite.c over device buffers. The maths is
+// render/sample_math.h's (the geometry in double on both); the sRGB curve goes through CUDA's
+// powf, so composite_srgb is within a few ulp of the CPU, the rest is its bits (the roundings
+// are spelled out where nvcc would otherwise fuse a multiply and an add).
+#include <math.h>
+#include "common.cuh"
+#include "render/sample_math.h"
+
+#define GRID_STRIDE(i, n) \
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < (n); i += (size_t)gridDim.x * blockDim.x)
+
+__global__ void covered_flags_kernel(int32_t* flags, const int32_t* tri, size_t n) {
+    GRID_STRIDE(i, n) flags[i] = tri[i] >= 0;
+}
+extern "C" mlb_status mlb_cuda_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
+    if (!n) return MLB_OK;
+    covered_flags_kernel<<<mlb_grid(n, 256), 256>>>(flags, tri, n);
+    MLB_CUDA_LAUNCHED("covered_flags_kernel");
+    return MLB_OK;
+}
+
+__global__ void gather_samples_kernel(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
+                                      const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
+    GRID_STRIDE(i, (size_t)P) {
+        if (tri[i] < 0) continue;
+        size_t j = (size_t)index[i];
+        sample_geometry(pix + 6 * i, ex, ey, ez, pts + 3 * j, nrm + 3 * j, vdir + 3 * j);
+        where[j] = (int32_t)i;
+    }
+}
+extern "C" mlb_status mlb_cuda_gather_samples(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
+                                              const int32_t* tri, const int32_t* index, int P, double ex, double ey,
+                                              double ez) {
+    if (P < 0) return mlb_fail(MLB_ERR_ARG, "gather_samples: %d pixels", P);
+    if (!P) return MLB_OK;
+    gather_samples_kernel<<<mlb_grid((size_t)P, 256), 256>>>(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez);
+    MLB_CUDA_LAUNCHED("gather_samples_kernel");
+    return MLB_OK;
+}
+
+__global__ void composite_srgb_kernel(float* color, const float* rgb, const int32_t* where, int m) {
+    GRID_STRIDE(j, (size_t)m) {
+        float* c = color + 4 * (size_t)where[j];
+        for (int ch = 0; ch < 3; ch++) c[ch] = srgb_clamped(rgb[3 * j + ch]);
+        c[3] = 1;
+    }
+}
+extern "C" mlb_status mlb_cuda_composite_srgb(float* color, const float* rgb, const int32_t* where, int m) {
+    if (m < 0) return mlb_fail(MLB_ERR_ARG, "composite_srgb: %d samples", m);
+    if (!m) return MLB_OK;
+    composite_srgb_kernel<<<mlb_grid((size_t)m, 256), 256>>>(color, rgb, where, m);
+    MLB_CUDA_LAUNCHED("composite_srgb_kernel");
+    return MLB_OK;
+}
+
+__global__ void composite_srgb_backward_kernel(float* drgb, const float* dcolor, const float* rgb, const int32_t* where,
+                                               int m) {
+    GRID_STRIDE(j, (size_t)m) {
+        for (int c = 0; c < 3; c++)
+            drgb[3 * j + c] = __fadd_rn(drgb[3 * j + c],
+                                        __fmul_rn(dcolor[4 * (size_t)where[j] + c], srgb_clamped_d(rgb[3 * j + c])));
+    }
+}
+extern "C" mlb_status mlb_cuda_composite_srgb_backward(float* drgb, const float* dcolor, const float* rgb,
+                                                       const int32_t* where, int m) {
+    if (m < 0) return mlb_fail(MLB_ERR_ARG, "composite_srgb_backward: %d samples", m);
+    if (!m || !drgb) return MLB_OK;
+    composite_srgb_backward_kernel<<<mlb_grid((size_t)m, 256), 256>>>(drgb, dcolor, rgb, where, m);
+    MLB_CUDA_LAUNCHED("composite_srgb_backward_kernel");
+    return MLB_OK;
+}
+
+// one thread per output value: the block's samples summed in double in the CPU's order
+__global__ void downsample_box_kernel(float* out, const float* in, int H, int W, int C, int s) {
+    size_t Wi = (size_t)W * s;
+    double inv = 1.0 / ((double)s * s);
+    GRID_STRIDE(o, (size_t)H * W * C) {
+        int c = (int)(o % C), x = (int)((o / C) % W), y = (int)(o / ((size_t)C * W));
+        double acc = 0;
+        for (int i = 0; i < s; i++) {
+            const float* row = in + (((size_t)y * s + i) * Wi + (size_t)x * s) * C + c;
+            for (int j = 0; j < s; j++) acc += (double)row[(size_t)j * C];
+        }
+        out[o] = (float)__dmul_rn(acc, inv);
+    }
+}
+// one thread per input value: its pixel's share
+__global__ void downsample_box_backward_kernel(float* din, const float* dout, int H, int W, int C, int s) {
+    size_t Wi = (size_t)W * s;
+    float inv = (float)(1.0 / ((double)s * s));
+    GRID_STRIDE(q, (size_t)H * s * Wi * C) {
+        int c = (int)(q % C);
+        size_t xi = (q / C) % Wi, yi = q / ((size_t)C * Wi);
+        size_t o = ((yi / s) * W + xi / s) * C + c;
+        din[q] = __fadd_rn(din[q], __fmul_rn(dout[o], inv));
+    }
+}
+static mlb_status check_box(const char* fn, int H, int W, int C, int s) {
+    if (H < 0 || W < 0 || C < 1 || s < 1) return mlb_fail(MLB_ERR_ARG, "%s: %dx%d, %d channels, factor %d", fn, H, W, C, s);
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_downsample_box(float* out, const float* in, int H, int W, int C, int s) {
+    MLB_TRY(check_box("downsample_box", H, W, C, s));
+    size_t n = (size_t)H * W * C;
+    if (!n) return MLB_OK;
+    downsample_box_kernel<<<mlb_grid(n, 256), 256>>>(out, in, H, W, C, s);
+    MLB_CUDA_LAUNCHED("downsample_box_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_downsample_box_backward(float* din, const float* dout, int H, int W, int C, int s) {
+    MLB_TRY(check_box("downsample_box_backward", H, W, C, s));
+    size_t n = (size_t)H * s * W * s * C;
+    if (!n || !din) return MLB_OK;
+    downsample_box_backward_kernel<<<mlb_grid(n, 256), 256>>>(din, dout, H, W, C, s);
+    MLB_CUDA_LAUNCHED("downsample_box_backward_kernel");
+    return MLB_OK;
+}
+
+struct affine8 { double scale[8], shift[8]; int has_shift; };
+__global__ void affine_columns_kernel(float* y, const float* x, size_t n, int C, affine8 a, int in_float) {
+    GRID_STRIDE(i, n * C) {
+        int c = (int)(i % C);
+        if (in_float) {
+            float p = __fmul_rn(x[i], (float)a.scale[c]);
+            y[i] = a.has_shift ? __fadd_rn(p, (float)a.shift[c]) : p;
+        } else {
+            double p = __dmul_rn(a.scale[c], (double)x[i]);
+            y[i] = (float)(a.has_shift ? __dadd_rn(a.shift[c], p) : p);
+        }
+    }
+}
+extern "C" mlb_status mlb_cuda_affine_columns(float* y, const float* x, size_t n, int C, const double* scale,
+                                              const double* shift, int in_float) {
+    if (C < 1 || C > 8) return mlb_fail(MLB_ERR_ARG, "affine_columns: %d columns (1..8)", C);
+    if (!n) return MLB_OK;
+    affine8 a;
+    a.has_shift = shift != NULL;
+    for (int c = 0; c < C; c++) a.scale[c] = scale[c], a.shift[c] = shift ? shift[c] : 0;
+    affine_columns_kernel<<<mlb_grid(n * C, 256), 256>>>(y, x, n, C, a, in_float);
+    MLB_CUDA_LAUNCHED("affine_columns_kernel");
+    return MLB_OK;
+}

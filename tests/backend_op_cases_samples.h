@@ -1,0 +1,149 @@
+// test_backend_ops's cases for the appearance renderer's sample ops (backend_op_cases.h says how a
+// case is made; integer buffers travel as floats holding int32 bits, as in the rasterizer's cases)
+// and the affine column map. The coverage of gather_samples is drawn from the case's own seed so
+// that setup can size the samples; where holds distinct pixels for the composite (each pixel is
+// written once) and repeats for its backward (a gather).
+#ifndef MATLABER_BACKEND_OP_CASES_SAMPLES_H
+#define MATLABER_BACKEND_OP_CASES_SAMPLES_H
+#include "backend_op_cases_raster.h"
+
+// pixel i of a coverage drawn with seed: covered (face id >= 0) with probability 0.6; none on
+// trial 0's odd seeds, all on even ones
+static int32_t sample_tri(int seed, int i) {
+    double u = mlb_rng_uniform_f64((uint64_t)seed, 91, (uint64_t)i);
+    return u < 0.6 ? (int32_t)(u * 100) : -1;
+}
+static int sample_count(int seed, int P) {
+    int n = 0;
+    for (int i = 0; i < P; i++) n += sample_tri(seed, i) >= 0;
+    return n;
+}
+
+// covered_flags: flags, tri
+static void prep_covered_flags(const op_case* c, float** h) { prep_tri(h[1], c->s[0], 7); }
+static void setup_covered_flags(op_case* c, draw* d, int t) {
+    c->s[0] = dim(d, t, 5000);
+    OUT_("flags", c->s[0], B_BITS);
+    IN_("tri", c->s[0], 0, 1);
+    c->prep = prep_covered_flags;
+    snprintf(c->shape, sizeof c->shape, "n %d", c->s[0]);
+}
+static mlb_status call_covered_flags(const mlb_backend* be, float** p, const op_case* c) {
+    return be->covered_flags((int32_t*)p[0], (const int32_t*)p[1], (size_t)c->s[0]);
+}
+
+// gather_samples: pts, nrm, vdir, where, pix, tri, index; s = P, seed, N
+static const double sample_eye[3] = {0.4, -1.3, 2.2};
+static void prep_gather_samples(const op_case* c, float** h) {
+    int P = c->s[0], j = 0;
+    for (int i = 0; i < P; i++) {
+        int32_t t = sample_tri(c->s[1], i);
+        set_i32(h[5] + i, t);
+        set_i32(h[6] + i, j);
+        j += t >= 0;
+    }
+    // a pixel at the eye and one with a zero normal: the degenerate branches
+    if (P > 2) {
+        for (int k = 0; k < 3; k++) h[4][6 * 1 + k] = (float)sample_eye[k], h[4][6 * 2 + 3 + k] = 0;
+    }
+}
+static void setup_gather_samples(op_case* c, draw* d, int t) {
+    int P = dim(d, t, 3000);
+    c->s[0] = P, c->s[1] = pick(d, 1, 1 << 30);
+    c->s[2] = sample_count(c->s[1], P);
+    size_t N = c->s[2] ? (size_t)c->s[2] : 1;
+    OUT_("pts", 3 * N, B_EXACT);
+    OUT_("nrm", 3 * N, B_ELEM);
+    OUT_("vdir", 3 * N, B_ELEM);
+    OUT_("where", N, B_BITS);
+    IN_("pix", 6 * (size_t)P, -1, 1);
+    IN_("tri", P, 0, 1);
+    IN_("index", P, 0, 1);
+    c->prep = prep_gather_samples;
+    snprintf(c->shape, sizeof c->shape, "P %d, %d covered", P, c->s[2]);
+}
+static mlb_status call_gather_samples(const mlb_backend* be, float** p, const op_case* c) {
+    if (c->s[2] == 0) {   // nothing covered: nothing written (the outputs are compared as written)
+        int32_t w = 0;
+        float z[3] = {0, 0, 0};
+        MLB_TRY(be->upload(p[0], z, 3)); MLB_TRY(be->upload(p[1], z, 3)); MLB_TRY(be->upload(p[2], z, 3));
+        memcpy(z, &w, sizeof w);
+        MLB_TRY(be->upload(p[3], z, 1));
+    }
+    return be->gather_samples(p[0], p[1], p[2], (int32_t*)p[3], p[4], (const int32_t*)p[5], (const int32_t*)p[6],
+                              c->s[0], sample_eye[0], sample_eye[1], sample_eye[2]);
+}
+
+// composite_srgb: color, rgb, where; s = P, m
+static void prep_composite_srgb(const op_case* c, float** h) {
+    int P = c->s[0], m = c->s[1], step = P / (m ? m : 1);
+    for (int j = 0; j < m; j++) set_i32(h[2] + j, P - 1 - j * step);   // distinct pixels
+}
+static void setup_composite_srgb(op_case* c, draw* d, int t) {
+    int P = dim(d, t, 4000), m = pick(d, t ? 0 : 1, P);
+    c->s[0] = P, c->s[1] = m;
+    ACC_("color", 4 * (size_t)P, B_ELEM);
+    IN_("rgb", 3 * (size_t)(m ? m : 1), -0.2f, 1.3f);   // both clamps and the linear toe
+    IN_("where", m ? m : 1, 0, 1);
+    c->prep = prep_composite_srgb;
+    snprintf(c->shape, sizeof c->shape, "P %d, %d samples", P, m);
+}
+static mlb_status call_composite_srgb(const mlb_backend* be, float** p, const op_case* c) {
+    return be->composite_srgb(p[0], p[1], (const int32_t*)p[2], c->s[1]);
+}
+// composite_srgb_backward: drgb, dcolor, rgb, where (any pixels, repeats too)
+static void prep_composite_srgb_backward(const op_case* c, float** h) {
+    for (int j = 0; j < c->s[1]; j++) set_i32(h[3] + j, (int32_t)(h[3][j] * c->s[0]) % c->s[0]);
+    for (int j = 0; j < 3 * c->s[1]; j++)
+        if (j % 11 == 5) h[2][j] = 0.002f;   // the linear toe
+}
+static void setup_composite_srgb_backward(op_case* c, draw* d, int t) {
+    int P = dim(d, t, 4000), m = pick(d, t ? 0 : 1, 3000);
+    c->s[0] = P, c->s[1] = m;
+    ACC_("drgb", 3 * (size_t)(m ? m : 1), B_ELEM);
+    IN_("dcolor", 4 * (size_t)P, -1, 1);
+    IN_("rgb", 3 * (size_t)(m ? m : 1), -0.2f, 1.3f);
+    IN_("where", m ? m : 1, 0, 1);
+    c->prep = prep_composite_srgb_backward;
+    snprintf(c->shape, sizeof c->shape, "P %d, %d samples", P, m);
+}
+static mlb_status call_composite_srgb_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->composite_srgb_backward(p[0], p[1], p[2], (const int32_t*)p[3], c->s[1]);
+}
+
+// downsample_box(_backward): s = H, W, C, factor
+static void draw_box(op_case* c, draw* d, int t) {
+    c->s[0] = dim(d, t, 40), c->s[1] = dim(d, t, 40), c->s[2] = t ? pick(d, 1, 5) : 1, c->s[3] = t ? pick(d, 1, 4) : 1;
+    snprintf(c->shape, sizeof c->shape, "%dx%d x %d, factor %d", c->s[1], c->s[0], c->s[2], c->s[3]);
+}
+static size_t box_in(const op_case* c) { return (size_t)c->s[0] * c->s[3] * c->s[1] * c->s[3] * c->s[2]; }
+static void setup_downsample_box(op_case* c, draw* d, int t) {
+    draw_box(c, d, t);
+    OUT_("out", (size_t)c->s[0] * c->s[1] * c->s[2], B_ELEM);
+    IN_("in", box_in(c), -1, 1);
+}
+static mlb_status call_downsample_box(const mlb_backend* be, float** p, const op_case* c) {
+    return be->downsample_box(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
+}
+static void setup_downsample_box_backward(op_case* c, draw* d, int t) {
+    draw_box(c, d, t);
+    ACC_("din", box_in(c), B_ELEM);
+    IN_("dout", (size_t)c->s[0] * c->s[1] * c->s[2], -1, 1);
+}
+static mlb_status call_downsample_box_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->downsample_box_backward(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
+}
+
+// affine_columns: y, x; s = n, C, in_float
+static void setup_affine_columns(op_case* c, draw* d, int t) {
+    c->s[0] = dim(d, t, 3000), c->s[1] = t ? pick(d, 1, 8) : 1, c->s[2] = t % 2;
+    OUT_("y", (size_t)c->s[0] * c->s[1], B_ELEM);
+    IN_("x", (size_t)c->s[0] * c->s[1], -2, 2);
+    snprintf(c->shape, sizeof c->shape, "n %d, %d columns%s", c->s[0], c->s[1], c->s[2] ? ", in float" : "");
+}
+static mlb_status call_affine_columns(const mlb_backend* be, float** p, const op_case* c) {
+    static const double scale[8] = {0.5, -2.0, 1.0 / 3.0, 0.96, 1e-3, 7.25, -0.1, 1.0};
+    static const double shift[8] = {0.5, 0.04, -1.0, 0.0, 1e-4, 2.0 / 3.0, 3.0, -0.25};
+    return be->affine_columns(p[0], p[1], (size_t)c->s[0], c->s[1], scale, c->s[0] % 3 ? shift : NULL, c->s[2]);
+}
+#endif

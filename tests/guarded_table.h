@@ -1,0 +1,160 @@
+// Shared by tests (not itself a test): a CPU op table whose buffers the host cannot touch outside
+// an op, so that a stage handed it proves on a machine without a GPU that it keeps its data on the
+// table's device. alloc maps whole pages with no access (PROT_NONE); every wrapped op opens all of
+// them for its call and closes them after; upload and download are the only doors. A stage that
+// reads or writes a table buffer on the host dies with SIGSEGV at that line. Ops not wrapped here
+// fail with MLB_ERR_UNSUPPORTED naming the op (wrap one when a stage starts to use it); the GEMM
+// ops are all wrapped. Results are the CPU table's bits.
+#ifndef MATLABER_GUARDED_TABLE_H
+#define MATLABER_GUARDED_TABLE_H
+#include <stdint.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
+#include "matlaber/backend.h"
+
+enum { GUARD_MAX_REGIONS = 4096 };
+static struct { void* p; size_t bytes; } guard_region[GUARD_MAX_REGIONS];
+static int guard_n;
+static long guard_ops;   // ops run through the table (a test can check the stage used it)
+
+static void guard_set(int prot) {
+    for (int i = 0; i < guard_n; i++)
+        if (mprotect(guard_region[i].p, guard_region[i].bytes, prot) != 0) abort();
+}
+#define GUARDED(call)                                  \
+    do {                                               \
+        guard_ops++;                                   \
+        guard_set(PROT_READ | PROT_WRITE);             \
+        mlb_status guard_st_ = (call);                 \
+        guard_set(PROT_NONE);                          \
+        return guard_st_;                              \
+    } while (0)
+#define CPU_ mlb_backend_cpu()
+
+static mlb_status guard_alloc(float** out, size_t n) {
+    size_t page = (size_t)sysconf(_SC_PAGESIZE), bytes = ((n ? n : 1) * sizeof(float) + page - 1) / page * page;
+    if (guard_n == GUARD_MAX_REGIONS) return mlb_fail(MLB_ERR_NOMEM, "guarded table: more than %d buffers", GUARD_MAX_REGIONS);
+    void* p = mmap(NULL, bytes, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) return mlb_fail(MLB_ERR_NOMEM, "guarded table: mmap of %zu bytes", bytes);
+    guard_region[guard_n].p = p, guard_region[guard_n].bytes = bytes;
+    guard_n++;
+    *out = p;
+    return MLB_OK;
+}
+static void guard_release(void* p) {
+    for (int i = 0; p && i < guard_n; i++)
+        if (guard_region[i].p == p) {
+            munmap(p, guard_region[i].bytes);
+            guard_region[i] = guard_region[--guard_n];
+            return;
+        }
+}
+static mlb_status guard_upload(float* dst, const float* host, size_t n) { GUARDED(CPU_->upload(dst, host, n)); }
+static mlb_status guard_download(float* host, const float* src, size_t n) { GUARDED(CPU_->download(host, src, n)); }
+static mlb_status guard_zero(float* p, size_t n) { GUARDED(CPU_->zero(p, n)); }
+static mlb_status guard_copy(float* dst, const float* src, size_t n) { GUARDED(CPU_->copy(dst, src, n)); }
+static mlb_status guard_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
+    GUARDED(CPU_->copy_rows(dst, dpitch, src, spitch, width, rows));
+}
+static mlb_status guard_activation(float* out, const float* in, size_t n, mlb_activation act) {
+    GUARDED(CPU_->activation(out, in, n, act));
+}
+static mlb_status guard_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act) {
+    GUARDED(CPU_->activation_backward(din, dout, in, n, act));
+}
+static mlb_status guard_hashgrid(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N) {
+    GUARDED(CPU_->hashgrid(g, params, out, x, N));
+}
+static mlb_status guard_hashgrid_backward(const mlb_hashgrid* g, const float* params, float* dparams, float* dx,
+                                          const float* dout, const float* x, int N) {
+    GUARDED(CPU_->hashgrid_backward(g, params, dparams, dx, dout, x, N));
+}
+static mlb_status guard_adam(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_config* cfg,
+                             long t) {
+    GUARDED(CPU_->adam(params, grads, m, v, n, cfg, t));
+}
+static mlb_status guard_light_upload(void** handle, const mlb_envlight* light) { return CPU_->light_upload(handle, light); }
+static void guard_light_free(void* handle) { CPU_->light_free(handle); }
+static mlb_status guard_shade(float* out, const float* kd, const float* ks, const float* kr, const float* n,
+                              const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    GUARDED(CPU_->shade(out, kd, ks, kr, n, v, N, handle, rotation, fresnel));
+}
+static mlb_status guard_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
+                                       const float* kd, const float* ks, const float* kr, const float* n,
+                                       const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel) {
+    GUARDED(CPU_->shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, handle, rotation, fresnel));
+}
+static mlb_status guard_rasterize(int32_t* tri, float* bary, float* depth, const float* clip, int V,
+                                  const int32_t* faces, int F, int H, int W) {
+    GUARDED(CPU_->rasterize(tri, bary, depth, clip, V, faces, F, H, W));
+}
+static mlb_status guard_interpolate(float* out, const float* attr, int V, int C, const int32_t* tri, const float* bary,
+                                    const int32_t* faces, int F, int H, int W) {
+    GUARDED(CPU_->interpolate(out, attr, V, C, tri, bary, faces, F, H, W));
+}
+static mlb_status guard_antialias(float* out, float* weights, const float* color, int C, const int32_t* tri,
+                                  const float* depth, const float* clip, int V, const int32_t* faces,
+                                  const int32_t* adj, int F, int H, int W) {
+    GUARDED(CPU_->antialias(out, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W));
+}
+static mlb_status guard_antialias_backward(float* dcolor, float* dclip, const float* dout, const float* weights,
+                                           const float* color, int C, const int32_t* tri, const float* depth,
+                                           const float* clip, int V, const int32_t* faces, const int32_t* adj, int F,
+                                           int H, int W) {
+    GUARDED(CPU_->antialias_backward(dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W));
+}
+static mlb_status guard_scan_i32(int32_t* out, const int32_t* in, int n) { GUARDED(CPU_->scan_i32(out, in, n)); }
+static mlb_status guard_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
+    GUARDED(CPU_->covered_flags(flags, tri, n));
+}
+static mlb_status guard_gather_samples(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
+                                       const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
+    GUARDED(CPU_->gather_samples(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez));
+}
+static mlb_status guard_composite_srgb(float* color, const float* rgb, const int32_t* where, int m) {
+    GUARDED(CPU_->composite_srgb(color, rgb, where, m));
+}
+static mlb_status guard_composite_srgb_backward(float* drgb, const float* dcolor, const float* rgb,
+                                                const int32_t* where, int m) {
+    GUARDED(CPU_->composite_srgb_backward(drgb, dcolor, rgb, where, m));
+}
+static mlb_status guard_downsample_box(float* out, const float* in, int H, int W, int C, int s) {
+    GUARDED(CPU_->downsample_box(out, in, H, W, C, s));
+}
+static mlb_status guard_downsample_box_backward(float* din, const float* dout, int H, int W, int C, int s) {
+    GUARDED(CPU_->downsample_box_backward(din, dout, H, W, C, s));
+}
+static mlb_status guard_affine_columns(float* y, const float* x, size_t n, int C, const double* scale,
+                                       const double* shift, int in_float) {
+    GUARDED(CPU_->affine_columns(y, x, n, C, scale, shift, in_float));
+}
+
+// every other op: refused by name; the GEMM ops: the CPU's, guarded
+#define MLB_OP(name, cuda_fn, params) \
+    __attribute__((unused)) static mlb_status guard_unwrapped_##name params { return mlb_fail(MLB_ERR_UNSUPPORTED, "guarded table: %s is not wrapped", #name); }
+#define MLB_GEMM_OP(name, cuda_fn, params, args) \
+    static mlb_status guard_##name(const mlb_backend* be, MLB_ARGS params) { (void)be; GUARDED(CPU_->name(CPU_, MLB_ARGS args)); }
+#include "matlaber/backend_ops.def"
+
+static const mlb_backend* guarded_table(void) {
+    static mlb_backend t;
+    t = (mlb_backend){
+        .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define MLB_OP(name, cuda_fn, params) .name = guard_unwrapped_##name,
+#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = guard_##name,
+#include "matlaber/backend_ops.def"
+    };
+#define GUARD_USE(name) t.name = guard_##name
+    GUARD_USE(alloc); GUARD_USE(release); GUARD_USE(upload); GUARD_USE(download); GUARD_USE(zero); GUARD_USE(copy);
+    GUARD_USE(copy_rows); GUARD_USE(activation); GUARD_USE(activation_backward); GUARD_USE(hashgrid);
+    GUARD_USE(hashgrid_backward); GUARD_USE(adam); GUARD_USE(light_upload); GUARD_USE(light_free); GUARD_USE(shade);
+    GUARD_USE(shade_backward); GUARD_USE(rasterize); GUARD_USE(interpolate); GUARD_USE(antialias);
+    GUARD_USE(antialias_backward); GUARD_USE(scan_i32); GUARD_USE(covered_flags); GUARD_USE(gather_samples);
+    GUARD_USE(composite_srgb); GUARD_USE(composite_srgb_backward); GUARD_USE(downsample_box);
+    GUARD_USE(downsample_box_backward); GUARD_USE(affine_columns);
+#undef GUARD_USE
+    return &t;
+}
+#undef CPU_
+#endif

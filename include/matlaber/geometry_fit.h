@@ -80,9 +80,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3] */                                 \
         R *nrm, *nsum, *attr, *clip; /* [M,3], [M,3], [M,4], [n,M,4] */                             \
         int32_t* adj;                /* [F,3] */                                                    \
+        /* on the table's device (be): */                                                            \
         int32_t* tri;                /* [n,S,S] */                                                  \
         R *bary, *depth, *img, *weights; /* [n,S,S,2], [n,S,S], [n,S,S,4], [n,S,S,2] */             \
         R *aa, *daa, *dimg, *dbary;  /* per-view scratch [S,S,4], [S,S,4], [S,S,4], [S,S,2] */      \
+        struct N(geofit_table)* tab; /* private: the table's buffers and the table they are on */   \
         R *dattr, *dclip, *dverts, *dnrm;    /* [M,4], [M,4], [M,3], [M,3] */                       \
         R *dgpos, *dsdf, *ddeform;   /* [G,3], [G], [G,3] */                                        \
         R* pieces;                   /* [n, M, 6]: each view's share of dverts and dnrm */          \
@@ -95,8 +97,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         int part_first, part_count, part_batch;                                                     \
         /* Set by the caller before the forward (float): the op table marching tets and the views' \
            rasterize, interpolate, antialias and their backwards run on (NULL: the CPU's,          \
-           mlb_backend_cpu); mt its buffers there (the state's own). The double build calls the    \
-           CPU's _f64 functions directly. */                                                        \
+           mlb_backend_cpu), with every per-pixel buffer there: the surface's attributes and clip   \
+           coordinates go up, the images come down, the dimages go up and the surface's gradients   \
+           come down (M·8 floats a view). mt its buffers there (the state's own). The double build  \
+           calls the CPU's _f64 functions directly. stats->coverage is measured on the CPU's table  \
+           only (0 on another device: it would need every face id on the host). */                 \
         const mlb_backend* be;                                                                      \
         mlb_mt_device* mt;                                                                          \
     } N(mlb_geofit_state);                                                                          \

@@ -15,6 +15,20 @@
 #include "matlaber/rng.h"
 #include "core/real.h"
 #include "nn/raster_table.h"
+#include "nn/table_ops.h"
+
+// The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
+enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT,
+       T_ATTR, T_CLIP, T_FACES, T_ADJ, T_DATTR, T_DCLIP, T_COUNT };
+struct FN(geofit_table) {
+    const mlb_backend* tb;
+    FN(tbuf) d[T_COUNT];
+};
+static void FN(geofit_table_free)(struct FN(geofit_table)* t) {
+    if (!t) return;
+    for (int i = 0; i < T_COUNT; i++) FN(tbuf_free)(t->tb, &t->d[i]);
+    free(t);
+}
 
 
 // One view's buffers at the render size S = res·ss (forward kept for the backward).
@@ -111,8 +125,7 @@ void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     free(st->vp); free(st->images);
     free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
     free(st->nrm); free(st->nsum); free(st->attr); free(st->clip); free(st->adj);
-    free(st->tri); free(st->bary); free(st->depth); free(st->img); free(st->weights);
-    free(st->aa); free(st->daa); free(st->dimg); free(st->dbary);
+    FN(geofit_table_free)(st->tab);
     free(st->dattr); free(st->dclip); free(st->dverts); free(st->dnrm);
     free(st->dgpos); free(st->dsdf); free(st->ddeform);
     free(st->pieces);
@@ -128,6 +141,9 @@ static int FN(grow)(void** p, size_t n, size_t sz) {
 
 // Buffers for this forward: the grid group when the grid size changed, the pixel group when
 // (views, size) changed, the surface group every time (M and F change every step).
+// Buffers for this forward: the grid group when the grid size changed, the pixel group (on the
+// table) when (views, size) changed, the surface group every time (M and F change every step; its
+// table copies grow only).
 static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, int F, int n, int res, int ss) {
     int ok = 1;
     if (G != st->cap_grid) {
@@ -138,17 +154,32 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
               FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
         if (ok) st->cap_grid = G;
     }
+#ifdef MLB_F64
+    const mlb_backend* tb = mlb_backend_cpu();
+#else
+    const mlb_backend* tb = st->be ? st->be : mlb_backend_cpu();
+#endif
+    if (ok && st->tab && st->tab->tb != tb) {   // buffers of another device
+        FN(geofit_table_free)(st->tab);
+        st->tab = NULL;
+        st->cap_px = 0;
+    }
+    if (ok && !st->tab) {
+        ok = (st->tab = calloc(1, sizeof *st->tab)) != NULL;
+        if (ok) st->tab->tb = tb;
+    }
     size_t S = (size_t)res * ss, P = S * S, px = P * (size_t)n;
     if (ok && (S != st->cap_px || (size_t)n != st->cap_views || res != st->res)) {
         st->cap_px = 0;
         st->cap_views = 0;
         size_t p = (size_t)res * res * (size_t)n;
-        ok &= FN(grow)((void**)&st->vp, (size_t)n, sizeof(mlb_mat4)) & FN(grow)((void**)&st->images, p * 4, sizeof(real)) &
-              FN(grow)((void**)&st->tri, px, sizeof(int32_t)) & FN(grow)((void**)&st->bary, px * 2, sizeof(real)) &
-              FN(grow)((void**)&st->depth, px, sizeof(real)) & FN(grow)((void**)&st->img, px * 4, sizeof(real)) &
-              FN(grow)((void**)&st->weights, px * 2, sizeof(real)) & FN(grow)((void**)&st->aa, P * 4, sizeof(real)) &
-              FN(grow)((void**)&st->daa, P * 4, sizeof(real)) & FN(grow)((void**)&st->dimg, P * 4, sizeof(real)) &
-              FN(grow)((void**)&st->dbary, P * 2, sizeof(real));
+        FN(tbuf)* d = st->tab->d;
+        ok &= FN(grow)((void**)&st->vp, (size_t)n, sizeof(mlb_mat4)) & FN(grow)((void**)&st->images, p * 4, sizeof(real));
+        ok = ok && (st->tri = (int32_t*)FN(tbuf_get)(tb, &d[T_TRI], px)) && (st->bary = FN(tbuf_get)(tb, &d[T_BARY], px * 2)) &&
+             (st->depth = FN(tbuf_get)(tb, &d[T_DEPTH], px)) && (st->img = FN(tbuf_get)(tb, &d[T_IMG], px * 4)) &&
+             (st->weights = FN(tbuf_get)(tb, &d[T_WEIGHTS], px * 2)) && (st->aa = FN(tbuf_get)(tb, &d[T_AA], P * 4)) &&
+             (st->daa = FN(tbuf_get)(tb, &d[T_DAA], P * 4)) && (st->dimg = FN(tbuf_get)(tb, &d[T_DIMG], P * 4)) &&
+             (st->dbary = FN(tbuf_get)(tb, &d[T_DBARY], P * 2)) && FN(tbuf_get)(tb, &d[T_OUT], (size_t)res * res * 4);
         if (ok) { st->cap_px = S; st->cap_views = (size_t)n; st->res = res; }
     }
     if (ok && M > 0) {   // (M = 0: grid and pixel groups only)
@@ -158,11 +189,16 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
               FN(grow)((void**)&st->dattr, m * 4, sizeof(real)) & FN(grow)((void**)&st->dclip, m * 4, sizeof(real)) &
               FN(grow)((void**)&st->dverts, m * 3, sizeof(real)) & FN(grow)((void**)&st->dnrm, m * 3, sizeof(real)) &
               FN(grow)((void**)&st->adj, (size_t)F * 3, sizeof(int32_t));
+        FN(tbuf)* d = st->tab->d;
+        ok = ok && FN(tbuf_get)(tb, &d[T_ATTR], m * 4) && FN(tbuf_get)(tb, &d[T_CLIP], m * 4 * (size_t)n) &&
+             FN(tbuf_get)(tb, &d[T_FACES], (size_t)F * 3) && FN(tbuf_get)(tb, &d[T_ADJ], (size_t)F * 3) &&
+             FN(tbuf_get)(tb, &d[T_DATTR], m * 4) && FN(tbuf_get)(tb, &d[T_DCLIP], m * 4);
         st->cap_surf = ok ? m : 0;
     }
     if (!ok) {
         FN(mlb_geofit_state_free)(st);
-        return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d px, %d surface vertices)", n, res * ss, M);
+        return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory on the %s (%d views of %d px, %d surface vertices)",
+                        mlb_device_name(tb->device), n, res * ss, M);
     }
     return MLB_OK;
 }
@@ -225,7 +261,13 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     }
     s = mlb_edge_topology(st->adj, st->surf.faces, F, M);
     if (s) return s;
-    // 3. every view (of this process's part), buffers kept
+    // 3. every view (of this process's part), buffers kept: the surface goes up, the images come down
+    const mlb_backend* tb = st->tab->tb;
+    real *t_attr = st->tab->d[T_ATTR].p, *t_clip = st->tab->d[T_CLIP].p, *t_out = st->tab->d[T_OUT].p;
+    int32_t *t_faces = (int32_t*)st->tab->d[T_FACES].p, *t_adj = (int32_t*)st->tab->d[T_ADJ].p;
+    MLB_TRY(FN(t_upload)(tb, t_attr, st->attr, 4 * (size_t)M));
+    MLB_TRY(FN(t_upload_i32)(tb, t_faces, st->surf.faces, 3 * (size_t)F));
+    MLB_TRY(FN(t_upload_i32)(tb, t_adj, st->adj, 3 * (size_t)F));
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
     uint64_t hash = 1469598103934665603ull;
     int v0, v1;
@@ -233,20 +275,23 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     if (st->part_count != 0) memset(st->images, 0, sizeof(real) * p * 4 * (size_t)n);
     for (int v = 0; v < n; v++) st->vp[v] = cams[v].view_proj;
     for (int v = v0; v < v1; v++) {
-        real* clip = st->clip + (size_t)v * M * 4;
-        FN(mlb_transform_points)(clip, st->surf.pos, M, &st->vp[v]);
+        real* clip = t_clip + (size_t)v * M * 4;
+        FN(mlb_transform_points)(st->clip + (size_t)v * M * 4, st->surf.pos, M, &st->vp[v]);
+        MLB_TRY(FN(t_upload)(tb, clip, st->clip + (size_t)v * M * 4, 4 * (size_t)M));
         int32_t* tri = st->tri + (size_t)v * P;
         real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
-        real *weights = st->weights + (size_t)v * P * 2, *out = st->images + (size_t)v * p * 4;
-        real* aa = ss == 1 ? out : st->aa;
+        real* weights = st->weights + (size_t)v * P * 2;
+        real* aa = ss == 1 ? t_out : st->aa;
         int Si = st->S;
-        s = FN(rt_rasterize)(st->be, ctx, tri, bary, depth, clip, M, st->surf.faces, F, Si, Si);
-        if (!s) s = FN(rt_interpolate)(st->be, img, st->attr, M, 4, tri, bary, st->surf.faces, F, Si, Si);
-        if (!s) s = FN(rt_antialias)(st->be, ctx, aa, weights, img, 4, tri, depth, clip, M, st->surf.faces, st->adj, F, Si, Si);
+        s = FN(rt_rasterize)(tb, ctx, tri, bary, depth, clip, M, t_faces, F, Si, Si);
+        if (!s) s = FN(rt_interpolate)(tb, img, t_attr, M, 4, tri, bary, t_faces, F, Si, Si);
+        if (!s) s = FN(rt_antialias)(tb, ctx, aa, weights, img, 4, tri, depth, clip, M, t_faces, t_adj, F, Si, Si);
+        if (!s && ss > 1) s = T_DOWNSAMPLE(tb, t_out, aa, res, res, 4, ss);
+        if (!s) s = FN(t_download)(tb, st->images + (size_t)v * p * 4, t_out, 4 * p);
         if (s) return s;
-        if (ss > 1) FN(mlb_downsample_box)(out, aa, res, res, 4, ss);
-        hash = FN(geofit_hash)(hash, tri, P);
+        if (tb->device == MLB_DEVICE_CPU) hash = FN(geofit_hash)(hash, tri, P);   // host memory: the coverage's hash
     }
+    if (tb->device != MLB_DEVICE_CPU) hash = 0;
     if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
     stats->reg = (double)FN(sdf_reg_forward)(g, st->sdf);
     stats->coverage = hash;
@@ -275,27 +320,33 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
             return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d surface vertices)", n, M);
         st->cap_pieces = piece * (size_t)n;
     }
+    const mlb_backend* tb = st->tab->tb;
+    real *t_attr = st->tab->d[T_ATTR].p, *t_clip = st->tab->d[T_CLIP].p, *t_dout = st->tab->d[T_OUT].p;
+    real *t_dattr = st->tab->d[T_DATTR].p, *t_dclip = st->tab->d[T_DCLIP].p;
+    const int32_t *t_faces = (const int32_t*)st->tab->d[T_FACES].p, *t_adj = (const int32_t*)st->tab->d[T_ADJ].p;
     for (int v = v0; dimages && v < v1; v++) {
-        const real* dout = dimages + (size_t)v * p * 4;
-        const real* daa = dout;
-        if (ss > 1) {
-            memset(st->daa, 0, sizeof(real) * P * 4);
-            FN(mlb_downsample_box_backward)(st->daa, dout, res, res, 4, ss);
+        s = FN(t_upload)(tb, t_dout, dimages + (size_t)v * p * 4, 4 * p);
+        const real* daa = t_dout;
+        if (!s && ss > 1) {
+            s = FN(t_zero)(tb, st->daa, P * 4);
+            if (!s) s = T_DOWNSAMPLE_BACKWARD(tb, st->daa, t_dout, res, res, 4, ss);
             daa = st->daa;
         }
-        const real* clip = st->clip + (size_t)v * M * 4;
+        const real* clip = t_clip + (size_t)v * M * 4;
         const int32_t* tri = st->tri + (size_t)v * P;
         const real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         const real* weights = st->weights + (size_t)v * P * 2;
-        memset(st->dimg, 0, sizeof(real) * P * 4);
-        memset(st->dbary, 0, sizeof(real) * P * 2);
-        memset(st->dclip, 0, sizeof(real) * (size_t)M * 4);
-        memset(st->dattr, 0, sizeof(real) * (size_t)M * 4);
-        s = FN(rt_antialias_backward)(st->be, st->ctx, st->dimg, st->dclip, daa, weights, img, 4, tri, depth, clip, M,
-                                     faces, st->adj, F, Si, Si);
-        if (!s) s = FN(rt_interpolate_backward)(st->be, st->ctx, st->dattr, st->dbary, st->dimg, st->attr, M, 4, tri, bary,
-                                               faces, F, Si, Si);
-        if (!s) s = FN(rt_rasterize_backward)(st->be, st->ctx, st->dclip, st->dbary, NULL, tri, clip, M, faces, F, Si, Si);
+        if (!s) s = FN(t_zero)(tb, st->dimg, P * 4);
+        if (!s) s = FN(t_zero)(tb, st->dbary, P * 2);
+        if (!s) s = FN(t_zero)(tb, t_dclip, (size_t)M * 4);
+        if (!s) s = FN(t_zero)(tb, t_dattr, (size_t)M * 4);
+        if (!s) s = FN(rt_antialias_backward)(tb, st->ctx, st->dimg, t_dclip, daa, weights, img, 4, tri, depth, clip, M,
+                                             t_faces, t_adj, F, Si, Si);
+        if (!s) s = FN(rt_interpolate_backward)(tb, st->ctx, t_dattr, st->dbary, st->dimg, t_attr, M, 4, tri, bary,
+                                               t_faces, F, Si, Si);
+        if (!s) s = FN(rt_rasterize_backward)(tb, st->ctx, t_dclip, st->dbary, NULL, tri, clip, M, t_faces, F, Si, Si);
+        if (!s) s = FN(t_download)(tb, st->dclip, t_dclip, (size_t)M * 4);
+        if (!s) s = FN(t_download)(tb, st->dattr, t_dattr, (size_t)M * 4);
         if (s) break;   // (still joins the gather below: the other ranks wait in it)
         real* pc = st->pieces + piece * (size_t)v;
         memset(pc, 0, sizeof(real) * (size_t)M * 3);

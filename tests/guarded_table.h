@@ -104,6 +104,29 @@ static mlb_status guard_antialias_backward(float* dcolor, float* dclip, const fl
                                            int H, int W) {
     GUARDED(CPU_->antialias_backward(dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W));
 }
+static mlb_status guard_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets,
+                                            int T, int cells) {
+    GUARDED(CPU_->marching_tets_count(tet_nf, slot_nv, sdf, tets, T, cells));
+}
+static mlb_status guard_marching_tets_emit(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,
+                                           const float* sdf, const int32_t* tets, int T, int cells,
+                                           const int32_t* tet_off, const int32_t* slot_off) {
+    GUARDED(CPU_->marching_tets_emit(verts, vedge, weight, faces, pos, sdf, tets, T, cells, tet_off, slot_off));
+}
+static mlb_status guard_marching_tets_backward(float* dpos, float* dsdf, const float* dverts, const float* weight,
+                                               const int32_t* vedge, int nv, const float* pos, const float* sdf,
+                                               const int32_t* slot_off, int cells) {
+    GUARDED(CPU_->marching_tets_backward(dpos, dsdf, dverts, weight, vedge, nv, pos, sdf, slot_off, cells));
+}
+static mlb_status guard_rasterize_backward(float* dclip, const float* dbary, const float* ddepth, const int32_t* tri,
+                                           const float* clip, int V, const int32_t* faces, int F, int H, int W) {
+    GUARDED(CPU_->rasterize_backward(dclip, dbary, ddepth, tri, clip, V, faces, F, H, W));
+}
+static mlb_status guard_interpolate_backward(float* dattr, float* dbary, const float* dout, const float* attr, int V,
+                                             int C, const int32_t* tri, const float* bary, const int32_t* faces, int F,
+                                             int H, int W) {
+    GUARDED(CPU_->interpolate_backward(dattr, dbary, dout, attr, V, C, tri, bary, faces, F, H, W));
+}
 static mlb_status guard_scan_i32(int32_t* out, const int32_t* in, int n) { GUARDED(CPU_->scan_i32(out, in, n)); }
 static mlb_status guard_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
     GUARDED(CPU_->covered_flags(flags, tri, n));
@@ -152,7 +175,9 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(shade_backward); GUARD_USE(rasterize); GUARD_USE(interpolate); GUARD_USE(antialias);
     GUARD_USE(antialias_backward); GUARD_USE(scan_i32); GUARD_USE(covered_flags); GUARD_USE(gather_samples);
     GUARD_USE(composite_srgb); GUARD_USE(composite_srgb_backward); GUARD_USE(downsample_box);
-    GUARD_USE(downsample_box_backward); GUARD_USE(affine_columns);
+    GUARD_USE(downsample_box_backward); GUARD_USE(affine_columns); GUARD_USE(marching_tets_count);
+    GUARD_USE(marching_tets_emit); GUARD_USE(marching_tets_backward); GUARD_USE(rasterize_backward);
+    GUARD_USE(interpolate_backward);
 #undef GUARD_USE
     return &t;
 }

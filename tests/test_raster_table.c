@@ -9,6 +9,7 @@
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
 #include "appearance_test_util.h"
+#include "guarded_table.h"
 #include "material_test_util.h"
 #include "test.h"
 
@@ -66,56 +67,95 @@ static const mlb_backend* spy_table(void) {
 
 static int same(const void* a, const void* b, size_t bytes) { return memcmp(a, b, bytes) == 0; }
 
-TEST(geometry_stage_calls_the_table) {
-    const mlb_backend* be = spy_table();
+// One geometry forward + backward of a small ellipsoid-fitted network on table `be` (NULL: the
+// CPU's) into img and grads; the loss is ½|img − 0.5|² of the CPU's image (dimg, written on t 0).
+enum { G_RES = 24, G_SS = 2, G_VIEWS = 3 };
+typedef struct {
+    mlb_geometry_net net;
+    mlb_tetgrid g;
+    mlb_camera cams[G_VIEWS];
+    size_t m;
+    float* dimg;
+} geometry_case;
+static void geometry_case_init(geometry_case* k) {
+    memset(k, 0, sizeof *k);
     mlb_geometry_config c = mlb_geometry_default();
     c.enc = (mlb_hashgrid_config){4, 2, 256, 4, 1.5};
     c.hidden = 8;
-    mlb_geometry_net net = {0};
-    REQUIRE(geometry_net_init(&net, &c) == MLB_OK);
+    REQUIRE(geometry_net_init(&k->net, &c) == MLB_OK);
     mlb_shape sh;
     float axes[3] = {1.0f, 0.8f, 0.9f};
     mlb_shape_ellipsoid(&sh, 0.8f, axes);
     mlb_shape_fit_config fc = mlb_shape_fit_default();
     fc.iters = 60; fc.batch = 1024; fc.pool = 2048;
-    REQUIRE(mlb_geometry_fit_shape(&net, &sh, &fc, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_geometry_fit_shape(&k->net, &sh, &fc, NULL, NULL) == MLB_OK);
     mlb_shape_free(&sh);
-    mlb_tetgrid g;
-    REQUIRE(mlb_tetgrid_create(&g, 8, c.scale) == MLB_OK);
-    enum { RES = 24, SS = 2, VIEWS = 3 };
-    mlb_camera cams[VIEWS];
-    for (int v = 0; v < VIEWS; v++)
-        REQUIRE(mlb_camera_orbit(&cams[v], 40.0 + 110 * v, 25.0 - 20 * v, 3.0, NULL, 45.0, 1.0, 0.1, 100.0) == MLB_OK);
-    size_t m = (size_t)VIEWS * RES * RES * 4;
-    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)}, *dimg = malloc(sizeof(float) * m);
-    float* grads = malloc(sizeof(float) * net.n_params);
-    for (int t = 0; t < 2; t++) {   // t 0: NULL (the CPU table), t 1: the spy
-        mlb_geofit_state st;
-        memset(&st, 0, sizeof st);
-        st.be = t ? be : NULL;
-        geometry_net_zero_grad(&net);
-        REQUIRE(mlb_geofit_forward(&st, &net, &g, NULL, cams, VIEWS, RES, SS, img[t], NULL) == MLB_OK);
-        if (t == 0)
-            for (size_t i = 0; i < m; i++) dimg[i] = img[0][i] - 0.5f;
-        REQUIRE(mlb_geofit_backward(&st, &net, dimg, 0.1) == MLB_OK);
-        if (t == 0) memcpy(grads, net.grads, sizeof(float) * net.n_params);
-        mlb_geofit_state_free(&st);
-    }
+    REQUIRE(mlb_tetgrid_create(&k->g, 8, c.scale) == MLB_OK);
+    for (int v = 0; v < G_VIEWS; v++)
+        REQUIRE(mlb_camera_orbit(&k->cams[v], 40.0 + 110 * v, 25.0 - 20 * v, 3.0, NULL, 45.0, 1.0, 0.1, 100.0) == MLB_OK);
+    k->m = (size_t)G_VIEWS * G_RES * G_RES * 4;
+    k->dimg = malloc(sizeof(float) * k->m);
+}
+static void geometry_case_run(geometry_case* k, const mlb_backend* be, int first, float* img, float* grads) {
+    mlb_geofit_state st;
+    memset(&st, 0, sizeof st);
+    st.be = be;
+    geometry_net_zero_grad(&k->net);
+    REQUIRE(mlb_geofit_forward(&st, &k->net, &k->g, NULL, k->cams, G_VIEWS, G_RES, G_SS, img, NULL) == MLB_OK);
+    if (first)
+        for (size_t i = 0; i < k->m; i++) k->dimg[i] = img[i] - 0.5f;
+    REQUIRE(mlb_geofit_backward(&st, &k->net, k->dimg, 0.1) == MLB_OK);
+    memcpy(grads, k->net.grads, sizeof(float) * k->net.n_params);
+    mlb_geofit_state_free(&st);
+}
+static void geometry_case_free(geometry_case* k) {
+    free(k->dimg);
+    mlb_tetgrid_free(&k->g);
+    geometry_net_free(&k->net);
+}
+
+TEST(geometry_stage_calls_the_table) {
+    const mlb_backend* be = spy_table();
+    geometry_case k;
+    geometry_case_init(&k);
+    size_t m = k.m, np = k.net.n_params;
+    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)};
+    float *grads[2] = {malloc(sizeof(float) * np), malloc(sizeof(float) * np)};
+    for (int t = 0; t < 2; t++) geometry_case_run(&k, t ? be : NULL, t == 0, img[t], grads[t]);   // t 1: the spy
     CHECK(same(img[0], img[1], sizeof(float) * m));
-    CHECK(same(grads, net.grads, sizeof(float) * net.n_params));
-    for (int op = 0; op < OP_COUNT; op++) CHECK(calls[op] == VIEWS);
+    CHECK(same(grads[0], grads[1], sizeof(float) * np));
+    for (int op = 0; op < OP_COUNT; op++) CHECK(calls[op] == G_VIEWS);
     // the final normal maps
+    enum { RES = G_RES, SS = G_SS };
     mlb_mesh sphere = {0};
     REQUIRE(mlb_mesh_uv_sphere(&sphere, 0.8f, 24, 12) == MLB_OK);
     memset(calls, 0, sizeof calls);
-    REQUIRE(mlb_geofit_render_mesh(NULL, img[0], &sphere, &cams[0], RES, SS) == MLB_OK);
-    REQUIRE(mlb_geofit_render_mesh_on(be, NULL, img[1], &sphere, &cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(NULL, img[0], &sphere, &k.cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh_on(be, NULL, img[1], &sphere, &k.cams[0], RES, SS) == MLB_OK);
     CHECK(same(img[0], img[1], sizeof(float) * RES * RES * 4));
     CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
     mlb_mesh_free(&sphere);
-    free(img[0]); free(img[1]); free(dimg); free(grads);
-    mlb_tetgrid_free(&g);
-    geometry_net_free(&net);
+    for (int t = 0; t < 2; t++) { free(img[t]); free(grads[t]); }
+    geometry_case_free(&k);
+}
+
+// The geometry step on a table whose buffers the host cannot touch outside its ops
+// (guarded_table.h): marching tets and every view's raster buffers stay there (a host access ends
+// the test with SIGSEGV), the bits are the CPU table's, and every buffer is given back.
+TEST(geometry_stage_stays_on_its_table) {
+    geometry_case k;
+    geometry_case_init(&k);
+    size_t m = k.m, np = k.net.n_params;
+    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)};
+    float *grads[2] = {malloc(sizeof(float) * np), malloc(sizeof(float) * np)};
+    long ops = guard_ops;
+    for (int t = 0; t < 2; t++) geometry_case_run(&k, t ? guarded_table() : NULL, t == 0, img[t], grads[t]);
+    CHECK(same(img[0], img[1], sizeof(float) * m));
+    CHECK(same(grads[0], grads[1], sizeof(float) * np));
+    CHECK(guard_ops - ops > 10 * G_VIEWS);
+    CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);
+    for (int t = 0; t < 2; t++) { free(img[t]); free(grads[t]); }
+    geometry_case_free(&k);
 }
 
 TEST(appearance_calls_the_table) {
@@ -171,6 +211,7 @@ TEST(appearance_calls_the_table) {
 
 int main(void) {
     RUN(geometry_stage_calls_the_table);
+    RUN(geometry_stage_stays_on_its_table);
     RUN(appearance_calls_the_table);
     return test_summary();
 }

@@ -100,8 +100,8 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            mlb_backend_cpu), with every per-pixel buffer there: the surface's attributes and clip   \
            coordinates go up, the images come down, the dimages go up and the surface's gradients   \
            come down (M·8 floats a view). mt its buffers there (the state's own). The double build  \
-           calls the CPU's _f64 functions directly. stats->coverage is measured on the CPU's table  \
-           only (0 on another device: it would need every face id on the host). */                 \
+           calls the CPU's _f64 functions directly. stats->coverage is measured on tables whose     \
+           buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const mlb_backend* be;                                                                      \
         mlb_mt_device* mt;                                                                          \
     } N(mlb_geofit_state);                                                                          \

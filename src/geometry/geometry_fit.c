@@ -263,6 +263,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     if (s) return s;
     // 3. every view (of this process's part), buffers kept: the surface goes up, the images come down
     const mlb_backend* tb = st->tab->tb;
+    const int host_memory = tb->alloc == mlb_backend_cpu()->alloc;   // the table's buffers are the host's
     real *t_attr = st->tab->d[T_ATTR].p, *t_clip = st->tab->d[T_CLIP].p, *t_out = st->tab->d[T_OUT].p;
     int32_t *t_faces = (int32_t*)st->tab->d[T_FACES].p, *t_adj = (int32_t*)st->tab->d[T_ADJ].p;
     MLB_TRY(FN(t_upload)(tb, t_attr, st->attr, 4 * (size_t)M));
@@ -289,9 +290,9 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
         if (!s && ss > 1) s = T_DOWNSAMPLE(tb, t_out, aa, res, res, 4, ss);
         if (!s) s = FN(t_download)(tb, st->images + (size_t)v * p * 4, t_out, 4 * p);
         if (s) return s;
-        if (tb->device == MLB_DEVICE_CPU) hash = FN(geofit_hash)(hash, tri, P);   // host memory: the coverage's hash
+        if (host_memory) hash = FN(geofit_hash)(hash, tri, P);   // the coverage's hash, where tri can be read
     }
-    if (tb->device != MLB_DEVICE_CPU) hash = 0;
+    if (!host_memory) hash = 0;
     if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
     stats->reg = (double)FN(sdf_reg_forward)(g, st->sdf);
     stats->coverage = hash;

@@ -298,7 +298,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     float* images = malloc(sizeof(float) * img * (size_t)n);
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
-    st.be = r->be;
+    st.be = pipeline_stage_table(r);
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
@@ -343,7 +343,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     memset(&app, 0, sizeof app);
     // the renderer, the material network, its optimiser and the shading on the run's field table (a
     // GPU's): only the mesh and the cameras go up, the images come down
-    app.be = r->field_be ? r->field_be : r->be;
+    app.be = pipeline_stage_table(r);
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
@@ -549,8 +549,8 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     if (!s && !paint) s = geometry_net_init(&r.geo, &gc);
     if (!s && !paint) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
     r.ctx = mlb_raster_ctx_create();
-    // Marching tets run on the CPU's table: the geometry network, which makes their input, is on the
-    // host (docs/cuda.md "The renderer on the op table")
+    // The final renders and the extraction run on the CPU's table (host meshes in, host images out);
+    // the stages on field_be's when there is one (pipeline_stage_table)
     r.be = mlb_backend_cpu();
     // The run's one reading of the program's device (--device): on a GPU the material network, its
     // AdamW and the shading run there, in fp32 whatever --precision says (the MLPs are small)

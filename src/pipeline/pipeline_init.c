@@ -74,7 +74,7 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
     for (int v = 0; v < n; v++) cams[v] = views[v].cam;
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
-    st.be = r->be;
+    st.be = pipeline_stage_table(r);
     mlb_geofit_stats stats;
     mlb_status s = mlb_geofit_forward(&st, &r->geo, &r->grid, r->ctx, cams, n, c->res, c->ss, NULL, &stats);
     *vanished = s && st.surf.n_faces == 0;   // marching tets found no surface
@@ -98,7 +98,7 @@ static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
     mlb_view* views = calloc((size_t)n, sizeof *views);
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
-    st.be = r->be;
+    st.be = pipeline_stage_table(r);
     mlb_status s = views ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
     for (long it = 0; !s && it < steps; it++) {
         mlb_geofit_stats stats;

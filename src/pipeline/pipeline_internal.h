@@ -32,7 +32,7 @@ typedef struct {
     mlb_tetgrid grid;
     mlb_raster_ctx* ctx;
     const mlb_backend* be;   // the op table the stages' marching tets and raster ops run on
-    const mlb_backend* field_be;   // the appearance stage's table (CUDA fp32 on a GPU), NULL: the host
+    const mlb_backend* field_be;   // the stages' table (CUDA fp32 on a GPU), NULL: the host
     mlb_material_net mat;
     pipeline_scene scene;
     long geometry_start;
@@ -40,6 +40,10 @@ typedef struct {
     int stopped;           // stop_after reached
     mlb_pipeline_result result;
 } pipeline_run;
+
+// The table the stages render on: the GPU's on a GPU run (the per-pixel buffers and marching tets
+// there, docs/cuda.md "The stages on the table"), else the CPU's
+static inline const mlb_backend* pipeline_stage_table(const pipeline_run* r) { return r->field_be ? r->field_be : r->be; }
 
 // pipeline.c
 // Geometry step `it` of the run's schedule (the hash grid's active levels, the step's views, the

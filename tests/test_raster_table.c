@@ -153,6 +153,15 @@ TEST(geometry_stage_stays_on_its_table) {
     CHECK(same(img[0], img[1], sizeof(float) * m));
     CHECK(same(grads[0], grads[1], sizeof(float) * np));
     CHECK(guard_ops - ops > 10 * G_VIEWS);
+    // the network there too (the pipeline's geometry stage on a GPU): the field's device path, whose
+    // arithmetic is the host's to rounding
+    REQUIRE(mlb_field_use_device(&k.net, guarded_table()) == MLB_OK);
+    geometry_case_run(&k, guarded_table(), 0, img[1], grads[1]);
+    REQUIRE(mlb_field_sync_host(&k.net) == MLB_OK);
+    memcpy(grads[1], k.net.grads, sizeof(float) * np);
+    REQUIRE(mlb_field_leave_device(&k.net) == MLB_OK);
+    CHECK_PARITY("images, the network on the table", img[1], img[0], m, 1e-6);
+    CHECK_PARITY("gradients, the network on the table", grads[1], grads[0], np, 1e-4);
     CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);
     for (int t = 0; t < 2; t++) { free(img[t]); free(grads[t]); }
     geometry_case_free(&k);

@@ -300,6 +300,12 @@ static mlb_status geometry_stage(pipeline_run* r) {
     memset(&st, 0, sizeof st);
     st.be = pipeline_stage_table(r);
     if (!views || !images) s = mlb_fail(MLB_ERR_NOMEM, "geometry stage: out of memory");
+    // the geometry network, its optimiser and its cache on the stages' table's GPU: only the grid's
+    // SDF and deformation come down and their gradients go up (the checkpoints sync the host copy)
+    if (!s && r->field_be) {
+        s = mlb_field_use_device(net, r->field_be);
+        if (!s) mlb_log(MLB_LOG_INFO, "geometry stage: geometry network, renderer and marching tets on the GPU");
+    }
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < c->geometry_iters; it++) {
         mlb_geofit_stats stats;
@@ -312,6 +318,8 @@ static mlb_status geometry_stage(pipeline_run* r) {
     }
     stage_clock_report(&clock, "geometry", r->result.geometry_steps);
     net->active_levels = 0;   // the surface the appearance stage and the outputs use: every level
+    mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
+    if (!s) s = left;
     mlb_geofit_state_free(&st);
     free(views);
     free(images);

@@ -41,16 +41,18 @@
            are. No collectives: the pipeline sums the parts' parameter gradients (docs/pipeline.md). \
            part_count 0: every view, -1: none. */                                                    \
         int part_first, part_count;                                                                  \
-        /* The op table rasterize, interpolate, antialias and its backward run on (float; NULL: the  \
-           CPU's; the double build calls the CPU's _f64 functions): the run's (pipeline_run.be). The \
-           shading runs on the material network's device (mlb_field_backend). */                    \
+        /* The op table the whole render runs on, its buffers allocated there (float; NULL: the    \
+           CPU's; the double build calls the CPU's _f64 functions): rasterize, the samples' gather,  \
+           the material network (a net on a device must be on this table's; a net on the host needs \
+           the CPU's), the shading, the composite and their backwards (docs/appearance.md). */       \
         const mlb_backend* be;                                                                       \
     } N(mlb_appearance);                                                                             \
     void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
     /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \
        material net: images [n, res, res, 4] (above). lights[views[i].env] must exist for every i.     \
        keep_for_backward: the net's forward cache holds this render's points (material_net_forward) \
-       and mlb_appearance_backward may follow; 0: the net is evaluated without touching its cache.    \
+       and mlb_appearance_backward may follow; 0: the net (on the host) is evaluated without         \
+       touching its cache.                                                                           \
        The mesh and the lights must stay unchanged until the backward. */                           \
     mlb_status N(mlb_appearance_render)(N(mlb_appearance)* a, N(mlb_material_net)* net, const mlb_mesh* mesh, \
                                         const mlb_envlight* const* lights, const mlb_view* views, int n, int res, \
@@ -59,7 +61,7 @@
        The net's cache must still be the render's (no material_net_forward in between). */          \
     mlb_status N(mlb_appearance_backward)(N(mlb_appearance)* a, N(mlb_material_net)* net, const R* dimages); \
     /* The last render's surface points [*n, 3] (covered samples of its views, view-major; NULL when  \
-       none): e.g. where to evaluate the smoothness regulariser. Valid until the next render. */      \
+       none), on the render's table (a->be: host memory for the CPU's). Valid until the next render. */ \
     const R* N(mlb_appearance_points)(const N(mlb_appearance)* a, int* n);                           \
     /* Material smoothness (paper §3.4, nvdiffrec):                                                   \
          L = weight · mean_i (1/3) Σ_{c in kd} |k_c(x_i) − k_c(x_i + ε_i)|                             \

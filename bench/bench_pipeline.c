@@ -29,9 +29,8 @@
 //                              [--init-iters 100] [--dir /tmp] [--sd15-views 1] [--device cpu|cuda]
 //                              [--precision fp16]
 // --device cuda moves the SD 1.5 UNet and VAE to the GPU (mlb_unet_use_device, mlb_vae_use_device) at
-// --precision, and in the appearance stage the material network, its AdamW and the shading
-// (mlb_field_use_device, as the pipeline does); rasterization, antialias and the geometry
-// stage's networks stay on the CPU (docs/cuda.md). On the CPU, --precision bf16 gives the UNet and
+// --precision, and as the pipeline does both stages' rendering, networks (mlb_field_use_device),
+// optimisers, shading and marching tets (the stages on the GPU's table, docs/cuda.md). On the CPU, --precision bf16 gives the UNet and
 // VAE the CPU's bf16 GEMMs (as `matlaber --precision bf16` and the cpu preset do).
 // --sd15 --generate PRESET (e.g. cpu) skips the table and runs a whole generation end to end with
 // that preset (mlb_pipeline_preset) and the random SD 1.5 (random prompt embeddings): the pipeline's
@@ -215,6 +214,11 @@ static void reset_mat(scene* sc) {
     n->step = 0;
 }
 
+// The stages' table: the GPU's fp32 one on a GPU (the pipeline's pipeline_stage_table), else NULL (the CPU's)
+static const mlb_backend* stage_table(void) {
+    return mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
+}
+
 static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int iters, split* out) {
     memset(out, 0, sizeof *out);
     out->gpu_gib = -1;
@@ -228,7 +232,9 @@ static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int 
     float* dimages = malloc(sizeof(float) * N);
     mlb_geofit_state st;
     memset(&st, 0, sizeof st);
+    st.be = stage_table();
     mlb_status s = views && cams && dimages ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: geometry buffers");
+    if (!s && st.be) s = mlb_field_use_device(&sc->geo, st.be);   // as the pipeline's geometry stage
     for (int it = 0; !s && it <= iters; it++) {   // it 0: warm-up
         long step = step0 + it;
         mlb_geofit_stats stats;
@@ -255,6 +261,8 @@ static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int 
         out->unet = time_unet(gd, n, step0 < LATENT_ITERS ? MLB_GUIDANCE_LATENT_SIZE : res / 8);
         out->gpu_gib = gpu_in_use();
     }
+    mlb_status left = mlb_field_leave_device(&sc->geo);
+    if (!s) s = left;
     mlb_geofit_state_free(&st);
     free(views); free(cams); free(dimages);
     return s;
@@ -274,9 +282,9 @@ static mlb_status bench_appearance(scene* sc, guide* gd, int res, int iters, spl
     float* pts = malloc(sizeof(float) * 3 * SMOOTH_POINTS);
     mlb_appearance app;
     memset(&app, 0, sizeof app);
+    app.be = stage_table();
     mlb_status s = views && images && dimages && pts ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: appearance buffers");
-    if (!s && mlb_device_current() == MLB_DEVICE_CUDA)   // as the pipeline's appearance stage
-        s = mlb_field_use_device(&sc->mat, mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32));
+    if (!s && app.be) s = mlb_field_use_device(&sc->mat, app.be);   // as the pipeline's appearance stage
     for (int it = 0; !s && it <= iters; it++) {
         long step = it;
         double loss = 0, smooth = 0, t0 = mlb_now_seconds();

@@ -399,6 +399,53 @@ TEST(smoothness) {
 // runs, on host memory) agree with the host path; test_cuda_material runs it on a GPU.
 TEST(device_twin_on_cpu_table) { appearance_twin_check(mlb_backend_cpu(), 3, 48, 2, 3, 1e-5); }
 
+// The render and its network on one device: a network on the host with another device's table, a
+// network on the table's device rendered without backward (its host copy is behind), or a network
+// on another device are refused with a clear error, and nothing is kept for a backward.
+TEST(render_and_network_on_one_device) {
+    scene sc;
+    REQUIRE(scene_init(&sc, 16, 8));
+    mlb_brdf_ae prior;
+    REQUIRE(random_prior(&prior));
+    mlb_material_config c = mlb_material_default();
+    c.enc = (mlb_hashgrid_config){4, 2, 1 << 10, 4, 1.5};
+    c.hidden = 8;
+    mlb_material_net net;
+    REQUIRE(material_net_init(&net, &c, &prior) == MLB_OK);
+    mlb_view views[2];
+    make_views(views, 2);
+    enum { RES = 16 };
+    float img[2 * RES * RES * 4], dimg[2 * RES * RES * 4] = {0};
+    mlb_backend other = *guarded_table();   // host-addressable buffers, but called another device
+    other.device = MLB_DEVICE_CUDA;
+    mlb_appearance app;
+    memset(&app, 0, sizeof app);
+    app.be = &other;
+    CHECK(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, 2, RES, 1, img, 1) == MLB_ERR_ARG);
+    CHECK_MSG(strstr(mlb_last_error(), "on the host, the render on the cuda") != NULL, "%s", mlb_last_error());
+    CHECK(mlb_appearance_backward(&app, &net, dimg) == MLB_ERR_ARG);
+    mlb_appearance_free(&app);
+    REQUIRE(mlb_field_use_device(&net, guarded_table()) == MLB_OK);
+    memset(&app, 0, sizeof app);
+    app.be = &other;   // the network on the CPU's device, the render on "cuda"
+    CHECK(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, 2, RES, 1, img, 1) == MLB_ERR_ARG);
+    CHECK_MSG(strstr(mlb_last_error(), "the material network is on the cpu, the render on the cuda") != NULL, "%s",
+              mlb_last_error());
+    mlb_appearance_free(&app);
+    memset(&app, 0, sizeof app);
+    app.be = guarded_table();
+    CHECK(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, 2, RES, 1, img, 0) == MLB_ERR_ARG);
+    CHECK_MSG(strstr(mlb_last_error(), "without backward needs the network on the host") != NULL, "%s", mlb_last_error());
+    CHECK(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, 2, RES, 1, img, 1) == MLB_OK);
+    CHECK(mlb_appearance_backward(&app, &net, dimg) == MLB_OK);
+    mlb_appearance_free(&app);
+    REQUIRE(mlb_field_leave_device(&net) == MLB_OK);
+    CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);
+    material_net_free(&net);
+    brdf_ae_free(&prior);
+    scene_free(&sc);
+}
+
 // The render, its backward and the network on a table whose buffers the host cannot touch outside
 // its ops (guarded_table.h): a host access would end the test with SIGSEGV; the results are the
 // CPU table's, checked against the host path as above; every buffer given back at the end.
@@ -418,5 +465,6 @@ int main(void) {
     RUN(smoothness);
     RUN(device_twin_on_cpu_table);
     RUN(render_stays_on_its_table);
+    RUN(render_and_network_on_one_device);
     return test_summary();
 }

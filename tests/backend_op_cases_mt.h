@@ -160,4 +160,58 @@ static mlb_status call_marching_tets_backward(const mlb_backend* be, float** p, 
                                       (const int32_t*)p[7], c->s[0]);
 }
 
+// dmtet_deform(_backward): s = V; f = grid_res (2 cells)
+static void draw_deform(op_case* c, draw* d, int t) {
+    c->s[0] = dim(d, t, 3000);
+    c->f = (float)(2 * (t ? pick(d, 1, 64) : 1));
+    snprintf(c->shape, sizeof c->shape, "V %d, grid_res %g", c->s[0], (double)c->f);
+}
+static void setup_dmtet_deform(op_case* c, draw* d, int t) {
+    draw_deform(c, d, t);
+    OUT_("out", 3 * (size_t)c->s[0], B_ELEM);
+    IN_("grid", 3 * (size_t)c->s[0], -1, 1);
+    IN_("deform", 3 * (size_t)c->s[0], -4, 4);
+}
+static mlb_status call_dmtet_deform(const mlb_backend* be, float** p, const op_case* c) {
+    return be->dmtet_deform(p[0], p[1], p[2], c->s[0], c->f);
+}
+static void setup_dmtet_deform_backward(op_case* c, draw* d, int t) {
+    draw_deform(c, d, t);
+    ACC_("ddeform", 3 * (size_t)c->s[0], B_ELEM);
+    IN_("dout", 3 * (size_t)c->s[0], -1, 1);
+    IN_("deform", 3 * (size_t)c->s[0], -4, 4);
+}
+static mlb_status call_dmtet_deform_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->dmtet_deform_backward(p[0], p[1], p[2], c->s[0], c->f);
+}
+// sdf_reg(_backward): s = cells (1 to 24), mode (the marching-tets SDFs above: ragged, all inside,
+// all outside with no edge to count, a sphere); f = dloss
+static void draw_sdf_reg(op_case* c, draw* d, int t) {
+    c->s[0] = t ? pick(d, 1, 24) : 1, c->s[1] = t % 4, c->s[2] = pick(d, 1, 1 << 30);
+    c->f = 0.25f + (float)pick(d, 0, 8);
+    int n = c->s[0] + 1;
+    c->s[5] = n * n * n;
+    snprintf(c->shape, sizeof c->shape, "%d cells, %s", c->s[0], mt_mode_name[c->s[1]]);
+}
+static void prep_sdf_reg(const op_case* c, float** h) { mt_sdf(h[1], c); }   // (s[0..2] as mt_sdf reads them)
+static void setup_sdf_reg(op_case* c, draw* d, int t) {
+    draw_sdf_reg(c, d, t);
+    OUT_("out", 1, B_SUMS);
+    IN_("sdf", c->s[5], -1, 1);
+    c->prep = prep_sdf_reg;
+}
+static mlb_status call_sdf_reg(const mlb_backend* be, float** p, const op_case* c) {
+    return be->sdf_reg(p[0], p[1], c->s[0]);
+}
+static void prep_sdf_reg_backward(const op_case* c, float** h) { mt_sdf(h[1], c); }
+static void setup_sdf_reg_backward(op_case* c, draw* d, int t) {
+    draw_sdf_reg(c, d, t);
+    ACC_("dsdf", c->s[5], B_ELEM);
+    IN_("sdf", c->s[5], -1, 1);
+    c->prep = prep_sdf_reg_backward;
+}
+static mlb_status call_sdf_reg_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->sdf_reg_backward(p[0], p[1], c->s[0], c->f);
+}
+
 #endif

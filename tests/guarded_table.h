@@ -127,6 +127,17 @@ static mlb_status guard_interpolate_backward(float* dattr, float* dbary, const f
                                              int H, int W) {
     GUARDED(CPU_->interpolate_backward(dattr, dbary, dout, attr, V, C, tri, bary, faces, F, H, W));
 }
+static mlb_status guard_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts, float grid_res) {
+    GUARDED(CPU_->dmtet_deform(out, grid, deform, n_verts, grid_res));
+}
+static mlb_status guard_dmtet_deform_backward(float* ddeform, const float* dout, const float* deform, int n_verts,
+                                              float grid_res) {
+    GUARDED(CPU_->dmtet_deform_backward(ddeform, dout, deform, n_verts, grid_res));
+}
+static mlb_status guard_sdf_reg(float* out, const float* sdf, int cells) { GUARDED(CPU_->sdf_reg(out, sdf, cells)); }
+static mlb_status guard_sdf_reg_backward(float* dsdf, const float* sdf, int cells, float dloss) {
+    GUARDED(CPU_->sdf_reg_backward(dsdf, sdf, cells, dloss));
+}
 static mlb_status guard_scan_i32(int32_t* out, const int32_t* in, int n) { GUARDED(CPU_->scan_i32(out, in, n)); }
 static mlb_status guard_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
     GUARDED(CPU_->covered_flags(flags, tri, n));
@@ -177,7 +188,8 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(composite_srgb); GUARD_USE(composite_srgb_backward); GUARD_USE(downsample_box);
     GUARD_USE(downsample_box_backward); GUARD_USE(affine_columns); GUARD_USE(marching_tets_count);
     GUARD_USE(marching_tets_emit); GUARD_USE(marching_tets_backward); GUARD_USE(rasterize_backward);
-    GUARD_USE(interpolate_backward);
+    GUARD_USE(interpolate_backward); GUARD_USE(dmtet_deform); GUARD_USE(dmtet_deform_backward); GUARD_USE(sdf_reg);
+    GUARD_USE(sdf_reg_backward);
 #undef GUARD_USE
     return &t;
 }

@@ -11,6 +11,9 @@
 #include "matlaber/threads.h"
 #include "test.h"
 typedef float real;   // the scalar of the maths header (only its integer functions are used here)
+#define R_EXP expf
+#define R_LOG1P log1pf
+#define R_FABS fabsf
 #include "mesh/marching_tets_math.h"
 
 static double signed_vol6(const float* a, const float* b, const float* c, const float* d) {

@@ -92,6 +92,11 @@ mlb_status mlb_mt_device_forward(mlb_mt_device** d, const mlb_backend* be, mlb_m
                                  const mlb_tetgrid* g, const float* pos, const float* sdf);
 // dpos [V,3] +=, dsdf [V] += (either may be NULL) for dverts [n_verts,3] of the last forward
 mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
+// The same with pos, sdf (forward) and dpos, dsdf (backward) on the table's device (the geometry
+// fit's deformed grid); the surface and dverts still host arrays
+mlb_status mlb_mt_device_forward_on(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
+                                    const mlb_tetgrid* g, const float* pos, const float* sdf);
+mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
 void mlb_mt_device_free(mlb_mt_device* d);   // safe on NULL
 
 #endif

@@ -77,7 +77,9 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         N(mlb_mt_surface) surf;      /* the extracted surface of the last forward */               \
         mlb_mat4* vp;                /* [n] the views' world → clip matrices */                    \
         R* images;                   /* [n, res, res, 4] the renders of the last forward */        \
-        R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3] */                                 \
+        R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3]: the double build's; the float     \
+                                        build's are on the table (gv and, with the network on the   \
+                                        host, sdf and deform are filled here too) */                \
         R *nrm, *nsum, *attr, *clip; /* [M,3], [M,3], [M,4], [n,M,4] */                             \
         int32_t* adj;                /* [F,3] */                                                    \
         /* on the table's device (be): */                                                            \

@@ -8,6 +8,9 @@
 // atomics.
 #include "common.cuh"
 typedef float real;
+#define R_EXP expf
+#define R_LOG1P log1pf
+#define R_FABS fabsf
 #include "mesh/marching_tets_math.h"
 
 // ---- count ----
@@ -153,5 +156,107 @@ extern "C" mlb_status mlb_cuda_marching_tets_backward(float* dpos, float* dsdf, 
     const int n = cells + 1;
     mt_backward_kernel<<<mlb_grid((size_t)n * n * n, 256), 256>>>(dpos, dsdf, dverts, weight, pos, sdf, slot_off, n);
     MLB_CUDA_LAUNCHED("marching tets backward");
+    return MLB_OK;
+}
+
+// ---- DMTet's deformation and the SDF sign regulariser (dmtet.h's maths; this file has no fused
+// multiply-adds, but tanhf and expf are CUDA's, so these are within a few ulp of the CPU) ----
+__global__ void deform_kernel(float* out, const float* grid, const float* deform, size_t n, float grid_res) {
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x)
+        out[i] = grid[i] + tanhf(deform[i]) / grid_res;
+}
+__global__ void deform_backward_kernel(float* ddeform, const float* dout, const float* deform, size_t n, float grid_res) {
+    for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < n; i += (size_t)gridDim.x * blockDim.x) {
+        float th = tanhf(deform[i]);
+        ddeform[i] += dout[i] * (1 - th * th) / grid_res;
+    }
+}
+extern "C" mlb_status mlb_cuda_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts,
+                                            float grid_res) {
+    if (n_verts < 0) return mlb_fail(MLB_ERR_ARG, "dmtet_deform: %d vertices", n_verts);
+    size_t n = 3 * (size_t)n_verts;
+    if (!n) return MLB_OK;
+    deform_kernel<<<mlb_grid(n, 256), 256>>>(out, grid, deform, n, grid_res);
+    MLB_CUDA_LAUNCHED("deform_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_dmtet_deform_backward(float* ddeform, const float* dout, const float* deform, int n_verts,
+                                                     float grid_res) {
+    if (n_verts < 0) return mlb_fail(MLB_ERR_ARG, "dmtet_deform_backward: %d vertices", n_verts);
+    size_t n = 3 * (size_t)n_verts;
+    if (!n || !ddeform) return MLB_OK;
+    deform_backward_kernel<<<mlb_grid(n, 256), 256>>>(ddeform, dout, deform, n, grid_res);
+    MLB_CUDA_LAUNCHED("deform_backward_kernel");
+    return MLB_OK;
+}
+
+enum { REG_THREADS = 256 };
+// per block: the sum of its vertices' terms (double) and their lower-end edge count
+__global__ void sdf_reg_partial_kernel(double* sums, long long* counts, const float* sdf, int V, int cells) {
+    __shared__ double s_sum[REG_THREADS];
+    __shared__ long long s_cnt[REG_THREADS];
+    int v = blockIdx.x * REG_THREADS + threadIdx.x, nl = 0;
+    double t = 0;
+    if (v < V) t = (double)mt_reg_terms(sdf, v, cells, 0, &nl);
+    s_sum[threadIdx.x] = t;
+    s_cnt[threadIdx.x] = nl;
+    __syncthreads();
+    for (int h = REG_THREADS / 2; h > 0; h >>= 1) {
+        if ((int)threadIdx.x < h) { s_sum[threadIdx.x] += s_sum[threadIdx.x + h]; s_cnt[threadIdx.x] += s_cnt[threadIdx.x + h]; }
+        __syncthreads();
+    }
+    if (threadIdx.x == 0) { sums[blockIdx.x] = s_sum[0]; counts[blockIdx.x] = s_cnt[0]; }
+}
+// the blocks in order: out = (float)(sum) / m, scale = dloss / m (either may be NULL)
+__global__ void sdf_reg_total_kernel(float* out, float* scale, const double* sums, const long long* counts, int nb,
+                                     float dloss) {
+    double s = 0;
+    long long m = 0;
+    for (int b = 0; b < nb; b++) { s += sums[b]; m += counts[b]; }
+    if (out) *out = m ? (float)s / (float)m : 0.0f;
+    if (scale) *scale = m ? dloss / (float)m : 0.0f;
+}
+__global__ void sdf_reg_backward_kernel(float* dsdf, const float* sdf, int V, int cells, const float* scale) {
+    int v = blockIdx.x * blockDim.x + threadIdx.x;
+    if (v >= V) return;
+    int nl;
+    dsdf[v] += *scale * mt_reg_terms(sdf, v, cells, 1, &nl);
+}
+// The partial sums into scratch; *sums, *counts, *tail (2 floats) point into it.
+static mlb_status sdf_reg_partials(const float* sdf, int cells, int* nb_out, double** sums, long long** counts, float** tail) {
+    if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg: %d cells", cells);
+    int n = cells + 1, V = n * n * n, nb = (V + REG_THREADS - 1) / REG_THREADS;
+    char* scratch;
+    MLB_TRY(mlb_cuda_scratch((void**)&scratch, (size_t)nb * (sizeof(double) + sizeof(long long)) + 2 * sizeof(float)));
+    *sums = (double*)scratch;
+    *counts = (long long*)(scratch + (size_t)nb * sizeof(double));
+    *tail = (float*)(scratch + (size_t)nb * (sizeof(double) + sizeof(long long)));
+    sdf_reg_partial_kernel<<<nb, REG_THREADS>>>(*sums, *counts, sdf, V, cells);
+    MLB_CUDA_LAUNCHED("sdf_reg_partial_kernel");
+    *nb_out = nb;
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_sdf_reg(float* out, const float* sdf, int cells) {
+    int nb;
+    double* sums;
+    long long* counts;
+    float* tail;
+    MLB_TRY(sdf_reg_partials(sdf, cells, &nb, &sums, &counts, &tail));
+    sdf_reg_total_kernel<<<1, 1>>>(out, NULL, sums, counts, nb, 0.0f);
+    MLB_CUDA_LAUNCHED("sdf_reg_total_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_sdf_reg_backward(float* dsdf, const float* sdf, int cells, float dloss) {
+    if (!dsdf) return MLB_OK;
+    int nb;
+    double* sums;
+    long long* counts;
+    float* tail;
+    MLB_TRY(sdf_reg_partials(sdf, cells, &nb, &sums, &counts, &tail));
+    sdf_reg_total_kernel<<<1, 1>>>(NULL, tail, sums, counts, nb, dloss);
+    MLB_CUDA_LAUNCHED("sdf_reg_total_kernel");
+    int n = cells + 1, V = n * n * n;
+    sdf_reg_backward_kernel<<<(V + 255) / 256, 256>>>(dsdf, sdf, V, cells, tail);
+    MLB_CUDA_LAUNCHED("sdf_reg_backward_kernel");
     return MLB_OK;
 }

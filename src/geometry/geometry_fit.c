@@ -18,10 +18,13 @@
 #include "nn/table_ops.h"
 
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
+// (the grid group: the float build's deformed grid, SDF and their gradients)
 enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT,
-       T_ATTR, T_CLIP, T_FACES, T_ADJ, T_DATTR, T_DCLIP, T_COUNT };
+       T_ATTR, T_CLIP, T_FACES, T_ADJ, T_DATTR, T_DCLIP,
+       T_GV, T_Y, T_SDF, T_DEFORM, T_GPOS, T_DGPOS, T_DSDF, T_DDEFORM, T_REG, T_COUNT };
 struct FN(geofit_table) {
     const mlb_backend* tb;
+    const float* gv_of;   // the grid whose vertices T_GV holds
     FN(tbuf) d[T_COUNT];
 };
 static void FN(geofit_table_free)(struct FN(geofit_table)* t) {
@@ -146,27 +149,36 @@ static int FN(grow)(void** p, size_t n, size_t sz) {
 // table copies grow only).
 static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, int F, int n, int res, int ss) {
     int ok = 1;
-    if (G != st->cap_grid) {
-        st->cap_grid = 0;
-        ok &= FN(grow)((void**)&st->gv, G * 3, sizeof(real)) & FN(grow)((void**)&st->sdf, G, sizeof(real)) &
-              FN(grow)((void**)&st->deform, G * 3, sizeof(real)) & FN(grow)((void**)&st->gpos, G * 3, sizeof(real)) &
-              FN(grow)((void**)&st->dgpos, G * 3, sizeof(real)) & FN(grow)((void**)&st->dsdf, G, sizeof(real)) &
-              FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
-        if (ok) st->cap_grid = G;
-    }
 #ifdef MLB_F64
     const mlb_backend* tb = mlb_backend_cpu();
 #else
     const mlb_backend* tb = st->be ? st->be : mlb_backend_cpu();
 #endif
-    if (ok && st->tab && st->tab->tb != tb) {   // buffers of another device
+    if (st->tab && st->tab->tb != tb) {   // buffers of another device
         FN(geofit_table_free)(st->tab);
         st->tab = NULL;
         st->cap_px = 0;
+        st->cap_grid = 0;
     }
-    if (ok && !st->tab) {
+    if (!st->tab) {
         ok = (st->tab = calloc(1, sizeof *st->tab)) != NULL;
         if (ok) st->tab->tb = tb;
+    }
+    if (ok && G != st->cap_grid) {
+        st->cap_grid = 0;
+        ok &= FN(grow)((void**)&st->gv, G * 3, sizeof(real)) & FN(grow)((void**)&st->sdf, G, sizeof(real)) &
+              FN(grow)((void**)&st->deform, G * 3, sizeof(real)) & FN(grow)((void**)&st->gpos, G * 3, sizeof(real)) &
+              FN(grow)((void**)&st->dgpos, G * 3, sizeof(real)) & FN(grow)((void**)&st->dsdf, G, sizeof(real)) &
+              FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
+#ifndef MLB_F64
+        FN(tbuf)* d = st->tab->d;
+        st->tab->gv_of = NULL;
+        ok = ok && FN(tbuf_get)(tb, &d[T_GV], G * 3) && FN(tbuf_get)(tb, &d[T_Y], G * 4) && FN(tbuf_get)(tb, &d[T_SDF], G) &&
+             FN(tbuf_get)(tb, &d[T_DEFORM], G * 3) && FN(tbuf_get)(tb, &d[T_GPOS], G * 3) &&
+             FN(tbuf_get)(tb, &d[T_DGPOS], G * 3) && FN(tbuf_get)(tb, &d[T_DSDF], G) &&
+             FN(tbuf_get)(tb, &d[T_DDEFORM], G * 3) && FN(tbuf_get)(tb, &d[T_REG], 1);
+#endif
+        if (ok) st->cap_grid = G;
     }
     size_t S = (size_t)res * ss, P = S * S, px = P * (size_t)n;
     if (ok && (S != st->cap_px || (size_t)n != st->cap_views || res != st->res)) {
@@ -215,6 +227,62 @@ static void FN(part_range)(const FN(mlb_geofit_state)* st, int n, int* v0, int* 
     }
 }
 
+#ifndef MLB_F64
+// The grid's part of a forward on the state's table: the network at the grid vertices (on the
+// table's device when it is there, else on the host and its outputs uploaded), the deformation,
+// marching tets; the surface comes down into st->surf. The SDF stays on the table for the
+// regulariser and the backward.
+static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, float grid_res) {
+    const mlb_backend* tb = st->tab->tb;
+    FN(tbuf)* d = st->tab->d;
+    size_t G = (size_t)g->n_verts;
+    if (st->tab->gv_of != g->verts) {   // the grid's vertices go up once
+        MLB_TRY(tb->upload(d[T_GV].p, st->gv, 3 * G));
+        st->tab->gv_of = g->verts;
+    }
+    const mlb_backend* nb = mlb_field_backend(net);
+    if (nb) {
+        if (nb->device != tb->device)
+            return mlb_fail(MLB_ERR_ARG, "geometry step: the geometry network is on the %s, the step on the %s",
+                            mlb_device_name(nb->device), mlb_device_name(tb->device));
+        MLB_TRY(mlb_field_forward_on_device(net, d[T_Y].p, d[T_GV].p, g->n_verts));
+        MLB_TRY(tb->copy_rows(d[T_SDF].p, 1, d[T_Y].p, 4, 1, G));
+        MLB_TRY(tb->copy_rows(d[T_DEFORM].p, 3, d[T_Y].p + 1, 4, 3, G));
+    } else {
+        if (tb->device != MLB_DEVICE_CPU)
+            return mlb_fail(MLB_ERR_ARG, "geometry step: the geometry network is on the host, the step on the %s",
+                            mlb_device_name(tb->device));
+        MLB_TRY(geometry_net_forward(net, st->sdf, st->deform, st->gv, g->n_verts));
+        MLB_TRY(tb->upload(d[T_SDF].p, st->sdf, G));
+        MLB_TRY(tb->upload(d[T_DEFORM].p, st->deform, 3 * G));
+    }
+    MLB_TRY(tb->dmtet_deform(d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
+    return mlb_mt_device_forward_on(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p);
+}
+
+// The grid's part of the backward from st->dverts (host): marching tets, the deformation and the
+// regulariser on the table, then the network (there, or on the host with the gradients brought down).
+static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, double reg_weight) {
+    const mlb_backend* tb = st->tab->tb;
+    FN(tbuf)* d = st->tab->d;
+    size_t G = (size_t)g->n_verts;
+    MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
+    MLB_TRY(tb->zero(d[T_DSDF].p, G));
+    MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
+    MLB_TRY(mlb_mt_device_backward_on(st->mt, d[T_DGPOS].p, d[T_DSDF].p, st->dverts));
+    MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (float)(2 * g->cells)));
+    if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (float)reg_weight));
+    if (mlb_field_backend(net)) {
+        MLB_TRY(tb->copy_rows(d[T_Y].p, 4, d[T_DSDF].p, 1, 1, G));   // dy [G,4], over the forward's y (no longer needed)
+        MLB_TRY(tb->copy_rows(d[T_Y].p + 1, 4, d[T_DDEFORM].p, 3, 3, G));
+        return mlb_field_backward_on_device(net, d[T_Y].p);
+    }
+    MLB_TRY(tb->download(st->dsdf, d[T_DSDF].p, G));
+    MLB_TRY(tb->download(st->ddeform, d[T_DDEFORM].p, 3 * G));
+    return geometry_net_backward(net, st->dsdf, st->ddeform);
+}
+#endif
+
 mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
                                  mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, real* images,
                                  mlb_geofit_stats* stats) {
@@ -231,13 +299,13 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     mlb_status s = FN(state_reserve)(st, G, 0, 0, n, res, ss);
     if (s) return s;
     for (size_t i = 0; i < 3 * G; i++) st->gv[i] = (real)g->verts[i];
+#ifdef MLB_F64
     s = FN(geometry_net_forward)(net, st->sdf, st->deform, st->gv, g->n_verts);
     if (s) return s;
     FN(dmtet_deform_forward)(st->gpos, st->gv, st->deform, g->n_verts, grid_res);
-#ifdef MLB_F64
     s = FN(marching_tets_forward)(&st->surf, g, st->gpos, st->sdf);
 #else
-    s = mlb_mt_device_forward(&st->mt, st->be ? st->be : mlb_backend_cpu(), &st->surf, g, st->gpos, st->sdf);
+    s = grid_forward(st, net, g, grid_res);
 #endif
     if (s) return s;
     if (st->surf.n_faces == 0) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface (the SDF has one sign everywhere)");
@@ -294,7 +362,15 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     }
     if (!host_memory) hash = 0;
     if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
+#ifdef MLB_F64
     stats->reg = (double)FN(sdf_reg_forward)(g, st->sdf);
+#else
+    float reg;
+    s = tb->sdf_reg(st->tab->d[T_REG].p, st->tab->d[T_SDF].p, g->cells);
+    if (!s) s = tb->download(&reg, st->tab->d[T_REG].p, 1);
+    if (s) return s;
+    stats->reg = (double)reg;
+#endif
     stats->coverage = hash;
     st->ok = 1;
     return MLB_OK;
@@ -305,7 +381,7 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     if (!st || !st->ok || !net) return mlb_fail(MLB_ERR_ARG, "geometry step: backward without a forward");
     const mlb_tetgrid* g = st->grid;
     int M = st->surf.n_verts, F = st->surf.n_faces, n = st->n, res = st->res, ss = st->ss, Si = st->S;
-    size_t G = (size_t)st->n_grid, p = (size_t)res * res, P = (size_t)Si * Si;
+    size_t p = (size_t)res * res, P = (size_t)Si * Si;
     const int32_t* faces = st->surf.faces;
     mlb_status s = MLB_OK;
     // Each view's share of the surface gradients goes to its own piece [dverts 3M | dnrm 3M]; the
@@ -372,19 +448,18 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     }
     s = FN(vertex_normals_backward)(st->dverts, st->dnrm, st->nsum, st->surf.pos, M, faces, F);
     if (s) return s;
+#ifdef MLB_F64
+    size_t G = (size_t)st->n_grid;
     memset(st->dgpos, 0, sizeof(real) * G * 3);
     memset(st->dsdf, 0, sizeof(real) * G);
     memset(st->ddeform, 0, sizeof(real) * G * 3);
-#ifdef MLB_F64
     FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, st->dverts);
-#else
-    s = mlb_mt_device_backward(st->mt, st->dgpos, st->dsdf, st->dverts);
-    if (s) return s;
-#endif
     FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
     if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
-    FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
-    return MLB_OK;
+    return FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
+#else
+    return grid_backward(st, net, g, reg_weight);
+#endif
 }
 
 mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx,

@@ -8,6 +8,7 @@
 #include "matlaber/dmtet.h"
 #include "matlaber/mt_ops.h"
 #include "core/real.h"
+#include "mesh/marching_tets_math.h"
 
 #define MT_PARALLEL_MIN 4096
 #define MT_CHUNKS 64   // fixed reduction shards: sums do not depend on the thread count
@@ -103,34 +104,6 @@ void FN(dmtet_deform_backward)(real* dgrid, real* ddeform, const real* dout, con
 
 // ---- SDF sign regulariser: evaluated per vertex over its (up to 14) grid neighbours, so both the
 // loss and the gradient are gathers (no scatter), in a fixed order. ----
-static real bce_logits(real x, real t) {
-    return (x > 0 ? x : 0) - x * t + R_LOG1P(R_EXP(-R_FABS(x)));
-}
-
-// Sum over vertex v's sign-changing neighbours u of f(s_v, occ_u); returns the edges counted
-// with v as the lower end in *n_lower (to count each edge once).
-static real vertex_terms(const mlb_tetgrid* g, const real* sdf, int v, int grad, int* n_lower) {
-    const int n = g->cells + 1;
-    int i = v % n, j = (v / n) % n, k = v / (n * n);
-    real sv = sdf[v], acc = 0;
-    int ov = sv > 0, cnt = 0;
-    for (int code = 1; code < 8; code++) {
-        int di = code & 1, dj = (code >> 1) & 1, dk = (code >> 2) & 1;
-        for (int dir = 1; dir >= -1; dir -= 2) {
-            int ii = i + dir * di, jj = j + dir * dj, kk = k + dir * dk;
-            if (ii < 0 || jj < 0 || kk < 0 || ii >= n || jj >= n || kk >= n) continue;
-            int u = ii + n * (jj + n * kk);
-            int ou = sdf[u] > 0;
-            if (ou == ov) continue;
-            if (dir > 0) cnt++;
-            if (grad) acc += 1 / (1 + R_EXP(-sv)) - (real)ou;
-            else acc += bce_logits(sv, (real)ou);
-        }
-    }
-    *n_lower = cnt;
-    return acc;
-}
-
 static real sdf_reg_sum(const mlb_tetgrid* g, const real* sdf, int64_t* n_edges) {
     const int V = g->n_verts;
     double part[MT_CHUNKS];
@@ -142,7 +115,7 @@ static real sdf_reg_sum(const mlb_tetgrid* g, const real* sdf, int64_t* n_edges)
         int64_t m = 0;
         for (int v = lo; v < hi; v++) {
             int nl;
-            s += vertex_terms(g, sdf, v, 0, &nl);
+            s += mt_reg_terms(sdf, v, g->cells, 0, &nl);
             m += nl;
         }
         part[c] = s;
@@ -170,7 +143,7 @@ void FN(sdf_reg_backward)(real* dsdf, const mlb_tetgrid* g, const real* sdf, rea
 #pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
     for (int v = 0; v < V; v++) {
         int nl;
-        dsdf[v] += scale * vertex_terms(g, sdf, v, 1, &nl);
+        dsdf[v] += scale * mt_reg_terms(sdf, v, g->cells, 1, &nl);
     }
 }
 

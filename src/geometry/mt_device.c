@@ -85,15 +85,33 @@ static mlb_status surface_on_device(mlb_mt_device* d, size_t nv, size_t nf) {
     return s;
 }
 
-mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
-                                 const mlb_tetgrid* g, const float* pos, const float* sdf) {
+// The forward from the handle's pos and sdf (on the device)
+static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out);
+
+// pos and sdf into the handle's buffers (uploaded from the host, or copied on the device), then the forward
+static mlb_status forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out, const mlb_tetgrid* g,
+                          const float* pos, const float* sdf, int on_device) {
     memset(out, 0, sizeof *out);
     MLB_TRY(grid_on_device(dp, be, g));
     mlb_mt_device* d = *dp;
     d->nv = d->nf = 0;
+    size_t V = (size_t)d->V;
+    MLB_TRY(on_device ? be->copy(d->pos, pos, 3 * V) : be->upload(d->pos, pos, 3 * V));
+    MLB_TRY(on_device ? be->copy(d->sdf, sdf, V) : be->upload(d->sdf, sdf, V));
+    return forward_from_device(d, out);
+}
+mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
+                                 const mlb_tetgrid* g, const float* pos, const float* sdf) {
+    return forward(dp, be, out, g, pos, sdf, 0);
+}
+mlb_status mlb_mt_device_forward_on(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
+                                    const mlb_tetgrid* g, const float* pos, const float* sdf) {
+    return forward(dp, be, out, g, pos, sdf, 1);
+}
+
+static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out) {
+    const mlb_backend* be = d->be;
     const int T = d->T;
-    MLB_TRY(be->upload(d->pos, pos, 3 * (size_t)d->V));
-    MLB_TRY(be->upload(d->sdf, sdf, (size_t)d->V));
     int32_t *tet_off = (int32_t*)d->tet_off, *slot_off = (int32_t*)d->slot_off;
     MLB_TRY(be->marching_tets_count(tet_off, slot_off, d->sdf, (const int32_t*)d->tets, T, d->cells));
     MLB_TRY(be->scan_i32(tet_off, tet_off, T));
@@ -143,4 +161,13 @@ mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, co
     if (dpos) MLB_TRY(be->download(dpos, d->dpos, 3 * V));
     if (dsdf) MLB_TRY(be->download(dsdf, d->dsdf, V));
     return MLB_OK;
+}
+
+mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
+    if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
+    if (!dpos && !dsdf) return MLB_OK;
+    const mlb_backend* be = d->be;
+    MLB_TRY(be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
+    return be->marching_tets_backward(dpos, dsdf, d->dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
+                                      (const int32_t*)d->slot_off, d->cells);
 }

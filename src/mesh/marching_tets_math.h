@@ -172,4 +172,32 @@ MLB_HD void mt_backward_vertex(real* dpos, real* dsdf, int32_t v, const real* dv
     if (dsdf) dsdf[v] = as;
 }
 
+// ---- the SDF sign regulariser, per grid vertex (geometry/marching_tets.c sdf_reg_*): over v's
+// (up to 14) grid neighbours u whose occupancy (sdf > 0) differs from v's, the BCE of s_v against
+// occ_u (grad = 0) or its derivative sigmoid(s_v) - occ_u (grad = 1), added in a fixed order;
+// *n_lower counts the edges with v as the lower end (each edge once). The includer defines
+// R_EXP, R_LOG1P, R_FABS for its `real` (core/real.h does). ----
+MLB_HD real mt_bce_logits(real x, real t) { return (x > 0 ? x : 0) - x * t + R_LOG1P(R_EXP(-R_FABS(x))); }
+MLB_HD real mt_reg_terms(const real* sdf, int v, int cells, int grad, int* n_lower) {
+    const int n = cells + 1;
+    int i = v % n, j = (v / n) % n, k = v / (n * n);
+    real sv = sdf[v], acc = 0;
+    int ov = sv > 0, cnt = 0;
+    for (int code = 1; code < 8; code++) {
+        int di = code & 1, dj = (code >> 1) & 1, dk = (code >> 2) & 1;
+        for (int dir = 1; dir >= -1; dir -= 2) {
+            int ii = i + dir * di, jj = j + dir * dj, kk = k + dir * dk;
+            if (ii < 0 || jj < 0 || kk < 0 || ii >= n || jj >= n || kk >= n) continue;
+            int u = ii + n * (jj + n * kk);
+            int ou = sdf[u] > 0;
+            if (ou == ov) continue;
+            if (dir > 0) cnt++;
+            if (grad) acc += 1 / (1 + R_EXP(-sv)) - (real)ou;
+            else acc += mt_bce_logits(sv, (real)ou);
+        }
+    }
+    *n_lower = cnt;
+    return acc;
+}
+
 #endif

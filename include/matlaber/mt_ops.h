@@ -38,7 +38,17 @@ void mlb_scan_i32(int32_t* out, const int32_t* in, int n);
     /* The same sums gathered per grid vertex (the CUDA kernel's form, slot_off from the forward):   \
        the same bits as mlb_mt_backward (test_dmtet). */                                            \
     void N(mlb_mt_backward_gather)(R* dpos, R* dsdf, const R* dverts, const R* weight, const R* pos, const R* sdf, \
-                                   const int32_t* slot_off, int cells);
+                                   const int32_t* slot_off, int cells);                            \
+    /* DMTet's deformation (dmtet.h dmtet_deform_*): out [V,3] = grid + tanh(deform)/grid_res;   \
+       ddeform [V,3] += dout (1 - tanh²(deform))/grid_res, dgrid += dout (either may be NULL). */   \
+    void N(mlb_mt_deform)(R* out, const R* grid, const R* deform, int n_verts, R grid_res);        \
+    void N(mlb_mt_deform_backward)(R* dgrid, R* ddeform, const R* dout, const R* deform, int n_verts, \
+                                   R grid_res);                                                    \
+    /* The SDF sign regulariser of a grid of `cells` per axis (dmtet.h sdf_reg_*): the mean BCE over \
+       sign-changing grid edges (0 without one), and dsdf [V] += dloss · its gradient: per-vertex \
+       gathers (marching_tets_math.h), the sums in double over fixed shards. */                  \
+    R N(mlb_mt_sdf_reg)(const R* sdf, int cells);                                                  \
+    void N(mlb_mt_sdf_reg_backward)(R* dsdf, const R* sdf, int cells, R dloss);
 
 #define MLB_MT_OPS_F32(name) name
 #define MLB_MT_OPS_F64(name) name##_f64

@@ -8,10 +8,7 @@
 #include "matlaber/dmtet.h"
 #include "matlaber/mt_ops.h"
 #include "core/real.h"
-#include "mesh/marching_tets_math.h"
 
-#define MT_PARALLEL_MIN 4096
-#define MT_CHUNKS 64   // fixed reduction shards: sums do not depend on the thread count
 
 void FN(mt_surface_free)(FN(mlb_mt_surface)* s) {
     if (!s) return;
@@ -84,67 +81,19 @@ mlb_status FN(mt_surface_to_mesh)(const FN(mlb_mt_surface)* s, mlb_mesh* m) {
 }
 
 void FN(dmtet_deform_forward)(real* out, const real* grid, const real* deform, int n_verts, real grid_res) {
-    size_t n = 3 * (size_t)n_verts;
-#pragma omp parallel for schedule(static) if (n >= MT_PARALLEL_MIN)
-    for (size_t i = 0; i < n; i++) out[i] = grid[i] + R_TANH(deform[i]) / grid_res;
+    FN(mlb_mt_deform)(out, grid, deform, n_verts, grid_res);
 }
 
 void FN(dmtet_deform_backward)(real* dgrid, real* ddeform, const real* dout, const real* deform, int n_verts,
                                real grid_res) {
-    size_t n = 3 * (size_t)n_verts;
-#pragma omp parallel for schedule(static) if (n >= MT_PARALLEL_MIN)
-    for (size_t i = 0; i < n; i++) {
-        if (dgrid) dgrid[i] += dout[i];
-        if (ddeform) {
-            real th = R_TANH(deform[i]);
-            ddeform[i] += dout[i] * (1 - th * th) / grid_res;
-        }
-    }
+    FN(mlb_mt_deform_backward)(dgrid, ddeform, dout, deform, n_verts, grid_res);
 }
 
-// ---- SDF sign regulariser: evaluated per vertex over its (up to 14) grid neighbours, so both the
-// loss and the gradient are gathers (no scatter), in a fixed order. ----
-static real sdf_reg_sum(const mlb_tetgrid* g, const real* sdf, int64_t* n_edges) {
-    const int V = g->n_verts;
-    double part[MT_CHUNKS];
-    int64_t cnt[MT_CHUNKS];
-#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
-    for (int c = 0; c < MT_CHUNKS; c++) {
-        int lo = (int)((int64_t)V * c / MT_CHUNKS), hi = (int)((int64_t)V * (c + 1) / MT_CHUNKS);
-        double s = 0;
-        int64_t m = 0;
-        for (int v = lo; v < hi; v++) {
-            int nl;
-            s += mt_reg_terms(sdf, v, g->cells, 0, &nl);
-            m += nl;
-        }
-        part[c] = s;
-        cnt[c] = m;
-    }
-    double s = 0;
-    int64_t m = 0;
-    for (int c = 0; c < MT_CHUNKS; c++) { s += part[c]; m += cnt[c]; }
-    *n_edges = m;
-    return (real)s;
-}
-
-real FN(sdf_reg_forward)(const mlb_tetgrid* g, const real* sdf) {
-    int64_t m;
-    real s = sdf_reg_sum(g, sdf, &m);
-    return m ? s / (real)m : 0;
-}
+// The SDF sign regulariser: mt_ops.h's, over the grid's size
+real FN(sdf_reg_forward)(const mlb_tetgrid* g, const real* sdf) { return FN(mlb_mt_sdf_reg)(sdf, g->cells); }
 
 void FN(sdf_reg_backward)(real* dsdf, const mlb_tetgrid* g, const real* sdf, real dloss) {
-    int64_t m;
-    sdf_reg_sum(g, sdf, &m);   // the edge count (the loss is a mean over edges)
-    if (!m) return;
-    real scale = dloss / (real)m;
-    const int V = g->n_verts;
-#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
-    for (int v = 0; v < V; v++) {
-        int nl;
-        dsdf[v] += scale * mt_reg_terms(sdf, v, g->cells, 1, &nl);
-    }
+    FN(mlb_mt_sdf_reg_backward)(dsdf, sdf, g->cells, dloss);
 }
 
 // ---- vertex normals: sequential scatters over faces (cheap next to the rest, and exact order) ----

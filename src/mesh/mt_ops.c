@@ -89,3 +89,70 @@ void FN(mlb_mt_backward_gather)(real* dpos, real* dsdf, const real* dverts, cons
 #pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
     for (int v = 0; v < V; v++) mt_backward_vertex(dpos, dsdf, v, dverts, weight, pos, sdf, slot_off, n);
 }
+
+// ---- DMTet's deformation and the SDF sign regulariser ----
+#define MT_CHUNKS 64   // fixed reduction shards: sums do not depend on the thread count
+
+void FN(mlb_mt_deform)(real* out, const real* grid, const real* deform, int n_verts, real grid_res) {
+    size_t n = 3 * (size_t)n_verts;
+#pragma omp parallel for schedule(static) if (n >= MT_PARALLEL_MIN)
+    for (size_t i = 0; i < n; i++) out[i] = grid[i] + R_TANH(deform[i]) / grid_res;
+}
+
+void FN(mlb_mt_deform_backward)(real* dgrid, real* ddeform, const real* dout, const real* deform, int n_verts,
+                                real grid_res) {
+    size_t n = 3 * (size_t)n_verts;
+#pragma omp parallel for schedule(static) if (n >= MT_PARALLEL_MIN)
+    for (size_t i = 0; i < n; i++) {
+        if (dgrid) dgrid[i] += dout[i];
+        if (ddeform) {
+            real th = R_TANH(deform[i]);
+            ddeform[i] += dout[i] * (1 - th * th) / grid_res;
+        }
+    }
+}
+
+// ---- SDF sign regulariser: evaluated per vertex over its (up to 14) grid neighbours, so both the
+// loss and the gradient are gathers (no scatter), in a fixed order. ----
+static real FN(sdf_reg_sum)(const real* sdf, int cells, int64_t* n_edges) {
+    const int V = (cells + 1) * (cells + 1) * (cells + 1);
+    double part[MT_CHUNKS];
+    int64_t cnt[MT_CHUNKS];
+#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
+    for (int c = 0; c < MT_CHUNKS; c++) {
+        int lo = (int)((int64_t)V * c / MT_CHUNKS), hi = (int)((int64_t)V * (c + 1) / MT_CHUNKS);
+        double s = 0;
+        int64_t m = 0;
+        for (int v = lo; v < hi; v++) {
+            int nl;
+            s += mt_reg_terms(sdf, v, cells, 0, &nl);
+            m += nl;
+        }
+        part[c] = s;
+        cnt[c] = m;
+    }
+    double s = 0;
+    int64_t m = 0;
+    for (int c = 0; c < MT_CHUNKS; c++) { s += part[c]; m += cnt[c]; }
+    *n_edges = m;
+    return (real)s;
+}
+
+real FN(mlb_mt_sdf_reg)(const real* sdf, int cells) {
+    int64_t m;
+    real s = FN(sdf_reg_sum)(sdf, cells, &m);
+    return m ? s / (real)m : 0;
+}
+
+void FN(mlb_mt_sdf_reg_backward)(real* dsdf, const real* sdf, int cells, real dloss) {
+    int64_t m;
+    FN(sdf_reg_sum)(sdf, cells, &m);   // the edge count (the loss is a mean over edges)
+    if (!m) return;
+    real scale = dloss / (real)m;
+    const int V = (cells + 1) * (cells + 1) * (cells + 1);
+#pragma omp parallel for schedule(static) if (V >= MT_PARALLEL_MIN)
+    for (int v = 0; v < V; v++) {
+        int nl;
+        dsdf[v] += scale * mt_reg_terms(sdf, v, cells, 1, &nl);
+    }
+}

@@ -5,7 +5,6 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include "matlaber/dmtet.h"
 #include "matlaber/mt_ops.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
@@ -390,32 +389,24 @@ static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, 
     return MLB_OK;
 }
 
-// DMTet's deformation and SDF regulariser: dmtet.h's functions over host memory.
+// DMTet's deformation and SDF regulariser: mt_ops.h's functions over host memory.
 static mlb_status cpu_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts, float grid_res) {
-    dmtet_deform_forward(out, grid, deform, n_verts, grid_res);
+    mlb_mt_deform(out, grid, deform, n_verts, grid_res);
     return MLB_OK;
 }
 static mlb_status cpu_dmtet_deform_backward(float* ddeform, const float* dout, const float* deform, int n_verts,
                                             float grid_res) {
-    dmtet_deform_backward(NULL, ddeform, dout, deform, n_verts, grid_res);
+    mlb_mt_deform_backward(NULL, ddeform, dout, deform, n_verts, grid_res);
     return MLB_OK;
-}
-static mlb_tetgrid grid_of(int cells) {   // what the regulariser reads of a grid: its size
-    mlb_tetgrid g = {0};
-    g.cells = cells;
-    g.n_verts = (cells + 1) * (cells + 1) * (cells + 1);
-    return g;
 }
 static mlb_status cpu_sdf_reg(float* out, const float* sdf, int cells) {
     if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg: %d cells", cells);
-    mlb_tetgrid g = grid_of(cells);
-    *out = sdf_reg_forward(&g, sdf);
+    *out = mlb_mt_sdf_reg(sdf, cells);
     return MLB_OK;
 }
 static mlb_status cpu_sdf_reg_backward(float* dsdf, const float* sdf, int cells, float dloss) {
     if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg_backward: %d cells", cells);
-    mlb_tetgrid g = grid_of(cells);
-    sdf_reg_backward(dsdf, &g, sdf, dloss);
+    mlb_mt_sdf_reg_backward(dsdf, sdf, cells, dloss);
     return MLB_OK;
 }
 

@@ -1,8 +1,9 @@
 // A field on a device (field.h, "on a device"): the same hash grid → MLP → frozen decoder as
 // field.c, written against an op table (backend.h) over the whole batch, with its parameters,
-// gradients, Adam moments and forward cache on the table's device. Only the points, the outputs
-// and their gradients cross as host arrays; the grid-box mapping of the points and the output
-// ranges are applied on the host with the CPU path's own arithmetic.
+// gradients, Adam moments and forward cache on the table's device. The points and outputs are on
+// that device (mlb_field_forward_on_device) or cross as host arrays (field_forward through
+// field_device_forward: the same path with an upload and a download); the grid-box mapping of the
+// points and the output ranges are table ops with the CPU path's own arithmetic.
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/brdf.h"
@@ -132,28 +133,6 @@ static mlb_status forward_mapped(mlb_field* net, int n, const float** out, const
     return MLB_OK;
 }
 
-mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float* pos, int n) {
-    struct mlb_field_device* d = net->dev;
-    const mlb_backend* be = d->be;
-    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
-    MLB_TRY(reserve(net, n));
-    net->n = 0;
-    float inv = (float)(1.0 / net->cfg.scale);
-    for (size_t i = 0; i < 3 * (size_t)n; i++) d->host[i] = pos[i] * inv + 0.5f;   // the grid box → [0,1]^3
-    MLB_TRY(be->upload(d->x, d->host, 3 * (size_t)n));
-    const float *out, *s;
-    MLB_TRY(forward_mapped(net, n, &out, &s));
-    if (y && net->cfg.kind == MLB_FIELD_GEOMETRY) {
-        MLB_TRY(be->download(y, out, 4 * (size_t)n));
-    } else if (y) {
-        MLB_TRY(be->download(d->host, s, K_DIM * (size_t)n));
-        field_map_to_ranges(y, d->host, n);
-    }
-    if (z && latent(net)) MLB_TRY(be->download(z, out, MLB_LATENT_DIM * (size_t)n));
-    net->n = n;
-    return MLB_OK;
-}
-
 // The output ranges of the material channels as affine_columns' columns: k = lo + (hi - lo) s
 static void range_columns(double* scale, double* shift) {
     for (int c = 0; c < K_DIM; c++) {
@@ -161,16 +140,17 @@ static void range_columns(double* scale, double* shift) {
         shift[c] = mlb_brdf_range_lo[c];
     }
 }
+static int out_dim(const mlb_field* net) { return net->cfg.kind == MLB_FIELD_GEOMETRY ? 4 : K_DIM; }
 
-mlb_status mlb_field_forward_on_device(mlb_field* net, float* y, const float* pos, int n) {
+// pos [n,3] (on the device; may be d->x) → y [n, out_dim] on the device; *latent the MLP's output
+// (the latent code in latent mode). The grid box → [0,1]^3 in float, and the outputs to their
+// ranges in double: the host path's arithmetic (field.c).
+static mlb_status forward_on(mlb_field* net, float* y, const float* pos, int n, const float** latent) {
     struct mlb_field_device* d = net->dev;
-    if (!d) return mlb_fail(MLB_ERR_ARG, "field forward on the device: the field is on the host");
-    if (n < 0) return mlb_fail(MLB_ERR_ARG, "field forward on the device: %d points", n);
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
     MLB_TRY(reserve(net, n));
     net->n = 0;
-    // the grid box → [0,1]^3 in float, as the host's copy of the points is mapped
     const double inv = (float)(1.0 / net->cfg.scale), inv3[3] = {inv, inv, inv}, half[3] = {0.5, 0.5, 0.5};
     MLB_TRY(be->affine_columns(d->x, pos, (size_t)n, 3, inv3, half, 1));
     const float *out, *s;
@@ -182,16 +162,49 @@ mlb_status mlb_field_forward_on_device(mlb_field* net, float* y, const float* po
         range_columns(scale, shift);
         MLB_TRY(be->affine_columns(y, s, (size_t)n, K_DIM, scale, shift, 0));
     }
+    if (latent) *latent = out;
     net->n = n;
     return MLB_OK;
 }
 
-// The backward from d->ds (the gradient at the network's last outputs); dx on the device when
-// with_dx (the points' gradient in [0,1]^3 units), else not computed.
-static mlb_status backward_from_ds(mlb_field* net, int with_dx) {
+mlb_status mlb_field_forward_on_device(mlb_field* net, float* y, const float* pos, int n) {
+    if (!net->dev) return mlb_fail(MLB_ERR_ARG, "field forward on the device: the field is on the host");
+    if (n < 0) return mlb_fail(MLB_ERR_ARG, "field forward on the device: %d points", n);
+    return forward_on(net, y, pos, n, NULL);
+}
+
+// The host's arrays through the device path: the points go up (mapped in place), y comes down
+// from the backward's input buffer (free until the backward), and z from the MLP's output.
+mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float* pos, int n) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
+    MLB_TRY(reserve(net, n));
+    net->n = 0;
+    MLB_TRY(be->upload(d->x, pos, 3 * (size_t)n));
+    const float* out;
+    MLB_TRY(forward_on(net, d->ds, d->x, n, &out));
+    if (y) MLB_TRY(be->download(y, d->ds, (size_t)out_dim(net) * n));
+    if (z && latent(net)) MLB_TRY(be->download(z, out, MLB_LATENT_DIM * (size_t)n));
+    return MLB_OK;
+}
+
+// The backward from dy [n, out_dim] on the device (may be d->ds): the gradient at the network's
+// last outputs ds = dy (geometry) or dy·(hi − lo) in float (material: the sigmoid outputs, the
+// decoder's or the MLP's own); dx [n,3] on the device (in [0,1]^3 units) when with_dx.
+static mlb_status backward_on(mlb_field* net, const float* dy, int with_dx) {
+    struct mlb_field_device* d = net->dev;
+    const mlb_backend* be = d->be;
+    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
     int n = net->n;
+    size_t N = (size_t)n;
+    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
+        if (dy != d->ds) MLB_TRY(be->copy(d->ds, dy, 4 * N));
+    } else {
+        double scale[K_DIM];
+        for (int c = 0; c < K_DIM; c++) scale[c] = (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
+        MLB_TRY(be->affine_columns(d->ds, dy, N, K_DIM, scale, NULL, 1));
+    }
     const float* dout = d->ds;
     if (latent(net)) {   // dz through the frozen decoder
         const mlb_mlp* mlp = &d->net[NET_MLP];
@@ -199,50 +212,30 @@ static mlb_status backward_from_ds(mlb_field* net, int with_dx) {
         dout = d->dz;
     }
     MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
-    if (with_dx) MLB_TRY(be->zero(d->dx, 3 * (size_t)n));
+    if (with_dx) MLB_TRY(be->zero(d->dx, 3 * N));
     const mlb_hashgrid enc = field_active_enc(net);
     MLB_TRY(be->hashgrid_backward(&enc, d->params, d->grads, with_dx ? d->dx : NULL, d->dfeat, d->x, n));
     d->host_behind = 1;
     return MLB_OK;
 }
 
+mlb_status mlb_field_backward_on_device(mlb_field* net, const float* dy) {
+    if (!net->dev) return mlb_fail(MLB_ERR_ARG, "field backward on the device: the field is on the host");
+    return backward_on(net, dy, 0);
+}
+
 mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
-    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
     size_t N = (size_t)net->n;
-    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
-        MLB_TRY(be->upload(d->ds, dy, 4 * N));
-    } else {
-        // ds = dk·(hi − lo): the gradient at the sigmoid outputs (the decoder's or the MLP's own)
-        for (size_t i = 0; i < N; i++)
-            for (int c = 0; c < K_DIM; c++)
-                d->host[i * K_DIM + c] = dy[i * K_DIM + c] * (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
-        MLB_TRY(be->upload(d->ds, d->host, K_DIM * N));
-    }
-    MLB_TRY(backward_from_ds(net, dpos != NULL));
+    MLB_TRY(be->upload(d->ds, dy, (size_t)out_dim(net) * N));
+    MLB_TRY(backward_on(net, d->ds, dpos != NULL));
     if (dpos) {
         MLB_TRY(be->download(d->host, d->dx, 3 * N));
         float inv = (float)(1.0 / net->cfg.scale);
         for (size_t i = 0; i < 3 * N; i++) dpos[i] += d->host[i] * inv;
     }
     return MLB_OK;
-}
-
-mlb_status mlb_field_backward_on_device(mlb_field* net, const float* dy) {
-    struct mlb_field_device* d = net->dev;
-    if (!d) return mlb_fail(MLB_ERR_ARG, "field backward on the device: the field is on the host");
-    const mlb_backend* be = d->be;
-    if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
-    size_t N = (size_t)net->n;
-    if (net->cfg.kind == MLB_FIELD_GEOMETRY) {
-        MLB_TRY(be->copy(d->ds, dy, 4 * N));
-    } else {   // ds = dk·(hi − lo) in float, as the host's copy is scaled
-        double scale[K_DIM];
-        for (int c = 0; c < K_DIM; c++) scale[c] = (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
-        MLB_TRY(be->affine_columns(d->ds, dy, N, K_DIM, scale, NULL, 1));
-    }
-    return backward_from_ds(net, 0);
 }
 
 void field_device_zero_grad(mlb_field* net) {

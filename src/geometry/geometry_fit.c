@@ -24,7 +24,8 @@ enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T
        T_GV, T_Y, T_SDF, T_DEFORM, T_GPOS, T_DGPOS, T_DSDF, T_DDEFORM, T_REG, T_COUNT };
 struct FN(geofit_table) {
     const mlb_backend* tb;
-    const float* gv_of;   // the grid whose vertices T_GV holds
+    int gv_cells;         // the grid whose vertices T_GV holds (a grid's vertices are its cells and scale)
+    float gv_scale;
     FN(tbuf) d[T_COUNT];
 };
 static void FN(geofit_table_free)(struct FN(geofit_table)* t) {
@@ -172,7 +173,7 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
               FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
 #ifndef MLB_F64
         FN(tbuf)* d = st->tab->d;
-        st->tab->gv_of = NULL;
+        st->tab->gv_cells = 0;
         ok = ok && FN(tbuf_get)(tb, &d[T_GV], G * 3) && FN(tbuf_get)(tb, &d[T_Y], G * 4) && FN(tbuf_get)(tb, &d[T_SDF], G) &&
              FN(tbuf_get)(tb, &d[T_DEFORM], G * 3) && FN(tbuf_get)(tb, &d[T_GPOS], G * 3) &&
              FN(tbuf_get)(tb, &d[T_DGPOS], G * 3) && FN(tbuf_get)(tb, &d[T_DSDF], G) &&
@@ -236,9 +237,10 @@ static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, cons
     const mlb_backend* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;
     size_t G = (size_t)g->n_verts;
-    if (st->tab->gv_of != g->verts) {   // the grid's vertices go up once
+    if (st->tab->gv_cells != g->cells || st->tab->gv_scale != g->scale) {   // the grid's vertices go up once
         MLB_TRY(tb->upload(d[T_GV].p, st->gv, 3 * G));
-        st->tab->gv_of = g->verts;
+        st->tab->gv_cells = g->cells;
+        st->tab->gv_scale = g->scale;
     }
     const mlb_backend* nb = mlb_field_backend(net);
     if (nb) {

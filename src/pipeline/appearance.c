@@ -239,6 +239,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     size_t P = (size_t)S * S, nv = (size_t)n, p = (size_t)res * res;
     FN(part_range)(a, n, &s->v0, &s->v1);
     size_t nr = (size_t)(s->v1 - s->v0);   // the views rendered
+    if (P * nr >= (size_t)INT32_MAX)       // the coverage scan's indices are int32
+        return mlb_fail(MLB_ERR_ARG, "appearance render: %zu views of %dx%d pixels are too many for one render", nr, S, S);
     // the mesh and the cameras on the host (small), then on the table
     real* attr_h = abuf_get(&s->h[H_ATTR], sizeof(real) * ATTR_C * (size_t)V);
     real* clip_h = abuf_get(&s->h[H_CLIP], sizeof(real) * 4 * (size_t)V * nv);
@@ -288,20 +290,23 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         MLB_TRY(FN(rt_rasterize)(tb, s->ctx, s->tri + P * v, bary + 2 * P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v,
                                  V, s->faces, F, S, S));
     }
-    if ((long)P * (long)nr > INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%zu)", P * nr);
     MLB_TRY(T_COVERED(tb, index, s->tri + P * s->v0, P * nr));
     MLB_TRY(T_SCAN(tb, index, index, (int)(P * nr)));
-    for (int v = 0; v <= n; v++) {   // the views' first samples: P·nr + 1 scanned values, n + 1 read
-        int w = v < s->v0 ? s->v0 : v > s->v1 ? s->v1 : v;
+    // the views' first samples: 0 up to the part's first view, the scan at each later view's first
+    // pixel (one value read per rendered view), the total after the part
+    for (int v = 0; v <= n; v++) {
+        if (v <= s->v0) { s->start[v] = 0; continue; }
+        if (v > s->v1) { s->start[v] = s->start[s->v1]; continue; }
 #ifdef MLB_F64
-        s->start[v] = index[P * (size_t)(w - s->v0)];
+        s->start[v] = index[P * (size_t)(v - s->v0)];
 #else
-        float got;
-        MLB_TRY(tb->download(&got, (const float*)(index + P * (size_t)(w - s->v0)), 1));
+        float got;   // int32 bits
+        MLB_TRY(tb->download(&got, (const float*)(index + P * (size_t)(v - s->v0)), 1));
         memcpy(&s->start[v], &got, sizeof(int32_t));
 #endif
     }
     int N = s->start[n];
+    if ((size_t)N > (size_t)INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%d)", N);
     size_t NN = N ? (size_t)N : 1;
     s->where = (int32_t*)FN(tbuf_get)(tb, &s->d[D_WHERE], NN);
     s->pts = FN(tbuf_get)(tb, &s->d[D_PTS], 3 * NN);

@@ -87,7 +87,8 @@ MLB_FIELD_DECLARE(double, MLB_FIELD_F64)
 // ---- on a device (float fields; src/field/field_device.c) ----
 // Moves the trained parameters, their gradients, the Adam moments and the frozen decoder to the
 // device of `be` (backend.h), where field_forward/backward/zero_grad/update then run, the hash grid
-// and the MLPs over the whole batch (no shards). Points and outputs still cross as host arrays.
+// and the MLPs over the whole batch (no shards). Points and outputs cross as host arrays, or stay
+// there (mlb_field_forward_on_device below).
 // While there, the host's params, grads, adam_m and adam_v are behind: mlb_field_sync_host brings
 // them up to date (checkpoints, the end of a stage); eval refuses a field whose host copy is
 // behind. The CPU table is allowed (the same code on host memory: the CPU tests of this path).

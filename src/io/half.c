@@ -79,9 +79,9 @@ static void f16_to_f32_scalar(float* dst, const unsigned char* s, size_t n) {
 
 #if defined(__x86_64__) || defined(__i386__)
 // F16C's VCVTPH2PS, 8 values an instruction: the same values as the scalar conversion (both exact;
-// NaNs quieted alike; test_safetensors' f16_array_matches_scalar checks every bit pattern). Where a model's F16 weights stay F16 in
-// memory and are widened per call (mlb_unet_options.f16_weights) this runs over every weight of
-// every UNet forward.
+// NaNs quieted alike; test_safetensors' f16_array_matches_scalar checks every bit pattern). Where
+// a model's F16 weights stay F16 in memory and are widened per call (mlb_unet_options.f16_weights)
+// this runs over every weight of every UNet forward.
 __attribute__((target("avx,f16c"))) static void f16_to_f32_f16c(float* dst, const unsigned char* s, size_t n) {
     size_t i = 0;
     for (; i + 8 <= n; i += 8) _mm256_storeu_ps(dst + i, _mm256_cvtph_ps(_mm_loadu_si128((const __m128i*)(s + 2 * i))));

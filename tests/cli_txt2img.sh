@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# 'matlaber sd txt2img' end to end: help, usage and load errors with their exit codes, and (with
-# ../shared/data) a 128x128 PNG from the tiny SD1 fixture in both layouts.
+# 'matlaber sd txt2img' end to end: help, usage and load errors with their exit codes, the project's
+# own model without -m, and (with ../shared/data) a 128x128 PNG from the tiny SD1 fixture in both layouts.
 set -u
 M=${1:?usage: cli_txt2img.sh path/to/matlaber}
 . "$(dirname "$0")/lib_cli.sh"
@@ -8,7 +8,8 @@ M=${1:?usage: cli_txt2img.sh path/to/matlaber}
 expect 0 "help" -- $M sd txt2img --help
 expect 0 "sd help lists txt2img" -- $M sd --help
 grep -q txt2img "$T/out" && ok "txt2img in sd --help" || bad "txt2img missing from sd --help"
-expect 2 "missing -m" -- $M sd txt2img -p x -o "$T/a.png"
+expect 1 "no -m, \$MATLABER_MODEL missing" -- env MATLABER_MODEL=/nonexistent/own $M sd txt2img -p x -o "$T/a.png"
+err_has "the missing default named" "/nonexistent/own"
 expect 2 "missing -p" -- $M sd txt2img -m /x -o "$T/a.png"
 expect 2 "missing -o" -- $M sd txt2img -m /x -p x
 expect 2 "bad --size" -- $M sd txt2img -m /x -p x -o "$T/a.png" --size 100
@@ -29,6 +30,12 @@ err_has "the fallback warned" "warn. --precision bf16: [^;]*; the CPU computes i
 [ "$(grep -c 'precision bf16' "$T/err")" = 1 ] && ok "said once" || bad "said $(grep -c 'precision bf16' "$T/err") times"
 expect 0 "no --precision" -- env MATLABER_CPU_BF16=0 $M --device cpu device
 grep -q 'warn' "$T/err" && bad "a warning without --precision: $(cat "$T/err")" || ok "no warning without --precision"
+
+# no -m: the project's own model (models/matlaber-tiny), at the 128x128 it was trained at
+expect 0 "no -m: the project's own model" -- env -u MATLABER_MODEL $M sd txt2img -p "a gold goblet" --steps 2 -o "$T/own.png"
+[ "$(png_size "$T/own.png")" = "128x128" ] && ok "own model: 128x128 PNG" || bad "own model: PNG size $(png_size "$T/own.png" 2>/dev/null)"
+expect 0 "sd tokenize with the own model's tokenizer" -- $M sd tokenize -t "$(dirname "$0")/../models/matlaber-tiny" -p "a gold goblet"
+grep -q "padded with 633 (sd1)" "$T/out" && ok "sd1 pads with the small vocabulary's end token" || bad "padding: $(grep padded "$T/out")"
 
 D=${MLB_SHARED_DATA:-$(dirname "$0")/../../shared/data}
 R="$D/sd_reference"

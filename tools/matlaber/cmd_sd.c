@@ -16,7 +16,7 @@
 static const cli_option tokenize_options[] = {
     {"tokenizer", 1, 't', "PATH", "CLIP merges .gz, tokenizer/ folder or model folder (default: $MATLABER_TOKENIZER)"},
     {"prompt", 1, 'p', "TEXT", "the text to tokenize (UTF-8); also -p"},
-    {"pad", 1, 'P', "sd1|sd2", "padding: sd1 pads with 49407 (<|endoftext|>), sd2 with 0 (default sd1)"},
+    {"pad", 1, 'P', "sd1|sd2", "padding: sd1 pads with <|endoftext|> (49407; the last id of a smaller vocabulary), sd2 with 0 (default sd1)"},
     {"max-length", 1, 'm', "N", "sequence length (default 77)"},
     {"no-fix-text", 0, 'F', NULL, "skip the ftfy subset (ligatures, full-width forms, curly quotes, NFC)"},
     {"json", 0, 'j', NULL, "print a JSON object: ids, token strings, counts"},
@@ -66,6 +66,9 @@ static int tokenize_main(int argc, char** argv) {
     mlb_status s = mlb_tokenizer_load(path, &tok);
     if (s) return cli_fail(s, "loading the tokenizer");
     if (!fix_text) mlb_tokenizer_set_flags(tok, mlb_tokenizer_flags(tok) & ~(unsigned)MLB_TOKENIZER_FIX_TEXT);
+    // SD1 pads with <|endoftext|>: the last id of a vocabulary smaller than CLIP's (the project's
+    // own model's), as mlb_sd_model_load pads it
+    if (!strcmp(pad_name, "sd1")) pad_id = mlb_tokenizer_eos(tok);
     int* ids = malloc((size_t)max_len * sizeof *ids);
     int* all = NULL;
     size_t n_all = 0;
@@ -112,13 +115,13 @@ static int tokenize_main(int argc, char** argv) {
 
 // ---- txt2img ------------------------------------------------------------------------------------
 static const cli_option txt2img_options[] = {
-    {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint"},
+    {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint (default: the project's own model, models/matlaber-tiny or $MATLABER_MODEL)"},
     {"prompt", 1, 'p', "TEXT", "the prompt"},
     {"negative", 1, 'n', "TEXT", "negative prompt (replaces the empty unconditional prompt)"},
     {"steps", 1, 'S', "N", "DDIM steps (default 30)"},
-    {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5)"},
+    {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5; 3 with the project's own model)"},
     {"seed", 1, 's', "N", "seed of the initial noise (default 0)"},
-    {"size", 1, 'z', "N", "image width and height, a multiple of 64 (default 512)"},
+    {"size", 1, 'z', "N", "image width and height, a multiple of 64 (default 512; 128, what it was trained at, with the project's own model)"},
     {"tokenizer", 1, 't', "PATH", "CLIP tokenizer (default: the model folder's tokenizer/, else $MATLABER_TOKENIZER)"},
     {"v-prediction", 1, 'v', "auto|on|off", "the UNet predicts v (default auto: from the configs)"},
     {"output", 1, 'o', "FILE", "output PNG"},
@@ -130,8 +133,8 @@ static const cli_option txt2img_options[] = {
 static int txt2img_main(int argc, char** argv) {
     const char *model_path = NULL, *prompt = NULL, *negative = "", *out_path = NULL;
     const char* tok_path = NULL;
-    long steps = 30, seed = 0, size = 512;
-    double cfg = 7.5;
+    long steps = 30, seed = 0, size = -1;
+    double cfg = NAN;
     int vpred = -1;
     const struct option* table = cli_getopt_table(txt2img_options);
     optind = 1;
@@ -163,7 +166,7 @@ static int txt2img_main(int argc, char** argv) {
             else return cli_usage_error("sd txt2img", "--v-prediction: expected auto, on or off");
             break;
         case 'h':
-            printf("usage: matlaber sd txt2img -m MODEL -p PROMPT [--negative TEXT] [--steps 30] [--cfg 7.5] [--seed S]\n"
+            printf("usage: matlaber sd txt2img [-m MODEL] -p PROMPT [--negative TEXT] [--steps 30] [--cfg 7.5] [--seed S]\n"
                    "                           [--size 512] [--tokenizer PATH] -o out.png\n\n"
                    "Samples an image with Stable Diffusion: DDIM (eta 0) with classifier-free guidance, then the VAE\n"
                    "decoder. MODEL is a diffusers folder or a single-file .safetensors checkpoint (F32/F16/BF16;\n"
@@ -174,7 +177,17 @@ static int txt2img_main(int argc, char** argv) {
         }
     }
     if (optind < argc) return cli_usage_error("sd txt2img", "unexpected argument '%s'", argv[optind]);
-    if (!model_path) return cli_usage_error("sd txt2img", "-m MODEL is needed");
+    if (!model_path) {
+        // The project's own model (docs/sd_train.md): sampled at the size it was trained at, with the
+        // guidance scale its samples were judged at, unless told otherwise.
+        if (!(model_path = cli_default_model()))
+            return cli_usage_error("sd txt2img", "-m MODEL is needed: the project's own model is not there (train it: matlaber sd "
+                                   "train -o models/%s; docs/sd_train.md)", MLB_DEFAULT_MODEL);
+        if (size < 0) size = 128;
+        if (isnan(cfg)) cfg = 3;
+    }
+    if (size < 0) size = 512;
+    if (isnan(cfg)) cfg = 7.5;
     if (!prompt) return cli_usage_error("sd txt2img", "-p PROMPT is needed");
     if (!out_path) return cli_usage_error("sd txt2img", "-o out.png is needed");
     mlb_sd_model_options mo = mlb_sd_model_default_options();

@@ -1,11 +1,14 @@
 // A model written in the diffusers folder layout (sd_folder.h) loads back through mlb_sd_model_load,
 // the path a user's SD 1.5 takes: the tokenizer makes each word one token, the text encoder and
-// UNet hold exactly the written numbers, prompts differing in one word encode differently.
+// UNet hold exactly the written numbers, prompts differing in one word encode differently; the
+// index's geometry suffix reaches the geometry stage's prompt.
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 #include "matlaber/fileio.h"
+#include "matlaber/guidance_sds.h"
+#include "matlaber/rng.h"
 #include "matlaber/sd_folder.h"
 #include "matlaber/sd_model.h"
 #include "matlaber/unet_random.h"
@@ -84,13 +87,14 @@ TEST(write_and_load) {
     snprintf(w, sizeof w, "%s/diffusion_pytorch_model.safetensors", p);
     snprintf(cj, sizeof cj, "%s/config.json", p);
     REQUIRE(mlb_vae_save(v, w, MLB_VAE_LAYOUT_DIFFUSERS, NULL, cj) == MLB_OK);
-    REQUIRE(mlb_sd_write_index(dir) == MLB_OK);
+    REQUIRE(mlb_sd_write_index(dir, NULL) == MLB_OK);
 
     mlb_sd_model_options o = mlb_sd_model_default_options();
     o.device = MLB_DEVICE_CPU;
     mlb_sd_model* m = NULL;
     mlb_status st = mlb_sd_model_load(dir, &o, &m);
     REQUIRE(st == MLB_OK);
+    CHECK(!strcmp(m->geometry_suffix, ""));   // no key: a user's model, no suffix
     CHECK(m->pad_id == vocab - 1);
     CHECK(m->scaling_factor == 0.5f);
     CHECK(m->unet->n_params == u->n_params);
@@ -111,6 +115,66 @@ TEST(write_and_load) {
     mlb_sd_model_free(m);
     mlb_unet_free(u);
     mlb_vae_free(v);
+}
+
+// The index's geometry suffix: written, read back, refused when malformed; the guidance puts it on
+// the geometry stage's prompt and only there (the same loss as a plain model given the longer prompt).
+static int write_index_text(const char* d, const char* suffix_json) {
+    char p[600], text[700];
+    snprintf(p, sizeof p, "%s/model_index.json", d);
+    snprintf(text, sizeof text, "{\"_class_name\": \"StableDiffusionPipeline\", \"_matlaber_geometry_suffix\": %s}", suffix_json);
+    return mlb_write_file_atomic(p, text, strlen(text)) == MLB_OK;
+}
+
+static double guidance_loss(const mlb_sd_model* m, const char* prompt, mlb_stage stage) {
+    mlb_guidance_sds_config c = mlb_guidance_sds_default();
+    c.prompt = prompt;
+    c.views = 1;
+    c.latent_iters = 0;
+    c.seed = 5;
+    mlb_guidance* g = NULL;
+    if (mlb_guidance_sds_create(m, &c, &g)) return -1;
+    enum { H = 16 };
+    static float img[H * H * 4];
+    for (int i = 0; i < H * H; i++)
+        for (int ch = 0; ch < 4; ch++) img[4 * i + ch] = ch == 3 ? 1.0f : 0.5f * mlb_rng_uniform(3, ch, i);
+    mlb_view view;
+    double loss = -1;
+    if (g->sample_views(g, stage, 7, &view) || g->loss(g, stage, 7, &view, 1, img, H, H, NULL, &loss)) loss = -1;
+    mlb_guidance_free(g);
+    return loss;
+}
+
+TEST(geometry_suffix) {
+    REQUIRE(dir[0]);   // write_and_load's folder, kept for this test
+    REQUIRE(mlb_sd_write_index(dir, ", normal map") == MLB_OK);
+    mlb_sd_model_options o = mlb_sd_model_default_options();
+    o.device = MLB_DEVICE_CPU;
+    mlb_sd_model* m = NULL;
+    REQUIRE(mlb_sd_model_load(dir, &o, &m) == MLB_OK);
+    CHECK(!strcmp(m->geometry_suffix, ", normal map"));
+    double geo = guidance_loss(m, "a gold goblet", MLB_STAGE_GEOMETRY);
+    double app = guidance_loss(m, "a gold goblet", MLB_STAGE_APPEARANCE);
+    m->geometry_suffix[0] = 0;
+    double geo_plain = guidance_loss(m, "a gold goblet", MLB_STAGE_GEOMETRY);
+    double geo_long = guidance_loss(m, "a gold goblet, normal map", MLB_STAGE_GEOMETRY);
+    double app_plain = guidance_loss(m, "a gold goblet", MLB_STAGE_APPEARANCE);
+    printf("  geometry loss %.9g with the suffix, %.9g without, %.9g for the longer prompt; appearance %.9g / %.9g\n", geo,
+           geo_plain, geo_long, app, app_plain);
+    CHECK(geo > 0 && geo_plain > 0 && app > 0);
+    CHECK(geo == geo_long);     // the suffix is the prompt's tail on the geometry stage
+    CHECK(geo != geo_plain);    // and it changes what the model is asked
+    CHECK(app == app_plain);    // the appearance stage keeps the plain prompt
+    mlb_sd_model_free(m);
+    // malformed: not a string, too long, a control character; each a format error naming the file
+    const char* bad[] = {"42", "\"0123456789012345678901234567890123456789012345678901234567890123456789\"", "\"a\\nb\""};
+    for (int i = 0; i < 3; i++) {
+        REQUIRE(write_index_text(dir, bad[i]));
+        m = NULL;
+        CHECK_MSG(mlb_sd_model_load(dir, &o, &m) == MLB_ERR_FORMAT && !m, "suffix %s accepted", bad[i]);
+        CHECK(strstr(mlb_last_error(), "model_index.json") != NULL);
+    }
+    CHECK(mlb_sd_write_index(dir, "a \"quote\"") == MLB_ERR_ARG);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     CHECK(system(cmd) == 0);
@@ -128,6 +192,7 @@ TEST(bad_words) {
 
 int main(void) {
     RUN(write_and_load);
+    RUN(geometry_suffix);
     RUN(bad_words);
     return test_summary();
 }

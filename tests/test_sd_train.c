@@ -6,7 +6,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include "matlaber/catalogue.h"
 #include "matlaber/fileio.h"
+#include "matlaber/sds.h"
 #include "matlaber/sd_model.h"
 #include "matlaber/sd_train.h"
 #include "test.h"
@@ -113,6 +115,7 @@ TEST(train_threads_resume) {
     REQUIRE(mlb_sd_model_load(d1, &o, &m) == MLB_OK);
     CHECK(m->unet->cfg.block_out[0] == 16 && m->vae->cfg.block_out[2] == 16);
     CHECK(m->scaling_factor > 0 && m->scaling_factor != 1.0f);
+    CHECK(!strcmp(m->geometry_suffix, MLB_SD_GEOMETRY_SUFFIX));   // the index tells the guidance the captions' form
     float* e = malloc(77 * 16 * sizeof(float));
     REQUIRE(e);
     CHECK(mlb_sd_model_encode_prompt(m, "a gold goblet, front view", e) == MLB_OK);
@@ -121,6 +124,37 @@ TEST(train_threads_resume) {
     char cmd[400];
     snprintf(cmd, sizeof cmd, "rm -rf %s", root);
     CHECK(system(cmd) == 0);
+}
+
+// The caption table: one row per (class, material, view, form), the geometry form's text carrying
+// the suffix before the view, and sd train's index naming that suffix for the guidance.
+TEST(captions) {
+    int n = mlb_sd_caption_count(), nc = mlb_catalogue_n_classes(), nm = mlb_catalogue_n_materials();
+    CHECK(n == 2 * nc * nm * MLB_SDS_N_VIEWS);
+    unsigned char* seen = calloc((size_t)n, 1);
+    REQUIRE(seen);
+    int ok = 1;
+    for (int c = 0; c < nc; c++)
+        for (int m = 0; m < nm; m++)
+            for (int v = 0; v < MLB_SDS_N_VIEWS; v++)
+                for (int g = 0; g < 2; g++) {
+                    int k = mlb_sd_caption_index(c, m, v, g);
+                    if (k < 0 || k >= n || seen[k]) ok = 0;
+                    else seen[k] = 1;
+                }
+    CHECK(ok);   // a bijection onto the rows
+    free(seen);
+    int gold = -1, goblet = -1;
+    for (int m = 0; m < nm; m++) if (!strcmp(mlb_catalogue_material_name(m), "gold")) gold = m;
+    for (int c = 0; c < nc; c++) if (!strcmp(mlb_catalogue_class_name(c), "goblet")) goblet = c;
+    REQUIRE(gold >= 0 && goblet >= 0);
+    char t[200];
+    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_FRONT, 1, t, sizeof t);
+    CHECK(!strcmp(t, "a gold goblet, normal map, front view"));
+    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_FRONT, 0, t, sizeof t);
+    CHECK(!strcmp(t, "a gold goblet, front view"));
+    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_NONE, 1, t, sizeof t);
+    CHECK(!strcmp(t, "a gold goblet, normal map"));
 }
 
 TEST(bad_config) {
@@ -135,6 +169,7 @@ TEST(bad_config) {
 }
 
 int main(void) {
+    RUN(captions);
     RUN(bad_config);
     RUN(train_threads_resume);
     return test_summary();

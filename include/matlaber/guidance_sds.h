@@ -9,6 +9,8 @@
 //   appearance: channels 0..2 (sRGB premultiplied, over black) → [n, 3, H, W] → VAE → SDS.
 // Prompts (view_prompts, default on): "<prompt>, front / side / back / overhead view" by each view's
 // azimuth and elevation (mlb_sds_view_for), one embedding per direction; off: the plain prompt;
+// the geometry stage's prompt carries the model's geometry_suffix before the view ("<prompt>, normal
+// map, front view" for the project's own models, sd_model.h; nothing for SD 1.x / 2.x);
 // unconditional embedding = the stage's negative prompt. The SDS noise / t seed is
 // seed·2 + stage (geometry 0, appearance 1) and the step. dimages += ∂loss/∂images (channels-last);
 // loss = the SDS loss (0.5 Σ grad² / n).

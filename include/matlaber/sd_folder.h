@@ -12,6 +12,7 @@
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/safetensors.h"
+#include "matlaber/sd_model.h"
 #include "matlaber/unet.h"
 #include "matlaber/vae.h"
 
@@ -42,6 +43,9 @@ mlb_status mlb_text_encoder_write_random(const char* dir, const mlb_text_encoder
 mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dtype);
 
 // DIR/model_index.json and DIR/scheduler/scheduler_config.json (SD's DDIM settings).
-mlb_status mlb_sd_write_index(const char* dir);
+// geometry_suffix (NULL or "" for none): what the model's captions of normal renders add after the
+// object ("_matlaber_geometry_suffix": diffusers skips keys that start with "_"); mlb_sd_model_load
+// reads it back (at most MLB_SD_SUFFIX_MAX - 1 printable ASCII characters).
+mlb_status mlb_sd_write_index(const char* dir, const char* geometry_suffix);
 
 #endif

@@ -29,6 +29,8 @@ typedef struct {
     mlb_gemm_precision precision; // their GPU GEMMs (default: mlb_gemm_precision_current(), --precision)
 } mlb_sd_model_options;
 
+#define MLB_SD_SUFFIX_MAX 64
+
 typedef struct {
     mlb_tokenizer* tokenizer;     // NULL when not loaded
     mlb_text_encoder* text;       // NULL when not loaded
@@ -39,6 +41,10 @@ typedef struct {
     float scaling_factor;         // latent = VAE mean * scaling_factor (0.18215)
     float alphas_cumprod[1000];   // diffusers' float32 values (what the DDIM/SDS references use)
     char source[600];             // what was loaded
+    // What the model's captions of normal renders add after the object (the project's own models:
+    // ", normal map"; sd_train.h MLB_SD_GEOMETRY_SUFFIX): a folder's model_index.json
+    // "_matlaber_geometry_suffix"; "" for any other model. The geometry stage's guidance appends it.
+    char geometry_suffix[MLB_SD_SUFFIX_MAX];
 } mlb_sd_model;
 
 mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1, current device and precision

@@ -8,7 +8,8 @@
 //   appearance   rgb [3, R, R]: the shaded colour over black (the appearance stage, through the VAE)
 //   geometry     0.5 (n·α + α) [3, R, R]: the normal render (the geometry stage's VAE phase)
 //   latent phase the area resize of [n·α, α] to [4, R/8, R/8], used as a latent as it is
-// all captioned "a {material} {class}" with the view suffix of the camera (or none, or empty).
+// captioned "a {material} {class}" (appearance) or "a {material} {class}, normal map" (geometry, latent
+// phase) with the view suffix of the camera (or none, or empty).
 //
 // Steps: (1) the dataset is rendered once (deterministic per sample); (2) a frozen random text
 // encoder and a tokenizer over the catalogue's words are written; (3) the VAE is trained
@@ -42,10 +43,18 @@ typedef struct {
 // res x res (a multiple of 8), in parallel. progress may be NULL.
 mlb_status mlb_sd_dataset_render(mlb_sd_dataset* d, int n, int res, uint64_t seed, mlb_progress* progress);
 void mlb_sd_dataset_free(mlb_sd_dataset* d);
-// Caption index of (class, material, view in 0 .. MLB_SDS_N_VIEWS-1): the rows of the embedding
-// table (after it: the unconditional prompts).
-int mlb_sd_caption_index(int cls, int mat, int view);
+// The geometry images' (and latent-phase inputs') captions carry this after the object's name, before
+// the view suffix: "a gold goblet, normal map, front view". With one caption for both forms the model
+// learns a mixture of a shaded goblet and a normal map, and its samples and its score for a shaded
+// render lean to the normal map's colours (the striped blue-green silver of docs/sd_train.md). The
+// model folder names it (model_index.json "_matlaber_geometry_suffix", sd_folder.h) so that the
+// geometry stage's guidance appends it (sd_model.h geometry_suffix).
+#define MLB_SD_GEOMETRY_SUFFIX ", normal map"
+// Caption index of (class, material, view in 0 .. MLB_SDS_N_VIEWS-1, geometry 0/1): the rows of the
+// embedding table (after it: the unconditional prompts); its text.
+int mlb_sd_caption_index(int cls, int mat, int view, int geometry);
 int mlb_sd_caption_count(void);
+void mlb_sd_caption_text(int cls, int mat, int view, int geometry, char* out, size_t cap);
 
 // ---- training ----
 typedef struct {

@@ -191,18 +191,26 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dt
 }
 
 // ---- index and scheduler -------------------------------------------------------------------------
-mlb_status mlb_sd_write_index(const char* dir) {
+mlb_status mlb_sd_write_index(const char* dir, const char* geometry_suffix) {
     if (!dir) return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: NULL argument");
-    char path[4200];
+    if (!geometry_suffix) geometry_suffix = "";
+    if (strlen(geometry_suffix) >= MLB_SD_SUFFIX_MAX) return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: geometry suffix too long");
+    for (const char* p = geometry_suffix; *p; p++)
+        if (*p < 0x20 || *p > 0x7e || *p == '"' || *p == '\\')
+            return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: the geometry suffix must be printable ASCII without quotes");
+    char path[4200], extra[MLB_SD_SUFFIX_MAX + 64] = "";
+    if (geometry_suffix[0]) snprintf(extra, sizeof extra, "  \"_matlaber_geometry_suffix\": \"%s\",\n", geometry_suffix);
     snprintf(path, sizeof path, "%s/scheduler", dir);
     MLB_TRY(mlb_mkdir_p(path));
     snprintf(path, sizeof path, "%s/model_index.json", dir);
-    MLB_TRY(write_text(path, "{\n  \"_class_name\": \"StableDiffusionPipeline\",\n  \"_matlaber\": \"the project's own model "
-                             "(matlaber sd train)\",\n  \"scheduler\": [\"diffusers\", \"DDIMScheduler\"],\n"
-                             "  \"text_encoder\": [\"transformers\", \"CLIPTextModel\"],\n"
-                             "  \"tokenizer\": [\"transformers\", \"CLIPTokenizer\"],\n"
-                             "  \"unet\": [\"diffusers\", \"UNet2DConditionModel\"],\n"
-                             "  \"vae\": [\"diffusers\", \"AutoencoderKL\"]\n}\n"));
+    char text[1024];
+    snprintf(text, sizeof text, "{\n  \"_class_name\": \"StableDiffusionPipeline\",\n  \"_matlaber\": \"the project's own model "
+                                "(matlaber sd train)\",\n%s  \"scheduler\": [\"diffusers\", \"DDIMScheduler\"],\n"
+                                "  \"text_encoder\": [\"transformers\", \"CLIPTextModel\"],\n"
+                                "  \"tokenizer\": [\"transformers\", \"CLIPTokenizer\"],\n"
+                                "  \"unet\": [\"diffusers\", \"UNet2DConditionModel\"],\n"
+                                "  \"vae\": [\"diffusers\", \"AutoencoderKL\"]\n}\n", extra);
+    MLB_TRY(write_text(path, text));
     snprintf(path, sizeof path, "%s/scheduler/scheduler_config.json", dir);
     return write_text(path, "{\n  \"_class_name\": \"DDIMScheduler\",\n  \"beta_end\": 0.012,\n"
                             "  \"beta_schedule\": \"scaled_linear\",\n  \"beta_start\": 0.00085,\n"

@@ -59,6 +59,33 @@ static int scheduler_prediction(const char* folder) {
     return r;
 }
 
+// model_index.json's "_matlaber_geometry_suffix" into out (sd_folder.h); "" when the file or the
+// key is absent or the file is not JSON (a user's folder need not have a readable index); a key
+// that is there but not a short printable string is an error naming the file.
+static mlb_status geometry_suffix(const char* folder, char out[MLB_SD_SUFFIX_MAX]) {
+    out[0] = 0;
+    char p[4200];
+    snprintf(p, sizeof p, "%s/model_index.json", folder);
+    if (!mlb_is_file(p)) return MLB_OK;
+    char* text = NULL;
+    size_t n = 0;
+    if (mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) return MLB_OK;
+    mlb_status s = MLB_OK;
+    cJSON* root = cJSON_ParseWithLength(text, n);
+    const cJSON* v = root ? cJSON_GetObjectItemCaseSensitive(root, "_matlaber_geometry_suffix") : NULL;
+    if (v) {
+        const char* t = cJSON_IsString(v) ? v->valuestring : NULL;
+        int ok = t && strlen(t) < MLB_SD_SUFFIX_MAX;
+        for (const char* c = t; ok && *c; c++) ok = *c >= 0x20 && *c <= 0x7e;
+        if (ok) snprintf(out, MLB_SD_SUFFIX_MAX, "%s", t);
+        else s = mlb_fail(MLB_ERR_FORMAT, "%s: \"_matlaber_geometry_suffix\" must be a string of at most %d printable ASCII "
+                                          "characters", p, MLB_SD_SUFFIX_MAX - 1);
+    }
+    cJSON_Delete(root);
+    free(text);
+    return s;
+}
+
 mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_in, mlb_sd_model** out) {
     if (!path || !out) return mlb_fail(MLB_ERR_ARG, "mlb_sd_model_load: NULL argument");
     *out = NULL;
@@ -136,6 +163,7 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
     }
     m->v_prediction = m->unet->cfg.v_prediction;
     if (folder) { int p = scheduler_prediction(path); if (p >= 0) m->v_prediction = p; }
+    if (folder && (s = geometry_suffix(path, m->geometry_suffix)) != MLB_OK) goto fail;
     if (opt.v_prediction >= 0) m->v_prediction = opt.v_prediction;
     m->scaling_factor = m->vae ? m->vae->cfg.scaling_factor : 0.18215f;
     if (!(m->scaling_factor > 0)) m->scaling_factor = 0.18215f;

@@ -1,9 +1,11 @@
 // Score-distillation guidance (include/matlaber/guidance_sds.h, docs/guidance.md): orbit cameras,
 // the conversions of the [n, H, W, 4] renders to what Stable Diffusion sees, and back.
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/guidance_sds.h"
+#include "matlaber/log.h"
 
 typedef struct {
     mlb_sds* geo;                 // geometry: negative_geometry, geometry_opt
@@ -261,7 +263,13 @@ mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance
     MLB_TRY(check_config(c));
     mlb_sds *geo = NULL, *app = NULL;
     int vp = c->view_prompts != 0;
-    mlb_status st = mlb_sds_create_from_model(model, c->prompt, c->negative_geometry, vp, &c->geometry_opt, &geo);
+    // the geometry stage's normal renders get the model's caption for them (sd_model.h geometry_suffix)
+    char* geo_prompt = malloc(strlen(c->prompt) + MLB_SD_SUFFIX_MAX);
+    if (!geo_prompt) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory");
+    sprintf(geo_prompt, "%s%s", c->prompt, model->geometry_suffix);
+    if (model->geometry_suffix[0]) mlb_log(MLB_LOG_INFO, "geometry prompt: \"%s\" (the model's caption of normal renders)", geo_prompt);
+    mlb_status st = mlb_sds_create_from_model(model, geo_prompt, c->negative_geometry, vp, &c->geometry_opt, &geo);
+    free(geo_prompt);
     if (!st) st = mlb_sds_create_from_model(model, c->prompt, c->negative_appearance, vp, &c->appearance_opt, &app);
     if (st) {
         mlb_sds_free(geo);

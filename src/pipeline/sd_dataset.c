@@ -1,6 +1,7 @@
 // The training set of the project's own diffusion model: catalogue renders in the three forms the
 // pipeline hands the guidance (include/matlaber/sd_train.h).
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/catalogue.h"
@@ -9,10 +10,17 @@
 #include "matlaber/sd_train.h"
 #include "matlaber/sds.h"
 
-int mlb_sd_caption_count(void) { return mlb_catalogue_n_classes() * mlb_catalogue_n_materials() * MLB_SDS_N_VIEWS; }
+int mlb_sd_caption_count(void) { return 2 * mlb_catalogue_n_classes() * mlb_catalogue_n_materials() * MLB_SDS_N_VIEWS; }
 
-int mlb_sd_caption_index(int cls, int mat, int view) {
-    return (cls * mlb_catalogue_n_materials() + mat) * MLB_SDS_N_VIEWS + view;
+int mlb_sd_caption_index(int cls, int mat, int view, int geometry) {
+    int pairs = mlb_catalogue_n_classes() * mlb_catalogue_n_materials();
+    return ((geometry ? pairs : 0) + cls * mlb_catalogue_n_materials() + mat) * MLB_SDS_N_VIEWS + view;
+}
+
+void mlb_sd_caption_text(int cls, int mat, int view, int geometry, char* out, size_t cap) {
+    char base[200];
+    mlb_catalogue_caption(cls, mat, MLB_SDS_VIEW_NONE, base, sizeof base);
+    snprintf(out, cap, "%s%s%s", base, geometry ? MLB_SD_GEOMETRY_SUFFIX : "", mlb_sds_view_suffix(view));
 }
 
 void mlb_sd_dataset_free(mlb_sd_dataset* d) {

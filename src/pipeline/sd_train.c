@@ -132,8 +132,10 @@ mlb_status mlb_sd_train_text(const mlb_sd_train_config* c, float** table) {
     for (int k = 0; !s && k < count + MLB_SD_N_UNCOND; k++) {
         if (k >= count) snprintf(text, sizeof text, "%s", UNCOND[k - count]);
         else {
-            int v = k % MLB_SDS_N_VIEWS, cm = k / MLB_SDS_N_VIEWS;
-            mlb_catalogue_caption(cm / mlb_catalogue_n_materials(), cm % mlb_catalogue_n_materials(), v, text, sizeof text);
+            int v = k % MLB_SDS_N_VIEWS, cm = k / MLB_SDS_N_VIEWS, pairs = mlb_catalogue_n_classes() * mlb_catalogue_n_materials();
+            int geo = cm >= pairs;
+            cm %= pairs;
+            mlb_sd_caption_text(cm / mlb_catalogue_n_materials(), cm % mlb_catalogue_n_materials(), v, geo, text, sizeof text);
         }
         s = mlb_tokenizer_encode(tok, text, ids, T, mlb_tokenizer_eos(tok), NULL);
         // no op table in scope (mlb_sd_train_unet's comes later): the CPU's fp32 table, so the
@@ -157,9 +159,8 @@ static void unet_example(const mlb_sd_train_config* c, const mlb_sd_dataset* d, 
     mlb_u32x4 r = mlb_rng_words(c->seed, STREAM_KIND, row);
     double u_kind = mlb_u32_to_unit(r.v[0]), u_drop = mlb_u32_to_unit(r.v[1]), u_view = mlb_u32_to_unit(r.v[2]);
     size_t L = (size_t)4 * d->lat * d->lat;
-    const float* z = u_kind < c->p_latent ? d->lat_geo + (size_t)i * L
-                     : u_kind < c->p_latent + c->p_geo ? lat_geo + (size_t)i * L
-                                                       : lat_rgb + (size_t)i * L;
+    int geometry = u_kind < c->p_latent + c->p_geo;
+    const float* z = u_kind < c->p_latent ? d->lat_geo + (size_t)i * L : geometry ? lat_geo + (size_t)i * L : lat_rgb + (size_t)i * L;
     int tt = (int)mlb_rng_below(c->seed, STREAM_T, row, 1000);
     float a = ac[tt], sa = sqrtf(a), sb = sqrtf(1.0f - a);
     for (size_t k = 0; k < L; k++) {
@@ -168,7 +169,7 @@ static void unet_example(const mlb_sd_train_config* c, const mlb_sd_dataset* d, 
     }
     *t = (float)tt;
     if (u_drop < c->p_uncond) *caption = mlb_sd_caption_count() + (int)(mlb_u32_to_unit(r.v[3]) * MLB_SD_N_UNCOND);
-    else *caption = mlb_sd_caption_index(d->cls[i], d->mat[i], u_view < c->p_no_view ? MLB_SDS_VIEW_NONE : d->view[i]);
+    else *caption = mlb_sd_caption_index(d->cls[i], d->mat[i], u_view < c->p_no_view ? MLB_SDS_VIEW_NONE : d->view[i], geometry);
 }
 
 mlb_status mlb_sd_train_unet(const mlb_backend* be, const mlb_sd_train_config* c, const mlb_sd_dataset* d,

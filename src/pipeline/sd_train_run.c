@@ -239,7 +239,7 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     if (!s && du) s = be->download(hu->params, du->params, hu->n_params);
     snprintf(p, sizeof p, "%s/unet", c->out_dir);
     if (!s) s = mlb_unet_save_folder(hu, p, c->unet_dtype);
-    if (!s) s = mlb_sd_write_index(c->out_dir);
+    if (!s) s = mlb_sd_write_index(c->out_dir, MLB_SD_GEOMETRY_SUFFIX);
 finish:;
     mlb_losslog_close(log);
     char png[4300];

@@ -189,10 +189,11 @@ if [ $train = 1 ]; then
   model=$build/own-model
   rm -rf "$model"
   # shellcheck disable=SC2086
-  (cd "$build" && timeout "${MLB_TRAIN_TIMEOUT:-420}" ./matlaber --device cuda --precision "${MLB_PRECISION:-tf32}" sd train \
+  # from the repository root, so that MLB_TRAIN_ARGS's paths (--init models/matlaber-tiny) are the tree's
+  (cd "$root" && timeout "${MLB_TRAIN_TIMEOUT:-420}" "$build/matlaber" --device cuda --precision "${MLB_PRECISION:-tf32}" sd train \
      -o "$model" ${MLB_TRAIN_ARGS:-}) 2>&1 | tr '\r' '\n' | grep -v '^\s*$' | awk 'NR % 20 == 1 || /train:|error|rror/' \
      | tee "$out/train.log" | tee -a "$log"
-  for p in "a gold goblet" "a blue mug" "a silver vase" "a red table"; do
+  for p in "a gold goblet" "a blue mug" "a silver vase" "a silver vase, normal map" "a red table"; do
     f=$(echo "$p" | tr ' ' '_').png
     (cd "$build" && ./matlaber --device cuda sd txt2img -m "$model" -p "$p" --size 128 --steps 30 --cfg 5 -o "$model/$f") 2>&1 | tail -1 | tee -a "$log"
   done

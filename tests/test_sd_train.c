@@ -144,16 +144,26 @@ TEST(captions) {
                 }
     CHECK(ok);   // a bijection onto the rows
     free(seen);
+    // and every row's text its own (the text is read from the row, the inverse of the index)
+    char(*texts)[200] = malloc((size_t)n * sizeof *texts);
+    REQUIRE(texts);
+    int distinct = 1;
+    for (int k = 0; k < n; k++) mlb_sd_caption_text(k, texts[k], sizeof texts[k]);
+    for (int k = 0; k < n && distinct; k++)
+        for (int j = 0; j < k; j++)
+            if (!strcmp(texts[j], texts[k])) { distinct = 0; break; }
+    CHECK(distinct);
+    free(texts);
     int gold = -1, goblet = -1;
     for (int m = 0; m < nm; m++) if (!strcmp(mlb_catalogue_material_name(m), "gold")) gold = m;
     for (int c = 0; c < nc; c++) if (!strcmp(mlb_catalogue_class_name(c), "goblet")) goblet = c;
     REQUIRE(gold >= 0 && goblet >= 0);
     char t[200];
-    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_FRONT, 1, t, sizeof t);
+    mlb_sd_caption_text(mlb_sd_caption_index(goblet, gold, MLB_SDS_VIEW_FRONT, 1), t, sizeof t);
     CHECK(!strcmp(t, "a gold goblet, normal map, front view"));
-    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_FRONT, 0, t, sizeof t);
+    mlb_sd_caption_text(mlb_sd_caption_index(goblet, gold, MLB_SDS_VIEW_FRONT, 0), t, sizeof t);
     CHECK(!strcmp(t, "a gold goblet, front view"));
-    mlb_sd_caption_text(goblet, gold, MLB_SDS_VIEW_NONE, 1, t, sizeof t);
+    mlb_sd_caption_text(mlb_sd_caption_index(goblet, gold, MLB_SDS_VIEW_NONE, 1), t, sizeof t);
     CHECK(!strcmp(t, "a gold goblet, normal map"));
 }
 

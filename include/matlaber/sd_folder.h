@@ -45,7 +45,7 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dt
 // DIR/model_index.json and DIR/scheduler/scheduler_config.json (SD's DDIM settings).
 // geometry_suffix (NULL or "" for none): what the model's captions of normal renders add after the
 // object ("_matlaber_geometry_suffix": diffusers skips keys that start with "_"); mlb_sd_model_load
-// reads it back (at most MLB_SD_SUFFIX_MAX - 1 printable ASCII characters).
+// reads it back (mlb_sd_geometry_suffix_ok, sd_model.h).
 mlb_status mlb_sd_write_index(const char* dir, const char* geometry_suffix);
 
 #endif

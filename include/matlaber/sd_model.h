@@ -30,6 +30,9 @@ typedef struct {
 } mlb_sd_model_options;
 
 #define MLB_SD_SUFFIX_MAX 64
+// 1 when s can be a model's geometry suffix: at most MLB_SD_SUFFIX_MAX - 1 printable ASCII
+// characters, no quote or backslash (it is written into JSON as it is).
+int mlb_sd_geometry_suffix_ok(const char* s);
 
 typedef struct {
     mlb_tokenizer* tokenizer;     // NULL when not loaded

@@ -51,10 +51,10 @@ void mlb_sd_dataset_free(mlb_sd_dataset* d);
 // geometry stage's guidance appends it (sd_model.h geometry_suffix).
 #define MLB_SD_GEOMETRY_SUFFIX ", normal map"
 // Caption index of (class, material, view in 0 .. MLB_SDS_N_VIEWS-1, geometry 0/1): the rows of the
-// embedding table (after it: the unconditional prompts); its text.
+// embedding table (after it: the unconditional prompts); the text of row 0 .. count-1.
 int mlb_sd_caption_index(int cls, int mat, int view, int geometry);
 int mlb_sd_caption_count(void);
-void mlb_sd_caption_text(int cls, int mat, int view, int geometry, char* out, size_t cap);
+void mlb_sd_caption_text(int row, char* out, size_t cap);
 
 // ---- training ----
 typedef struct {

@@ -194,10 +194,9 @@ mlb_status mlb_unet_save_folder(const mlb_unet* u, const char* dir, mlb_dtype dt
 mlb_status mlb_sd_write_index(const char* dir, const char* geometry_suffix) {
     if (!dir) return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: NULL argument");
     if (!geometry_suffix) geometry_suffix = "";
-    if (strlen(geometry_suffix) >= MLB_SD_SUFFIX_MAX) return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: geometry suffix too long");
-    for (const char* p = geometry_suffix; *p; p++)
-        if (*p < 0x20 || *p > 0x7e || *p == '"' || *p == '\\')
-            return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: the geometry suffix must be printable ASCII without quotes");
+    if (!mlb_sd_geometry_suffix_ok(geometry_suffix))
+        return mlb_fail(MLB_ERR_ARG, "mlb_sd_write_index: the geometry suffix must be at most %d printable ASCII characters "
+                                     "without quotes or backslashes", MLB_SD_SUFFIX_MAX - 1);
     char path[4200], extra[MLB_SD_SUFFIX_MAX + 64] = "";
     if (geometry_suffix[0]) snprintf(extra, sizeof extra, "  \"_matlaber_geometry_suffix\": \"%s\",\n", geometry_suffix);
     snprintf(path, sizeof path, "%s/scheduler", dir);

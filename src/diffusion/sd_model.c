@@ -59,6 +59,13 @@ static int scheduler_prediction(const char* folder) {
     return r;
 }
 
+int mlb_sd_geometry_suffix_ok(const char* s) {
+    if (!s || strlen(s) >= MLB_SD_SUFFIX_MAX) return 0;
+    for (; *s; s++)
+        if (*s < 0x20 || *s > 0x7e || *s == '"' || *s == '\\') return 0;
+    return 1;
+}
+
 // model_index.json's "_matlaber_geometry_suffix" into out (sd_folder.h); "" when the file or the
 // key is absent or the file is not JSON (a user's folder need not have a readable index); a key
 // that is there but not a short printable string is an error naming the file.
@@ -75,11 +82,9 @@ static mlb_status geometry_suffix(const char* folder, char out[MLB_SD_SUFFIX_MAX
     const cJSON* v = root ? cJSON_GetObjectItemCaseSensitive(root, "_matlaber_geometry_suffix") : NULL;
     if (v) {
         const char* t = cJSON_IsString(v) ? v->valuestring : NULL;
-        int ok = t && strlen(t) < MLB_SD_SUFFIX_MAX;
-        for (const char* c = t; ok && *c; c++) ok = *c >= 0x20 && *c <= 0x7e;
-        if (ok) snprintf(out, MLB_SD_SUFFIX_MAX, "%s", t);
+        if (mlb_sd_geometry_suffix_ok(t)) snprintf(out, MLB_SD_SUFFIX_MAX, "%s", t);
         else s = mlb_fail(MLB_ERR_FORMAT, "%s: \"_matlaber_geometry_suffix\" must be a string of at most %d printable ASCII "
-                                          "characters", p, MLB_SD_SUFFIX_MAX - 1);
+                                          "characters without quotes or backslashes", p, MLB_SD_SUFFIX_MAX - 1);
     }
     cJSON_Delete(root);
     free(text);

@@ -17,9 +17,12 @@ int mlb_sd_caption_index(int cls, int mat, int view, int geometry) {
     return ((geometry ? pairs : 0) + cls * mlb_catalogue_n_materials() + mat) * MLB_SDS_N_VIEWS + view;
 }
 
-void mlb_sd_caption_text(int cls, int mat, int view, int geometry, char* out, size_t cap) {
+void mlb_sd_caption_text(int row, char* out, size_t cap) {
+    int pairs = mlb_catalogue_n_classes() * mlb_catalogue_n_materials(), view = row % MLB_SDS_N_VIEWS;
+    int cm = row / MLB_SDS_N_VIEWS, geometry = cm >= pairs;
+    cm %= pairs;
     char base[200];
-    mlb_catalogue_caption(cls, mat, MLB_SDS_VIEW_NONE, base, sizeof base);
+    mlb_catalogue_caption(cm / mlb_catalogue_n_materials(), cm % mlb_catalogue_n_materials(), MLB_SDS_VIEW_NONE, base, sizeof base);
     snprintf(out, cap, "%s%s%s", base, geometry ? MLB_SD_GEOMETRY_SUFFIX : "", mlb_sds_view_suffix(view));
 }
 

@@ -131,12 +131,7 @@ mlb_status mlb_sd_train_text(const mlb_sd_train_config* c, float** table) {
     char text[256];
     for (int k = 0; !s && k < count + MLB_SD_N_UNCOND; k++) {
         if (k >= count) snprintf(text, sizeof text, "%s", UNCOND[k - count]);
-        else {
-            int v = k % MLB_SDS_N_VIEWS, cm = k / MLB_SDS_N_VIEWS, pairs = mlb_catalogue_n_classes() * mlb_catalogue_n_materials();
-            int geo = cm >= pairs;
-            cm %= pairs;
-            mlb_sd_caption_text(cm / mlb_catalogue_n_materials(), cm % mlb_catalogue_n_materials(), v, geo, text, sizeof text);
-        }
+        else mlb_sd_caption_text(k, text, sizeof text);
         s = mlb_tokenizer_encode(tok, text, ids, T, mlb_tokenizer_eos(tok), NULL);
         // no op table in scope (mlb_sd_train_unet's comes later): the CPU's fp32 table, so the
         // caption table is the same whichever device trains the UNet

@@ -163,6 +163,24 @@ static mlb_status guard_affine_columns(float* y, const float* x, size_t n, int C
                                        const double* shift, int in_float) {
     GUARDED(CPU_->affine_columns(y, x, n, C, scale, shift, in_float));
 }
+static mlb_status guard_add(float* y, const float* x, size_t n) { GUARDED(CPU_->add(y, x, n)); }
+static mlb_status guard_transform_points(float* clip, const float* pos, int V, const double* m) {
+    GUARDED(CPU_->transform_points(clip, pos, V, m));
+}
+static mlb_status guard_transform_points_backward(float* dpos, const float* dclip, int V, const double* m) {
+    GUARDED(CPU_->transform_points_backward(dpos, dclip, V, m));
+}
+static mlb_status guard_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
+    GUARDED(CPU_->vertex_faces(off, vf, faces, F, V));
+}
+static mlb_status guard_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
+                                       const int32_t* off, const int32_t* vf) {
+    GUARDED(CPU_->vertex_normals(normal, sum, pos, V, faces, off, vf));
+}
+static mlb_status guard_vertex_normals_backward(float* dpos, const float* dnormal, const float* sum, const float* pos,
+                                                int V, const int32_t* faces, const int32_t* off, const int32_t* vf) {
+    GUARDED(CPU_->vertex_normals_backward(dpos, dnormal, sum, pos, V, faces, off, vf));
+}
 
 // every other op: refused by name; the GEMM ops: the CPU's, guarded
 #define MLB_OP(name, cuda_fn, params) \
@@ -189,7 +207,8 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(downsample_box_backward); GUARD_USE(affine_columns); GUARD_USE(marching_tets_count);
     GUARD_USE(marching_tets_emit); GUARD_USE(marching_tets_backward); GUARD_USE(rasterize_backward);
     GUARD_USE(interpolate_backward); GUARD_USE(dmtet_deform); GUARD_USE(dmtet_deform_backward); GUARD_USE(sdf_reg);
-    GUARD_USE(sdf_reg_backward);
+    GUARD_USE(sdf_reg_backward); GUARD_USE(add); GUARD_USE(transform_points); GUARD_USE(transform_points_backward);
+    GUARD_USE(vertex_faces); GUARD_USE(vertex_normals); GUARD_USE(vertex_normals_backward);
 #undef GUARD_USE
     return &t;
 }

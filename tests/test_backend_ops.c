@@ -42,6 +42,7 @@
 #include "backend_op_cases_raster.h"
 #include "backend_op_cases_mt.h"
 #include "backend_op_cases_samples.h"
+#include "backend_op_cases_surface.h"
 
 typedef struct {
     const char* name;

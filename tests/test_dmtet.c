@@ -366,6 +366,74 @@ TEST(vertex_normals) {
     mlb_tetgrid_free(&g);
 }
 
+// The gather forms of the vertex normals (the op tables' and the CUDA kernels': per vertex over
+// mlb_vertex_faces's lists) give the scatter forms' bits, in float and in double: on a sphere's
+// surface and on random meshes whose faces repeat vertices, have no area or leave vertices out.
+#define GATHER_SCATTER(R, SUF)                                                                          \
+    static int gather_scatter_##R(const R* pos, int V, const int32_t* faces, int F, const R* dnormal) { \
+        int32_t *off = malloc(sizeof(int32_t) * (V + 1)), *vf = malloc(sizeof(int32_t) * (3 * F + 1));   \
+        R *n1 = malloc(sizeof(R) * 3 * V), *n2 = malloc(sizeof(R) * 3 * V), *s1 = malloc(sizeof(R) * 3 * V); \
+        R *s2 = malloc(sizeof(R) * 3 * V), *d1 = malloc(sizeof(R) * 3 * V), *d2 = malloc(sizeof(R) * 3 * V); \
+        int same = off && vf && n1 && n2 && s1 && s2 && d1 && d2 && mlb_vertex_faces(off, vf, faces, F, V) == MLB_OK; \
+        if (same) {                                                                                     \
+            vertex_normals_forward##SUF(n1, s1, pos, V, faces, F);                                      \
+            mlb_vertex_normals##SUF(n2, s2, pos, V, faces, off, vf);                                    \
+            for (int i = 0; i < 3 * V; i++) d1[i] = d2[i] = (R)(0.5 - (i % 7) * 0.125);                 \
+            same = vertex_normals_backward##SUF(d1, dnormal, s1, pos, V, faces, F) == MLB_OK;           \
+            mlb_vertex_normals_backward##SUF(d2, dnormal, s1, pos, V, faces, off, vf);                 \
+            same = same && !memcmp(n1, n2, sizeof(R) * 3 * V) && !memcmp(s1, s2, sizeof(R) * 3 * V) &&  \
+                   !memcmp(d1, d2, sizeof(R) * 3 * V);                                                 \
+        }                                                                                               \
+        free(off), free(vf), free(n1), free(n2), free(s1), free(s2), free(d1), free(d2);                \
+        return same;                                                                                    \
+    }
+GATHER_SCATTER(float, )
+GATHER_SCATTER(double, _f64)
+
+TEST(vertex_normals_gather_is_scatter) {
+    mlb_tetgrid g;
+    REQUIRE(mlb_tetgrid_create(&g, 8, 1.0f) == MLB_OK);
+    float* sdf = malloc(sizeof(float) * g.n_verts);
+    REQUIRE(sdf);
+    for (int v = 0; v < g.n_verts; v++) {
+        const float* p = g.verts + 3 * v;
+        sdf[v] = 0.35f - sqrtf(p[0] * p[0] + 1.4f * p[1] * p[1] + p[2] * p[2]);
+    }
+    mlb_mt_surface s;
+    REQUIRE(marching_tets_forward(&s, &g, g.verts, sdf) == MLB_OK);
+    REQUIRE(s.n_faces > 100);
+    int M = s.n_verts;
+    float* dn = malloc(sizeof(float) * 3 * M);
+    double *pd = malloc(sizeof(double) * 3 * M), *dnd = malloc(sizeof(double) * 3 * M);
+    REQUIRE(dn && pd && dnd);
+    for (int i = 0; i < 3 * M; i++) dn[i] = (float)(dnd[i] = mlb_rng_normal_f64(9, 1, i)), pd[i] = s.pos[i];
+    CHECK_MSG(gather_scatter_float(s.pos, M, s.faces, s.n_faces, dn), "sphere, %d faces, float", s.n_faces);
+    CHECK_MSG(gather_scatter_double(pd, M, s.faces, s.n_faces, dnd), "sphere, %d faces, double", s.n_faces);
+    free(dn), free(pd), free(dnd);
+    mt_surface_free(&s);
+    mlb_tetgrid_free(&g);
+    free(sdf);
+    for (int t = 0; t < 6; t++) {   // random meshes: V up to 400, F up to 900
+        int V = 1 + (int)(mlb_rng_uniform_f64(10, t, 0) * 400), F = (int)(mlb_rng_uniform_f64(10, t, 1) * 900);
+        int32_t* faces = malloc(sizeof(int32_t) * (3 * F + 1));
+        float *p = malloc(sizeof(float) * 3 * V), *d = malloc(sizeof(float) * 3 * V);
+        double *p64 = malloc(sizeof(double) * 3 * V), *d64 = malloc(sizeof(double) * 3 * V);
+        REQUIRE(faces && p && d && p64 && d64);
+        for (int i = 0; i < 3 * F; i++) faces[i] = (int32_t)(mlb_rng_uniform_f64(11, t, i) * V);
+        for (int i = 0; i < 3 * V; i++) {
+            p[i] = (float)(p64[i] = mlb_rng_normal_f64(12, t, i));
+            d[i] = (float)(d64[i] = mlb_rng_normal_f64(13, t, i));
+        }
+        if (F > 2) faces[3] = faces[4] = faces[5];   // a face on one vertex
+        CHECK_MSG(gather_scatter_float(p, V, faces, F, d), "random mesh V %d F %d, float", V, F);
+        CHECK_MSG(gather_scatter_double(p64, V, faces, F, d64), "random mesh V %d F %d, double", V, F);
+        free(faces), free(p), free(d), free(p64), free(d64);
+    }
+    int32_t off[3], vf[3], bad[3] = {0, 1, 2};
+    CHECK(mlb_vertex_faces(off, vf, bad, 1, 2) == MLB_ERR_ARG);   // vertex 2 of 2: named, refused
+    CHECK(strstr(mlb_last_error(), "face 0 names vertex 2 of 2") != NULL);
+}
+
 // The tables packed for both devices (marching_tets_math.h) are reference.md's, and the edge slots
 // are mlb_tetgrid_edge_id's ids: the slots that are edges, in increasing order, are g.edges.
 TEST(packed_tables_and_slots) {
@@ -547,6 +615,7 @@ int main(void) {
     RUN(marching_tets_backward_fd);
     RUN(sdf_regulariser);
     RUN(vertex_normals);
+    RUN(vertex_normals_gather_is_scatter);
     RUN(packed_tables_and_slots);
     RUN(scan_i32);
     RUN(backward_gather_is_scatter);

@@ -16,6 +16,7 @@
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/mesh.h"
+#include "matlaber/mt_ops.h"   // the surface's vertex normals
 
 typedef struct {
     int cells;          // cube cells per axis
@@ -65,14 +66,8 @@ extern const int mlb_mt_tet_edges[6][2];
     /* SDF sign regulariser (nvdiffrec): over grid edges whose ends differ in occupancy (sdf > 0), \
        mean BCE_logits(s_a, s_b > 0) + mean BCE_logits(s_b, s_a > 0); 0 without such edges. */     \
     R N(sdf_reg_forward)(const mlb_tetgrid* g, const R* sdf);                                       \
-    void N(sdf_reg_backward)(R* dsdf, const mlb_tetgrid* g, const R* sdf, R dloss);                 \
-    /* Area-weighted vertex normals: m_v = Σ_{faces f ∋ v} (b − a) × (c − a), normal = m/|m|     \
-       ((0, 0, 1) where |m| = 0). sum[V,3] keeps m for backward (may be NULL if unwanted). */     \
-    void N(vertex_normals_forward)(R* normal, R* sum, const R* pos, int n_verts, const int32_t* faces, \
-                                   int n_faces);                                                    \
-    /* dpos[V,3] += ∂normal/∂pos · dnormal, with sum from forward (MLB_ERR_NOMEM: O(V) scratch) */ \
-    mlb_status N(vertex_normals_backward)(R* dpos, const R* dnormal, const R* sum, const R* pos, int n_verts, \
-                                    const int32_t* faces, int n_faces);
+    void N(sdf_reg_backward)(R* dsdf, const mlb_tetgrid* g, const R* sdf, R dloss);
+
 
 #define MLB_DMTET_F32(name) name
 #define MLB_DMTET_F64(name) name##_f64
@@ -97,6 +92,11 @@ mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, co
 mlb_status mlb_mt_device_forward_on(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
                                     const mlb_tetgrid* g, const float* pos, const float* sdf);
 mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
+// The same with dverts [n_verts,3] on the table's device too
+mlb_status mlb_mt_device_backward_from(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
+// The last forward's surface where it was made: verts [n_verts,3], faces [n_faces,3] (int32) on the
+// table's device (what came down into the host surface), valid until the next forward
+mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces);
 void mlb_mt_device_free(mlb_mt_device* d);   // safe on NULL
 
 #endif

@@ -80,16 +80,15 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3]: the double build's; the float     \
                                         build's are on the table (gv and, with the network on the   \
                                         host, sdf and deform are filled here too) */                \
-        R *nrm, *nsum, *attr, *clip; /* [M,3], [M,3], [M,4], [n,M,4] */                             \
-        int32_t* adj;                /* [F,3] */                                                    \
+        int32_t* adj;                /* [F,3] the edge topology (made here, goes up) */             \
         /* on the table's device (be): */                                                            \
         int32_t* tri;                /* [n,S,S] */                                                  \
         R *bary, *depth, *img, *weights; /* [n,S,S,2], [n,S,S], [n,S,S,4], [n,S,S,2] */             \
         R *aa, *daa, *dimg, *dbary;  /* per-view scratch [S,S,4], [S,S,4], [S,S,4], [S,S,2] */      \
         struct N(geofit_table)* tab; /* private: the table's buffers and the table they are on */   \
-        R *dattr, *dclip, *dverts, *dnrm;    /* [M,4], [M,4], [M,3], [M,3] */                       \
         R *dgpos, *dsdf, *ddeform;   /* [G,3], [G], [G,3] */                                        \
-        R* pieces;                   /* [n, M, 6]: each view's share of dverts and dnrm */          \
+        R* pieces;                   /* [n, M, 6]: each view's share of the surface's gradients,   \
+                                        on the host for the gather across processes */             \
         size_t cap_grid, cap_surf, cap_px, cap_views, cap_pieces;   /* allocated sizes */          \
         /* Set by the caller before the forward: this process renders views [part_first,            \
            part_first + part_count) only (dist.h; the others' images stay 0) and the backward       \
@@ -99,9 +98,10 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         int part_first, part_count, part_batch;                                                     \
         /* Set by the caller before the forward (float): the op table marching tets and the views' \
            rasterize, interpolate, antialias and their backwards run on (NULL: the CPU's,          \
-           mlb_backend_cpu), with every per-pixel buffer there: the surface's attributes and clip   \
-           coordinates go up, the images come down, the dimages go up and the surface's gradients   \
-           come down (M·8 floats a view). mt its buffers there (the state's own). The double build  \
+           mlb_backend_cpu), with every per-pixel buffer there, and the surface's normals, clip     \
+           coordinates and their gradients: the surface comes down (for the edge topology, which    \
+           goes up), the images come down and the dimages go up; the views' gradient pieces cross   \
+           only between processes. mt its buffers there (the state's own). The double build        \
            calls the CPU's _f64 functions directly. stats->coverage is measured on tables whose     \
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const mlb_backend* be;                                                                      \

@@ -16,10 +16,16 @@
 #ifndef MATLABER_MT_OPS_H
 #define MATLABER_MT_OPS_H
 #include <stdint.h>
+#include "matlaber/error.h"
 
 // out[i] = in[0] + ... + in[i-1] for i <= n (out has n + 1 values: out[n] is the total). out may be
 // in (a buffer of n + 1). The total must fit in int32 (the callers bound it: slots < 2^31).
 void mlb_scan_i32(int32_t* out, const int32_t* in, int n);
+
+// The faces at each vertex, for the gather passes: off [V + 1] (v's entries are vf[off[v] ..
+// off[v+1])), vf [3 F] = 3 f + the corner of v in face f, in face order. MLB_ERR_ARG names a face
+// with a vertex outside [0, V).
+mlb_status mlb_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int n_faces, int n_verts);
 
 #define MLB_MT_OPS_DECLARE(R, N)                                                                       \
     /* tet_nf [T] = the triangles of each tet's case (0, 1 or 2); slot_nv [7 V] = 1 on an edge whose  \
@@ -48,7 +54,23 @@ void mlb_scan_i32(int32_t* out, const int32_t* in, int n);
        sign-changing grid edges (0 without one), and dsdf [V] += dloss · its gradient: per-vertex \
        gathers (marching_tets_math.h), the sums in double over fixed shards. */                  \
     R N(mlb_mt_sdf_reg)(const R* sdf, int cells);                                                  \
-    void N(mlb_mt_sdf_reg_backward)(R* dsdf, const R* sdf, int cells, R dloss);
+    void N(mlb_mt_sdf_reg_backward)(R* dsdf, const R* sdf, int cells, R dloss);                     \
+    /* Area-weighted vertex normals of the surface (src/mesh/vertex_normals.c): m_v = the sum over \
+       the faces f at v of (b - a) x (c - a), normal = m / |m| ((0, 0, 1) where |m| = 0); sum [V,3] \
+       keeps m for the backward (may be NULL). The scatter form, a loop over the faces: */        \
+    void N(vertex_normals_forward)(R* normal, R* sum, const R* pos, int n_verts, const int32_t* faces, \
+                                   int n_faces);                                                    \
+    /* dpos [V,3] += d normal / d pos . dnormal, with sum from the forward (MLB_ERR_NOMEM: O(V)   \
+       scratch) */                                                                                  \
+    mlb_status N(vertex_normals_backward)(R* dpos, const R* dnormal, const R* sum, const R* pos, int n_verts, \
+                                          const int32_t* faces, int n_faces);                       \
+    /* The gather form (the op tables' vertex_normals and _backward, and the CUDA kernels'): per   \
+       vertex over the faces mlb_vertex_faces lists at it, in face order; the scatter form's bits, \
+       on any thread count. sum may be NULL; dpos NULL does nothing. */                            \
+    void N(mlb_vertex_normals)(R* normal, R* sum, const R* pos, int n_verts, const int32_t* faces,  \
+                               const int32_t* off, const int32_t* vf);                              \
+    void N(mlb_vertex_normals_backward)(R* dpos, const R* dnormal, const R* sum, const R* pos, int n_verts, \
+                                        const int32_t* faces, const int32_t* off, const int32_t* vf);
 
 #define MLB_MT_OPS_F32(name) name
 #define MLB_MT_OPS_F64(name) name##_f64

@@ -260,3 +260,71 @@ extern "C" mlb_status mlb_cuda_sdf_reg_backward(float* dsdf, const float* sdf, i
     MLB_CUDA_LAUNCHED("sdf_reg_backward_kernel");
     return MLB_OK;
 }
+
+// ---- the surface's vertex normals (mt_ops.h's gather passes over mesh/vertex_normals_math.h) ----
+// vertex_faces: per-vertex counts by atomics (integers: exact), their scan, a fill through atomic
+// cursors (any order), then each vertex's short list sorted: the CPU's face order, bit for bit.
+#include "mesh/vertex_normals_math.h"
+__global__ void vf_count_kernel(int32_t* count, const int32_t* faces, int n) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < n; i += gridDim.x * blockDim.x) atomicAdd(&count[faces[i]], 1);
+}
+__global__ void vf_fill_kernel(int32_t* vf, int32_t* cursor, const int32_t* off, const int32_t* faces, int n) {
+    for (int i = blockIdx.x * blockDim.x + threadIdx.x; i < n; i += gridDim.x * blockDim.x) {
+        int v = faces[i];
+        vf[off[v] + atomicAdd(&cursor[v], 1)] = i;
+    }
+}
+__global__ void vf_sort_kernel(int32_t* vf, const int32_t* off, int V) {
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        for (int32_t a = off[v] + 1; a < off[v + 1]; a++) {   // insertion sort: a handful of entries
+            int32_t x = vf[a], b = a - 1;
+            for (; b >= off[v] && vf[b] > x; b--) vf[b + 1] = vf[b];
+            vf[b + 1] = x;
+        }
+}
+extern "C" mlb_status mlb_cuda_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
+    if (F < 0 || V < 0 || (long long)F * 3 > INT32_MAX) return mlb_fail(MLB_ERR_ARG, "vertex_faces: %d faces, %d vertices", F, V);
+    int n = 3 * F;
+    MLB_CUDA_CHECK(cudaMemsetAsync(off, 0, sizeof(int32_t) * ((size_t)V + 1)));
+    if (n) {
+        vf_count_kernel<<<mlb_grid((size_t)n, 256), 256>>>(off, faces, n);
+        MLB_CUDA_LAUNCHED("vf_count_kernel");
+    }
+    MLB_TRY(mlb_cuda_scan_i32(off, off, V));   // in place: off[V] the total, 3 F
+    if (!n) return MLB_OK;
+    int32_t* cursor;
+    MLB_TRY(mlb_cuda_scratch((void**)&cursor, sizeof(int32_t) * ((size_t)V + 1)));
+    MLB_CUDA_CHECK(cudaMemsetAsync(cursor, 0, sizeof(int32_t) * ((size_t)V + 1)));
+    vf_fill_kernel<<<mlb_grid((size_t)n, 256), 256>>>(vf, cursor, off, faces, n);
+    MLB_CUDA_LAUNCHED("vf_fill_kernel");
+    vf_sort_kernel<<<mlb_grid((size_t)V, 256), 256>>>(vf, off, V);
+    MLB_CUDA_LAUNCHED("vf_sort_kernel");
+    return MLB_OK;
+}
+__global__ void vertex_normals_kernel(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
+                                      const int32_t* off, const int32_t* vf) {
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        vn_gather_normal(sum ? sum + 3 * (size_t)v : NULL, normal + 3 * (size_t)v, pos, faces, off, vf, v);
+}
+__global__ void vertex_normals_backward_kernel(float* dpos, const float* dnormal, const float* sum, const float* pos,
+                                               int V, const int32_t* faces, const int32_t* off, const int32_t* vf) {
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        vn_gather_backward(dpos + 3 * (size_t)v, dnormal, sum, pos, faces, off, vf, v);
+}
+extern "C" mlb_status mlb_cuda_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
+                                              const int32_t* off, const int32_t* vf) {
+    if (V < 0) return mlb_fail(MLB_ERR_ARG, "vertex_normals: %d vertices", V);
+    if (!V) return MLB_OK;
+    vertex_normals_kernel<<<mlb_grid((size_t)V, 256), 256>>>(normal, sum, pos, V, faces, off, vf);
+    MLB_CUDA_LAUNCHED("vertex_normals_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_vertex_normals_backward(float* dpos, const float* dnormal, const float* sum,
+                                                       const float* pos, int V, const int32_t* faces,
+                                                       const int32_t* off, const int32_t* vf) {
+    if (V < 0) return mlb_fail(MLB_ERR_ARG, "vertex_normals_backward: %d vertices", V);
+    if (!V || !dpos) return MLB_OK;
+    vertex_normals_backward_kernel<<<mlb_grid((size_t)V, 256), 256>>>(dpos, dnormal, sum, pos, V, faces, off, vf);
+    MLB_CUDA_LAUNCHED("vertex_normals_backward_kernel");
+    return MLB_OK;
+}

@@ -380,3 +380,31 @@ extern "C" mlb_status mlb_cuda_antialias_backward(float* dcolor, float* dclip, c
     }
     return MLB_OK;
 }
+
+// ---- the surface's clip coordinates: raster_math.h's per-vertex transform, in double ----
+__global__ void transform_points_kernel(float* clip, const float* pos, int V, mlb_mat4 m) {
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        rast_transform_point(clip + 4 * (size_t)v, pos + 3 * (size_t)v, m.m);
+}
+__global__ void transform_points_backward_kernel(float* dpos, const float* dclip, int V, mlb_mat4 m) {
+    for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)
+        rast_transform_point_backward(dpos + 3 * (size_t)v, dclip + 4 * (size_t)v, m.m);
+}
+extern "C" mlb_status mlb_cuda_transform_points(float* clip, const float* pos, int V, const double* m) {
+    if (V < 0 || !m) return mlb_fail(MLB_ERR_ARG, "transform_points: %d vertices%s", V, m ? "" : ", no matrix");
+    if (!V) return MLB_OK;
+    mlb_mat4 M;
+    memcpy(M.m, m, sizeof M.m);
+    transform_points_kernel<<<mlb_grid((size_t)V, 256), 256>>>(clip, pos, V, M);
+    MLB_CUDA_LAUNCHED("transform_points_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_transform_points_backward(float* dpos, const float* dclip, int V, const double* m) {
+    if (V < 0 || !m) return mlb_fail(MLB_ERR_ARG, "transform_points_backward: %d vertices%s", V, m ? "" : ", no matrix");
+    if (!V || !dpos) return MLB_OK;
+    mlb_mat4 M;
+    memcpy(M.m, m, sizeof M.m);
+    transform_points_backward_kernel<<<mlb_grid((size_t)V, 256), 256>>>(dpos, dclip, V, M);
+    MLB_CUDA_LAUNCHED("transform_points_backward_kernel");
+    return MLB_OK;
+}

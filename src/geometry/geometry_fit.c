@@ -19,8 +19,9 @@
 
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
 // (the grid group: the float build's deformed grid, SDF and their gradients)
+// (the surface group: normals, attribute, clip coordinates, the faces at each vertex, gradients)
 enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT,
-       T_ATTR, T_CLIP, T_FACES, T_ADJ, T_DATTR, T_DCLIP,
+       T_ATTR, T_CLIP, T_ADJ, T_DATTR, T_DCLIP, T_NRM, T_NSUM, T_VOFF, T_VF, T_ONES, T_PIECES, T_DSURF,
        T_GV, T_Y, T_SDF, T_DEFORM, T_GPOS, T_DGPOS, T_DSDF, T_DDEFORM, T_REG, T_COUNT };
 struct FN(geofit_table) {
     const mlb_backend* tb;
@@ -128,9 +129,8 @@ void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     mlb_mt_device_free(st->mt);
     free(st->vp); free(st->images);
     free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
-    free(st->nrm); free(st->nsum); free(st->attr); free(st->clip); free(st->adj);
+    free(st->adj);
     FN(geofit_table_free)(st->tab);
-    free(st->dattr); free(st->dclip); free(st->dverts); free(st->dnrm);
     free(st->dgpos); free(st->dsdf); free(st->ddeform);
     free(st->pieces);
     memset(st, 0, sizeof *st);
@@ -197,15 +197,14 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
     }
     if (ok && M > 0) {   // (M = 0: grid and pixel groups only)
         size_t m = (size_t)M;
-        ok &= FN(grow)((void**)&st->nrm, m * 3, sizeof(real)) & FN(grow)((void**)&st->nsum, m * 3, sizeof(real)) &
-              FN(grow)((void**)&st->attr, m * 4, sizeof(real)) & FN(grow)((void**)&st->clip, m * 4 * (size_t)n, sizeof(real)) &
-              FN(grow)((void**)&st->dattr, m * 4, sizeof(real)) & FN(grow)((void**)&st->dclip, m * 4, sizeof(real)) &
-              FN(grow)((void**)&st->dverts, m * 3, sizeof(real)) & FN(grow)((void**)&st->dnrm, m * 3, sizeof(real)) &
-              FN(grow)((void**)&st->adj, (size_t)F * 3, sizeof(int32_t));
+        ok &= FN(grow)((void**)&st->adj, (size_t)F * 3, sizeof(int32_t));
         FN(tbuf)* d = st->tab->d;
         ok = ok && FN(tbuf_get)(tb, &d[T_ATTR], m * 4) && FN(tbuf_get)(tb, &d[T_CLIP], m * 4 * (size_t)n) &&
-             FN(tbuf_get)(tb, &d[T_FACES], (size_t)F * 3) && FN(tbuf_get)(tb, &d[T_ADJ], (size_t)F * 3) &&
-             FN(tbuf_get)(tb, &d[T_DATTR], m * 4) && FN(tbuf_get)(tb, &d[T_DCLIP], m * 4);
+             FN(tbuf_get)(tb, &d[T_ADJ], (size_t)F * 3) && FN(tbuf_get)(tb, &d[T_DATTR], m * 4) &&
+             FN(tbuf_get)(tb, &d[T_DCLIP], m * 4) && FN(tbuf_get)(tb, &d[T_NRM], m * 3) &&
+             FN(tbuf_get)(tb, &d[T_NSUM], m * 3) && FN(tbuf_get)(tb, &d[T_VOFF], m + 1) &&
+             FN(tbuf_get)(tb, &d[T_VF], (size_t)F * 3) && FN(tbuf_get)(tb, &d[T_ONES], m) &&
+             FN(tbuf_get)(tb, &d[T_PIECES], m * 6 * (size_t)n) && FN(tbuf_get)(tb, &d[T_DSURF], m * 6);
         st->cap_surf = ok ? m : 0;
     }
     if (!ok) {
@@ -262,16 +261,17 @@ static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, cons
     return mlb_mt_device_forward_on(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p);
 }
 
-// The grid's part of the backward from st->dverts (host): marching tets, the deformation and the
+// The grid's part of the backward from dverts (on the table): marching tets, the deformation and the
 // regulariser on the table, then the network (there, or on the host with the gradients brought down).
-static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, double reg_weight) {
+static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, const float* dverts,
+                                double reg_weight) {
     const mlb_backend* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;
     size_t G = (size_t)g->n_verts;
     MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
     MLB_TRY(tb->zero(d[T_DSDF].p, G));
     MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
-    MLB_TRY(mlb_mt_device_backward_on(st->mt, d[T_DGPOS].p, d[T_DSDF].p, st->dverts));
+    MLB_TRY(mlb_mt_device_backward_from(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts));
     MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (float)(2 * g->cells)));
     if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (float)reg_weight));
     if (mlb_field_backend(net)) {
@@ -284,6 +284,18 @@ static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, con
     return geometry_net_backward(net, st->dsdf, st->ddeform);
 }
 #endif
+
+// The surface where the table has it: the float build's marching tets made it there (the host's
+// st->surf is its copy); the double build's is the host's.
+static mlb_status FN(surface_on_table)(FN(mlb_geofit_state)* st, const real** pos, const int32_t** faces) {
+#ifdef MLB_F64
+    *pos = st->surf.pos;
+    *faces = st->surf.faces;
+    return MLB_OK;
+#else
+    return mlb_mt_device_surface(st->mt, pos, faces);
+#endif
+}
 
 mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
                                  mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, real* images,
@@ -323,22 +335,24 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     st->ctx = ctx;
     stats->n_verts = M;
     stats->n_faces = F;
-    // 2. normals as the attribute [normal, 1]; topology for antialias
-    FN(vertex_normals_forward)(st->nrm, st->nsum, st->surf.pos, M, st->surf.faces, F);
-    for (int i = 0; i < M; i++) {
-        for (int k = 0; k < 3; k++) st->attr[4 * i + k] = st->nrm[3 * i + k];
-        st->attr[4 * i + 3] = 1;
-    }
-    s = mlb_edge_topology(st->adj, st->surf.faces, F, M);
-    if (s) return s;
-    // 3. every view (of this process's part), buffers kept: the surface goes up, the images come down
+    // 2. on the table: the faces at each vertex, the normals and the attribute [normal, 1]; the
+    //    topology for antialias made on the host from the surface that came down
     const mlb_backend* tb = st->tab->tb;
     const int host_memory = tb->alloc == mlb_backend_cpu()->alloc;   // the table's buffers are the host's
-    real *t_attr = st->tab->d[T_ATTR].p, *t_clip = st->tab->d[T_CLIP].p, *t_out = st->tab->d[T_OUT].p;
-    int32_t *t_faces = (int32_t*)st->tab->d[T_FACES].p, *t_adj = (int32_t*)st->tab->d[T_ADJ].p;
-    MLB_TRY(FN(t_upload)(tb, t_attr, st->attr, 4 * (size_t)M));
-    MLB_TRY(FN(t_upload_i32)(tb, t_faces, st->surf.faces, 3 * (size_t)F));
+    FN(tbuf)* d = st->tab->d;
+    const real* t_pos;
+    const int32_t* t_faces;
+    MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
+    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_out = d[T_OUT].p, *t_nrm = d[T_NRM].p;
+    int32_t *t_adj = (int32_t*)d[T_ADJ].p, *t_off = (int32_t*)d[T_VOFF].p, *t_vf = (int32_t*)d[T_VF].p;
+    MLB_TRY(T_VERTEX_FACES(tb, t_off, t_vf, t_faces, F, M));
+    MLB_TRY(T_VERTEX_NORMALS(tb, t_nrm, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
+    MLB_TRY(FN(t_ones)(tb, d[T_ONES].p, (size_t)M));
+    MLB_TRY(FN(t_copy_rows)(tb, t_attr, 4, t_nrm, 3, 3, (size_t)M));
+    MLB_TRY(FN(t_copy_rows)(tb, t_attr + 3, 4, d[T_ONES].p, 1, 1, (size_t)M));
+    MLB_TRY(mlb_edge_topology(st->adj, st->surf.faces, F, M));
     MLB_TRY(FN(t_upload_i32)(tb, t_adj, st->adj, 3 * (size_t)F));
+    // 3. every view (of this process's part), buffers kept: the images come down
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
     uint64_t hash = 1469598103934665603ull;
     int v0, v1;
@@ -347,8 +361,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     for (int v = 0; v < n; v++) st->vp[v] = cams[v].view_proj;
     for (int v = v0; v < v1; v++) {
         real* clip = t_clip + (size_t)v * M * 4;
-        FN(mlb_transform_points)(st->clip + (size_t)v * M * 4, st->surf.pos, M, &st->vp[v]);
-        MLB_TRY(FN(t_upload)(tb, clip, st->clip + (size_t)v * M * 4, 4 * (size_t)M));
+        MLB_TRY(T_TRANSFORM(tb, clip, t_pos, M, &st->vp[v]));
         int32_t* tri = st->tri + (size_t)v * P;
         real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         real* weights = st->weights + (size_t)v * P * 2;
@@ -384,25 +397,28 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     const mlb_tetgrid* g = st->grid;
     int M = st->surf.n_verts, F = st->surf.n_faces, n = st->n, res = st->res, ss = st->ss, Si = st->S;
     size_t p = (size_t)res * res, P = (size_t)Si * Si;
-    const int32_t* faces = st->surf.faces;
     mlb_status s = MLB_OK;
-    // Each view's share of the surface gradients goes to its own piece [dverts 3M | dnrm 3M]; the
-    // pieces are gathered from the ranks that rendered them and added in view order: the sums the
-    // views made one after another into dverts and dnrm before, so one process gives the same bits,
-    // and any number of processes gives those of one.
+    // Each view's share of the surface gradients goes to its own piece [dverts 3M | dnrm 3M] on the
+    // table; pieces rendered by other processes are gathered (through the host) and the pieces are
+    // added in view order: one process's sums, so any number of processes gives its bits.
     int v0, v1;
     FN(part_range)(st, n, &v0, &v1);
     size_t piece = (size_t)M * 6;
-    if (dimages && piece * (size_t)n > st->cap_pieces) {
+    if (dimages && st->part_count != 0 && piece * (size_t)n > st->cap_pieces) {
         st->cap_pieces = 0;
         if (!FN(grow)((void**)&st->pieces, piece * (size_t)n, sizeof(real)))
             return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d surface vertices)", n, M);
         st->cap_pieces = piece * (size_t)n;
     }
     const mlb_backend* tb = st->tab->tb;
-    real *t_attr = st->tab->d[T_ATTR].p, *t_clip = st->tab->d[T_CLIP].p, *t_dout = st->tab->d[T_OUT].p;
-    real *t_dattr = st->tab->d[T_DATTR].p, *t_dclip = st->tab->d[T_DCLIP].p;
-    const int32_t *t_faces = (const int32_t*)st->tab->d[T_FACES].p, *t_adj = (const int32_t*)st->tab->d[T_ADJ].p;
+    FN(tbuf)* d = st->tab->d;
+    const real* t_pos;
+    const int32_t* t_faces;
+    MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
+    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_dout = d[T_OUT].p, *t_pieces = d[T_PIECES].p;
+    real *t_dattr = d[T_DATTR].p, *t_dclip = d[T_DCLIP].p, *t_dsurf = d[T_DSURF].p;
+    const int32_t *t_adj = (const int32_t*)d[T_ADJ].p, *t_off = (const int32_t*)d[T_VOFF].p;
+    const int32_t* t_vf = (const int32_t*)d[T_VF].p;
     for (int v = v0; dimages && v < v1; v++) {
         s = FN(t_upload)(tb, t_dout, dimages + (size_t)v * p * 4, 4 * p);
         const real* daa = t_dout;
@@ -415,6 +431,7 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
         const int32_t* tri = st->tri + (size_t)v * P;
         const real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         const real* weights = st->weights + (size_t)v * P * 2;
+        real* pc = t_pieces + piece * (size_t)v;
         if (!s) s = FN(t_zero)(tb, st->dimg, P * 4);
         if (!s) s = FN(t_zero)(tb, st->dbary, P * 2);
         if (!s) s = FN(t_zero)(tb, t_dclip, (size_t)M * 4);
@@ -424,43 +441,34 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
         if (!s) s = FN(rt_interpolate_backward)(tb, st->ctx, t_dattr, st->dbary, st->dimg, t_attr, M, 4, tri, bary,
                                                t_faces, F, Si, Si);
         if (!s) s = FN(rt_rasterize_backward)(tb, st->ctx, t_dclip, st->dbary, NULL, tri, clip, M, t_faces, F, Si, Si);
-        if (!s) s = FN(t_download)(tb, st->dclip, t_dclip, (size_t)M * 4);
-        if (!s) s = FN(t_download)(tb, st->dattr, t_dattr, (size_t)M * 4);
+        if (!s) s = FN(t_zero)(tb, pc, (size_t)M * 3);
+        if (!s) s = T_TRANSFORM_BACKWARD(tb, pc, t_dclip, M, &st->vp[v]);
+        if (!s) s = FN(t_copy_rows)(tb, pc + 3 * (size_t)M, 3, t_dattr, 4, 3, (size_t)M);
         if (s) break;   // (still joins the gather below: the other ranks wait in it)
-        real* pc = st->pieces + piece * (size_t)v;
-        memset(pc, 0, sizeof(real) * (size_t)M * 3);
-        FN(mlb_transform_points_backward)(pc, st->dclip, M, &st->vp[v]);
-        for (int i = 0; i < M; i++)
-            for (int k = 0; k < 3; k++) pc[3 * (size_t)M + 3 * i + k] = st->dattr[4 * i + k];
     }
-    if (dimages && st->part_count != 0) {
+    if (dimages && st->part_count != 0) {   // this process's pieces down, every view's up
+        if (!s && v1 > v0) s = FN(t_download)(tb, st->pieces + piece * (size_t)v0, t_pieces + piece * (size_t)v0,
+                                              piece * (size_t)(v1 - v0));
         mlb_status g = mlb_dist_allgather_batches(st->pieces + piece * (size_t)v0, st->pieces, n, st->part_batch,
                                                   piece * sizeof(real));
         if (!s) s = g;
+        if (!s) s = FN(t_upload)(tb, t_pieces, st->pieces, piece * (size_t)n);
     }
     if (s) return s;
-    memset(st->dverts, 0, sizeof(real) * (size_t)M * 3);
-    memset(st->dnrm, 0, sizeof(real) * (size_t)M * 3);
-    for (int v = 0; dimages && v < n; v++) {
-        const real* pc = st->pieces + piece * (size_t)v;
-        for (size_t j = 0; j < 3 * (size_t)M; j++) {
-            st->dverts[j] += pc[j];
-            st->dnrm[j] += pc[3 * (size_t)M + j];
-        }
-    }
-    s = FN(vertex_normals_backward)(st->dverts, st->dnrm, st->nsum, st->surf.pos, M, faces, F);
-    if (s) return s;
+    MLB_TRY(FN(t_zero)(tb, t_dsurf, piece));   // [dverts 3M | dnrm 3M]
+    for (int v = 0; dimages && v < n; v++) MLB_TRY(FN(t_add)(tb, t_dsurf, t_pieces + piece * (size_t)v, piece));
+    MLB_TRY(T_VERTEX_NORMALS_BACKWARD(tb, t_dsurf, t_dsurf + 3 * (size_t)M, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
 #ifdef MLB_F64
     size_t G = (size_t)st->n_grid;
     memset(st->dgpos, 0, sizeof(real) * G * 3);
     memset(st->dsdf, 0, sizeof(real) * G);
     memset(st->ddeform, 0, sizeof(real) * G * 3);
-    FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, st->dverts);
+    FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, t_dsurf);
     FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
     if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
     return FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
 #else
-    return grid_backward(st, net, g, reg_weight);
+    return grid_backward(st, net, g, t_dsurf, reg_weight);
 #endif
 }
 

@@ -166,8 +166,20 @@ mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, co
 mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
     if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
     if (!dpos && !dsdf) return MLB_OK;
-    const mlb_backend* be = d->be;
-    MLB_TRY(be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
-    return be->marching_tets_backward(dpos, dsdf, d->dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
-                                      (const int32_t*)d->slot_off, d->cells);
+    MLB_TRY(d->be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
+    return mlb_mt_device_backward_from(d, dpos, dsdf, d->dverts);
+}
+
+mlb_status mlb_mt_device_backward_from(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
+    if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
+    if (!dpos && !dsdf) return MLB_OK;
+    return d->be->marching_tets_backward(dpos, dsdf, dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
+                                         (const int32_t*)d->slot_off, d->cells);
+}
+
+mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces) {
+    if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: no forward");
+    *verts = d->verts;
+    *faces = (const int32_t*)d->faces;
+    return MLB_OK;
 }

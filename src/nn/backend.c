@@ -389,6 +389,33 @@ static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, 
     return MLB_OK;
 }
 
+// The surface's clip coordinates (raster.h) and vertex normals (mt_ops.h) over host memory.
+static mlb_status cpu_transform_points(float* clip, const float* pos, int V, const double* m) {
+    mlb_mat4 M;
+    memcpy(M.m, m, sizeof M.m);
+    mlb_transform_points(clip, pos, V, &M);
+    return MLB_OK;
+}
+static mlb_status cpu_transform_points_backward(float* dpos, const float* dclip, int V, const double* m) {
+    mlb_mat4 M;
+    memcpy(M.m, m, sizeof M.m);
+    mlb_transform_points_backward(dpos, dclip, V, &M);
+    return MLB_OK;
+}
+static mlb_status cpu_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
+    return mlb_vertex_faces(off, vf, faces, F, V);
+}
+static mlb_status cpu_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
+                                     const int32_t* off, const int32_t* vf) {
+    mlb_vertex_normals(normal, sum, pos, V, faces, off, vf);
+    return MLB_OK;
+}
+static mlb_status cpu_vertex_normals_backward(float* dpos, const float* dnormal, const float* sum, const float* pos,
+                                              int V, const int32_t* faces, const int32_t* off, const int32_t* vf) {
+    mlb_vertex_normals_backward(dpos, dnormal, sum, pos, V, faces, off, vf);
+    return MLB_OK;
+}
+
 // DMTet's deformation and SDF regulariser: mt_ops.h's functions over host memory.
 static mlb_status cpu_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts, float grid_res) {
     mlb_mt_deform(out, grid, deform, n_verts, grid_res);

@@ -68,6 +68,21 @@ static inline mlb_status t_copy_rows_f64(const mlb_backend* be, double* dst, siz
 #define T_COMPOSITE_BACKWARD(be, ...) T_OK(mlb_composite_srgb_backward_f64(__VA_ARGS__))
 #define T_DOWNSAMPLE(be, ...) T_OK(mlb_downsample_box_f64(__VA_ARGS__))
 #define T_DOWNSAMPLE_BACKWARD(be, ...) T_OK(mlb_downsample_box_backward_f64(__VA_ARGS__))
+#define T_TRANSFORM(be, clip, pos, V, mat) T_OK(mlb_transform_points_f64(clip, pos, V, mat))
+#define T_TRANSFORM_BACKWARD(be, dpos, dclip, V, mat) T_OK(mlb_transform_points_backward_f64(dpos, dclip, V, mat))
+#define T_VERTEX_FACES(be, ...) mlb_vertex_faces(__VA_ARGS__)
+#define T_VERTEX_NORMALS(be, ...) T_OK(mlb_vertex_normals_f64(__VA_ARGS__))
+#define T_VERTEX_NORMALS_BACKWARD(be, ...) T_OK(mlb_vertex_normals_backward_f64(__VA_ARGS__))
+static inline mlb_status t_add_f64(const mlb_backend* be, double* y, const double* x, size_t n) {
+    (void)be;
+    for (size_t i = 0; i < n; i++) y[i] += x[i];
+    return MLB_OK;
+}
+static inline mlb_status t_ones_f64(const mlb_backend* be, double* p, size_t n) {
+    (void)be;
+    for (size_t i = 0; i < n; i++) p[i] = 1;
+    return MLB_OK;
+}
 #else
 static inline mlb_status t_upload(const mlb_backend* be, float* dst, const float* src, size_t n) {
     return be->upload(dst, src, n);
@@ -90,5 +105,17 @@ static inline mlb_status t_copy_rows(const mlb_backend* be, float* dst, size_t d
 #define T_COMPOSITE_BACKWARD(be, ...) (be)->composite_srgb_backward(__VA_ARGS__)
 #define T_DOWNSAMPLE(be, ...) (be)->downsample_box(__VA_ARGS__)
 #define T_DOWNSAMPLE_BACKWARD(be, ...) (be)->downsample_box_backward(__VA_ARGS__)
+#define T_TRANSFORM(be, clip, pos, V, mat) (be)->transform_points(clip, pos, V, (mat)->m)
+#define T_TRANSFORM_BACKWARD(be, dpos, dclip, V, mat) (be)->transform_points_backward(dpos, dclip, V, (mat)->m)
+#define T_VERTEX_FACES(be, ...) (be)->vertex_faces(__VA_ARGS__)
+#define T_VERTEX_NORMALS(be, ...) (be)->vertex_normals(__VA_ARGS__)
+#define T_VERTEX_NORMALS_BACKWARD(be, ...) (be)->vertex_normals_backward(__VA_ARGS__)
+static inline mlb_status t_add(const mlb_backend* be, float* y, const float* x, size_t n) { return be->add(y, x, n); }
+// p [n] = 1: zeros mapped by 0 x + 1 (no upload)
+static inline mlb_status t_ones(const mlb_backend* be, float* p, size_t n) {
+    static const double zero = 0, one = 1;
+    mlb_status s = be->zero(p, n);
+    return s ? s : be->affine_columns(p, p, n, 1, &zero, &one, 0);
+}
 #endif
 #endif

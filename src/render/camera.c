@@ -6,6 +6,7 @@
 #include <math.h>
 #include "matlaber/raster.h"
 #include "core/real.h"
+#include "raster_math.h"
 
 #ifndef MLB_F64
 mlb_mat4 mlb_mat4_identity(void) {
@@ -114,25 +115,15 @@ mlb_status mlb_camera_orbit(mlb_camera* cam, double azimuth_deg, double elevatio
 }
 #endif
 
-// clip[v] = M · [pos[v], 1], computed in double.
+// clip[v] = M · [pos[v], 1], computed in double (raster_math.h, the CUDA kernel's maths too).
 void FN(mlb_transform_points)(real* clip, const real* pos, int n_verts, const mlb_mat4* m) {
-    const double* M = m->m;
 #pragma omp parallel for schedule(static) if (n_verts > 16384)
-    for (int v = 0; v < n_verts; v++) {
-        double p0 = pos[3 * (size_t)v], p1 = pos[3 * (size_t)v + 1], p2 = pos[3 * (size_t)v + 2];
-        for (int r = 0; r < 4; r++)
-            clip[4 * (size_t)v + r] = (real)(M[4 * r] * p0 + M[4 * r + 1] * p1 + M[4 * r + 2] * p2 + M[4 * r + 3]);
-    }
+    for (int v = 0; v < n_verts; v++) rast_transform_point(clip + 4 * (size_t)v, pos + 3 * (size_t)v, m->m);
 }
 
 // dpos[v, c] += sum_r dclip[v, r] M[r, c]
 void FN(mlb_transform_points_backward)(real* dpos, const real* dclip, int n_verts, const mlb_mat4* m) {
     if (!dpos) return;
-    const double* M = m->m;
 #pragma omp parallel for schedule(static) if (n_verts > 16384)
-    for (int v = 0; v < n_verts; v++) {
-        const real* d = dclip + 4 * (size_t)v;
-        for (int c = 0; c < 3; c++)
-            dpos[3 * (size_t)v + c] += (real)(d[0] * M[c] + d[1] * M[4 + c] + d[2] * M[8 + c] + d[3] * M[12 + c]);
-    }
+    for (int v = 0; v < n_verts; v++) rast_transform_point_backward(dpos + 3 * (size_t)v, dclip + 4 * (size_t)v, m->m);
 }

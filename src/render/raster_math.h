@@ -13,6 +13,16 @@
 #include <string.h>
 #include "core/hd.h"
 
+// clip (4) = M [p, 1] for a point p (3), in double, rounded once (M: 16 doubles, row-major, mlb_mat4's)
+MLB_HD void rast_transform_point(real* clip, const real* p, const double* M) {
+    double p0 = p[0], p1 = p[1], p2 = p[2];
+    for (int r = 0; r < 4; r++) clip[r] = (real)(M[4 * r] * p0 + M[4 * r + 1] * p1 + M[4 * r + 2] * p2 + M[4 * r + 3]);
+}
+// dp (3) += dclip (4) . M's first three columns, in double, rounded once
+MLB_HD void rast_transform_point_backward(real* dp, const real* d, const double* M) {
+    for (int c = 0; c < 3; c++) dp[c] += (real)(d[0] * M[c] + d[1] * M[4 + c] + d[2] * M[8 + c] + d[3] * M[12 + c]);
+}
+
 // NDC of pixel centres: x = (2 px + 1) / W - 1, y = 1 - (2 py + 1) / H.
 MLB_HD real rast_ndc_x(int px, int W) { return (real)(2 * px + 1) / (real)W - (real)1; }
 MLB_HD real rast_ndc_y(int py, int H) { return (real)1 - (real)(2 * py + 1) / (real)H; }

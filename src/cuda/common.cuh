@@ -41,6 +41,10 @@ mlb_status mlb_cuda_cublas(cublasHandle_t* out);
 // (ops call it once each and use it only inside the call). Stream-ordered with the default stream.
 mlb_status mlb_cuda_scratch(void** out, size_t bytes);
 
+// scan_i32 with the caller's scratch for its tile sums (mlb_cuda_scan_i32_sums(n) int32s): for ops
+// that scan inside a scratch buffer of their own (src/cuda/marching_tets.cu)
+size_t mlb_cuda_scan_i32_sums(int n);
+mlb_status mlb_cuda_scan_i32_into(int32_t* out, const int32_t* in, int n, int32_t* sums);
 static inline unsigned mlb_blocks(size_t n, int threads) { return (unsigned)((n + threads - 1) / threads); }
 // Grid-stride loops keep grids within the 2^31-1 block limit for any n.
 static inline unsigned mlb_grid(size_t n, int threads) {

@@ -94,16 +94,16 @@ __global__ void scan_tiles_kernel(int32_t* out, const int32_t* in, int n, const 
 }
 __global__ void scan_zero_kernel(int32_t* out) { out[0] = 0; }
 
-extern "C" mlb_status mlb_cuda_scan_i32(int32_t* out, const int32_t* in, int n) {
+size_t mlb_cuda_scan_i32_sums(int n) { return n > 0 ? (size_t)((n + SCAN_TILE - 1) / SCAN_TILE) : 1; }
+
+mlb_status mlb_cuda_scan_i32_into(int32_t* out, const int32_t* in, int n, int32_t* sums) {
     if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
     if (n == 0) {
         scan_zero_kernel<<<1, 1>>>(out);
         MLB_CUDA_LAUNCHED("scan");
         return MLB_OK;
     }
-    int nb = (int)(((long long)n + SCAN_TILE - 1) / SCAN_TILE);
-    int32_t* sums;
-    MLB_TRY(mlb_cuda_scratch((void**)&sums, (size_t)nb * sizeof(int32_t)));
+    int nb = (int)mlb_cuda_scan_i32_sums(n);
     scan_tile_sums_kernel<<<nb, SCAN_TILE>>>(sums, in, n);
     MLB_CUDA_LAUNCHED("scan tile sums");
     scan_sums_kernel<<<1, SCAN_TILE>>>(sums, nb);
@@ -111,6 +111,13 @@ extern "C" mlb_status mlb_cuda_scan_i32(int32_t* out, const int32_t* in, int n) 
     scan_tiles_kernel<<<nb, SCAN_TILE>>>(out, in, n, sums);
     MLB_CUDA_LAUNCHED("scan tiles");
     return MLB_OK;
+}
+
+extern "C" mlb_status mlb_cuda_scan_i32(int32_t* out, const int32_t* in, int n) {
+    if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
+    int32_t* sums;
+    MLB_TRY(mlb_cuda_scratch((void**)&sums, mlb_cuda_scan_i32_sums(n) * sizeof(int32_t)));
+    return mlb_cuda_scan_i32_into(out, in, n, sums);
 }
 
 // ---- emit ----

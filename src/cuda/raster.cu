@@ -5,12 +5,12 @@
 // blend weights, blends and colour gradients are the CPU's float bits.
 //
 // rasterize: a pass per vertex (outcode, snap), a pass per face (setup; faces that cross a clip
-// plane or the guard band clipped into their own polygon slot), a warp per face over its pixel box
+// plane or the guard band clipped into their own polygon slot), a warp per chunk of 256 pixels of a
+// face's box (a face's chunks counted and scanned first, so a big face spreads over many warps)
 // testing coverage exactly (integer edge functions, top-left rule) and keeping per pixel the
 // smallest (depth, face id) as one 64-bit atomicMin (so ties go to the lower id, as on the CPU,
 // whatever the order the warps run in), and a pass per pixel resolving the winner's barycentrics
-// and depth. The warp-per-face loop is simple, not fast for faces covering many pixels (a tile
-// binning like the CPU's is the next step when it shows in a profile).
+// and depth. (The CPU bins faces into tiles instead; a GPU profile decides whether that pays here.)
 // antialias: per face its orientation and silhouette edges, per pixel its two pairs' weights,
 // then per pixel the blend (or its colour gradient) gathered from its four pairs.
 // The gradients summed over pixels (dclip, dattr) go into double accumulators by atomicAdd and are
@@ -70,23 +70,56 @@ __device__ __forceinline__ unsigned long long depth_key(float d, int t) {
 }
 #define EMPTY_KEY 0xffffffffffffffffull
 
-// A warp per face: its lanes walk the face's pixel box.
-__global__ void raster_cover_kernel(unsigned long long* key, const tsetup* S, const tpoly* polys, int F, int W) {
+// The coverage work in chunks of a face's pixel box, a warp each, so that a face covering many
+// pixels spreads over many warps instead of holding one (and small faces cost one warp, as
+// before). chunks[t] = face t's chunk count (0: it draws nothing); their scan numbers the chunks.
+enum { COVER_CHUNK = 256 };   // pixels per warp: 8 a lane
+// A face's pixels per chunk: COVER_CHUNK, or more where F faces of such boxes would number 2^31
+// chunks (the scan is int32)
+__device__ __forceinline__ long long cover_chunk_size(long long n, int F) {
+    long long most = 2147483647LL / (F > 0 ? F : 1);   // chunks a face may have
+    return n <= most * COVER_CHUNK ? COVER_CHUNK : (n + most - 1) / most;
+}
+__global__ void raster_chunks_kernel(int32_t* chunks, const tsetup* S, const tpoly* polys, int F) {
+    for (int t = blockIdx.x * blockDim.x + threadIdx.x; t < F; t += gridDim.x * blockDim.x) {
+        const tsetup* s = &S[t];
+        if (box_empty(s) || (s->poly >= 0 && polys[s->poly].n < 3)) {
+            chunks[t] = 0;
+            continue;
+        }
+        long long n = (long long)(s->x1 - s->x0 + 1) * (s->y1 - s->y0 + 1), cs = cover_chunk_size(n, F);
+        chunks[t] = (int32_t)((n + cs - 1) / cs);
+    }
+}
+
+// A warp per chunk: its face is the last t with chunk_off[t] <= c (that face has the chunk: faces
+// without one share the next face's offset); its lanes walk the chunk's pixels of the face's box.
+// The winner per pixel is one 64-bit atomicMin, so the work's order does not change the result.
+__global__ void raster_cover_kernel(unsigned long long* key, const tsetup* S, const tpoly* polys,
+                                    const int32_t* chunk_off, int F, int W) {
     const int lane = threadIdx.x & 31;
     const long long warps = (long long)gridDim.x * (blockDim.x / 32);
-    for (long long t = ((long long)blockIdx.x * blockDim.x + threadIdx.x) / 32; t < F; t += warps) {
+    const long long total = chunk_off[F];
+    for (long long c = ((long long)blockIdx.x * blockDim.x + threadIdx.x) / 32; c < total; c += warps) {
+        int lo = 0, hi = F - 1;
+        while (lo < hi) {
+            int mid = lo + (hi - lo + 1) / 2;
+            if (chunk_off[mid] <= c) lo = mid;
+            else hi = mid - 1;
+        }
+        const int t = lo;
         const tsetup* s = &S[t];
-        if (box_empty(s) || (s->poly >= 0 && polys[s->poly].n < 3)) continue;
         int bw = s->x1 - s->x0 + 1;
         long long n = (long long)bw * (s->y1 - s->y0 + 1);
-        for (long long i = lane; i < n; i += 32) {
+        long long cs = cover_chunk_size(n, F), first = (c - chunk_off[t]) * cs, end = first + cs < n ? first + cs : n;
+        for (long long i = first + lane; i < end; i += 32) {
             int x = s->x0 + (int)(i % bw), y = s->y0 + (int)(i / bw);
             int64_t Px = (int64_t)x * SUB + HALF_SUB, Py = (int64_t)y * SUB + HALF_SUB;
             int cov = s->poly >= 0 ? poly_covers(&polys[s->poly], Px, Py) : tri_covers(s->X, s->Y, Px, Py);
             if (!cov) continue;
             float d = depth_at(s, x, y);
             if (!(d < INFINITY)) continue;   // NaN and +inf never beat the CPU's +inf start
-            atomicMin(&key[(size_t)y * W + x], depth_key(d, (int)t));
+            atomicMin(&key[(size_t)y * W + x], depth_key(d, t));
         }
     }
 }
@@ -123,8 +156,10 @@ extern "C" mlb_status mlb_cuda_rasterize(int32_t* tri, float* bary, float* depth
     if (!tri) return mlb_fail(MLB_ERR_ARG, "mlb_cuda_rasterize: tri (the output face ids) is NULL");
     double G = guard_band(W, H);
     size_t n_pix = (size_t)H * W;
+    size_t n_sums = mlb_cuda_scan_i32_sums(F);
     size_t bytes = ((size_t)V * sizeof(vrec) + 256) + ((size_t)F * sizeof(tsetup) + 256) +
-                   ((size_t)F * sizeof(tpoly) + 256) + (n_pix * sizeof(unsigned long long) + 256);
+                   ((size_t)F * sizeof(tpoly) + 256) + (n_pix * sizeof(unsigned long long) + 256) +
+                   (((size_t)F + 1) * sizeof(int32_t) + 256) + (n_sums * sizeof(int32_t) + 256);
     void* scratch;
     MLB_TRY(mlb_cuda_scratch(&scratch, bytes));
     char* cur = (char*)scratch;
@@ -132,6 +167,8 @@ extern "C" mlb_status mlb_cuda_rasterize(int32_t* tri, float* bary, float* depth
     tsetup* S = (tsetup*)carve(&cur, (size_t)F * sizeof(tsetup));
     tpoly* polys = (tpoly*)carve(&cur, (size_t)F * sizeof(tpoly));
     unsigned long long* key = (unsigned long long*)carve(&cur, n_pix * sizeof(unsigned long long));
+    int32_t* chunk_off = (int32_t*)carve(&cur, ((size_t)F + 1) * sizeof(int32_t));   // counts, then their scan
+    int32_t* scan_sums = (int32_t*)carve(&cur, n_sums * sizeof(int32_t));
     MLB_CUDA_CHECK(cudaMemsetAsync(key, 0xff, n_pix * sizeof(unsigned long long), 0));
     if (V > 0) {
         raster_vertex_kernel<<<mlb_grid(V, 256), 256>>>(vr, clip, V, W, H, G);
@@ -140,7 +177,10 @@ extern "C" mlb_status mlb_cuda_rasterize(int32_t* tri, float* bary, float* depth
     if (F > 0) {
         raster_setup_kernel<<<mlb_grid(F, 128), 128>>>(S, polys, clip, faces, vr, V, F, W, H, G);
         MLB_CUDA_LAUNCHED("raster_setup_kernel");
-        raster_cover_kernel<<<mlb_grid((size_t)F * 32, 256), 256>>>(key, S, polys, F, W);
+        raster_chunks_kernel<<<mlb_grid(F, 256), 256>>>(chunk_off, S, polys, F);
+        MLB_CUDA_LAUNCHED("raster_chunks_kernel");
+        MLB_TRY(mlb_cuda_scan_i32_into(chunk_off, chunk_off, F, scan_sums));
+        raster_cover_kernel<<<mlb_grid((size_t)F * 32, 256), 256>>>(key, S, polys, chunk_off, F, W);
         MLB_CUDA_LAUNCHED("raster_cover_kernel");
     }
     raster_resolve_kernel<<<mlb_grid(n_pix, 256), 256>>>(tri, bary, depth, key, S, clip, faces, W, H);

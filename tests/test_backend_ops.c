@@ -34,6 +34,9 @@
 //       ids bit for bit (B_BITS, the share of differing ids), barycentrics, depth, interpolated
 //       values and the barycentric gradient 0; the gradients summed over pixels (dclip, dattr) 1e-5.
 //       Not yet run on a GPU (docs/cuda.md).
+//     the surface's clip coordinates and vertex normals (raster_math.h's transform in double,
+//       mesh/vertex_normals_math.h's gathers in face order, no fused multiply-adds): vertex lists
+//       bit for bit (B_BITS), clip, normals, sums and both gradients 0. Not yet run on a GPU.
 //     marching tets (src/cuda/marching_tets.cu, the CPU's maths without fused multiply-adds, the
 //       backward gathered in the CPU's order): counts, scans, vertex edges and faces bit for bit
 //       (B_BITS), vertices, weights and both gradients 0. Not yet run on a GPU.

@@ -75,6 +75,27 @@ static mlb_status call_vertex_faces(const mlb_backend* be, float** p, const op_c
     return be->vertex_faces((int32_t*)p[0], (int32_t*)p[1], (const int32_t*)p[2], c->s[1], c->s[0]);
 }
 
+// edge_topology: adj, faces, off, vf (faces on few vertices: many shared and non-manifold edges)
+static void prep_edge_topology(const op_case* c, float** h) {
+    prep_faces(h[1], c->s[1], c->s[0]);
+    surface_table(c, h[1], h[2], h[3]);
+}
+static void setup_edge_topology(op_case* c, draw* d, int t) {
+    draw_surface(c, d, t);
+    if (t == 1) {   // a crowded mesh
+        c->s[0] = 1 + c->s[0] % 9;
+        snprintf(c->shape, sizeof c->shape, "V %d F %d", c->s[0], c->s[1]);
+    }
+    OUT_("adj", 3 * at_least_1(c->s[1]), B_BITS);
+    IN_("faces", 3 * at_least_1(c->s[1]), 0, 1);
+    IN_("off", (size_t)c->s[0] + 1, 0, 1);
+    IN_("vf", 3 * at_least_1(c->s[1]), 0, 1);
+    c->prep = prep_edge_topology;
+}
+static mlb_status call_edge_topology(const mlb_backend* be, float** p, const op_case* c) {
+    return be->edge_topology((int32_t*)p[0], (const int32_t*)p[1], c->s[1], (const int32_t*)p[2], (const int32_t*)p[3]);
+}
+
 // vertex_normals: normal, sum (NULL on trial 2), pos, faces, off, vf
 static void prep_vertex_normals(const op_case* c, float** h) {
     prep_faces(h[3], c->s[1], c->s[0]);

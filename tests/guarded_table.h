@@ -173,6 +173,9 @@ static mlb_status guard_transform_points_backward(float* dpos, const float* dcli
 static mlb_status guard_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
     GUARDED(CPU_->vertex_faces(off, vf, faces, F, V));
 }
+static mlb_status guard_edge_topology(int32_t* adj, const int32_t* faces, int F, const int32_t* off, const int32_t* vf) {
+    GUARDED(CPU_->edge_topology(adj, faces, F, off, vf));
+}
 static mlb_status guard_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
                                        const int32_t* off, const int32_t* vf) {
     GUARDED(CPU_->vertex_normals(normal, sum, pos, V, faces, off, vf));
@@ -208,7 +211,7 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(marching_tets_emit); GUARD_USE(marching_tets_backward); GUARD_USE(rasterize_backward);
     GUARD_USE(interpolate_backward); GUARD_USE(dmtet_deform); GUARD_USE(dmtet_deform_backward); GUARD_USE(sdf_reg);
     GUARD_USE(sdf_reg_backward); GUARD_USE(add); GUARD_USE(transform_points); GUARD_USE(transform_points_backward);
-    GUARD_USE(vertex_faces); GUARD_USE(vertex_normals); GUARD_USE(vertex_normals_backward);
+    GUARD_USE(vertex_faces); GUARD_USE(edge_topology); GUARD_USE(vertex_normals); GUARD_USE(vertex_normals_backward);
 #undef GUARD_USE
     return &t;
 }

@@ -5,6 +5,7 @@
 // backwards are in test_raster_grad.c. docs/raster.md describes the method.
 #include "test.h"
 #include "raster_test_util.h"
+#include "matlaber/rng.h"
 #include "matlaber/threads.h"
 #include <omp.h>
 #include <string.h>
@@ -829,6 +830,27 @@ TEST(edge_topology) {
     CHECK(aq[3] == -1 && aq[4] == -1 && aq[5] == 0);
     int32_t badf[] = {0, 1, 7};
     CHECK(mlb_edge_topology(aq, badf, 1, 4) == MLB_ERR_ARG);
+    // crowded random meshes (edges shared by many faces, faces on repeated vertices) against the
+    // rule by brute force: the lowest other face holding both ends, -1 for a degenerate edge
+    for (int t = 0; t < 4; t++) {
+        int V = 3 + 4 * t, F = 40 + 50 * t, bad = 0;
+        int32_t *fc = malloc(sizeof(int32_t) * 3 * F), *ad = malloc(sizeof(int32_t) * 3 * F);
+        REQUIRE(fc && ad);
+        for (int i = 0; i < 3 * F; i++) fc[i] = (int32_t)(mlb_rng_uniform_f64(21, t, i) * V);
+        REQUIRE(mlb_edge_topology(ad, fc, F, V) == MLB_OK);
+        for (int f = 0; f < F; f++)
+            for (int e = 0; e < 3; e++) {
+                int a = fc[3 * f + (e + 1) % 3], b = fc[3 * f + (e + 2) % 3], want = -1;
+                for (int g = 0; g < F && a != b && want < 0; g++) {
+                    int ha = 0, hb = 0;
+                    for (int k = 0; k < 3; k++) { ha |= fc[3 * g + k] == a; hb |= fc[3 * g + k] == b; }
+                    if (g != f && ha && hb) want = g;
+                }
+                bad += ad[3 * f + e] != want;
+            }
+        CHECK_MSG(bad == 0, "V %d F %d: %d edges off the rule", V, F, bad);
+        free(fc), free(ad);
+    }
 }
 
 TEST(errors) {

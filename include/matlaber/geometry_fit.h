@@ -80,7 +80,6 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3]: the double build's; the float     \
                                         build's are on the table (gv and, with the network on the   \
                                         host, sdf and deform are filled here too) */                \
-        int32_t* adj;                /* [F,3] the edge topology (made here, goes up) */             \
         /* on the table's device (be): */                                                            \
         int32_t* tri;                /* [n,S,S] */                                                  \
         R *bary, *depth, *img, *weights; /* [n,S,S,2], [n,S,S], [n,S,S,4], [n,S,S,2] */             \
@@ -99,9 +98,9 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         /* Set by the caller before the forward (float): the op table marching tets and the views' \
            rasterize, interpolate, antialias and their backwards run on (NULL: the CPU's,          \
            mlb_backend_cpu), with every per-pixel buffer there, and the surface's normals, clip     \
-           coordinates and their gradients: the surface comes down (for the edge topology, which    \
-           goes up), the images come down and the dimages go up; the views' gradient pieces cross   \
-           only between processes. mt its buffers there (the state's own). The double build        \
+           coordinates, the edge topology and the gradients: the surface comes down (st->surf),     \
+           the images come down and the dimages go up; the views' gradient pieces cross only        \
+           between processes. mt its buffers there (the state's own). The double build             \
            calls the CPU's _f64 functions directly. stats->coverage is measured on tables whose     \
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const mlb_backend* be;                                                                      \

@@ -26,6 +26,10 @@ void mlb_scan_i32(int32_t* out, const int32_t* in, int n);
 // off[v+1])), vf [3 F] = 3 f + the corner of v in face f, in face order. MLB_ERR_ARG names a face
 // with a vertex outside [0, V).
 mlb_status mlb_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int n_faces, int n_verts);
+// adj [F,3]: for the edge of face f opposite its corner e, the lowest other face holding both its
+// ends, -1 on a boundary or degenerate edge (raster.h mlb_edge_topology, which is this over
+// mlb_vertex_faces' lists), gathered per face from the lists of off and vf.
+void mlb_edge_partners(int32_t* adj, const int32_t* faces, int n_faces, const int32_t* off, const int32_t* vf);
 
 #define MLB_MT_OPS_DECLARE(R, N)                                                                       \
     /* tet_nf [T] = the triangles of each tet's case (0, 1 or 2); slot_nv [7 V] = 1 on an edge whose  \

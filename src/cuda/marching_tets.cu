@@ -308,6 +308,18 @@ extern "C" mlb_status mlb_cuda_vertex_faces(int32_t* off, int32_t* vf, const int
     MLB_CUDA_LAUNCHED("vf_sort_kernel");
     return MLB_OK;
 }
+__global__ void edge_topology_kernel(int32_t* adj, const int32_t* faces, int F, const int32_t* off, const int32_t* vf) {
+    for (long long i = blockIdx.x * (long long)blockDim.x + threadIdx.x; i < 3LL * F; i += (long long)gridDim.x * blockDim.x)
+        adj[i] = vn_edge_partner(faces, off, vf, (int)(i / 3), (int)(i % 3));
+}
+extern "C" mlb_status mlb_cuda_edge_topology(int32_t* adj, const int32_t* faces, int F, const int32_t* off,
+                                             const int32_t* vf) {
+    if (F < 0) return mlb_fail(MLB_ERR_ARG, "edge_topology: %d faces", F);
+    if (!F) return MLB_OK;
+    edge_topology_kernel<<<mlb_grid(3 * (size_t)F, 256), 256>>>(adj, faces, F, off, vf);
+    MLB_CUDA_LAUNCHED("edge_topology_kernel");
+    return MLB_OK;
+}
 __global__ void vertex_normals_kernel(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
                                       const int32_t* off, const int32_t* vf) {
     for (int v = blockIdx.x * blockDim.x + threadIdx.x; v < V; v += gridDim.x * blockDim.x)

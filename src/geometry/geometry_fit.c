@@ -129,7 +129,6 @@ void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     mlb_mt_device_free(st->mt);
     free(st->vp); free(st->images);
     free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
-    free(st->adj);
     FN(geofit_table_free)(st->tab);
     free(st->dgpos); free(st->dsdf); free(st->ddeform);
     free(st->pieces);
@@ -197,7 +196,6 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
     }
     if (ok && M > 0) {   // (M = 0: grid and pixel groups only)
         size_t m = (size_t)M;
-        ok &= FN(grow)((void**)&st->adj, (size_t)F * 3, sizeof(int32_t));
         FN(tbuf)* d = st->tab->d;
         ok = ok && FN(tbuf_get)(tb, &d[T_ATTR], m * 4) && FN(tbuf_get)(tb, &d[T_CLIP], m * 4 * (size_t)n) &&
              FN(tbuf_get)(tb, &d[T_ADJ], (size_t)F * 3) && FN(tbuf_get)(tb, &d[T_DATTR], m * 4) &&
@@ -335,8 +333,8 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     st->ctx = ctx;
     stats->n_verts = M;
     stats->n_faces = F;
-    // 2. on the table: the faces at each vertex, the normals and the attribute [normal, 1]; the
-    //    topology for antialias made on the host from the surface that came down
+    // 2. on the table: the faces at each vertex, the normals, the attribute [normal, 1] and the
+    //    edge topology for antialias
     const mlb_backend* tb = st->tab->tb;
     const int host_memory = tb->alloc == mlb_backend_cpu()->alloc;   // the table's buffers are the host's
     FN(tbuf)* d = st->tab->d;
@@ -350,8 +348,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     MLB_TRY(FN(t_ones)(tb, d[T_ONES].p, (size_t)M));
     MLB_TRY(FN(t_copy_rows)(tb, t_attr, 4, t_nrm, 3, 3, (size_t)M));
     MLB_TRY(FN(t_copy_rows)(tb, t_attr + 3, 4, d[T_ONES].p, 1, 1, (size_t)M));
-    MLB_TRY(mlb_edge_topology(st->adj, st->surf.faces, F, M));
-    MLB_TRY(FN(t_upload_i32)(tb, t_adj, st->adj, 3 * (size_t)F));
+    MLB_TRY(T_EDGE_TOPOLOGY(tb, t_adj, t_faces, F, t_off, t_vf));
     // 3. every view (of this process's part), buffers kept: the images come down
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
     uint64_t hash = 1469598103934665603ull;

@@ -60,6 +60,12 @@ mlb_status mlb_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int
     off[0] = 0;
     return MLB_OK;
 }
+
+void mlb_edge_partners(int32_t* adj, const int32_t* faces, int n_faces, const int32_t* off, const int32_t* vf) {
+#pragma omp parallel for schedule(static) if (n_faces >= VN_PARALLEL_MIN)
+    for (int f = 0; f < n_faces; f++)
+        for (int e = 0; e < 3; e++) adj[3 * (size_t)f + e] = vn_edge_partner(faces, off, vf, f, e);
+}
 #endif
 
 void FN(mlb_vertex_normals)(real* normal, real* sum, const real* pos, int n_verts, const int32_t* faces,

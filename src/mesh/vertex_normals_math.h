@@ -99,4 +99,21 @@ MLB_HD void vn_gather_backward(real* dp, const real* dnormal, const real* sum, c
     dp[0] = acc[0]; dp[1] = acc[1]; dp[2] = acc[2];
 }
 
+// The face sharing face f's edge opposite its corner e (vertices f[e+1], f[e+2], mod 3): the lowest
+// other face holding both ends (a face holding two distinct vertices has the edge between them),
+// -1 on a boundary or a degenerate edge; raster.h mlb_edge_topology's rule, read from the lower
+// end's face list (ascending face order, so the first match is the lowest).
+MLB_HD int32_t vn_edge_partner(const int32_t* faces, const int32_t* off, const int32_t* vf, int f, int e) {
+    int32_t a = faces[3 * (size_t)f + (e + 1) % 3], b = faces[3 * (size_t)f + (e + 2) % 3];
+    if (a == b) return -1;
+    int32_t lo = a < b ? a : b, hi = a < b ? b : a;
+    for (int32_t k = off[lo]; k < off[lo + 1]; k++) {
+        int32_t f2 = vf[k] / 3;
+        if (f2 == f) continue;
+        const int32_t* g = faces + 3 * (size_t)f2;
+        if (g[0] == hi || g[1] == hi || g[2] == hi) return f2;
+    }
+    return -1;
+}
+
 #endif

@@ -405,6 +405,11 @@ static mlb_status cpu_transform_points_backward(float* dpos, const float* dclip,
 static mlb_status cpu_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
     return mlb_vertex_faces(off, vf, faces, F, V);
 }
+static mlb_status cpu_edge_topology(int32_t* adj, const int32_t* faces, int F, const int32_t* off, const int32_t* vf) {
+    if (F < 0) return mlb_fail(MLB_ERR_ARG, "edge_topology: %d faces", F);
+    mlb_edge_partners(adj, faces, F, off, vf);
+    return MLB_OK;
+}
 static mlb_status cpu_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
                                      const int32_t* off, const int32_t* vf) {
     mlb_vertex_normals(normal, sum, pos, V, faces, off, vf);

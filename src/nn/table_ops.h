@@ -71,6 +71,7 @@ static inline mlb_status t_copy_rows_f64(const mlb_backend* be, double* dst, siz
 #define T_TRANSFORM(be, clip, pos, V, mat) T_OK(mlb_transform_points_f64(clip, pos, V, mat))
 #define T_TRANSFORM_BACKWARD(be, dpos, dclip, V, mat) T_OK(mlb_transform_points_backward_f64(dpos, dclip, V, mat))
 #define T_VERTEX_FACES(be, ...) mlb_vertex_faces(__VA_ARGS__)
+#define T_EDGE_TOPOLOGY(be, ...) T_OK(mlb_edge_partners(__VA_ARGS__))
 #define T_VERTEX_NORMALS(be, ...) T_OK(mlb_vertex_normals_f64(__VA_ARGS__))
 #define T_VERTEX_NORMALS_BACKWARD(be, ...) T_OK(mlb_vertex_normals_backward_f64(__VA_ARGS__))
 static inline mlb_status t_add_f64(const mlb_backend* be, double* y, const double* x, size_t n) {
@@ -108,6 +109,7 @@ static inline mlb_status t_copy_rows(const mlb_backend* be, float* dst, size_t d
 #define T_TRANSFORM(be, clip, pos, V, mat) (be)->transform_points(clip, pos, V, (mat)->m)
 #define T_TRANSFORM_BACKWARD(be, dpos, dclip, V, mat) (be)->transform_points_backward(dpos, dclip, V, (mat)->m)
 #define T_VERTEX_FACES(be, ...) (be)->vertex_faces(__VA_ARGS__)
+#define T_EDGE_TOPOLOGY(be, ...) (be)->edge_topology(__VA_ARGS__)
 #define T_VERTEX_NORMALS(be, ...) (be)->vertex_normals(__VA_ARGS__)
 #define T_VERTEX_NORMALS_BACKWARD(be, ...) (be)->vertex_normals_backward(__VA_ARGS__)
 static inline mlb_status t_add(const mlb_backend* be, float* y, const float* x, size_t n) { return be->add(y, x, n); }

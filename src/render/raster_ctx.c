@@ -2,6 +2,7 @@
 // and the edge topology for antialias. Compiled once (no `real` here).
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/mt_ops.h"
 #include "render/raster_internal.h"
 
 mlb_raster_ctx* mlb_raster_ctx_create(void) { return calloc(1, sizeof(mlb_raster_ctx)); }
@@ -86,46 +87,17 @@ mlb_status mlb_group_pixels(mlb_raster_ctx* ctx, int slot0, const int32_t* tri, 
     return MLB_OK;
 }
 
-// Half-edges bucketed by their smaller vertex (a counting sort); the partner of a half-edge is the
-// first other face (lowest id) in its bucket with the same larger vertex.
+// The faces at each vertex (mt_ops.h mlb_vertex_faces), then per face edge the lowest other face
+// in its lower end's list that holds the other end (mlb_edge_partners: the op tables' edge_topology).
 mlb_status mlb_edge_topology(int32_t* adj, const int32_t* faces, int n_faces, int n_verts) {
     MLB_TRY(mlb_raster_check_mesh("mlb_edge_topology", n_verts, faces, n_faces));
     if (n_faces == 0) return MLB_OK;
-    size_t nh = 3 * (size_t)n_faces;
-    int32_t* start = calloc((size_t)n_verts + 1, sizeof(int32_t));
-    int32_t* he = malloc(nh * sizeof(int32_t));
-    if (!start || !he) {
-        free(start); free(he);
-        return mlb_fail(MLB_ERR_NOMEM, "mlb_edge_topology: out of memory (%d faces)", n_faces);
-    }
-    for (size_t h = 0; h < nh; h++) {
-        size_t f = h / 3; int e = (int)(h % 3);
-        int32_t a = faces[3 * f + (e + 1) % 3], b = faces[3 * f + (e + 2) % 3];
-        start[(a < b ? a : b) + 1]++;
-    }
-    for (int v = 0; v < n_verts; v++) start[v + 1] += start[v];
-    for (size_t h = 0; h < nh; h++) {   // ascending h: each bucket lists faces in ascending order
-        size_t f = h / 3; int e = (int)(h % 3);
-        int32_t a = faces[3 * f + (e + 1) % 3], b = faces[3 * f + (e + 2) % 3];
-        he[start[a < b ? a : b]++] = (int32_t)h;
-    }
-    for (int v = n_verts; v > 0; v--) start[v] = start[v - 1];
-    start[0] = 0;
-#pragma omp parallel for schedule(static) if (n_faces > 4096)
-    for (int f = 0; f < n_faces; f++)
-        for (int e = 0; e < 3; e++) {
-            int32_t a = faces[3 * (size_t)f + (e + 1) % 3], b = faces[3 * (size_t)f + (e + 2) % 3];
-            int32_t lo = a < b ? a : b, hi = a < b ? b : a, found = -1;
-            if (a != b)
-                for (int32_t k = start[lo]; k < start[lo + 1]; k++) {
-                    int32_t h2 = he[k], f2 = h2 / 3, e2 = h2 % 3;
-                    if (f2 == f) continue;
-                    int32_t a2 = faces[3 * (size_t)f2 + (e2 + 1) % 3], b2 = faces[3 * (size_t)f2 + (e2 + 2) % 3];
-                    if ((a2 < b2 ? b2 : a2) == hi && a2 != b2) { found = f2; break; }
-                }
-            adj[3 * (size_t)f + e] = found;
-        }
-    free(start);
-    free(he);
-    return MLB_OK;
+    int32_t* off = malloc(((size_t)n_verts + 1) * sizeof(int32_t));
+    int32_t* vf = malloc(3 * (size_t)n_faces * sizeof(int32_t));
+    mlb_status s = off && vf ? mlb_vertex_faces(off, vf, faces, n_faces, n_verts)
+                             : mlb_fail(MLB_ERR_NOMEM, "mlb_edge_topology: out of memory (%d faces)", n_faces);
+    if (!s) mlb_edge_partners(adj, faces, n_faces, off, vf);
+    free(off);
+    free(vf);
+    return s;
 }

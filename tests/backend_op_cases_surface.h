@@ -12,16 +12,13 @@
 #include "matlaber/mt_ops.h"
 
 // A view-projection matrix of the case's own: a perspective look-at from s[2] (an angle index)
-static void surface_matrix(const op_case* c, double m[16]) {
+static mlb_mat4 surface_matrix(const op_case* c) {
     double a = 0.37 * c->s[2], eye[3] = {2.5 * cos(a), 0.8 - 0.1 * c->s[2], 2.5 * sin(a)};
     double target[3] = {0.1, 0, -0.05}, up[3] = {0, 1, 0};
-    mlb_mat4 view, proj;
-    if (mlb_look_at(&view, eye, target, up) != MLB_OK || mlb_perspective(&proj, 45.0 + c->s[2], 1.0, 0.1, 10.0) != MLB_OK) {
-        memset(m, 0, 16 * sizeof(double));
-        return;
-    }
-    mlb_mat4 vp = mlb_mat4_mul(&proj, &view);
-    memcpy(m, vp.m, sizeof vp.m);
+    mlb_mat4 view, proj, none = {{0}};
+    if (mlb_look_at(&view, eye, target, up) != MLB_OK || mlb_perspective(&proj, 45.0 + c->s[2], 1.0, 0.1, 10.0) != MLB_OK)
+        return none;
+    return mlb_mat4_mul(&proj, &view);
 }
 
 // transform_points(_backward): s = V, -, angle
@@ -35,9 +32,7 @@ static void setup_transform_points(op_case* c, draw* d, int t) {
     IN_("pos", 3 * at_least_1(c->s[0]), -1, 1);
 }
 static mlb_status call_transform_points(const mlb_backend* be, float** p, const op_case* c) {
-    double m[16];
-    surface_matrix(c, m);
-    return be->transform_points(p[0], p[1], c->s[0], m);
+    return be->transform_points(p[0], p[1], c->s[0], surface_matrix(c).m);
 }
 static void setup_transform_points_backward(op_case* c, draw* d, int t) {
     draw_points(c, d, t);
@@ -45,9 +40,7 @@ static void setup_transform_points_backward(op_case* c, draw* d, int t) {
     IN_("dclip", 4 * at_least_1(c->s[0]), -1, 1);
 }
 static mlb_status call_transform_points_backward(const mlb_backend* be, float** p, const op_case* c) {
-    double m[16];
-    surface_matrix(c, m);
-    return be->transform_points_backward(p[0], p[1], c->s[0], m);
+    return be->transform_points_backward(p[0], p[1], c->s[0], surface_matrix(c).m);
 }
 
 // vertex_faces, vertex_normals(_backward): s = V, F

@@ -49,10 +49,18 @@ static void draw_surface(op_case* c, draw* d, int t) {
     c->s[1] = t == 3 ? 0 : t ? dim(d, t, 1500) : 1;
     snprintf(c->shape, sizeof c->shape, "V %d F %d", c->s[0], c->s[1]);
 }
-// off and vf of faces (host buffers holding int32 bits)
-static void surface_table(const op_case* c, const float* faces, float* off, float* vf) {
+// faces, off and vf as the next inputs, their first index kept in s[2]; prep_surface draws the faces
+// and makes off and vf from them with the host's mlb_vertex_faces
+static void surface_inputs(op_case* c) {
+    c->s[2] = IN_("faces", 3 * at_least_1(c->s[1]), 0, 1);
+    IN_("off", (size_t)c->s[0] + 1, 0, 1);
+    IN_("vf", 3 * at_least_1(c->s[1]), 0, 1);
+}
+static void prep_surface(const op_case* c, float** h) {
+    float *faces = h[c->s[2]], *off = h[c->s[2] + 1], *vf = h[c->s[2] + 2];
+    prep_faces(faces, c->s[1], c->s[0]);
     if (mlb_vertex_faces((int32_t*)off, (int32_t*)vf, (const int32_t*)faces, c->s[1], c->s[0]) != MLB_OK)
-        memset(off, 0, sizeof(int32_t) * ((size_t)c->s[0] + 1));   // (the reference then fails loudly)
+        abort();   // (prep_faces keeps every vertex in range: it cannot fail)
 }
 
 // vertex_faces: off, vf, faces
@@ -69,10 +77,6 @@ static mlb_status call_vertex_faces(const mlb_backend* be, float** p, const op_c
 }
 
 // edge_topology: adj, faces, off, vf (faces on few vertices: many shared and non-manifold edges)
-static void prep_edge_topology(const op_case* c, float** h) {
-    prep_faces(h[1], c->s[1], c->s[0]);
-    surface_table(c, h[1], h[2], h[3]);
-}
 static void setup_edge_topology(op_case* c, draw* d, int t) {
     draw_surface(c, d, t);
     if (t == 1) {   // a crowded mesh
@@ -80,29 +84,21 @@ static void setup_edge_topology(op_case* c, draw* d, int t) {
         snprintf(c->shape, sizeof c->shape, "V %d F %d", c->s[0], c->s[1]);
     }
     OUT_("adj", 3 * at_least_1(c->s[1]), B_BITS);
-    IN_("faces", 3 * at_least_1(c->s[1]), 0, 1);
-    IN_("off", (size_t)c->s[0] + 1, 0, 1);
-    IN_("vf", 3 * at_least_1(c->s[1]), 0, 1);
-    c->prep = prep_edge_topology;
+    surface_inputs(c);
+    c->prep = prep_surface;
 }
 static mlb_status call_edge_topology(const mlb_backend* be, float** p, const op_case* c) {
     return be->edge_topology((int32_t*)p[0], (const int32_t*)p[1], c->s[1], (const int32_t*)p[2], (const int32_t*)p[3]);
 }
 
 // vertex_normals: normal, sum (NULL on trial 2), pos, faces, off, vf
-static void prep_vertex_normals(const op_case* c, float** h) {
-    prep_faces(h[3], c->s[1], c->s[0]);
-    surface_table(c, h[3], h[4], h[5]);
-}
 static void setup_vertex_normals(op_case* c, draw* d, int t) {
     draw_surface(c, d, t);
     OUT_("normal", 3 * (size_t)c->s[0], B_EXACT);
     OPT_OUT("sum", 3 * (size_t)c->s[0], B_EXACT, t == 2);
     IN_("pos", 3 * (size_t)c->s[0], -1, 1);
-    IN_("faces", 3 * at_least_1(c->s[1]), 0, 1);
-    IN_("off", (size_t)c->s[0] + 1, 0, 1);
-    IN_("vf", 3 * at_least_1(c->s[1]), 0, 1);
-    c->prep = prep_vertex_normals;
+    surface_inputs(c);
+    c->prep = prep_surface;
 }
 static mlb_status call_vertex_normals(const mlb_backend* be, float** p, const op_case* c) {
     return be->vertex_normals(p[0], p[1], p[2], c->s[0], (const int32_t*)p[3], (const int32_t*)p[4],
@@ -111,8 +107,7 @@ static mlb_status call_vertex_normals(const mlb_backend* be, float** p, const op
 
 // vertex_normals_backward: dpos (NULL on trial 2: nothing happens), dnormal, sum (the forward's), pos, faces, off, vf
 static void prep_vertex_normals_backward(const op_case* c, float** h) {
-    prep_faces(h[4], c->s[1], c->s[0]);
-    surface_table(c, h[4], h[5], h[6]);
+    prep_surface(c, h);
     float* normal = malloc(sizeof(float) * 3 * (size_t)c->s[0]);
     if (normal) vertex_normals_forward(normal, h[2], h[3], c->s[0], (const int32_t*)h[4], c->s[1]);
     free(normal);
@@ -123,9 +118,7 @@ static void setup_vertex_normals_backward(op_case* c, draw* d, int t) {
     IN_("dnormal", 3 * (size_t)c->s[0], -1, 1);
     IN_("sum", 3 * (size_t)c->s[0], -1, 1);
     IN_("pos", 3 * (size_t)c->s[0], -1, 1);
-    IN_("faces", 3 * at_least_1(c->s[1]), 0, 1);
-    IN_("off", (size_t)c->s[0] + 1, 0, 1);
-    IN_("vf", 3 * at_least_1(c->s[1]), 0, 1);
+    surface_inputs(c);
     c->prep = prep_vertex_normals_backward;
 }
 static mlb_status call_vertex_normals_backward(const mlb_backend* be, float** p, const op_case* c) {

@@ -269,7 +269,7 @@ static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, con
     MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
     MLB_TRY(tb->zero(d[T_DSDF].p, G));
     MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
-    MLB_TRY(mlb_mt_device_backward_from(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts));
+    MLB_TRY(mlb_mt_device_backward_on(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts));
     MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (float)(2 * g->cells)));
     if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (float)reg_weight));
     if (mlb_field_backend(net)) {

@@ -155,22 +155,13 @@ mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, co
     MLB_TRY(be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
     if (dpos) MLB_TRY(be->upload(d->dpos, dpos, 3 * V));
     if (dsdf) MLB_TRY(be->upload(d->dsdf, dsdf, V));
-    MLB_TRY(be->marching_tets_backward(dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts, d->weight,
-                                       (const int32_t*)d->vedge, d->nv, d->pos, d->sdf, (const int32_t*)d->slot_off,
-                                       d->cells));
+    MLB_TRY(mlb_mt_device_backward_on(d, dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts));
     if (dpos) MLB_TRY(be->download(dpos, d->dpos, 3 * V));
     if (dsdf) MLB_TRY(be->download(dsdf, d->dsdf, V));
     return MLB_OK;
 }
 
 mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
-    if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
-    if (!dpos && !dsdf) return MLB_OK;
-    MLB_TRY(d->be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
-    return mlb_mt_device_backward_from(d, dpos, dsdf, d->dverts);
-}
-
-mlb_status mlb_mt_device_backward_from(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
     if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
     if (!dpos && !dsdf) return MLB_OK;
     return d->be->marching_tets_backward(dpos, dsdf, dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,

@@ -134,6 +134,54 @@ static mlb_status call_downsample_box_backward(const mlb_backend* be, float** p,
     return be->downsample_box_backward(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
 }
 
+// area_resize(_backward): s = n, H, W, C, h, w (reductions by integer and by ragged factors, and
+// enlargements)
+static void draw_resize(op_case* c, draw* d, int t) {
+    c->s[0] = t ? pick(d, 1, 3) : 1, c->s[1] = dim(d, t, 70), c->s[2] = dim(d, t, 70), c->s[3] = t ? pick(d, 1, 4) : 1;
+    c->s[4] = t ? pick(d, 1, 24) : 1, c->s[5] = t ? pick(d, 1, 24) : 1;
+    snprintf(c->shape, sizeof c->shape, "%d x %dx%d x %d -> %dx%d", c->s[0], c->s[2], c->s[1], c->s[3], c->s[5], c->s[4]);
+}
+static size_t resize_src(const op_case* c) { return (size_t)c->s[0] * c->s[1] * c->s[2] * c->s[3]; }
+static size_t resize_dst(const op_case* c) { return (size_t)c->s[0] * c->s[3] * c->s[4] * c->s[5]; }
+static void setup_area_resize(op_case* c, draw* d, int t) {
+    draw_resize(c, d, t);
+    OUT_("dst", resize_dst(c), B_EXACT);
+    IN_("src", resize_src(c), -1, 1);
+}
+static mlb_status call_area_resize(const mlb_backend* be, float** p, const op_case* c) {
+    return be->area_resize(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3], c->s[4], c->s[5]);
+}
+static void setup_area_resize_backward(op_case* c, draw* d, int t) {
+    draw_resize(c, d, t);
+    OPT_ACC("dsrc", resize_src(c), B_EXACT, t == 3);
+    IN_("ddst", resize_dst(c), -1, 1);
+}
+static mlb_status call_area_resize_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->area_resize_backward(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3], c->s[4], c->s[5]);
+}
+
+// renders_to_sd(_backward): s = n, H, W, normal
+static void draw_renders(op_case* c, draw* d, int t) {
+    c->s[0] = t ? pick(d, 1, 3) : 1, c->s[1] = dim(d, t, 90), c->s[2] = dim(d, t, 90), c->s[3] = t % 2;
+    snprintf(c->shape, sizeof c->shape, "%d x %dx%d, %s", c->s[0], c->s[2], c->s[1], c->s[3] ? "normal" : "colour");
+}
+static void setup_renders_to_sd(op_case* c, draw* d, int t) {
+    draw_renders(c, d, t);
+    OUT_("x", (size_t)c->s[0] * 3 * c->s[1] * c->s[2], B_EXACT);
+    IN_("renders", (size_t)c->s[0] * 4 * c->s[1] * c->s[2], -1, 1);
+}
+static mlb_status call_renders_to_sd(const mlb_backend* be, float** p, const op_case* c) {
+    return be->renders_to_sd(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
+}
+static void setup_renders_to_sd_backward(op_case* c, draw* d, int t) {
+    draw_renders(c, d, t);
+    OPT_ACC("drenders", (size_t)c->s[0] * 4 * c->s[1] * c->s[2], B_EXACT, t == 2);
+    IN_("dx", (size_t)c->s[0] * 3 * c->s[1] * c->s[2], -1, 1);
+}
+static mlb_status call_renders_to_sd_backward(const mlb_backend* be, float** p, const op_case* c) {
+    return be->renders_to_sd_backward(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
+}
+
 // affine_columns: y, x; s = n, C, in_float
 static void setup_affine_columns(op_case* c, draw* d, int t) {
     c->s[0] = dim(d, t, 3000), c->s[1] = t ? pick(d, 1, 8) : 1, c->s[2] = t % 2;

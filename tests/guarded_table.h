@@ -185,6 +185,37 @@ static mlb_status guard_vertex_normals_backward(float* dpos, const float* dnorma
     GUARDED(CPU_->vertex_normals_backward(dpos, dnormal, sum, pos, V, faces, off, vf));
 }
 
+static mlb_status guard_area_resize(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
+    GUARDED(CPU_->area_resize(dst, src, n, H, W, C, h, w));
+}
+static mlb_status guard_area_resize_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
+    GUARDED(CPU_->area_resize_backward(dsrc, ddst, n, H, W, C, h, w));
+}
+static mlb_status guard_renders_to_sd(float* x, const float* renders, int n, int H, int W, int normal) {
+    GUARDED(CPU_->renders_to_sd(x, renders, n, H, W, normal));
+}
+static mlb_status guard_renders_to_sd_backward(float* drenders, const float* dx, int n, int H, int W, int normal) {
+    GUARDED(CPU_->renders_to_sd_backward(drenders, dx, n, H, W, normal));
+}
+
+// the VAE encoder and its backward (the SDS guidance on a table)
+static mlb_status guard_groupnorm(float* out, float* mean, float* rstd, const float* in, const float* w, const float* b,
+                                  int N, int C, int HW, int G, float eps, mlb_activation act) {
+    GUARDED(CPU_->groupnorm(out, mean, rstd, in, w, b, N, C, HW, G, eps, act));
+}
+static mlb_status guard_groupnorm_backward(float* din, float* dw, float* db, const float* dout, const float* in,
+                                           const float* w, const float* b, const float* mean, const float* rstd, int N,
+                                           int C, int HW, int G, mlb_activation act) {
+    GUARDED(CPU_->groupnorm_backward(din, dw, db, dout, in, w, b, mean, rstd, N, C, HW, G, act));
+}
+static mlb_status guard_attention(float* out, const float* q, const float* k, const float* v, int ld, int B, int T, int C,
+                                  int NH, int causal) {
+    GUARDED(CPU_->attention(out, q, k, v, ld, B, T, C, NH, causal));
+}
+static mlb_status guard_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) {
+    GUARDED(CPU_->transpose_last2(out, in, N, R, S, accumulate));
+}
+
 // every other op: refused by name; the GEMM ops: the CPU's, guarded
 #define MLB_OP(name, cuda_fn, params) \
     __attribute__((unused)) static mlb_status guard_unwrapped_##name params { return mlb_fail(MLB_ERR_UNSUPPORTED, "guarded table: %s is not wrapped", #name); }
@@ -212,6 +243,8 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(interpolate_backward); GUARD_USE(dmtet_deform); GUARD_USE(dmtet_deform_backward); GUARD_USE(sdf_reg);
     GUARD_USE(sdf_reg_backward); GUARD_USE(add); GUARD_USE(transform_points); GUARD_USE(transform_points_backward);
     GUARD_USE(vertex_faces); GUARD_USE(edge_topology); GUARD_USE(vertex_normals); GUARD_USE(vertex_normals_backward);
+    GUARD_USE(area_resize); GUARD_USE(area_resize_backward); GUARD_USE(renders_to_sd); GUARD_USE(renders_to_sd_backward);
+    GUARD_USE(groupnorm); GUARD_USE(groupnorm_backward); GUARD_USE(attention); GUARD_USE(transpose_last2);
 #undef GUARD_USE
     return &t;
 }

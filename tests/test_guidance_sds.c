@@ -3,7 +3,8 @@
 // cameras (ranges, a pure function of (seed, stage, step, view), jitter, environments), and the
 // guidance's loss and image gradient against a direct mlb_sds_step on the converted images in each
 // of its three phases (geometry latents, geometry normal map through the VAE, appearance colour),
-// view-dependent prompts chosen by azimuth, accumulation, errors.
+// view-dependent prompts chosen by azimuth, accumulation, errors; and the same calls on a table
+// whose buffers the host cannot touch (guarded_table.h), giving the host call's bits.
 #include <stdint.h>
 #include <unistd.h>
 #include "matlaber/cameras.h"
@@ -13,6 +14,7 @@
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
 #include "test.h"
+#include "guarded_table.h"
 
 static char tmpdir[256];
 
@@ -308,6 +310,25 @@ TEST(sds_guidance_matches_direct_step) {
         double loss = -1, loss2 = -1;
         float want_loss = -2, wrong_loss = -3;
         REQUIRE(g->loss(g, ph[k].stage, ph[k].step, views, n, img, H, H, dg, &loss) == MLB_OK);
+        {   // the same call on a table whose buffers the host cannot touch: the images stay there, and
+            // the loss and gradient are the host call's bits
+            const mlb_backend* tb = guarded_table();
+            float *t_img = NULL, *t_dg = NULL, *back = calloc(N, 4);
+            double tloss = -1;
+            long ops = guard_ops;
+            REQUIRE(back && tb->alloc(&t_img, N) == MLB_OK && tb->alloc(&t_dg, N) == MLB_OK);
+            REQUIRE(tb->upload(t_img, img, N) == MLB_OK && tb->zero(t_dg, N) == MLB_OK);
+            mlb_status ts = g->loss_on(g, tb, ph[k].stage, ph[k].step, views, n, t_img, H, H, t_dg, &tloss);
+            if (ts) printf("  loss_on: %s\n", mlb_last_error());
+            REQUIRE(ts == MLB_OK);
+            REQUIRE(tb->download(back, t_dg, N) == MLB_OK);
+            printf("  %s on the guarded table: %ld ops, loss %s, gradient %s\n", ph[k].name, guard_ops - ops,
+                   tloss == loss ? "the same" : "differs", memcmp(back, dg, N * 4) ? "differs" : "the same bits");
+            CHECK(tloss == loss && memcmp(back, dg, N * 4) == 0 && guard_ops - ops > 3);
+            tb->release(t_img);
+            tb->release(t_dg);
+            free(back);
+        }
         REQUIRE(direct(&f, &c, ph[k].stage, ph[k].latent, ph[k].step, vids, img, n, H, dd, &want_loss));
         // (the view prompts are chosen by the same code in every phase: the wrong ones tried once)
         if (k == 0) REQUIRE(direct(&f, &c, ph[k].stage, ph[k].latent, ph[k].step, wrong, img, n, H, dw, &wrong_loss));

@@ -16,6 +16,8 @@
 #include "matlaber/error.h"
 #include "matlaber/raster.h"
 
+struct mlb_backend;
+
 typedef enum { MLB_STAGE_GEOMETRY = 0, MLB_STAGE_APPEARANCE = 1 } mlb_stage;
 
 // One view of a step.
@@ -40,6 +42,11 @@ struct mlb_guidance {
     // not NULL, dimages [n, H, W, 4] += ∂loss/∂images.
     mlb_status (*loss)(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
                        int H, int W, float* dimages, double* loss);
+    // Optional (NULL where the guidance reads host images only, as image guidance): loss with images
+    // and dimages in the memory of be's device (backend.h), so that a stage whose renders live on a
+    // GPU hands them over where they are; with the CPU's table it is loss, bit for bit.
+    mlb_status (*loss_on)(mlb_guidance* g, const struct mlb_backend* be, mlb_stage stage, long step,
+                          const mlb_view* views, int n, const float* images, int H, int W, float* dimages, double* loss);
     void (*destroy)(mlb_guidance* g);
     // Optional (NULL where the guidance has none, as image guidance): per_view[v] = how much better
     // the prompt explains render v of [n, H, W, 4] (of `stage`, at the form its step 0 uses) than

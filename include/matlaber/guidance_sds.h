@@ -20,6 +20,7 @@
 #include "matlaber/cameras.h"
 #include "matlaber/error.h"
 #include "matlaber/guidance.h"
+#include "matlaber/image_convert.h"   // mlb_area_resize_nhwc_to_nchw (sd_dataset.c, tests)
 #include "matlaber/sd_model.h"
 #include "matlaber/sds.h"
 
@@ -52,12 +53,5 @@ mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance
 // c->prompt and the negatives are not used.
 mlb_status mlb_guidance_sds_create_from(mlb_sds* geometry, mlb_sds* appearance, const mlb_guidance_sds_config* c,
                                         mlb_guidance** out);
-
-// Area (box-average) resize of channels-last src [n, H, W, C] to channels-first dst [n, C, h, w]:
-// dst pixel (y, x) averages src rows [⌊yH/h⌋, ⌈(y+1)H/h⌉) × columns [⌊xW/w⌋, ⌈(x+1)W/w⌉)
-// (PyTorch's "area" / adaptive average pooling); exact box averages for integer factors.
-void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, int W, int C, int h, int w);
-// Its adjoint: dsrc [n, H, W, C] += the transpose applied to ddst [n, C, h, w].
-void mlb_area_resize_nhwc_to_nchw_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w);
 
 #endif

@@ -98,7 +98,19 @@ typedef struct {
 // for latents; *c the UNet's input channels, c may be NULL); MLB_ERR_ARG naming what does not fit.
 mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, int* h, int* w);
 // grad_images [B, C, H, W] += d loss / d images (may be NULL: loss only, no VAE backward);
-// *loss (may be NULL) = 0.5 sum(grad^2) / B. trace may be NULL.
+// *loss (may be NULL) = 0.5 sum(grad^2) / B. trace may be NULL. Host buffers: where the VAE runs
+// on a GPU (mlb_vae_use_device) the images cross to it and the gradient back.
 mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* trace);
+// The same step with in->images and grad_images in the memory of be's device (backend.h): the
+// images are mapped to 2 x - 1, encoded, and their gradient made there (the VAE on its own table,
+// which must run on be's device; an fp32 CPU VAE runs on be); only latent-sized values cross
+// (the VAE's mean down, its gradient up; the UNet's batch as mlb_unet_forward moves it). With the
+// CPU's table it is mlb_sds_step, bit for bit.
+struct mlb_backend;
+mlb_status mlb_sds_step_on(mlb_sds* s, const struct mlb_backend* be, const mlb_sds_input* in, float* grad_images,
+                           float* loss, mlb_sds_trace* trace);
+// The table whose device mlb_sds_step runs a [B, C, H, W] input on: the VAE's (a GPU, or the CPU's
+// bf16 ops) for images, the CPU's for latents.
+const struct mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C);
 
 #endif

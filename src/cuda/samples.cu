@@ -117,6 +117,105 @@ extern "C" mlb_status mlb_cuda_downsample_box_backward(float* din, const float* 
     return MLB_OK;
 }
 
+// ---- the guidance's conversions (image_convert.h), the CPU's bits ----
+__device__ inline int area_lo(int y, int H, int h) { return (int)((long long)y * H / h); }
+__device__ inline int area_hi(int y, int H, int h) { return (int)(((long long)(y + 1) * H + h - 1) / h); }
+// one thread per output value: its box summed in double, rows then columns, as the CPU
+__global__ void area_resize_kernel(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
+    GRID_STRIDE(o, (size_t)n * C * h * w) {
+        int x = (int)(o % w), y = (int)((o / w) % h), c = (int)((o / ((size_t)w * h)) % C);
+        size_t b = o / ((size_t)w * h * C);
+        int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h), x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
+        double inv = __ddiv_rn(1.0, (double)(y1 - y0) * (x1 - x0));
+        double acc = 0;
+        for (int yy = y0; yy < y1; yy++)
+            for (int xx = x0; xx < x1; xx++) acc = __dadd_rn(acc, (double)src[((b * H + yy) * W + xx) * C + c]);
+        dst[o] = (float)__dmul_rn(acc, inv);
+    }
+}
+// one thread per source value: the shares of the output pixels whose boxes hold it, added in the
+// CPU's (row-major) order of those pixels
+__global__ void area_resize_backward_kernel(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
+    GRID_STRIDE(q, (size_t)n * H * W * C) {
+        int c = (int)(q % C), xx = (int)((q / C) % W), yy = (int)((q / ((size_t)C * W)) % H);
+        size_t b = q / ((size_t)C * W * H);
+        int ya = (int)((long long)yy * h / H) - 1, yb = (int)((long long)(yy + 1) * h / H) + 1;
+        int xa = (int)((long long)xx * w / W) - 1, xb = (int)((long long)(xx + 1) * w / W) + 1;
+        float d = dsrc[q];
+        for (int y = ya < 0 ? 0 : ya; y <= yb && y < h; y++) {
+            if (yy < area_lo(y, H, h) || yy >= area_hi(y, H, h)) continue;
+            for (int x = xa < 0 ? 0 : xa; x <= xb && x < w; x++) {
+                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
+                if (xx < x0 || xx >= x1) continue;
+                double inv = __ddiv_rn(1.0, (double)(area_hi(y, H, h) - area_lo(y, H, h)) * (x1 - x0));
+                d = __fadd_rn(d, (float)__dmul_rn((double)ddst[((b * C + c) * h + y) * w + x], inv));
+            }
+        }
+        dsrc[q] = d;
+    }
+}
+static mlb_status check_resize(const char* fn, int n, int H, int W, int C, int h, int w) {
+    if (n < 0 || H < 1 || W < 1 || C < 1 || h < 1 || w < 1)
+        return mlb_fail(MLB_ERR_ARG, "%s: %d images of %dx%d x %d to %dx%d", fn, n, W, H, C, w, h);
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_area_resize(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
+    MLB_TRY(check_resize("area_resize", n, H, W, C, h, w));
+    size_t m = (size_t)n * C * h * w;
+    if (!m) return MLB_OK;
+    area_resize_kernel<<<mlb_grid(m, 256), 256>>>(dst, src, n, H, W, C, h, w);
+    MLB_CUDA_LAUNCHED("area_resize_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_area_resize_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h,
+                                                    int w) {
+    MLB_TRY(check_resize("area_resize_backward", n, H, W, C, h, w));
+    size_t m = (size_t)n * H * W * C;
+    if (!m || !dsrc) return MLB_OK;
+    area_resize_backward_kernel<<<mlb_grid(m, 256), 256>>>(dsrc, ddst, n, H, W, C, h, w);
+    MLB_CUDA_LAUNCHED("area_resize_backward_kernel");
+    return MLB_OK;
+}
+// one thread per pixel
+__global__ void renders_to_sd_kernel(float* x, const float* renders, int n, size_t HW, int normal) {
+    GRID_STRIDE(p, (size_t)n * HW) {
+        size_t b = p / HW, i = p % HW;
+        const float* px = renders + p * 4;
+        for (int c = 0; c < 3; c++)
+            x[(b * 3 + c) * HW + i] = normal ? __fmul_rn(0.5f, __fadd_rn(px[c], px[3])) : px[c];
+    }
+}
+__global__ void renders_to_sd_backward_kernel(float* drenders, const float* dx, int n, size_t HW, int normal) {
+    GRID_STRIDE(p, (size_t)n * HW) {
+        size_t b = p / HW, i = p % HW;
+        float* d = drenders + p * 4;
+        for (int c = 0; c < 3; c++) {
+            float g = dx[(b * 3 + c) * HW + i];
+            if (normal) {
+                d[c] = __fadd_rn(d[c], __fmul_rn(0.5f, g));
+                d[3] = __fadd_rn(d[3], __fmul_rn(0.5f, g));
+            } else
+                d[c] = __fadd_rn(d[c], g);
+        }
+    }
+}
+extern "C" mlb_status mlb_cuda_renders_to_sd(float* x, const float* renders, int n, int H, int W, int normal) {
+    MLB_TRY(check_resize("renders_to_sd", n, H, W, 4, 1, 1));
+    size_t m = (size_t)n * H * W;
+    if (!m) return MLB_OK;
+    renders_to_sd_kernel<<<mlb_grid(m, 256), 256>>>(x, renders, n, (size_t)H * W, normal);
+    MLB_CUDA_LAUNCHED("renders_to_sd_kernel");
+    return MLB_OK;
+}
+extern "C" mlb_status mlb_cuda_renders_to_sd_backward(float* drenders, const float* dx, int n, int H, int W, int normal) {
+    MLB_TRY(check_resize("renders_to_sd_backward", n, H, W, 4, 1, 1));
+    size_t m = (size_t)n * H * W;
+    if (!m || !drenders) return MLB_OK;
+    renders_to_sd_backward_kernel<<<mlb_grid(m, 256), 256>>>(drenders, dx, n, (size_t)H * W, normal);
+    MLB_CUDA_LAUNCHED("renders_to_sd_backward_kernel");
+    return MLB_OK;
+}
+
 struct affine8 { double scale[8], shift[8]; int has_shift; };
 __global__ void affine_columns_kernel(float* y, const float* x, size_t n, int C, affine8 a, int in_float) {
     GRID_STRIDE(i, n * C) {

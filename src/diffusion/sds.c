@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend.h"
 #include "matlaber/rng.h"
 #include "matlaber/schedule.h"
 
@@ -163,8 +164,27 @@ mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, i
     return MLB_OK;
 }
 
-mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* tr) {
-    if (!s || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
+// Where the VAE runs when the images live on be's device: on its own table (a GPU copy, or the CPU's
+// bf16 ops), else an fp32 CPU model on be itself (the CPU's table, or a test's guarded one).
+static mlb_status vae_where(const mlb_sds* s, const mlb_backend* be, const mlb_backend** vbe, const mlb_vae** vm) {
+    const mlb_vae* v = s->vae;
+    *vbe = v->mirror_ops ? v->mirror_ops : be;
+    *vm = v->mirror ? v->mirror : v;
+    if ((*vbe)->device != be->device)
+        return mlb_fail(MLB_ERR_ARG, "SDS: the images are on the %s, the VAE runs on the %s", mlb_device_name(be->device),
+                        mlb_device_name((*vbe)->device));
+    return MLB_OK;
+}
+
+const mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C) {
+    const mlb_backend* cpu = mlb_backend_cpu();
+    if (!s || !s->vae || C == s->unet->cfg.in_channels || !s->vae->mirror_ops) return cpu;
+    return s->vae->mirror_ops;
+}
+
+mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input* in, float* grad_images, float* loss,
+                           mlb_sds_trace* tr) {
+    if (!s || !be || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
     const int B = in->B, C = in->C, H = in->H, W = in->W;
     if (B < 1 || B > MLB_SDS_MAX_BATCH) return mlb_fail(MLB_ERR_ARG, "SDS batch %d outside 1..%d", B, MLB_SDS_MAX_BATCH);
     const int first = in->first, total = in->total > 0 ? in->total : B;
@@ -174,26 +194,30 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
     const int Lc = s->unet->cfg.in_channels;
     int h, w;
     MLB_TRY(mlb_sds_latent_shape(s, C, H, W, NULL, &h, &w));
-    const size_t n = (size_t)Lc * h * w, nimg = (size_t)C * H * W, nall = (size_t)B * n;
+    const mlb_backend* vbe = NULL;
+    const mlb_vae* vm = NULL;
+    if (C != Lc) MLB_TRY(vae_where(s, be, &vbe, &vm));
+    const size_t n = (size_t)Lc * h * w, nimg = (size_t)B * C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;
+    // the latent-sized work is the host's; the images and their gradient stay on be's device
     float *z = malloc(nall * sizeof(float)), *noise = malloc(nall * sizeof(float));
     float *x2 = malloc(2 * nall * sizeof(float)), *e2 = malloc(2 * nall * sizeof(float));
     float *ctx = malloc(2 * (size_t)B * nc * sizeof(float)), *grad = malloc(nall * sizeof(float));
-    float* img = NULL;
-    float* dimg = NULL;
+    float *img = NULL, *dimg = NULL;   // on be's device
     int ts[MLB_SDS_MAX_BATCH];
     float tt[2 * MLB_SDS_MAX_BATCH], wt[MLB_SDS_MAX_BATCH];
+    const double two = 2.0, minus_one = -1.0;
     mlb_status st = MLB_OK;
     if (!z || !noise || !x2 || !e2 || !ctx || !grad) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step"); goto done; }
-    // 1. the latent
-    if (C == Lc) memcpy(z, in->images, nall * sizeof(float));
+    // 1. the latent: the input itself, or the VAE's mean of 2 x - 1
+    if (C == Lc) st = be->download(z, in->images, nall);
     else {
-        img = malloc((size_t)B * nimg * sizeof(float));
-        if (!img) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step"); goto done; }
-        for (size_t i = 0; i < (size_t)B * nimg; i++) img[i] = 2.0f * in->images[i] - 1.0f;
-        if ((st = mlb_vae_encode(s->vae, img, B, H, W, z, NULL, grad_images ? &s->cache : NULL)) != MLB_OK) goto done;
+        if ((st = be->alloc(&img, nimg)) != MLB_OK) goto done;
+        if ((st = be->affine_columns(img, in->images, nimg, 1, &two, &minus_one, 1)) != MLB_OK) goto done;
+        if ((st = mlb_vae_encode_on(vbe, vm, img, B, H, W, z, NULL, grad_images ? &s->cache : NULL)) != MLB_OK) goto done;
         for (size_t i = 0; i < nall; i++) z[i] *= s->scaling_factor;
     }
+    if (st) goto done;
     // 2. timesteps, noise, x_t; the batch [cond x B, uncond x B]
     for (int b = 0; b < B; b++) {
         int t;
@@ -250,20 +274,46 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
         }
     if (tr && tr->grad_latent) memcpy(tr->grad_latent, grad, nall * sizeof(float));
     if (loss) *loss = (float)(0.5 * l / total);
-    // 4. d loss / d images
+    // 4. d loss / d images, on be's device
     if (grad_images) {
         if (C == Lc) {
-            for (size_t i = 0; i < nall; i++) grad_images[i] += grad[i] / (float)total;
+            for (size_t i = 0; i < nall; i++) grad[i] /= (float)total;
+            if ((st = be->alloc(&dimg, nall)) != MLB_OK) goto done;
+            if ((st = be->upload(dimg, grad, nall)) != MLB_OK) goto done;
+            st = be->add(grad_images, dimg, nall);
         } else {
             float k = s->scaling_factor / (float)total;
             for (size_t i = 0; i < nall; i++) grad[i] *= k;   // d loss / d mean
-            dimg = calloc((size_t)B * nimg, sizeof(float));
-            if (!dimg) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step"); goto done; }
-            if ((st = mlb_vae_encode_backward(s->vae, &s->cache, grad, NULL, dimg)) != MLB_OK) goto done;
-            for (size_t i = 0; i < (size_t)B * nimg; i++) grad_images[i] += 2.0f * dimg[i];
+            if ((st = be->zero(img, nimg)) != MLB_OK) goto done;
+            dimg = img, img = NULL;
+            if ((st = mlb_vae_encode_backward_params_on(vbe, vm, &s->cache, grad, NULL, dimg, NULL)) != MLB_OK) goto done;
+            if ((st = be->affine_columns(dimg, dimg, nimg, 1, &two, NULL, 1)) != MLB_OK) goto done;   // d(2x - 1)/dx
+            st = be->add(grad_images, dimg, nimg);
         }
     }
 done:
-    free(z); free(noise); free(x2); free(e2); free(ctx); free(grad); free(img); free(dimg);
+    free(z); free(noise); free(x2); free(e2); free(ctx); free(grad);
+    if (img) be->release(img);
+    if (dimg) be->release(dimg);
+    return st;
+}
+
+mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* tr) {
+    if (!s || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
+    const mlb_backend* be = mlb_sds_images_table(s, in->C);
+    if (be->device == MLB_DEVICE_CPU) return mlb_sds_step_on(s, mlb_backend_cpu(), in, grad_images, loss, tr);
+    // the VAE is on a GPU: the images go up, the step runs there, the gradient comes down (added)
+    const size_t nimg = (size_t)in->B * in->C * in->H * in->W;
+    float *d = NULL, *dg = NULL;
+    mlb_sds_input on = *in;
+    mlb_status st = be->alloc(&d, nimg);
+    if (!st) st = be->upload(d, in->images, nimg);
+    if (!st && grad_images) st = be->alloc(&dg, nimg);
+    if (!st && grad_images) st = be->upload(dg, grad_images, nimg);
+    on.images = d;
+    if (!st) st = mlb_sds_step_on(s, be, &on, dg, loss, tr);
+    if (!st && grad_images) st = be->download(grad_images, dg, nimg);
+    if (d) be->release(d);
+    if (dg) be->release(dg);
     return st;
 }

@@ -5,6 +5,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/image_convert.h"
 #include "matlaber/mt_ops.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
@@ -371,6 +372,31 @@ static mlb_status cpu_downsample_box(float* out, const float* in, int H, int W, 
 }
 static mlb_status cpu_downsample_box_backward(float* din, const float* dout, int H, int W, int C, int s) {
     mlb_downsample_box_backward(din, dout, H, W, C, s);
+    return MLB_OK;
+}
+static mlb_status check_resize(const char* fn, int n, int H, int W, int C, int h, int w) {
+    if (n < 0 || H < 1 || W < 1 || C < 1 || h < 1 || w < 1)
+        return mlb_fail(MLB_ERR_ARG, "%s: %d images of %dx%d x %d to %dx%d", fn, n, W, H, C, w, h);
+    return MLB_OK;
+}
+static mlb_status cpu_area_resize(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
+    MLB_TRY(check_resize("area_resize", n, H, W, C, h, w));
+    mlb_area_resize_nhwc_to_nchw(dst, src, n, H, W, C, h, w);
+    return MLB_OK;
+}
+static mlb_status cpu_area_resize_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
+    MLB_TRY(check_resize("area_resize_backward", n, H, W, C, h, w));
+    if (dsrc) mlb_area_resize_nhwc_to_nchw_backward(dsrc, ddst, n, H, W, C, h, w);
+    return MLB_OK;
+}
+static mlb_status cpu_renders_to_sd(float* x, const float* renders, int n, int H, int W, int normal) {
+    MLB_TRY(check_resize("renders_to_sd", n, H, W, 4, 1, 1));
+    mlb_renders_to_sd(x, renders, n, H, W, normal);
+    return MLB_OK;
+}
+static mlb_status cpu_renders_to_sd_backward(float* drenders, const float* dx, int n, int H, int W, int normal) {
+    MLB_TRY(check_resize("renders_to_sd_backward", n, H, W, 4, 1, 1));
+    if (drenders) mlb_renders_to_sd_backward(drenders, dx, n, H, W, normal);
     return MLB_OK;
 }
 static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, const double* scale,

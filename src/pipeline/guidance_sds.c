@@ -5,15 +5,17 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/guidance_sds.h"
+#include "matlaber/backend.h"
 #include "matlaber/log.h"
 
 typedef struct {
     mlb_sds* geo;                 // geometry: negative_geometry, geometry_opt
     mlb_sds* app;                 // appearance: negative_appearance, appearance_opt
     mlb_guidance_sds_config c;    // (string fields not kept)
-    float* x;                     // [n, C, h, w] the converted images
+    float* x;                     // [n, C, h, w] the converted images, in xbe's memory
     float* dx;                    // [n, C, h, w] their gradient
     size_t cap;                   // floats in x and dx
+    const mlb_backend* xbe;       // the table that allocated x and dx (NULL: none yet)
 } sds_guidance;
 
 mlb_guidance_sds_config mlb_guidance_sds_default(void) {
@@ -39,40 +41,6 @@ mlb_guidance_sds_config mlb_guidance_sds_default(void) {
     return c;
 }
 
-// ---- area resize ---------------------------------------------------------------------------------
-void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
-    for (int b = 0; b < n; b++)
-        for (int y = 0; y < h; y++) {
-            int y0 = (int)((long)y * H / h), y1 = (int)(((long)(y + 1) * H + h - 1) / h);
-            for (int x = 0; x < w; x++) {
-                int x0 = (int)((long)x * W / w), x1 = (int)(((long)(x + 1) * W + w - 1) / w);
-                double inv = 1.0 / ((double)(y1 - y0) * (x1 - x0));
-                for (int c = 0; c < C; c++) {
-                    double s = 0;
-                    for (int yy = y0; yy < y1; yy++)
-                        for (int xx = x0; xx < x1; xx++) s += src[(((size_t)b * H + yy) * W + xx) * C + c];
-                    dst[(((size_t)b * C + c) * h + y) * w + x] = (float)(s * inv);
-                }
-            }
-        }
-}
-
-void mlb_area_resize_nhwc_to_nchw_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
-    for (int b = 0; b < n; b++)
-        for (int y = 0; y < h; y++) {
-            int y0 = (int)((long)y * H / h), y1 = (int)(((long)(y + 1) * H + h - 1) / h);
-            for (int x = 0; x < w; x++) {
-                int x0 = (int)((long)x * W / w), x1 = (int)(((long)(x + 1) * W + w - 1) / w);
-                double inv = 1.0 / ((double)(y1 - y0) * (x1 - x0));
-                for (int c = 0; c < C; c++) {
-                    float g = (float)(ddst[(((size_t)b * C + c) * h + y) * w + x] * inv);
-                    for (int yy = y0; yy < y1; yy++)
-                        for (int xx = x0; xx < x1; xx++) dsrc[(((size_t)b * H + yy) * W + xx) * C + c] += g;
-                }
-            }
-        }
-}
-
 // ---- the interface -------------------------------------------------------------------------------
 static mlb_status sds_sample_views(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
     sds_guidance* s = g->impl;
@@ -80,75 +48,100 @@ static mlb_status sds_sample_views(mlb_guidance* g, mlb_stage stage, long step, 
     return MLB_OK;
 }
 
-// images [n, H, W, 4] of `stage` at `step` → s->x [n, *C, *h, *w], what the model sees: [normal,
-// mask] resized to latents in the latent phase, 0.5 (normal + mask) (geometry) or the colour
-// (appearance) otherwise; vids[n] the views' prompts. Grows s->x and s->dx as needed.
-static mlb_status to_model_input(sds_guidance* s, mlb_stage stage, long step, const mlb_view* views, int n,
-                                 const float* images, int H, int W, int* vids, int* Cp, int* hp, int* wp) {
+// x and dx of at least N floats in the memory of be's device (reallocated by another allocator).
+static mlb_status buffers_on(sds_guidance* s, const mlb_backend* be, size_t N) {
+    if (s->xbe && (s->xbe->alloc != be->alloc || N > s->cap)) {
+        s->xbe->release(s->x);
+        s->xbe->release(s->dx);
+        s->x = s->dx = NULL;
+        s->cap = 0;
+        s->xbe = NULL;
+    }
+    if (s->xbe) return MLB_OK;
+    mlb_status st = be->alloc(&s->x, N);
+    if (!st) st = be->alloc(&s->dx, N);
+    if (st) {
+        if (s->x) be->release(s->x);
+        s->x = NULL;
+        return mlb_fail_context(st, "SDS guidance: %zu floats for the model's images", N);
+    }
+    s->xbe = be;
+    s->cap = N;
+    return MLB_OK;
+}
+
+// The stage's step form: latents ([normal, mask] resized) in the geometry stage's latent phase.
+static int latent_phase(const sds_guidance* s, mlb_stage stage, long step) {
+    return stage == MLB_STAGE_GEOMETRY && step < s->c.latent_iters;
+}
+
+// images [n, H, W, 4] of `stage` at `step` (on be's device) → s->x [n, *C, *h, *w] there, what the
+// model sees: [normal, mask] resized to latents in the latent phase, 0.5 (normal + mask)
+// (geometry) or the colour (appearance) otherwise; vids[n] the views' prompts.
+static mlb_status to_model_input(sds_guidance* s, const mlb_backend* be, mlb_stage stage, long step,
+                                 const mlb_view* views, int n, const float* images, int H, int W, int* vids, int* Cp,
+                                 int* hp, int* wp) {
     if (!images || !views || n < 1 || n > MLB_SDS_MAX_BATCH || H < 1 || W < 1)
         return mlb_fail(MLB_ERR_ARG, "SDS guidance: bad batch (%d views of %dx%d)", n, W, H);
     if (stage != MLB_STAGE_GEOMETRY && stage != MLB_STAGE_APPEARANCE) return mlb_fail(MLB_ERR_ARG, "SDS guidance: stage %d", (int)stage);
-    int latent = stage == MLB_STAGE_GEOMETRY && step < s->c.latent_iters;
+    int latent = latent_phase(s, stage, step);
     const int L = s->c.latent_size > 0 ? s->c.latent_size : MLB_GUIDANCE_LATENT_SIZE;
     int C = latent ? 4 : 3, h = latent ? L : H, w = latent ? L : W;
-    size_t P = (size_t)h * w, N = (size_t)n * C * P, HW = (size_t)H * W;
-    if (N > s->cap) {
-        free(s->x);
-        free(s->dx);
-        s->x = malloc(N * sizeof(float));
-        s->dx = malloc(N * sizeof(float));
-        s->cap = s->x && s->dx ? N : 0;
-        if (!s->cap) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory (%d views of %dx%d)", n, W, H);
-    }
+    MLB_TRY(buffers_on(s, be, (size_t)n * C * h * w));
     for (int b = 0; b < n; b++)
         vids[b] = s->c.view_prompts ? mlb_sds_view_for(views[b].azimuth_deg, views[b].elevation_deg) : MLB_SDS_VIEW_NONE;
-    if (latent) mlb_area_resize_nhwc_to_nchw(s->x, images, n, H, W, 4, L, L);
-    else
-        for (int b = 0; b < n; b++)
-            for (size_t i = 0; i < HW; i++) {
-                const float* px = images + ((size_t)b * HW + i) * 4;
-                for (int c = 0; c < 3; c++)
-                    s->x[((size_t)b * 3 + c) * HW + i] = stage == MLB_STAGE_GEOMETRY ? 0.5f * (px[c] + px[3]) : px[c];
-            }
+    if (latent) MLB_TRY(be->area_resize(s->x, images, n, H, W, 4, L, L));
+    else MLB_TRY(be->renders_to_sd(s->x, images, n, H, W, stage == MLB_STAGE_GEOMETRY));
     *Cp = C;
     *hp = h;
     *wp = w;
     return MLB_OK;
 }
 
-static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
-                           int H, int W, float* dimages, double* loss) {
+static mlb_status sds_loss_on(mlb_guidance* g, const mlb_backend* be, mlb_stage stage, long step, const mlb_view* views,
+                              int n, const float* images, int H, int W, float* dimages, double* loss) {
     sds_guidance* s = g->impl;
     int vids[MLB_SDS_MAX_BATCH], C, h, w;
-    MLB_TRY(to_model_input(s, stage, step, views, n, images, H, W, vids, &C, &h, &w));
+    MLB_TRY(to_model_input(s, be, stage, step, views, n, images, H, W, vids, &C, &h, &w));
     int latent = C == 4;
     const int L = h;
-    size_t N = (size_t)n * C * h * w, HW = (size_t)H * W;
+    size_t N = (size_t)n * C * h * w;
     mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
     mlb_sds_options* opt = mlb_sds_options_of(sds);
     mlb_sds_weighting keep = opt->weighting;
     if (latent) opt->weighting = MLB_SDS_W_DREAMFUSION;   // Fantasia3D's latent phase
-    if (dimages) memset(s->dx, 0, N * sizeof(float));
+    mlb_status st = dimages ? be->zero(s->dx, N) : MLB_OK;
     mlb_sds_input in = {s->x, n, C, h, w, vids, step, NULL, NULL, g->part_first, g->part_total};
     float l = 0;
-    mlb_status st = mlb_sds_step(sds, &in, dimages ? s->dx : NULL, &l, NULL);
+    if (!st) st = mlb_sds_step_on(sds, be, &in, dimages ? s->dx : NULL, &l, NULL);
     opt->weighting = keep;
     if (st) return mlb_fail_context(st, "SDS guidance (%s stage, step %ld)", stage == MLB_STAGE_GEOMETRY ? "geometry" : "appearance", step);
     if (loss) *loss = (double)l;
     if (!dimages) return MLB_OK;
     // dx [n, C, h, w] → dimages [n, H, W, 4] (+=)
-    if (latent) mlb_area_resize_nhwc_to_nchw_backward(dimages, s->dx, n, H, W, 4, L, L);
-    else
-        for (int b = 0; b < n; b++)
-            for (size_t i = 0; i < HW; i++) {
-                float* d = dimages + ((size_t)b * HW + i) * 4;
-                for (int c = 0; c < 3; c++) {
-                    float gx = s->dx[((size_t)b * 3 + c) * HW + i];
-                    if (stage == MLB_STAGE_GEOMETRY) { d[c] += 0.5f * gx; d[3] += 0.5f * gx; }
-                    else d[c] += gx;
-                }
-            }
-    return MLB_OK;
+    if (latent) return be->area_resize_backward(dimages, s->dx, n, H, W, 4, L, L);
+    return be->renders_to_sd_backward(dimages, s->dx, n, H, W, stage == MLB_STAGE_GEOMETRY);
+}
+
+// Host images: on the CPU where the step's VAE runs there, else up to its device and back.
+static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n, const float* images,
+                           int H, int W, float* dimages, double* loss) {
+    sds_guidance* s = g->impl;
+    mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
+    const mlb_backend* be = mlb_sds_images_table(sds, latent_phase(s, stage, step) ? 4 : 3);
+    if (be->device == MLB_DEVICE_CPU) return sds_loss_on(g, mlb_backend_cpu(), stage, step, views, n, images, H, W, dimages, loss);
+    if (!images || n < 1 || H < 1 || W < 1) return mlb_fail(MLB_ERR_ARG, "SDS guidance: bad batch (%d views of %dx%d)", n, W, H);
+    const size_t N = (size_t)n * H * W * 4;
+    float *d = NULL, *dd = NULL;
+    mlb_status st = be->alloc(&d, N);
+    if (!st) st = be->upload(d, images, N);
+    if (!st && dimages) st = be->alloc(&dd, N);
+    if (!st && dimages) st = be->upload(dd, dimages, N);
+    if (!st) st = sds_loss_on(g, be, stage, step, views, n, d, H, W, dd, loss);
+    if (!st && dimages) st = be->download(dimages, dd, N);
+    if (d) be->release(d);
+    if (dd) be->release(dd);
+    return st;
 }
 
 // The diffusion classifier's score (guidance.h): SCORE_DRAWS timesteps per view, spread evenly over
@@ -159,7 +152,7 @@ static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* vi
                             int W, double* per_view) {
     sds_guidance* s = g->impl;
     int vids[MLB_SDS_MAX_BATCH], C, h, w, lc, lh, lw, t[MLB_SDS_MAX_BATCH];
-    MLB_TRY(to_model_input(s, stage, 0, views, n, images, H, W, vids, &C, &h, &w));
+    MLB_TRY(to_model_input(s, mlb_backend_cpu(), stage, 0, views, n, images, H, W, vids, &C, &h, &w));
     mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
     const mlb_sds_options* opt = stage == MLB_STAGE_GEOMETRY ? &s->c.geometry_opt : &s->c.appearance_opt;
     MLB_TRY(mlb_sds_latent_shape(sds, C, h, w, &lc, &lh, &lw));
@@ -190,8 +183,10 @@ static void sds_destroy(mlb_guidance* g) {
     if (s) {
         mlb_sds_free(s->geo);
         mlb_sds_free(s->app);
-        free(s->x);
-        free(s->dx);
+        if (s->xbe) {
+            s->xbe->release(s->x);
+            s->xbe->release(s->dx);
+        }
         free(s);
     }
     free(g);
@@ -249,6 +244,7 @@ mlb_status mlb_guidance_sds_create_from(mlb_sds* geometry, mlb_sds* appearance, 
     g->n_views = c->views;
     g->sample_views = sds_sample_views;
     g->loss = sds_loss;
+    g->loss_on = sds_loss_on;
     g->score = sds_score;
     g->destroy = sds_destroy;
     g->impl = s;

@@ -15,6 +15,7 @@
 #include "matlaber/vae.h"
 #include "test.h"
 #include "guarded_table.h"
+#include "tiny_sds_fixture.h"
 
 static char tmpdir[256];
 
@@ -131,54 +132,6 @@ TEST(orbit_cameras) {
 }
 
 // ---- the guidance ------------------------------------------------------------------------------------
-// A small UNet (levels 32, 32, 64, 64, one layer per block, attention only at the third level) and the
-// tiny VAE of test_sd_tiny.
-static mlb_unet* tiny_unet(void) {
-    mlb_unet_config c = mlb_unet_tiny_config(0);
-    c.layers_per_block = 1;
-    c.attn[0] = c.attn[1] = 0;
-    c.attn[2] = 1;
-    c.attn[3] = 0;
-    char w[512], cj[512];
-    snprintf(w, sizeof w, "%s/unet.safetensors", tmpdir);
-    snprintf(cj, sizeof cj, "%s/config.json", tmpdir);
-    mlb_unet_random_options o = mlb_unet_random_default_options();
-    o.seed = 9;
-    o.config_json_path = cj;
-    mlb_unet* u = NULL;
-    if (mlb_unet_write_random(&c, &o, w) || mlb_unet_load(w, NULL, &u)) printf("  %s\n", mlb_last_error());
-    unlink(w);
-    unlink(cj);
-    return u;
-}
-static mlb_vae* tiny_vae(void) {
-    mlb_vae_config vc = mlb_vae_sd_config();
-    int bo[4] = {32, 32, 64, 64};
-    for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
-    mlb_vae* v = NULL;
-    if (mlb_vae_create(&vc, &v)) return NULL;
-    mlb_vae_init_random(v, 3, 1.0f);
-    return v;
-}
-
-enum { TC = 5 };
-typedef struct {
-    mlb_unet* unet;
-    mlb_vae* vae;
-    float ac[1000];
-    float cond[MLB_SDS_N_VIEWS][TC * 32];   // a different embedding per view prompt
-    float unc[2][TC * 32];                  // geometry / appearance negatives
-} fixture;
-
-// An SDS object with the fixture's embeddings (stage's negative) and options o.
-static mlb_sds* make_sds(const fixture* f, int stage, const mlb_sds_options* o) {
-    mlb_sds* s = NULL;
-    if (mlb_sds_create(f->unet, f->vae, 0.18215f, f->ac, 0, o, &s)) return NULL;
-    for (int v = 0; v < MLB_SDS_N_VIEWS; v++) mlb_sds_set_cond(s, v, f->cond[v], TC);
-    mlb_sds_set_uncond(s, f->unc[stage], TC);
-    return s;
-}
-
 static double max_rel_diff(const float* a, const float* b, size_t n) {
     double m = 0, s = 0;
     for (size_t i = 0; i < n; i++) { m = fmax(m, fabs((double)a[i] - b[i])); s = fmax(s, fabs(b[i])); }
@@ -239,13 +192,7 @@ static int direct(const fixture* f, const mlb_guidance_sds_config* c, int stage,
 
 TEST(sds_guidance_matches_direct_step) {
     static fixture f;
-    f.unet = tiny_unet();
-    f.vae = tiny_vae();
-    REQUIRE(f.unet && f.vae);
-    REQUIRE(mlb_schedule_alphas_cumprod_f32(f.ac, 1000, MLB_SD_BETA_START, MLB_SD_BETA_END) == MLB_OK);
-    for (int v = 0; v < MLB_SDS_N_VIEWS; v++) mlb_rng_fill_normal(f.cond[v], TC * 32, 4, 10 + v, 0, 0, 1);
-    mlb_rng_fill_normal(f.unc[0], TC * 32, 4, 20, 0, 0, 1);
-    mlb_rng_fill_normal(f.unc[1], TC * 32, 4, 21, 0, 0, 1);
+    REQUIRE(fixture_init(&f, tmpdir));
 
     mlb_guidance_sds_config c = mlb_guidance_sds_default();
     CHECK(c.geometry_opt.t_min == 20 && c.geometry_opt.t_max == 500 && c.appearance_opt.t_max == 980);
@@ -393,8 +340,7 @@ TEST(sds_guidance_matches_direct_step) {
     CHECK(mlb_guidance_sds_create_from(make_sds(&f, 0, NULL), make_sds(&f, 1, NULL), &bad, &g) == MLB_ERR_ARG && !g);
     CHECK(mlb_guidance_sds_create(NULL, &c, &g) == MLB_ERR_ARG);
     mlb_clear_error();
-    mlb_vae_free(f.vae);
-    mlb_unet_free(f.unet);
+    fixture_free(&f);
 }
 
 int main(void) {

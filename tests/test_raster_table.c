@@ -10,6 +10,8 @@
 #include "matlaber/rng.h"
 #include "appearance_test_util.h"
 #include "guarded_table.h"
+#include "matlaber/guidance_sds.h"
+#include "tiny_sds_fixture.h"
 #include "material_test_util.h"
 #include "test.h"
 
@@ -218,9 +220,116 @@ TEST(appearance_calls_the_table) {
     scene_free(&sc);
 }
 
+// Score distillation on the renders where they are (guidance.h loss_on): the geometry step with a tiny
+// random SDS model on the guarded table, in the latent phase (step 0) and the VAE's (step 1), keeps
+// every render and its gradient there and gives the bits of the CPU's step whose renders come down
+// to the guidance (loss, not loss_on): images, loss and gradients; then the appearance render, its guidance and backward the same way (the material network on
+// the table in both runs: its device path rounds otherwise than the host's).
+static char tmpdir[256];
+TEST(guided_steps_stay_on_their_table) {
+    static fixture f;
+    REQUIRE(fixture_init(&f, tmpdir));
+    mlb_guidance_sds_config gc = mlb_guidance_sds_default();
+    gc.views = G_VIEWS;
+    gc.latent_iters = 1;
+    gc.latent_size = 8;
+    gc.seed = 3;
+    gc.n_envs = 2;
+    gc.geometry_opt.guidance_scale = gc.appearance_opt.guidance_scale = 7.5f;
+    mlb_guidance* g = NULL;
+    REQUIRE(mlb_guidance_sds_create_from(make_sds(&f, 0, NULL), make_sds(&f, 1, NULL), &gc, &g) == MLB_OK);
+    REQUIRE(g->loss_on != NULL);
+    mlb_guidance host = *g;   // the same guidance without loss_on: the renders come down to it
+    host.loss_on = NULL;
+    geometry_case k;
+    geometry_case_init(&k);
+    enum { RES = 64 };
+    size_t m = (size_t)G_VIEWS * RES * RES * 4, np = k.net.n_params;
+    float *img[2] = {malloc(sizeof(float) * m), malloc(sizeof(float) * m)};
+    float *grads[2] = {malloc(sizeof(float) * np), malloc(sizeof(float) * np)};
+    mlb_view views[G_VIEWS];
+    for (long step = 0; step < 2; step++) {
+        REQUIRE(g->sample_views(g, MLB_STAGE_GEOMETRY, step, views) == MLB_OK);
+        double loss[2];
+        long ops = guard_ops;
+        for (int t = 0; t < 2; t++) {
+            mlb_geofit_state st;
+            memset(&st, 0, sizeof st);
+            st.be = t ? guarded_table() : NULL;
+            mlb_geofit_stats stats;
+            REQUIRE(mlb_geometry_guided_step(&st, &k.net, &k.g, NULL, t ? g : &host, step, views, RES, 1, 0.1, &stats,
+                                             img[t]) == MLB_OK);
+            CHECK(st.images_on_table == t);
+            loss[t] = stats.loss;
+            memcpy(grads[t], k.net.grads, sizeof(float) * np);
+            mlb_geofit_state_free(&st);
+        }
+        printf("  geometry step %ld (%s): loss %.6g / %.6g, %ld guarded ops\n", step, step ? "VAE phase" : "latent phase",
+               loss[0], loss[1], guard_ops - ops);
+        CHECK(loss[0] == loss[1] && loss[0] > 0);
+        CHECK(same(img[0], img[1], sizeof(float) * m));
+        CHECK(same(grads[0], grads[1], sizeof(float) * np));
+    }
+    geometry_case_free(&k);
+
+    scene sc;
+    REQUIRE(scene_init(&sc, 32, 16));
+    mlb_brdf_ae prior;
+    REQUIRE(random_prior(&prior));
+    mlb_material_config mc = mlb_material_default();
+    mc.enc = (mlb_hashgrid_config){8, 2, 1 << 12, 4, 1.5};
+    mc.hidden = 16;
+    mc.seed = 11;
+    mlb_material_net net;
+    REQUIRE(material_net_init(&net, &mc, &prior) == MLB_OK);
+    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.3f * mlb_rng_normal(21, 0, i);
+    REQUIRE(mlb_field_use_device(&net, guarded_table()) == MLB_OK);
+    make_views(views, G_VIEWS);
+    float* dimg = malloc(sizeof(float) * m);
+    float* agrads[2] = {malloc(sizeof(float) * net.n_params), malloc(sizeof(float) * net.n_params)};
+    double aloss[2];
+    for (int t = 0; t < 2; t++) {   // t 0: the renders come down to the host guidance; t 1: they stay
+        mlb_appearance app;
+        memset(&app, 0, sizeof app);
+        app.be = guarded_table();
+        app.images_on_table = t;
+        material_net_zero_grad(&net);
+        REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, G_VIEWS, RES, 1, t ? NULL : img[0], 1) == MLB_OK);
+        if (t) {
+            REQUIRE(mlb_guidance_loss_batches(g, app.be, MLB_STAGE_APPEARANCE, 4, views, G_VIEWS, 0, G_VIEWS, app.t_images,
+                                              RES, RES, app.t_dimages, &aloss[t]) == MLB_OK);
+            REQUIRE(mlb_appearance_backward_table(&app, &net) == MLB_OK);
+        } else {
+            memset(dimg, 0, sizeof(float) * m);
+            REQUIRE(mlb_guidance_loss_batches(g, NULL, MLB_STAGE_APPEARANCE, 4, views, G_VIEWS, 0, G_VIEWS, img[0], RES,
+                                              RES, dimg, &aloss[t]) == MLB_OK);
+            REQUIRE(mlb_appearance_backward(&app, &net, dimg) == MLB_OK);
+        }
+        REQUIRE(mlb_field_grads_get(&net, agrads[t]) == MLB_OK);
+        mlb_appearance_free(&app);
+    }
+    printf("  appearance: loss %.6g / %.6g\n", aloss[0], aloss[1]);
+    CHECK(aloss[0] == aloss[1] && aloss[0] > 0);
+    CHECK(same(agrads[0], agrads[1], sizeof(float) * net.n_params));
+    REQUIRE(mlb_field_leave_device(&net) == MLB_OK);
+    free(dimg); free(agrads[0]); free(agrads[1]);
+    material_net_free(&net);
+    brdf_ae_free(&prior);
+    scene_free(&sc);
+    for (int t = 0; t < 2; t++) { free(img[t]); free(grads[t]); }
+    mlb_guidance_free(g);
+    CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);
+    fixture_free(&f);
+}
+
 int main(void) {
+    const char* base = getenv("TMPDIR");
+    snprintf(tmpdir, sizeof tmpdir, "%s/mlb_raster_table_XXXXXX", base && *base ? base : "/tmp");
+    if (!mkdtemp(tmpdir)) { printf("cannot create a temporary folder\n"); return 1; }
     RUN(geometry_stage_calls_the_table);
     RUN(geometry_stage_stays_on_its_table);
     RUN(appearance_calls_the_table);
+    RUN(guided_steps_stay_on_their_table);
+    rmdir(tmpdir);
     return test_summary();
 }

@@ -46,6 +46,12 @@
            the material network (a net on a device must be on this table's; a net on the host needs \
            the CPU's), the shading, the composite and their backwards (docs/appearance.md). */       \
         const mlb_backend* be;                                                                       \
+        /* Set by the caller before the render: the renders stay on the table, t_images [n, res,    \
+           res, 4] (images may be NULL then), for a guidance that reads them there (guidance.h      \
+           loss_on) and adds its gradient into t_dimages (the part's views zeroed by the render)    \
+           for mlb_appearance_backward_table. Filled by the render; on be's device. */              \
+        int images_on_table;                                                                         \
+        R *t_images, *t_dimages;                                                                     \
     } N(mlb_appearance);                                                                             \
     void N(mlb_appearance_free)(N(mlb_appearance)* a);   /* safe on a zeroed struct */               \
     /* Renders n views of mesh (positions, faces; vertex normals, computed when absent) with the      \
@@ -60,6 +66,8 @@
     /* dimages [n, res, res, 4] (of the last render, kept) → net->grads += ∂(Σ dimages·images)/∂params. \
        The net's cache must still be the render's (no material_net_forward in between). */          \
     mlb_status N(mlb_appearance_backward)(N(mlb_appearance)* a, N(mlb_material_net)* net, const R* dimages); \
+    /* The same with the image gradient in a->t_dimages (a render with images_on_table). */           \
+    mlb_status N(mlb_appearance_backward_table)(N(mlb_appearance)* a, N(mlb_material_net)* net);      \
     /* The last render's surface points [*n, 3] (covered samples of its views, view-major; NULL when  \
        none), on the render's table (a->be: host memory for the CPU's). Valid until the next render. */ \
     const R* N(mlb_appearance_points)(const N(mlb_appearance)* a, int* n);                           \

@@ -105,6 +105,12 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const mlb_backend* be;                                                                      \
         mlb_mt_device* mt;                                                                          \
+        /* Set by the caller before the forward: the renders stay on the table (t_images; st->images \
+           is filled only when the forward is asked for images) for a guidance that reads them     \
+           there (guidance.h loss_on), which adds its gradient into t_dimages (zeroed by the       \
+           forward) for mlb_geofit_backward_table. [n, res, res, 4] each, on be's device.          */ \
+        int images_on_table;                                                                        \
+        R *t_images, *t_dimages;                                                                    \
     } N(mlb_geofit_state);                                                                          \
     void N(mlb_geofit_state_free)(N(mlb_geofit_state)* st);   /* safe on a zeroed state */          \
     /* The network's surface (on grid g, deformation tanh(d)/(2·cells)) seen by cams[v], v < n:      \
@@ -120,6 +126,8 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
        dimages [n, res, res, 4] may be NULL (regulariser only). May repeat (gradients add).       */ \
     mlb_status N(mlb_geofit_backward)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, const R* dimages, \
                                       double reg_weight);                                           \
+    /* The same with the image gradient in st->t_dimages, on the table (images_on_table).       */ \
+    mlb_status N(mlb_geofit_backward_table)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, double reg_weight); \
     /* out[res, res, 4] = [normal, mask] of a float mesh (normals: area-weighted vertex normals)  \
        seen by cam: rasterize at res·ss, interpolate, antialias, downsample. ctx may be NULL. */   \
     mlb_status N(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, R* out, const mlb_mesh* m,            \

@@ -70,13 +70,15 @@ struct mlb_guidance {
     int view_batch;
 };
 
-// g->loss on views [first, first + n) of a step of `total` views (the fields above, reset after).
-static inline mlb_status mlb_guidance_loss_part(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views,
-                                                int first, int n, int total, const float* images, int H, int W,
-                                                float* dimages, double* loss) {
+// g->loss on views [first, first + n) of a step of `total` views (the fields above, reset after);
+// with a table be, g->loss_on with images and dimages on be's device (NULL: host buffers).
+static inline mlb_status mlb_guidance_loss_part(mlb_guidance* g, const struct mlb_backend* be, mlb_stage stage,
+                                                long step, const mlb_view* views, int first, int n, int total,
+                                                const float* images, int H, int W, float* dimages, double* loss) {
     g->part_first = first;
     g->part_total = total;
-    mlb_status s = g->loss(g, stage, step, views, n, images, H, W, dimages, loss);
+    mlb_status s = be ? g->loss_on(g, be, stage, step, views, n, images, H, W, dimages, loss)
+                      : g->loss(g, stage, step, views, n, images, H, W, dimages, loss);
     g->part_first = g->part_total = 0;
     return s;
 }
@@ -88,17 +90,18 @@ static inline int mlb_guidance_batch(const mlb_guidance* g, int n) {
 
 // Guides views [first, first + count) of a step of n views (whole micro-batches: first a multiple
 // of the batch size, as mlb_dist_share_batches gives a process its share), one loss call per
-// batch. images, dimages [n, H, W, 4]: the whole step's (dimages may be NULL); losses[b] = the loss
-// of batch b of the step's ceil(n / batch), written for this range's batches only.
-static inline mlb_status mlb_guidance_loss_batches(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views,
-                                                   int n, int first, int count, const float* images, int H, int W,
-                                                   float* dimages, double* losses) {
+// batch. images, dimages [n, H, W, 4]: the whole step's (dimages may be NULL), host buffers, or on
+// be's device when be is given (g->loss_on); losses[b] = the loss of batch b of the step's
+// ceil(n / batch), written for this range's batches only.
+static inline mlb_status mlb_guidance_loss_batches(mlb_guidance* g, const struct mlb_backend* be, mlb_stage stage,
+                                                   long step, const mlb_view* views, int n, int first, int count,
+                                                   const float* images, int H, int W, float* dimages, double* losses) {
     const int k = mlb_guidance_batch(g, n);
     const size_t img = (size_t)H * W * 4;
     mlb_status s = MLB_OK;
     for (int v = first; !s && v < first + count; v += k) {
         int m = first + count - v < k ? first + count - v : k;
-        s = mlb_guidance_loss_part(g, stage, step, views + v, v, m, n, images + img * (size_t)v, H, W,
+        s = mlb_guidance_loss_part(g, be, stage, step, views + v, v, m, n, images + img * (size_t)v, H, W,
                                    dimages ? dimages + img * (size_t)v : NULL, &losses[v / k]);
     }
     return s;

@@ -20,7 +20,7 @@
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
 // (the grid group: the float build's deformed grid, SDF and their gradients)
 // (the surface group: normals, attribute, clip coordinates, the faces at each vertex, gradients)
-enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT,
+enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT, T_DOUT,
        T_ATTR, T_CLIP, T_ADJ, T_DATTR, T_DCLIP, T_NRM, T_NSUM, T_VOFF, T_VF, T_ONES, T_PIECES, T_DSURF,
        T_GV, T_Y, T_SDF, T_DEFORM, T_GPOS, T_DGPOS, T_DSDF, T_DDEFORM, T_REG, T_COUNT };
 struct FN(geofit_table) {
@@ -191,7 +191,8 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
              (st->depth = FN(tbuf_get)(tb, &d[T_DEPTH], px)) && (st->img = FN(tbuf_get)(tb, &d[T_IMG], px * 4)) &&
              (st->weights = FN(tbuf_get)(tb, &d[T_WEIGHTS], px * 2)) && (st->aa = FN(tbuf_get)(tb, &d[T_AA], P * 4)) &&
              (st->daa = FN(tbuf_get)(tb, &d[T_DAA], P * 4)) && (st->dimg = FN(tbuf_get)(tb, &d[T_DIMG], P * 4)) &&
-             (st->dbary = FN(tbuf_get)(tb, &d[T_DBARY], P * 2)) && FN(tbuf_get)(tb, &d[T_OUT], (size_t)res * res * 4);
+             (st->dbary = FN(tbuf_get)(tb, &d[T_DBARY], P * 2)) && (st->t_images = FN(tbuf_get)(tb, &d[T_OUT], p * 4)) &&
+             (st->t_dimages = FN(tbuf_get)(tb, &d[T_DOUT], p * 4));
         if (ok) { st->cap_px = S; st->cap_views = (size_t)n; st->res = res; }
     }
     if (ok && M > 0) {   // (M = 0: grid and pixel groups only)
@@ -341,7 +342,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     const real* t_pos;
     const int32_t* t_faces;
     MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
-    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_out = d[T_OUT].p, *t_nrm = d[T_NRM].p;
+    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_nrm = d[T_NRM].p;
     int32_t *t_adj = (int32_t*)d[T_ADJ].p, *t_off = (int32_t*)d[T_VOFF].p, *t_vf = (int32_t*)d[T_VF].p;
     MLB_TRY(T_VERTEX_FACES(tb, t_off, t_vf, t_faces, F, M));
     MLB_TRY(T_VERTEX_NORMALS(tb, t_nrm, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
@@ -349,8 +350,11 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     MLB_TRY(FN(t_copy_rows)(tb, t_attr, 4, t_nrm, 3, 3, (size_t)M));
     MLB_TRY(FN(t_copy_rows)(tb, t_attr + 3, 4, d[T_ONES].p, 1, 1, (size_t)M));
     MLB_TRY(T_EDGE_TOPOLOGY(tb, t_adj, t_faces, F, t_off, t_vf));
-    // 3. every view (of this process's part), buffers kept: the images come down
+    // 3. every view (of this process's part), buffers kept: the images come down unless they stay
+    //    on the table for the guidance (then their gradient starts at 0 there)
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
+    const int download = !st->images_on_table || images;
+    if (st->images_on_table) MLB_TRY(FN(t_zero)(tb, st->t_dimages, p * 4 * (size_t)n));
     uint64_t hash = 1469598103934665603ull;
     int v0, v1;
     FN(part_range)(st, n, &v0, &v1);
@@ -362,13 +366,14 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
         int32_t* tri = st->tri + (size_t)v * P;
         real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         real* weights = st->weights + (size_t)v * P * 2;
+        real* t_out = st->t_images + (size_t)v * p * 4;
         real* aa = ss == 1 ? t_out : st->aa;
         int Si = st->S;
         s = FN(rt_rasterize)(tb, ctx, tri, bary, depth, clip, M, t_faces, F, Si, Si);
         if (!s) s = FN(rt_interpolate)(tb, img, t_attr, M, 4, tri, bary, t_faces, F, Si, Si);
         if (!s) s = FN(rt_antialias)(tb, ctx, aa, weights, img, 4, tri, depth, clip, M, t_faces, t_adj, F, Si, Si);
         if (!s && ss > 1) s = T_DOWNSAMPLE(tb, t_out, aa, res, res, 4, ss);
-        if (!s) s = FN(t_download)(tb, st->images + (size_t)v * p * 4, t_out, 4 * p);
+        if (!s && download) s = FN(t_download)(tb, st->images + (size_t)v * p * 4, t_out, 4 * p);
         if (s) return s;
         if (host_memory) hash = FN(geofit_hash)(hash, tri, P);   // the coverage's hash, where tri can be read
     }
@@ -388,8 +393,24 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     return MLB_OK;
 }
 
+// The backward with the image gradient on the host (dimages, uploaded a view at a time) or on the
+// table (t_dimages); neither: the regulariser only.
+static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const real* dimages,
+                                      const real* t_dimages, double reg_weight);
+
 mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const real* dimages,
                                   double reg_weight) {
+    return FN(geofit_backward)(st, net, dimages, NULL, reg_weight);
+}
+
+mlb_status FN(mlb_geofit_backward_table)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, double reg_weight) {
+    if (!st || !st->ok || !st->images_on_table)
+        return mlb_fail(MLB_ERR_ARG, "geometry step: a backward from the table without a forward that kept its images there");
+    return FN(geofit_backward)(st, net, NULL, st->t_dimages, reg_weight);
+}
+
+static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const real* dimages,
+                                      const real* t_dimages, double reg_weight) {
     if (!st || !st->ok || !net) return mlb_fail(MLB_ERR_ARG, "geometry step: backward without a forward");
     const mlb_tetgrid* g = st->grid;
     int M = st->surf.n_verts, F = st->surf.n_faces, n = st->n, res = st->res, ss = st->ss, Si = st->S;
@@ -401,7 +422,8 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     int v0, v1;
     FN(part_range)(st, n, &v0, &v1);
     size_t piece = (size_t)M * 6;
-    if (dimages && st->part_count != 0 && piece * (size_t)n > st->cap_pieces) {
+    const int grads = dimages || t_dimages;
+    if (grads && st->part_count != 0 && piece * (size_t)n > st->cap_pieces) {
         st->cap_pieces = 0;
         if (!FN(grow)((void**)&st->pieces, piece * (size_t)n, sizeof(real)))
             return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d surface vertices)", n, M);
@@ -412,12 +434,13 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     const real* t_pos;
     const int32_t* t_faces;
     MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
-    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_dout = d[T_OUT].p, *t_pieces = d[T_PIECES].p;
+    real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_pieces = d[T_PIECES].p;
     real *t_dattr = d[T_DATTR].p, *t_dclip = d[T_DCLIP].p, *t_dsurf = d[T_DSURF].p;
     const int32_t *t_adj = (const int32_t*)d[T_ADJ].p, *t_off = (const int32_t*)d[T_VOFF].p;
     const int32_t* t_vf = (const int32_t*)d[T_VF].p;
-    for (int v = v0; dimages && v < v1; v++) {
-        s = FN(t_upload)(tb, t_dout, dimages + (size_t)v * p * 4, 4 * p);
+    for (int v = v0; grads && v < v1; v++) {
+        const real* t_dout = t_dimages ? t_dimages + (size_t)v * p * 4 : d[T_DOUT].p + (size_t)v * p * 4;
+        if (!t_dimages) s = FN(t_upload)(tb, d[T_DOUT].p + (size_t)v * p * 4, dimages + (size_t)v * p * 4, 4 * p);
         const real* daa = t_dout;
         if (!s && ss > 1) {
             s = FN(t_zero)(tb, st->daa, P * 4);
@@ -443,7 +466,7 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
         if (!s) s = FN(t_copy_rows)(tb, pc + 3 * (size_t)M, 3, t_dattr, 4, 3, (size_t)M);
         if (s) break;   // (still joins the gather below: the other ranks wait in it)
     }
-    if (dimages && st->part_count != 0) {   // this process's pieces down, every view's up
+    if (grads && st->part_count != 0) {   // this process's pieces down, every view's up
         if (!s && v1 > v0) s = FN(t_download)(tb, st->pieces + piece * (size_t)v0, t_pieces + piece * (size_t)v0,
                                               piece * (size_t)(v1 - v0));
         mlb_status g = mlb_dist_allgather_batches(st->pieces + piece * (size_t)v0, st->pieces, n, st->part_batch,
@@ -453,7 +476,7 @@ mlb_status FN(mlb_geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
     }
     if (s) return s;
     MLB_TRY(FN(t_zero)(tb, t_dsurf, piece));   // [dverts 3M | dnrm 3M]
-    for (int v = 0; dimages && v < n; v++) MLB_TRY(FN(t_add)(tb, t_dsurf, t_pieces + piece * (size_t)v, piece));
+    for (int v = 0; grads && v < n; v++) MLB_TRY(FN(t_add)(tb, t_dsurf, t_pieces + piece * (size_t)v, piece));
     MLB_TRY(T_VERTEX_NORMALS_BACKWARD(tb, t_dsurf, t_dsurf + 3 * (size_t)M, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
 #ifdef MLB_F64
     size_t G = (size_t)st->n_grid;

@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend.h"
 #include "matlaber/dist.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
@@ -122,27 +123,41 @@ mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net,
     st->part_first = v0;
     st->part_count = mlb_dist_size() > 1 ? (cnt > 0 ? cnt : -1) : 0;
     st->part_batch = k;
+    // A guidance that reads renders where they are (loss_on) gets them on the stage's table: no
+    // image crosses to the host, only the previews when asked
+    const mlb_backend* tb = st->be ? st->be : mlb_backend_cpu();
+    st->images_on_table = g->loss_on != NULL;
     mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)n);
     size_t img = (size_t)res * res * 4, N = (size_t)n * img;
-    float* dimages = calloc(N ? N : 1, sizeof(float));
+    float* dimages = st->images_on_table ? NULL : calloc(N ? N : 1, sizeof(float));
     double* losses = calloc((size_t)nb, sizeof(double));   // one per batch
-    mlb_status s = cams && dimages && losses ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory");
+    mlb_status s = cams && (dimages || st->images_on_table) && losses ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory");
     if (!s) {
         for (int v = 0; v < n; v++) cams[v] = views[v].cam;
         geometry_net_zero_grad(net);
         s = mlb_geofit_forward(st, net, grid, ctx, cams, n, res, ss, NULL, stats);
     }
-    if (!s) s = mlb_guidance_loss_batches(g, MLB_STAGE_GEOMETRY, step, views, n, v0, cnt, st->images, res, res, dimages, losses);
+    if (!s && st->images_on_table)
+        s = mlb_guidance_loss_batches(g, tb, MLB_STAGE_GEOMETRY, step, views, n, v0, cnt, st->t_images, res, res,
+                                      st->t_dimages, losses);
+    else if (!s)
+        s = mlb_guidance_loss_batches(g, NULL, MLB_STAGE_GEOMETRY, step, views, n, v0, cnt, st->images, res, res, dimages,
+                                      losses);
     // every rank takes part in the gathers whatever happened here; a failure is agreed on at the step's end
     if (st->part_count != 0) {   // the batches' losses, shared as the batches are
         mlb_status gs = mlb_dist_allgather_items(losses + v0 / k, losses, nb, sizeof(double));
         if (!s) s = gs;
     }
     if (!s || st->ok) {
-        mlb_status bs = mlb_geofit_backward(st, net, dimages, reg_weight);
+        mlb_status bs = st->images_on_table ? mlb_geofit_backward_table(st, net, reg_weight)
+                                            : mlb_geofit_backward(st, net, dimages, reg_weight);
         if (!s) s = bs;
     }
     if (images_out && st->ok) {   // previews: every view's render (gathered only when asked)
+        if (st->images_on_table && cnt > 0) {   // this process's views come down
+            mlb_status ds = tb->download(st->images + img * (size_t)v0, st->t_images + img * (size_t)v0, img * (size_t)cnt);
+            if (!s) s = ds;
+        }
         mlb_status gs = st->part_count != 0 ? mlb_dist_allgather_batches(st->images + img * (size_t)v0, st->images, n, k,
                                                                          img * sizeof(float))
                                             : MLB_OK;

@@ -36,7 +36,7 @@ static void* abuf_get(abuf* b, size_t bytes) {
 // host scratch, then the buffers on the render's table (int32 ones cast from real)
 enum { H_ATTR, H_POS, H_CLIP, H_ADJ, H_NORMALS, H_START, H_LIGHTS, H_KEYS, H_COUNT };
 enum {
-    D_ATTR, D_CLIP, D_FACES, D_ADJ, D_TRI, D_BARY, D_DEPTH, D_COLOR, D_WEIGHTS, D_AA, D_PIX, D_OUT, D_INDEX,
+    D_ATTR, D_CLIP, D_FACES, D_ADJ, D_TRI, D_BARY, D_DEPTH, D_COLOR, D_WEIGHTS, D_AA, D_PIX, D_OUT, D_DOUT, D_INDEX,
     D_WHERE, D_PTS, D_NRM, D_VDIR, D_K, D_KD, D_KS, D_KR, D_RGB,
     D_DAA, D_DCOLOR, D_DRGB, D_DKD, D_DKS, D_DKR, D_DK, D_COUNT
 };
@@ -220,7 +220,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
                                      real* images, int keep_for_backward) {
     if (a->state) a->state->kept = 0;   // a failed render leaves nothing to backpropagate
     MLB_TRY(FN(check_mesh)(mesh, res, ss, "appearance render"));
-    if (n < 1 || !views || !lights || !images) return mlb_fail(MLB_ERR_ARG, "appearance render: %d views, or a NULL argument", n);
+    if (n < 1 || !views || !lights || (!images && !a->images_on_table))
+        return mlb_fail(MLB_ERR_ARG, "appearance render: %d views, or a NULL argument", n);
     for (int v = 0; v < n; v++)
         if (views[v].env < 0 || !lights[views[v].env])
             return mlb_fail(MLB_ERR_ARG, "appearance render: view %d asks for environment %d, which is not loaded", v, views[v].env);
@@ -265,10 +266,11 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     s->weights = FN(tbuf_get)(tb, &s->d[D_WEIGHTS], 2 * P * nv);
     real* aa = FN(tbuf_get)(tb, &s->d[D_AA], 4 * P);
     real* pix = FN(tbuf_get)(tb, &s->d[D_PIX], ATTR_C * P);
-    real* out = FN(tbuf_get)(tb, &s->d[D_OUT], 4 * p);
+    real* out = FN(tbuf_get)(tb, &s->d[D_OUT], 4 * p * nv);   // every view's render [n, res, res, 4]
+    real* dout = FN(tbuf_get)(tb, &s->d[D_DOUT], 4 * p * nv);
     int32_t* index = (int32_t*)FN(tbuf_get)(tb, &s->d[D_INDEX], P * nr + 1);
     if (!attr || !s->clip || !s->faces || !s->adj || !s->tri || !bary || !s->depth || !s->color || !s->weights || !aa ||
-        !pix || !out || !index)
+        !pix || !out || !dout || !index)
         return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (%d views at %dx%d)",
                         mlb_device_name(tb->device), n, S, S);
     MLB_TRY(FN(t_upload)(tb, attr, attr_h, ATTR_C * (size_t)V));
@@ -345,17 +347,38 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         real* color = s->color + 4 * P * v;
         MLB_TRY(FN(t_zero)(tb, color, 4 * P));
         if (m > 0) MLB_TRY(T_COMPOSITE(tb, color, s->rgb + 3 * (size_t)j0, s->where + j0, m));
-        real* dst = ss == 1 ? out : aa;
+        real* outv = out + 4 * p * v;
+        real* dst = ss == 1 ? outv : aa;
         MLB_TRY(FN(rt_antialias)(tb, s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
                                  s->clip + 4 * (size_t)V * v, V, s->faces, s->adj, F, S, S));
-        if (ss > 1) MLB_TRY(T_DOWNSAMPLE(tb, out, aa, res, res, 4, ss));
-        MLB_TRY(FN(t_download)(tb, images + 4 * p * v, out, 4 * p));
+        if (ss > 1) MLB_TRY(T_DOWNSAMPLE(tb, outv, aa, res, res, 4, ss));
+        if (images) MLB_TRY(FN(t_download)(tb, images + 4 * p * v, outv, 4 * p));
     }
+    a->t_images = out;
+    a->t_dimages = dout;
+    if (a->images_on_table && s->v1 > s->v0)
+        MLB_TRY(FN(t_zero)(tb, dout + 4 * p * s->v0, 4 * p * (size_t)(s->v1 - s->v0)));
     s->kept = keep_for_backward != 0;
     return MLB_OK;
 }
 
+static mlb_status FN(appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const real* dimages,
+                                          const real* t_dimages);
+
 mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const real* dimages) {
+    if (!dimages) return mlb_fail(MLB_ERR_ARG, "appearance backward: NULL dimages");
+    return FN(appearance_backward)(a, net, dimages, NULL);
+}
+
+mlb_status FN(mlb_appearance_backward_table)(FN(mlb_appearance)* a, FN(mlb_material_net)* net) {
+    if (!a->images_on_table || !a->t_dimages)
+        return mlb_fail(MLB_ERR_ARG, "appearance backward: no render kept its images on the table");
+    return FN(appearance_backward)(a, net, NULL, a->t_dimages);
+}
+
+// The image gradient from the host (dimages, uploaded a view at a time) or on the table (t_dimages).
+static mlb_status FN(appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_net)* net, const real* dimages,
+                                          const real* t_dimages) {
     struct FN(mlb_appearance_state)* s = a->state;
     if (!s || !s->kept) return mlb_fail(MLB_ERR_ARG, "appearance backward: no render kept for backward");
     int N = s->n_points, S = s->res * s->ss, V = s->V, F = s->F;
@@ -365,7 +388,7 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
                                      "(another forward ran in between)", net->n, N);
     const mlb_backend* tb = s->tb;
     size_t P = (size_t)S * S, p = (size_t)s->res * s->res, NN = (size_t)N;
-    real* dout = s->d[D_OUT].p;   // the forward's output image, free now: each view's dimage goes there
+    real* dout_all = s->d[D_DOUT].p;   // [n, res, res, 4]: each view's dimage, uploaded or given there
     real* daa = s->ss > 1 ? FN(tbuf_get)(tb, &s->d[D_DAA], 4 * P) : NULL;
     real* dcolor = FN(tbuf_get)(tb, &s->d[D_DCOLOR], 4 * P);
     real* drgb = FN(tbuf_get)(tb, &s->d[D_DRGB], 3 * NN);
@@ -380,7 +403,8 @@ mlb_status FN(mlb_appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material_ne
     MLB_TRY(FN(t_zero)(tb, dks, 3 * NN));
     MLB_TRY(FN(t_zero)(tb, dkr, NN));
     for (int v = s->v0; v < s->v1; v++) {
-        MLB_TRY(FN(t_upload)(tb, dout, dimages + 4 * p * v, 4 * p));
+        const real* dout = (t_dimages ? t_dimages : dout_all) + 4 * p * v;
+        if (!t_dimages) MLB_TRY(FN(t_upload)(tb, dout_all + 4 * p * v, dimages + 4 * p * v, 4 * p));
         const real* dimg = dout;
         if (s->ss > 1) {
             MLB_TRY(FN(t_zero)(tb, daa, 4 * P));

@@ -352,6 +352,9 @@ static mlb_status appearance_stage(pipeline_run* r) {
     // the renderer, the material network, its optimiser and the shading on the run's field table (a
     // GPU's): only the mesh and the cameras go up, the images come down
     app.be = pipeline_stage_table(r);
+    // a guidance that reads renders where they are gets them on that table (only previews come down)
+    app.images_on_table = r->g->loss_on != NULL;
+    const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
@@ -390,7 +393,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
         // paint with image guidance: the views were taken of the mesh as given; move their cameras
         // into the frame the mesh was moved into (SDS cameras are the frame's own)
         for (int i = 0; !s && paint_images && i < n; i++) s = mlb_paint_frame_camera(c->paint_centre, c->paint_scale, &views[i].cam);
-        if (!s && cnt > 0) memset(dimages + img * (size_t)v0, 0, sizeof(float) * img * (size_t)cnt);
+        if (!s && cnt > 0 && !app.images_on_table) memset(dimages + img * (size_t)v0, 0, sizeof(float) * img * (size_t)cnt);
         if (!s && smooth_on && bc > 0)   // every process draws the same points, each smooths its batches' share
             s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
         for (int j = 0; !s && j < bc; j++) {
@@ -398,16 +401,25 @@ static mlb_status appearance_stage(pipeline_run* r) {
             material_net_zero_grad(net);
             app.part_first = f;
             app.part_count = m;
-            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss, images, 1);
-            if (!s) s = mlb_guidance_loss_batches(r->g, MLB_STAGE_APPEARANCE, it, views, n, f, m, images, c->res, c->res,
-                                                  dimages, losses);
-            if (!s) s = mlb_appearance_backward(&app, net, dimages);
+            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss,
+                                      app.images_on_table ? NULL : images, 1);
+            if (!s && app.images_on_table) {
+                s = mlb_guidance_loss_batches(r->g, atb, MLB_STAGE_APPEARANCE, it, views, n, f, m, app.t_images, c->res,
+                                              c->res, app.t_dimages, losses);
+                if (!s) s = mlb_appearance_backward_table(&app, net);
+            } else if (!s) {
+                s = mlb_guidance_loss_batches(r->g, NULL, MLB_STAGE_APPEARANCE, it, views, n, f, m, images, c->res, c->res,
+                                              dimages, losses);
+                if (!s) s = mlb_appearance_backward(&app, net, dimages);
+            }
             mlb_dist_share_of(SMOOTH_POINTS, b, nb, &p0, &pc);
             if (!s && smooth_on)
                 s = mlb_material_smoothness_part(net, pts, SMOOTH_POINTS, p0, pc, c->mat_sigma, c->w_mat, c->w_mat_spec,
                                                  c->seed, it, 1, &losses[nb + b]);
             if (!s && mine) s = mlb_field_grads_get(net, mine + net->n_params * (size_t)j);
         }
+        if (!s && app.images_on_table && cnt > 0 && preview_at(c, it))   // this process's renders down for the previews
+            s = atb->download(images + img * (size_t)v0, app.t_images + img * (size_t)v0, img * (size_t)cnt);
         s = pipeline_agree(s);   // the collectives below need every rank
         if (!s && sum_grads) {
             s = mlb_dist_sum_batches(mine ? mine : net->grads, net->grads, net->n_params, nb);

@@ -23,7 +23,16 @@ static mlb_status owner_sample(mlb_guidance* g, mlb_stage stage, long step, mlb_
 static mlb_status owner_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n,
                              const float* images, int H, int W, float* dimages, double* loss) {
     sds_owner* o = g->impl;
-    return mlb_guidance_loss_part(o->inner, stage, step, views, g->part_first, n, g->part_total, images, H, W, dimages, loss);
+    return mlb_guidance_loss_part(o->inner, NULL, stage, step, views, g->part_first, n, g->part_total, images, H, W, dimages,
+                                  loss);
+}
+
+static mlb_status owner_loss_on(mlb_guidance* g, const struct mlb_backend* be, mlb_stage stage, long step,
+                                const mlb_view* views, int n, const float* images, int H, int W, float* dimages,
+                                double* loss) {
+    sds_owner* o = g->impl;
+    return mlb_guidance_loss_part(o->inner, be, stage, step, views, g->part_first, n, g->part_total, images, H, W, dimages,
+                                  loss);
 }
 
 static mlb_status owner_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
@@ -77,6 +86,7 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     *g = *inner;   // kind, n_views
     g->sample_views = owner_sample;
     g->loss = owner_loss;
+    g->loss_on = o->inner->loss_on ? owner_loss_on : NULL;
     g->score = owner_score;
     g->destroy = owner_destroy;
     g->impl = o;

@@ -88,14 +88,16 @@ mlb_status mlb_mt_device_forward(mlb_mt_device** d, const mlb_backend* be, mlb_m
 // dpos [V,3] +=, dsdf [V] += (either may be NULL) for dverts [n_verts,3] of the last forward
 mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
 // The same with pos, sdf (forward) and dpos, dsdf, dverts (backward) on the table's device (the
-// geometry fit's deformed grid and surface gradients); the forward's surface still comes down into
-// the host's `out`
+// geometry fit's deformed grid and surface gradients); the forward's surface stays there: `out`
+// gets its sizes only (n_verts, n_faces; no arrays), mlb_mt_device_surface_host the rest
 mlb_status mlb_mt_device_forward_on(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
                                     const mlb_tetgrid* g, const float* pos, const float* sdf);
 mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
 // The last forward's surface where it was made: verts [n_verts,3], faces [n_faces,3] (int32) on the
 // table's device (what came down into the host surface), valid until the next forward
 mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces);
+// The last forward's surface brought to the host: *out (zeroed first; mt_surface_free it)
+mlb_status mlb_mt_device_surface_host(const mlb_mt_device* d, mlb_mt_surface* out);
 void mlb_mt_device_free(mlb_mt_device* d);   // safe on NULL
 
 #endif

@@ -229,8 +229,8 @@ static void FN(part_range)(const FN(mlb_geofit_state)* st, int n, int* v0, int* 
 #ifndef MLB_F64
 // The grid's part of a forward on the state's table: the network at the grid vertices (on the
 // table's device when it is there, else on the host and its outputs uploaded), the deformation,
-// marching tets; the surface comes down into st->surf. The SDF stays on the table for the
-// regulariser and the backward.
+// marching tets; the surface stays there (st->surf gets its sizes; mlb_geofit_state_mesh brings it
+// down when asked). The SDF stays on the table for the regulariser and the backward.
 static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, float grid_res) {
     const mlb_backend* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;

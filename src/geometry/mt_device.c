@@ -86,7 +86,7 @@ static mlb_status surface_on_device(mlb_mt_device* d, size_t nv, size_t nf) {
 }
 
 // The forward from the handle's pos and sdf (on the device)
-static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out);
+static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int on_device);
 
 // pos and sdf into the handle's buffers (uploaded from the host, or copied on the device), then the forward
 static mlb_status forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out, const mlb_tetgrid* g,
@@ -98,7 +98,7 @@ static mlb_status forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surf
     size_t V = (size_t)d->V;
     MLB_TRY(on_device ? be->copy(d->pos, pos, 3 * V) : be->upload(d->pos, pos, 3 * V));
     MLB_TRY(on_device ? be->copy(d->sdf, sdf, V) : be->upload(d->sdf, sdf, V));
-    return forward_from_device(d, out);
+    return forward_from_device(d, out, on_device);
 }
 mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
                                  const mlb_tetgrid* g, const float* pos, const float* sdf) {
@@ -109,7 +109,11 @@ mlb_status mlb_mt_device_forward_on(mlb_mt_device** dp, const mlb_backend* be, m
     return forward(dp, be, out, g, pos, sdf, 1);
 }
 
-static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out) {
+static mlb_status surface_down(const mlb_mt_device* d, mlb_mt_surface* out);
+
+// out: the host's copy of the surface (on_device: its sizes only; mlb_mt_device_surface_host brings
+// the rest when someone needs it)
+static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int on_device) {
     const mlb_backend* be = d->be;
     const int T = d->T;
     int32_t *tet_off = (int32_t*)d->tet_off, *slot_off = (int32_t*)d->slot_off;
@@ -125,6 +129,19 @@ static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out) {
     MLB_TRY(surface_on_device(d, mv, mf));
     MLB_TRY(be->marching_tets_emit(d->verts, (int32_t*)d->vedge, d->weight, (int32_t*)d->faces, d->pos, d->sdf,
                                    (const int32_t*)d->tets, T, d->cells, tet_off, slot_off));
+    d->nv = nv, d->nf = nf;
+    if (on_device) {
+        out->n_verts = nv;
+        out->n_faces = nf;
+        return MLB_OK;
+    }
+    return surface_down(d, out);
+}
+
+static mlb_status surface_down(const mlb_mt_device* d, mlb_mt_surface* out) {
+    const mlb_backend* be = d->be;
+    int nv = d->nv, nf = d->nf;
+    size_t mv = nv ? (size_t)nv : 1, mf = nf ? (size_t)nf : 1;
     out->pos = malloc(sizeof(float) * 3 * mv);
     out->edge = malloc(sizeof(int32_t) * 2 * mv);
     out->weight = malloc(sizeof(float) * 2 * mv);
@@ -139,12 +156,14 @@ static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out) {
     if (!s) s = be->download((float*)out->edge, d->vedge, 2 * (size_t)nv);
     if (!s) s = be->download(out->weight, d->weight, 2 * (size_t)nv);
     if (!s) s = be->download((float*)out->faces, d->faces, 3 * (size_t)nf);
-    if (s) {
-        mt_surface_free(out);
-        return s;
-    }
-    d->nv = nv, d->nf = nf;
-    return MLB_OK;
+    if (s) mt_surface_free(out);
+    return s;
+}
+
+mlb_status mlb_mt_device_surface_host(const mlb_mt_device* d, mlb_mt_surface* out) {
+    if (!d || !out) return mlb_fail(MLB_ERR_ARG, "marching tets: no surface made on a table");
+    memset(out, 0, sizeof *out);
+    return surface_down(d, out);
 }
 
 mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {

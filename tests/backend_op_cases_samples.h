@@ -182,6 +182,36 @@ static mlb_status call_renders_to_sd_backward(const mlb_backend* be, float** p, 
     return be->renders_to_sd_backward(p[0], p[1], c->s[0], c->s[1], c->s[2], c->s[3]);
 }
 
+// axpby_rows: out, x, y; s = B, n
+static const float rows_a[5] = {0.99f, 0.5f, -1.25f, 0.0625f, 0.031f}, rows_c[5] = {0.14f, 0.866f, 2.0f, 0.998f, -0.7f};
+static void setup_axpby_rows(op_case* c, draw* d, int t) {
+    c->s[0] = t ? pick(d, 1, 5) : 1, c->s[1] = dim(d, t, 3000);
+    OUT_("out", (size_t)c->s[0] * c->s[1], B_EXACT);
+    IN_("x", (size_t)c->s[0] * c->s[1], -2, 2);
+    IN_("y", (size_t)c->s[0] * c->s[1], -2, 2);
+    snprintf(c->shape, sizeof c->shape, "%d rows of %d", c->s[0], c->s[1]);
+}
+static mlb_status call_axpby_rows(const mlb_backend* be, float** p, const op_case* c) {
+    return be->axpby_rows(p[0], p[1], p[2], c->s[0], (size_t)c->s[1], rows_a, rows_c);
+}
+
+// sds_grad: eps (in place: compared as an increment), grad, dz, sumsq, noise; s = B, n, div 1 or 3
+static void setup_sds_grad(op_case* c, draw* d, int t) {
+    c->s[0] = t ? pick(d, 1, 5) : 1, c->s[1] = dim(d, t, 3000), c->s[2] = t % 2 ? 3 : 1;
+    size_t nall = (size_t)c->s[0] * c->s[1];
+    ACC_("eps", 2 * nall, B_EXACT);
+    OUT_("grad", nall, B_EXACT);
+    OPT_OUT("dz", nall, B_EXACT, t == 2);
+    OUT_("sumsq", 3, B_SUMS);
+    IN_("noise", nall, -1.5f, 1.5f);
+    snprintf(c->shape, sizeof c->shape, "%d rows of %d, dz / %d", c->s[0], c->s[1], c->s[2]);
+}
+static mlb_status call_sds_grad(const mlb_backend* be, float** p, const op_case* c) {
+    static const float w[5] = {1.0f, 0.37f, 12.5f, 0.0f, 2.0f};
+    return be->sds_grad(p[0], p[1], p[2], p[3], p[4], c->s[0], (size_t)c->s[1], 7.5f, w, (float)c->s[2],
+                        c->s[2] == 1 ? 0.0913f : 1.0f);
+}
+
 // affine_columns: y, x; s = n, C, in_float
 static void setup_affine_columns(op_case* c, draw* d, int t) {
     c->s[0] = dim(d, t, 3000), c->s[1] = t ? pick(d, 1, 8) : 1, c->s[2] = t % 2;

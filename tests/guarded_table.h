@@ -216,6 +216,28 @@ static mlb_status guard_transpose_last2(float* out, const float* in, int N, int 
     GUARDED(CPU_->transpose_last2(out, in, N, R, S, accumulate));
 }
 
+// the UNet and the SDS step's latent arithmetic
+static mlb_status guard_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
+    GUARDED(CPU_->layernorm(out, in, w, b, N, C, eps));
+}
+static mlb_status guard_add_channel(float* x, const float* v, int N, int C, int HW) { GUARDED(CPU_->add_channel(x, v, N, C, HW)); }
+static mlb_status guard_geglu(float* out, const float* in, int rows, int C4) { GUARDED(CPU_->geglu(out, in, rows, C4)); }
+static mlb_status guard_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) {
+    GUARDED(CPU_->upsample_nearest2x(out, in, N, C, H, W));
+}
+static mlb_status guard_axpby_rows(float* out, const float* x, const float* y, int B, size_t n, const float* a,
+                                   const float* c) {
+    GUARDED(CPU_->axpby_rows(out, x, y, B, n, a, c));
+}
+static mlb_status guard_sds_grad(float* eps, float* grad, float* dz, float* sumsq, const float* noise, int B, size_t n,
+                                 float scale, const float* w, float div, float mul) {
+    GUARDED(CPU_->sds_grad(eps, grad, dz, sumsq, noise, B, n, scale, w, div, mul));
+}
+
+static mlb_status guard_layernorm_stats(float* out, float* mean, float* rstd, const float* in, const float* w,
+                                        const float* b, int N, int C, float eps) {
+    GUARDED(CPU_->layernorm_stats(out, mean, rstd, in, w, b, N, C, eps));
+}
 // every other op: refused by name; the GEMM ops: the CPU's, guarded
 #define MLB_OP(name, cuda_fn, params) \
     __attribute__((unused)) static mlb_status guard_unwrapped_##name params { return mlb_fail(MLB_ERR_UNSUPPORTED, "guarded table: %s is not wrapped", #name); }
@@ -245,6 +267,8 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(vertex_faces); GUARD_USE(edge_topology); GUARD_USE(vertex_normals); GUARD_USE(vertex_normals_backward);
     GUARD_USE(area_resize); GUARD_USE(area_resize_backward); GUARD_USE(renders_to_sd); GUARD_USE(renders_to_sd_backward);
     GUARD_USE(groupnorm); GUARD_USE(groupnorm_backward); GUARD_USE(attention); GUARD_USE(transpose_last2);
+    GUARD_USE(layernorm); GUARD_USE(add_channel); GUARD_USE(geglu); GUARD_USE(upsample_nearest2x);
+    GUARD_USE(axpby_rows); GUARD_USE(sds_grad); GUARD_USE(layernorm_stats);
 #undef GUARD_USE
     return &t;
 }

@@ -97,6 +97,13 @@ mlb_status mlb_vae_encode_on(const struct mlb_backend* be, const mlb_vae* v, con
                              float* mean, float* logvar, mlb_vae_cache* cache);
 mlb_status mlb_vae_encode_backward_params_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
                                              const float* dmean, const float* dlogvar, float* dimage, mlb_vae* grads);
+// The encoder with the mean [N, z, h, w] on be's device too (the moments' mean halves copied there;
+// a cache is required: the moments live in it), and its backward from dmean there (no logvar
+// gradient, no weight gradients): the SDS step's latent stays on the device (sds.h).
+mlb_status mlb_vae_encode_mean_on(const struct mlb_backend* be, const mlb_vae* v, const float* image, int N, int H,
+                                  int W, float* mean, mlb_vae_cache* cache);
+mlb_status mlb_vae_encode_backward_mean_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
+                                           const float* dmean, float* dimage);
 mlb_status mlb_vae_decode_train_on(const struct mlb_backend* be, const mlb_vae* v, const float* z, int N, int h, int w,
                                    float* image, mlb_vae_dec_cache* cache);
 mlb_status mlb_vae_decode_backward_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_dec_cache* cache,

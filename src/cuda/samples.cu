@@ -216,6 +216,71 @@ extern "C" mlb_status mlb_cuda_renders_to_sd_backward(float* drenders, const flo
     return MLB_OK;
 }
 
+// ---- the SDS step's latent arithmetic: the CPU's float operations, rounded one at a time ----
+struct rows128 { float a[MLB_OP_MAX_ROWS], c[MLB_OP_MAX_ROWS]; };
+__global__ void axpby_rows_kernel(float* out, const float* x, const float* y, size_t n, size_t total, rows128 r) {
+    GRID_STRIDE(k, total) {
+        size_t b = k / n;
+        out[k] = __fadd_rn(__fmul_rn(r.a[b], x[k]), __fmul_rn(r.c[b], y[k]));
+    }
+}
+extern "C" mlb_status mlb_cuda_axpby_rows(float* out, const float* x, const float* y, int B, size_t n, const float* a,
+                                          const float* c) {
+    if (B < 0 || B > MLB_OP_MAX_ROWS) return mlb_fail(MLB_ERR_ARG, "axpby_rows: %d rows (0..%d)", B, MLB_OP_MAX_ROWS);
+    size_t total = (size_t)B * n;
+    if (!total) return MLB_OK;
+    rows128 r;
+    for (int b = 0; b < B; b++) r.a[b] = a[b], r.c[b] = c[b];
+    axpby_rows_kernel<<<mlb_grid(total, 256), 256>>>(out, x, y, n, total, r);
+    MLB_CUDA_LAUNCHED("axpby_rows_kernel");
+    return MLB_OK;
+}
+__global__ void sds_grad_kernel(float* eps, float* grad, float* dz, const float* noise, size_t n, size_t nall, float scale,
+                                rows128 r, float div, float mul) {
+    GRID_STRIDE(k, nall) {
+        float u = eps[nall + k];
+        float e = __fadd_rn(u, __fmul_rn(scale, __fsub_rn(eps[k], u)));
+        eps[k] = e;
+        float g = __fmul_rn(r.a[k / n], __fsub_rn(e, noise[k]));
+        if (!isfinite(g)) g = 0.0f;
+        grad[k] = g;
+        if (dz) dz[k] = __fmul_rn(__fdiv_rn(g, div), mul);
+    }
+}
+// one block: each thread's share in double, then a tree
+__global__ void sum_squares_kernel(float* out, const float* g, size_t n) {
+    __shared__ double part[256];
+    double acc = 0;
+    for (size_t i = threadIdx.x; i < n; i += blockDim.x) acc = __dadd_rn(acc, __dmul_rn((double)g[i], (double)g[i]));
+    part[threadIdx.x] = acc;
+    __syncthreads();
+    for (int s = blockDim.x / 2; s > 0; s >>= 1) {
+        if ((int)threadIdx.x < s) part[threadIdx.x] = __dadd_rn(part[threadIdx.x], part[threadIdx.x + s]);
+        __syncthreads();
+    }
+    if (threadIdx.x == 0) {   // mlb_sumsq_split
+        double l = part[0];
+        out[0] = (float)l;
+        double r = __dsub_rn(l, (double)out[0]);
+        out[1] = (float)r;
+        out[2] = (float)__dsub_rn(r, (double)out[1]);
+    }
+}
+extern "C" mlb_status mlb_cuda_sds_grad(float* eps, float* grad, float* dz, float* sumsq, const float* noise, int B,
+                                        size_t n, float scale, const float* w, float div, float mul) {
+    if (B < 0 || B > MLB_OP_MAX_ROWS) return mlb_fail(MLB_ERR_ARG, "sds_grad: %d rows (0..%d)", B, MLB_OP_MAX_ROWS);
+    size_t nall = (size_t)B * n;
+    if (!nall) return mlb_cuda_memset(sumsq, 0, 3 * sizeof(float));
+    if (!grad) return mlb_fail(MLB_ERR_UNSUPPORTED, "sds_grad on the GPU needs grad (the loss is summed from it)");
+    rows128 r;
+    for (int b = 0; b < B; b++) r.a[b] = w[b], r.c[b] = 0;
+    sds_grad_kernel<<<mlb_grid(nall, 256), 256>>>(eps, grad, dz, noise, n, nall, scale, r, div, mul);
+    MLB_CUDA_LAUNCHED("sds_grad_kernel");
+    sum_squares_kernel<<<1, 256>>>(sumsq, grad, nall);
+    MLB_CUDA_LAUNCHED("sum_squares_kernel");
+    return MLB_OK;
+}
+
 struct affine8 { double scale[8], shift[8]; int has_shift; };
 __global__ void affine_columns_kernel(float* y, const float* x, size_t n, int C, affine8 a, int in_float) {
     GRID_STRIDE(i, n * C) {

@@ -22,6 +22,11 @@ struct mlb_sds {
     float* cond[MLB_SDS_N_VIEWS];   // [Tc, Dc] or NULL
     float* uncond;
     mlb_vae_cache cache;
+    // the embeddings on the device of the last step_on ([N_VIEWS cond | uncond] x Tc x Dc, a view
+    // without its own holding the base prompt's), allocated by emb_be; emb_stale after a set
+    float* emb_dev;
+    const mlb_backend* emb_be;
+    int emb_stale;
 };
 
 mlb_sds_options mlb_sds_default_options(void) {
@@ -95,6 +100,7 @@ mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scalin
 
 void mlb_sds_free(mlb_sds* s) {
     if (!s) return;
+    if (s->emb_dev) s->emb_be->release(s->emb_dev);
     for (int i = 0; i < MLB_SDS_N_VIEWS; i++) free(s->cond[i]);
     free(s->uncond);
     mlb_vae_cache_free(&s->cache);
@@ -112,6 +118,7 @@ static mlb_status set_emb(mlb_sds* s, float** slot, const float* emb, int Tc) {
     memcpy(p, emb, n * sizeof(float));
     *slot = p;
     s->Tc = Tc;
+    s->emb_stale = 1;
     return MLB_OK;
 }
 mlb_status mlb_sds_set_cond(mlb_sds* s, int view, const float* emb, int Tc) {
@@ -178,8 +185,72 @@ static mlb_status vae_where(const mlb_sds* s, const mlb_backend* be, const mlb_b
 
 const mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C) {
     const mlb_backend* cpu = mlb_backend_cpu();
-    if (!s || !s->vae || C == s->unet->cfg.in_channels || !s->vae->mirror_ops) return cpu;
-    return s->vae->mirror_ops;
+    if (!s) return cpu;
+    const mlb_backend* t = s->vae && C != s->unet->cfg.in_channels ? s->vae->mirror_ops : s->unet->mirror_ops;
+    return t ? t : cpu;
+}
+
+// The trace's values (sds.h), brought to the host: the latents, the UNet's outputs and the
+// denoising errors against the noise (hnoise, the host's copy).
+static mlb_status mlb_sds_trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const float* z, const float* x2,
+                                     const float* e2, const float* hnoise, const float* wt, const int* ts, int B,
+                                     size_t n) {
+    const size_t nall = (size_t)B * n;
+    if (tr->latent) MLB_TRY(be->download(tr->latent, z, nall));
+    if (tr->noisy_latent) MLB_TRY(be->download(tr->noisy_latent, x2, nall));
+    if (tr->w) memcpy(tr->w, wt, (size_t)B * sizeof(float));
+    if (tr->t) memcpy(tr->t, ts, (size_t)B * sizeof(int));
+    int errs = tr->err_cond || tr->err_uncond;
+    if (!tr->eps_cond && !tr->eps_uncond && !errs) return MLB_OK;
+    float* e = malloc(2 * nall * sizeof(float));
+    if (!e) return mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS trace");
+    mlb_status st = be->download(e, e2, 2 * nall);
+    if (!st && tr->eps_cond) memcpy(tr->eps_cond, e, nall * sizeof(float));
+    if (!st && tr->eps_uncond) memcpy(tr->eps_uncond, e + nall, nall * sizeof(float));
+    for (int b = 0; !st && errs && b < B; b++) {
+        double ec = 0, eu = 0;
+        for (size_t i = 0; i < n; i++) {
+            double dc = (double)e[b * n + i] - hnoise[b * n + i], du = (double)e[nall + b * n + i] - hnoise[b * n + i];
+            ec += dc * dc;
+            eu += du * du;
+        }
+        if (tr->err_cond) tr->err_cond[b] = ec / (double)n;
+        if (tr->err_uncond) tr->err_uncond[b] = eu / (double)n;
+    }
+    free(e);
+    return st;
+}
+
+// Where the UNet runs when the latents live on be's device: as the VAE (vae_where).
+static mlb_status unet_where(const mlb_sds* s, const mlb_backend* be, const mlb_backend** ube, const mlb_unet** um) {
+    const mlb_unet* u = s->unet;
+    *ube = u->mirror_ops ? u->mirror_ops : be;
+    *um = u->mirror ? u->mirror : u;
+    if ((*ube)->device != be->device)
+        return mlb_fail(MLB_ERR_ARG, "SDS: the latents are on the %s, the UNet runs on the %s", mlb_device_name(be->device),
+                        mlb_device_name((*ube)->device));
+    return MLB_OK;
+}
+
+// The embeddings on be's device (uploaded when they or the device changed).
+static mlb_status embeddings_on(mlb_sds* s, const mlb_backend* be) {
+    const size_t nc = (size_t)s->Tc * s->Dc;
+    if (s->emb_dev && (s->emb_be->alloc != be->alloc || s->emb_stale)) {
+        s->emb_be->release(s->emb_dev);
+        s->emb_dev = NULL;
+    }
+    if (s->emb_dev) return MLB_OK;
+    MLB_TRY(be->alloc(&s->emb_dev, (MLB_SDS_N_VIEWS + 1) * nc));
+    s->emb_be = be;
+    s->emb_stale = 0;
+    mlb_status st = MLB_OK;
+    for (int v = 0; !st && v < MLB_SDS_N_VIEWS; v++) st = be->upload(s->emb_dev + v * nc, s->cond[v] ? s->cond[v] : s->cond[0], nc);
+    if (!st) st = be->upload(s->emb_dev + MLB_SDS_N_VIEWS * nc, s->uncond, nc);
+    if (st) {
+        be->release(s->emb_dev);
+        s->emb_dev = NULL;
+    }
+    return st;
 }
 
 mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input* in, float* grad_images, float* loss,
@@ -194,31 +265,35 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
     const int Lc = s->unet->cfg.in_channels;
     int h, w;
     MLB_TRY(mlb_sds_latent_shape(s, C, H, W, NULL, &h, &w));
-    const mlb_backend* vbe = NULL;
+    const mlb_backend *vbe = NULL, *ube;
     const mlb_vae* vm = NULL;
+    const mlb_unet* um;
     if (C != Lc) MLB_TRY(vae_where(s, be, &vbe, &vm));
+    MLB_TRY(unet_where(s, be, &ube, &um));
+    MLB_TRY(embeddings_on(s, be));
     const size_t n = (size_t)Lc * h * w, nimg = (size_t)B * C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;
-    // the latent-sized work is the host's; the images and their gradient stay on be's device
-    float *z = malloc(nall * sizeof(float)), *noise = malloc(nall * sizeof(float));
-    float *x2 = malloc(2 * nall * sizeof(float)), *e2 = malloc(2 * nall * sizeof(float));
-    float *ctx = malloc(2 * (size_t)B * nc * sizeof(float)), *grad = malloc(nall * sizeof(float));
-    float *img = NULL, *dimg = NULL;   // on be's device
+    // on be's device: z | noise | x2 [2B] | e2 [2B] | ctx [2B] | grad | dz | the loss's 3 floats;
+    // the host draws t and the noise (uploaded: the one latent-sized crossing) and reads the loss
+    const size_t need = nall * 8 + 2 * (size_t)B * nc + 3;
+    float *buf = NULL, *img = NULL, *hnoise = malloc(nall * sizeof(float));
     int ts[MLB_SDS_MAX_BATCH];
-    float tt[2 * MLB_SDS_MAX_BATCH], wt[MLB_SDS_MAX_BATCH];
-    const double two = 2.0, minus_one = -1.0;
-    mlb_status st = MLB_OK;
-    if (!z || !noise || !x2 || !e2 || !ctx || !grad) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step"); goto done; }
-    // 1. the latent: the input itself, or the VAE's mean of 2 x - 1
-    if (C == Lc) st = be->download(z, in->images, nall);
+    float tt[2 * MLB_SDS_MAX_BATCH], wt[MLB_SDS_MAX_BATCH], sa[2 * MLB_SDS_MAX_BATCH], sb[2 * MLB_SDS_MAX_BATCH];
+    const double two = 2.0, minus_one = -1.0, sf = s->scaling_factor;
+    mlb_status st = hnoise ? be->alloc(&buf, need) : mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step");
+    if (st) goto done;
+    float *z = buf, *noise = z + nall, *x2 = noise + nall, *e2 = x2 + 2 * nall, *ctx = e2 + 2 * nall;
+    float *grad = ctx + 2 * (size_t)B * nc, *dz = grad + nall, *sumsq = dz + nall;
+    // 1. the latent: the input itself, or the VAE's mean of 2 x - 1, times the scaling factor
+    if (C == Lc) st = be->copy(z, in->images, nall);
     else {
         if ((st = be->alloc(&img, nimg)) != MLB_OK) goto done;
         if ((st = be->affine_columns(img, in->images, nimg, 1, &two, &minus_one, 1)) != MLB_OK) goto done;
-        if ((st = mlb_vae_encode_on(vbe, vm, img, B, H, W, z, NULL, grad_images ? &s->cache : NULL)) != MLB_OK) goto done;
-        for (size_t i = 0; i < nall; i++) z[i] *= s->scaling_factor;
+        if ((st = mlb_vae_encode_mean_on(vbe, vm, img, B, H, W, z, &s->cache)) != MLB_OK) goto done;
+        st = be->affine_columns(z, z, nall, 1, &sf, NULL, 1);
     }
     if (st) goto done;
-    // 2. timesteps, noise, x_t; the batch [cond x B, uncond x B]
+    // 2. timesteps and noise (the host's), x_t, the batch [cond x B, uncond x B]
     for (int b = 0; b < B; b++) {
         int t;
         if (in->t) {
@@ -230,71 +305,46 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
         ts[b] = t;
         tt[b] = tt[B + b] = (float)t;
         wt[b] = mlb_sds_weight(s->opt.weighting, s->ac[t], in->step, s->opt.coarse_iter);
-        if (in->noise) memcpy(noise + b * n, in->noise + b * n, n * sizeof(float));
-        else mlb_rng_fill_normal(noise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step, (uint64_t)(first + b) * n, 0.0f, 1.0f);
-        mlb_add_noise(x2 + b * n, z + b * n, noise + b * n, n, s->ac[t]);
-        memcpy(x2 + nall + b * n, x2 + b * n, n * sizeof(float));
+        sa[b] = sa[B + b] = (float)sqrt((double)s->ac[t]);   // schedule.h's add_noise and v_to_eps
+        sb[b] = sb[B + b] = (float)sqrt(1.0 - (double)s->ac[t]);
+        if (in->noise) memcpy(hnoise + b * n, in->noise + b * n, n * sizeof(float));
+        else mlb_rng_fill_normal(hnoise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step, (uint64_t)(first + b) * n, 0.0f, 1.0f);
         int v = in->views ? in->views[b] : MLB_SDS_VIEW_NONE;
         if (v < 0 || v >= MLB_SDS_N_VIEWS) { st = mlb_fail(MLB_ERR_ARG, "SDS view %d out of range", v); goto done; }
-        const float* c = s->cond[v] ? s->cond[v] : s->cond[0];
-        memcpy(ctx + (size_t)b * nc, c, nc * sizeof(float));
-        memcpy(ctx + (size_t)(B + b) * nc, s->uncond, nc * sizeof(float));
+        if ((st = be->copy(ctx + (size_t)b * nc, s->emb_dev + v * nc, nc)) != MLB_OK) goto done;
+        if ((st = be->copy(ctx + (size_t)(B + b) * nc, s->emb_dev + MLB_SDS_N_VIEWS * nc, nc)) != MLB_OK) goto done;
     }
-    // 3. the UNet, eps from v, guidance, the weighted gradient
-    if ((st = mlb_unet_forward(s->unet, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
-    if (s->v_prediction)
-        for (int b = 0; b < 2 * B; b++) mlb_v_to_eps(e2 + b * n, e2 + b * n, x2 + b * n, n, s->ac[ts[b % B]]);
-    if (tr) {
-        if (tr->latent) memcpy(tr->latent, z, nall * sizeof(float));
-        if (tr->noisy_latent) memcpy(tr->noisy_latent, x2, nall * sizeof(float));
-        if (tr->eps_cond) memcpy(tr->eps_cond, e2, nall * sizeof(float));
-        if (tr->eps_uncond) memcpy(tr->eps_uncond, e2 + nall, nall * sizeof(float));
-        if (tr->w) memcpy(tr->w, wt, (size_t)B * sizeof(float));
-        if (tr->t) memcpy(tr->t, ts, (size_t)B * sizeof(int));
-        for (int b = 0; b < B && (tr->err_cond || tr->err_uncond); b++) {
-            double ec = 0, eu = 0;
-            for (size_t i = 0; i < n; i++) {
-                double dc = (double)e2[b * n + i] - noise[b * n + i], du = (double)e2[nall + b * n + i] - noise[b * n + i];
-                ec += dc * dc;
-                eu += du * du;
-            }
-            if (tr->err_cond) tr->err_cond[b] = ec / (double)n;
-            if (tr->err_uncond) tr->err_uncond[b] = eu / (double)n;
-        }
+    if ((st = be->upload(noise, hnoise, nall)) != MLB_OK) goto done;
+    if ((st = be->axpby_rows(x2, z, noise, B, n, sa, sb)) != MLB_OK) goto done;
+    if ((st = be->copy(x2 + nall, x2, nall)) != MLB_OK) goto done;
+    // 3. the UNet, eps from v, guidance, the weighted gradient and d loss / d latent
+    if ((st = mlb_unet_forward_on(ube, um, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
+    if (s->v_prediction && (st = be->axpby_rows(e2, e2, x2, 2 * B, n, sa, sb)) != MLB_OK) goto done;
+    if (tr && (st = mlb_sds_trace_fill(tr, be, z, x2, e2, hnoise, wt, ts, B, n)) != MLB_OK) goto done;
+    float div = C == Lc ? (float)total : 1.0f, mul = C == Lc ? 1.0f : s->scaling_factor / (float)total;
+    if ((st = be->sds_grad(e2, grad, grad_images ? dz : NULL, sumsq, noise, B, n, s->opt.guidance_scale, wt, div, mul)))
+        goto done;
+    if (tr && tr->eps_guided && (st = be->download(tr->eps_guided, e2, nall))) goto done;
+    if (tr && tr->grad_latent && (st = be->download(tr->grad_latent, grad, nall))) goto done;
+    if (loss) {
+        float l3[3];
+        if ((st = be->download(l3, sumsq, 3)) != MLB_OK) goto done;
+        *loss = (float)(0.5 * mlb_sumsq_join(l3) / total);
     }
-    mlb_cfg_combine(e2, e2 + nall, e2, nall, s->opt.guidance_scale);
-    if (tr && tr->eps_guided) memcpy(tr->eps_guided, e2, nall * sizeof(float));
-    double l = 0;
-    for (int b = 0; b < B; b++)
-        for (size_t i = 0; i < n; i++) {
-            float g = wt[b] * (e2[b * n + i] - noise[b * n + i]);
-            if (!isfinite(g)) g = 0.0f;
-            grad[b * n + i] = g;
-            l += (double)g * g;
-        }
-    if (tr && tr->grad_latent) memcpy(tr->grad_latent, grad, nall * sizeof(float));
-    if (loss) *loss = (float)(0.5 * l / total);
     // 4. d loss / d images, on be's device
     if (grad_images) {
-        if (C == Lc) {
-            for (size_t i = 0; i < nall; i++) grad[i] /= (float)total;
-            if ((st = be->alloc(&dimg, nall)) != MLB_OK) goto done;
-            if ((st = be->upload(dimg, grad, nall)) != MLB_OK) goto done;
-            st = be->add(grad_images, dimg, nall);
-        } else {
-            float k = s->scaling_factor / (float)total;
-            for (size_t i = 0; i < nall; i++) grad[i] *= k;   // d loss / d mean
+        if (C == Lc) st = be->add(grad_images, dz, nall);
+        else {
             if ((st = be->zero(img, nimg)) != MLB_OK) goto done;
-            dimg = img, img = NULL;
-            if ((st = mlb_vae_encode_backward_params_on(vbe, vm, &s->cache, grad, NULL, dimg, NULL)) != MLB_OK) goto done;
-            if ((st = be->affine_columns(dimg, dimg, nimg, 1, &two, NULL, 1)) != MLB_OK) goto done;   // d(2x - 1)/dx
-            st = be->add(grad_images, dimg, nimg);
+            if ((st = mlb_vae_encode_backward_mean_on(vbe, vm, &s->cache, dz, img)) != MLB_OK) goto done;
+            if ((st = be->affine_columns(img, img, nimg, 1, &two, NULL, 1)) != MLB_OK) goto done;   // d(2x - 1)/dx
+            st = be->add(grad_images, img, nimg);
         }
     }
 done:
-    free(z); free(noise); free(x2); free(e2); free(ctx); free(grad);
+    free(hnoise);
+    if (buf) be->release(buf);
     if (img) be->release(img);
-    if (dimg) be->release(dimg);
     return st;
 }
 

@@ -446,7 +446,8 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
 // On the ops of be: the cache, dimage (may be NULL) and gr (NULL: no weight gradients) live on be's
 // device; dmean and dlogvar on the host. gr's convs need inputs only a training cache keeps.
 static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(mlb_vae_cache)* cache,
-                                           const real* dmean, const real* dlogvar, real* dimage, vae_t* gr) {
+                                           const real* dmean, const real* dlogvar, real* dimage, vae_t* gr,
+                                           const real* dmean_dev) {
     const mlb_vae_config* g = &v->cfg;
     const int N = cache->N, H = cache->H, W = cache->W;
     const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
@@ -476,10 +477,22 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     for (int l = 1; l < L; l++) { hs[l] = hs[l - 1] / 2; wsz[l] = wsz[l - 1] / 2; }
     const int h = hs[L - 1], w = wsz[L - 1], T = h * w;
     const size_t zn = (size_t)z * T, nm = (size_t)N * 2 * zn;
-    // d(moments), on the host: the mean half, and the logvar half where the clamp passes it
-    real *mtmp = NULL, *d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
+    // d(moments), on the host: the mean half, and the logvar half where the clamp passes it; or, with
+    // dmean on the device (float), [dmean, 0] made there
+    real *mtmp = NULL, *d = NULL;
     const real* mh = NULL;
-    mlb_status s = d ? FN(vae_host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
+    mlb_status s = MLB_OK;
+#ifndef MLB_F64
+    if (dmean_dev) {
+        s = op_zero(be, T1, nm);
+        if (!s) s = be->copy_rows(T1, 2 * zn, dmean_dev, zn, zn, (size_t)N);
+    } else
+#else
+    (void)dmean_dev;
+#endif
+    {
+    d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
+    s = d ? FN(vae_host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
     if (!s) {
         for (int n = 0; n < N; n++) {
             real* dn = d + (size_t)n * 2 * zn;
@@ -494,6 +507,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     }
     free(mtmp);
     if (d != T1) free(d);
+    }
 #define OTHER(x) ((x) == D0 ? D1 : D0)
     if (!s) s = op_zero(be, D0, nm);
     if (!s)
@@ -566,7 +580,7 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
         if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
         mlb_status s = n ? op_alloc(be, &d, n) : MLB_OK;
         if (!s && n) s = op_upload(be, d, dimage, n);
-        if (!s) s = FN(encode_backward_core)(be, v->mirror, cache, dmean, dlogvar, d, gd);
+        if (!s) s = FN(encode_backward_core)(be, v->mirror, cache, dmean, dlogvar, d, gd, NULL);
         if (!s && n) s = op_download(be, dimage, d, n);
         if (!s && gd) s = vae_grads_add_from_device(be, grads, gd);
         if (d) op_release(be, d);
@@ -575,7 +589,7 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
     }
 #endif
     MLB_TRY(FN(vae_check_grads)(MODEL_OPS(v), v, grads, "encoder backward"));
-    return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage, grads);
+    return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage, grads, NULL);
 }
 
 mlb_status FN(mlb_vae_encode_backward)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
@@ -663,6 +677,26 @@ mlb_status mlb_vae_encode_backward_params_on(const mlb_backend* be, const mlb_va
     if (!cache || cache->N < 1 || !cache->buf)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward");
     MLB_TRY(vae_check_grads(be, v, grads, "encoder backward"));
-    return encode_backward_core(be, v, cache, dmean, dlogvar, dimage, grads);
+    return encode_backward_core(be, v, cache, dmean, dlogvar, dimage, grads, NULL);
+}
+
+mlb_status mlb_vae_encode_mean_on(const mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
+                                  float* mean, mlb_vae_cache* cache) {
+    MLB_TRY(check_on(be, v, "encoder"));
+    MLB_TRY(vae_check_size(v, "encoder", N, H, W));
+    if (!image || !mean || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image, mean or cache");
+    MLB_TRY(encode_core(be, v, image, N, H, W, NULL, NULL, cache));
+    enc_rec rec;
+    enc_layout(&v->cfg, N, H, W, cache->train_kept, cache->buf, &rec);
+    size_t zn = (size_t)v->cfg.latent_channels * mlb_vae_latent_size(&v->cfg, H) * mlb_vae_latent_size(&v->cfg, W);
+    return be->copy_rows(mean, zn, rec.moments, 2 * zn, zn, (size_t)N);   // the moments' mean halves
+}
+
+mlb_status mlb_vae_encode_backward_mean_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
+                                           const float* dmean, float* dimage) {
+    MLB_TRY(check_on(be, v, "encoder backward"));
+    if (!cache || cache->N < 1 || !cache->buf || !dmean)
+        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward, or no dmean");
+    return encode_backward_core(be, v, cache, NULL, NULL, dimage, NULL, dmean);
 }
 #endif

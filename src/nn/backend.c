@@ -399,6 +399,37 @@ static mlb_status cpu_renders_to_sd_backward(float* drenders, const float* dx, i
     if (drenders) mlb_renders_to_sd_backward(drenders, dx, n, H, W, normal);
     return MLB_OK;
 }
+static mlb_status cpu_axpby_rows(float* out, const float* x, const float* y, int B, size_t n, const float* a,
+                                 const float* c) {
+    if (B < 0 || B > MLB_OP_MAX_ROWS) return mlb_fail(MLB_ERR_ARG, "axpby_rows: %d rows (0..%d)", B, MLB_OP_MAX_ROWS);
+    for (int b = 0; b < B; b++)
+        for (size_t i = 0; i < n; i++) {
+            size_t k = (size_t)b * n + i;
+            out[k] = a[b] * x[k] + c[b] * y[k];
+        }
+    return MLB_OK;
+}
+static mlb_status cpu_sds_grad(float* eps, float* grad, float* dz, float* sumsq, const float* noise, int B, size_t n,
+                               float scale, const float* w, float div, float mul) {
+    if (B < 0 || B > MLB_OP_MAX_ROWS) return mlb_fail(MLB_ERR_ARG, "sds_grad: %d rows (0..%d)", B, MLB_OP_MAX_ROWS);
+    const size_t nall = (size_t)B * n;
+    for (size_t i = 0; i < nall; i++) {
+        float u = eps[nall + i];
+        eps[i] = u + scale * (eps[i] - u);
+    }
+    double l = 0;
+    for (int b = 0; b < B; b++)
+        for (size_t i = 0; i < n; i++) {
+            size_t k = (size_t)b * n + i;
+            float g = w[b] * (eps[k] - noise[k]);
+            if (!isfinite(g)) g = 0.0f;
+            if (grad) grad[k] = g;
+            if (dz) dz[k] = g / div * mul;
+            l += (double)g * g;
+        }
+    mlb_sumsq_split(l, sumsq);
+    return MLB_OK;
+}
 static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, const double* scale,
                                      const double* shift, int in_float) {
     if (C < 1 || C > 8) return mlb_fail(MLB_ERR_ARG, "affine_columns: %d columns (1..8)", C);

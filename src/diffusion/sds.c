@@ -192,7 +192,7 @@ const mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C) {
 
 // The trace's values (sds.h), brought to the host: the latents, the UNet's outputs and the
 // denoising errors against the noise (hnoise, the host's copy).
-static mlb_status mlb_sds_trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const float* z, const float* x2,
+static mlb_status trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const float* z, const float* x2,
                                      const float* e2, const float* hnoise, const float* wt, const int* ts, int B,
                                      size_t n) {
     const size_t nall = (size_t)B * n;
@@ -320,7 +320,7 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
     // 3. the UNet, eps from v, guidance, the weighted gradient and d loss / d latent
     if ((st = mlb_unet_forward_on(ube, um, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
     if (s->v_prediction && (st = be->axpby_rows(e2, e2, x2, 2 * B, n, sa, sb)) != MLB_OK) goto done;
-    if (tr && (st = mlb_sds_trace_fill(tr, be, z, x2, e2, hnoise, wt, ts, B, n)) != MLB_OK) goto done;
+    if (tr && (st = trace_fill(tr, be, z, x2, e2, hnoise, wt, ts, B, n)) != MLB_OK) goto done;
     float div = C == Lc ? (float)total : 1.0f, mul = C == Lc ? 1.0f : s->scaling_factor / (float)total;
     if ((st = be->sds_grad(e2, grad, grad_images ? dz : NULL, sumsq, noise, B, n, s->opt.guidance_scale, wt, div, mul)))
         goto done;

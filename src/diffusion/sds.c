@@ -192,9 +192,8 @@ const mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C) {
 
 // The trace's values (sds.h), brought to the host: the latents, the UNet's outputs and the
 // denoising errors against the noise (hnoise, the host's copy).
-static mlb_status trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const float* z, const float* x2,
-                                     const float* e2, const float* hnoise, const float* wt, const int* ts, int B,
-                                     size_t n) {
+static mlb_status trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const float* z, const float* x2, const float* e2,
+                             const float* hnoise, const float* wt, const int* ts, int B, size_t n) {
     const size_t nall = (size_t)B * n;
     if (tr->latent) MLB_TRY(be->download(tr->latent, z, nall));
     if (tr->noisy_latent) MLB_TRY(be->download(tr->noisy_latent, x2, nall));

@@ -169,19 +169,25 @@ TEST(geometry_stage_stays_on_its_table) {
     geometry_case_free(&k);
 }
 
+// A small latent-mode material network over a random prior, its hash table drawn at random; 0 on failure.
+static int small_material_net(mlb_material_net* net, mlb_brdf_ae* prior) {
+    if (!random_prior(prior)) return 0;
+    mlb_material_config c = mlb_material_default();
+    c.enc = (mlb_hashgrid_config){8, 2, 1 << 12, 4, 1.5};
+    c.hidden = 16;
+    c.seed = 11;
+    if (material_net_init(net, &c, prior) != MLB_OK) return 0;
+    for (size_t i = 0; i < net->n_enc; i++) net->params[i] = 0.3f * mlb_rng_normal(21, 0, i);
+    return 1;
+}
+
 TEST(appearance_calls_the_table) {
     const mlb_backend* be = spy_table();
     scene sc;
     REQUIRE(scene_init(&sc, 32, 16));
     mlb_brdf_ae prior;
-    REQUIRE(random_prior(&prior));
-    mlb_material_config c = mlb_material_default();
-    c.enc = (mlb_hashgrid_config){8, 2, 1 << 12, 4, 1.5};
-    c.hidden = 16;
-    c.seed = 11;
     mlb_material_net net;
-    REQUIRE(material_net_init(&net, &c, &prior) == MLB_OK);
-    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.3f * mlb_rng_normal(21, 0, i);
+    REQUIRE(small_material_net(&net, &prior));
     enum { N = 3, RES = 24, SS = 2 };
     mlb_view views[N];
     make_views(views, N);
@@ -275,14 +281,8 @@ TEST(guided_steps_stay_on_their_table) {
     scene sc;
     REQUIRE(scene_init(&sc, 32, 16));
     mlb_brdf_ae prior;
-    REQUIRE(random_prior(&prior));
-    mlb_material_config mc = mlb_material_default();
-    mc.enc = (mlb_hashgrid_config){8, 2, 1 << 12, 4, 1.5};
-    mc.hidden = 16;
-    mc.seed = 11;
     mlb_material_net net;
-    REQUIRE(material_net_init(&net, &mc, &prior) == MLB_OK);
-    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.3f * mlb_rng_normal(21, 0, i);
+    REQUIRE(small_material_net(&net, &prior));
     REQUIRE(mlb_field_use_device(&net, guarded_table()) == MLB_OK);
     make_views(views, G_VIEWS);
     float* dimg = malloc(sizeof(float) * m);

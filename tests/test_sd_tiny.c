@@ -13,6 +13,7 @@
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
 #include "test.h"
+#include "tiny_sds_fixture.h"   // tiny_vae
 
 static char tmpdir[256];
 
@@ -244,16 +245,6 @@ TEST(cfg_and_weightings_hand_computed) {
     CHECK(mlb_sds_weighting_parse("fantasia2", &w) == MLB_OK && w == MLB_SDS_W_FANTASIA2);
     CHECK(mlb_sds_weighting_parse("nope", &w) == MLB_ERR_ARG);
     mlb_clear_error();
-}
-
-static mlb_vae* tiny_vae(void) {
-    mlb_vae_config vc = mlb_vae_sd_config();
-    int bo[4] = {32, 32, 64, 64};
-    for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
-    mlb_vae* v = NULL;
-    if (mlb_vae_create(&vc, &v)) return NULL;
-    mlb_vae_init_random(v, 3, 1.0f);
-    return v;
 }
 
 // The direct computation of the SDS latent gradient with the same t and noise.

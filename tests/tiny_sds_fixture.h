@@ -13,7 +13,7 @@
 #include "matlaber/vae.h"
 
 // The UNet is written to dir and loaded back (the loaders' path), then its files removed.
-static mlb_unet* tiny_unet(const char* dir) {
+static inline mlb_unet* tiny_unet(const char* dir) {
     mlb_unet_config c = mlb_unet_tiny_config(0);
     c.layers_per_block = 1;
     c.attn[0] = c.attn[1] = 0;
@@ -31,7 +31,7 @@ static mlb_unet* tiny_unet(const char* dir) {
     unlink(cj);
     return u;
 }
-static mlb_vae* tiny_vae(void) {
+static inline mlb_vae* tiny_vae(void) {
     mlb_vae_config vc = mlb_vae_sd_config();
     int bo[4] = {32, 32, 64, 64};
     for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
@@ -51,7 +51,7 @@ typedef struct {
 } fixture;
 
 // The models (in dir's files for a moment), the schedule and the embeddings; 0 on failure.
-static int fixture_init(fixture* f, const char* dir) {
+static inline int fixture_init(fixture* f, const char* dir) {
     f->unet = tiny_unet(dir);
     f->vae = tiny_vae();
     if (!f->unet || !f->vae) return 0;
@@ -61,13 +61,13 @@ static int fixture_init(fixture* f, const char* dir) {
     mlb_rng_fill_normal(f->unc[1], TC * 32, 4, 21, 0, 0, 1);
     return 1;
 }
-static void fixture_free(fixture* f) {
+static inline void fixture_free(fixture* f) {
     mlb_vae_free(f->vae);
     mlb_unet_free(f->unet);
 }
 
 // An SDS object with the fixture's embeddings (stage's negative) and options o.
-static mlb_sds* make_sds(const fixture* f, int stage, const mlb_sds_options* o) {
+static inline mlb_sds* make_sds(const fixture* f, int stage, const mlb_sds_options* o) {
     mlb_sds* s = NULL;
     if (mlb_sds_create(f->unet, f->vae, 0.18215f, f->ac, 0, o, &s)) return NULL;
     for (int v = 0; v < MLB_SDS_N_VIEWS; v++) mlb_sds_set_cond(s, v, f->cond[v], TC);

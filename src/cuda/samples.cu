@@ -6,6 +6,7 @@
 #include <math.h>
 #include "common.cuh"
 #include "render/sample_math.h"
+#include "render/area_box.h"
 
 #define GRID_STRIDE(i, n) \
     for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < (n); i += (size_t)gridDim.x * blockDim.x)
@@ -118,15 +119,13 @@ extern "C" mlb_status mlb_cuda_downsample_box_backward(float* din, const float* 
 }
 
 // ---- the guidance's conversions (image_convert.h), the CPU's bits ----
-__device__ inline int area_lo(int y, int H, int h) { return (int)((long long)y * H / h); }
-__device__ inline int area_hi(int y, int H, int h) { return (int)(((long long)(y + 1) * H + h - 1) / h); }
 // one thread per output value: its box summed in double, rows then columns, as the CPU
 __global__ void area_resize_kernel(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
     GRID_STRIDE(o, (size_t)n * C * h * w) {
         int x = (int)(o % w), y = (int)((o / w) % h), c = (int)((o / ((size_t)w * h)) % C);
         size_t b = o / ((size_t)w * h * C);
         int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h), x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
-        double inv = __ddiv_rn(1.0, (double)(y1 - y0) * (x1 - x0));
+        double inv = area_inv(y0, y1, x0, x1);
         double acc = 0;
         for (int yy = y0; yy < y1; yy++)
             for (int xx = x0; xx < x1; xx++) acc = __dadd_rn(acc, (double)src[((b * H + yy) * W + xx) * C + c]);
@@ -147,7 +146,7 @@ __global__ void area_resize_backward_kernel(float* dsrc, const float* ddst, int 
             for (int x = xa < 0 ? 0 : xa; x <= xb && x < w; x++) {
                 int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
                 if (xx < x0 || xx >= x1) continue;
-                double inv = __ddiv_rn(1.0, (double)(area_hi(y, H, h) - area_lo(y, H, h)) * (x1 - x0));
+                double inv = area_inv(area_lo(y, H, h), area_hi(y, H, h), x0, x1);
                 d = __fadd_rn(d, (float)__dmul_rn((double)ddst[((b * C + c) * h + y) * w + x], inv));
             }
         }

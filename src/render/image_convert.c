@@ -2,14 +2,15 @@
 // ops are in src/cuda/samples.cu and give these bits.
 #include "matlaber/image_convert.h"
 #include <stddef.h>
+#include "render/area_box.h"
 
 void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
     for (int b = 0; b < n; b++)
         for (int y = 0; y < h; y++) {
-            int y0 = (int)((long)y * H / h), y1 = (int)(((long)(y + 1) * H + h - 1) / h);
+            int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h);
             for (int x = 0; x < w; x++) {
-                int x0 = (int)((long)x * W / w), x1 = (int)(((long)(x + 1) * W + w - 1) / w);
-                double inv = 1.0 / ((double)(y1 - y0) * (x1 - x0));
+                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
+                double inv = area_inv(y0, y1, x0, x1);
                 for (int c = 0; c < C; c++) {
                     double s = 0;
                     for (int yy = y0; yy < y1; yy++)
@@ -23,10 +24,10 @@ void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, in
 void mlb_area_resize_nhwc_to_nchw_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
     for (int b = 0; b < n; b++)
         for (int y = 0; y < h; y++) {
-            int y0 = (int)((long)y * H / h), y1 = (int)(((long)(y + 1) * H + h - 1) / h);
+            int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h);
             for (int x = 0; x < w; x++) {
-                int x0 = (int)((long)x * W / w), x1 = (int)(((long)(x + 1) * W + w - 1) / w);
-                double inv = 1.0 / ((double)(y1 - y0) * (x1 - x0));
+                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
+                double inv = area_inv(y0, y1, x0, x1);
                 for (int c = 0; c < C; c++) {
                     float g = (float)(ddst[(((size_t)b * C + c) * h + y) * w + x] * inv);
                     for (int yy = y0; yy < y1; yy++)

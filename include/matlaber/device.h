@@ -69,5 +69,12 @@ mlb_status mlb_cuda_free(void* ptr);
 mlb_status mlb_cuda_trim(void);
 mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes);
 mlb_status mlb_cuda_copy_to_host(void* dst, const void* src, size_t bytes);
+// What has crossed between host and device through the two calls above since the program began
+// (every table upload and download goes through them): bytes each way and the number of copies.
+// The pipeline reports them per step of each stage (docs/cuda.md); all 0 without CUDA.
+typedef struct {
+    unsigned long long up_bytes, down_bytes, copies;
+} mlb_cuda_transfers;
+mlb_cuda_transfers mlb_cuda_transfers_get(void);
 
 #endif

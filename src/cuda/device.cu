@@ -143,12 +143,18 @@ extern "C" mlb_status mlb_cuda_free(void* ptr) {
     if (ptr) MLB_CUDA_CHECK(cudaFreeAsync(ptr, 0));
     return MLB_OK;
 }
+static mlb_cuda_transfers transfers;   // the host thread's copies (the program drives the GPU from one)
+extern "C" mlb_cuda_transfers mlb_cuda_transfers_get(void) { return transfers; }
 extern "C" mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes) {
     MLB_CUDA_CHECK(cudaMemcpy(dst, src, bytes, cudaMemcpyHostToDevice));
+    transfers.up_bytes += bytes;
+    transfers.copies++;
     return MLB_OK;
 }
 extern "C" mlb_status mlb_cuda_copy_to_host(void* dst, const void* src, size_t bytes) {
     MLB_CUDA_CHECK(cudaMemcpy(dst, src, bytes, cudaMemcpyDeviceToHost));
+    transfers.down_bytes += bytes;
+    transfers.copies++;
     return MLB_OK;
 }
 extern "C" mlb_status mlb_cuda_copy_d2d(void* dst, const void* src, size_t bytes) {

@@ -25,6 +25,7 @@ mlb_status mlb_cuda_malloc(void** ptr, size_t bytes) { *ptr = NULL; NO_CUDA; }
 mlb_status mlb_cuda_free(void* ptr) { if (!ptr) return MLB_OK; NO_CUDA; }
 mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes) { NO_CUDA; }
 mlb_status mlb_cuda_copy_to_host(void* dst, const void* src, size_t bytes) { NO_CUDA; }
+mlb_cuda_transfers mlb_cuda_transfers_get(void) { return (mlb_cuda_transfers){0, 0, 0}; }
 mlb_status mlb_cuda_init(int index) { NO_CUDA; }
 mlb_status mlb_cuda_sync(void) { NO_CUDA; }
 mlb_status mlb_cuda_memset(void* dst, int value, size_t bytes) { NO_CUDA; }

@@ -156,11 +156,18 @@ static mlb_status pipeline_agree(mlb_status s) {
 
 // A stage's steps per second and what the processes spent in collectives (docs/benchmarks.md,
 // "Several processes"): a log line at the stage's end.
-typedef struct { double t0, cpu0; mlb_dist_stats d0; } stage_clock;
+typedef struct { double t0, cpu0; mlb_dist_stats d0; mlb_cuda_transfers x0; } stage_clock;
 static double cpu_seconds(void) { return (double)clock() / CLOCKS_PER_SEC; }   // this process, every thread
-static stage_clock stage_clock_start(void) { return (stage_clock){mlb_now_seconds(), cpu_seconds(), mlb_dist_stats_get()}; }
+static stage_clock stage_clock_start(void) {
+    return (stage_clock){mlb_now_seconds(), cpu_seconds(), mlb_dist_stats_get(), mlb_cuda_transfers_get()};
+}
 static void stage_clock_report(const stage_clock* k, const char* stage, long steps) {
     if (steps < 1) return;
+    mlb_cuda_transfers x = mlb_cuda_transfers_get();
+    if (x.copies > k->x0.copies && mlb_dist_rank() == 0)   // a GPU run: what crossed the bus per step
+        mlb_log(MLB_LOG_INFO, "%s stage: host <-> GPU per step: %.0f bytes up, %.0f bytes down in %.1f copies", stage,
+                (double)(x.up_bytes - k->x0.up_bytes) / steps, (double)(x.down_bytes - k->x0.down_bytes) / steps,
+                (double)(x.copies - k->x0.copies) / steps);
     double t = mlb_now_seconds() - k->t0;
     mlb_dist_stats d = mlb_dist_stats_get();
     // per process: the stages' own CPU time (outside the collectives) and the wall time inside them

@@ -271,7 +271,8 @@ TEST(sds_guidance_matches_direct_step) {
             REQUIRE(tb->download(back, t_dg, N) == MLB_OK);
             printf("  %s on the guarded table: %ld ops, loss %s, gradient %s\n", ph[k].name, guard_ops - ops,
                    tloss == loss ? "the same" : "differs", memcmp(back, dg, N * 4) ? "differs" : "the same bits");
-            CHECK(tloss == loss && memcmp(back, dg, N * 4) == 0 && guard_ops - ops > 3);
+            // the VAE's and the UNet's ops went through the table too (a UNet forward alone is ~250)
+            CHECK(tloss == loss && memcmp(back, dg, N * 4) == 0 && guard_ops - ops > 200);
             tb->release(t_img);
             tb->release(t_dg);
             free(back);

@@ -273,6 +273,7 @@ TEST(guided_steps_stay_on_their_table) {
         printf("  geometry step %ld (%s): loss %.6g / %.6g, %ld guarded ops\n", step, step ? "VAE phase" : "latent phase",
                loss[0], loss[1], guard_ops - ops);
         CHECK(loss[0] == loss[1] && loss[0] > 0);
+        CHECK(guard_ops - ops > 200);   // the render, the guidance's models and arithmetic went through the table
         CHECK(same(img[0], img[1], sizeof(float) * m));
         CHECK(same(grads[0], grads[1], sizeof(float) * np));
     }
@@ -288,7 +289,9 @@ TEST(guided_steps_stay_on_their_table) {
     float* dimg = malloc(sizeof(float) * m);
     float* agrads[2] = {malloc(sizeof(float) * net.n_params), malloc(sizeof(float) * net.n_params)};
     double aloss[2];
-    for (int t = 0; t < 2; t++) {   // t 0: the renders come down to the host guidance; t 1: they stay
+    long aops[2];
+    for (int t = 0; t < 2; t++) {
+        aops[t] = guard_ops;   // t 0: the renders come down to the host guidance; t 1: they stay
         mlb_appearance app;
         memset(&app, 0, sizeof app);
         app.be = guarded_table();
@@ -305,11 +308,13 @@ TEST(guided_steps_stay_on_their_table) {
                                               RES, dimg, &aloss[t]) == MLB_OK);
             REQUIRE(mlb_appearance_backward(&app, &net, dimg) == MLB_OK);
         }
+        aops[t] = guard_ops - aops[t];
         REQUIRE(mlb_field_grads_get(&net, agrads[t]) == MLB_OK);
         mlb_appearance_free(&app);
     }
-    printf("  appearance: loss %.6g / %.6g\n", aloss[0], aloss[1]);
+    printf("  appearance: loss %.6g / %.6g, %ld / %ld guarded ops\n", aloss[0], aloss[1], aops[0], aops[1]);
     CHECK(aloss[0] == aloss[1] && aloss[0] > 0);
+    CHECK(aops[1] > aops[0] + 200);   // on the table, the guidance's models ran there too
     CHECK(same(agrads[0], agrads[1], sizeof(float) * net.n_params));
     REQUIRE(mlb_field_leave_device(&net) == MLB_OK);
     free(dimg); free(agrads[0]); free(agrads[1]);

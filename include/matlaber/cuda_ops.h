@@ -20,14 +20,20 @@
 #include "matlaber/shade.h"
 
 #define MLB_OP_MAX_ROWS 128   // the per-row host coefficients of the ops axpby_rows and sds_grad
-// A double as three floats that add up to it exactly (sds_grad's sum of squares): hi, mid, lo.
-static inline void mlb_sumsq_split(double l, float* f) {
+// A double as three floats that add up to it exactly (sds_grad's sum of squares): hi, mid, lo. The
+// CPU op and the CUDA kernel both split with this.
+#ifdef __CUDACC__
+#define MLB_SUMSQ_FN static inline __host__ __device__
+#else
+#define MLB_SUMSQ_FN static inline
+#endif
+MLB_SUMSQ_FN void mlb_sumsq_split(double l, float* f) {
     f[0] = (float)l;
     double r = l - (double)f[0];
     f[1] = (float)r;
     f[2] = (float)(r - (double)f[1]);
 }
-static inline double mlb_sumsq_join(const float* f) { return ((double)f[0] + (double)f[1]) + (double)f[2]; }
+MLB_SUMSQ_FN double mlb_sumsq_join(const float* f) { return ((double)f[0] + (double)f[1]) + (double)f[2]; }
 
 // ---- context ----
 // mlb_cuda_init: device.h (device selection calls it)

@@ -257,13 +257,7 @@ __global__ void sum_squares_kernel(float* out, const float* g, size_t n) {
         if ((int)threadIdx.x < s) part[threadIdx.x] = __dadd_rn(part[threadIdx.x], part[threadIdx.x + s]);
         __syncthreads();
     }
-    if (threadIdx.x == 0) {   // mlb_sumsq_split
-        double l = part[0];
-        out[0] = (float)l;
-        double r = __dsub_rn(l, (double)out[0]);
-        out[1] = (float)r;
-        out[2] = (float)__dsub_rn(r, (double)out[1]);
-    }
+    if (threadIdx.x == 0) mlb_sumsq_split(part[0], out);
 }
 extern "C" mlb_status mlb_cuda_sds_grad(float* eps, float* grad, float* dz, float* sumsq, const float* noise, int B,
                                         size_t n, float scale, const float* w, float div, float mul) {

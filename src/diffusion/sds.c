@@ -171,15 +171,14 @@ mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, i
     return MLB_OK;
 }
 
-// Where the VAE runs when the images live on be's device: on its own table (a GPU copy, or the CPU's
-// bf16 ops), else an fp32 CPU model on be itself (the CPU's table, or a test's guarded one).
-static mlb_status vae_where(const mlb_sds* s, const mlb_backend* be, const mlb_backend** vbe, const mlb_vae** vm) {
-    const mlb_vae* v = s->vae;
-    *vbe = v->mirror_ops ? v->mirror_ops : be;
-    *vm = v->mirror ? v->mirror : v;
-    if ((*vbe)->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "SDS: the images are on the %s, the VAE runs on the %s", mlb_device_name(be->device),
-                        mlb_device_name((*vbe)->device));
+// The table a model runs on when its inputs live on be's device: its own (mirror_ops: a GPU copy,
+// or the CPU's bf16 / 16-bit-weight ops), else an fp32 CPU model runs on be itself (the CPU's table,
+// or a test's guarded one); it must be on be's device.
+static mlb_status model_table(const mlb_backend* own, const mlb_backend* be, const char* what, const mlb_backend** out) {
+    *out = own ? own : be;
+    if ((*out)->device != be->device)
+        return mlb_fail(MLB_ERR_ARG, "SDS: the inputs are on the %s, the %s runs on the %s", mlb_device_name(be->device),
+                        what, mlb_device_name((*out)->device));
     return MLB_OK;
 }
 
@@ -220,17 +219,6 @@ static mlb_status trace_fill(mlb_sds_trace* tr, const mlb_backend* be, const flo
     return st;
 }
 
-// Where the UNet runs when the latents live on be's device: as the VAE (vae_where).
-static mlb_status unet_where(const mlb_sds* s, const mlb_backend* be, const mlb_backend** ube, const mlb_unet** um) {
-    const mlb_unet* u = s->unet;
-    *ube = u->mirror_ops ? u->mirror_ops : be;
-    *um = u->mirror ? u->mirror : u;
-    if ((*ube)->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "SDS: the latents are on the %s, the UNet runs on the %s", mlb_device_name(be->device),
-                        mlb_device_name((*ube)->device));
-    return MLB_OK;
-}
-
 // The embeddings on be's device (uploaded when they or the device changed).
 static mlb_status embeddings_on(mlb_sds* s, const mlb_backend* be) {
     const size_t nc = (size_t)s->Tc * s->Dc;
@@ -265,10 +253,10 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
     int h, w;
     MLB_TRY(mlb_sds_latent_shape(s, C, H, W, NULL, &h, &w));
     const mlb_backend *vbe = NULL, *ube;
-    const mlb_vae* vm = NULL;
-    const mlb_unet* um;
-    if (C != Lc) MLB_TRY(vae_where(s, be, &vbe, &vm));
-    MLB_TRY(unet_where(s, be, &ube, &um));
+    const mlb_vae* vm = s->vae && s->vae->mirror ? s->vae->mirror : s->vae;   // the copies the tables run
+    const mlb_unet* um = s->unet->mirror ? s->unet->mirror : s->unet;
+    if (C != Lc) MLB_TRY(model_table(s->vae->mirror_ops, be, "VAE", &vbe));
+    MLB_TRY(model_table(s->unet->mirror_ops, be, "UNet", &ube));
     MLB_TRY(embeddings_on(s, be));
     const size_t n = (size_t)Lc * h * w, nimg = (size_t)B * C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;

@@ -491,22 +491,22 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     (void)dmean_dev;
 #endif
     {
-    d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
-    s = d ? FN(vae_host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
-    if (!s) {
-        for (int n = 0; n < N; n++) {
-            real* dn = d + (size_t)n * 2 * zn;
-            const real* m = mh + (size_t)n * 2 * zn;
-            for (size_t i = 0; i < zn; i++) {
-                dn[i] = dmean ? dmean[(size_t)n * zn + i] : 0;
-                real lv = m[zn + i];
-                dn[zn + i] = dlogvar && lv >= (real)LOGVAR_MIN && lv <= (real)LOGVAR_MAX ? dlogvar[(size_t)n * zn + i] : 0;
+        d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
+        s = d ? FN(vae_host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
+        if (!s) {
+            for (int n = 0; n < N; n++) {
+                real* dn = d + (size_t)n * 2 * zn;
+                const real* m = mh + (size_t)n * 2 * zn;
+                for (size_t i = 0; i < zn; i++) {
+                    dn[i] = dmean ? dmean[(size_t)n * zn + i] : 0;
+                    real lv = m[zn + i];
+                    dn[zn + i] = dlogvar && lv >= (real)LOGVAR_MIN && lv <= (real)LOGVAR_MAX ? dlogvar[(size_t)n * zn + i] : 0;
+                }
             }
+            if (d != T1) s = op_upload(be, T1, d, nm);
         }
-        if (d != T1) s = op_upload(be, T1, d, nm);
-    }
-    free(mtmp);
-    if (d != T1) free(d);
+        free(mtmp);
+        if (d != T1) free(d);
     }
 #define OTHER(x) ((x) == D0 ? D1 : D0)
     if (!s) s = op_zero(be, D0, nm);

@@ -17,8 +17,13 @@
 
 enum { OP_RAST, OP_RAST_B, OP_INTERP, OP_INTERP_B, OP_AA, OP_AA_B, OP_COUNT };
 static int calls[OP_COUNT];
+static size_t uploaded;   // floats that went up through the table
 static mlb_backend spy;
 
+static mlb_status spy_upload(float* dst, const float* src, size_t n) {
+    uploaded += n;
+    return mlb_backend_cpu()->upload(dst, src, n);
+}
 static mlb_status spy_rasterize(int32_t* tri, float* bary, float* depth, const float* clip, int V, const int32_t* faces,
                                 int F, int H, int W) {
     calls[OP_RAST]++;
@@ -63,7 +68,9 @@ static const mlb_backend* spy_table(void) {
     spy.interpolate_backward = spy_interpolate_backward;
     spy.antialias = spy_antialias;
     spy.antialias_backward = spy_antialias_backward;
+    spy.upload = spy_upload;
     memset(calls, 0, sizeof calls);
+    uploaded = 0;
     return &spy;
 }
 
@@ -226,6 +233,46 @@ TEST(appearance_calls_the_table) {
     scene_free(&sc);
 }
 
+// The appearance stage renders one mesh every step: it goes up once, the views' clip coordinates are
+// made on the table, and a later render of the same mesh uploads nothing; a changed mesh (the same
+// sizes, one vertex moved) goes up again and renders as it would in a fresh renderer.
+TEST(appearance_keeps_its_mesh_on_the_table) {
+    const mlb_backend* be = spy_table();
+    scene sc;
+    REQUIRE(scene_init(&sc, 32, 16));
+    mlb_brdf_ae prior;
+    mlb_material_net net;
+    REQUIRE(small_material_net(&net, &prior));
+    enum { N = 3, RES = 24 };
+    mlb_view views[N];
+    make_views(views, N);
+    size_t m = (size_t)N * RES * RES * 4;
+    float *first = malloc(sizeof(float) * m), *again = malloc(sizeof(float) * m), *fresh = malloc(sizeof(float) * m);
+    mlb_appearance app, other;
+    memset(&app, 0, sizeof app);
+    memset(&other, 0, sizeof other);
+    app.be = other.be = be;
+    REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, N, RES, 1, first, 0) == MLB_OK);
+    size_t mesh_floats = (size_t)sc.mesh.n_verts * 9 + (size_t)sc.mesh.n_faces * 6;   // pos, attr, faces, adj
+    CHECK_MSG(uploaded == mesh_floats, "first render uploaded %zu floats, the mesh is %zu", uploaded, mesh_floats);
+    uploaded = 0;
+    REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, N, RES, 1, again, 0) == MLB_OK);
+    CHECK_MSG(uploaded == 0, "a second render of the same mesh uploaded %zu floats", uploaded);
+    CHECK(same(first, again, sizeof(float) * m));
+    sc.mesh.pos[3 * 5 + 1] += 0.05f;   // the same sizes, another mesh
+    REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, N, RES, 1, again, 0) == MLB_OK);
+    CHECK(uploaded == mesh_floats);
+    REQUIRE(mlb_appearance_render(&other, &net, &sc.mesh, sc.ptr, views, N, RES, 1, fresh, 0) == MLB_OK);
+    CHECK(same(again, fresh, sizeof(float) * m));
+    CHECK(!same(first, again, sizeof(float) * m));
+    mlb_appearance_free(&app);
+    mlb_appearance_free(&other);
+    free(first); free(again); free(fresh);
+    material_net_free(&net);
+    brdf_ae_free(&prior);
+    scene_free(&sc);
+}
+
 // Score distillation on the renders where they are (guidance.h loss_on): the geometry step with a tiny
 // random SDS model on the guarded table, in the latent phase (step 0) and the VAE's (step 1), keeps
 // every render and its gradient there and gives the bits of the CPU's step whose renders come down
@@ -334,6 +381,7 @@ int main(void) {
     RUN(geometry_stage_calls_the_table);
     RUN(geometry_stage_stays_on_its_table);
     RUN(appearance_calls_the_table);
+    RUN(appearance_keeps_its_mesh_on_the_table);
     RUN(guided_steps_stay_on_their_table);
     rmdir(tmpdir);
     return test_summary();

@@ -34,9 +34,9 @@ static void* abuf_get(abuf* b, size_t bytes) {
 }
 
 // host scratch, then the buffers on the render's table (int32 ones cast from real)
-enum { H_ATTR, H_POS, H_CLIP, H_ADJ, H_NORMALS, H_START, H_LIGHTS, H_KEYS, H_COUNT };
+enum { H_ATTR, H_POS, H_ADJ, H_NORMALS, H_START, H_LIGHTS, H_KEYS, H_MESH_POS, H_MESH_FACES, H_MESH_NORMAL, H_COUNT };
 enum {
-    D_ATTR, D_CLIP, D_FACES, D_ADJ, D_TRI, D_BARY, D_DEPTH, D_COLOR, D_WEIGHTS, D_AA, D_PIX, D_OUT, D_DOUT, D_INDEX,
+    D_ATTR, D_POS, D_CLIP, D_FACES, D_ADJ, D_TRI, D_BARY, D_DEPTH, D_COLOR, D_WEIGHTS, D_AA, D_PIX, D_OUT, D_DOUT, D_INDEX,
     D_WHERE, D_PTS, D_NRM, D_VDIR, D_K, D_KD, D_KS, D_KR, D_RGB,
     D_DAA, D_DCOLOR, D_DRGB, D_DKD, D_DKS, D_DKR, D_DK, D_COUNT
 };
@@ -51,6 +51,10 @@ struct FN(mlb_appearance_state) {
     int v0, v1;                           // the views rendered: [v0, v1) (a part, or all)
     int32_t *adj, *tri, *where, *start;   // on the table but start [n_views + 1] (host): first sample of each view
     int32_t* faces;
+    // The mesh on the table (pos, attr, faces, adj) is the one of the host copies H_MESH_*: a render
+    // of the same mesh (the appearance stage's every step) uploads nothing of it again.
+    int mesh_on_table, mesh_has_normal;
+    real* pos;                            // [V,3] on the table: the views' clip coordinates are made there
     real *clip, *depth, *color, *weights; // per view: [V,4], [P], [P,4], [P,2]
     real *pts, *nrm, *vdir, *kd, *ks, *kr, *rgb;
     mlb_envlight* lights;                 // [n_views] (host): copies with the view's rotation
@@ -76,6 +80,7 @@ static void FN(release_table)(struct FN(mlb_appearance_state)* s) {
     for (int i = 0; i < s->n_handles; i++) s->tb->light_free(s->handle[i]);
     s->n_handles = 0;
     s->tb = NULL;
+    s->mesh_on_table = 0;
 }
 
 void FN(mlb_appearance_free)(FN(mlb_appearance)* a) {
@@ -113,6 +118,53 @@ static mlb_status FN(mesh_attr)(abuf* normals, const mlb_mesh* mesh, real* attr)
             attr[ATTR_C * i + c] = (real)mesh->pos[3 * i + c];
             attr[ATTR_C * i + 3 + c] = (real)vn[3 * i + c];
         }
+    return MLB_OK;
+}
+
+// 1 when mesh is the one already on the table (the same numbers, not merely the same address).
+static int FN(mesh_is_on_table)(const struct FN(mlb_appearance_state)* s, const mlb_mesh* mesh) {
+    size_t V = (size_t)mesh->n_verts, F = (size_t)mesh->n_faces;
+    return s->mesh_on_table && s->V == mesh->n_verts && s->F == mesh->n_faces &&
+           s->mesh_has_normal == (mesh->normal != NULL) && !memcmp(s->h[H_MESH_POS].p, mesh->pos, sizeof(float) * 3 * V) &&
+           !memcmp(s->h[H_MESH_FACES].p, mesh->faces, sizeof(int32_t) * 3 * F) &&
+           (!mesh->normal || !memcmp(s->h[H_MESH_NORMAL].p, mesh->normal, sizeof(float) * 3 * V));
+}
+
+// The mesh's positions, attributes [V,6], faces and edge topology on the table, and the host copies
+// that recognise it next time.
+static mlb_status FN(mesh_to_table)(struct FN(mlb_appearance_state)* s, const mlb_mesh* mesh) {
+    const mlb_backend* tb = s->tb;
+    int V = mesh->n_verts, F = mesh->n_faces;
+    s->mesh_on_table = 0;
+    real* attr_h = abuf_get(&s->h[H_ATTR], sizeof(real) * ATTR_C * (size_t)V);
+    real* pos_h = abuf_get(&s->h[H_POS], sizeof(real) * 3 * (size_t)V);
+    int32_t* adj_h = abuf_get(&s->h[H_ADJ], sizeof(int32_t) * 3 * (size_t)F);
+    float* key_pos = abuf_get(&s->h[H_MESH_POS], sizeof(float) * 3 * (size_t)V);
+    int32_t* key_faces = abuf_get(&s->h[H_MESH_FACES], sizeof(int32_t) * 3 * (size_t)F);
+    float* key_normal = mesh->normal ? abuf_get(&s->h[H_MESH_NORMAL], sizeof(float) * 3 * (size_t)V) : NULL;
+    if (!attr_h || !pos_h || !adj_h || !key_pos || !key_faces || (mesh->normal && !key_normal))
+        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
+    MLB_TRY(FN(mesh_attr)(&s->h[H_NORMALS], mesh, attr_h));
+    for (size_t i = 0; i < 3 * (size_t)V; i++) pos_h[i] = (real)mesh->pos[i];
+    MLB_TRY(mlb_edge_topology(adj_h, mesh->faces, F, V));
+    real* attr = FN(tbuf_get)(tb, &s->d[D_ATTR], ATTR_C * (size_t)V);
+    s->pos = FN(tbuf_get)(tb, &s->d[D_POS], 3 * (size_t)V);
+    s->faces = (int32_t*)FN(tbuf_get)(tb, &s->d[D_FACES], 3 * (size_t)F);
+    s->adj = (int32_t*)FN(tbuf_get)(tb, &s->d[D_ADJ], 3 * (size_t)F);
+    if (!attr || !s->pos || !s->faces || !s->adj)
+        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (a mesh of %d vertices)",
+                        mlb_device_name(tb->device), V);
+    MLB_TRY(FN(t_upload)(tb, attr, attr_h, ATTR_C * (size_t)V));
+    MLB_TRY(FN(t_upload)(tb, s->pos, pos_h, 3 * (size_t)V));
+    MLB_TRY(FN(t_upload_i32)(tb, s->faces, mesh->faces, 3 * (size_t)F));
+    MLB_TRY(FN(t_upload_i32)(tb, s->adj, adj_h, 3 * (size_t)F));
+    memcpy(key_pos, mesh->pos, sizeof(float) * 3 * (size_t)V);
+    memcpy(key_faces, mesh->faces, sizeof(int32_t) * 3 * (size_t)F);
+    if (mesh->normal) memcpy(key_normal, mesh->normal, sizeof(float) * 3 * (size_t)V);
+    s->mesh_has_normal = mesh->normal != NULL;
+    s->V = V;
+    s->F = F;
+    s->mesh_on_table = 1;
     return MLB_OK;
 }
 
@@ -242,23 +294,15 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     size_t nr = (size_t)(s->v1 - s->v0);   // the views rendered
     if (P * nr >= (size_t)INT32_MAX)       // the coverage scan's indices are int32
         return mlb_fail(MLB_ERR_ARG, "appearance render: %zu views of %dx%d pixels are too many for one render", nr, S, S);
-    // the mesh and the cameras on the host (small), then on the table
-    real* attr_h = abuf_get(&s->h[H_ATTR], sizeof(real) * ATTR_C * (size_t)V);
-    real* clip_h = abuf_get(&s->h[H_CLIP], sizeof(real) * 4 * (size_t)V * nv);
-    int32_t* adj_h = abuf_get(&s->h[H_ADJ], sizeof(int32_t) * 3 * (size_t)F);
+    // the mesh on the table once (the stage renders one mesh every step); the views' clip
+    // coordinates are made there from it
     s->start = abuf_get(&s->h[H_START], sizeof(int32_t) * (nv + 1));
     s->lights = abuf_get(&s->h[H_LIGHTS], sizeof(mlb_envlight) * nv);
     s->light_keys = abuf_get(&s->h[H_KEYS], sizeof(mlb_envlight*) * nv);
-    real* pos = abuf_get(&s->h[H_POS], sizeof(real) * 3 * (size_t)V);
-    if (!attr_h || !pos || !clip_h || !adj_h || !s->start || !s->lights || !s->light_keys)
-        return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
-    MLB_TRY(FN(mesh_attr)(&s->h[H_NORMALS], mesh, attr_h));
-    for (size_t i = 0; i < 3 * (size_t)V; i++) pos[i] = (real)mesh->pos[i];
-    MLB_TRY(mlb_edge_topology(adj_h, mesh->faces, F, V));
-    real* attr = FN(tbuf_get)(tb, &s->d[D_ATTR], ATTR_C * (size_t)V);
+    if (!s->start || !s->lights || !s->light_keys) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
+    if (!FN(mesh_is_on_table)(s, mesh)) MLB_TRY(FN(mesh_to_table)(s, mesh));
+    real* attr = s->d[D_ATTR].p;
     s->clip = FN(tbuf_get)(tb, &s->d[D_CLIP], 4 * (size_t)V * nv);
-    s->faces = (int32_t*)FN(tbuf_get)(tb, &s->d[D_FACES], 3 * (size_t)F);
-    s->adj = (int32_t*)FN(tbuf_get)(tb, &s->d[D_ADJ], 3 * (size_t)F);
     s->tri = (int32_t*)FN(tbuf_get)(tb, &s->d[D_TRI], P * nv);
     real* bary = FN(tbuf_get)(tb, &s->d[D_BARY], 2 * P * nv);
     s->depth = FN(tbuf_get)(tb, &s->d[D_DEPTH], P * nv);
@@ -269,15 +313,10 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     real* out = FN(tbuf_get)(tb, &s->d[D_OUT], 4 * p * nv);   // every view's render [n, res, res, 4]
     real* dout = FN(tbuf_get)(tb, &s->d[D_DOUT], 4 * p * nv);
     int32_t* index = (int32_t*)FN(tbuf_get)(tb, &s->d[D_INDEX], P * nr + 1);
-    if (!attr || !s->clip || !s->faces || !s->adj || !s->tri || !bary || !s->depth || !s->color || !s->weights || !aa ||
+    if (!s->clip || !s->tri || !bary || !s->depth || !s->color || !s->weights || !aa ||
         !pix || !out || !dout || !index)
         return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (%d views at %dx%d)",
                         mlb_device_name(tb->device), n, S, S);
-    MLB_TRY(FN(t_upload)(tb, attr, attr_h, ATTR_C * (size_t)V));
-    MLB_TRY(FN(t_upload_i32)(tb, s->faces, mesh->faces, 3 * (size_t)F));
-    MLB_TRY(FN(t_upload_i32)(tb, s->adj, adj_h, 3 * (size_t)F));
-    s->V = V;
-    s->F = F;
     s->n_views = n;
     s->res = res;
     s->ss = ss;
@@ -285,10 +324,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // rasterize every view of the part; each covered pixel's sample index from the scan of the
     // coverage over the part's views (view-major, pixel order); the other views have no samples
     for (int v = s->v0; v < s->v1; v++) {
-        real* ch = clip_h + 4 * (size_t)V * v;
-        FN(mlb_transform_points)(ch, pos, V, &views[v].cam.view_proj);
         s->light_keys[v] = lights[views[v].env];
-        MLB_TRY(FN(t_upload)(tb, s->clip + 4 * (size_t)V * v, ch, 4 * (size_t)V));
+        MLB_TRY(T_TRANSFORM(tb, s->clip + 4 * (size_t)V * v, s->pos, V, &views[v].cam.view_proj));
         MLB_TRY(FN(rt_rasterize)(tb, s->ctx, s->tri + P * v, bary + 2 * P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v,
                                  V, s->faces, F, S, S));
     }

@@ -195,6 +195,17 @@ static mlb_status call_axpby_rows(const mlb_backend* be, float** p, const op_cas
     return be->axpby_rows(p[0], p[1], p[2], c->s[0], (size_t)c->s[1], rows_a, rows_c);
 }
 
+// fill_normal: out; s = n, offset, 1: the offset plus 2^32 (the counter's high word)
+static void setup_fill_normal(op_case* c, draw* d, int t) {
+    c->s[0] = dim(d, t, 5000), c->s[1] = t ? pick(d, 0, 100000) : 0, c->s[2] = t == 3;
+    OUT_("out", (size_t)c->s[0], B_ELEM);
+    snprintf(c->shape, sizeof c->shape, "%d values from %d%s", c->s[0], c->s[1], c->s[2] ? " + 2^32" : "");
+}
+static mlb_status call_fill_normal(const mlb_backend* be, float** p, const op_case* c) {
+    uint64_t offset = (uint64_t)c->s[1] + (c->s[2] ? 1ull << 32 : 0);
+    return be->fill_normal(p[0], (size_t)c->s[0], 0x123456789ull, 0x5D5100000007ull, offset);
+}
+
 // sds_grad: eps (in place: compared as an increment), grad, dz, sumsq, noise; s = B, n, div 1 or 3
 static void setup_sds_grad(op_case* c, draw* d, int t) {
     c->s[0] = t ? pick(d, 1, 5) : 1, c->s[1] = dim(d, t, 3000), c->s[2] = t % 2 ? 3 : 1;

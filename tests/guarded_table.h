@@ -225,6 +225,9 @@ static mlb_status guard_geglu(float* out, const float* in, int rows, int C4) { G
 static mlb_status guard_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) {
     GUARDED(CPU_->upsample_nearest2x(out, in, N, C, H, W));
 }
+static mlb_status guard_fill_normal(float* out, size_t n, uint64_t seed, uint64_t stream, uint64_t offset) {
+    GUARDED(CPU_->fill_normal(out, n, seed, stream, offset));
+}
 static mlb_status guard_axpby_rows(float* out, const float* x, const float* y, int B, size_t n, const float* a,
                                    const float* c) {
     GUARDED(CPU_->axpby_rows(out, x, y, B, n, a, c));
@@ -268,7 +271,7 @@ static const mlb_backend* guarded_table(void) {
     GUARD_USE(area_resize); GUARD_USE(area_resize_backward); GUARD_USE(renders_to_sd); GUARD_USE(renders_to_sd_backward);
     GUARD_USE(groupnorm); GUARD_USE(groupnorm_backward); GUARD_USE(attention); GUARD_USE(transpose_last2);
     GUARD_USE(layernorm); GUARD_USE(add_channel); GUARD_USE(geglu); GUARD_USE(upsample_nearest2x);
-    GUARD_USE(axpby_rows); GUARD_USE(sds_grad); GUARD_USE(layernorm_stats);
+    GUARD_USE(axpby_rows); GUARD_USE(fill_normal); GUARD_USE(sds_grad); GUARD_USE(layernorm_stats);
 #undef GUARD_USE
     return &t;
 }

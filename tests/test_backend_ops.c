@@ -24,7 +24,8 @@
 //     is bf16 and not the fp32 op in the wrong slot.
 //   CUDA tables (the bounds of the parity tests test_cuda_*):
 //     copies, adds, the transpose, the upsample: 0 (one thread per value, the CPU's float ops)
-//     elementwise with libm functions, the norms, the upsample's block sums: 1e-5 (CUDA's libm
+//     elementwise with libm functions (fill_normal's log and cos in double), the norms, the
+//       upsample's block sums: 1e-5 (CUDA's libm
 //       within 2 ulp of glibc's; statistics in double on both sides)
 //     sums in another order (hash grid, AdamW, bias gradients, add_channel's backward): 1e-5
 //     shading 1e-4, its gradients 1e-3 (float on the GPU, double on the CPU: test_cuda_shade)

@@ -1,34 +1,19 @@
 // Philox4x32-10 (Salmon, Moraes, Dror, Shaw: "Parallel random numbers: as easy as 1, 2, 3", SC'11).
 #include "matlaber/rng.h"
 #include <math.h>
-
-#define PHILOX_M0 0xD2511F53u
-#define PHILOX_M1 0xCD9E8D57u
-#define PHILOX_W0 0x9E3779B9u   // golden ratio
-#define PHILOX_W1 0xBB67AE85u   // sqrt(3) - 1
+#include "core/philox.h"
 
 mlb_u32x4 mlb_philox4x32_10(const uint32_t counter[4], const uint32_t key[2]) {
-    uint32_t c0 = counter[0], c1 = counter[1], c2 = counter[2], c3 = counter[3];
-    uint32_t k0 = key[0], k1 = key[1];
-    for (int round = 0; round < 10; round++) {
-        uint64_t p0 = (uint64_t)PHILOX_M0 * c0, p1 = (uint64_t)PHILOX_M1 * c2;
-        uint32_t hi0 = (uint32_t)(p0 >> 32), lo0 = (uint32_t)p0;
-        uint32_t hi1 = (uint32_t)(p1 >> 32), lo1 = (uint32_t)p1;
-        c0 = hi1 ^ c1 ^ k0;
-        c1 = lo1;
-        c2 = hi0 ^ c3 ^ k1;
-        c3 = lo0;
-        k0 += PHILOX_W0;
-        k1 += PHILOX_W1;
-    }
-    mlb_u32x4 r = {{c0, c1, c2, c3}};
+    mlb_u32x4 r;
+    mlb_philox_words(((uint64_t)key[1] << 32) | key[0], ((uint64_t)counter[3] << 32) | counter[2],
+                     ((uint64_t)counter[1] << 32) | counter[0], r.v);
     return r;
 }
 
 mlb_u32x4 mlb_rng_words(uint64_t seed, uint64_t stream, uint64_t index) {
-    uint32_t ctr[4] = {(uint32_t)index, (uint32_t)(index >> 32), (uint32_t)stream, (uint32_t)(stream >> 32)};
-    uint32_t key[2] = {(uint32_t)seed, (uint32_t)(seed >> 32)};
-    return mlb_philox4x32_10(ctr, key);
+    mlb_u32x4 r;
+    mlb_philox_words(seed, stream, index, r.v);
+    return r;
 }
 
 double mlb_u32_to_unit(uint32_t x) { return (double)x * (1.0 / 4294967296.0); }
@@ -46,10 +31,7 @@ float mlb_rng_uniform(uint64_t seed, uint64_t stream, uint64_t index) {
 }
 
 double mlb_rng_normal_f64(uint64_t seed, uint64_t stream, uint64_t index) {
-    mlb_u32x4 w = mlb_rng_words(seed, stream, index);
-    double u1 = ((double)w.v[0] + 0.5) * (1.0 / 4294967296.0);   // (0, 1): log is finite
-    double u2 = (double)w.v[1] * (1.0 / 4294967296.0);
-    return sqrt(-2.0 * log(u1)) * cos(2.0 * M_PI * u2);
+    return mlb_philox_normal(seed, stream, index);
 }
 
 float mlb_rng_normal(uint64_t seed, uint64_t stream, uint64_t index) {

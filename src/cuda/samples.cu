@@ -7,6 +7,7 @@
 #include "common.cuh"
 #include "render/sample_math.h"
 #include "render/area_box.h"
+#include "core/philox.h"
 
 #define GRID_STRIDE(i, n) \
     for (size_t i = (size_t)blockIdx.x * blockDim.x + threadIdx.x; i < (n); i += (size_t)gridDim.x * blockDim.x)
@@ -232,6 +233,15 @@ extern "C" mlb_status mlb_cuda_axpby_rows(float* out, const float* x, const floa
     for (int b = 0; b < B; b++) r.a[b] = a[b], r.c[b] = c[b];
     axpby_rows_kernel<<<mlb_grid(total, 256), 256>>>(out, x, y, n, total, r);
     MLB_CUDA_LAUNCHED("axpby_rows_kernel");
+    return MLB_OK;
+}
+__global__ void fill_normal_kernel(float* out, size_t n, uint64_t seed, uint64_t stream, uint64_t offset) {
+    GRID_STRIDE(i, n) out[i] = (float)mlb_philox_normal(seed, stream, offset + i);
+}
+extern "C" mlb_status mlb_cuda_fill_normal(float* out, size_t n, uint64_t seed, uint64_t stream, uint64_t offset) {
+    if (!n) return MLB_OK;
+    fill_normal_kernel<<<mlb_grid(n, 256), 256>>>(out, n, seed, stream, offset);
+    MLB_CUDA_LAUNCHED("fill_normal_kernel");
     return MLB_OK;
 }
 __global__ void sds_grad_kernel(float* eps, float* grad, float* dz, const float* noise, size_t n, size_t nall, float scale,

@@ -261,13 +261,13 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
     const size_t n = (size_t)Lc * h * w, nimg = (size_t)B * C * H * W, nall = (size_t)B * n;
     const size_t nc = (size_t)s->Tc * s->Dc;
     // on be's device: z | noise | x2 [2B] | e2 [2B] | ctx [2B] | grad | dz | the loss's 3 floats;
-    // the host draws t and the noise (uploaded: the one latent-sized crossing) and reads the loss
+    // the host draws t, the device the noise (the caller's noise is uploaded), the host reads the loss
     const size_t need = nall * 8 + 2 * (size_t)B * nc + 3;
-    float *buf = NULL, *img = NULL, *hnoise = malloc(nall * sizeof(float));
+    float *buf = NULL, *img = NULL, *hnoise = NULL;
     int ts[MLB_SDS_MAX_BATCH];
     float tt[2 * MLB_SDS_MAX_BATCH], wt[MLB_SDS_MAX_BATCH], sa[2 * MLB_SDS_MAX_BATCH], sb[2 * MLB_SDS_MAX_BATCH];
     const double two = 2.0, minus_one = -1.0, sf = s->scaling_factor;
-    mlb_status st = hnoise ? be->alloc(&buf, need) : mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS step");
+    mlb_status st = be->alloc(&buf, need);
     if (st) goto done;
     float *z = buf, *noise = z + nall, *x2 = noise + nall, *e2 = x2 + 2 * nall, *ctx = e2 + 2 * nall;
     float *grad = ctx + 2 * (size_t)B * nc, *dz = grad + nall, *sumsq = dz + nall;
@@ -280,7 +280,7 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
         st = be->affine_columns(z, z, nall, 1, &sf, NULL, 1);
     }
     if (st) goto done;
-    // 2. timesteps and noise (the host's), x_t, the batch [cond x B, uncond x B]
+    // 2. timesteps (the host's) and noise, x_t, the batch [cond x B, uncond x B]
     for (int b = 0; b < B; b++) {
         int t;
         if (in->t) {
@@ -294,20 +294,25 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
         wt[b] = mlb_sds_weight(s->opt.weighting, s->ac[t], in->step, s->opt.coarse_iter);
         sa[b] = sa[B + b] = (float)sqrt((double)s->ac[t]);   // schedule.h's add_noise and v_to_eps
         sb[b] = sb[B + b] = (float)sqrt(1.0 - (double)s->ac[t]);
-        if (in->noise) memcpy(hnoise + b * n, in->noise + b * n, n * sizeof(float));
-        else mlb_rng_fill_normal(hnoise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step, (uint64_t)(first + b) * n, 0.0f, 1.0f);
+        if (!in->noise && (st = be->fill_normal(noise + b * n, n, s->opt.seed, SDS_STREAM_NOISE + (uint64_t)in->step,
+                                                (uint64_t)(first + b) * n)) != MLB_OK)
+            goto done;
         int v = in->views ? in->views[b] : MLB_SDS_VIEW_NONE;
         if (v < 0 || v >= MLB_SDS_N_VIEWS) { st = mlb_fail(MLB_ERR_ARG, "SDS view %d out of range", v); goto done; }
         if ((st = be->copy(ctx + (size_t)b * nc, s->emb_dev + v * nc, nc)) != MLB_OK) goto done;
         if ((st = be->copy(ctx + (size_t)(B + b) * nc, s->emb_dev + MLB_SDS_N_VIEWS * nc, nc)) != MLB_OK) goto done;
     }
-    if ((st = be->upload(noise, hnoise, nall)) != MLB_OK) goto done;
+    if (in->noise && (st = be->upload(noise, in->noise, nall)) != MLB_OK) goto done;
     if ((st = be->axpby_rows(x2, z, noise, B, n, sa, sb)) != MLB_OK) goto done;
     if ((st = be->copy(x2 + nall, x2, nall)) != MLB_OK) goto done;
     // 3. the UNet, eps from v, guidance, the weighted gradient and d loss / d latent
     if ((st = mlb_unet_forward_on(ube, um, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
     if (s->v_prediction && (st = be->axpby_rows(e2, e2, x2, 2 * B, n, sa, sb)) != MLB_OK) goto done;
-    if (tr && (st = trace_fill(tr, be, z, x2, e2, hnoise, wt, ts, B, n)) != MLB_OK) goto done;
+    if (tr) {   // the trace's errors against the noise, on the host
+        if (!(hnoise = malloc(nall * sizeof(float)))) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS trace"); goto done; }
+        if ((st = be->download(hnoise, noise, nall)) != MLB_OK) goto done;
+        if ((st = trace_fill(tr, be, z, x2, e2, hnoise, wt, ts, B, n)) != MLB_OK) goto done;
+    }
     float div = C == Lc ? (float)total : 1.0f, mul = C == Lc ? 1.0f : s->scaling_factor / (float)total;
     if ((st = be->sds_grad(e2, grad, grad_images ? dz : NULL, sumsq, noise, B, n, s->opt.guidance_scale, wt, div, mul)))
         goto done;

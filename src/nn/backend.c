@@ -7,6 +7,7 @@
 #include <string.h>
 #include "matlaber/image_convert.h"
 #include "matlaber/mt_ops.h"
+#include "matlaber/rng.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
 #include "nn/simd_rows.h"
@@ -407,6 +408,10 @@ static mlb_status cpu_axpby_rows(float* out, const float* x, const float* y, int
             size_t k = (size_t)b * n + i;
             out[k] = a[b] * x[k] + c[b] * y[k];
         }
+    return MLB_OK;
+}
+static mlb_status cpu_fill_normal(float* out, size_t n, uint64_t seed, uint64_t stream, uint64_t offset) {
+    mlb_rng_fill_normal(out, n, seed, stream, offset, 0.0f, 1.0f);
     return MLB_OK;
 }
 static mlb_status cpu_sds_grad(float* eps, float* grad, float* dz, float* sumsq, const float* noise, int B, size_t n,

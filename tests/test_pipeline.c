@@ -138,6 +138,49 @@ TEST(config_round_trip_and_errors) {
     mlb_clear_error();
 }
 
+// --set KEY=VALUE: any config.json key by its JSON type; unknown keys and wrong types are refused
+// naming the key, the config unchanged; ranges are mlb_pipeline_validate's.
+TEST(config_set) {
+    mlb_pipeline_config c = mlb_pipeline_default(), before;
+    snprintf(c.prompt, sizeof c.prompt, "a gold goblet");
+    snprintf(c.model, sizeof c.model, "/models/sd15");
+    REQUIRE(mlb_pipeline_config_set(&c, "geometry_t_max_end=300") == MLB_OK);
+    CHECK(c.geometry_t_max_end == 300);
+    REQUIRE(mlb_pipeline_config_set(&c, "appearance_lr=2.5e-2") == MLB_OK);
+    CHECK(c.appearance_lr == 2.5e-2);
+    REQUIRE(mlb_pipeline_config_set(&c, "init=torus") == MLB_OK);
+    CHECK(!strcmp(c.init, "torus"));
+    REQUIRE(mlb_pipeline_config_set(&c, "seed=18446744073709551615") == MLB_OK);
+    CHECK(c.seed == UINT64_MAX);
+    REQUIRE(mlb_pipeline_config_set(&c, "material=direct") == MLB_OK);
+    CHECK(c.material == MLB_MATERIAL_DIRECT);
+    CHECK(mlb_pipeline_validate(&c) == MLB_OK);
+    before = c;
+    const char* bad[] = {"rez=64", "res", "=3", "res=abc", "res=64.5", "material=shiny", "envs=sky", "res=", "seed=-1"};
+    for (int i = 0; i < 9; i++) {
+        CHECK_MSG(mlb_pipeline_config_set(&c, bad[i]) != MLB_OK, "%s accepted", bad[i]);
+        CHECK_MSG(strstr(mlb_last_error(), "--set") != NULL, "%s: %s", bad[i], mlb_last_error());
+    }
+    CHECK(!memcmp(&c, &before, sizeof c));
+    mlb_pipeline_config other = c;
+    CHECK(mlb_pipeline_config_differs(&c, &other, NULL) == NULL);
+    REQUIRE(mlb_pipeline_config_set(&other, "geometry_t_max_end=250") == MLB_OK);
+    const char* diff = mlb_pipeline_config_differs(&c, &other, NULL);
+    CHECK(diff && !strcmp(diff, "geometry_t_max_end"));
+    static const char* const skip[] = {"geometry_t_max_end", NULL};
+    CHECK(mlb_pipeline_config_differs(&c, &other, skip) == NULL);
+    other.n_envs = 2;
+    CHECK(!strcmp(mlb_pipeline_config_differs(&c, &other, skip), "envs"));
+    other.n_envs = c.n_envs;
+    // the annealed range is validated: below the smallest timestep, or past 999
+    other.geometry_t_min = 150;
+    other.geometry_t_max_end = 100;
+    CHECK(mlb_pipeline_validate(&other) == MLB_ERR_ARG);
+    other.geometry_t_max_end = 1000;
+    CHECK(mlb_pipeline_validate(&other) == MLB_ERR_ARG);
+    mlb_clear_error();
+}
+
 // Presets: "paper" is the defaults, "cpu" a valid config that survives config.json (precision and
 // the .glb size included); a run written before "export_texture" and "precision" existed resumes
 // with no .glb and the program's precision; unknown names are refused with the list.
@@ -496,6 +539,7 @@ int main(void) {
     snprintf(tmpdir, sizeof tmpdir, "%s/mlb_pipeline_XXXXXX", base && *base ? base : "/tmp");
     if (!mkdtemp(tmpdir)) return 1;
     RUN(config_round_trip_and_errors);
+    RUN(config_set);
     RUN(presets);
     RUN(image_fit_recovers_a_known_albedo);
     RUN(resume_reaches_the_uninterrupted_result);

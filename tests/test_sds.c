@@ -87,6 +87,13 @@ TEST(weights_and_views) {
     CHECK(mlb_sds_weighting_parse("fantasia1", &w) == MLB_OK && w == MLB_SDS_W_FANTASIA1);
     CHECK(mlb_sds_weighting_parse("bogus", &w) == MLB_ERR_ARG && strstr(mlb_last_error(), "bogus"));
     CHECK(!strcmp(mlb_sds_weighting_name(MLB_SDS_W_FANTASIA0), "fantasia0"));
+    // the annealed largest timestep: linear from t_max to t_max_end over anneal_steps, then held
+    mlb_sds_options a = mlb_sds_default_options();
+    a.t_min = 150, a.t_max = 500, a.t_max_end = 250, a.anneal_steps = 120;
+    CHECK(mlb_sds_t_max_at(&a, 0) == 500 && mlb_sds_t_max_at(&a, -3) == 500 && mlb_sds_t_max_at(&a, 60) == 375);
+    CHECK(mlb_sds_t_max_at(&a, 119) == 252 && mlb_sds_t_max_at(&a, 120) == 250 && mlb_sds_t_max_at(&a, 5000) == 250);
+    a.anneal_steps = 0;
+    CHECK(mlb_sds_t_max_at(&a, 60) == 500);
 }
 
 TEST(load_errors) {
@@ -272,8 +279,26 @@ TEST(sds_sampling_and_latent_input) {
     CHECK(mlb_sds_step(s, &in, NULL, NULL, NULL) == MLB_ERR_ARG && strstr(mlb_last_error(), "channels"));
     in.C = 4; in.H = 12;
     CHECK(mlb_sds_step(s, &in, NULL, NULL, NULL) == MLB_ERR_ARG);
-    o.t_min = 600; o.t_max = 500;
+    // annealed to t_max_end 40 over 5 steps: step 0 draws as without annealing, step 5 within [20, 40]
+    mlb_sds_options oa = o;
+    oa.t_max_end = 40, oa.anneal_steps = 5;
+    mlb_sds* sa = NULL;
+    REQUIRE(mlb_sds_create_from_model(m, "a golden goblet", "low quality", 1, &oa, &sa) == MLB_OK);
+    int ta[3], tp[3];
+    mlb_sds_trace tt = {0};
+    in.H = h, in.step = 0, tt.t = ta;
+    REQUIRE(mlb_sds_step(sa, &in, NULL, NULL, &tt) == MLB_OK);
+    tt.t = tp;
+    REQUIRE(mlb_sds_step(s, &in, NULL, NULL, &tt) == MLB_OK);
+    CHECK(!memcmp(ta, tp, sizeof ta));
+    in.step = 5, tt.t = ta;
+    REQUIRE(mlb_sds_step(sa, &in, NULL, NULL, &tt) == MLB_OK);
+    for (int b = 0; b < B; b++) CHECK_MSG(ta[b] >= 20 && ta[b] <= 40, "annealed step 5: t %d", ta[b]);
+    mlb_sds_free(sa);
     mlb_sds* bad = NULL;
+    oa.t_max_end = 10;   // below t_min
+    CHECK(mlb_sds_create(m->unet, m->vae, m->scaling_factor, m->alphas_cumprod, 0, &oa, &bad) == MLB_ERR_ARG && !bad);
+    o.t_min = 600; o.t_max = 500;
     CHECK(mlb_sds_create(m->unet, m->vae, m->scaling_factor, m->alphas_cumprod, 0, &o, &bad) == MLB_ERR_ARG && !bad);
     free(z); free(g1); free(g2); free(gl);
     mlb_sds_free(s);

@@ -50,6 +50,9 @@ typedef struct {
     char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder", "torus", "slab", an OBJ file, or "auto" / "auto:A,B,.." (the
                                   // candidate the model scores best: docs/pipeline.md, Init)
     int init_iters;               // SDF initialisation steps: 400
+    int geometry_t_max_end;       // the geometry stage's largest SDS timestep falls linearly from 500 to
+                                  // this over the stage (0: 500 throughout)
+    int appearance_t_max_end;     // the same for the appearance stage, from 980 (0: 980 throughout)
     double coarse_to_fine;        // hash-grid levels unlocked from 4 to all over this fraction of the
                                   // geometry steps (0: all levels from the start)
     double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
@@ -99,6 +102,14 @@ int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
+// One config.json key from "KEY=VALUE" (the CLI's --set; numbers and strings as config.json has
+// them, "envs" excluded): MLB_ERR_ARG naming the key when it is unknown or the value has the wrong
+// type; c is unchanged then. Ranges are checked by mlb_pipeline_validate.
+mlb_status mlb_pipeline_config_set(mlb_pipeline_config* c, const char* assignment);
+// The first config.json key whose values differ between a and b ("envs" for the pool), skipping the
+// keys of `ignore` (NULL-terminated, may be NULL); NULL when every other saved setting is the same.
+const char* mlb_pipeline_config_differs(const mlb_pipeline_config* a, const mlb_pipeline_config* b,
+                                        const char* const* ignore);
 
 typedef struct {
     double geometry_loss, appearance_loss;   // the last step's guidance losses

@@ -37,6 +37,8 @@ enum { MLB_SDS_VIEW_NONE = 0, MLB_SDS_VIEW_FRONT, MLB_SDS_VIEW_SIDE, MLB_SDS_VIE
 typedef struct {
     float guidance_scale;        // s (100)
     int t_min, t_max;            // inclusive timestep range (20, 980); Fantasia3D geometry: 20, 500
+    int t_max_end;               // with anneal_steps > 0: t_max falls linearly to this (>= t_min) at
+    long anneal_steps;           //   step anneal_steps and stays there (0: t_max throughout)
     mlb_sds_weighting weighting; // MLB_SDS_W_DREAMFUSION
     long coarse_iter;            // strategy 2 only
     uint64_t seed;               // t and noise are Philox of (seed, step, element)
@@ -45,6 +47,8 @@ typedef struct {
 mlb_sds_options mlb_sds_default_options(void);   // 100, 20, 980, DreamFusion, 0, seed 0
 const char* mlb_sds_weighting_name(mlb_sds_weighting w);   // "dreamfusion", "fantasia0", ...
 mlb_status mlb_sds_weighting_parse(const char* name, mlb_sds_weighting* out);
+// The largest timestep drawn at `step`: t_max, or annealed towards t_max_end (options above).
+int mlb_sds_t_max_at(const mlb_sds_options* o, long step);
 // The weight for a timestep (non-finite -> 0). ac: the float32 alphas_cumprod value.
 float mlb_sds_weight(mlb_sds_weighting w, float ac, long step, long coarse_iter);
 // front within +-45 deg of azimuth 0, back beyond +-135 deg, else side (degrees, any range).

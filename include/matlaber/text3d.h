@@ -25,6 +25,7 @@
 
 #define MLB_TEXT3D_MAX_CLASSES 32
 #define MLB_TEXT3D_MAX_PAIRS (MLB_TEXT3D_MAX_CLASSES * MLB_TEXT3D_MAX_CLASSES)
+#define MLB_TEXT3D_MAX_SET 16
 // The metal rule, on a BRDF's 7 numbers: metal when mean(ks) > 0.3 and mean(kd) < 0.15 (the
 // catalogue's metals have ks >= 0.5 and kd 0.01; its dielectrics ks <= 0.04).
 #define MLB_TEXT3D_METAL_KS 0.3
@@ -107,6 +108,10 @@ typedef struct {
     const char* relight_env;          // a built-in name or file: "white" (built at the base config's
                                       //   env_height and cube_size, as the pipeline builds its lights)
     mlb_text3d_measure_config measure;
+    // config.json keys set over the preset ("KEY=VALUE", mlb_pipeline_config_set; already applied to
+    // base): a run folder must hold the same values, and the report names them
+    const char* set[MLB_TEXT3D_MAX_SET];
+    int n_set;
     int progress;                     // 1: each run's progress bar and a line per prompt with the ETA
 } mlb_text3d_bench_config;
 mlb_text3d_bench_config mlb_text3d_bench_default(void);

@@ -30,7 +30,7 @@ struct mlb_sds {
 };
 
 mlb_sds_options mlb_sds_default_options(void) {
-    mlb_sds_options o = {100.0f, 20, 980, MLB_SDS_W_DREAMFUSION, 0, 0};
+    mlb_sds_options o = {.guidance_scale = 100.0f, .t_min = 20, .t_max = 980, .weighting = MLB_SDS_W_DREAMFUSION};
     return o;
 }
 
@@ -42,6 +42,12 @@ mlb_status mlb_sds_weighting_parse(const char* name, mlb_sds_weighting* out) {
     for (int i = 0; i < 4; i++)
         if (name && !strcmp(name, weight_names[i])) { *out = (mlb_sds_weighting)i; return MLB_OK; }
     return mlb_fail(MLB_ERR_ARG, "unknown SDS weighting '%s' (dreamfusion, fantasia0, fantasia1, fantasia2)", name ? name : "(null)");
+}
+
+int mlb_sds_t_max_at(const mlb_sds_options* o, long step) {
+    if (o->anneal_steps <= 0) return o->t_max;
+    double f = step <= 0 ? 0.0 : step >= o->anneal_steps ? 1.0 : (double)step / (double)o->anneal_steps;
+    return (int)lround(o->t_max + (o->t_max_end - o->t_max) * f);
 }
 
 float mlb_sds_weight(mlb_sds_weighting w, float ac, long step, long coarse_iter) {
@@ -82,6 +88,9 @@ mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scalin
     mlb_sds_options o = opt ? *opt : mlb_sds_default_options();
     if (o.t_min < 0 || o.t_max > 999 || o.t_min > o.t_max)
         return mlb_fail(MLB_ERR_ARG, "SDS timestep range [%d, %d] must lie within [0, 999] and be ordered", o.t_min, o.t_max);
+    if (o.anneal_steps < 0 || (o.anneal_steps > 0 && (o.t_max_end < o.t_min || o.t_max_end > 999)))
+        return mlb_fail(MLB_ERR_ARG, "SDS annealing: t_max_end %d must lie within [t_min %d, 999] over %ld >= 0 steps",
+                        o.t_max_end, o.t_min, o.anneal_steps);
     if (!isfinite(o.guidance_scale)) return mlb_fail(MLB_ERR_ARG, "SDS guidance scale is not finite");
     if ((unsigned)o.weighting > MLB_SDS_W_FANTASIA2) return mlb_fail(MLB_ERR_ARG, "unknown SDS weighting %d", (int)o.weighting);
     if (vae && !(scaling_factor > 0)) return mlb_fail(MLB_ERR_ARG, "SDS scaling factor must be positive");
@@ -288,7 +297,7 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
             if (t < 0 || t > 999) { st = mlb_fail(MLB_ERR_ARG, "SDS timestep %d outside 0..999", t); goto done; }
         } else
             t = s->opt.t_min + (int)mlb_rng_below(s->opt.seed, SDS_STREAM_T, (uint64_t)in->step * MLB_SDS_MAX_BATCH + (uint64_t)(first + b),
-                                                  (uint32_t)(s->opt.t_max - s->opt.t_min + 1));
+                                                  (uint32_t)(mlb_sds_t_max_at(&s->opt, in->step) - s->opt.t_min + 1));
         ts[b] = t;
         tt[b] = tt[B + b] = (float)t;
         wt[b] = mlb_sds_weight(s->opt.weighting, s->ac[t], in->step, s->opt.coarse_iter);

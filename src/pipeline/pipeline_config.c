@@ -127,6 +127,10 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->init_iters < 0) bad = "init iterations must be >= 0";
     else if (c->hash_log2 != 0 && (c->hash_log2 < 10 || c->hash_log2 > 24)) bad = "hash_table_log2 must be 0 (19) or 10..24";
     else if (c->geometry_t_min < 0 || c->geometry_t_min > 500) bad = "geometry_t_min must be in 0..500 (0: the guidance's 20)";
+    else if (c->geometry_t_max_end != 0 && (c->geometry_t_max_end < (c->geometry_t_min ? c->geometry_t_min : 20) || c->geometry_t_max_end > 999))
+        bad = "geometry_t_max_end must be 0 (no annealing) or between the smallest timestep and 999";
+    else if (c->appearance_t_max_end != 0 && (c->appearance_t_max_end < 20 || c->appearance_t_max_end > 999))
+        bad = "appearance_t_max_end must be 0 (no annealing) or in 20..999";
     else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
     else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
     else if (!(c->w_mat >= 0) || !(c->w_mat_spec >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weights >= 0 and sigma > 0";
@@ -197,6 +201,8 @@ static const field FIELDS[] = {
     FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
     FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // added 2026-11-27; before: guidance_scale
     FLD_OPT("tokenizer", F_STR, tokenizer, 0),                        // added 2026-11-27; before: none (folders only)
+    FLD_OPT("geometry_t_max_end", F_INT, geometry_t_max_end, 0),      // added 2026-11-29; before: no annealing
+    FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // added 2026-11-29; before: no annealing
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),
@@ -243,6 +249,90 @@ mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* pa
     return s;
 }
 
+// One field's value from its JSON item into p (config.json's types; `where` names the file or option).
+static mlb_status parse_field(const field* f, const cJSON* it, char* p, const char* where) {
+    int want_string = f->kind == F_STR || f->kind == F_LONG_U64 || f->kind == F_MATERIAL;
+    if (want_string ? !cJSON_IsString(it) : !cJSON_IsNumber(it))
+        return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a %s", where, f->key, want_string ? "string" : "number");
+    switch (f->kind) {
+    case F_STR:
+        if (strlen(it->valuestring) >= f->size) return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is too long", where, f->key);
+        snprintf(p, f->size, "%s", it->valuestring);
+        return MLB_OK;
+    case F_INT:
+        if (!(fabs(it->valuedouble) < 2e9) || it->valuedouble != floor(it->valuedouble))
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be an integer", where, f->key);
+        *(int*)p = (int)it->valuedouble;
+        return MLB_OK;
+    case F_LONG_U64: {
+        char* end = NULL;
+        unsigned long long v = strtoull(it->valuestring, &end, 10);
+        if (!it->valuestring[0] || *end || it->valuestring[0] == '-')
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a decimal integer string", where, f->key);
+        *(uint64_t*)p = (uint64_t)v;
+        return MLB_OK;
+    }
+    case F_DOUBLE:
+        if (!isfinite(it->valuedouble)) return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is not finite", where, f->key);
+        *(double*)p = it->valuedouble;
+        return MLB_OK;
+    case F_MATERIAL:
+        if (mlb_material_mode_parse(it->valuestring, (mlb_material_mode*)p))
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\": unknown material mode \"%s\"", where, f->key, it->valuestring);
+        return MLB_OK;
+    }
+    return MLB_OK;
+}
+
+static const field* find_field(const char* key) {
+    for (size_t i = 0; i < N_FIELDS; i++)
+        if (!strcmp(FIELDS[i].key, key)) return &FIELDS[i];
+    return NULL;
+}
+
+mlb_status mlb_pipeline_config_set(mlb_pipeline_config* c, const char* assignment) {
+    const char* eq = strchr(assignment, '=');
+    char key[64];
+    if (!eq || eq == assignment || (size_t)(eq - assignment) >= sizeof key)
+        return mlb_fail(MLB_ERR_ARG, "--set %s: expected KEY=VALUE with a config.json key", assignment);
+    memcpy(key, assignment, (size_t)(eq - assignment));
+    key[eq - assignment] = 0;
+    const field* f = find_field(key);
+    if (!f || !strcmp(key, "envs"))
+        return mlb_fail(MLB_ERR_ARG, "--set %s: \"%s\" is not a key of config.json (docs/pipeline.md)", assignment, key);
+    const char* text = eq + 1;
+    cJSON* it;
+    if (f->kind == F_INT || f->kind == F_DOUBLE) {
+        char* end = NULL;
+        double v = strtod(text, &end);
+        if (!text[0] || *end) return mlb_fail(MLB_ERR_ARG, "--set %s: \"%s\" must be a number", assignment, key);
+        it = cJSON_CreateNumber(v);
+    } else
+        it = cJSON_CreateString(text);
+    if (!it) return mlb_fail(MLB_ERR_NOMEM, "--set: out of memory");
+    mlb_pipeline_config t = *c;
+    mlb_status s = parse_field(f, it, (char*)&t + f->offset, "--set");   // ranges: when the run validates
+    cJSON_Delete(it);
+    if (s) return mlb_fail_context(s, "--set %s", assignment);
+    *c = t;
+    return MLB_OK;
+}
+
+const char* mlb_pipeline_config_differs(const mlb_pipeline_config* a, const mlb_pipeline_config* b,
+                                        const char* const* ignore) {
+    for (size_t i = 0; i < N_FIELDS; i++) {
+        const field* f = &FIELDS[i];
+        int skip = 0;
+        for (const char* const* k = ignore; k && *k && !skip; k++) skip = !strcmp(*k, f->key);
+        const char *p = (const char*)a + f->offset, *q = (const char*)b + f->offset;
+        if (!skip && (f->kind == F_STR ? strcmp(p, q) != 0 : memcmp(p, q, f->size) != 0)) return f->key;
+    }
+    if (a->n_envs != b->n_envs) return "envs";
+    for (int i = 0; i < a->n_envs; i++)
+        if (strcmp(a->envs[i], b->envs[i])) return "envs";
+    return NULL;
+}
+
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) {
     char* text = NULL;
     size_t n = 0;
@@ -268,38 +358,7 @@ mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) 
             continue;
         }
         if (!it) { s = mlb_fail(MLB_ERR_FORMAT, "%s: missing \"%s\"", path, f->key); break; }
-        int want_string = f->kind == F_STR || f->kind == F_LONG_U64 || f->kind == F_MATERIAL;
-        if (want_string ? !cJSON_IsString(it) : !cJSON_IsNumber(it)) {
-            s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a %s", path, f->key, want_string ? "string" : "number");
-            break;
-        }
-        switch (f->kind) {
-        case F_STR:
-            if (strlen(it->valuestring) >= f->size) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is too long", path, f->key);
-            else snprintf(p, f->size, "%s", it->valuestring);
-            break;
-        case F_INT:
-            if (!(fabs(it->valuedouble) < 2e9) || it->valuedouble != floor(it->valuedouble))
-                s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be an integer", path, f->key);
-            else *(int*)p = (int)it->valuedouble;
-            break;
-        case F_LONG_U64: {
-            char* end = NULL;
-            unsigned long long v = strtoull(it->valuestring, &end, 10);
-            if (!it->valuestring[0] || *end || it->valuestring[0] == '-')
-                s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a decimal integer string", path, f->key);
-            else *(uint64_t*)p = (uint64_t)v;
-            break;
-        }
-        case F_DOUBLE:
-            if (!isfinite(it->valuedouble)) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is not finite", path, f->key);
-            else *(double*)p = it->valuedouble;
-            break;
-        case F_MATERIAL:
-            s = mlb_material_mode_parse(it->valuestring, (mlb_material_mode*)p);
-            if (s) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\": unknown material mode \"%s\"", path, f->key, it->valuestring);
-            break;
-        }
+        s = parse_field(f, it, p, path);
     }
     const cJSON* envs = cJSON_GetObjectItemCaseSensitive(root, "envs");
     if (!s && !cJSON_IsArray(envs)) s = mlb_fail(MLB_ERR_FORMAT, "%s: \"envs\" must be an array of strings", path);

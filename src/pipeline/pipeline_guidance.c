@@ -63,6 +63,14 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     gc.latent_iters = c->latent_iters >= 0 ? c->latent_iters : c->geometry_iters / 3;
     gc.latent_size = c->latent_size;
     if (c->geometry_t_min > 0) gc.geometry_opt.t_min = c->geometry_t_min;
+    if (c->geometry_t_max_end > 0) {
+        gc.geometry_opt.t_max_end = c->geometry_t_max_end;
+        gc.geometry_opt.anneal_steps = c->geometry_iters;
+    }
+    if (c->appearance_t_max_end > 0) {
+        gc.appearance_opt.t_max_end = c->appearance_t_max_end;
+        gc.appearance_opt.anneal_steps = c->appearance_iters;
+    }
     gc.view_prompts = c->view_prompts;
     gc.geometry_opt.guidance_scale = (float)c->guidance_scale;
     gc.appearance_opt.guidance_scale = (float)(c->appearance_guidance_scale > 0 ? c->appearance_guidance_scale : c->guidance_scale);

@@ -80,6 +80,10 @@ static mlb_status check_same(const char* dir, const mlb_pipeline_config* want, c
     else if (want->res != have->res || want->views != have->views || want->grid != have->grid) what = "preset";
     else if (want->guidance_scale != have->guidance_scale || want->appearance_guidance_scale != have->appearance_guidance_scale)
         what = "guidance scale (a run from before the preset's appearance guidance scale: regenerate it)";
+    // then any other setting of the generation (--set's keys among them); not the model's path (its
+    // spelling may differ) nor what only the run's bookkeeping uses
+    static const char* const bookkeeping[] = {"model", "checkpoint_every", "preview_every", "export_texture", NULL};
+    if (!what) what = mlb_pipeline_config_differs(want, have, bookkeeping);
     if (!what) return MLB_OK;
     return mlb_fail(MLB_ERR_ARG, "%s holds a run made with another %s: remove it or give the benchmark another -o", dir, what);
 }
@@ -417,6 +421,7 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
             c->base.model, c->base.geometry_iters, c->base.appearance_iters, c->base.views, c->base.res,
             (unsigned long long)c->base.seed, mlb_text3d_ablation_name(&c->base, abl, sizeof abl), c->n_seeds,
             c->measure.fit_rounds, c->relight_env, MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
+    for (int i = 0; i < c->n_set; i++) fprintf(f, "%s`%s`%s", i ? ", " : "Set over the preset: ", c->set[i], i + 1 < c->n_set ? "" : ".\n\n");
     fprintf(f, "| prompt | split | nearest class | Chamfer to prompted | class | material RMSE | metal | relight PSNR | time |\n"
                "|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < n; i++) {
@@ -470,6 +475,8 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
     cJSON_AddStringToObject(j, "ablation", mlb_text3d_ablation_name(&c->base, abl, sizeof abl));
     cJSON_AddNumberToObject(j, "seed", (double)c->base.seed);
     cJSON_AddStringToObject(j, "init", c->base.init);
+    cJSON* set = cJSON_AddArrayToObject(j, "set");
+    for (int i = 0; set && i < c->n_set; i++) cJSON_AddItemToArray(set, cJSON_CreateString(c->set[i]));
     cJSON_AddNumberToObject(j, "geometry_iters", c->base.geometry_iters);
     cJSON_AddNumberToObject(j, "appearance_iters", c->base.appearance_iters);
     cJSON_AddNumberToObject(j, "views", c->base.views);

@@ -23,6 +23,7 @@ static const cli_option options[] = {
     {"fixed-env", 0, 'F', NULL, "ablation: one light, never rotated"},
     {"no-view-prompts", 0, 'W', NULL, "ablation: one prompt for every view"},
     {"init", 1, 'I', "SHAPE", "the starting shape (generate's --init; default the preset's: auto for tiny)"},
+    {"set", 1, 'D', "KEY=VALUE", "a key of the runs' config.json over the preset (generate's --set; repeatable)"},
     {"shape-seeds", 1, 'K', "K", "truth shapes per class, seeds 0..K-1 (default 8): the fit's starts"},
     {"shape-fit", 1, 'f', "N", "rounds of the shape-parameter fit from the best seed (default 64; 0: best seed only)"},
     {"relight-env", 1, 'e', "NAME|FILE", "the unseen relighting light (default white)"},
@@ -91,6 +92,10 @@ static int bench_text3d(int argc, char** argv) {
         case 'F': fixed_env = 1; break;
         case 'W': view_prompts = 0; break;
         case 'I': init = optarg; break;
+        case 'D':
+            if (bc.n_set == MLB_TEXT3D_MAX_SET) return cli_usage_error(cmd, "--set: at most %d", MLB_TEXT3D_MAX_SET);
+            bc.set[bc.n_set++] = optarg;
+            break;
         case 'K': if (cli_parse_long(optarg, 1, 1024, &v)) return cli_usage_error(cmd, "--shape-seeds: expected 1..1024"); bc.n_seeds = (int)v; break;
         case 'f': if (cli_parse_long(optarg, 0, 1000, &v)) return cli_usage_error(cmd, "--shape-fit: expected 0..1000"); bc.measure.fit_rounds = (int)v; break;
         case 'e': bc.relight_env = optarg; break;
@@ -120,6 +125,12 @@ static int bench_text3d(int argc, char** argv) {
     if (!s && init) {
         if (strlen(init) >= sizeof bc.base.init) return cli_usage_error(cmd, "--init: a path of at most %zu bytes", sizeof bc.base.init - 1);
         snprintf(bc.base.init, sizeof bc.base.init, "%s", init);
+    }
+    for (int i = 0; !s && i < bc.n_set; i++) s = mlb_pipeline_config_set(&bc.base, bc.set[i]);
+    if (!s && bc.n_set) {   // ranges: with a prompt, as a run would check them
+        mlb_pipeline_config t = bc.base;
+        snprintf(t.prompt, sizeof t.prompt, "a gold goblet");
+        s = mlb_pipeline_validate(&t);
     }
     if (s) return cli_usage_error(cmd, "%s", mlb_last_error());
     bc.progress = mlb_log_get_level() <= MLB_LOG_INFO;

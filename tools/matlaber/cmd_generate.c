@@ -51,6 +51,8 @@ static const cli_option options[] = {
     {"appearance-guidance-scale", 1, 'E', "X", "generate, paint: the appearance stage's, when it differs (default: --guidance-scale's; the tiny preset 100)"},
     {"geometry-t-min", 1, 'U', "T", "generate: the geometry stage's smallest SDS timestep (default 20)"},
     {"seed", 1, 's', "S", "seed of every random draw (default 0)"},
+    {"set", 1, 'D', "KEY=VALUE", "any key of the run's config.json (docs/pipeline.md), e.g. geometry_t_max_end=300;\n"
+                                 "                           applied in order with the other options (repeatable)"},
     {"export-texture", 1, 'T', "N", "texture size of RUN_DIR/final/asset.glb, written at the end (generate 1024;\n"
                                     "                           fit and 0: none, `matlaber export` makes one later)"},
     {"checkpoint-every", 1, 'c', "N", "steps between checkpoints (default 100)"},
@@ -223,6 +225,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             snprintf(c.tokenizer, sizeof c.tokenizer, "%s", optarg);
             break;
         case 'E': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
+        case 'D': if (mlb_pipeline_config_set(&c, optarg)) return cli_usage_error(command, "%s", mlb_last_error()); break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
         case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;

@@ -155,9 +155,12 @@ TEST(config_set) {
     REQUIRE(mlb_pipeline_config_set(&c, "material=direct") == MLB_OK);
     CHECK(c.material == MLB_MATERIAL_DIRECT);
     CHECK(mlb_pipeline_validate(&c) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_set(&c, "envs=studio,/maps/a b.hdr") == MLB_OK);
+    CHECK(c.n_envs == 2 && !strcmp(c.envs[0], "studio") && !strcmp(c.envs[1], "/maps/a b.hdr"));
     before = c;
-    const char* bad[] = {"rez=64", "res", "=3", "res=abc", "res=64.5", "material=shiny", "envs=sky", "res=", "seed=-1"};
-    for (int i = 0; i < 9; i++) {
+    const char* bad[] = {"rez=64", "res", "=3", "res=abc", "res=64.5", "material=shiny", "envs=", "envs=sky,", "envs=a,,b",
+                         "res=", "seed=-1"};
+    for (int i = 0; i < 11; i++) {
         CHECK_MSG(mlb_pipeline_config_set(&c, bad[i]) != MLB_OK, "%s accepted", bad[i]);
         CHECK_MSG(strstr(mlb_last_error(), "--set") != NULL, "%s: %s", bad[i], mlb_last_error());
     }
@@ -169,8 +172,9 @@ TEST(config_set) {
     CHECK(diff && !strcmp(diff, "geometry_t_max_end"));
     static const char* const skip[] = {"geometry_t_max_end", NULL};
     CHECK(mlb_pipeline_config_differs(&c, &other, skip) == NULL);
-    other.n_envs = 2;
-    CHECK(!strcmp(mlb_pipeline_config_differs(&c, &other, skip), "envs"));
+    other.n_envs = 1;
+    diff = mlb_pipeline_config_differs(&c, &other, skip);
+    CHECK(diff && !strcmp(diff, "envs"));
     other.n_envs = c.n_envs;
     // the annealed range is validated: below the smallest timestep, or past 999
     other.geometry_t_min = 150;

@@ -103,8 +103,8 @@ int mlb_pipeline_init_is_auto(const char* init);
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
 // One config.json key from "KEY=VALUE" (the CLI's --set; numbers and strings as config.json has
-// them, "envs" excluded): MLB_ERR_ARG naming the key when it is unknown or the value has the wrong
-// type; c is unchanged then. Ranges are checked by mlb_pipeline_validate.
+// them, "envs" as names comma-separated): MLB_ERR_ARG naming the key when it is unknown or the value
+// has the wrong type; c is unchanged then. Ranges are checked by mlb_pipeline_validate.
 mlb_status mlb_pipeline_config_set(mlb_pipeline_config* c, const char* assignment);
 // The first config.json key whose values differ between a and b ("envs" for the pool), skipping the
 // keys of `ignore` (NULL-terminated, may be NULL); NULL when every other saved setting is the same.

@@ -188,13 +188,22 @@ static int small_material_net(mlb_material_net* net, mlb_brdf_ae* prior) {
     return 1;
 }
 
+// The appearance tests' scene: a welded sphere under two lights, and a small material network.
+static int painted_scene_init(scene* sc, mlb_brdf_ae* prior, mlb_material_net* net) {
+    return scene_init(sc, 32, 16) && small_material_net(net, prior);
+}
+static void painted_scene_free(scene* sc, mlb_brdf_ae* prior, mlb_material_net* net) {
+    material_net_free(net);
+    brdf_ae_free(prior);
+    scene_free(sc);
+}
+
 TEST(appearance_calls_the_table) {
     const mlb_backend* be = spy_table();
     scene sc;
-    REQUIRE(scene_init(&sc, 32, 16));
     mlb_brdf_ae prior;
     mlb_material_net net;
-    REQUIRE(small_material_net(&net, &prior));
+    REQUIRE(painted_scene_init(&sc, &prior, &net));
     enum { N = 3, RES = 24, SS = 2 };
     mlb_view views[N];
     make_views(views, N);
@@ -228,9 +237,7 @@ TEST(appearance_calls_the_table) {
     CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
     free(maps[0]); free(maps[1]);
     free(img[0]); free(img[1]); free(dimg); free(grads);
-    material_net_free(&net);
-    brdf_ae_free(&prior);
-    scene_free(&sc);
+    painted_scene_free(&sc, &prior, &net);
 }
 
 // The appearance stage renders one mesh every step: it goes up once, the views' clip coordinates are
@@ -239,10 +246,9 @@ TEST(appearance_calls_the_table) {
 TEST(appearance_keeps_its_mesh_on_the_table) {
     const mlb_backend* be = spy_table();
     scene sc;
-    REQUIRE(scene_init(&sc, 32, 16));
     mlb_brdf_ae prior;
     mlb_material_net net;
-    REQUIRE(small_material_net(&net, &prior));
+    REQUIRE(painted_scene_init(&sc, &prior, &net));
     enum { N = 3, RES = 24 };
     mlb_view views[N];
     make_views(views, N);
@@ -268,9 +274,7 @@ TEST(appearance_keeps_its_mesh_on_the_table) {
     mlb_appearance_free(&app);
     mlb_appearance_free(&other);
     free(first); free(again); free(fresh);
-    material_net_free(&net);
-    brdf_ae_free(&prior);
-    scene_free(&sc);
+    painted_scene_free(&sc, &prior, &net);
 }
 
 // Score distillation on the renders where they are (guidance.h loss_on): the geometry step with a tiny
@@ -327,10 +331,9 @@ TEST(guided_steps_stay_on_their_table) {
     geometry_case_free(&k);
 
     scene sc;
-    REQUIRE(scene_init(&sc, 32, 16));
     mlb_brdf_ae prior;
     mlb_material_net net;
-    REQUIRE(small_material_net(&net, &prior));
+    REQUIRE(painted_scene_init(&sc, &prior, &net));
     REQUIRE(mlb_field_use_device(&net, guarded_table()) == MLB_OK);
     make_views(views, G_VIEWS);
     float* dimg = malloc(sizeof(float) * m);
@@ -365,9 +368,7 @@ TEST(guided_steps_stay_on_their_table) {
     CHECK(same(agrads[0], agrads[1], sizeof(float) * net.n_params));
     REQUIRE(mlb_field_leave_device(&net) == MLB_OK);
     free(dimg); free(agrads[0]); free(agrads[1]);
-    material_net_free(&net);
-    brdf_ae_free(&prior);
-    scene_free(&sc);
+    painted_scene_free(&sc, &prior, &net);
     for (int t = 0; t < 2; t++) { free(img[t]); free(grads[t]); }
     mlb_guidance_free(g);
     CHECK_MSG(guard_n == 0, "%d buffers of the table left", guard_n);

@@ -298,19 +298,18 @@ mlb_status mlb_pipeline_config_set(mlb_pipeline_config* c, const char* assignmen
     memcpy(key, assignment, (size_t)(eq - assignment));
     key[eq - assignment] = 0;
     const char* text = eq + 1;
-    if (!strcmp(key, "envs")) {   // the pool: names or files, comma-separated
+    if (!strcmp(key, "envs")) {   // the pool: names or files, comma-separated, none empty
         mlb_pipeline_config t = *c;
         t.n_envs = 0;
-        for (const char* p = text; *p;) {
+        for (const char* p = text;; p++) {
             size_t n = strcspn(p, ",");
             if (!n || n >= sizeof t.envs[0] || t.n_envs == MLB_PIPELINE_MAX_ENVS)
                 return mlb_fail(MLB_ERR_ARG, "--set %s: 1..%d names or files, comma-separated, none empty", assignment,
                                 MLB_PIPELINE_MAX_ENVS);
             snprintf(t.envs[t.n_envs++], sizeof t.envs[0], "%.*s", (int)n, p);
-            p += n + (p[n] == ',');
-            if (p[-1] == ',' && !*p) return mlb_fail(MLB_ERR_ARG, "--set %s: a trailing comma", assignment);
+            p += n;
+            if (!*p) break;
         }
-        if (!t.n_envs) return mlb_fail(MLB_ERR_ARG, "--set %s: no environment named", assignment);
         *c = t;
         return MLB_OK;
     }

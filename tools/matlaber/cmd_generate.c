@@ -166,7 +166,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         if (is_fit) return cli_usage_error(command, "--preset is an option of generate and paint");
         if (mlb_pipeline_preset(&c, preset)) return cli_usage_error(command, "%s", mlb_last_error());
     }
-    const char *out = NULL, *resume = NULL, *asset = NULL;
+    const char *out = NULL, *resume = NULL, *asset = NULL, *set = NULL;
     const char* geometry_option = NULL;   // paint: the first geometry-stage option given (refused)
     int appearance_scale_given = 0;
     long stop_after = 0, v;
@@ -225,7 +225,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             snprintf(c.tokenizer, sizeof c.tokenizer, "%s", optarg);
             break;
         case 'E': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
-        case 'D': if (mlb_pipeline_config_set(&c, optarg)) return cli_usage_error(command, "%s", mlb_last_error()); break;
+        case 'D': if (mlb_pipeline_config_set(&c, optarg)) return cli_usage_error(command, "%s", mlb_last_error()); set = optarg; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
         case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;
@@ -289,7 +289,9 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     const char* dir = resume ? resume : out;
     if (resume) {
         if (out && strcmp(out, resume) != 0) return cli_usage_error(command, "--resume continues RUN_DIR in place: drop -o");
-        if (preset) return cli_usage_error(command, "--resume continues with the run's own settings (config.json): drop --preset");
+        if (preset || set)
+            return cli_usage_error(command, "--resume continues with the run's own settings (config.json): drop --%s",
+                                   preset ? "preset" : "set");
         char path[4096];
         snprintf(path, sizeof path, "%s/config.json", resume);
         s = mlb_pipeline_config_load(&c, path);

@@ -1,5 +1,6 @@
 // A small test harness. Each tests/test_*.c is one executable (one CTest test) made of cases:
 //   TEST(name) { CHECK(cond); CHECK_CLOSE(a, b, rtol, atol); }   and in main: RUN(name); return test_summary();
+// MLB_TEST_CASE=name runs one case of a file (e.g. MLB_TEST_CASE=config_set build/tests/test_pipeline).
 // A case that cannot run (missing ../shared data, no GPU) calls SKIP("why"); a file whose every
 // case skipped exits 77, which CTest reports as skipped.
 #ifndef MATLABER_TEST_H
@@ -14,7 +15,9 @@ static int test_n_pass, test_n_fail, test_n_skip, test_case_failed, test_case_sk
 static const char* test_case_name;
 
 #define TEST(name) static void test_##name(void)
+// MLB_TEST_CASE=name runs that case alone (the others are not run, nor counted).
 #define RUN(name) do { \
+    const char* only_ = getenv("MLB_TEST_CASE"); if (only_ && *only_ && strcmp(only_, #name)) break; \
     test_case_name = #name; test_case_failed = 0; test_case_skipped = 0; \
     test_##name(); \
     if (test_case_skipped) { test_n_skip++; printf("SKIP %s\n", #name); } \

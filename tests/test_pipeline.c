@@ -1,7 +1,7 @@
 // The two-stage pipeline end to end (include/matlaber/pipeline.h): config files, a small image-
 // guided fit that recovers a known albedo, resume equivalence, and score distillation with a tiny
-// random Stable Diffusion UNet + VAE written by the test, and --init auto's look-ahead with a guidance
-// written by the test.
+// random Stable Diffusion UNet + VAE written by the test, and --init auto's look-ahead and the
+// material start with guidances written by the test.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,6 +12,7 @@
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/guidance_sds.h"
+#include "matlaber/material_net.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/threads.h"
 #include "matlaber/rng.h"
@@ -135,6 +136,16 @@ TEST(config_round_trip_and_errors) {
     c.appearance_guidance_scale = -1;
     CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
     c.appearance_guidance_scale = 0;
+    // "material_start": saved and loaded; a run from before it started at the prior's centre (0)
+    c.material_start = 1;
+    REQUIRE(mlb_pipeline_config_save(&c, path) == MLB_OK);
+    REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
+    CHECK(back.material_start == 1);
+    REQUIRE(load_without_keys(&c, path, "material_start", "coarse_to_fine", &back) == MLB_OK);
+    CHECK(back.material_start == 0);
+    c.material_start = 2;
+    CHECK(mlb_pipeline_validate(&c) == MLB_ERR_ARG);
+    c.material_start = 0;
     mlb_clear_error();
 }
 
@@ -538,6 +549,133 @@ TEST(auto_init_looks_ahead) {
     }
 }
 
+// ---- material_start with a guidance written by the test -----------------------------------------
+// Its score favours the archetype rendered at one call (the archetypes are scored one call each, in
+// material_start.c's order: grey metal 0, warm metal 1, white glossy 2, grey rough 3, warm glossy 4,
+// red glossy 5, blue glossy 6, green glossy 7), and it keeps each call's mean colour over the
+// object, so the test sees that the renders are the archetypes. A metal's win starts the network
+// from that metal (in latent and direct mode); a dielectric's leaves the start bitwise the prior's
+// centre, as material_start 0 does.
+enum { ARCH_N = 8, ARCH_GREY_METAL = 0, ARCH_RED = 5, ARCH_BLUE = 6 };
+typedef struct {
+    mlb_orbit_config orbit;
+    int want, calls;
+    double rgb[ARCH_N][3];
+} arch_guidance;
+static mlb_status arch_sample_views(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
+    const arch_guidance* a = g->impl;
+    for (int v = 0; v < g->n_views; v++) MLB_TRY(mlb_orbit_sample(&views[v], &a->orbit, 5, (int)stage, step, v));
+    return MLB_OK;
+}
+static mlb_status arch_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
+                             int W, double* per_view) {
+    (void)views;
+    arch_guidance* a = g->impl;
+    if (stage != MLB_STAGE_APPEARANCE || a->calls >= ARCH_N) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
+    double sum[3] = {0, 0, 0}, cover = 0;
+    for (size_t i = 0; i < (size_t)n * H * W; i++) {
+        const float* px = images + 4 * i;
+        if (px[3] < 0.5f) continue;
+        for (int k = 0; k < 3; k++) sum[k] += px[k];
+        cover++;
+    }
+    for (int k = 0; k < 3; k++) a->rgb[a->calls][k] = cover > 0 ? sum[k] / cover : 0;
+    for (int v = 0; v < n; v++) per_view[v] = a->calls == a->want ? 1.0 : 0.0;
+    a->calls++;
+    return MLB_OK;
+}
+
+// One geometry step from the ellipsoid and one appearance step; the final material network's bytes
+// (*size) and its mean kd and ks over points of the surface (the sphere of radius 0.5).
+static char* material_start_run(const char* run, int material_start, int want, mlb_material_mode mode, arch_guidance* a,
+                                long* size, double* kd, double* ks) {
+    memset(a, 0, sizeof *a);
+    a->orbit = mlb_orbit_default();
+    a->want = want;
+    mlb_guidance g = {.kind = "sds", .n_views = 2, .sample_views = arch_sample_views, .loss = cov_loss, .score = arch_score, .impl = a};
+    mlb_pipeline_config c = mlb_pipeline_default();
+    snprintf(c.prompt, sizeof c.prompt, "a metal thing");
+    snprintf(c.model, sizeof c.model, "(a guidance written by the test)");
+    c.res = 32;
+    c.views = 2;
+    c.grid = 16;
+    c.hash_log2 = 14;
+    c.init_iters = 30;
+    c.geometry_iters = 1;
+    c.appearance_iters = 1;
+    c.preview_every = 0;
+    c.export_texture = 0;
+    c.cube_size = 64;
+    c.env_height = 32;
+    c.material = mode;
+    c.material_start = material_start;
+    mlb_pipeline_result r;
+    if (mlb_pipeline_run(run, &c, &g, NULL, 0, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return NULL; }
+    char path[700];
+    snprintf(path, sizeof path, "%s/final/material.safetensors", run);
+    char* bytes = NULL;
+    size_t n = 0;
+    mlb_material_net net;
+    memset(&net, 0, sizeof net);
+    if (mlb_read_file(path, &bytes, &n, 1 << 28) || mlb_material_load(&net, path)) {
+        printf("  %s: %s\n", path, mlb_last_error());
+        free(bytes);
+        return NULL;
+    }
+    enum { P = 64 };
+    float pos[3 * P], k[7 * P];
+    for (int i = 0; i < P; i++) {   // a spiral over the sphere of radius 0.5
+        double z = 1 - (2.0 * i + 1) / P, rho = sqrt(1 - z * z), phi = 2.399963 * i;
+        pos[3 * i] = (float)(0.5 * rho * cos(phi));
+        pos[3 * i + 1] = (float)(0.5 * z);
+        pos[3 * i + 2] = (float)(0.5 * rho * sin(phi));
+    }
+    mlb_status s = mlb_material_eval(&net, pos, P, k);
+    *kd = *ks = 0;
+    for (int i = 0; !s && i < P; i++)
+        for (int j = 0; j < 3; j++) { *kd += k[7 * i + j] / (3.0 * P); *ks += k[7 * i + 3 + j] / (3.0 * P); }
+    material_net_free(&net);
+    if (s) { printf("  %s: %s\n", path, mlb_last_error()); free(bytes); return NULL; }
+    *size = (long)n;
+    return bytes;
+}
+
+TEST(material_start_picks_a_metal) {
+    char run[512];
+    arch_guidance a;
+    long n_metal = 0, n_red = 0, n_off = 0;
+    double kd[4], ks[4];
+    snprintf(run, sizeof run, "%s/mstart_metal", tmpdir);
+    char* metal = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &n_metal, &kd[0], &ks[0]);
+    CHECK(a.calls == ARCH_N);
+    // the renders are the archetypes: the red one red, the blue one blue
+    CHECK(a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][1] && a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][2]);
+    CHECK(a.rgb[ARCH_BLUE][2] > 1.5 * a.rgb[ARCH_BLUE][0] && a.rgb[ARCH_BLUE][2] > 1.2 * a.rgb[ARCH_BLUE][1]);
+    snprintf(run, sizeof run, "%s/mstart_red", tmpdir);
+    char* red = material_start_run(run, 1, ARCH_RED, MLB_MATERIAL_LATENT, &a, &n_red, &kd[1], &ks[1]);
+    CHECK(a.calls == ARCH_N);
+    snprintf(run, sizeof run, "%s/mstart_off", tmpdir);
+    char* off = material_start_run(run, 0, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &n_off, &kd[2], &ks[2]);
+    CHECK(a.calls == 0);   // material_start 0: no scoring
+    long n_direct = 0;
+    snprintf(run, sizeof run, "%s/mstart_direct", tmpdir);
+    char* direct = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_DIRECT, &a, &n_direct, &kd[3], &ks[3]);
+    REQUIRE(metal && red && off && direct);
+    printf("  mean kd / ks: metal %.3f / %.3f, red won %.3f / %.3f, off %.3f / %.3f, direct metal %.3f / %.3f\n", kd[0],
+           ks[0], kd[1], ks[1], kd[2], ks[2], kd[3], ks[3]);
+    // the grey metal (kd 0.02, ks 0.9) after one step of lr 0.01, in both modes; the centre is not metal
+    CHECK(kd[0] < 0.08 && ks[0] > 0.8);
+    CHECK(kd[3] < 0.08 && ks[3] > 0.8);
+    CHECK(!(kd[2] < 0.15 && ks[2] > 0.3));
+    // a dielectric's win: the run as material_start 0 makes it, bit for bit
+    CHECK(n_red == n_off && !memcmp(red, off, (size_t)n_off));
+    CHECK(!(n_metal == n_off && !memcmp(metal, off, (size_t)n_off)));
+    free(metal);
+    free(red);
+    free(off);
+    free(direct);
+}
+
 int main(void) {
     const char* base = getenv("TMPDIR");
     snprintf(tmpdir, sizeof tmpdir, "%s/mlb_pipeline_XXXXXX", base && *base ? base : "/tmp");
@@ -549,6 +687,7 @@ int main(void) {
     RUN(resume_reaches_the_uninterrupted_result);
     RUN(sds_generate_two_steps_per_stage);
     RUN(auto_init_looks_ahead);
+    RUN(material_start_picks_a_metal);
     char cmd[400];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
     if (system(cmd)) return 1;

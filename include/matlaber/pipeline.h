@@ -58,6 +58,9 @@ typedef struct {
     double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
     // appearance stage
     int appearance_iters;         // 2000
+    int material_start;           // 1: the model picks the start among material archetypes (a metal's, or
+                                  // the prior's centre: docs/pipeline.md, "Material start"); 0: the
+                                  // prior's centre (the default; the tiny preset's is 1). SDS guidance only.
     double appearance_lr;         // 1e-2
     mlb_material_mode material;   // latent (the paper) or direct (ablation)
     double w_mat;                 // material smoothness weight (kd): 0.03

@@ -363,6 +363,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     app.images_on_table = r->g->loss_on != NULL;
     const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
+    if (!s && start == 0) s = pipeline_material_start(r);   // before the network goes to a device
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");
@@ -606,6 +607,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
         mc.scale = gc.scale;
         mc.enc.table_size = gc.enc.table_size;
         if (!s) s = material_net_init(&r.mat, &mc, &prior);
+        r.prior = &prior;
         if (!s) s = appearance_stage(&r);
     }
     if (!s && geometry_done && !r.stopped) {

@@ -78,6 +78,10 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         // vase, teapot: kd 0.8, ks 0.02); at 100 (the paper's) they come out metal and every material's
         // RMSE drops, dielectrics stay dielectric (docs/benchmarks.md, "Appearance guidance scale")
         c->appearance_guidance_scale = 100.0;
+        // From the prior's centre (a dielectric) score distillation finds a dielectric's colour but
+        // seldom crosses to a metal: silver came out white or bluish diffuse on 10 of 11 prompts. The
+        // model's own score picks the start (docs/pipeline.md, "Material start"; docs/benchmarks.md)
+        c->material_start = 1;
         c->env_height = 128;
         c->cube_size = 64;
         c->checkpoint_every = 50;
@@ -141,6 +145,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->checkpoint_every < 1) bad = "checkpoint interval must be >= 1";
     else if (c->preview_every < 0) bad = "preview interval must be >= 0";
     else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
+    else if (c->material_start != 0 && c->material_start != 1)
+        bad = "material_start must be 0 (the prior's centre) or 1 (the model picks among archetypes)";
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
@@ -203,6 +209,7 @@ static const field FIELDS[] = {
     FLD_OPT("tokenizer", F_STR, tokenizer, 0),                        // added 2026-11-27; before: none (folders only)
     FLD_OPT("geometry_t_max_end", F_INT, geometry_t_max_end, 0),      // added 2026-11-29; before: no annealing
     FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // added 2026-11-29; before: no annealing
+    FLD_OPT("material_start", F_INT, material_start, 0),              // added 2026-11-29; before: the prior's centre
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

@@ -4,9 +4,11 @@
 #define MATLABER_PIPELINE_INTERNAL_H
 #include "matlaber/appearance.h"
 #include "matlaber/backend.h"
+#include "matlaber/brdf_ae.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/envmap.h"
 #include "matlaber/geometry.h"
+#include "matlaber/geometry_fit.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/raster.h"
 #include "matlaber/run.h"
@@ -34,6 +36,7 @@ typedef struct {
     const mlb_backend* be;   // the op table the stages' marching tets and raster ops run on
     const mlb_backend* field_be;   // the stages' table (CUDA fp32 on a GPU), NULL: the host
     mlb_material_net mat;
+    const mlb_brdf_ae* prior;   // the BRDF prior the material network was made from (latent mode)
     pipeline_scene scene;
     long geometry_start;
     long steps_this_run;   // for stop_after
@@ -68,6 +71,12 @@ mlb_status pipeline_resume_point(const char* dir, int* stage, long* step);
 // SDS with --fixed-env: environment 0, never rotated (image guidance keeps the targets' lights);
 // a view without an environment (−1) is lit by environment 0.
 mlb_status pipeline_fix_env(pipeline_run* r, mlb_view* views, int n);
+
+// material_start.c
+// material_start 1 with a guidance that scores: the material network's start is the material
+// archetype the guidance scores best when that is a metal, else left at the prior's centre
+// (docs/pipeline.md, "Material start"). Before the network goes to a device.
+mlb_status pipeline_material_start(pipeline_run* r);
 // previews/<stage>_<step>.png: the step's renders side by side.
 mlb_status pipeline_preview(pipeline_run* r, mlb_stage stage, long step, const float* images, int n);
 void pipeline_progress(pipeline_run* r, long done, double loss, int faces);

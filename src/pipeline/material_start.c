@@ -4,8 +4,8 @@
 // The material network starts at the prior's centre: its hash features are ~1e-4, so every point's
 // latent code is about the last layer's bias, 0, which decodes to a grey dielectric. From there score
 // distillation finds a dielectric's colour by itself, but it seldom crosses to a metal, which needs
-// kd down and ks up together: with the tiny model, silver came out white or bluish diffuse on 10 of
-// 11 prompts although the model's score prefers a metal's renders for "a silver ..." (docs/
+// kd down and ks up together: with the tiny model, silver missed the metal call on 10 of 11
+// prompts (white, or a bluish diffuse over the specular) although the model's score prefers a metal's renders for "a silver ..." (docs/
 // benchmarks.md, "The model picks the starting material"). So the surface is rendered in a few
 // uniform archetypes, metals and dielectrics of the primary tints (generic: no catalogue material),
 // each scored by the guidance (guidance.h, score) on the first appearance steps' views; when a metal

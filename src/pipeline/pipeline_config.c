@@ -79,7 +79,7 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         // RMSE drops, dielectrics stay dielectric (docs/benchmarks.md, "Appearance guidance scale")
         c->appearance_guidance_scale = 100.0;
         // From the prior's centre (a dielectric) score distillation finds a dielectric's colour but
-        // seldom crosses to a metal: silver came out white or bluish diffuse on 10 of 11 prompts. The
+        // seldom crosses to a metal: silver missed the metal call on 10 of 11 prompts. The
         // model's own score picks the start (docs/pipeline.md, "Material start"; docs/benchmarks.md)
         c->material_start = 1;
         c->env_height = 128;

@@ -367,3 +367,8 @@ done:
     FN(mlp_cache_free)(&c);
     return status;
 }
+
+mlb_status FN(brdf_ae_latent_of)(const FN(mlb_brdf_ae)* ae, const real* k, size_t n, real* z, int iters) {
+    MLB_TRY(FN(brdf_ae_encode)(ae, k, n, z, NULL));
+    return iters > 0 ? FN(brdf_ae_fit_latent)(ae, k, n, z, iters) : MLB_OK;
+}

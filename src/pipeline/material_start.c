@@ -5,8 +5,9 @@
 // latent code is about the last layer's bias, 0, which decodes to a grey dielectric. From there score
 // distillation finds a dielectric's colour by itself, but it seldom crosses to a metal, which needs
 // kd down and ks up together: with the tiny model, silver missed the metal call on 10 of 11
-// prompts (white, or a bluish diffuse over the specular) although the model's score prefers a metal's renders for "a silver ..." (docs/
-// benchmarks.md, "The model picks the starting material"). So the surface is rendered in a few
+// prompts (white, or a bluish diffuse over the specular) although the model's score prefers a
+// metal's renders for "a silver ..." (docs/benchmarks.md, "The model picks the starting
+// material"). So the surface is rendered in a few
 // uniform archetypes, metals and dielectrics of the primary tints (generic: no catalogue material),
 // each scored by the guidance (guidance.h, score) on the first appearance steps' views; when a metal
 // scores best, the network starts from it (its last layer's bias set to that material), else from
@@ -45,8 +46,7 @@ enum { N_ARCH = sizeof ARCHETYPES / sizeof *ARCHETYPES, START_VIEWS = 8, LATENT_
 static mlb_status archetype_bias(const mlb_material_net* net, const mlb_brdf_ae* prior, const float* k, float* bias) {
     if (net->cfg.mode == MLB_MATERIAL_LATENT) {
         if (!prior) return mlb_fail(MLB_ERR_ARG, "material start: a latent material network without its prior");
-        MLB_TRY(brdf_ae_encode(prior, k, 1, bias, NULL));
-        return brdf_ae_fit_latent(prior, k, 1, bias, LATENT_FIT_ITERS);
+        return brdf_ae_latent_of(prior, k, 1, bias, LATENT_FIT_ITERS);
     }
     for (int i = 0; i < 7; i++) {
         double u = ((double)k[i] - mlb_brdf_range_lo[i]) / (mlb_brdf_range_hi[i] - mlb_brdf_range_lo[i]);
@@ -63,33 +63,30 @@ mlb_status pipeline_material_start(pipeline_run* r) {
     if (!c->material_start || !g->score) return MLB_OK;   // image guidance has no score: the centre
     mlb_mlp* mlp = &net->mlp;
     const int L = mlp->n_layers - 1, O = mlp->dims[L + 1], I = mlp->dims[L];
-    if (!mlp->bias[L] || O > 7) return mlb_fail(MLB_ERR_ARG, "material start: the network's last layer has no bias");
-    int per = g->n_views, steps = (START_VIEWS + per - 1) / per, n = steps * per;
+    if (!mlp->bias[L] || O > 7)
+        return mlb_fail(MLB_ERR_ARG, "material start: the network's last layer is not 4 or 7 outputs with a bias");
+    mlb_view* views = NULL;
+    int n = 0, per = g->n_views;
+    MLB_TRY(pipeline_first_views(r, MLB_STAGE_APPEARANCE, START_VIEWS, &views, &n));
     size_t img = (size_t)c->res * c->res * 4, nw = (size_t)O * I;
-    mlb_view* views = calloc((size_t)n, sizeof *views);
     float* images = malloc(sizeof(float) * img * (size_t)n);
     float* weight = malloc(sizeof(float) * nw);   // the layer as initialised, restored after
     float bias[7], code[N_ARCH][7];
     double sc[N_ARCH], *per_view = malloc(sizeof(double) * (size_t)n);
-    mlb_status s = views && images && weight && per_view ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "material start: out of memory");
+    mlb_status s = images && weight && per_view ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "material start: out of memory");
     if (!s) {
         memcpy(weight, mlp->weight[L], sizeof(float) * nw);
         memcpy(bias, mlp->bias[L], sizeof(float) * (size_t)O);
         memset(mlp->weight[L], 0, sizeof(float) * nw);   // the output: the bias at every point
-    }
-    for (int k = 0; !s && k < steps; k++) {   // the first steps' views, as the stage draws them
-        s = g->sample_views(g, MLB_STAGE_APPEARANCE, k, views + (size_t)k * per);
-        if (!s) s = pipeline_fix_env(r, views + (size_t)k * per, per);
     }
     mlb_appearance app;   // renders on the host: the scores read host images (guidance.h)
     memset(&app, 0, sizeof app);
     for (int a = 0; !s && a < N_ARCH; a++) {
         s = archetype_bias(net, r->prior, ARCHETYPES[a].k, code[a]);
         if (!s) memcpy(mlp->bias[L], code[a], sizeof(float) * (size_t)O);
-        for (int k = 0; !s && k < steps; k++) {   // a step's views per render
-            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views + (size_t)k * per, per, c->res,
-                                      c->ss, images + img * (size_t)k * per, 0);
-        }
+        for (int v = 0; !s && v < n; v += per)   // a step's views per render
+            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views + v, per, c->res, c->ss,
+                                      images + img * (size_t)v, 0);
         if (!s) s = g->score(g, MLB_STAGE_APPEARANCE, views, n, images, c->res, c->res, per_view);
         sc[a] = 0;
         for (int v = 0; !s && v < n; v++) sc[a] += per_view[v] / n;

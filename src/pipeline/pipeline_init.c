@@ -148,6 +148,22 @@ static void log_scores(const char* when, const char* const* names, const double*
     else mlb_log(MLB_LOG_INFO, "%s none left", line);
 }
 
+mlb_status pipeline_first_views(pipeline_run* r, mlb_stage stage, int want, mlb_view** out, int* n_out) {
+    mlb_guidance* g = r->g;
+    int per = g->n_views, steps = (want + per - 1) / per, n = steps * per;
+    if (n > MLB_SDS_MAX_BATCH) { steps = MLB_SDS_MAX_BATCH / per; n = steps * per; }
+    mlb_view* views = calloc((size_t)n, sizeof *views);
+    mlb_status s = views ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "the first steps' views: out of memory");
+    for (int k = 0; !s && k < steps; k++) {
+        s = g->sample_views(g, stage, k, views + (size_t)k * per);
+        if (!s && stage == MLB_STAGE_APPEARANCE) s = pipeline_fix_env(r, views + (size_t)k * per, per);
+    }
+    if (s) { free(views); return s; }
+    *out = views;
+    *n_out = n;
+    return MLB_OK;
+}
+
 mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
@@ -163,22 +179,22 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
         names[N++] = tok;
     }
     if (N < 1) return mlb_fail(MLB_ERR_ARG, "--init %s: no candidates", c->init);
-    int per = g->n_views, steps = (AUTO_VIEWS + per - 1) / per, n = steps * per;
-    if (n > MLB_SDS_MAX_BATCH) { steps = MLB_SDS_MAX_BATCH / per; n = steps * per; }
     const size_t np = net->n_params;
-    mlb_view* views = calloc((size_t)n, sizeof *views);
+    mlb_view* views = NULL;
+    int n = 0;
+    mlb_status s = pipeline_first_views(r, MLB_STAGE_GEOMETRY, AUTO_VIEWS, &views, &n);
+    if (s) return mlb_fail_context(s, "--init %s", c->init);
     double* sc = malloc(sizeof(double) * (size_t)n * N);   // [N, n] per-view scores
     // the network as it came (parameters, Adam's moments) and every candidate's fitted parameters
     float* start = malloc(sizeof(float) * 3 * np);
     float* fit = malloc(sizeof(float) * np * N);
     const long step0 = net->step;
-    mlb_status s = views && sc && start && fit ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
+    s = sc && start && fit ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
     if (!s) {
         memcpy(start, net->params, sizeof(float) * np);
         memcpy(start + np, net->adam_m, sizeof(float) * np);
         memcpy(start + 2 * np, net->adam_v, sizeof(float) * np);
     }
-    for (int k = 0; !s && k < steps; k++) s = g->sample_views(g, MLB_STAGE_GEOMETRY, k, views + (size_t)k * per);
     int vanished[AUTO_MAX] = {0};
     for (int i = 0; !s && i < N; i++) {
         memcpy(net->params, start, sizeof(float) * np);

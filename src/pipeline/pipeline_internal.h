@@ -60,6 +60,10 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
+// The views of a stage's first steps, for scoring renders as the stage will see them: whole steps,
+// at least `want` views, at most MLB_SDS_MAX_BATCH (one step at least); the appearance stage's with
+// their lights fixed as the stage fixes them. *views: malloc'd, n_views of them.
+mlb_status pipeline_first_views(pipeline_run* r, mlb_stage stage, int want, mlb_view** views, int* n_views);
 // --init auto[:A,B,..]: fits r->geo to the candidate the guidance scores best for the prompt.
 mlb_status pipeline_choose_init(pipeline_run* r, int active_levels);
 

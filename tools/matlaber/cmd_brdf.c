@@ -433,8 +433,7 @@ static int code_main(int argc, char** argv, int encode) {
                     (double)MLB_KR_MIN);
             return 1;
         }
-        mlb_status s = encode ? brdf_ae_encode(&ae, in, 1, out, NULL) : brdf_ae_decode(&ae, in, 1, out);
-        if (!s && encode && refine > 0) s = brdf_ae_fit_latent(&ae, in, 1, out, (int)refine);
+        mlb_status s = encode ? brdf_ae_latent_of(&ae, in, 1, out, (int)refine) : brdf_ae_decode(&ae, in, 1, out);
         if (s) { brdf_ae_free(&ae); return cli_fail(s, cmd); }
         print_row(out, out_dim, json, values != NULL);
         if (values) break;

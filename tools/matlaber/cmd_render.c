@@ -424,10 +424,8 @@ int brdf_swatch_main(int argc, char** argv) {
         mlb_status st = model ? mlb_brdf_ae_load(&ae, model) : mlb_brdf_ae_load_default(&ae, source, sizeof source);
         if (st) return cli_fail(st, "loading the BRDF prior");
         if (interp_k) {   // the codes that decode closest to the end materials
-            st = brdf_ae_encode(&ae, ka, 1, za, NULL);
-            if (!st) st = brdf_ae_fit_latent(&ae, ka, 1, za, 20);
-            if (!st) st = brdf_ae_encode(&ae, kb, 1, zb, NULL);
-            if (!st) st = brdf_ae_fit_latent(&ae, kb, 1, zb, 20);
+            st = brdf_ae_latent_of(&ae, ka, 1, za, 20);
+            if (!st) st = brdf_ae_latent_of(&ae, kb, 1, zb, 20);
         }
         for (int i = 0; i < steps && !st; i++) {
             float a = (float)i / (float)(steps - 1), z[4];

@@ -16,6 +16,7 @@
 #include "matlaber/pipeline.h"
 #include "matlaber/threads.h"
 #include "matlaber/rng.h"
+#include "matlaber/safetensors.h"
 #include "matlaber/schedule.h"
 #include "matlaber/text3d.h"
 #include "matlaber/unet_random.h"
@@ -155,6 +156,8 @@ TEST(config_round_trip_and_errors) {
     optional_key(&c, path, "appearance_guidance_scale", "75", "0", "-1");
     // "material_start": a run from before it started at the prior's centre (0)
     optional_key(&c, path, "material_start", "1", "0", "2");
+    // "metal_start_lr_scale": a run from before it refined a metal start at the stage's rate (1)
+    optional_key(&c, path, "metal_start_lr_scale", "0.1", "1", "0");
     mlb_clear_error();
 }
 
@@ -594,10 +597,30 @@ static mlb_status arch_score(mlb_guidance* g, mlb_stage stage, const mlb_view* v
     return MLB_OK;
 }
 
-// One geometry step from the ellipsoid and one appearance step; the final material network's bytes
-// (*size) and its mean kd and ks over points of the surface (the sphere of radius 0.5).
+// How material_start_run runs beyond its arguments (all 0: one appearance step, the same rate after
+// a metal start, uninterrupted, fresh).
+typedef struct {
+    double lr_scale;          // metal_start_lr_scale (0: 1)
+    int appearance_iters;     // (0: 1)
+    int stop_after, resume;   // the config's stop_after; resume the run folder
+} mstart_opts;
+
+// The appearance checkpoint's learning rate (its metadata "lr"), or -1.
+static double checkpoint_lr(const char* run) {
+    char path[700];
+    snprintf(path, sizeof path, "%s/checkpoints/appearance.safetensors", run);
+    mlb_safetensors* st = NULL;
+    if (mlb_st_open(&st, path)) return -1;
+    const char* t = mlb_st_metadata(st, "lr");
+    double lr = t ? strtod(t, NULL) : -1;
+    mlb_st_close(st);
+    return lr;
+}
+
+// One geometry step from the ellipsoid and one appearance step (or o's); the final material
+// network's bytes (*size) and its mean kd and ks over points of the surface (the sphere of radius 0.5).
 static char* material_start_run(const char* run, int material_start, int want, mlb_material_mode mode, arch_guidance* a,
-                                long* size, double* kd, double* ks) {
+                                const mstart_opts* o, long* size, double* kd, double* ks) {
     memset(a, 0, sizeof *a);
     a->orbit = mlb_orbit_default();
     a->want = want;
@@ -611,15 +634,19 @@ static char* material_start_run(const char* run, int material_start, int want, m
     c.hash_log2 = 14;
     c.init_iters = 30;
     c.geometry_iters = 1;
-    c.appearance_iters = 1;
+    c.appearance_iters = o->appearance_iters > 0 ? o->appearance_iters : 1;
+    c.checkpoint_every = 1;
+    c.stop_after = o->stop_after;
     c.preview_every = 0;
     c.export_texture = 0;
     c.cube_size = 64;
     c.env_height = 32;
     c.material = mode;
     c.material_start = material_start;
+    c.metal_start_lr_scale = o->lr_scale > 0 ? o->lr_scale : 1;
     mlb_pipeline_result r;
-    if (mlb_pipeline_run(run, &c, &g, NULL, 0, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return NULL; }
+    if (mlb_pipeline_run(run, &c, &g, NULL, o->resume, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return NULL; }
+    if (!r.finished) return calloc(1, 1);   // stopped: nothing final to read
     char path[700];
     snprintf(path, sizeof path, "%s/final/material.safetensors", run);
     char* bytes = NULL;
@@ -655,24 +682,27 @@ TEST(material_start_picks_a_metal) {
     long n_metal = 0, n_red = 0, n_off = 0;
     double kd[4], ks[4];
     snprintf(run, sizeof run, "%s/mstart_metal", tmpdir);
-    char* metal = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &n_metal, &kd[0], &ks[0]);
+    const mstart_opts plain = {0}, tenth = {.lr_scale = 0.1};
+    char* metal = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &tenth, &n_metal, &kd[0], &ks[0]);
+    CHECK(checkpoint_lr(run) == 1e-2 * 0.1);   // the metal start's rate, as the stage took it
     CHECK(a.calls == ARCH_N);
     // the renders are the archetypes: the red one red, the blue one blue
     CHECK(a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][1] && a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][2]);
     CHECK(a.rgb[ARCH_BLUE][2] > 1.5 * a.rgb[ARCH_BLUE][0] && a.rgb[ARCH_BLUE][2] > 1.2 * a.rgb[ARCH_BLUE][1]);
     snprintf(run, sizeof run, "%s/mstart_red", tmpdir);
-    char* red = material_start_run(run, 1, ARCH_RED, MLB_MATERIAL_LATENT, &a, &n_red, &kd[1], &ks[1]);
+    char* red = material_start_run(run, 1, ARCH_RED, MLB_MATERIAL_LATENT, &a, &tenth, &n_red, &kd[1], &ks[1]);
     CHECK(a.calls == ARCH_N);
+    CHECK(checkpoint_lr(run) == 1e-2);   // a dielectric's win keeps the config's rate
     snprintf(run, sizeof run, "%s/mstart_off", tmpdir);
-    char* off = material_start_run(run, 0, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &n_off, &kd[2], &ks[2]);
+    char* off = material_start_run(run, 0, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &plain, &n_off, &kd[2], &ks[2]);
     CHECK(a.calls == 0);   // material_start 0: no scoring
     long n_direct = 0;
     snprintf(run, sizeof run, "%s/mstart_direct", tmpdir);
-    char* direct = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_DIRECT, &a, &n_direct, &kd[3], &ks[3]);
+    char* direct = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_DIRECT, &a, &plain, &n_direct, &kd[3], &ks[3]);
     REQUIRE(metal && red && off && direct);
     printf("  mean kd / ks: metal %.3f / %.3f, red won %.3f / %.3f, off %.3f / %.3f, direct metal %.3f / %.3f\n", kd[0],
            ks[0], kd[1], ks[1], kd[2], ks[2], kd[3], ks[3]);
-    // the grey metal (kd 0.02, ks 0.9) after one step of lr 0.01, in both modes; the centre is not metal
+    // the grey metal (kd 0.02, ks 0.9) after one step of lr 0.001 (latent) or 0.01 (direct); the centre is not metal
     CHECK(kd[0] < 0.08 && ks[0] > 0.8);
     CHECK(kd[3] < 0.08 && ks[3] > 0.8);
     const float centre[7] = {(float)kd[2], (float)kd[2], (float)kd[2], (float)ks[2], (float)ks[2], (float)ks[2], 0.5f};
@@ -684,6 +714,33 @@ TEST(material_start_picks_a_metal) {
     free(red);
     free(off);
     free(direct);
+}
+
+// Killed in the appearance stage after a metal start and resumed: the same bytes as the run not
+// killed, so the resumed steps take the checkpoint's lowered rate (the config's would differ), and
+// the start is not scored again.
+TEST(metal_start_resumes_at_its_rate) {
+    char a_run[512], b_run[512];
+    arch_guidance a;
+    long n_a = 0, n_b = 0;
+    double kd, ks;
+    snprintf(a_run, sizeof a_run, "%s/mstart_whole", tmpdir);
+    snprintf(b_run, sizeof b_run, "%s/mstart_killed", tmpdir);
+    mstart_opts o = {.lr_scale = 0.1, .appearance_iters = 3};
+    char* whole = material_start_run(a_run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &o, &n_a, &kd, &ks);
+    o.stop_after = 3;   // geometry step 0, appearance steps 0 and 1 (checkpointed after 0: the stop is a kill)
+    char* killed = material_start_run(b_run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &o, &n_b, &kd, &ks);
+    CHECK(a.calls == ARCH_N);
+    free(killed);
+    o.stop_after = 0;
+    o.resume = 1;
+    char* resumed = material_start_run(b_run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &o, &n_b, &kd, &ks);
+    REQUIRE(whole && resumed);
+    CHECK(a.calls == 0);   // resumed in the appearance stage: no second scoring
+    CHECK(checkpoint_lr(b_run) == 1e-2 * 0.1);
+    CHECK_MSG(n_a == n_b && !memcmp(whole, resumed, (size_t)n_a), "the resumed run's material network differs");
+    free(whole);
+    free(resumed);
 }
 
 int main(void) {
@@ -698,6 +755,7 @@ int main(void) {
     RUN(sds_generate_two_steps_per_stage);
     RUN(auto_init_looks_ahead);
     RUN(material_start_picks_a_metal);
+    RUN(metal_start_resumes_at_its_rate);
     char cmd[400];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
     if (system(cmd)) return 1;

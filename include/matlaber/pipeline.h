@@ -61,6 +61,8 @@ typedef struct {
     int material_start;           // 1: the model picks the start among material archetypes (a metal's, or
                                   // the prior's centre: docs/pipeline.md, "Material start"); 0: the
                                   // prior's centre (the default; the tiny preset's is 1). SDS guidance only.
+    double metal_start_lr_scale;  // after a metal start the appearance stage's learning rate is
+                                  // appearance_lr times this (1; the tiny preset's 0.1)
     double appearance_lr;         // 1e-2
     mlb_material_mode material;   // latent (the paper) or direct (ablation)
     double w_mat;                 // material smoothness weight (kd): 0.03

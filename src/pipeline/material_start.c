@@ -56,10 +56,11 @@ static mlb_status archetype_bias(const mlb_material_net* net, const mlb_brdf_ae*
     return MLB_OK;
 }
 
-mlb_status pipeline_material_start(pipeline_run* r) {
+mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
     mlb_material_net* net = &r->mat;
+    *metal = 0;
     if (!c->material_start || !g->score) return MLB_OK;   // image guidance has no score: the centre
     mlb_mlp* mlp = &net->mlp;
     const int L = mlp->n_layers - 1, O = mlp->dims[L + 1], I = mlp->dims[L];
@@ -104,9 +105,11 @@ mlb_status pipeline_material_start(pipeline_run* r) {
         int len = snprintf(line, sizeof line, "material start: the prompt's score on %d views:", n);
         for (int a = 0; a < N_ARCH && len < (int)sizeof line; a++)
             len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f;", ARCHETYPES[a].name, sc[a]);
-        if (ARCHETYPES[best].metal) memcpy(mlp->bias[L], code[best], sizeof(float) * (size_t)O);
-        mlb_log(MLB_LOG_INFO, "%s best: the %s; starting from the %s", line, ARCHETYPES[best].name,
-                ARCHETYPES[best].metal ? ARCHETYPES[best].name : "prior's centre");
+        *metal = ARCHETYPES[best].metal;
+        if (*metal) memcpy(mlp->bias[L], code[best], sizeof(float) * (size_t)O);
+        mlb_log(MLB_LOG_INFO, "%s best: the %s; starting from the %s at learning rate %g", line, ARCHETYPES[best].name,
+                *metal ? ARCHETYPES[best].name : "prior's centre",
+                c->appearance_lr * (*metal ? c->metal_start_lr_scale : 1.0));
     }
     free(views);
     free(images);

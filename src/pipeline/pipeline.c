@@ -24,9 +24,10 @@
 #include "pipeline/pipeline_internal.h"
 
 // ---- optimiser state: one safetensors file per stage -----------------------------------------
-// A field's "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken in the metadata. Exact
-// floats, so a resumed run continues bitwise from where the checkpoint was taken.
-static mlb_status pipeline_state_save(const char* path, const mlb_field* f, long step, const char* stage) {
+// A field's "params", "adam_m", "adam_v" as flat F32 [n] and the steps taken and the stage's learning
+// rate in the metadata. Exact floats, so a resumed run continues bitwise from where the checkpoint
+// was taken (the rate is the run's own: a metal start lowers the appearance stage's, material_start.c).
+static mlb_status pipeline_state_save(const char* path, const mlb_field* f, long step, double lr, const char* stage) {
     size_t n = f->n_params;
     mlb_ckpt_tensor t[3] = {{"params", f->params, 1, {(int64_t)n}},
                             {"adam_m", f->adam_m, 1, {(int64_t)n}},
@@ -34,13 +35,15 @@ static mlb_status pipeline_state_save(const char* path, const mlb_field* f, long
     mlb_ckpt_meta meta = {0};
     mlb_status s = mlb_ckpt_meta_set_i64(&meta, "step", step);
     if (!s) s = mlb_ckpt_meta_set(&meta, "stage", stage);
+    if (!s) s = mlb_ckpt_meta_set_f64(&meta, "lr", lr);
     if (!s) s = mlb_checkpoint_save(path, t, 3, &meta);
     mlb_ckpt_meta_free(&meta);
     return s;
 }
 
-// Into f (params, moments and its step counter).
-static mlb_status pipeline_state_load(const char* path, mlb_field* f, const char* stage) {
+// Into f (params, moments and its step counter); *lr left as it is when the checkpoint has none
+// (written before 2026-11-29, when the rate was always the config's).
+static mlb_status pipeline_state_load(const char* path, mlb_field* f, double* lr, const char* stage) {
     size_t n = f->n_params;
     mlb_ckpt_tensor t[3] = {{"params", f->params, 1, {(int64_t)n}},
                             {"adam_m", f->adam_m, 1, {(int64_t)n}},
@@ -52,6 +55,12 @@ static mlb_status pipeline_state_load(const char* path, mlb_field* f, const char
     if (!s && (!st || strcmp(st, stage) != 0)) s = mlb_fail(MLB_ERR_FORMAT, "%s: not a %s checkpoint", path, stage);
     if (!s) s = mlb_ckpt_meta_get_i64(&meta, "step", &k);
     if (!s && k < 0) s = mlb_fail(MLB_ERR_FORMAT, "%s: negative step %lld", path, (long long)k);
+    if (!s && mlb_ckpt_meta_get(&meta, "lr")) {
+        double v = 0;
+        s = mlb_ckpt_meta_get_f64(&meta, "lr", &v);
+        if (!s && !(v > 0 && isfinite(v))) s = mlb_fail(MLB_ERR_FORMAT, "%s: learning rate %g is not a positive number", path, v);
+        if (!s) *lr = v;
+    }
     mlb_ckpt_meta_free(&meta);
     if (!s) f->step = (long)k;
     return s;
@@ -196,6 +205,7 @@ typedef struct {
     mlb_stage stage;
     const char* name;            // "geometry" / "appearance": checkpoint file and metadata
     mlb_field* field;            // the stage's network: parameters, Adam moments, step counter
+    double lr;                   // its learning rate: the config's, or (appearance) lowered by a metal start
     long iters;                  // the stage's length
     long progress_offset;        // steps of the stages before this one
     char ckpt[MLB_PIPELINE_PATH + 64];
@@ -204,9 +214,9 @@ typedef struct {
 static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
     stage_state ss;
     if (stage == MLB_STAGE_GEOMETRY) {
-        ss = (stage_state){stage, "geometry", &r->geo, r->c->geometry_iters, 0, {0}};
+        ss = (stage_state){stage, "geometry", &r->geo, r->c->geometry_lr, r->c->geometry_iters, 0, {0}};
     } else {
-        ss = (stage_state){stage, "appearance", &r->mat, r->c->appearance_iters, r->c->geometry_iters, {0}};
+        ss = (stage_state){stage, "appearance", &r->mat, r->c->appearance_lr, r->c->appearance_iters, r->c->geometry_iters, {0}};
     }
     char rel[64];
     snprintf(rel, sizeof rel, "checkpoints/%s.safetensors", ss.name);
@@ -214,18 +224,19 @@ static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
     return ss;
 }
 
-// On resume with a checkpoint: loads it, *start = its step, *found = 1.
+// On resume with a checkpoint: loads it (ss->lr: the rate it was taken at), *start = its step, *found = 1.
 // Several processes: rank 0 reads the checkpoint and sends it to the others (no shared file system
 // needed for the checkpoints; a run saved by N processes resumes on M).
 static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, int* found) {
     *start = 0;
     int head[2] = {r->resume && mlb_is_file(ss->ckpt), MLB_OK};
-    if (head[0] && mlb_dist_rank() == 0) head[1] = pipeline_state_load(ss->ckpt, ss->field, ss->name);
+    if (head[0] && mlb_dist_rank() == 0) head[1] = pipeline_state_load(ss->ckpt, ss->field, &ss->lr, ss->name);
     mlb_status s = mlb_dist_bcast(head, sizeof head, 0);
     if (!s && head[1]) s = mlb_dist_rank() == 0 ? (mlb_status)head[1] : mlb_fail(MLB_ERR_IO, "rank 0 could not read %s", ss->ckpt);
     *found = head[0];
     if (s || !*found) return s;
     s = pipeline_field_bcast(ss->field);
+    if (!s) s = mlb_dist_bcast(&ss->lr, sizeof ss->lr, 0);
     if (s) return s;
     *start = ss->field->step;
     // the progress rate (and so the ETA) counts only the steps this invocation takes
@@ -253,7 +264,7 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
         mlb_status hs = mlb_field_sync_host(ss->field);   // from the GPU (nothing to do on the host)
         mlb_status rs = pipeline_check_replicas(ss->field, it);   // (a collective: every rank, whatever s)
         if (!s) s = hs ? hs : rs;
-        if (!s && writer) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->name);
+        if (!s && writer) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->lr, ss->name);
     }
     if (writer) pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
     s = pipeline_agree(s);
@@ -291,14 +302,14 @@ static mlb_status geometry_stage(pipeline_run* r) {
         memset(net->adam_m, 0, sizeof(float) * net->n_params);
         memset(net->adam_v, 0, sizeof(float) * net->n_params);
         net->step = 0;
-        s = mlb_dist_rank() == 0 ? pipeline_state_save(ss.ckpt, net, 0, ss.name) : MLB_OK;
+        s = mlb_dist_rank() == 0 ? pipeline_state_save(ss.ckpt, net, 0, ss.lr, ss.name) : MLB_OK;
         s = pipeline_agree(s);
         if (s) return s;
     }
     r->geometry_start = start;
     if (start >= c->geometry_iters) return MLB_OK;
 
-    mlb_adam_config adam = mlb_geometry_adam(c->geometry_lr);
+    mlb_adam_config adam = mlb_geometry_adam(ss.lr);
     int n = r->g->n_views;
     size_t img = (size_t)c->res * c->res * 4;
     mlb_view* views = calloc((size_t)n, sizeof *views);
@@ -345,7 +356,6 @@ static mlb_status appearance_stage(pipeline_run* r) {
     if (start >= c->appearance_iters) return MLB_OK;
     if (r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
-    mlb_adam_config adam = mlb_material_adam(c->appearance_lr);
     const int paint_images = c->paint_mesh[0] && !strcmp(c->guidance, "images");
     int n = r->g->n_views;
     size_t img = (size_t)c->res * c->res * 4;
@@ -363,7 +373,10 @@ static mlb_status appearance_stage(pipeline_run* r) {
     app.images_on_table = r->g->loss_on != NULL;
     const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
-    if (!s && start == 0) s = pipeline_material_start(r);   // before the network goes to a device
+    int metal = 0;
+    if (!s && start == 0) s = pipeline_material_start(r, &metal);   // before the network goes to a device
+    if (metal) ss.lr *= c->metal_start_lr_scale;
+    mlb_adam_config adam = mlb_material_adam(ss.lr);
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
         if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");

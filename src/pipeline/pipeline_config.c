@@ -29,6 +29,7 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     c.reg_frac = 0.25;
     c.appearance_iters = 2000;
     c.appearance_lr = 1e-2;
+    c.metal_start_lr_scale = 1;
     c.material = MLB_MATERIAL_LATENT;
     c.w_mat = 0.03;
     c.w_mat_spec = 0.1;         // docs/pipeline.md: demo albedo +2.2 dB, relighting +0.35 dB
@@ -82,6 +83,11 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         // seldom crosses to a metal: silver missed the metal call on 10 of 11 prompts. The
         // model's own score picks the start (docs/pipeline.md, "Material start"; docs/benchmarks.md)
         c->material_start = 1;
+        // and refines it at a tenth of the rate: at 0.01 the metal starts' kd grew in noisy tinted
+        // spots on 6 of 13 and 2 went back to a diffuse (metal kept on 5); at 0.001 on all 13, with
+        // material RMSE 0.248 -> 0.072 (docs/benchmarks.md, "Refining a metal start"). Every run
+        // that does not start from a metal keeps 0.01: gold crosses to a metal only at that rate.
+        c->metal_start_lr_scale = 0.1;
         c->env_height = 128;
         c->cube_size = 64;
         c->checkpoint_every = 50;
@@ -147,6 +153,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
     else if (c->material_start != 0 && c->material_start != 1)
         bad = "material_start must be 0 (the prior's centre) or 1 (the model picks among archetypes)";
+    else if (!(c->metal_start_lr_scale > 0) || !(c->metal_start_lr_scale <= 1))
+        bad = "metal_start_lr_scale must be in (0, 1]";
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
@@ -210,6 +218,7 @@ static const field FIELDS[] = {
     FLD_OPT("geometry_t_max_end", F_INT, geometry_t_max_end, 0),      // added 2026-11-29; before: no annealing
     FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // added 2026-11-29; before: no annealing
     FLD_OPT("material_start", F_INT, material_start, 0),              // added 2026-11-29; before: the prior's centre
+    FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // added 2026-11-29; before: the same rate
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

@@ -79,8 +79,9 @@ mlb_status pipeline_fix_env(pipeline_run* r, mlb_view* views, int n);
 // material_start.c
 // material_start 1 with a guidance that scores: the material network's start is the material
 // archetype the guidance scores best when that is a metal, else left at the prior's centre
-// (docs/pipeline.md, "Material start"). Before the network goes to a device.
-mlb_status pipeline_material_start(pipeline_run* r);
+// (docs/pipeline.md, "Material start"). Before the network goes to a device. *metal: 1 when it
+// started from a metal (the stage then refines it at metal_start_lr_scale times the rate).
+mlb_status pipeline_material_start(pipeline_run* r, int* metal);
 // previews/<stage>_<step>.png: the step's renders side by side.
 mlb_status pipeline_preview(pipeline_run* r, mlb_stage stage, long step, const float* images, int n);
 void pipeline_progress(pipeline_run* r, long done, double loss, int faces);

@@ -289,6 +289,67 @@ TEST(shape_slab) {
     mlb_mesh_free(&box);
 }
 
+// The cup (an open hemispherical shell): its SDF at points worked by hand; against the distance to
+// 60000 of its surface samples at random points (never more than that distance, and within the
+// samples' spacing of it: the samples cover the surface), with the sign of an inside test written
+// here; the samples on the surface, spread over the outer and inner hemispheres by area.
+TEST(shape_cup) {
+    mlb_shape s;
+    CHECK(mlb_shape_builtin(&s, "cup", 1.0f) == 1 && s.kind == MLB_SHAPE_CUP);
+    const double r = s.cup_radius, t = s.cup_wall, c = s.cup_center_y;
+    CHECK_CLOSE(sqrt((r + t) * (r + t) + (c + t) * (c + t)), 0.8, 0, 1e-6);   // the rim's outer corner at 0.8
+    CHECK_CLOSE(c - (r + t), -(c + t), 0, 1e-6);                              // centred in y: -0.4..0.4
+    float h[15] = {0, (float)c, 0,   0, (float)(c - r), 0,   (float)r, (float)(c + 0.3), 0,
+                   0, (float)(c + 0.1), 0,   (float)(r + 0.5), (float)(c - 0.2), 0};
+    float e[5];
+    mlb_shape_sdf(&s, h, e, 5);
+    CHECK_CLOSE(e[0], r - t, 0, 1e-6);    // the sphere's centre: in the open cavity
+    CHECK_CLOSE(e[1], -t, 0, 1e-6);       // the middle of the wall at the bottom
+    CHECK_CLOSE(e[2], 0.3 - t, 0, 1e-6);  // above the rim
+    CHECK_CLOSE(e[3], sqrt(r * r + 0.01) - t, 0, 1e-6);   // above the cut: the rim is nearest
+    CHECK_CLOSE(e[4], sqrt((r + 0.5) * (r + 0.5) + 0.04) - r - t, 0, 1e-6);   // outside, beside the wall
+    enum { M = 60000, N = 300 };
+    static float q[3 * M], sd[M], p[3 * N], a[N];
+    mlb_shape_surface_samples(&s, q, M, 1, 2);
+    mlb_shape_sdf(&s, q, sd, M);
+    double worst = 0;
+    int outer = 0, inner = 0;
+    for (int i = 0; i < M; i++) {
+        worst = fmax(worst, fabs(sd[i]));
+        double dy = q[3 * i + 1] - c, R = sqrt((double)q[3 * i] * q[3 * i] + dy * dy + (double)q[3 * i + 2] * q[3 * i + 2]);
+        if (dy < -1e-6) outer += R > r, inner += R < r;
+    }
+    CHECK_MSG(worst < 1e-5, "cup sdf on its surface up to %g", worst);
+    double total = 2 * M_PI * ((r + t) * (r + t) + (r - t) * (r - t)) + 2 * M_PI * M_PI * r * t;
+    double share_out = 2 * M_PI * (r + t) * (r + t) / total, share_in = 2 * M_PI * (r - t) * (r - t) / total;
+    CHECK_MSG(fabs((double)outer / M - share_out) < 5 * sqrt(share_out * (1 - share_out) / M), "outer %.4f of the samples, its area %.4f",
+              (double)outer / M, share_out);
+    CHECK_MSG(fabs((double)inner / M - share_in) < 5 * sqrt(share_in * (1 - share_in) / M), "inner %.4f of the samples, its area %.4f",
+              (double)inner / M, share_in);
+    for (int i = 0; i < 3 * N; i++) p[i] = (float)(mlb_rng_uniform_f64(6, 1, (uint64_t)i) * 2 - 1);
+    mlb_shape_sdf(&s, p, a, N);
+    double over = 0, gap = 0;
+    int inside = 0, sign_wrong = 0;
+    for (int i = 0; i < N; i++) {
+        const float* x = p + 3 * i;
+        double best = INFINITY;
+        for (int j = 0; j < M; j++) {
+            double dx = x[0] - q[3 * j], dy = x[1] - q[3 * j + 1], dz = x[2] - q[3 * j + 2];
+            best = fmin(best, dx * dx + dy * dy + dz * dz);
+        }
+        best = sqrt(best);
+        over = fmax(over, fabs(a[i]) - best);
+        gap = fmax(gap, best - fabs(a[i]));
+        double rad = sqrt((double)x[0] * x[0] + (double)x[2] * x[2]), y = x[1] - c, R = sqrt(rad * rad + y * y);
+        int in = (y <= 0 && fabs(R - r) < t) || (y > 0 && (rad - r) * (rad - r) + y * y < t * t);
+        inside += in;
+        sign_wrong += in != (a[i] < 0);
+    }
+    CHECK_MSG(over < 1e-5, "the sdf exceeds the distance to a surface point by %g", over);
+    CHECK_MSG(gap < 0.02, "a surface point nearer than the samples by up to %g (they miss part of it)", gap);
+    CHECK_MSG(sign_wrong == 0 && inside > 5, "%d signs wrong (%d points inside)", sign_wrong, inside);
+}
+
 static void cube_mesh(mlb_mesh* m, int drop_top) {
     static const float v[24] = {-1, -1, -1, 1, -1, -1, 1, 1, -1, -1, 1, -1, -1, -1, 1, 1, -1, 1, 1, 1, 1, -1, 1, 1};
     static const int32_t f[36] = {0, 3, 2, 0, 2, 1, 4, 5, 6, 4, 6, 7, 0, 1, 5, 0, 5, 4,
@@ -503,6 +564,7 @@ int main(void) {
     RUN(float_matches_double);
     RUN(analytic_sdfs);
     RUN(shape_slab);
+    RUN(shape_cup);
     RUN(winding_number);
     RUN(mesh_sdf_of_sphere);
     RUN(ellipsoid_init_chamfer);

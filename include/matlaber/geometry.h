@@ -70,7 +70,7 @@ mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net,
                                    mlb_mesh* out);
 
 // ---- shapes and their signed distance (shape_init.c) ---------------------------------------
-typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS, MLB_SHAPE_BOX } mlb_shape_kind;
+typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS, MLB_SHAPE_BOX, MLB_SHAPE_CUP } mlb_shape_kind;
 typedef struct {
     mlb_shape_kind kind;
     float radii[3];        // ellipsoid semi-axes
@@ -78,6 +78,8 @@ typedef struct {
     float cyl_height;
     float torus_major, torus_minor;   // torus in the xy plane (hole along z, facing the front camera)
     float box_center[3], box_half[3];   // box: centre and half-extents along x, y, z
+    float cup_radius, cup_wall, cup_center_y;   // cup: the lower half of a spherical shell of mid radius
+                                                // cup_radius and half-thickness cup_wall, centred at y
     mlb_mesh mesh;         // MLB_SHAPE_MESH: owned copy (positions + faces), already placed
     double mesh_area;      // total area (for sampling)
 } mlb_shape;
@@ -97,7 +99,13 @@ void mlb_shape_torus(mlb_shape* s, float scale);
 // the geometry stage grows legs down, where from the ellipsoid the tiny preset loses a table's
 // surface, and from the same plate at mid-height it lost every stool (docs/pipeline.md, Init).
 void mlb_shape_slab(mlb_shape* s, float scale);
-// The built-in shape called `name` ("ellipsoid": radius scale, "cylinder", "torus", "slab") into *s:
+// A cup: the lower half of a spherical shell, open at the top: mid radius 0.6·k, wall 0.2·k thick,
+// the sphere's centre at y = 0.3·k, so the cup spans y −0.4·k..0.4·k, with k = 0.8·scale/|(0.7, 0.4)|
+// (its rim's outer corner at radius 0.8·scale, a mesh init's size). Like the torus, a topology the geometry stage cannot make from
+// the ellipsoid: it has no gradient that opens a cavity in a closed surface, so a bowl from the
+// ellipsoid stays a closed lens (docs/benchmarks.md).
+void mlb_shape_cup(mlb_shape* s, float scale);
+// The built-in shape called `name` ("ellipsoid": radius scale, "cylinder", "torus", "slab", "cup") into *s:
 // 1, or 0 (s untouched) when name is none of them (a file, say).
 int mlb_shape_builtin(mlb_shape* s, const char* name, float scale);
 // A copy of m normalised to the unit sphere (mlb_mesh_normalize_unit_sphere), times scale.

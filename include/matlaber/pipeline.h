@@ -47,7 +47,7 @@ typedef struct {
     double geometry_lr;           // 1e-3 (AdamW, betas 0.9/0.99, eps 1e-15)
     int grid;                     // DMTet grid as Fantasia3D names it (128 → 64 cells per axis)
     int hash_log2;                // both networks' hash tables: 2^hash_log2 entries per hashed level, 0 = 19 (the paper's)
-    char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder", "torus", "slab", an OBJ file, or "auto" / "auto:A,B,.." (the
+    char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder", "torus", "slab", "cup", an OBJ file, or "auto" / "auto:A,B,.." (the
                                   // candidate the model scores best: docs/pipeline.md, Init)
     int init_iters;               // SDF initialisation steps: 400
     int geometry_t_max_end;       // the geometry stage's largest SDS timestep falls linearly from 500 to

@@ -43,11 +43,21 @@ void mlb_shape_slab(mlb_shape* s, float scale) {
     s->box_center[1] = center_y * k;
 }
 
+void mlb_shape_cup(mlb_shape* s, float scale) {
+    memset(s, 0, sizeof *s);
+    s->kind = MLB_SHAPE_CUP;
+    float k = 0.8f * scale / sqrtf(0.7f * 0.7f + 0.4f * 0.4f);   // the rim's outer corner (0.7, 0.4) at 0.8
+    s->cup_radius = 0.6f * k;
+    s->cup_wall = 0.1f * k;
+    s->cup_center_y = 0.3f * k;
+}
+
 int mlb_shape_builtin(mlb_shape* s, const char* name, float scale) {
     if (!strcmp(name, "ellipsoid")) mlb_shape_ellipsoid(s, scale, NULL);
     else if (!strcmp(name, "cylinder")) mlb_shape_cylinder(s, scale);
     else if (!strcmp(name, "torus")) mlb_shape_torus(s, scale);
     else if (!strcmp(name, "slab")) mlb_shape_slab(s, scale);
+    else if (!strcmp(name, "cup")) mlb_shape_cup(s, scale);
     else return 0;
     return 1;
 }
@@ -248,6 +258,13 @@ void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n) {
                 inside = fmax(inside, d[k]);
             }
             out[i] = (float)(sqrt(out2) + fmin(inside, 0.0));
+        } else if (s->kind == MLB_SHAPE_CUP) {
+            // exact: in the (radial, height) half-plane about the sphere's centre, above the rim's
+            // plane the distance to the rim circle (r, 0), below it to the sphere of radius r, less
+            // the wall's half-thickness
+            double x = sqrt((double)q[0] * q[0] + (double)q[2] * q[2]), y = (double)q[1] - s->cup_center_y;
+            double r = s->cup_radius, d = y > 0 ? sqrt((x - r) * (x - r) + y * y) : fabs(sqrt(x * x + y * y) - r);
+            out[i] = (float)(d - s->cup_wall);
         } else {
             double dr = sqrt((double)q[0] * q[0] + (double)q[2] * q[2]) - s->cyl_radius;
             double dy = fabs((double)q[1]) - 0.5 * s->cyl_height;
@@ -321,6 +338,32 @@ void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t see
             p[3 * i + axis] = c[axis] + ((w.v[3] & 1) ? h[axis] : -h[axis]);
             p[3 * i + e1] = (float)(c[e1] + h[e1] * (2 * mlb_u32_to_unit(w.v[1]) - 1));
             p[3 * i + e2] = (float)(c[e2] + h[e2] * (2 * mlb_u32_to_unit(w.v[2]) - 1));
+        } else if (s->kind == MLB_SHAPE_CUP) {
+            // area-uniform over its three parts: the outer and inner hemispheres (height uniform on a
+            // sphere is area-uniform, Archimedes) and the rim, a half torus (its upper half; tube angle
+            // by rejection on the ring radius, as the torus above)
+            double r = s->cup_radius, t = s->cup_wall, ro = r + t, ri = r - t;
+            double a_out = 2 * M_PI * ro * ro, a_in = 2 * M_PI * ri * ri, a_rim = 2 * M_PI * M_PI * r * t;
+            mlb_u32x4 w = mlb_rng_words(seed, stream, (uint64_t)i * 16);
+            double u = mlb_u32_to_unit(w.v[0]) * (a_out + a_in + a_rim), phi = 2 * M_PI * mlb_u32_to_unit(w.v[1]);
+            double rad, y;
+            if (u < a_out + a_in) {
+                double R = u < a_out ? ro : ri;
+                y = -R * mlb_u32_to_unit(w.v[2]);
+                rad = sqrt(fmax(R * R - y * y, 0.0));
+            } else {
+                double v = 0;
+                for (uint64_t k = 1; k < 16; k++) {
+                    mlb_u32x4 z = mlb_rng_words(seed, stream, (uint64_t)i * 16 + k);
+                    v = M_PI * mlb_u32_to_unit(z.v[0]);
+                    if (mlb_u32_to_unit(z.v[1]) * (r + t) <= r + t * cos(v)) break;
+                }
+                rad = r + t * cos(v);
+                y = t * sin(v);
+            }
+            p[3 * i] = (float)(rad * cos(phi));
+            p[3 * i + 1] = (float)(s->cup_center_y + y);
+            p[3 * i + 2] = (float)(rad * sin(phi));
         } else {
             double R = s->cyl_radius, H = s->cyl_height;
             double side = 2 * M_PI * R * H, cap = M_PI * R * R;

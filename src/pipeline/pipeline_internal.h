@@ -57,7 +57,7 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
                                   mlb_view* views, mlb_geofit_stats* stats, float* images);
 
 // pipeline_init.c
-// Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab" or an OBJ file) in the
+// Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab", "cup" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
 // The views of a stage's first steps, for scoring renders as the stage will see them: whole steps,

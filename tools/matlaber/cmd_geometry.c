@@ -11,8 +11,8 @@
 #include "matlaber/obj.h"
 
 static const cli_option init_options[] = {
-    {"shape", 1, 'S', "SHAPE", "ellipsoid, cylinder, torus, slab or FILE.obj (normalised to the unit sphere)"},
-    {"shape-scale", 1, 'k', "X", "scale of the shape (default 1: ellipsoid radius 1, cylinder r 0.75 h 0.8, torus outer radius 0.8, slab 1.28 x 0.11 x 0.78 at y 0.18..0.28)"},
+    {"shape", 1, 'S', "SHAPE", "ellipsoid, cylinder, torus, slab, cup or FILE.obj (normalised to the unit sphere)"},
+    {"shape-scale", 1, 'k', "X", "scale of the shape (default 1: ellipsoid radius 1, cylinder r 0.75 h 0.8, torus outer radius 0.8, slab 1.28 x 0.11 x 0.78 at y 0.18..0.28, cup an open hemispherical shell of radius 0.6, wall 0.2, rim corner at 0.8)"},
     {"grid", 1, 'g', "32|64|128", "tet grid of the extraction (16, 32 or 64 cells; default 64; 32 is the tiny preset's), kept in the file"},
     {"iters", 1, 'i', "N", "Adam steps (default 400)"},
     {"batch", 1, 'b', "N", "points per step (default 12288)"},
@@ -49,7 +49,7 @@ static int geometry_init(int argc, char** argv) {
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error("geometry init", "--seed: expected a non-negative integer"); cfg.seed = fit.seed = (uint64_t)v; break;
         case 'o': out = optarg; break;
         case 'h':
-            printf("usage: matlaber geometry init --shape ellipsoid|cylinder|torus|slab|FILE.obj [options] -o FILE.safetensors\n\n"
+            printf("usage: matlaber geometry init --shape ellipsoid|cylinder|torus|slab|cup|FILE.obj [options] -o FILE.safetensors\n\n"
                    "Initialises the geometry network (hash grid -> MLP 32 wide, 2 hidden, ReLU -> sdf + deform) by\n"
                    "Adam steps of MSE against the shape's signed distance at surface, jittered (N(0, 0.05)) and\n"
                    "uniform points (reference.md §3). Prints the Chamfer distance of the extracted surface.\n\n");
@@ -197,7 +197,7 @@ int cmd_geometry(int argc, char** argv) {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         FILE* o = argc < 2 ? stderr : stdout;
         fprintf(o, "usage: matlaber geometry init|extract [options]  ('matlaber geometry <sub> --help')\n"
-                   "  init      fit the geometry network's SDF to an ellipsoid, a cylinder, a torus, a slab or a mesh\n"
+                   "  init      fit the geometry network's SDF to an ellipsoid, a cylinder, a torus, a slab, a cup or a mesh\n"
                    "  extract   the network's marching-tets surface as an OBJ\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }

@@ -483,8 +483,8 @@ static mlb_status cov_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
     return MLB_OK;
 }
 static mlb_status cov_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
-                            int W, double* per_view) {
-    (void)g, (void)stage, (void)views;
+                            int W, const int* t_range, double* per_view) {
+    (void)g, (void)stage, (void)views, (void)t_range;
     for (int v = 0; v < n; v++) {
         double sum = 0;
         for (size_t i = 0; i < (size_t)H * W; i++) sum += images[4 * ((size_t)v * H * W + i) + 3];
@@ -572,6 +572,7 @@ enum { ARCH_N = 8, ARCH_GREY_METAL = 0, ARCH_RED = 5, ARCH_BLUE = 6 };
 typedef struct {
     mlb_orbit_config orbit;
     int want, calls;
+    int t_range[2];   // the timesteps the start asked to be scored at
     double rgb[ARCH_N][3];
 } arch_guidance;
 static mlb_status arch_sample_views(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
@@ -580,10 +581,11 @@ static mlb_status arch_sample_views(mlb_guidance* g, mlb_stage stage, long step,
     return MLB_OK;
 }
 static mlb_status arch_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
-                             int W, double* per_view) {
+                             int W, const int* t_range, double* per_view) {
     (void)views;
     arch_guidance* a = g->impl;
     if (stage != MLB_STAGE_APPEARANCE || a->calls >= ARCH_N) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
+    if (t_range) a->t_range[0] = t_range[0], a->t_range[1] = t_range[1];
     double sum[3] = {0, 0, 0}, cover = 0;
     for (size_t i = 0; i < (size_t)n * H * W; i++) {
         const float* px = images + 4 * i;
@@ -686,6 +688,7 @@ TEST(material_start_picks_a_metal) {
     char* metal = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &tenth, &n_metal, &kd[0], &ks[0]);
     CHECK(checkpoint_lr(run) == 1e-2 * 0.1);   // the metal start's rate, as the stage took it
     CHECK(a.calls == ARCH_N);
+    CHECK(a.t_range[0] == 150 && a.t_range[1] == 550);   // the middle timesteps, where a metal and a glaze differ
     // the renders are the archetypes: the red one red, the blue one blue
     CHECK(a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][1] && a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][2]);
     CHECK(a.rgb[ARCH_BLUE][2] > 1.5 * a.rgb[ARCH_BLUE][0] && a.rgb[ARCH_BLUE][2] > 1.2 * a.rgb[ARCH_BLUE][1]);

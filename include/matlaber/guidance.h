@@ -53,9 +53,10 @@ struct mlb_guidance {
     // the unconditional text does: E_t,eps[|eps_u - eps|^2 - |eps_c - eps|^2] per latent element, a
     // diffusion classifier's estimate of log p(render | prompt) - log p(render) (up to scale).
     // Fixed timesteps and noise (the same for every call), so two sets of renders compare on the
-    // same draws. --init auto picks the starting shape by it (docs/pipeline.md, Init).
+    // same draws; the timesteps spread over t_range [lo, hi] (NULL: the stage's range). --init auto
+    // picks the starting shape by it (docs/pipeline.md, Init), the material start the material.
     mlb_status (*score)(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
-                        int W, double* per_view);
+                        int W, const int* t_range, double* per_view);
     void* impl;
     // Which of the step's views the next loss call covers, for a step guided a part at a time (a
     // micro-batch of views, on whichever rank renders it: dist.h): images[0] is view part_first of

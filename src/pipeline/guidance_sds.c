@@ -145,17 +145,19 @@ static mlb_status sds_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
 }
 
 // The diffusion classifier's score (guidance.h): SCORE_DRAWS timesteps per view, spread evenly over
-// the stage's range, noise from a step number no run reaches, so every call draws the same.
+// the stage's range or t_range, noise from a step number no run reaches, so every call draws the same.
 #define SCORE_DRAWS 4
 #define SCORE_STEP (1L << 40)
 static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
-                            int W, double* per_view) {
+                            int W, const int* t_range, double* per_view) {
     sds_guidance* s = g->impl;
     int vids[MLB_SDS_MAX_BATCH], C, h, w, lc, lh, lw, t[MLB_SDS_MAX_BATCH];
     MLB_TRY(to_model_input(s, mlb_backend_cpu(), stage, 0, views, n, images, H, W, vids, &C, &h, &w));
     mlb_sds* sds = stage == MLB_STAGE_GEOMETRY ? s->geo : s->app;
     const mlb_sds_options* opt = stage == MLB_STAGE_GEOMETRY ? &s->c.geometry_opt : &s->c.appearance_opt;
     MLB_TRY(mlb_sds_latent_shape(sds, C, h, w, &lc, &lh, &lw));
+    const int lo = t_range ? t_range[0] : opt->t_min, hi = t_range ? t_range[1] : opt->t_max;
+    if (lo < 0 || hi > 999 || lo > hi) return mlb_fail(MLB_ERR_ARG, "SDS guidance: scoring timesteps [%d, %d] (within 0..999)", lo, hi);
     // the renders are encoded once (the first draw's latents), the later draws take those latents
     // as they are: the same bits as encoding every time
     float* z = malloc(sizeof(float) * (size_t)lc * n * lh * lw);
@@ -164,7 +166,7 @@ static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* vi
     for (int b = 0; b < n; b++) per_view[b] = 0;
     mlb_status st = MLB_OK;
     for (int j = 0; !st && j < SCORE_DRAWS; j++) {
-        for (int b = 0; b < n; b++) t[b] = opt->t_min + (int)((opt->t_max - opt->t_min) * (j + 0.5) / SCORE_DRAWS);
+        for (int b = 0; b < n; b++) t[b] = lo + (int)((hi - lo) * (j + 0.5) / SCORE_DRAWS);
         mlb_sds_input in = {j ? z : s->x, n, j ? lc : C, j ? lh : h, j ? lw : w, vids, SCORE_STEP + j, t, NULL, 0, 0};
         mlb_sds_trace tr = {0};
         tr.latent = j ? NULL : z;

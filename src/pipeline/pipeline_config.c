@@ -85,7 +85,7 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->material_start = 1;
         // and refines it at a tenth of the rate: at 0.01 the metal starts' kd grew in noisy tinted
         // spots on 6 of 13 and 2 went back to a diffuse (metal kept on 5); at 0.001 on all 13, with
-        // material RMSE 0.248 -> 0.072 (docs/benchmarks.md, "Refining a metal start"). Every run
+        // material RMSE 0.248 -> 0.071 (docs/benchmarks.md, "Refining a metal start"). Every run
         // that does not start from a metal keeps 0.01: gold crosses to a metal only at that rate.
         c->metal_start_lr_scale = 0.1;
         c->env_height = 128;
@@ -158,7 +158,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
     else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
         bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
-    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, slab, auto[:A,B,..] or an OBJ file";
+    else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, slab, cup, auto[:A,B,..] or an OBJ file";
     else if (mlb_pipeline_init_is_auto(c->init) && c->init[4] == ':' &&
              (!c->init[5] || strstr(c->init, ",,") || c->init[strlen(c->init) - 1] == ','))
         bad = "--init auto:A,B,..: the candidates are names or OBJ files separated by commas, none empty";

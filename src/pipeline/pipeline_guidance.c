@@ -36,9 +36,9 @@ static mlb_status owner_loss_on(mlb_guidance* g, const struct mlb_backend* be, m
 }
 
 static mlb_status owner_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
-                              int W, double* per_view) {
+                              int W, const int* t_range, double* per_view) {
     sds_owner* o = g->impl;
-    return o->inner->score(o->inner, stage, views, n, images, H, W, per_view);
+    return o->inner->score(o->inner, stage, views, n, images, H, W, t_range, per_view);
 }
 
 static void owner_destroy(mlb_guidance* g) {

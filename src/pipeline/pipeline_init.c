@@ -1,5 +1,5 @@
 // The geometry stage's starting shape (docs/pipeline.md, Init): the SDF network fitted to an
-// ellipsoid, a cylinder, a torus, a slab or the user's mesh, or (--init auto) to whichever of the
+// ellipsoid, a cylinder, a torus, a slab, a cup or the user's mesh, or (--init auto) to whichever of the
 // primitives the guidance's model finds most like the prompt.
 #include <math.h>
 #include <stdio.h>
@@ -20,7 +20,7 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
         // the geometry stage grows it outward (docs/pipeline.md, Init)
         const float axes[3] = {0.5f, 0.5f, 0.5f};
         mlb_shape_ellipsoid(&shape, 1.0f, axes);
-    } else if (!mlb_shape_builtin(&shape, init, 1.0f)) {   // cylinder, torus, slab: else a file
+    } else if (!mlb_shape_builtin(&shape, init, 1.0f)) {   // cylinder, torus, slab, cup: else a file
         mlb_mesh m;
         memset(&m, 0, sizeof m);
         s = mlb_obj_load(init, &m);
@@ -79,7 +79,7 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
     mlb_status s = mlb_geofit_forward(&st, &r->geo, &r->grid, r->ctx, cams, n, c->res, c->ss, NULL, &stats);
     *vanished = s && st.surf.n_faces == 0;   // marching tets found no surface
     if (*vanished) s = MLB_OK;
-    else if (!s) s = r->g->score(r->g, MLB_STAGE_GEOMETRY, views, n, st.images, c->res, c->res, per_view);
+    else if (!s) s = r->g->score(r->g, MLB_STAGE_GEOMETRY, views, n, st.images, c->res, c->res, NULL, per_view);
     mlb_geofit_state_free(&st);
     free(cams);
     return s;

@@ -42,8 +42,8 @@ enum { N_ARCH = sizeof ARCHETYPES / sizeof *ARCHETYPES, START_VIEWS = 8, LATENT_
 // The timesteps the archetypes are scored at: the middle of the schedule. At large t the noised render
 // keeps only its mean colour, and the model cannot tell a metal from a glaze of the same tint (per
 // timestep, over the benchmark's 88 prompts: at 620 and 860 the picks are near chance, at 380 the warm
-// metal wins 8 of 11 copper prompts and the grey metal 10 of 11 silver ones); at small t both look
-// equally smooth (docs/benchmarks.md, "Scoring at the middle timesteps").
+// metal wins 8 of 11 copper prompts and the grey metal 10 of 11 silver ones, at 140 the coppers
+// read as glazes again: docs/benchmarks.md, "Scoring at the middle timesteps").
 static const int SCORE_T[2] = {150, 550};
 
 // The last layer's bias that makes the network output archetype k everywhere once the layer's
@@ -113,9 +113,8 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
             len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f;", ARCHETYPES[a].name, sc[a]);
         *metal = ARCHETYPES[best].metal;
         if (*metal) memcpy(mlp->bias[L], code[best], sizeof(float) * (size_t)O);
-        mlb_log(MLB_LOG_INFO, "%s best: the %s; starting from the %s at learning rate %g", line, ARCHETYPES[best].name,
-                *metal ? ARCHETYPES[best].name : "prior's centre",
-                c->appearance_lr * (*metal ? c->metal_start_lr_scale : 1.0));
+        mlb_log(MLB_LOG_INFO, "%s best: the %s; starting from the %s", line, ARCHETYPES[best].name,
+                *metal ? ARCHETYPES[best].name : "prior's centre");
     }
     free(views);
     free(images);

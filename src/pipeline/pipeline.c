@@ -375,7 +375,10 @@ static mlb_status appearance_stage(pipeline_run* r) {
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     int metal = 0;
     if (!s && start == 0) s = pipeline_material_start(r, &metal);   // before the network goes to a device
-    if (metal) ss.lr *= c->metal_start_lr_scale;
+    if (metal) {
+        ss.lr *= c->metal_start_lr_scale;
+        mlb_log(MLB_LOG_INFO, "appearance stage: refining the metal start at learning rate %g", ss.lr);
+    }
     mlb_adam_config adam = mlb_material_adam(ss.lr);
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);

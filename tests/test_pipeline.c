@@ -482,13 +482,16 @@ static mlb_status cov_loss(mlb_guidance* g, mlb_stage stage, long step, const ml
     *loss = 0;
     return MLB_OK;
 }
+// cov_spread > 0 weighs the odd views' scores by 1 + spread and the even ones' by 1 - spread: the
+// same mean win for the slab, spread over the views, so fewer standard errors.
+static double cov_spread;
 static mlb_status cov_score(mlb_guidance* g, mlb_stage stage, const mlb_view* views, int n, const float* images, int H,
                             int W, const int* t_range, double* per_view) {
     (void)g, (void)stage, (void)views, (void)t_range;
     for (int v = 0; v < n; v++) {
         double sum = 0;
         for (size_t i = 0; i < (size_t)H * W; i++) sum += images[4 * ((size_t)v * H * W + i) + 3];
-        per_view[v] = -sum / ((double)H * W);
+        per_view[v] = -sum / ((double)H * W) * (1 + cov_spread * (v & 1 ? 1 : -1));
     }
     return MLB_OK;
 }
@@ -559,6 +562,37 @@ TEST(auto_init_looks_ahead) {
         free(a);
         free(b);
     }
+}
+
+// A start must win clearly: the slab's win spread over the views so that it is 3 to 5 standard
+// errors (enough once, under the old rule) leaves the ellipsoid, with no look-ahead; the same win
+// by more (cov_spread 0, above) is the slab's.
+TEST(auto_init_needs_a_clear_win) {
+    char run_auto[512], run_fixed[512];
+    snprintf(run_auto, sizeof run_auto, "%s/auto_spread", tmpdir);
+    snprintf(run_fixed, sizeof run_fixed, "%s/fixed_spread", tmpdir);
+    long na = 0, nb = 0;
+    auto_log[0] = 0;
+    mlb_log_level level = mlb_log_get_level();
+    mlb_log_set_level(MLB_LOG_INFO);
+    mlb_log_set_sink(keep_auto_lines, NULL);
+    cov_spread = 0.9;
+    char* a = start_of(run_auto, "auto:ellipsoid,slab", 1e-9, &na);
+    cov_spread = 0;
+    mlb_log_set_sink(NULL, NULL);
+    mlb_log_set_level(level);
+    char* b = start_of(run_fixed, "ellipsoid", 1e-9, &nb);
+    REQUIRE(a && b);
+    printf("%s", auto_log);
+    double m = 0, se = 0;
+    const char* slab = strstr(auto_log, "slab ");
+    REQUIRE(slab && sscanf(slab, "slab %*f (%lf +- %lf)", &m, &se) == 2 && se > 0);
+    CHECK_MSG(m / se > 3 && m / se < 5, "the slab wins by %.2f standard errors: the case is not between 3 and 5", m / se);
+    CHECK(strstr(auto_log, "best: the ellipsoid\n") && !strstr(auto_log, "after 20 steps"));
+    CHECK(strstr(auto_log, "starting from the ellipsoid") != NULL);
+    CHECK_MSG(na == nb && !memcmp(a, b, (size_t)na), "the start differs from --init ellipsoid");
+    free(a);
+    free(b);
 }
 
 // ---- material_start with a guidance written by the test -----------------------------------------
@@ -757,6 +791,7 @@ int main(void) {
     RUN(resume_reaches_the_uninterrupted_result);
     RUN(sds_generate_two_steps_per_stage);
     RUN(auto_init_looks_ahead);
+    RUN(auto_init_needs_a_clear_win);
     RUN(material_start_picks_a_metal);
     RUN(metal_start_resumes_at_its_rate);
     char cmd[400];

@@ -58,9 +58,9 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // stage itself (its views, noise and learning rate, Adam fresh), then scored again on the same
 // views. A candidate whose surface vanishes on the way is out; the rule is applied again to the rest
 // (the first still alive is the reference) at AUTO_Z: the win is established, the look-ahead asks
-// whether it holds (a table's slab at seed 5 keeps +3.9 after winning by +5.6). Each fit starts from the network's state as
-// it came, and the chosen candidate's fit (not its look-ahead) is what the stage starts from, so
-// the start is the same bits as --init NAME. No cylinder by default: the model prefers it for
+// whether it holds (a win shrinks on the way: with an earlier model a table's slab won by 5.6 and
+// kept 3.9). Each fit starts from the network's state as it came, and the chosen candidate's fit
+// (not its look-ahead) is what the stage starts from, so the start is the same bits as --init NAME. No cylinder by default: the model prefers it for
 // bottles, mugs and bowls, and a bottle from it ended a vase (docs/benchmarks.md, "Choosing the
 // starting shape").
 #define AUTO_VIEWS 16

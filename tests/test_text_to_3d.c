@@ -4,8 +4,9 @@
 // guidance, the timestep weighting, the VAE encoder's backward, the sign of the SDS gradient) has to
 // be right for both to hold: with the gradient's sign flipped, both runs end nearer the wrong class
 // (checked once by hand, docs/sd_train.md). And --init auto starts a ring from the torus, a table
-// from the slab, a bowl from the cup and a goblet from the ellipsoid. Skips when the model is absent (models/matlaber-tiny
-// or $MATLABER_MODEL) and under the sanitizers (minutes of arithmetic, covered by the modules' tests).
+// from the slab, a bowl from the cup and a goblet from the ellipsoid. Skips when the model is absent
+// (models/matlaber-tiny or $MATLABER_MODEL) and under the sanitizers (minutes of arithmetic, covered
+// by the modules' tests).
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>

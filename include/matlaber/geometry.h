@@ -101,9 +101,9 @@ void mlb_shape_torus(mlb_shape* s, float scale);
 void mlb_shape_slab(mlb_shape* s, float scale);
 // A cup: the lower half of a spherical shell, open at the top: mid radius 0.6·k, wall 0.2·k thick,
 // the sphere's centre at y = 0.3·k, so the cup spans y −0.4·k..0.4·k, with k = 0.8·scale/|(0.7, 0.4)|
-// (its rim's outer corner at radius 0.8·scale, a mesh init's size). Like the torus, a topology the geometry stage cannot make from
-// the ellipsoid: it has no gradient that opens a cavity in a closed surface, so a bowl from the
-// ellipsoid stays a closed lens (docs/benchmarks.md).
+// (its rim's outer corner at radius 0.8·scale, a mesh init's size). Like the torus, a topology the
+// geometry stage cannot make from the ellipsoid: it has no gradient that opens a cavity in a closed
+// surface, so a bowl from the ellipsoid stays a closed lens (docs/benchmarks.md).
 void mlb_shape_cup(mlb_shape* s, float scale);
 // The built-in shape called `name` ("ellipsoid": radius scale, "cylinder", "torus", "slab", "cup") into *s:
 // 1, or 0 (s untouched) when name is none of them (a file, say).

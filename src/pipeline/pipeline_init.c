@@ -60,9 +60,9 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // (the first still alive is the reference) at AUTO_Z: the win is established, the look-ahead asks
 // whether it holds (a win shrinks on the way: with an earlier model a table's slab won by 5.6 and
 // kept 3.9). Each fit starts from the network's state as it came, and the chosen candidate's fit
-// (not its look-ahead) is what the stage starts from, so the start is the same bits as --init NAME. No cylinder by default: the model prefers it for
-// bottles, mugs and bowls, and a bottle from it ended a vase (docs/benchmarks.md, "Choosing the
-// starting shape").
+// (not its look-ahead) is what the stage starts from, so the start is the same bits as --init NAME.
+// No cylinder by default: the model prefers it for bottles, mugs and bowls, and a bottle from it
+// ended a vase (docs/benchmarks.md, "Choosing the starting shape").
 #define AUTO_VIEWS 16
 #define AUTO_Z_START 5.0
 #define AUTO_Z 3.0

@@ -29,7 +29,7 @@ static const cli_option options[] = {
     {"view-batch", 1, 'B', "K", "views per guidance call (default 0: all of a step's views in one call); under mpirun\n"
                                 "                           the batches go whole to the processes: any K gives the same bits on\n"
                                 "                           any number of processes, another K other bits (docs/pipeline.md)"},
-    {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder, torus (hole to the front), slab (a flat plate), cup (an open shell), auto (the one of ellipsoid, torus and slab the model scores best for the prompt, checked 20 steps ahead; auto:A,B,.. among these names or OBJ files) or FILE.obj (default ellipsoid; the tiny preset auto)"},
+    {"init", 1, 'I', "SHAPE", "ellipsoid, cylinder, torus (hole to the front), slab (a flat plate), cup (an open shell), auto (the one of ellipsoid, torus, slab and cup the model scores clearly best for the prompt, checked 20 steps ahead; auto:A,B,.. among these names or OBJ files) or FILE.obj (default ellipsoid; the tiny preset auto)"},
     {"init-iters", 1, 'J', "N", "steps of the SDF initialisation to the --init shape (default 400; the cpu preset 200, tiny 100)"},
     {"coarse-to-fine", 1, 'C', "F", "hash-grid levels unlocked from 4 to all over this fraction of the geometry steps (default 0.5; 0 = all at once)"},
     {"spec-smoothness", 1, 'K', "W", "material smoothness weight on ks and roughness (default 0.1; 0 = kd only, as the paper)"},

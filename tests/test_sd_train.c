@@ -1,13 +1,16 @@
 // `sd train` on a very small model (sd_train.h): the folder it writes loads through
 // mlb_sd_model_load; the same bits on 1 and 2 threads; a run stopped and resumed gives the bits of
-// one that never stopped. (That training learns is shown on the real model: docs/sd_train.md.)
+// one that never stopped; the same with the CPU's bf16 table, whose losses track fp32's. (That training learns is shown on the real model: docs/sd_train.md.)
+#include <math.h>
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include "matlaber/backend.h"
 #include "matlaber/catalogue.h"
 #include "matlaber/fileio.h"
+#include "matlaber/nn.h"
 #include "matlaber/sds.h"
 #include "matlaber/sd_model.h"
 #include "matlaber/sd_train.h"
@@ -55,14 +58,14 @@ static char root[256];
 
 static void path(char* out, const char* run, const char* file) { snprintf(out, 512, "%s/%s/%s", root, run, file); }
 
-TEST(train_threads_resume) {
-    snprintf(root, sizeof root, "/tmp/mlb_sd_train_%d", (int)getpid());
-    REQUIRE(mlb_mkdir_p(root) == MLB_OK);
-    const mlb_backend* be = mlb_backend_cpu();
-    char d1[300], d2[300], d3[300];
-    snprintf(d1, sizeof d1, "%s/one", root);
-    snprintf(d2, sizeof d2, "%s/two", root);
-    snprintf(d3, sizeof d3, "%s/resumed", root);
+// Trains the tiny model on table `be` into root/TAG-one (1 thread), root/TAG-two (2 threads) and
+// root/TAG-resumed (stopped inside the VAE's steps and inside the UNet's, resumed to the end), and
+// checks that the three folders hold the same bytes.
+static void threads_and_resume(const mlb_backend* be, const char* tag) {
+    char d1[300], d2[300], d3[300], run[64];
+    snprintf(d1, sizeof d1, "%s/%s-one", root, tag);
+    snprintf(d2, sizeof d2, "%s/%s-two", root, tag);
+    snprintf(d3, sizeof d3, "%s/%s-resumed", root, tag);
     int nt = omp_get_max_threads();
     omp_set_num_threads(1);
     mlb_sd_train_config c = tiny(d1);
@@ -71,12 +74,12 @@ TEST(train_threads_resume) {
     REQUIRE(s == MLB_OK);
     c = tiny(d2);
     REQUIRE(mlb_sd_train(be, &c) == MLB_OK);
-    // stopped twice (inside the VAE's steps and inside the UNet's), resumed to the end
     c = tiny(d3);
     c.stop_after = 3;
     REQUIRE(mlb_sd_train(be, &c) == MLB_OK);
     char a[512], b[512];
-    path(a, "resumed", "model_index.json");
+    snprintf(run, sizeof run, "%s-resumed", tag);
+    path(a, run, "model_index.json");
     CHECK(!mlb_is_file(a));   // unfinished: no index yet
     c.resume = 1;
     c.stop_after = 9;
@@ -86,17 +89,35 @@ TEST(train_threads_resume) {
     const char* files[] = {"unet/diffusion_pytorch_model.safetensors", "vae/diffusion_pytorch_model.safetensors",
                            "text_encoder/model.safetensors", "tokenizer/merges.txt", "train/loss.csv"};
     for (int i = 0; i < 5; i++) {
-        path(a, "one", files[i]);
-        path(b, "two", files[i]);
-        CHECK_MSG(same_file(a, b), "%s differs between 1 and 2 threads", files[i]);
-        path(b, "resumed", files[i]);
-        CHECK_MSG(same_file(a, b), "%s differs after stop and resume", files[i]);
+        char r1[64], r2[64];
+        snprintf(r1, sizeof r1, "%s-one", tag);
+        snprintf(r2, sizeof r2, "%s-two", tag);
+        path(a, r1, files[i]);
+        path(b, r2, files[i]);
+        CHECK_MSG(same_file(a, b), "%s (%s) differs between 1 and 2 threads", files[i], tag);
+        path(b, run, files[i]);
+        CHECK_MSG(same_file(a, b), "%s (%s) differs after stop and resume", files[i], tag);
     }
+}
+
+static void make_root(void) {
+    if (root[0]) return;
+    snprintf(root, sizeof root, "/tmp/mlb_sd_train_%d", (int)getpid());
+    if (mlb_mkdir_p(root)) { fprintf(stderr, "cannot make %s\n", root); exit(1); }
+}
+
+TEST(train_threads_resume) {
+    make_root();
+    const mlb_backend* be = mlb_backend_cpu();
+    threads_and_resume(be, "fp32");
+    if (test_case_failed) return;
+    char a[512], b[512], d1[300];
+    snprintf(d1, sizeof d1, "%s/fp32-one", root);
     // continued from a model folder over its untouched VAE (--init DIR --vae-steps 0), on new
     // renders: the VAE and its latent scale are the ones the UNet was trained with, to the byte
     char d4[300];
     snprintf(d4, sizeof d4, "%s/continued", root);
-    c = tiny(d4);
+    mlb_sd_train_config c = tiny(d4);
     c.init_dir = d1;
     c.vae_steps = 0;
     c.unet_steps = 2;
@@ -104,7 +125,7 @@ TEST(train_threads_resume) {
     REQUIRE(mlb_sd_train(be, &c) == MLB_OK);
     const char* vae_files[] = {"vae/diffusion_pytorch_model.safetensors", "vae/config.json"};
     for (int i = 0; i < 2; i++) {
-        path(a, "one", vae_files[i]);
+        path(a, "fp32-one", vae_files[i]);
         path(b, "continued", vae_files[i]);
         CHECK_MSG(same_file(a, b), "%s changed in a UNet-only continuation", vae_files[i]);
     }
@@ -121,9 +142,58 @@ TEST(train_threads_resume) {
     CHECK(mlb_sd_model_encode_prompt(m, "a gold goblet, front view", e) == MLB_OK);
     free(e);
     mlb_sd_model_free(m);
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "rm -rf %s", root);
-    CHECK(system(cmd) == 0);
+}
+
+// The losses of stage `stage` (0 VAE, 1 UNet) in DIR/train/loss.csv ("stage,step,loss"), at most cap.
+static int stage_losses(const char* dir, int stage, double* out, int cap) {
+    char p[512];
+    snprintf(p, sizeof p, "%s/train/loss.csv", dir);
+    FILE* f = fopen(p, "r");
+    if (!f) return 0;
+    char line[128];
+    int n = 0, st;
+    long step;
+    double v;
+    while (fgets(line, sizeof line, f))
+        if (sscanf(line, "%d,%ld,%lf", &st, &step, &v) == 3 && st == stage && n < cap) out[n++] = v;
+    fclose(f);
+    return n;
+}
+
+// The CPU's bf16 table (what `sd train` takes on a CPU with AVX-512 BF16): the same bits on 1 and 2
+// threads and across a resume; where the CPU has the instructions the operands are rounded (other
+// bits than fp32's) and every loss stays within 2% of fp32's; where it has not, the table is
+// fp32's to the byte.
+TEST(train_bf16) {
+    make_root();
+    const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16);
+    threads_and_resume(be, "bf16");
+    if (test_case_failed) return;
+    char f32[300], b16[300], a[512], b[512];
+    snprintf(f32, sizeof f32, "%s/fp32-ref", root);
+    snprintf(b16, sizeof b16, "%s/bf16-one", root);
+    mlb_sd_train_config c = tiny(f32);
+    REQUIRE(mlb_sd_train(mlb_backend_cpu(), &c) == MLB_OK);
+    path(a, "fp32-ref", "unet/diffusion_pytorch_model.safetensors");
+    path(b, "bf16-one", "unet/diffusion_pytorch_model.safetensors");
+    if (!mlb_gemm_bf16_native()) {
+        printf("  no AVX-512 BF16 here: the bf16 table is fp32's fallback\n");
+        CHECK_MSG(same_file(a, b), "the bf16 table's fallback trained other bits than fp32");
+        return;
+    }
+    CHECK_MSG(!same_file(a, b), "bf16 trained the same bits as fp32: the bf16 GEMMs were not used");
+    for (int stage = 0; stage < 2; stage++) {
+        double l32[64], l16[64];
+        int n32 = stage_losses(f32, stage, l32, 64), n16 = stage_losses(b16, stage, l16, 64);
+        CHECK(n32 == n16 && n32 == 6);
+        double worst = 0;
+        for (int i = 0; i < n32 && i < n16; i++) {
+            double r = fabs(l16[i] - l32[i]) / fabs(l32[i]);
+            if (r > worst) worst = r;
+        }
+        printf("  %s losses: bf16 within %.2e (relative) of fp32's\n", stage ? "UNet" : "VAE", worst);
+        CHECK_MSG(worst < 0.02, "the %s's bf16 losses stray %.3f from fp32's", stage ? "UNet" : "VAE", worst);
+    }
 }
 
 // The caption table: one row per (class, material, view, form), the geometry form's text carrying
@@ -182,5 +252,11 @@ int main(void) {
     RUN(captions);
     RUN(bad_config);
     RUN(train_threads_resume);
+    RUN(train_bf16);
+    if (root[0]) {
+        char cmd[400];
+        snprintf(cmd, sizeof cmd, "rm -rf %s", root);
+        if (system(cmd) != 0) printf("  could not remove %s\n", root);
+    }
     return test_summary();
 }

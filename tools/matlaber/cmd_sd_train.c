@@ -8,6 +8,7 @@
 #include "matlaber/backend.h"
 #include "matlaber/device.h"
 #include "matlaber/log.h"
+#include "matlaber/nn.h"
 #include "matlaber/sd_train.h"
 
 static const cli_option train_options[] = {
@@ -71,7 +72,8 @@ int sd_train_main(int argc, char** argv) {
             printf("usage: matlaber sd train -o DIR [options]\n\n"
                    "Renders the procedural catalogue (matlaber catalogue list), writes a tokenizer and a frozen random\n"
                    "text encoder, trains the VAE and then the UNet, and writes DIR as a diffusers model folder that\n"
-                   "`sd txt2img -m DIR` and `generate -m DIR` read like a user's SD 1.5. Runs on --device.\n\n");
+                   "`sd txt2img -m DIR` and `generate -m DIR` read like a user's SD 1.5. Runs on --device; on a CPU\n"
+                   "with AVX-512 BF16 with bf16 GEMM operands (fp32 sums and weights) unless --precision says fp32.\n\n");
             cli_print_options(stdout, train_options);
             return 0;
         default: return cli_usage_error("sd train", "unknown option");
@@ -79,7 +81,12 @@ int sd_train_main(int argc, char** argv) {
     }
     if (optind < argc) return cli_usage_error("sd train", "unexpected argument '%s'", argv[optind]);
     if (!c.out_dir) return cli_usage_error("sd train", "-o DIR is needed");
-    const mlb_backend* be = mlb_backend_for(mlb_device_current(), mlb_gemm_precision_current());
+    // A CPU with AVX-512 BF16 trains with bf16 GEMM operands (fp32 sums, fp32 weights and moments:
+    // 1.8x a step, docs/sd_train.md) unless --precision names another; the bits then differ from an
+    // fp32 machine's, and a --resume on another CPU continues in that CPU's precision.
+    mlb_gemm_precision prec = mlb_gemm_precision_current();
+    if (mlb_device_current() == MLB_DEVICE_CPU && !mlb_gemm_precision_chosen() && mlb_gemm_bf16_native()) prec = MLB_GEMM_BF16;
+    const mlb_backend* be = mlb_backend_for(mlb_device_current(), prec);
     mlb_log(MLB_LOG_INFO, "sd train: on the %s, GEMMs in %s", mlb_device_name(be->device), mlb_gemm_precision_name(be->precision));
     mlb_status s = mlb_sd_train(be, &c);
     if (s) return cli_fail(s, "sd train");

@@ -1,6 +1,7 @@
 // `sd train` on a very small model (sd_train.h): the folder it writes loads through
 // mlb_sd_model_load; the same bits on 1 and 2 threads; a run stopped and resumed gives the bits of
-// one that never stopped; the same with the CPU's bf16 table, whose losses track fp32's. (That training learns is shown on the real model: docs/sd_train.md.)
+// one that never stopped, and only with the first run's options; the same with the CPU's bf16 table,
+// whose losses track fp32's. (That training learns is shown on the real model: docs/sd_train.md.)
 #include <math.h>
 #include <omp.h>
 #include <stdio.h>
@@ -196,6 +197,39 @@ TEST(train_bf16) {
     }
 }
 
+// --resume with other options than the first run's is refused before any work, naming the option and
+// the file, the state untouched; with the first run's it continues.
+TEST(resume_needs_the_same_options) {
+    make_root();
+    char d[300], st[512], opt[512];
+    snprintf(d, sizeof d, "%s/options", root);
+    mlb_sd_train_config c = tiny(d);
+    c.stop_after = 3;
+    REQUIRE(mlb_sd_train(mlb_backend_cpu(), &c) == MLB_OK);
+    path(st, "options", "train/vae.safetensors");
+    path(opt, "options", "train/options.txt");
+    size_t n0 = 0, n1 = 0;
+    unsigned char* before = slurp(st, &n0);
+    REQUIRE(before);
+    c.resume = 1;
+    c.stop_after = 0;
+    c.unet_lr *= 2;
+    mlb_status s = mlb_sd_train(mlb_backend_cpu(), &c);
+    CHECK(s == MLB_ERR_ARG);
+    CHECK_MSG(strstr(mlb_last_error(), "unet_lr") && strstr(mlb_last_error(), "options.txt"), "error: %s", mlb_last_error());
+    unsigned char* after = slurp(st, &n1);
+    CHECK(after && n0 == n1 && !memcmp(before, after, n0));
+    free(after);
+    c.unet_lr /= 2;
+    c.n_images += 1;
+    CHECK(mlb_sd_train(mlb_backend_cpu(), &c) == MLB_ERR_ARG && strstr(mlb_last_error(), "images"));
+    c.n_images -= 1;
+    CHECK(mlb_sd_train(mlb_backend_cpu(), &c) == MLB_OK);
+    path(opt, "options", "model_index.json");
+    CHECK(mlb_is_file(opt));
+    free(before);
+}
+
 // The caption table: one row per (class, material, view, form), the geometry form's text carrying
 // the suffix before the view, and sd train's index naming that suffix for the guidance.
 TEST(captions) {
@@ -253,6 +287,7 @@ int main(void) {
     RUN(bad_config);
     RUN(train_threads_resume);
     RUN(train_bf16);
+    RUN(resume_needs_the_same_options);
     if (root[0]) {
         char cmd[400];
         snprintf(cmd, sizeof cmd, "rm -rf %s", root);

@@ -76,7 +76,8 @@ typedef struct {
     mlb_dtype unet_dtype;       // the written UNet's tensors: MLB_DT_F16 (half the file; the state stays F32)
     const char* init_dir;       // a model folder whose VAE and UNet start the training (their configs
                                 // replace vae and unet; the text side must be the same), or NULL
-    int resume;                 // 1: continue from the states in out_dir/train/
+    int resume;                 // 1: continue from the states in out_dir/train/ (refused unless the
+                                // options are those of out_dir/train/options.txt, the first run's)
     double time_limit;          // > 0: seconds for the whole run; after 20 steps of each phase its
                                 // step count is cut to what fits (VAE a quarter of what is left,
                                 // the UNet the rest). Runs cut so are not bitwise resumable.

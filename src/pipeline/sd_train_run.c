@@ -128,11 +128,57 @@ static float latent_scale(const float* z, size_t n) {
     return var > 1e-12 ? (float)(1.0 / sqrt(var)) : 1.0f;
 }
 
+// The options that decide a run's bits, one "name value" per line: written by a first run into
+// train/options.txt, compared by --resume, which continues only with the same ones (a resume with
+// another step count, batch or data set would quietly be another training). The time limit is not
+// among them (a cut run's totals are in its states), nor the precision (docs/sd_train.md).
+static void options_text(const mlb_sd_train_config* c, char* out, size_t cap) {
+    snprintf(out, cap,
+             "res %d\nimages %d\nseed %llu\ninit %s\n"
+             "text %d %d %d %d %llu\nvae %d %d %d %d x%d groups %d\nunet %d %d %d x%d groups %d\n"
+             "vae_steps %d\nvae_batch %d\nvae_lr %.17g\nvae_kl %.17g\n"
+             "unet_steps %d\nunet_batch %d\nunet_lr %.17g\n"
+             "p_uncond %.9g\np_no_view %.9g\np_geo %.9g\np_latent %.9g\nunet_dtype %d\n",
+             c->res, c->n_images, (unsigned long long)c->seed, c->init_dir ? c->init_dir : "-",
+             c->text.width, c->text.layers, c->text.heads, c->text.mlp, (unsigned long long)c->text.seed,
+             c->vae.block_out[0], c->vae.block_out[1], c->vae.block_out[2], c->vae.block_out[3], c->vae.n_levels,
+             c->vae.norm_groups, c->unet.block_out[0], c->unet.block_out[1], c->unet.block_out[2], c->unet.n_levels,
+             c->unet.norm_groups, c->vae_steps, c->vae_batch, c->vae_lr, c->vae_kl, c->unet_steps, c->unet_batch,
+             c->unet_lr, (double)c->p_uncond, (double)c->p_no_view, (double)c->p_geo, (double)c->p_latent,
+             (int)c->unet_dtype);
+}
+
+static mlb_status check_or_write_options(const mlb_sd_train_config* c) {
+    char path[4200], now[2048];
+    snprintf(path, sizeof path, "%s/train/options.txt", c->out_dir);
+    options_text(c, now, sizeof now);
+    if (!c->resume || !mlb_is_file(path)) {
+        if (c->resume) mlb_log(MLB_LOG_WARN, "sd train: %s missing (a run from before it was written): the options are not checked", path);
+        return mlb_write_file_atomic(path, now, strlen(now));
+    }
+    char* was = NULL;
+    size_t n = 0;
+    MLB_TRY(mlb_read_file(path, &was, &n, 1 << 16));
+    mlb_status s = MLB_OK;
+    const char *a = was, *b = now;   // was is NUL-terminated by mlb_read_file
+    while (!s && (*a || *b)) {
+        size_t la = strcspn(a, "\n"), lb = strcspn(b, "\n");
+        if (la != lb || memcmp(a, b, la))
+            s = mlb_fail(MLB_ERR_ARG, "%s: the first run had \"%.*s\", this one \"%.*s\": --resume continues only with "
+                         "the first run's options", path, (int)(la > 200 ? 200 : la), a, (int)(lb > 200 ? 200 : lb), b);
+        a += la + (a[la] == '\n');
+        b += lb + (b[lb] == '\n');
+    }
+    free(was);
+    return s;
+}
+
 mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     MLB_TRY(mlb_sd_train_check(c));
     char p[4200];
     snprintf(p, sizeof p, "%s/train", c->out_dir);
     MLB_TRY(mlb_mkdir_p(p));
+    MLB_TRY(check_or_write_options(c));
     double t0 = mlb_now_seconds();
     mlb_sd_dataset d;
     mlb_progress pr;

@@ -28,7 +28,7 @@ static const cli_option train_options[] = {
     {"time-limit", 1, 'm', "SECONDS", "cut each phase's steps to what fits (a quarter of the time for the VAE)"},
     {"tiny", 0, 'T', NULL, "a very small model (tests): VAE 8-16 channels, UNet 32-64"},
     {"init", 1, 'I', "DIR", "start from the VAE and UNet of a model folder (e.g. --vae-steps 0 to keep its VAE)"},
-    {"resume", 0, 'R', NULL, "continue from DIR/train/ (the same options as the first run)"},
+    {"resume", 0, 'R', NULL, "continue from DIR/train/ with the first run's options (checked: DIR/train/options.txt)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 

@@ -190,6 +190,7 @@ mlb_status mlb_sd_train_unet(const mlb_backend* be, const mlb_sd_train_config* c
     if (!s) s = be->upload(dcap, captions, ncap);
     mlb_progress pr;
     mlb_progress_begin(&pr, stderr, "UNet", P->total, "step");
+    pr.base = P->step;   // a resumed run: its rate and ETA count this run's steps only
     double ema = -1;
     long first = P->step, stop = c->stop_after > 0 ? c->stop_after - c->vae_steps : -1;
     double t_phase = mlb_now_seconds();

@@ -37,6 +37,7 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
     float *mu = hz, *lv = hz + NZ, *eps = hz + 2 * NZ, *zz = hz + 3 * NZ, *dlv = hz + 4 * NZ;
     mlb_progress pr;
     mlb_progress_begin(&pr, stderr, "VAE", P->total, "step");
+    pr.base = P->step;   // a resumed run: its rate and ETA count this run's steps only
     double ema = -1;
     long first = P->step;
     double t_phase = mlb_now_seconds();

@@ -72,6 +72,20 @@ same_run "--view-batch 1: 3 processes (one with 2 batches) give the asset of 1, 
 expect 2 "--view-batch 65 refused" -- $Q generate -p "a gold goblet" $small --view-batch 65 -o "$T/bad"
 err_has "names the option and its range" "view-batch: expected 0..64"
 
+# --init auto shares its candidates out (4 over 3 processes: 2, 1, 1) and then the contenders of the
+# look-ahead (here the ellipsoid and the slab: 1, 1 and none), each done by one process alone: the
+# same scores and the same start as 1 process (the material start's archetypes are shared the same
+# way, checked by every run above). 128² views: at 64² no candidate wins clearly enough to look ahead.
+init=(-p "a red table" --seed 5 --init-iters 20 --appearance-iters 0 --stop-after 1)
+expect 0 "--init auto, 1 process" -- $Q --log-level info generate "${init[@]}" -o "$T/i1"
+grep "^--init auto" "$T/err" > "$T/i1.log"
+grep -q "after 20 steps" "$T/i1.log" && ok "the slab wins and is looked ahead" || bad "no look-ahead (the test's premise): $(cat "$T/i1.log")"
+expect 0 "--init auto, 3 processes" -- $MPI -n 3 $Q --log-level info generate "${init[@]}" -o "$T/i3"
+grep "^--init auto" "$T/err" | sort -u > "$T/i3.log"
+cmp -s <(sort -u "$T/i1.log") "$T/i3.log" && ok "3 processes: the same scores and choice" || bad "3 processes scored otherwise: $(cat "$T/i3.log")"
+cmp -s "$T/i1/checkpoints/geometry.safetensors" "$T/i3/checkpoints/geometry.safetensors" &&
+  ok "3 processes: the same start, bit for bit" || bad "3 processes started from other bits"
+
 # stopped on 2, resumed on 1 (geometry stage) and on 3 (appearance stage), the batch kept in config.json
 expect 0 "2 processes, --view-batch 2, stopped after 3 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small \
   --view-batch 2 --stop-after 3 -o "$T/s1"

@@ -68,9 +68,13 @@ TEST(shares_and_copies) {
     CHECK(sum[0] == (1e8f + -1e8f) + 1 && sum[1] == 6 && sum[2] == 0 && signbit(sum[2]));
     CHECK(mlb_dist_sum_batches(v[1], sum, 3, 1) == MLB_OK && !memcmp(sum, v[1], sizeof sum));
     CHECK(mlb_dist_sum_batches(v[0], v[0], 3, 2) == MLB_OK && v[0][0] == 0 && v[0][1] == 3);
-    mlb_dist_solo(1);
-    CHECK(mlb_dist_size() == 1);
-    mlb_dist_solo(0);
+    int outer = mlb_dist_solo(1);   // sections nest: each gives back the state it found
+    CHECK(outer == 0 && mlb_dist_size() == 1);
+    int inner = mlb_dist_solo(1);
+    CHECK(inner == 1);
+    mlb_dist_solo(inner);   // the inner section's end leaves the outer one solo
+    CHECK(mlb_dist_size() == 1 && mlb_dist_rank() == 0);
+    CHECK(mlb_dist_solo(outer) == 1);
 }
 
 int main(void) {

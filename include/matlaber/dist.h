@@ -36,7 +36,9 @@ int mlb_dist_size(void);
 int mlb_dist_world_rank(void);
 int mlb_dist_world_size(void);
 // solo = 1: until solo = 0 the calling rank is a group of one (rank 0 of 1): collectives copy.
-void mlb_dist_solo(int solo);
+// Returns the state before, so that sections nest: int was = mlb_dist_solo(1); ...; mlb_dist_solo(was);
+// (--init auto shares its candidates out inside a run that --prompts already made solo).
+int mlb_dist_solo(int solo);
 
 // Rank r's share of n items: [*first, *first + *count), contiguous, in rank order, sizes within 1.
 void mlb_dist_share_of(int n, int rank, int size, int* first, int* count);

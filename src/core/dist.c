@@ -94,7 +94,11 @@ int mlb_dist_world_rank(void) { return g_world_rank; }
 int mlb_dist_world_size(void) { return g_world_size; }
 int mlb_dist_rank(void) { return g_solo ? 0 : g_world_rank; }
 int mlb_dist_size(void) { return g_solo ? 1 : g_world_size; }
-void mlb_dist_solo(int solo) { g_solo = solo != 0; }
+int mlb_dist_solo(int solo) {
+    int was = g_solo;
+    g_solo = solo != 0;
+    return was;
+}
 static int collective(void) { return !g_solo && g_world_size > 1; }
 #ifdef MLB_HAVE_MPI
 // CPU time of this process (MPI busy-polls while it waits: that time is not the stages' work)

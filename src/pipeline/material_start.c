@@ -19,6 +19,7 @@
 #include <string.h>
 #include "matlaber/appearance.h"
 #include "matlaber/brdf_ae.h"
+#include "matlaber/dist.h"
 #include "matlaber/log.h"
 #include "pipeline/pipeline_internal.h"
 
@@ -88,9 +89,14 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     }
     mlb_appearance app;   // renders on the host: the scores read host images (guidance.h)
     memset(&app, 0, sizeof app);
-    for (int a = 0; !s && a < N_ARCH; a++) {
-        s = archetype_bias(net, r->prior, ARCHETYPES[a].k, code[a]);
-        if (!s) memcpy(mlp->bias[L], code[a], sizeof(float) * (size_t)O);
+    for (int a = 0; !s && a < N_ARCH; a++) s = archetype_bias(net, r->prior, ARCHETYPES[a].k, code[a]);
+    // Several processes (dist.h): each renders and scores its share of the archetypes alone, and
+    // every rank gets every score (the same bits as one process's)
+    int first, count;
+    mlb_dist_share(N_ARCH, &first, &count);
+    int was = mlb_dist_solo(1);
+    for (int a = first; !s && a < first + count; a++) {
+        memcpy(mlp->bias[L], code[a], sizeof(float) * (size_t)O);
         for (int v = 0; !s && v < n; v += per)   // a step's views per render
             s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views + v, per, c->res, c->ss,
                                       images + img * (size_t)v, 0);
@@ -98,7 +104,10 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
         sc[a] = 0;
         for (int v = 0; !s && v < n; v++) sc[a] += per_view[v] / n;
     }
+    mlb_dist_solo(was);
     mlb_appearance_free(&app);
+    s = pipeline_agree(s);
+    if (!s) s = mlb_dist_allgather_items(sc + first, sc, N_ARCH, sizeof(double));
     if (weight) {   // the network as it came, then the chosen start
         memcpy(mlp->weight[L], weight, sizeof(float) * nw);
         memcpy(mlp->bias[L], bias, sizeof(float) * (size_t)O);

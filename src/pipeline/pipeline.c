@@ -154,9 +154,7 @@ static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
 
 static int preview_at(const mlb_pipeline_config* c, long it) { return c->preview_every > 0 && (it + 1) % c->preview_every == 0; }
 
-// Several processes (dist.h): a step fails on every rank when it failed on one, so that none is
-// left waiting in a collective the others never reach.
-static mlb_status pipeline_agree(mlb_status s) {
+mlb_status pipeline_agree(mlb_status s) {
     if (mlb_dist_size() < 2) return s;
     int any = mlb_dist_max_int(s != MLB_OK);
     if (!s && any) s = mlb_fail(MLB_ERR_IO, "another process of this run failed (its message is above)");

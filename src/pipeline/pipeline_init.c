@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/dist.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/log.h"
 #include "matlaber/obj.h"
@@ -201,8 +202,13 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
         memcpy(start + np, net->adam_m, sizeof(float) * np);
         memcpy(start + 2 * np, net->adam_v, sizeof(float) * np);
     }
-    int vanished[AUTO_MAX] = {0};
-    for (int i = 0; !s && i < N; i++) {
+    int vanished[AUTO_MAX] = {0}, first, count;
+    // Several processes (dist.h): each fits and scores its share of the candidates alone, and every
+    // rank gets all the fits and scores; a candidate's work is the same bits on any rank, so the
+    // choice is that of one process, in about 1/N of its time
+    mlb_dist_share(N, &first, &count);
+    int was = mlb_dist_solo(1);
+    for (int i = first; !s && i < first + count; i++) {
         memcpy(net->params, start, sizeof(float) * np);
         memcpy(net->adam_m, start + np, sizeof(float) * np);
         memcpy(net->adam_v, start + 2 * np, sizeof(float) * np);
@@ -213,6 +219,11 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
         if (!s) s = score_shape(r, views, n, sc + (size_t)i * n, &vanished[i]);   // (a fit with no surface: out)
         net->active_levels = 0;
     }
+    mlb_dist_solo(was);
+    s = pipeline_agree(s);
+    if (!s) s = mlb_dist_allgather_items(fit + (size_t)first * np, fit, N, sizeof(float) * np);
+    if (!s) s = mlb_dist_allgather_items(sc + (size_t)first * n, sc, N, sizeof(double) * (size_t)n);
+    if (!s) s = mlb_dist_allgather_items(vanished + first, vanished, N, sizeof(int));
     int alive[AUTO_MAX], best = 0;
     double mean[AUTO_MAX], se[AUTO_MAX];
     for (int i = 0; i < N; i++) alive[i] = !vanished[i];
@@ -224,13 +235,30 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     while (ref < N && !alive[ref]) ref++;
     if (!s && best != ref && best >= 0) {   // the reference and every candidate that beat it, looked ahead
         for (int i = ref + 1; i < N; i++) alive[i] = alive[i] && mean[i] > AUTO_Z_START * se[i];
-        for (int i = 0; !s && i < N; i++) {
-            if (!alive[i]) continue;
-            memcpy(net->params, fit + (size_t)i * np, sizeof(float) * np);
-            s = look_ahead(r, AUTO_AHEAD, &vanished[i]);
-            if (!s && !vanished[i]) s = score_shape(r, views, n, sc + (size_t)i * n, &vanished[i]);
-            if (!s && vanished[i]) alive[i] = 0;
+        int contender[AUTO_MAX], nc = 0;   // shared out as the fits were
+        for (int i = 0; i < N; i++)
+            if (alive[i]) contender[nc++] = i;
+        double* csc = malloc(sizeof(double) * (size_t)n * (size_t)nc);   // [nc, n]
+        int cvan[AUTO_MAX] = {0};
+        if (!csc) s = mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
+        mlb_dist_share(nc, &first, &count);
+        was = mlb_dist_solo(1);
+        for (int k = first; !s && k < first + count; k++) {
+            memcpy(net->params, fit + (size_t)contender[k] * np, sizeof(float) * np);
+            s = look_ahead(r, AUTO_AHEAD, &cvan[k]);
+            if (!s && !cvan[k]) s = score_shape(r, views, n, csc + (size_t)k * n, &cvan[k]);
         }
+        mlb_dist_solo(was);
+        s = pipeline_agree(s);
+        if (!s) s = mlb_dist_allgather_items(csc + (size_t)first * n, csc, nc, sizeof(double) * (size_t)n);
+        if (!s) s = mlb_dist_allgather_items(cvan + first, cvan, nc, sizeof(int));
+        for (int k = 0; !s && k < nc; k++) {
+            int i = contender[k];
+            vanished[i] = cvan[k];
+            if (vanished[i]) alive[i] = 0;
+            else memcpy(sc + (size_t)i * n, csc + (size_t)k * n, sizeof(double) * (size_t)n);
+        }
+        free(csc);
         if (!s) {
             best = pick(sc, N, n, alive, AUTO_Z, mean, se);
             char when[64];

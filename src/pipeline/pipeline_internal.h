@@ -49,6 +49,9 @@ typedef struct {
 static inline const mlb_backend* pipeline_stage_table(const pipeline_run* r) { return r->field_be ? r->field_be : r->be; }
 
 // pipeline.c
+// Several processes (dist.h): a step fails on every rank when it failed on one, so that none is
+// left waiting in a collective the others never reach. s as it was where every rank got MLB_OK.
+mlb_status pipeline_agree(mlb_status s);
 // Geometry step `it` of the run's schedule (the hash grid's active levels, the step's views, the
 // regulariser's weight, every rank agreeing on the outcome), then the Adam update when it worked.
 // images: the step's renders for a preview, or NULL. The stage and --init auto's look-ahead both

@@ -314,9 +314,9 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         double t1 = mlb_now_seconds();
         mlb_pipeline_config want = c->base;
         snprintf(want.prompt, sizeof want.prompt, "%s", row->prompt);
-        mlb_dist_solo(1);
+        int was = mlb_dist_solo(1);
         s = generate_one(c, &want, row->run_dir, row);
-        mlb_dist_solo(0);
+        mlb_dist_solo(was);
         if (!s && row->error[0]) failed_scores(&row->scores, cls, mat);
         else if (!s) s = mlb_text3d_measure_run(&truth, row->run_dir, cls, mat, &light, &c->measure, &row->scores);
         if (!s) {

@@ -187,9 +187,9 @@ static int run_item(const item* it, const char* out, int argc, char** argv, cons
         args[n++] = (char*)stop_after;
     }
     args[n] = NULL;
-    mlb_dist_solo(1);   // this process alone: a group of one
+    int was = mlb_dist_solo(1);   // this process alone: a group of one
     int rc = generate_run_quiet(n, args);
-    mlb_dist_solo(0);
+    mlb_dist_solo(was);
     return rc;
 }
 

@@ -4,7 +4,7 @@
 # (--view-batch K: the default, all 4 views in one call, on one of 2 processes while the other has
 # none; K 2 split 2 + 2 over 2; K 3, batches of 3 + 1, over 3, one process without a batch; K 1 over
 # 3, one process with 2 batches: the appearance stage's per-batch material gradients summed in
-# batch order); a run
+# batch order); --init auto's candidates and look-ahead shared over 3 processes to the same start; a run
 # stopped on 2 resumes on 1 and on 3 to the same bytes; --prompts with 4 prompts on 2 processes
 # gives 4 run folders bitwise equal to the single-process ones, and a rerun after a stop finishes
 # only what was missing; bench text3d shares its prompts among 2 processes to the numbers of 1.

@@ -96,6 +96,19 @@ if [ -d "$R" ]; then
   grep -q '"tokenizer":[[:space:]]*"[^"]*tokenizer"' "$T/s1/config.json" && ok "config keeps --tokenizer" || bad "config lacks the tokenizer"
   expect 0 "resume the single-file run" -- env -u MATLABER_TOKENIZER $Q generate --resume "$T/s1"
   [ -s "$T/s1/final/mesh.obj" ] && ok "single-file run finished" || bad "single-file run: no asset"
+  # a model per stage: a missing one is named before any folder is made; the pair is recorded in
+  # config.json and the run resumes with both
+  expect 1 "generate with a missing --appearance-model" -- $Q generate -p x -m "$R" --appearance-model "$T/no-app" \
+    --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/am0"
+  err_has "the missing appearance model named" "no-app"
+  [ -e "$T/am0" ] && bad "no run folder after a missing appearance model" || ok "no run folder after a missing appearance model"
+  expect 0 "generate with --appearance-model, stopped after a step" -- env -u MATLABER_TOKENIZER $Q generate \
+    -p "a golden goblet" -m "$R" --appearance-model "$F" --tokenizer "$R/tokenizer" $fast --res 64 --grid 16 \
+    --geometry-iters 1 --appearance-iters 1 --views 1 --checkpoint-every 1 --stop-after 1 -o "$T/am"
+  grep -q '"appearance_model":[[:space:]]*"[^"]*sd1_tiny.safetensors"' "$T/am/config.json" && ok "config keeps the appearance model" \
+    || bad "config lacks the appearance model"
+  expect 0 "resume the run with an appearance model" -- env -u MATLABER_TOKENIZER $Q generate --resume "$T/am"
+  [ -s "$T/am/final/mesh.obj" ] && ok "the run with an appearance model finished" || bad "appearance-model run: no asset"
   expect 0 "generate from a single file, \$MATLABER_TOKENIZER" -- env MATLABER_TOKENIZER="$R/tokenizer" $Q generate \
     -p "a golden goblet" -m "$F" $fast --res 64 --grid 16 --geometry-iters 1 --appearance-iters 1 --views 1 -o "$T/s2"
 else

@@ -31,9 +31,19 @@ err_has "the fallback warned" "warn. --precision bf16: [^;]*; the CPU computes i
 expect 0 "no --precision" -- env MATLABER_CPU_BF16=0 $M --device cpu device
 grep -q 'warn' "$T/err" && bad "a warning without --precision: $(cat "$T/err")" || ok "no warning without --precision"
 
-# no -m: the project's own model (models/matlaber-tiny), at the 128x128 it was trained at
-expect 0 "no -m: the project's own model" -- env -u MATLABER_MODEL $M sd txt2img -p "a gold goblet" --steps 2 -o "$T/own.png"
+# no -m: the project's own model that draws shaded objects (models/matlaber-tiny-appearance, else
+# models/matlaber-tiny), at the 128x128 it was trained at
+expect 0 "no -m: the project's own model" -- env -u MATLABER_MODEL -u MATLABER_APPEARANCE_MODEL $M sd txt2img -p "a gold goblet" --steps 2 -o "$T/own.png"
 [ "$(png_size "$T/own.png")" = "128x128" ] && ok "own model: 128x128 PNG" || bad "own model: PNG size $(png_size "$T/own.png" 2>/dev/null)"
+OWN=$(dirname "$0")/../models
+if [ -f "$OWN/matlaber-tiny-appearance/model_index.json" ]; then
+  expect 0 "-m the appearance model" -- $M sd txt2img -m "$OWN/matlaber-tiny-appearance" -p "a gold goblet" --steps 2 --size 128 --cfg 3 -o "$T/app.png"
+  cmp -s "$T/own.png" "$T/app.png" && ok "no -m samples the appearance model" || bad "no -m: not the appearance model's image"
+  expect 0 "\$MATLABER_MODEL: that model" -- env -u MATLABER_APPEARANCE_MODEL MATLABER_MODEL="$OWN/matlaber-tiny" $M sd txt2img -p "a gold goblet" --steps 2 -o "$T/geo.png"
+  expect 0 "-m the geometry model" -- $M sd txt2img -m "$OWN/matlaber-tiny" -p "a gold goblet" --steps 2 --size 128 --cfg 3 -o "$T/geo2.png"
+  cmp -s "$T/geo.png" "$T/geo2.png" && ok "\$MATLABER_MODEL replaces both defaults" || bad "\$MATLABER_MODEL: another model's image"
+  cmp -s "$T/own.png" "$T/geo.png" && bad "the two models drew the same image" || ok "the two models draw differently"
+fi
 expect 0 "sd tokenize with the own model's tokenizer" -- $M sd tokenize -t "$(dirname "$0")/../models/matlaber-tiny" -p "a gold goblet"
 grep -q "padded with 633 (sd1)" "$T/out" && ok "sd1 pads with the small vocabulary's end token" || bad "padding: $(grep padded "$T/out")"
 

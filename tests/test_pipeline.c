@@ -66,7 +66,7 @@ static mlb_status load_without_keys(const mlb_pipeline_config* c, const char* pa
 
 // A key added after runs were written: KEY=value (--set) saved and loaded back as it was; a
 // config.json without it (and without coarse_to_fine, legacy 0) loads as KEY=legacy, what such a
-// run ran with; KEY=bad is refused by the validation.
+// run ran with; KEY=bad (when not NULL) is refused by the validation.
 static void optional_key(const mlb_pipeline_config* c0, const char* path, const char* key, const char* value,
                          const char* legacy, const char* bad) {
     char kv[128];
@@ -84,6 +84,7 @@ static void optional_key(const mlb_pipeline_config* c0, const char* path, const 
     REQUIRE(load_without_keys(&c, path, key, "coarse_to_fine", &back) == MLB_OK);
     CHECK_MSG(!mlb_pipeline_config_differs(&back, &want, NULL), "%s: a config.json without it loads %s differently", key,
               mlb_pipeline_config_differs(&back, &want, NULL));
+    if (!bad) return;
     snprintf(kv, sizeof kv, "%s=%s", key, bad);
     REQUIRE(mlb_pipeline_config_set(&c, kv) == MLB_OK);
     CHECK_MSG(mlb_pipeline_validate(&c) == MLB_ERR_ARG, "%s=%s validated", key, bad);
@@ -158,6 +159,14 @@ TEST(config_round_trip_and_errors) {
     optional_key(&c, path, "material_start", "1", "0", "2");
     // "metal_start_lr_scale": a run from before it refined a metal start at the stage's rate (1)
     optional_key(&c, path, "metal_start_lr_scale", "0.1", "1", "0");
+    // "appearance_model": a run from before it guided both stages with "model" ("")
+    optional_key(&c, path, "appearance_model", "/models/other one", "", NULL);
+    mlb_pipeline_config img = c;   // a model for image guidance's appearance stage makes no sense
+    snprintf(img.guidance, sizeof img.guidance, "images");
+    snprintf(img.views_dir, sizeof img.views_dir, "/views");
+    CHECK(mlb_pipeline_validate(&img) == MLB_OK);
+    snprintf(img.appearance_model, sizeof img.appearance_model, "/models/x");
+    CHECK(mlb_pipeline_validate(&img) == MLB_ERR_ARG && strstr(mlb_last_error(), "appearance_model"));
     mlb_clear_error();
 }
 

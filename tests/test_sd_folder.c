@@ -126,14 +126,17 @@ static int write_index_text(const char* d, const char* suffix_json) {
     return mlb_write_file_atomic(p, text, strlen(text)) == MLB_OK;
 }
 
-static double guidance_loss(const mlb_sd_model* m, const char* prompt, mlb_stage stage) {
+// One step's loss of `stage` on a fixed image, the geometry stage guided by geo, the appearance
+// stage by app (the same model: mlb_guidance_sds_create); *score (when not NULL) the stage's score.
+static double staged_loss(const mlb_sd_model* geo, const mlb_sd_model* app, const char* prompt, mlb_stage stage,
+                          double* score) {
     mlb_guidance_sds_config c = mlb_guidance_sds_default();
     c.prompt = prompt;
     c.views = 1;
     c.latent_iters = 0;
     c.seed = 5;
     mlb_guidance* g = NULL;
-    if (mlb_guidance_sds_create(m, &c, &g)) return -1;
+    if (geo == app ? mlb_guidance_sds_create(geo, &c, &g) : mlb_guidance_sds_create_staged(geo, app, &c, &g)) return -1;
     enum { H = 16 };
     static float img[H * H * 4];
     for (int i = 0; i < H * H; i++)
@@ -141,8 +144,13 @@ static double guidance_loss(const mlb_sd_model* m, const char* prompt, mlb_stage
     mlb_view view;
     double loss = -1;
     if (g->sample_views(g, stage, 7, &view) || g->loss(g, stage, 7, &view, 1, img, H, H, NULL, &loss)) loss = -1;
+    if (score && g->score(g, stage, &view, 1, img, H, H, NULL, score)) loss = -1;
     mlb_guidance_free(g);
     return loss;
+}
+
+static double guidance_loss(const mlb_sd_model* m, const char* prompt, mlb_stage stage) {
+    return staged_loss(m, m, prompt, stage, NULL);
 }
 
 TEST(geometry_suffix) {
@@ -165,6 +173,33 @@ TEST(geometry_suffix) {
     CHECK(geo == geo_long);     // the suffix is the prompt's tail on the geometry stage
     CHECK(geo != geo_plain);    // and it changes what the model is asked
     CHECK(app == app_plain);    // the appearance stage keeps the plain prompt
+    // A model per stage (docs/pipeline.md): m2 is m with conv_out's bias moved (another prediction)
+    // and no suffix. Each stage's loss and score are those of its own model alone, and the
+    // geometry prompt carries the geometry model's suffix.
+    snprintf(m->geometry_suffix, sizeof m->geometry_suffix, ", normal map");
+    mlb_sd_model* m2 = NULL;
+    REQUIRE(mlb_sd_model_load(dir, &o, &m2) == MLB_OK);
+    m2->geometry_suffix[0] = 0;
+    for (int ch = 0; ch < m2->unet->cfg.out_channels; ch++) m2->unet->conv_out_b[ch] += 0.25f;
+    double sc_m = 0, sc_m2 = 0, sc_geo_m = 0, sc_geo_st = 0, sc_app_st = 0;
+    double geo_m = staged_loss(m, m, "a gold goblet", MLB_STAGE_GEOMETRY, &sc_geo_m);
+    double app_m = staged_loss(m, m, "a gold goblet", MLB_STAGE_APPEARANCE, &sc_m);
+    double geo_m2 = staged_loss(m2, m2, "a gold goblet", MLB_STAGE_GEOMETRY, NULL);
+    double app_m2 = staged_loss(m2, m2, "a gold goblet", MLB_STAGE_APPEARANCE, &sc_m2);
+    double geo_st = staged_loss(m, m2, "a gold goblet", MLB_STAGE_GEOMETRY, &sc_geo_st);
+    double app_st = staged_loss(m, m2, "a gold goblet", MLB_STAGE_APPEARANCE, &sc_app_st);
+    printf("  per stage: geometry %.9g (m %.9g, m2 %.9g), appearance %.9g (m %.9g, m2 %.9g), scores %.9g / %.9g\n",
+           geo_st, geo_m, geo_m2, app_st, app_m, app_m2, sc_app_st, sc_m2);
+    CHECK(geo_m > 0 && app_m2 > 0 && app_m != app_m2 && geo_m != geo_m2 && sc_m != sc_m2);   // the models differ
+    CHECK(geo_m == geo);              // m's geometry loss with its suffix, as above
+    CHECK(geo_st == geo_m);           // the geometry stage: m, with m's suffix
+    CHECK(app_st == app_m2);          // the appearance stage: m2
+    CHECK(sc_app_st == sc_m2 && sc_geo_st == sc_geo_m);   // and each stage's score its model's
+    mlb_guidance* g = NULL;
+    mlb_guidance_sds_config gc = mlb_guidance_sds_default();
+    gc.prompt = "a gold goblet";
+    CHECK(mlb_guidance_sds_create_staged(m, NULL, &gc, &g) == MLB_ERR_ARG && !g);
+    mlb_sd_model_free(m2);
     mlb_sd_model_free(m);
     // malformed: not a string, too long, a control character; each a format error naming the file
     const char* bad[] = {"42", "\"0123456789012345678901234567890123456789012345678901234567890123456789\"", "\"a\\nb\""};

@@ -47,6 +47,11 @@ mlb_guidance_sds_config mlb_guidance_sds_default(void);
 // model's UNet and VAE are borrowed (they must outlive the guidance; the text encoder may be
 // dropped afterwards). The strings are copied.
 mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance_sds_config* c, mlb_guidance** out);
+// The same with one model per stage: the geometry stage's normal renders guided by geometry_model
+// (with its geometry_suffix), the appearance stage's shaded renders and its score (the material
+// start) by appearance_model; the same model twice is mlb_guidance_sds_create, bit for bit.
+mlb_status mlb_guidance_sds_create_staged(const mlb_sd_model* geometry_model, const mlb_sd_model* appearance_model,
+                                          const mlb_guidance_sds_config* c, mlb_guidance** out);
 // From two SDS objects whose embeddings are already set (tests, callers with their own
 // embeddings): geometry and appearance are OWNED by the guidance from the call on (freed on
 // failure too); their options are replaced by c's geometry_opt / appearance_opt (seeds as above).

@@ -26,6 +26,7 @@ typedef struct {
     char prompt[MLB_PIPELINE_PATH];     // sds
     char negative[MLB_PIPELINE_PATH];   // sds: replaces both stages' default negative prompts when set
     char model[MLB_PIPELINE_PATH];      // sds: the Stable Diffusion checkpoint (file or folder)
+    char appearance_model[MLB_PIPELINE_PATH];   // sds: another one for the appearance stage ("": model)
     char tokenizer[MLB_PIPELINE_PATH];  // sds: the CLIP tokenizer of a single-file checkpoint ("": the folder's or $MATLABER_TOKENIZER)
     char views_dir[MLB_PIPELINE_PATH];  // images: the views folder (docs/views.md)
     double guidance_scale;        // sds: 100

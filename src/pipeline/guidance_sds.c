@@ -254,9 +254,10 @@ mlb_status mlb_guidance_sds_create_from(mlb_sds* geometry, mlb_sds* appearance, 
     return MLB_OK;
 }
 
-mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance_sds_config* c, mlb_guidance** out) {
+mlb_status mlb_guidance_sds_create_staged(const mlb_sd_model* geometry_model, const mlb_sd_model* appearance_model,
+                                          const mlb_guidance_sds_config* c, mlb_guidance** out) {
     if (out) *out = NULL;
-    if (!model || !c || !out) return mlb_fail(MLB_ERR_ARG, "mlb_guidance_sds_create: NULL argument");
+    if (!geometry_model || !appearance_model || !c || !out) return mlb_fail(MLB_ERR_ARG, "mlb_guidance_sds_create: NULL argument");
     if (!c->prompt || !c->prompt[0]) return mlb_fail(MLB_ERR_ARG, "SDS guidance: no prompt");
     MLB_TRY(check_config(c));
     mlb_sds *geo = NULL, *app = NULL;
@@ -264,15 +265,20 @@ mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance
     // the geometry stage's normal renders get the model's caption for them (sd_model.h geometry_suffix)
     char* geo_prompt = malloc(strlen(c->prompt) + MLB_SD_SUFFIX_MAX);
     if (!geo_prompt) return mlb_fail(MLB_ERR_NOMEM, "SDS guidance: out of memory");
-    sprintf(geo_prompt, "%s%s", c->prompt, model->geometry_suffix);
-    if (model->geometry_suffix[0]) mlb_log(MLB_LOG_INFO, "geometry prompt: \"%s\" (the model's caption of normal renders)", geo_prompt);
-    mlb_status st = mlb_sds_create_from_model(model, geo_prompt, c->negative_geometry, vp, &c->geometry_opt, &geo);
+    sprintf(geo_prompt, "%s%s", c->prompt, geometry_model->geometry_suffix);
+    if (geometry_model->geometry_suffix[0])
+        mlb_log(MLB_LOG_INFO, "geometry prompt: \"%s\" (the model's caption of normal renders)", geo_prompt);
+    mlb_status st = mlb_sds_create_from_model(geometry_model, geo_prompt, c->negative_geometry, vp, &c->geometry_opt, &geo);
     free(geo_prompt);
-    if (!st) st = mlb_sds_create_from_model(model, c->prompt, c->negative_appearance, vp, &c->appearance_opt, &app);
+    if (!st) st = mlb_sds_create_from_model(appearance_model, c->prompt, c->negative_appearance, vp, &c->appearance_opt, &app);
     if (st) {
         mlb_sds_free(geo);
         mlb_sds_free(app);
         return mlb_fail_context(st, "SDS guidance for \"%s\"", c->prompt);
     }
     return mlb_guidance_sds_create_from(geo, app, c, out);
+}
+
+mlb_status mlb_guidance_sds_create(const mlb_sd_model* model, const mlb_guidance_sds_config* c, mlb_guidance** out) {
+    return mlb_guidance_sds_create_staged(model, model, c, out);
 }

@@ -127,6 +127,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!strcmp(c->guidance, "sds") && !c->model[0]) bad = "score distillation needs a model (-m)";
     else if (!strcmp(c->guidance, "sds") && !c->prompt[0]) bad = "score distillation needs a prompt (-p)";
     else if (!strcmp(c->guidance, "images") && !c->views_dir[0]) bad = "image guidance needs a views folder (--views)";
+    else if (strcmp(c->guidance, "sds") && c->appearance_model[0])
+        bad = "appearance_model is a model for score distillation: image guidance (--views) has none";
     else if (c->views < 1 || c->views > 64) bad = "views per step must be in 1..64";
     else if (c->view_batch < 0 || c->view_batch > 64) bad = "view_batch must be 0 (all of a step's views in one call) or 1..64";
     else if (c->res < 16 || c->res > 2048 || c->res % 8) bad = "--res must be a multiple of 8 in 16..2048";
@@ -219,6 +221,7 @@ static const field FIELDS[] = {
     FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // added 2026-11-29; before: no annealing
     FLD_OPT("material_start", F_INT, material_start, 0),              // added 2026-11-29; before: the prior's centre
     FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // added 2026-11-29; before: the same rate
+    FLD_OPT("appearance_model", F_STR, appearance_model, 0),          // added 2026-11-30; before: the model's
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

@@ -9,10 +9,11 @@
 #include "matlaber/pipeline.h"
 #include "matlaber/sd_model.h"
 
-// SDS keeps the model alive beside the guidance: wrap the guidance's destroy.
+// SDS keeps the models alive beside the guidance: wrap the guidance's destroy.
 typedef struct {
     mlb_guidance* inner;
     mlb_sd_model* model;
+    mlb_sd_model* appearance_model;   // NULL: the appearance stage is guided by `model` too
 } sds_owner;
 
 static mlb_status owner_sample(mlb_guidance* g, mlb_stage stage, long step, mlb_view* views) {
@@ -45,17 +46,24 @@ static void owner_destroy(mlb_guidance* g) {
     sds_owner* o = g->impl;
     mlb_guidance_free(o->inner);
     mlb_sd_model_free(o->model);
+    mlb_sd_model_free(o->appearance_model);
     free(o);
     free(g);
 }
 
 static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
-    mlb_sd_model* model = NULL;
+    mlb_sd_model *model = NULL, *app_model = NULL;
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     if (c->tokenizer[0]) mo.tokenizer_path = c->tokenizer;
     mlb_log(MLB_LOG_INFO, "loading %s", c->model);
     mlb_status s = mlb_sd_model_load(c->model, &mo, &model);
     if (s) return s;
+    // a second model for the appearance stage (docs/pipeline.md, "A model per stage")
+    if (c->appearance_model[0] && strcmp(c->appearance_model, c->model)) {
+        mlb_log(MLB_LOG_INFO, "loading %s for the appearance stage", c->appearance_model);
+        s = mlb_sd_model_load(c->appearance_model, &mo, &app_model);
+        if (s) { mlb_sd_model_free(model); return mlb_fail_context(s, "the appearance stage's model"); }
+    }
     mlb_guidance_sds_config gc = mlb_guidance_sds_default();
     gc.prompt = c->prompt;
     if (c->negative[0]) gc.negative_geometry = gc.negative_appearance = c->negative;
@@ -78,19 +86,22 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     gc.orbit.fixed_env = c->fixed_env;
     gc.seed = c->seed;
     mlb_guidance* inner = NULL;
-    s = mlb_guidance_sds_create(model, &gc, &inner);
-    if (s) { mlb_sd_model_free(model); return s; }
+    s = mlb_guidance_sds_create_staged(model, app_model ? app_model : model, &gc, &inner);
+    if (s) { mlb_sd_model_free(model); mlb_sd_model_free(app_model); return s; }
     mlb_sd_model_drop_text(model);   // the embeddings are cached: free the text encoder's memory
+    if (app_model) mlb_sd_model_drop_text(app_model);
     mlb_guidance* g = calloc(1, sizeof *g);
     sds_owner* o = calloc(1, sizeof *o);
     if (!g || !o) {
         free(g); free(o);
         mlb_guidance_free(inner);
         mlb_sd_model_free(model);
+        mlb_sd_model_free(app_model);
         return mlb_fail(MLB_ERR_NOMEM, "guidance: out of memory");
     }
     o->inner = inner;
     o->model = model;
+    o->appearance_model = app_model;
     *g = *inner;   // kind, n_views
     g->sample_views = owner_sample;
     g->loss = owner_loss;

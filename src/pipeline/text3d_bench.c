@@ -414,11 +414,13 @@ void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3
                       const mlb_text3d_summary* sum) {
     char abl[64];
     fprintf(f, "# Text to 3D against known truth\n\n"
-               "Model %s; %d + %d steps (geometry + appearance), %d views at %d², seed %llu; ablation: %s.\n"
+               "Model %s%s%s%s; %d + %d steps (geometry + appearance), %d views at %d², seed %llu; ablation: %s.\n"
                "Chamfer: relative to the truth's bounding-box diagonal, to each class's best-fitting member (the\n"
                "best of %d shape seeds, then %d rounds of a fit of its shape parameters).\n"
                "Relighting under `%s` (no run saw it). Metal: mean ks > %.2f and mean kd < %.2f of the median BRDF.\n\n",
-            c->base.model, c->base.geometry_iters, c->base.appearance_iters, c->base.views, c->base.res,
+            c->base.model, c->base.appearance_model[0] ? " (appearance: " : "", c->base.appearance_model[0] ? c->base.appearance_model : "",
+            c->base.appearance_model[0] ? ")" : "",
+            c->base.geometry_iters, c->base.appearance_iters, c->base.views, c->base.res,
             (unsigned long long)c->base.seed, mlb_text3d_ablation_name(&c->base, abl, sizeof abl), c->n_seeds,
             c->measure.fit_rounds, c->relight_env, MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
     for (int i = 0; i < c->n_set; i++) fprintf(f, "%s`%s`%s", i ? ", " : "Set over the preset: ", c->set[i], i + 1 < c->n_set ? "" : ".\n\n");
@@ -472,6 +474,7 @@ mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config
         return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
     }
     cJSON_AddStringToObject(j, "model", c->base.model);
+    if (c->base.appearance_model[0]) cJSON_AddStringToObject(j, "appearance_model", c->base.appearance_model);
     cJSON_AddStringToObject(j, "ablation", mlb_text3d_ablation_name(&c->base, abl, sizeof abl));
     cJSON_AddNumberToObject(j, "seed", (double)c->base.seed);
     cJSON_AddStringToObject(j, "init", c->base.init);

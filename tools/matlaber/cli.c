@@ -89,15 +89,29 @@ const char* cli_shared_data(void) {
     return NULL;
 }
 
+// models/NAME when it holds a model (its model_index.json), else NULL; path is the caller's buffer.
+static const char* own_model(const char* name, char* path, size_t cap) {
+    struct stat st;
+    snprintf(path, cap, "%s/models/%s/model_index.json", MLB_SOURCE_DIR, name);
+    if (stat(path, &st) != 0) return NULL;
+    snprintf(path, cap, "%s/models/%s", MLB_SOURCE_DIR, name);
+    return path;
+}
+
 const char* cli_default_model(void) {
     static char path[4200];
     const char* env = getenv("MATLABER_MODEL");
     if (env && env[0]) return env;
-    snprintf(path, sizeof path, "%s/models/%s/model_index.json", MLB_SOURCE_DIR, MLB_DEFAULT_MODEL);
-    struct stat st;
-    if (stat(path, &st) != 0) return NULL;
-    snprintf(path, sizeof path, "%s/models/%s", MLB_SOURCE_DIR, MLB_DEFAULT_MODEL);
-    return path;
+    return own_model(MLB_DEFAULT_MODEL, path, sizeof path);
+}
+
+const char* cli_default_appearance_model(void) {
+    static char path[4200];
+    const char* env = getenv("MATLABER_APPEARANCE_MODEL");
+    if (env && env[0]) return env;
+    env = getenv("MATLABER_MODEL");   // a model of the user's own guides both stages
+    if (env && env[0]) return NULL;
+    return own_model(MLB_DEFAULT_APPEARANCE_MODEL, path, sizeof path);
 }
 
 void cli_print_options(FILE* out, const cli_option* o) {

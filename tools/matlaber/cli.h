@@ -22,6 +22,12 @@ const char* cli_shared_data(void);
 // the source tree when it holds a finished model; NULL when neither.
 #define MLB_DEFAULT_MODEL "matlaber-tiny"
 const char* cli_default_model(void);
+// The appearance stage's model that goes with it (docs/pipeline.md, "A model per stage"; used only
+// where no -m was given): $MATLABER_APPEARANCE_MODEL, else none when $MATLABER_MODEL names another
+// model, else models/matlaber-tiny-appearance when it is there. NULL: none (one model guides both
+// stages).
+#define MLB_DEFAULT_APPEARANCE_MODEL "matlaber-tiny-appearance"
+const char* cli_default_appearance_model(void);
 // Shown in --help: the getopt option table as "  --name ARG  help".
 typedef struct { const char* name; int has_arg; int val; const char* arg; const char* help; } cli_option;
 void cli_print_options(FILE* out, const cli_option* opts);

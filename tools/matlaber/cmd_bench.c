@@ -17,6 +17,7 @@ static const cli_option options[] = {
     {"pairs", 1, 'p', "C:M,..", "these class:material prompts instead (e.g. vase:gold,table:red)"},
     {"preset", 1, 'Q', "NAME", "the generation preset (default tiny)"},
     {"model", 1, 'm', "PATH", "Stable Diffusion folder or file (default the project's own model, as generate)"},
+    {"appearance-model", 1, 'y', "PATH", "another model for the appearance stage (generate's --appearance-model)"},
     {"seed", 1, 's', "S", "the runs' seed (default 0)"},
     {"steps-scale", 1, 'S', "F", "both stages' steps times F, at least 1 each (quick runs; default 1)"},
     {"material", 1, 'a', "latent|direct", "the material network's output (direct: the no-prior ablation)"},
@@ -64,7 +65,7 @@ static int parse_pairs(const char* text, mlb_text3d_bench_config* bc) {
 static int bench_text3d(int argc, char** argv) {
     const char* cmd = "bench text3d";
     mlb_text3d_bench_config bc = mlb_text3d_bench_default();
-    const char *preset = "tiny", *model = NULL, *json = NULL, *init = NULL;
+    const char *preset = "tiny", *model = NULL, *appearance_model = NULL, *json = NULL, *init = NULL;
     long v;
     double x, scale = 1.0;
     uint64_t seed = 0;
@@ -86,6 +87,7 @@ static int bench_text3d(int argc, char** argv) {
             break;
         case 'Q': preset = optarg; break;
         case 'm': model = optarg; break;
+        case 'y': appearance_model = optarg; break;
         case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(cmd, "--seed: expected a non-negative integer"); seed = (uint64_t)v; break;
         case 'S': if (cli_parse_double(optarg, 1e-6, 100, &x)) return cli_usage_error(cmd, "--steps-scale: expected a number in (0, 100]"); scale = x; break;
         case 'a': if (mlb_material_mode_parse(optarg, &material)) return cli_usage_error(cmd, "--material: expected latent or direct"); break;
@@ -119,9 +121,17 @@ static int bench_text3d(int argc, char** argv) {
         }
     }
     if (optind < argc) return cli_usage_error(cmd, "unexpected argument '%s'", argv[optind]);
-    if (!model) model = cli_default_model();
+    if (!model) {   // the project's own models, as generate takes them
+        model = cli_default_model();
+        if (!appearance_model) appearance_model = cli_default_appearance_model();
+    }
     if (!model) return cli_usage_error(cmd, "--model is required: the project's own model is not there (docs/sd_train.md)");
     mlb_status s = mlb_text3d_base_config(&bc.base, preset, model, seed, scale, material, fixed_env, view_prompts);
+    if (!s && appearance_model) {
+        if (strlen(appearance_model) >= sizeof bc.base.appearance_model)
+            return cli_usage_error(cmd, "--appearance-model: a path of at most %zu bytes", sizeof bc.base.appearance_model - 1);
+        snprintf(bc.base.appearance_model, sizeof bc.base.appearance_model, "%s", appearance_model);
+    }
     if (!s && init) {
         if (strlen(init) >= sizeof bc.base.init) return cli_usage_error(cmd, "--init: a path of at most %zu bytes", sizeof bc.base.init - 1);
         snprintf(bc.base.init, sizeof bc.base.init, "%s", init);

@@ -90,6 +90,8 @@ int demo_text_main(const char* out, uint64_t seed, int quick, const char* cls_na
     if (!s) s = mlb_catalogue_material_parse(mat_name, &mat);
     if (!s) s = mlb_text3d_base_config(&bc.base, "tiny", model, seed, quick ? 0.25 : 1.0, MLB_MATERIAL_LATENT, 0, 1);
     if (s) return cli_fail(s, "demo");
+    const char* appearance_model = cli_default_appearance_model();
+    if (appearance_model) snprintf(bc.base.appearance_model, sizeof bc.base.appearance_model, "%s", appearance_model);
     bc.out_dir = out;
     bc.classes[0] = cls;
     bc.n_classes = 1;

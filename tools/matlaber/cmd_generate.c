@@ -23,6 +23,8 @@ static const cli_option options[] = {
     {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"
                               "                           project's own model (models/matlaber-tiny or $MATLABER_MODEL) with --preset tiny"},
+    {"appearance-model", 1, 'y', "PATH", "generate, paint: another checkpoint for the appearance stage (default: the --model's;\n"
+                                         "                           docs/pipeline.md, \"A model per stage\")"},
     {"negative", 1, 'n', "TEXT", "generate: negative prompt (default: the paper's per stage)"},
     {"views", 1, 'V', "N|DIR", "generate: views per step (default 9); fit: the views folder (docs/views.md)"},
     {"views-per-step", 1, 'v', "N", "fit: views per step (default 4)"},
@@ -159,6 +161,8 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
                                            "model is not there (train it: matlaber sd train -o models/%s; docs/sd_train.md)",
                                            MLB_DEFAULT_MODEL);
             snprintf(c.model, sizeof c.model, "%s", m);
+            const char* am = cli_default_appearance_model();   // --appearance-model, when given, replaces it
+            if (am) snprintf(c.appearance_model, sizeof c.appearance_model, "%s", am);
             if (!preset) preset = "tiny";
         }
     }
@@ -183,6 +187,10 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         case 'Q': break;   // applied above
         case 'p': snprintf(c.prompt, sizeof c.prompt, "%s", optarg); break;
         case 'm': snprintf(c.model, sizeof c.model, "%s", optarg); break;
+        case 'y':
+            if (strlen(optarg) >= sizeof c.appearance_model) return cli_usage_error(command, "--appearance-model: a path of at most %zu bytes", sizeof c.appearance_model - 1);
+            snprintf(c.appearance_model, sizeof c.appearance_model, "%s", optarg);
+            break;
         case 'n': snprintf(c.negative, sizeof c.negative, "%s", optarg); break;
         case 'V':
             if (is_fit || (is_paint && cli_parse_long(optarg, 1, 64, &v))) {

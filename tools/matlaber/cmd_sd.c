@@ -180,7 +180,9 @@ static int txt2img_main(int argc, char** argv) {
     if (!model_path) {
         // The project's own model (docs/sd_train.md): sampled at the size it was trained at, with the
         // guidance scale its samples were judged at, unless told otherwise.
-        if (!(model_path = cli_default_model()))
+        // The one that draws shaded objects: the appearance stage's when it is there
+        model_path = cli_default_appearance_model();
+        if (!model_path && !(model_path = cli_default_model()))
             return cli_usage_error("sd txt2img", "-m MODEL is needed: the project's own model is not there (train it: matlaber sd "
                                    "train -o models/%s; docs/sd_train.md)", MLB_DEFAULT_MODEL);
         if (size < 0) size = 128;

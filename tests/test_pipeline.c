@@ -611,10 +611,15 @@ TEST(auto_init_needs_a_clear_win) {
 // object, so the test sees that the renders are the archetypes. A metal's win starts the network
 // from that metal (in latent and direct mode); a dielectric's leaves the start bitwise the prior's
 // centre, as material_start 0 does.
-enum { ARCH_N = 8, ARCH_GREY_METAL = 0, ARCH_RED = 5, ARCH_BLUE = 6 };
+// With `close` set it makes a close call instead: on the first look (8 views) the grey metal wins
+// by 0.1 with per-view scores of 0.3 and -0.1 in turn (the white glossy 0, the rest -1), within 2
+// standard errors; on the second look (the two, 32 views: calls 8 and 9) the metal scores -0.2 on
+// the 24 new views, so the white glossy wins.
+enum { ARCH_N = 8, ARCH_GREY_METAL = 0, ARCH_WHITE = 2, ARCH_RED = 5, ARCH_BLUE = 6 };
 typedef struct {
     mlb_orbit_config orbit;
-    int want, calls;
+    int want, calls, close;
+    int n_views[ARCH_N + 2];   // each call's views
     int t_range[2];   // the timesteps the start asked to be scored at
     double rgb[ARCH_N][3];
 } arch_guidance;
@@ -627,7 +632,15 @@ static mlb_status arch_score(mlb_guidance* g, mlb_stage stage, const mlb_view* v
                              int W, const int* t_range, double* per_view) {
     (void)views;
     arch_guidance* a = g->impl;
-    if (stage != MLB_STAGE_APPEARANCE || a->calls >= ARCH_N) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
+    if (stage != MLB_STAGE_APPEARANCE || a->calls >= ARCH_N + 2 * a->close) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
+    a->n_views[a->calls] = n;
+    if (a->close) {   // the close call: the archetype by the call (the first look's order, then the pair)
+        int arch = a->calls < ARCH_N ? a->calls : a->calls == ARCH_N ? ARCH_GREY_METAL : ARCH_WHITE;
+        for (int v = 0; v < n; v++)
+            per_view[v] = arch == ARCH_WHITE ? 0.0 : arch != ARCH_GREY_METAL ? -1.0 : v < 8 ? (v % 2 ? -0.1 : 0.3) : -0.2;
+        a->calls++;
+        return MLB_OK;
+    }
     if (t_range) a->t_range[0] = t_range[0], a->t_range[1] = t_range[1];
     double sum[3] = {0, 0, 0}, cover = 0;
     for (size_t i = 0; i < (size_t)n * H * W; i++) {
@@ -648,6 +661,7 @@ typedef struct {
     double lr_scale;          // metal_start_lr_scale (0: 1)
     int appearance_iters;     // (0: 1)
     int stop_after, resume;   // the config's stop_after; resume the run folder
+    int close;                // the guidance makes a close call (arch_guidance)
 } mstart_opts;
 
 // The appearance checkpoint's learning rate (its metadata "lr"), or -1.
@@ -669,6 +683,7 @@ static char* material_start_run(const char* run, int material_start, int want, m
     memset(a, 0, sizeof *a);
     a->orbit = mlb_orbit_default();
     a->want = want;
+    a->close = o->close;
     mlb_guidance g = {.kind = "sds", .n_views = 2, .sample_views = arch_sample_views, .loss = cov_loss, .score = arch_score, .impl = a};
     mlb_pipeline_config c = mlb_pipeline_default();
     snprintf(c.prompt, sizeof c.prompt, "a metal thing");
@@ -751,6 +766,19 @@ TEST(material_start_picks_a_metal) {
     // the grey metal (kd 0.02, ks 0.9) after one step of lr 0.001 (latent) or 0.01 (direct); the centre is not metal
     CHECK(kd[0] < 0.08 && ks[0] > 0.8);
     CHECK(kd[3] < 0.08 && ks[3] > 0.8);
+    // a close call between the grey metal and the white glossy, looked at again on 32 views (the
+    // first 16 steps' 2 views each) and won there by the dielectric: the run is material_start 0's
+    long n_close = 0;
+    double kd_close, ks_close;
+    const mstart_opts close = {.lr_scale = 0.1, .close = 1};
+    snprintf(run, sizeof run, "%s/mstart_close", tmpdir);
+    char* closed = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &close, &n_close, &kd_close, &ks_close);
+    REQUIRE(closed);
+    CHECK_MSG(a.calls == ARCH_N + 2 && a.n_views[0] == 8 && a.n_views[ARCH_N] == 32 && a.n_views[ARCH_N + 1] == 32,
+              "%d calls, views %d then %d, %d", a.calls, a.n_views[0], a.n_views[ARCH_N], a.n_views[ARCH_N + 1]);
+    CHECK(checkpoint_lr(run) == 1e-2);   // not a metal start
+    CHECK(n_close == n_off && !memcmp(closed, off, (size_t)n_off));
+    free(closed);
     const float centre[7] = {(float)kd[2], (float)kd[2], (float)kd[2], (float)ks[2], (float)ks[2], (float)ks[2], 0.5f};
     CHECK(!mlb_text3d_is_metal(centre));   // (the benchmark's rule on the means)
     // a dielectric's win: the run as material_start 0 makes it, bit for bit

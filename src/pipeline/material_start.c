@@ -13,6 +13,8 @@
 // scores best, the network starts from it (its last layer's bias set to that material), else from
 // the centre as before, bit for bit. The dielectric archetypes are there so that a colour the
 // prompt asks for ("a red mug") is not credited to the only tinted candidate, a warm metal.
+// The scores of similar archetypes are close and 8 views are few: when the best metal and the best
+// dielectric are within CLOSE_Z standard errors, those two are scored again on CLOSE_VIEWS views.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -39,7 +41,10 @@ static const archetype ARCHETYPES[] = {
     {"blue glossy", {0.08f, 0.15f, 0.6f, 0.04f, 0.04f, 0.04f, 0.3f}, 0},
     {"green glossy", {0.1f, 0.5f, 0.15f, 0.04f, 0.04f, 0.04f, 0.3f}, 0},
 };
-enum { N_ARCH = sizeof ARCHETYPES / sizeof *ARCHETYPES, START_VIEWS = 8, LATENT_FIT_ITERS = 20 };
+enum { N_ARCH = sizeof ARCHETYPES / sizeof *ARCHETYPES, START_VIEWS = 8, CLOSE_VIEWS = 32, LATENT_FIT_ITERS = 20 };
+// A metal / dielectric split closer than this many standard errors of the paired per-view
+// differences on the first START_VIEWS views is decided on CLOSE_VIEWS views.
+#define CLOSE_Z 2.0
 // The timesteps the archetypes are scored at: the middle of the schedule. At large t the noised render
 // keeps only its mean colour, and the model cannot tell a metal from a glaze of the same tint (per
 // timestep, over the benchmark's 88 prompts: at 620 and 860 the picks are near chance, at 380 the warm
@@ -63,6 +68,43 @@ static mlb_status archetype_bias(const mlb_material_net* net, const mlb_brdf_ae*
     return MLB_OK;
 }
 
+// Renders archetype code (the last layer's bias; its weights are 0) on views [0, n) and scores them:
+// pv[n], the guidance's per-view scores.
+static mlb_status score_archetype(pipeline_run* r, mlb_appearance* app, const float* code, const mlb_view* views, int n,
+                                  float* images, double* pv) {
+    const mlb_pipeline_config* c = r->c;
+    mlb_mlp* mlp = &r->mat.mlp;
+    const int L = mlp->n_layers - 1, per = r->g->n_views;
+    size_t img = (size_t)c->res * c->res * 4;
+    memcpy(mlp->bias[L], code, sizeof(float) * (size_t)mlp->dims[L + 1]);
+    mlb_status s = MLB_OK;
+    for (int v = 0; !s && v < n; v += per)   // a step's views per render
+        s = mlb_appearance_render(app, &r->mat, &r->scene.mesh, r->scene.light_ptrs, views + v, per, c->res, c->ss,
+                                  images + img * (size_t)v, 0);
+    return s ? s : r->g->score(r->g, MLB_STAGE_APPEARANCE, views, n, images, c->res, c->res, SCORE_T, pv);
+}
+
+// Scores items[0..count) (archetype indices) on views [0, n), shared over the processes (dist.h): each
+// renders and scores its block alone, every rank gets every row of pv [count, n] (the same bits as
+// one process's).
+static mlb_status score_shared(pipeline_run* r, mlb_appearance* app, float (*code)[7], const int* items, int count,
+                               const mlb_view* views, int n, float* images, double* pv) {
+    int first, mine;
+    mlb_dist_share(count, &first, &mine);
+    int was = mlb_dist_solo(1);
+    mlb_status s = MLB_OK;
+    for (int i = first; !s && i < first + mine; i++) s = score_archetype(r, app, code[items[i]], views, n, images, pv + (size_t)i * n);
+    mlb_dist_solo(was);
+    s = pipeline_agree(s);
+    return s ? s : mlb_dist_allgather_items(pv + (size_t)first * n, pv, count, sizeof(double) * (size_t)n);
+}
+
+static double row_mean(const double* x, int n) {
+    double m = 0;
+    for (int k = 0; k < n; k++) m += x[k] / n;
+    return m;
+}
+
 mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
@@ -74,14 +116,17 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     if (!mlp->bias[L] || O > 7)
         return mlb_fail(MLB_ERR_ARG, "material start: the network's last layer is not 4 or 7 outputs with a bias");
     mlb_view* views = NULL;
-    int n = 0, per = g->n_views;
-    MLB_TRY(pipeline_first_views(r, MLB_STAGE_APPEARANCE, START_VIEWS, &views, &n));
+    int n_all = 0, per = g->n_views;
+    MLB_TRY(pipeline_first_views(r, MLB_STAGE_APPEARANCE, CLOSE_VIEWS, &views, &n_all));
+    int n = (START_VIEWS + per - 1) / per * per;   // the first look: the first steps' views, at least START_VIEWS
+    if (n > n_all) n = n_all;
     size_t img = (size_t)c->res * c->res * 4, nw = (size_t)O * I;
-    float* images = malloc(sizeof(float) * img * (size_t)n);
+    float* images = malloc(sizeof(float) * img * (size_t)n_all);
     float* weight = malloc(sizeof(float) * nw);   // the layer as initialised, restored after
     float bias[7], code[N_ARCH][7];
-    double sc[N_ARCH], *per_view = malloc(sizeof(double) * (size_t)n);
-    mlb_status s = images && weight && per_view ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "material start: out of memory");
+    double* pv = malloc(sizeof(double) * (size_t)n * N_ARCH);   // [N_ARCH, n] per-view scores
+    double* pv2 = malloc(sizeof(double) * (size_t)n_all * 2);  // [2, n_all]: the close call's second look
+    mlb_status s = images && weight && pv && pv2 ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "material start: out of memory");
     if (!s) {
         memcpy(weight, mlp->weight[L], sizeof(float) * nw);
         memcpy(bias, mlp->bias[L], sizeof(float) * (size_t)O);
@@ -89,45 +134,63 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     }
     mlb_appearance app;   // renders on the host: the scores read host images (guidance.h)
     memset(&app, 0, sizeof app);
+    int all[N_ARCH];
+    for (int a = 0; a < N_ARCH; a++) all[a] = a;
     for (int a = 0; !s && a < N_ARCH; a++) s = archetype_bias(net, r->prior, ARCHETYPES[a].k, code[a]);
-    // Several processes (dist.h): each renders and scores its share of the archetypes alone, and
-    // every rank gets every score (the same bits as one process's)
-    int first, count;
-    mlb_dist_share(N_ARCH, &first, &count);
-    int was = mlb_dist_solo(1);
-    for (int a = first; !s && a < first + count; a++) {
-        memcpy(mlp->bias[L], code[a], sizeof(float) * (size_t)O);
-        for (int v = 0; !s && v < n; v += per)   // a step's views per render
-            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views + v, per, c->res, c->ss,
-                                      images + img * (size_t)v, 0);
-        if (!s) s = g->score(g, MLB_STAGE_APPEARANCE, views, n, images, c->res, c->res, SCORE_T, per_view);
-        sc[a] = 0;
-        for (int v = 0; !s && v < n; v++) sc[a] += per_view[v] / n;
+    if (!s) s = score_shared(r, &app, code, all, N_ARCH, views, n, images, pv);
+    int best = 0;
+    double sc[N_ARCH];
+    char line[1024];
+    if (!s) {
+        for (int a = 0; a < N_ARCH; a++) {
+            sc[a] = row_mean(pv + (size_t)a * n, n);
+            if (sc[a] > sc[best]) best = a;
+        }
+        int len = snprintf(line, sizeof line, "material start: the prompt's score on %d views:", n);
+        for (int a = 0; a < N_ARCH && len < (int)sizeof line; a++)
+            len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f;", ARCHETYPES[a].name, sc[a]);
+        mlb_log(MLB_LOG_INFO, "%s best: the %s", line, ARCHETYPES[best].name);
     }
-    mlb_dist_solo(was);
+    // A close call between the best metal and the best dielectric (their paired difference within
+    // CLOSE_Z standard errors) is looked at again on more views: those two only
+    int pair[2] = {-1, -1};   // best metal, best dielectric
+    for (int a = 0; !s && a < N_ARCH; a++) {
+        int k = ARCHETYPES[a].metal ? 0 : 1;
+        if (pair[k] < 0 || sc[a] > sc[pair[k]]) pair[k] = a;
+    }
+    if (!s && n_all > n && pair[0] >= 0 && pair[1] >= 0) {
+        double m = 0, v = 0;
+        for (int k = 0; k < n; k++) m += (pv[(size_t)pair[0] * n + k] - pv[(size_t)pair[1] * n + k]) / n;
+        for (int k = 0; k < n; k++) {
+            double d = pv[(size_t)pair[0] * n + k] - pv[(size_t)pair[1] * n + k] - m;
+            v += d * d;
+        }
+        double se = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
+        if (fabs(m) < CLOSE_Z * se) {
+            s = score_shared(r, &app, code, pair, 2, views, n_all, images, pv2);
+            if (!s) {
+                double m0 = row_mean(pv2, n_all), m1 = row_mean(pv2 + n_all, n_all);
+                best = m0 > m1 ? pair[0] : pair[1];
+                mlb_log(MLB_LOG_INFO, "material start: a close call (the %s - the %s %+.5f +- %.5f); on %d views: the %s %+.5f, the %s %+.5f; best: the %s",
+                        ARCHETYPES[pair[0]].name, ARCHETYPES[pair[1]].name, m, se, n_all, ARCHETYPES[pair[0]].name, m0,
+                        ARCHETYPES[pair[1]].name, m1, ARCHETYPES[best].name);
+            }
+        }
+    }
     mlb_appearance_free(&app);
-    s = pipeline_agree(s);
-    if (!s) s = mlb_dist_allgather_items(sc + first, sc, N_ARCH, sizeof(double));
     if (weight) {   // the network as it came, then the chosen start
         memcpy(mlp->weight[L], weight, sizeof(float) * nw);
         memcpy(mlp->bias[L], bias, sizeof(float) * (size_t)O);
     }
     if (!s) {
-        int best = 0;
-        for (int a = 1; a < N_ARCH; a++)
-            if (sc[a] > sc[best]) best = a;
-        char line[1024];
-        int len = snprintf(line, sizeof line, "material start: the prompt's score on %d views:", n);
-        for (int a = 0; a < N_ARCH && len < (int)sizeof line; a++)
-            len += snprintf(line + len, sizeof line - (size_t)len, " %s %+.5f;", ARCHETYPES[a].name, sc[a]);
         *metal = ARCHETYPES[best].metal;
         if (*metal) memcpy(mlp->bias[L], code[best], sizeof(float) * (size_t)O);
-        mlb_log(MLB_LOG_INFO, "%s best: the %s; starting from the %s", line, ARCHETYPES[best].name,
-                *metal ? ARCHETYPES[best].name : "prior's centre");
+        mlb_log(MLB_LOG_INFO, "material start: from the %s", *metal ? ARCHETYPES[best].name : "prior's centre");
     }
     free(views);
     free(images);
     free(weight);
-    free(per_view);
+    free(pv);
+    free(pv2);
     return s ? mlb_fail_context(s, "material start") : MLB_OK;
 }

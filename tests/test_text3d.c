@@ -347,6 +347,11 @@ TEST(bench_smoke_tiny_sd) {
     bc.base.fixed_env = 1;
     CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "bowl_gold") != NULL);
+    // a run guided by one model is not reused for a benchmark with an appearance model
+    bc.base.fixed_env = 0;
+    snprintf(bc.base.appearance_model, sizeof bc.base.appearance_model, "/models/another");
+    CHECK(mlb_text3d_bench_run(&bc, &again, &n, &sum) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "bowl_gold") && strstr(mlb_last_error(), "appearance_model"));
 }
 
 int main(void) {

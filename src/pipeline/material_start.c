@@ -159,13 +159,8 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
         if (pair[k] < 0 || sc[a] > sc[pair[k]]) pair[k] = a;
     }
     if (!s && n_all > n && pair[0] >= 0 && pair[1] >= 0) {
-        double m = 0, v = 0;
-        for (int k = 0; k < n; k++) m += (pv[(size_t)pair[0] * n + k] - pv[(size_t)pair[1] * n + k]) / n;
-        for (int k = 0; k < n; k++) {
-            double d = pv[(size_t)pair[0] * n + k] - pv[(size_t)pair[1] * n + k] - m;
-            v += d * d;
-        }
-        double se = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
+        double m, se;
+        pipeline_paired_difference(pv + (size_t)pair[0] * n, pv + (size_t)pair[1] * n, n, &m, &se);
         if (fabs(m) < CLOSE_Z * se) {
             s = score_shared(r, &app, code, pair, 2, views, n_all, images, pv2);
             if (!s) {

@@ -117,6 +117,15 @@ static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
     return s;
 }
 
+void pipeline_paired_difference(const double* a, const double* b, int n, double* mean, double* se) {
+    double m = 0, v = 0;
+    for (int k = 0; k < n; k++) m += a[k] - b[k];
+    m /= n;
+    for (int k = 0; k < n; k++) { double d = a[k] - b[k] - m; v += d * d; }
+    *mean = m;
+    *se = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
+}
+
 // The candidate the rule picks among those with alive[i] (scores sc [N, n]): the clearest that beats
 // the reference by more than z standard errors; -1 when none is alive. mean/se: the paired
 // differences against the reference, for the log.
@@ -127,12 +136,7 @@ static int pick(const double* sc, int N, int n, const int* alive, double z, doub
     for (int i = ref + 1; ref >= 0 && i < N; i++) {
         mean[i] = se[i] = NAN;
         if (!alive[i]) continue;
-        double m = 0, v = 0;
-        for (int k = 0; k < n; k++) m += sc[(size_t)i * n + k] - sc[(size_t)ref * n + k];
-        m /= n;
-        for (int k = 0; k < n; k++) { double d = sc[(size_t)i * n + k] - sc[(size_t)ref * n + k] - m; v += d * d; }
-        mean[i] = m;
-        se[i] = n > 1 ? sqrt(v / (n - 1) / n) : INFINITY;
+        pipeline_paired_difference(sc + (size_t)i * n, sc + (size_t)ref * n, n, &mean[i], &se[i]);
         if (mean[i] > z * se[i] && (best == ref || mean[i] / se[i] > mean[best] / se[best])) best = i;
     }
     return best;

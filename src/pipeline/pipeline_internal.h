@@ -63,6 +63,9 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab", "cup" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all).
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
+// Mean and standard error of the paired differences a[k] - b[k] over n per-view scores (se infinite
+// for n < 2): how --init auto and the material start tell a real win from the views' noise.
+void pipeline_paired_difference(const double* a, const double* b, int n, double* mean, double* se);
 // The views of a stage's first steps, for scoring renders as the stage will see them: whole steps,
 // at least `want` views, at most MLB_SDS_MAX_BATCH (one step at least); the appearance stage's with
 // their lights fixed as the stage fixes them. *views: malloc'd, n_views of them.

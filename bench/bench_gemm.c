@@ -3,7 +3,8 @@
 // field networks' MLP layers (forward and weight gradient), and mlb_gemm_bf16 (bf16 operands, fp32
 // sums) on the same shards. Then the SD convolutions as the ops run them: fp32 (im2col + mlb_gemm)
 // against bf16 (conv2d_forward_bf16 / conv2d_backward_bf16's input gradient: the implicit GEMM of
-// src/nn/conv_bf16.c). Prints tables; docs/benchmarks.md keeps the results.
+// src/nn/conv_bf16.c). On a CPU with AMX the bf16 kernel runs on its tiles, and again with them off
+// (the AVX-512 BF16 kernel). Prints tables; docs/benchmarks.md keeps the results.
 // Usage: bench_gemm [--threads N]
 #include <stdio.h>
 #include <stdlib.h>
@@ -64,21 +65,28 @@ int main(int argc, char** argv) {
     mlb_set_threads(threads);
     mlb_cpu_info cpu;
     mlb_cpu_detect(&cpu);
+    const int amx = mlb_gemm_bf16_amx();   // then the bf16 kernel is measured on AMX tiles and with them off
     printf("bench_gemm: %s, %d threads, OpenBLAS kernels %s, bf16 GEMM: %s\n\n", cpu.model, threads,
-           mlb_blas_corename(), mlb_gemm_bf16_native() ? "AVX-512 BF16 kernel" : "none (fp32 fallback)");
+           mlb_blas_corename(), !mlb_gemm_bf16_native() ? "none (fp32 fallback)"
+                                : amx ? "AMX tiles (and the AVX-512 BF16 kernel: AMX off)" : "AVX-512 BF16 kernel");
     printf("| shape (M x N x K) | what | OpenBLAS threaded GFLOP/s | mlb_gemm GFLOP/s | ratio | mlb_gemm_bf16 "
-           "GFLOP/s | bf16 / mlb_gemm |\n");
-    printf("|---|---|---:|---:|---:|---:|---:|\n");
+           "GFLOP/s | bf16 / mlb_gemm | bf16, AMX off | AMX / AVX-512 BF16 |\n");
+    printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
         const bench_shape* s = &shapes[i];
         double peer = bench_gemm_rate(s->M, s->N, s->K, 0), ours = bench_gemm_rate(s->M, s->N, s->K, 1);
-        double bf16 = bench_gemm_rate(s->M, s->N, s->K, 2);
-        printf("| %d x %d x %d | %s | %.1f | %.1f | %.2f | %.1f | %.2f |\n", s->M, s->N, s->K, s->what, peer, ours,
-               peer > 0 ? ours / peer : 0, bf16, ours > 0 ? bf16 / ours : 0);
+        double bf16 = bench_gemm_rate(s->M, s->N, s->K, 2), avx = 0;
+        if (amx) {
+            mlb_gemm_bf16_force_amx_off(1);
+            avx = bench_gemm_rate(s->M, s->N, s->K, 2);
+            mlb_gemm_bf16_force_amx_off(0);
+        }
+        printf("| %d x %d x %d | %s | %.1f | %.1f | %.2f | %.1f | %.2f | %.1f | %.2f |\n", s->M, s->N, s->K, s->what,
+               peer, ours, peer > 0 ? ours / peer : 0, bf16, ours > 0 ? bf16 / ours : 0, avx, avx > 0 ? bf16 / avx : 0);
         fflush(stdout);
     }
     printf("\n| convolution | fp32 forward GFLOP/s | bf16 forward | ratio | fp32 input gradient | bf16 input gradient "
-           "| ratio |\n|---|---:|---:|---:|---:|---:|---:|\n");
+           "| ratio | bf16 forward, AMX off |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for (size_t i = 0; i < sizeof convs / sizeof convs[0]; i++) {
         const conv_shape* s = &convs[i];
         size_t ni = (size_t)s->N * s->C * s->H * s->H, no = (size_t)s->N * s->OC * s->H * s->H;
@@ -87,10 +95,15 @@ int main(int argc, char** argv) {
         if (!in || !out || !w) { fprintf(stderr, "bench_gemm: out of memory for %s\n", s->what); return 1; }
         mlb_rng_fill_uniform(in, ni, 1, 1, 0, -1, 1);
         mlb_rng_fill_uniform(w, nw, 1, 2, 0, -0.05f, 0.05f);
-        double r[4];
+        double r[5] = {0};
         for (int k = 0; k < 4; k++) r[k] = conv_rate(s, k, in, w, out);
-        printf("| %s | %.1f | %.1f | %.2f | %.1f | %.1f | %.2f |\n", s->what, r[0], r[1], r[0] > 0 ? r[1] / r[0] : 0,
-               r[2], r[3], r[2] > 0 ? r[3] / r[2] : 0);
+        if (amx) {
+            mlb_gemm_bf16_force_amx_off(1);
+            r[4] = conv_rate(s, 1, in, w, out);
+            mlb_gemm_bf16_force_amx_off(0);
+        }
+        printf("| %s | %.1f | %.1f | %.2f | %.1f | %.1f | %.2f | %.1f |\n", s->what, r[0], r[1], r[0] > 0 ? r[1] / r[0] : 0,
+               r[2], r[3], r[2] > 0 ? r[3] / r[2] : 0, r[4]);
         fflush(stdout);
         free(in); free(out); free(w);
     }

@@ -16,7 +16,8 @@
 // of im2col + mlb_gemm_bf16 (the input gradient: of the flipped conv), 1 and 2 threads alike, each
 // element within its bound of the exact conv.
 // Skipped (saying why) without AVX-512 BF16; the fp32
-// fallback is checked by forcing it.
+// fallback is checked by forcing it. On a CPU with AMX the cases run on its tiles, then again on the
+// AVX-512 BF16 kernel.
 #include "test.h"
 #include "matlaber/conv_ops.h"
 #include "matlaber/nn.h"
@@ -567,6 +568,43 @@ TEST(attention_backward) {
            0x1p-7);
 }
 
+// Where the CPU has AMX, the tests above ran its tiles (src/nn/gemm_amx.c) and run again on the
+// AVX-512 BF16 kernel (main). Here: the switch is real (a long dot product's fp32 sums round in
+// another order on the tiles: some bits differ, none by more than the fp32 sums' bound), a product
+// whose A was packed in one mode is packed again after the switch, and $MATLABER_CPU_AMX is read.
+TEST(amx_tiles_and_avx512_kernel) {
+    if (!mlb_gemm_bf16_native()) SKIP("this CPU has no AVX-512 BF16");
+    if (!mlb_gemm_bf16_amx()) SKIP("no AMX here (or $MATLABER_CPU_AMX is off): the AVX-512 BF16 kernel only");
+    const int M = 45, N = 70, K = 2000;   // K: blocks of 128 pairs and a tail of 8 pairs
+    float *A = malloc(sizeof(float) * M * K), *B = malloc(sizeof(float) * K * N);
+    float *C1 = malloc(sizeof(float) * M * N), *C2 = malloc(sizeof(float) * M * N);
+    REQUIRE(A && B && C1 && C2);
+    mlb_rng_fill_uniform(A, (size_t)M * K, SEED, 6, 0, -1, 1);
+    mlb_rng_fill_uniform(B, (size_t)K * N, SEED, 7, 0, -1, 1);
+    mlb_gemm_bf16(MLB_NOTRANS, MLB_NOTRANS, M, N, K, 1.f, A, K, B, N, 0.f, C1, N);
+    mlb_gemm_bf16_force_amx_off(1);
+    CHECK(mlb_gemm_bf16_amx() == 0 && mlb_gemm_bf16_native());
+    mlb_gemm_bf16(MLB_NOTRANS, MLB_NOTRANS, M, N, K, 1.f, A, K, B, N, 0.f, C2, N);
+    mlb_gemm_bf16_force_amx_off(0);
+    CHECK(mlb_gemm_bf16_amx() == 1);
+    int differ = 0;
+    double worst = 0;
+    for (int i = 0; i < M; i++)
+        for (int j = 0; j < N; j++) {
+            double mag = 0;
+            for (int k = 0; k < K; k++) mag += fabs((double)A[(size_t)i * K + k] * B[(size_t)k * N + j]);
+            float a = C1[(size_t)i * N + j], b = C2[(size_t)i * N + j];
+            differ += memcmp(&a, &b, 4) != 0;
+            double e = fabs((double)a - b) / (2 * (K + 2) * 0x1p-24 * mag);   // both within their bound of one sum
+            if (e > worst) worst = e;
+        }
+    printf("  AMX against AVX-512 BF16: %d of %d elements differ; worst difference / the two bounds %.3g\n", differ,
+           M * N, worst);
+    CHECK(differ > 0);
+    CHECK(worst <= 1);
+    free(A); free(B); free(C1); free(C2);
+}
+
 int main(void) {
     RUN(values_threads_edges);
     RUN(packed_weights);
@@ -576,5 +614,16 @@ int main(void) {
     RUN(attention_fallback_is_fp32);
     RUN(conv_from_the_image);
     RUN(attention_backward);
+    RUN(amx_tiles_and_avx512_kernel);
+    if (mlb_gemm_bf16_amx()) {   // the cases above ran on AMX tiles: the AVX-512 BF16 kernel too
+        printf("again on the AVX-512 BF16 kernel (AMX off):\n");
+        mlb_gemm_bf16_force_amx_off(1);
+        RUN(values_threads_edges);
+        RUN(packed_weights);
+        RUN(attention);
+        RUN(conv_from_the_image);
+        RUN(attention_backward);
+        mlb_gemm_bf16_force_amx_off(0);
+    }
     return test_summary();
 }

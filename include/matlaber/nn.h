@@ -58,6 +58,12 @@ void mlb_gemm_bf16(int trans_a, int trans_b, int M, int N, int K, float alpha, c
 int mlb_gemm_bf16_native(void);
 // For tests: on = 1 forces the fp32 fallback, 0 uses the kernel where the CPU has it.
 void mlb_gemm_bf16_force_fallback(int on);
+// 1 when the bf16 kernel runs on Intel AMX tiles (src/nn/gemm_amx.c: the CPU has AMX-BF16 and
+// $MATLABER_CPU_AMX is not 0/off), 0 on AVX-512 BF16 alone. Other bits than AVX-512 BF16's, the same
+// bound. For tests: off = 1 turns AMX off, 0 back on where the CPU has it; operands packed before
+// (mlb_bf16_pack_*) must be packed again after either (their A layout follows it).
+int mlb_gemm_bf16_amx(void);
+void mlb_gemm_bf16_force_amx_off(int off);
 // linear_forward / linear_backward with their GEMMs on the bf16 kernel (the bias sums stay fp32/double).
 void linear_forward_bf16(float* out, const float* in, const float* weight, const float* bias, int B, int C, int OC);
 // linear_forward_bf16 with the weight [OC, C] packed once for the kernel (a frozen model's: the UNet

@@ -126,7 +126,9 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
             mlb_log(MLB_LOG_INFO, "UNet on the CPU in fp32 (no AVX-512 BF16 here for the bf16 GEMMs)");
         else
             mlb_log(MLB_LOG_INFO, "UNet on the %s, %s GEMM operands%s", mlb_device_name(opt.device),
-                    mlb_gemm_precision_name(opt.precision), cpu_bf16 ? " (linear, conv and attention; weights kept in bf16)" : "");
+                    mlb_gemm_precision_name(opt.precision),
+                    !cpu_bf16 ? "" : mlb_gemm_bf16_amx() ? " (linear, conv and attention on AMX tiles; weights kept in bf16)"
+                                                         : " (linear, conv and attention; weights kept in bf16)");
     }
     if (opt.load_vae && (s = mlb_vae_load(path, NULL, &m->vae)) != MLB_OK) { mlb_fail_context(s, "loading the VAE"); goto fail; }
     if (m->vae && (opt.device != MLB_DEVICE_CPU || cpu_bf16) &&

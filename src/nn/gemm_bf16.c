@@ -8,7 +8,8 @@
 //
 // Layout: op(A) is packed into panels of MR rows, op(B) into panels of NR columns, both as pairs
 // along K: one 32-bit word = (bf16 x[k+1] << 16) | bf16 x[k], a zero pad after an odd K, zero
-// rows/columns past the edges. The micro-kernel keeps an MR x NR tile in 28 zmm registers over the
+// rows/columns past the edges; a panel pair by pair ([np][MR]), or row by row for A when the
+// tiles run on AMX (gemm_amx.c: [MR][np], an AMX tile's rows). The micro-kernel keeps an MR x NR tile in 28 zmm registers over the
 // K block (KC pairs), keeping the fp32 sums in a tile buffer between blocks (one fp32 sum per
 // element in k order either way), then writes alpha·tile + beta·C with masked stores for the
 // ragged edges.
@@ -96,28 +97,37 @@ static const uint16_t pair_weave[32] = {0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21
                                         8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
 
 // Rows r0 .. r0+R of X (fp32 values, rounded here) packed as pairs along K into out[kp][Rpad]
-// (Rpad = MR or NR): X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R and the pad
-// after an odd K are zero.
-BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size_t at, size_t rs, size_t ks, int R,
-                                   int K) {
+// (Rpad = MR or NR), or with rows_major into out[Rpad][kp] (A for the AMX tile: gemm_amx.c):
+// X[r, k] is X[at + r·rs + k·ks] with rs = 1 or ks = 1. Rows past R and the pad after an odd K are
+// zero.
+BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, int rows_major, const float* X, size_t at, size_t rs,
+                                   size_t ks, int R, int K) {
     const int kp = (K + 1) / 2;
-    if (ks == 1) {   // each row runs along K: 32 values -> 16 pair words, then spread with stride Rpad
+    const size_t ps = rows_major ? 1 : (size_t)Rpad, ro = rows_major ? (size_t)kp : 1;   // pair p, row r at p·ps + r·ro
+    if (ks == 1) {   // each row runs along K: 32 values -> 16 pair words, then spread with stride ps
         uint32_t tmp[16];
         for (int r = 0; r < Rpad; r++) {
             if (r >= R) {
-                for (int p = 0; p < kp; p++) out[(size_t)p * Rpad + r] = 0;
+                for (int p = 0; p < kp; p++) out[(size_t)p * ps + r * ro] = 0;
                 continue;
             }
             for (int k = 0; k < K; k += 32) {
                 int np = kp - k / 2 < 16 ? kp - k / 2 : 16;
-                _mm512_storeu_si512(tmp, load32_bf16(X, at + (size_t)r * rs + k, K - k));
-                for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * Rpad + r] = tmp[p];
+                __m512i w = load32_bf16(X, at + (size_t)r * rs + k, K - k);
+                if (rows_major) {
+                    _mm512_mask_storeu_epi32(out + r * ro + k / 2, (__mmask16)((1u << np) - 1), w);
+                    continue;
+                }
+                _mm512_storeu_si512(tmp, w);
+                for (int p = 0; p < np; p++) out[(size_t)(k / 2 + p) * ps + r] = tmp[p];
             }
         }
         return;
     }
     // each k runs along the rows: rows k and k+1, 16 at a time, interleaved word by word
     const __m512i weave = _mm512_loadu_si512(pair_weave);
+    const __m512i lane_row = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
+                                                _mm512_set1_epi32(kp));   // rows_major: lane l's offset l·kp
     for (int p = 0; p < kp; p++) {
         size_t x0 = at + (size_t)(2 * p) * ks;
         int has1 = 2 * p + 1 < K;
@@ -126,7 +136,8 @@ BF16_TARGET static void pack_pairs(uint32_t* out, int Rpad, const float* X, size
             __mmask16 m = left >= 16 ? 0xFFFF : left > 0 ? (__mmask16)((1u << left) - 1) : 0;
             __m512i w = _mm512_permutexvar_epi16(weave, load16x2_bf16(X, x0 + r, x0 + ks + r, has1, m));
             __mmask16 keep = Rpad - r >= 16 ? 0xFFFF : (__mmask16)((1u << (Rpad - r)) - 1);
-            _mm512_mask_storeu_epi32(out + (size_t)p * Rpad + r, keep, w);
+            if (rows_major) _mm512_mask_i32scatter_epi32(out + (size_t)r * ro + p, keep, lane_row, w, 4);
+            else _mm512_mask_storeu_epi32(out + (size_t)p * ps + r, keep, w);
         }
     }
 }
@@ -428,7 +439,9 @@ static float im2col_value(const float* img, const mlb_conv2d* cv, int k, size_t 
 static float packed_value(const uint32_t* P, int side_b, int R, int K, int r, int k) {
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad, pair = k / 2;
     const int blk = pair / KC, np = kp - blk * KC < KC ? kp - blk * KC : KC;
-    uint32_t w = P[(size_t)blk * KC * panels * Rpad + ((size_t)(r / Rpad) * np + (pair - blk * KC)) * Rpad + r % Rpad];
+    const size_t panel = (size_t)blk * KC * panels * Rpad + (size_t)(r / Rpad) * np * Rpad;
+    uint32_t w = !side_b && mlb_gemm_amx_on() ? P[panel + (size_t)(r % Rpad) * np + (pair - blk * KC)]
+                                              : P[panel + (size_t)(pair - blk * KC) * Rpad + r % Rpad];
     uint32_t u = (k & 1 ? w >> 16 : w & 0xFFFFu) << 16;
     float f;
     memcpy(&f, &u, 4);
@@ -479,7 +492,7 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
         uint32_t* o = out + (size_t)q * Rpad * np;
-        pack_pairs(o, Rpad, X->data, at, rs, ks, rows, nk);
+        pack_pairs(o, Rpad, !side_b && mlb_gemm_amx_on(), X->data, at, rs, ks, rows, nk);
     }
 }
 #endif
@@ -551,11 +564,29 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
         gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);   // a packed or im2col operand
         return;
     }
+    const int amx = mlb_gemm_amx_on();
+    // AMX: the panels' last pairs past whole tile steps, zero-padded ([npanels] B tails, [MC] A tails)
+    const int tail_pairs = amx && ((kp - 1) % KC + 1) % 16;   // only the last block can end inside a tile step
+    uint32_t* tails = tail_pairs ? malloc(sizeof(uint32_t) * (mlb_gemm_amx_tail_words(1) * (size_t)npanels +
+                                                       mlb_gemm_amx_tail_words(0) * (size_t)mc)) : NULL;
+    uint32_t* a_tails = tails ? tails + mlb_gemm_amx_tail_words(1) * (size_t)npanels : NULL;
+    if (tail_pairs && !tails) {
+        free(pa);
+        free(pb);
+        free(w);
+        mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the AMX tails; this one in fp32", M, N, K);
+        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
+        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
+        return;
+    }
+    if (amx) mlb_gemm_amx_begin();
     for (int blk = 0; blk < blocks; blk++) {
         const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC;
         const int first = blk == 0, last = blk == blocks - 1;
         const uint32_t* pbk = B->packed ? B->packed + (size_t)p0 * npanels * NR : pb;
         if (!B->packed) pack_block(pb, 1, N, K, blk, B, tb, 0);
+        const int tail = amx && np % 16;
+        if (tail) mlb_gemm_amx_tails(1, pbk, npanels, np, tails);
         for (int q0 = 0; q0 < mpanels; q0 += MC) {
             int nq = mpanels - q0 < MC ? mpanels - q0 : MC;
             const uint32_t* pak = A->packed ? A->packed + (size_t)p0 * mpanels * MR + (size_t)q0 * MR * np : pa;
@@ -563,18 +594,31 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
                 int rows = M - q0 * MR < nq * MR ? M - q0 * MR : nq * MR;
                 pack_block(pa, 0, rows, K, blk, A, ta, q0 * MR);
             }
+            if (tail) mlb_gemm_amx_tails(0, pak, nq, np, a_tails);
             for (int jp = 0; jp < npanels; jp++) {
                 int j0 = jp * NR, cols = N - j0 < NR ? N - j0 : NR;
-                for (int q = 0; q < nq; q++) {
+                for (int q = 0; q < nq; q += amx ? 2 : 1) {
                     int i0 = (q0 + q) * MR, rows = M - i0 < MR ? M - i0 : MR;
                     float* tile = w ? w + ((size_t)(q0 + q) * npanels + jp) * MR * NR : NULL;
-                    micro_kernel(np, pak + (size_t)q * MR * np, pbk + (size_t)jp * NR * np, first ? NULL : tile,
-                                 last ? NULL : tile, C + (size_t)i0 * ldc + j0, ldc, rows, cols, alpha, beta,
-                                 bias ? bias + i0 : NULL);
+                    const uint32_t *ap = pak + (size_t)q * MR * np, *bp = pbk + (size_t)jp * NR * np;
+                    float* c = C + (size_t)i0 * ldc + j0;
+                    const float* bi = bias ? bias + i0 : NULL;
+                    if (amx) {   // two A panels at a time where there are two
+                        const int two = q + 1 < nq;
+                        if (two) rows = M - i0 < 2 * MR ? M - i0 : 2 * MR;
+                        mlb_gemm_amx_tiles(1 + two, np, ap, bp, a_tails + mlb_gemm_amx_tail_words(0) * (size_t)q,
+                                           tails + mlb_gemm_amx_tail_words(1) * (size_t)jp, first ? NULL : tile, last ? NULL : tile,
+                                           (size_t)npanels * MR * NR, c, ldc, rows, cols, alpha, beta, bi);
+                    } else {
+                        micro_kernel(np, ap, bp, first ? NULL : tile, last ? NULL : tile, c, ldc, rows, cols, alpha,
+                                     beta, bi);
+                    }
                 }
             }
         }
     }
+    if (amx) mlb_gemm_amx_end();
+    free(tails);
     free(pa);
     free(pb);
     free(w);

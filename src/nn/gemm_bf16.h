@@ -58,4 +58,23 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
 size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K);
 void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out);
 
+// The tile on Intel AMX (gemm_amx.c). mlb_gemm_amx_on(): the CPU has AMX-BF16, Linux granted its
+// tile state, and neither $MATLABER_CPU_AMX (0/off) nor a test turned it off; then op(A) is packed
+// row-major along K in each panel ([MR][np]) and every tile runs on AMX. A thread brackets its
+// tiles with _begin (the tile configuration) and _end. _tiles: gemm_bf16.c's micro_body contract
+// for `panels` (1 or 2) consecutive A panels (rows m counted from the first; the second panel's
+// fp32 sums at w_in / w_out + w_step) against one B panel, the block's last pairs from a_tail and
+// b_tail when np is not a multiple of 16.
+int mlb_gemm_amx_cpu_has(void);
+int mlb_gemm_amx_on(void);
+void mlb_gemm_amx_begin(void);
+void mlb_gemm_amx_end(void);
+void mlb_gemm_amx_tiles(int panels, int kp, const uint32_t* a, const uint32_t* b, const uint32_t* a_tail,
+                        const uint32_t* b_tail, const float* w_in, float* w_out, size_t w_step, float* C, int ldc,
+                        int m, int n, float alpha, float beta, const float* bias);
+// A K block's last np % 16 pairs of `count` panels, zero-padded to one tile step each, for _tiles:
+// mlb_gemm_amx_tail_words(side_b) words per panel.
+size_t mlb_gemm_amx_tail_words(int side_b);
+void mlb_gemm_amx_tails(int side_b, const uint32_t* panels, int count, int np, uint32_t* out);
+
 #endif

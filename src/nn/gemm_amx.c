@@ -1,0 +1,222 @@
+// The bf16 GEMM's tile on Intel AMX (Sapphire Rapids and later): the same product as gemm_bf16.c's
+// AVX-512 BF16 micro-kernel, one MR x NR tile of C per call, on the tile registers. TDPBF16PS
+// multiplies a 16-row by 16-pair A tile with a 16-pair by 16-column B tile (pairs along K, the
+// layout gemm_bf16.c packs B in) into 16 x 16 fp32 sums: 16 times the multiply-adds of VDPBF16PS
+// per instruction. A is packed row-major along K for it ([MR][np] per panel instead of [np][MR]:
+// gemm_bf16.c, pack_pairs), so a panel's rows are a tile's rows. The sums are fp32 as before but
+// in AMX's own order inside each 16-pair step: the bits differ from the AVX-512 kernel's (not by
+// more than the fp32 sums' bound: tests/test_gemm_bf16.c checks both against the exact product),
+// and as before they never depend on the thread count.
+//
+// Linux hands the tile registers' state (8 KB) to a process only on request (arch_prctl
+// ARCH_REQ_XCOMP_PERM): asked once; refused or absent, the AVX-512 kernel runs.
+#include "nn/gemm_bf16.h"
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include "matlaber/cpu.h"
+#include "matlaber/log.h"
+
+#if defined(__x86_64__) && defined(__linux__) && defined(__GNUC__) && (__GNUC__ >= 11 || defined(__clang__))
+#define MLB_AMX_KERNEL 1
+#include <immintrin.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#define AMX_TARGET __attribute__((target("amx-tile,amx-bf16,avx512f,avx512bw,avx512vl,avx512bf16")))
+#define ARCH_REQ_XCOMP_PERM 0x1023
+#define XFEATURE_XTILEDATA 18
+#endif
+
+#define MR MLB_GEMM_BF16_MR
+#define NR 32
+#define TK 16   // pairs per tile step: a tile row is 64 bytes
+// GCC 12's _tile_loadd is an asm with no memory operand: without this, writes to what it loads may be
+// dropped as dead or moved after it (seen: the zero-padded tail below read as garbage).
+#define WRITES_BEFORE_TILE_LOADS() __asm__ volatile("" ::: "memory")
+
+static pthread_once_t probe_once = PTHREAD_ONCE_INIT;
+static int amx_usable;        // the CPU has AMX-BF16 and the OS granted the tile state
+static int amx_forced = -1;   // -1: $MATLABER_CPU_AMX decides; 0/1 set by mlb_gemm_bf16_force_amx_off
+
+static void probe(void) {
+#ifdef MLB_AMX_KERNEL
+    mlb_cpu_info f;
+    mlb_cpu_detect(&f);
+    if (!(f.amx_tile && f.amx_bf16 && f.avx512f && f.avx512bw && f.avx512vl && f.avx512_bf16)) return;
+    if (syscall(SYS_arch_prctl, ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA) != 0) {
+        mlb_log(MLB_LOG_INFO, "the CPU has AMX but the kernel refused its tile state: bf16 GEMMs on AVX-512 BF16");
+        return;
+    }
+    amx_usable = 1;
+#endif
+}
+
+int mlb_gemm_amx_cpu_has(void) {
+    pthread_once(&probe_once, probe);
+    return amx_usable;
+}
+
+int mlb_gemm_amx_on(void) {
+    if (!mlb_gemm_amx_cpu_has()) return 0;
+    if (amx_forced < 0) {
+        const char* e = getenv("MATLABER_CPU_AMX");
+        amx_forced = e && (!strcmp(e, "0") || !strcmp(e, "off"));
+    }
+    return !amx_forced;
+}
+
+void mlb_gemm_bf16_force_amx_off(int off) { amx_forced = off ? 1 : 0; }
+
+int mlb_gemm_bf16_amx(void) { return mlb_gemm_amx_on(); }
+
+size_t mlb_gemm_amx_tail_words(int side_b) { return side_b ? (size_t)TK * NR : (size_t)MR * TK; }
+
+// The last kp % TK pairs of `count` panels (np pairs each; A: [MR][np] panels, B: [np][NR]) copied
+// into out, one whole zero-padded step per panel: [count][MR][TK] or [count][TK][NR]. Made once per
+// K block and reused by every tile of the panel: reading past the pairs would read the next panel.
+void mlb_gemm_amx_tails(int side_b, const uint32_t* panels, int count, int np, uint32_t* out) {
+    const int whole = np / TK * TK, left = np - whole;
+    const size_t words = mlb_gemm_amx_tail_words(side_b);
+    memset(out, 0, sizeof(uint32_t) * words * (size_t)count);
+    for (int q = 0; q < count; q++) {
+        uint32_t* o = out + (size_t)q * words;
+        if (side_b) {
+            memcpy(o, panels + (size_t)q * np * NR + (size_t)whole * NR, sizeof(uint32_t) * left * NR);
+            continue;
+        }
+        for (int i = 0; i < MR; i++)
+            memcpy(o + i * TK, panels + (size_t)q * MR * np + (size_t)i * np + whole, sizeof(uint32_t) * left);
+    }
+}
+
+#ifdef MLB_AMX_KERNEL
+// The palette-1 configuration: tiles 0-3 two panels' C tiles, each two 16-column halves (MR rows),
+// 4-5 the A panels' 16 pairs (MR rows of 64 bytes), 6-7 the B panel's two halves (16 pair rows).
+typedef struct {
+    uint8_t palette, start_row, reserved[14];
+    uint16_t colsb[16];
+    uint8_t rows[16];
+} __attribute__((packed)) tile_config;
+
+// Static, not built on the stack: GCC 12's _tile_loadconfig tells the compiler it reads 8 bytes, and
+// stores to a local configuration were dropped as dead (seen: only the palette written, a fault).
+static const tile_config CONFIG = {
+    .palette = 1,
+    .colsb = {64, 64, 64, 64, 64, 64, 64, 64},
+    .rows = {MR, MR, MR, MR, MR, MR, TK, TK},
+};
+
+AMX_TARGET void mlb_gemm_amx_begin(void) { _tile_loadconfig(&CONFIG); }
+
+AMX_TARGET void mlb_gemm_amx_end(void) { _tile_release(); }
+
+// alpha·sum + beta·C (or + bias[i]) for rows < m and columns < n of the tile's sums s [MR][NR],
+// as gemm_bf16.c's micro-kernel writes its registers.
+AMX_TARGET static void write_tile(const float* s, float* C, int ldc, int m, int n, float alpha, float beta,
+                                  const float* bias) {
+    const __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
+    const __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
+    const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
+    for (int i = 0; i < m && i < MR; i++) {
+        float* c = C + (size_t)i * ldc;
+        __m512 r0 = _mm512_mul_ps(va, _mm512_loadu_ps(s + i * NR)), r1 = _mm512_mul_ps(va, _mm512_loadu_ps(s + i * NR + 16));
+        if (bias) {
+            r0 = _mm512_add_ps(r0, _mm512_set1_ps(bias[i]));
+            r1 = _mm512_add_ps(r1, _mm512_set1_ps(bias[i]));
+        } else if (beta != 0) {   // beta = 0 never reads C
+            r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);
+            r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);
+        }
+        _mm512_mask_storeu_ps(c, m0, r0);
+        _mm512_mask_storeu_ps(c + 16, m1, r1);
+    }
+}
+
+// Panels 0 .. P (P = 1 or 2) of A, each MR rows, times one B panel: a = the first A panel [MR][kp]
+// (rows along K; the next at a + MR·kp), b the B panel [kp][NR], a_tail and b_tail their last
+// kp % TK pairs as whole steps (mlb_gemm_amx_tails; unread when none); tiles 0-1 panel 0's sums, 2-3
+// panel 1's, 4-5 the A panels, 6-7 B's halves. Two panels load B once for four products.
+AMX_TARGET static inline __attribute__((always_inline)) void tiles_body(const int P, int kp, const uint32_t* a,
+                                                                        const uint32_t* b, const uint32_t* a_tail,
+                                                                        const uint32_t* b_tail, const float* w_in,
+                                                                        float* w_out, size_t w_step, float* C, int ldc,
+                                                                        int m, int n, float alpha, float beta,
+                                                                        const float* bias) {
+    WRITES_BEFORE_TILE_LOADS();   // the packed panels and w_in
+    if (w_in) {
+        _tile_loadd(0, w_in, NR * 4);
+        _tile_loadd(1, w_in + 16, NR * 4);
+        if (P == 2) {
+            _tile_loadd(2, w_in + w_step, NR * 4);
+            _tile_loadd(3, w_in + w_step + 16, NR * 4);
+        }
+    } else {
+        _tile_zero(0);
+        _tile_zero(1);
+        if (P == 2) {
+            _tile_zero(2);
+            _tile_zero(3);
+        }
+    }
+    const int whole = kp / TK * TK;
+    const size_t a1 = (size_t)MR * kp;
+    for (int p = 0; p < whole; p += TK) {
+        _tile_loadd(6, b + (size_t)p * NR, NR * 4);
+        _tile_loadd(7, b + (size_t)p * NR + 16, NR * 4);
+        _tile_loadd(4, a + p, kp * 4);
+        _tile_dpbf16ps(0, 4, 6);
+        _tile_dpbf16ps(1, 4, 7);
+        if (P == 2) {
+            _tile_loadd(5, a + a1 + p, kp * 4);
+            _tile_dpbf16ps(2, 5, 6);
+            _tile_dpbf16ps(3, 5, 7);
+        }
+    }
+    if (whole < kp) {   // the last pairs, from the zero-padded tails (mlb_gemm_amx_tails)
+        _tile_loadd(6, b_tail, NR * 4);
+        _tile_loadd(7, b_tail + 16, NR * 4);
+        _tile_loadd(4, a_tail, TK * 4);
+        _tile_dpbf16ps(0, 4, 6);
+        _tile_dpbf16ps(1, 4, 7);
+        if (P == 2) {
+            _tile_loadd(5, a_tail + MR * TK, TK * 4);
+            _tile_dpbf16ps(2, 5, 6);
+            _tile_dpbf16ps(3, 5, 7);
+        }
+    }
+    if (w_out) {
+        _tile_stored(0, w_out, NR * 4);
+        _tile_stored(1, w_out + 16, NR * 4);
+        if (P == 2) {
+            _tile_stored(2, w_out + w_step, NR * 4);
+            _tile_stored(3, w_out + w_step + 16, NR * 4);
+        }
+        return;
+    }
+    float s[2][MR * NR] __attribute__((aligned(64)));
+    _tile_stored(0, s[0], NR * 4);
+    _tile_stored(1, s[0] + 16, NR * 4);
+    if (P == 2) {
+        _tile_stored(2, s[1], NR * 4);
+        _tile_stored(3, s[1] + 16, NR * 4);
+    }
+    write_tile(s[0], C, ldc, m, n, alpha, beta, bias);
+    if (P == 2 && m > MR) write_tile(s[1], C + (size_t)MR * ldc, ldc, m - MR, n, alpha, beta, bias ? bias + MR : NULL);
+}
+
+AMX_TARGET void mlb_gemm_amx_tiles(int panels, int kp, const uint32_t* a, const uint32_t* b, const uint32_t* a_tail,
+                                   const uint32_t* b_tail, const float* w_in, float* w_out, size_t w_step, float* C,
+                                   int ldc, int m, int n, float alpha, float beta, const float* bias) {
+    if (panels == 2) tiles_body(2, kp, a, b, a_tail, b_tail, w_in, w_out, w_step, C, ldc, m, n, alpha, beta, bias);
+    else tiles_body(1, kp, a, b, a_tail, b_tail, w_in, w_out, w_step, C, ldc, m, n, alpha, beta, bias);
+}
+#else
+void mlb_gemm_amx_begin(void) {}
+void mlb_gemm_amx_end(void) {}
+void mlb_gemm_amx_tiles(int panels, int kp, const uint32_t* a, const uint32_t* b, const uint32_t* a_tail,
+                        const uint32_t* b_tail, const float* w_in, float* w_out, size_t w_step, float* C, int ldc,
+                        int m, int n, float alpha, float beta, const float* bias) {
+    (void)panels; (void)kp; (void)a; (void)b; (void)a_tail; (void)b_tail; (void)w_in; (void)w_out; (void)w_step; (void)C; (void)ldc; (void)m;
+    (void)n; (void)alpha; (void)beta; (void)bias;   // never called: mlb_gemm_amx_on() is 0 where this is compiled
+}
+#endif

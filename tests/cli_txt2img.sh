@@ -30,6 +30,14 @@ err_has "the fallback warned" "warn. --precision bf16: [^;]*; the CPU computes i
 [ "$(grep -c 'precision bf16' "$T/err")" = 1 ] && ok "said once" || bad "said $(grep -c 'precision bf16' "$T/err") times"
 expect 0 "no --precision" -- env MATLABER_CPU_BF16=0 $M --device cpu device
 grep -q 'warn' "$T/err" && bad "a warning without --precision: $(cat "$T/err")" || ok "no warning without --precision"
+grep -q '^bf16 GEMM.*: fp32 here' "$T/out" && ok "device: bf16 off said" || bad "device: $(grep '^bf16' "$T/out")"
+# the kernel `device` names: AMX tiles only where the CPU has them and $MATLABER_CPU_AMX allows
+expect 0 "device, AMX off" -- env MATLABER_CPU_AMX=0 $M device
+grep -q '^bf16 GEMM.*AMX tiles' "$T/out" && bad "AMX named though off: $(grep '^bf16' "$T/out")" || ok "device: AMX off not named"
+expect 0 "device" -- env -u MATLABER_CPU_AMX -u MATLABER_CPU_BF16 $M device
+if grep -q 'amx_bf16' "$T/out" && grep -q 'avx512_bf16' "$T/out"; then
+  grep -q '^bf16 GEMM.*: AMX tiles' "$T/out" && ok "device: AMX tiles on an AMX CPU" || bad "device on an AMX CPU: $(grep '^bf16' "$T/out")"
+fi
 
 # no -m: the project's own model that draws shaded objects (models/matlaber-tiny-appearance, else
 # models/matlaber-tiny), at the 128x128 it was trained at

@@ -5,6 +5,7 @@
 #include <string.h>
 #include "cli.h"
 #include "matlaber/cpu.h"
+#include "matlaber/nn.h"
 #include "matlaber/device.h"
 #include "matlaber/threads.h"
 
@@ -22,6 +23,11 @@ int cmd_device(int argc, char** argv) {
     printf("cpu: %s (%s family %d model %d), %d threads (OpenMP)\n", cpu.model, cpu.vendor, cpu.family, cpu.model_id,
            omp_get_max_threads());
     printf("cpu features: %s\n", features);
+    printf("bf16 GEMM (--precision bf16, the tiny models' default): %s\n",
+           !mlb_gemm_bf16_native() ? "fp32 here (no AVX-512 BF16, or $MATLABER_CPU_BF16 off)"
+           : mlb_gemm_bf16_amx()   ? "AMX tiles ($MATLABER_CPU_AMX=0: the AVX-512 BF16 kernel)"
+           : cpu.amx_bf16          ? "AVX-512 BF16 kernel (AMX off: $MATLABER_CPU_AMX, or the OS refused the tile state)"
+                                   : "AVX-512 BF16 kernel");
     printf("blas: %s; kernels %s%s\n", mlb_blas_config(), mlb_blas_corename(),
            getenv("MATLABER_BLAS_CHOSEN") ? " (chosen by matlaber from the CPU features)"
            : getenv("OPENBLAS_CORETYPE") ? " (set by $OPENBLAS_CORETYPE)" : "");

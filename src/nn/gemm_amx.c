@@ -142,14 +142,33 @@ AMX_TARGET static inline __attribute__((always_inline)) void tiles_body(const in
                                                                         float* w_out, size_t w_step, float* C, int ldc,
                                                                         int m, int n, float alpha, float beta,
                                                                         const float* bias) {
+// the C tiles of the P panels at X (the second panel's STEP floats on) through OP: _tile_loadd or _tile_stored
+#define C_TILES(OP, X, STEP)                              \
+    do {                                                  \
+        OP(0, X, NR * 4);                                 \
+        OP(1, (X) + 16, NR * 4);                          \
+        if (P == 2) {                                     \
+            OP(2, (X) + (STEP), NR * 4);                  \
+            OP(3, (X) + (STEP) + 16, NR * 4);             \
+        }                                                 \
+    } while (0)
+// one 16-pair step: B's two halves at B0, the panels' A tiles at A0 and A1 (rows LDA bytes apart)
+#define TILE_STEP(A0, A1, LDA, B0)                        \
+    do {                                                  \
+        _tile_loadd(6, B0, NR * 4);                       \
+        _tile_loadd(7, (B0) + 16, NR * 4);                \
+        _tile_loadd(4, A0, LDA);                          \
+        _tile_dpbf16ps(0, 4, 6);                          \
+        _tile_dpbf16ps(1, 4, 7);                          \
+        if (P == 2) {                                     \
+            _tile_loadd(5, A1, LDA);                      \
+            _tile_dpbf16ps(2, 5, 6);                      \
+            _tile_dpbf16ps(3, 5, 7);                      \
+        }                                                 \
+    } while (0)
     WRITES_BEFORE_TILE_LOADS();   // the packed panels and w_in
     if (w_in) {
-        _tile_loadd(0, w_in, NR * 4);
-        _tile_loadd(1, w_in + 16, NR * 4);
-        if (P == 2) {
-            _tile_loadd(2, w_in + w_step, NR * 4);
-            _tile_loadd(3, w_in + w_step + 16, NR * 4);
-        }
+        C_TILES(_tile_loadd, w_in, w_step);
     } else {
         _tile_zero(0);
         _tile_zero(1);
@@ -159,47 +178,14 @@ AMX_TARGET static inline __attribute__((always_inline)) void tiles_body(const in
         }
     }
     const int whole = kp / TK * TK;
-    const size_t a1 = (size_t)MR * kp;
-    for (int p = 0; p < whole; p += TK) {
-        _tile_loadd(6, b + (size_t)p * NR, NR * 4);
-        _tile_loadd(7, b + (size_t)p * NR + 16, NR * 4);
-        _tile_loadd(4, a + p, kp * 4);
-        _tile_dpbf16ps(0, 4, 6);
-        _tile_dpbf16ps(1, 4, 7);
-        if (P == 2) {
-            _tile_loadd(5, a + a1 + p, kp * 4);
-            _tile_dpbf16ps(2, 5, 6);
-            _tile_dpbf16ps(3, 5, 7);
-        }
-    }
-    if (whole < kp) {   // the last pairs, from the zero-padded tails (mlb_gemm_amx_tails)
-        _tile_loadd(6, b_tail, NR * 4);
-        _tile_loadd(7, b_tail + 16, NR * 4);
-        _tile_loadd(4, a_tail, TK * 4);
-        _tile_dpbf16ps(0, 4, 6);
-        _tile_dpbf16ps(1, 4, 7);
-        if (P == 2) {
-            _tile_loadd(5, a_tail + MR * TK, TK * 4);
-            _tile_dpbf16ps(2, 5, 6);
-            _tile_dpbf16ps(3, 5, 7);
-        }
-    }
-    if (w_out) {
-        _tile_stored(0, w_out, NR * 4);
-        _tile_stored(1, w_out + 16, NR * 4);
-        if (P == 2) {
-            _tile_stored(2, w_out + w_step, NR * 4);
-            _tile_stored(3, w_out + w_step + 16, NR * 4);
-        }
-        return;
-    }
-    float s[2][MR * NR] __attribute__((aligned(64)));
-    _tile_stored(0, s[0], NR * 4);
-    _tile_stored(1, s[0] + 16, NR * 4);
-    if (P == 2) {
-        _tile_stored(2, s[1], NR * 4);
-        _tile_stored(3, s[1] + 16, NR * 4);
-    }
+    for (int p = 0; p < whole; p += TK) TILE_STEP(a + p, a + (size_t)MR * kp + p, kp * 4, b + (size_t)p * NR);
+    // the last pairs, from the zero-padded tails (mlb_gemm_amx_tails)
+    if (whole < kp) TILE_STEP(a_tail, a_tail + MR * TK, TK * 4, b_tail);
+    float s[2][MR * NR] __attribute__((aligned(64)));   // the sums, when they are final
+    C_TILES(_tile_stored, w_out ? w_out : s[0], w_out ? w_step : (size_t)MR * NR);
+#undef TILE_STEP
+#undef C_TILES
+    if (w_out) return;
     write_tile(s[0], C, ldc, m, n, alpha, beta, bias);
     if (P == 2 && m > MR) write_tile(s[1], C + (size_t)MR * ldc, ldc, m - MR, n, alpha, beta, bias ? bias + MR : NULL);
 }

@@ -746,7 +746,7 @@ TEST(material_start_picks_a_metal) {
     char* metal = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &tenth, &n_metal, &kd[0], &ks[0]);
     CHECK(checkpoint_lr(run) == 1e-2 * 0.1);   // the metal start's rate, as the stage took it
     CHECK(a.calls == ARCH_N);
-    CHECK(a.t_range[0] == 150 && a.t_range[1] == 550);   // the middle timesteps, where a metal and a glaze differ
+    CHECK(a.t_range[0] == 350 && a.t_range[1] == 550);   // the middle timesteps, where a metal and a glaze differ
     // the renders are the archetypes: the red one red, the blue one blue
     CHECK(a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][1] && a.rgb[ARCH_RED][0] > 1.5 * a.rgb[ARCH_RED][2]);
     CHECK(a.rgb[ARCH_BLUE][2] > 1.5 * a.rgb[ARCH_BLUE][0] && a.rgb[ARCH_BLUE][2] > 1.2 * a.rgb[ARCH_BLUE][1]);

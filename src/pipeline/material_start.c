@@ -45,12 +45,14 @@ enum { N_ARCH = sizeof ARCHETYPES / sizeof *ARCHETYPES, START_VIEWS = 8, CLOSE_V
 // A metal / dielectric split closer than this many standard errors of the paired per-view
 // differences on the first START_VIEWS views is decided on CLOSE_VIEWS views.
 #define CLOSE_Z 2.0
-// The timesteps the archetypes are scored at: the middle of the schedule. At large t the noised render
-// keeps only its mean colour, and the model cannot tell a metal from a glaze of the same tint (per
-// timestep, over the benchmark's 88 prompts: at 620 and 860 the picks are near chance, at 380 the warm
-// metal wins 8 of 11 copper prompts and the grey metal 10 of 11 silver ones, at 140 the coppers
-// read as glazes again: docs/benchmarks.md, "Scoring at the middle timesteps").
-static const int SCORE_T[2] = {150, 550};
+// The timesteps the archetypes are scored at: the middle of the schedule, 375..525. At large t the
+// noised render keeps only its mean colour, and the model cannot tell a metal from a glaze of the
+// same tint (per timestep, over the benchmark's 88 prompts: at 620 and 860 the picks are near
+// chance, at 380 the warm metal wins 8 of 11 copper prompts and the grey metal 10 of 11 silver ones);
+// at small t the metals read as glazes again (at 200, with the appearance model, 16 of 27 metal
+// prompts' best archetype is a metal, at 400 26: docs/benchmarks.md, "Scoring the material start
+// at 375..525").
+static const int SCORE_T[2] = {350, 550};
 
 // The last layer's bias that makes the network output archetype k everywhere once the layer's
 // weights are 0: the latent code the prior decodes to k (latent mode), or the sigmoid's input that

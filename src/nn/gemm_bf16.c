@@ -606,8 +606,9 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
                     if (amx) {   // two A panels at a time where there are two
                         const int two = q + 1 < nq;
                         if (two) rows = M - i0 < 2 * MR ? M - i0 : 2 * MR;
-                        mlb_gemm_amx_tiles(1 + two, np, ap, bp, a_tails + mlb_gemm_amx_tail_words(0) * (size_t)q,
-                                           tails + mlb_gemm_amx_tail_words(1) * (size_t)jp, first ? NULL : tile, last ? NULL : tile,
+                        const uint32_t* at = tail ? a_tails + mlb_gemm_amx_tail_words(0) * (size_t)q : NULL;
+                        const uint32_t* bt = tail ? tails + mlb_gemm_amx_tail_words(1) * (size_t)jp : NULL;
+                        mlb_gemm_amx_tiles(1 + two, np, ap, bp, at, bt, first ? NULL : tile, last ? NULL : tile,
                                            (size_t)npanels * MR * NR, c, ldc, rows, cols, alpha, beta, bi);
                     } else {
                         micro_kernel(np, ap, bp, first ? NULL : tile, last ? NULL : tile, c, ldc, rows, cols, alpha,

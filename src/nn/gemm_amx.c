@@ -16,11 +16,13 @@
 #include <string.h>
 #include "matlaber/cpu.h"
 #include "matlaber/log.h"
+#include "matlaber/nn.h"
 
 #if defined(__x86_64__) && defined(__linux__) && defined(__GNUC__) && (__GNUC__ >= 11 || defined(__clang__))
 #define MLB_AMX_KERNEL 1
 #include <immintrin.h>
 #include <sys/syscall.h>
+#include "nn/gemm_tile_write.h"
 #include <unistd.h>
 #define AMX_TARGET __attribute__((target("amx-tile,amx-bf16,avx512f,avx512bw,avx512vl,avx512bf16")))
 #define ARCH_REQ_XCOMP_PERM 0x1023
@@ -51,13 +53,9 @@ static void probe(void) {
 #endif
 }
 
-int mlb_gemm_amx_cpu_has(void) {
+int mlb_gemm_bf16_amx(void) {
     pthread_once(&probe_once, probe);
-    return amx_usable;
-}
-
-int mlb_gemm_amx_on(void) {
-    if (!mlb_gemm_amx_cpu_has()) return 0;
+    if (!amx_usable) return 0;
     if (amx_forced < 0) {
         const char* e = getenv("MATLABER_CPU_AMX");
         amx_forced = e && (!strcmp(e, "0") || !strcmp(e, "off"));
@@ -66,8 +64,6 @@ int mlb_gemm_amx_on(void) {
 }
 
 void mlb_gemm_bf16_force_amx_off(int off) { amx_forced = off ? 1 : 0; }
-
-int mlb_gemm_bf16_amx(void) { return mlb_gemm_amx_on(); }
 
 size_t mlb_gemm_amx_tail_words(int side_b) { return side_b ? (size_t)TK * NR : (size_t)MR * TK; }
 
@@ -110,26 +106,13 @@ AMX_TARGET void mlb_gemm_amx_begin(void) { _tile_loadconfig(&CONFIG); }
 
 AMX_TARGET void mlb_gemm_amx_end(void) { _tile_release(); }
 
-// alpha·sum + beta·C (or + bias[i]) for rows < m and columns < n of the tile's sums s [MR][NR],
-// as gemm_bf16.c's micro-kernel writes its registers.
+// Rows < m of the tile's sums s [MR][NR] written to C (gemm_tile_write.h), as the AVX-512 kernel
+// writes its registers.
 AMX_TARGET static void write_tile(const float* s, float* C, int ldc, int m, int n, float alpha, float beta,
                                   const float* bias) {
-    const __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
-    const __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
-    const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
-    for (int i = 0; i < m && i < MR; i++) {
-        float* c = C + (size_t)i * ldc;
-        __m512 r0 = _mm512_mul_ps(va, _mm512_loadu_ps(s + i * NR)), r1 = _mm512_mul_ps(va, _mm512_loadu_ps(s + i * NR + 16));
-        if (bias) {
-            r0 = _mm512_add_ps(r0, _mm512_set1_ps(bias[i]));
-            r1 = _mm512_add_ps(r1, _mm512_set1_ps(bias[i]));
-        } else if (beta != 0) {   // beta = 0 never reads C
-            r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);
-            r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);
-        }
-        _mm512_mask_storeu_ps(c, m0, r0);
-        _mm512_mask_storeu_ps(c + 16, m1, r1);
-    }
+    for (int i = 0; i < m && i < MR; i++)
+        mlb_gemm_tile_write_row(C + (size_t)i * ldc, _mm512_loadu_ps(s + i * NR), _mm512_loadu_ps(s + i * NR + 16), n,
+                                alpha, beta, bias ? bias + i : NULL);
 }
 
 // Panels 0 .. P (P = 1 or 2) of A, each MR rows, times one B panel: a = the first A panel [MR][kp]
@@ -203,6 +186,6 @@ void mlb_gemm_amx_tiles(int panels, int kp, const uint32_t* a, const uint32_t* b
                         const uint32_t* b_tail, const float* w_in, float* w_out, size_t w_step, float* C, int ldc,
                         int m, int n, float alpha, float beta, const float* bias) {
     (void)panels; (void)kp; (void)a; (void)b; (void)a_tail; (void)b_tail; (void)w_in; (void)w_out; (void)w_step; (void)C; (void)ldc; (void)m;
-    (void)n; (void)alpha; (void)beta; (void)bias;   // never called: mlb_gemm_amx_on() is 0 where this is compiled
+    (void)n; (void)alpha; (void)beta; (void)bias;   // never called: mlb_gemm_bf16_amx() is 0 where this is compiled
 }
 #endif

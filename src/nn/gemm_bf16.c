@@ -20,10 +20,12 @@
 #include <cblas.h>
 #include "matlaber/cpu.h"
 #include "matlaber/log.h"
+#include "matlaber/nn.h"
 
 #if defined(__x86_64__) && defined(__GNUC__) && (__GNUC__ >= 10 || defined(__clang__))
 #define MLB_BF16_KERNEL 1
 #include <immintrin.h>
+#include "nn/gemm_tile_write.h"
 #define BF16_TARGET __attribute__((target("avx512f,avx512bw,avx512vl,avx512bf16")))
 #endif
 
@@ -363,24 +365,9 @@ BF16_TARGET static inline __attribute__((always_inline)) void micro_body(const i
 #undef KEEP
         return;
     }
-    __mmask16 m0 = n >= 16 ? 0xFFFF : (__mmask16)((1u << n) - 1);
-    __mmask16 m1 = n >= 32 ? 0xFFFF : n > 16 ? (__mmask16)((1u << (n - 16)) - 1) : 0;
-    const __m512 va = _mm512_set1_ps(alpha), vb = _mm512_set1_ps(beta);
-    // beta = 0 never reads C (NaN there is ignored, as BLAS does)
-#define PUT(i)                                                                                          \
-    if ((i) < RM && (i) < m) {                                                                          \
-        float* c = C + (size_t)(i) * ldc;                                                               \
-        __m512 r0 = _mm512_mul_ps(va, c##i##0), r1 = _mm512_mul_ps(va, c##i##1);                        \
-        if (bias) {                                                                                     \
-            r0 = _mm512_add_ps(r0, _mm512_set1_ps(bias[i]));                                            \
-            r1 = _mm512_add_ps(r1, _mm512_set1_ps(bias[i]));                                            \
-        } else if (beta != 0) {                                                                         \
-            r0 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m0, c), r0);                                 \
-            r1 = _mm512_fmadd_ps(vb, _mm512_maskz_loadu_ps(m1, c + 16), r1);                            \
-        }                                                                                               \
-        _mm512_mask_storeu_ps(c, m0, r0);                                                               \
-        _mm512_mask_storeu_ps(c + 16, m1, r1);                                                          \
-    }
+#define PUT(i)                                                                                                \
+    if ((i) < RM && (i) < m)                                                                                  \
+        mlb_gemm_tile_write_row(C + (size_t)(i) * ldc, c##i##0, c##i##1, n, alpha, beta, bias ? bias + (i) : NULL);
     PUT(0) PUT(1) PUT(2) PUT(3) PUT(4) PUT(5) PUT(6) PUT(7) PUT(8) PUT(9) PUT(10) PUT(11) PUT(12) PUT(13)
 #undef PUT
 }
@@ -440,7 +427,7 @@ static float packed_value(const uint32_t* P, int side_b, int R, int K, int r, in
     const int Rpad = side_b ? NR : MR, kp = (K + 1) / 2, panels = (R + Rpad - 1) / Rpad, pair = k / 2;
     const int blk = pair / KC, np = kp - blk * KC < KC ? kp - blk * KC : KC;
     const size_t panel = (size_t)blk * KC * panels * Rpad + (size_t)(r / Rpad) * np * Rpad;
-    uint32_t w = !side_b && mlb_gemm_amx_on() ? P[panel + (size_t)(r % Rpad) * np + (pair - blk * KC)]
+    uint32_t w = !side_b && mlb_gemm_bf16_amx() ? P[panel + (size_t)(r % Rpad) * np + (pair - blk * KC)]
                                               : P[panel + (size_t)(pair - blk * KC) * Rpad + r % Rpad];
     uint32_t u = (k & 1 ? w >> 16 : w & 0xFFFFu) << 16;
     float f;
@@ -492,7 +479,7 @@ static void pack_block(uint32_t* out, int side_b, int R, int K, int blk, const m
         int i0 = q * Rpad, rows = R - i0 < Rpad ? R - i0 : Rpad;
         size_t at = X->offset + (size_t)(r0 + i0) * rs + (size_t)k0 * ks;
         uint32_t* o = out + (size_t)q * Rpad * np;
-        pack_pairs(o, Rpad, !side_b && mlb_gemm_amx_on(), X->data, at, rs, ks, rows, nk);
+        pack_pairs(o, Rpad, !side_b && mlb_gemm_bf16_amx(), X->data, at, rs, ks, rows, nk);
     }
 }
 #endif
@@ -549,10 +536,16 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
     uint32_t* pa = A->packed ? NULL : malloc(sizeof(uint32_t) * (size_t)mc * MR * kc);
     uint32_t* pb = B->packed ? NULL : malloc(sizeof(uint32_t) * (size_t)npanels * NR * kc);
     float* w = blocks > 1 ? malloc(sizeof(float) * (size_t)mpanels * npanels * MR * NR) : NULL;
-    if ((!A->packed && !pa) || (!B->packed && !pb) || (blocks > 1 && !w)) {   // a few MB at most; never seen
+    // AMX: the panels' last pairs past whole tile steps, zero-padded ([npanels] B tails, [MC] A tails);
+    // only the last K block can end inside a tile step
+    const int amx = mlb_gemm_bf16_amx(), tail_pairs = amx && ((kp - 1) % KC + 1) % 16;
+    const size_t b_tail_words = mlb_gemm_amx_tail_words(1) * (size_t)npanels;
+    uint32_t* tails = tail_pairs ? malloc(sizeof(uint32_t) * (b_tail_words + mlb_gemm_amx_tail_words(0) * (size_t)mc)) : NULL;
+    if ((!A->packed && !pa) || (!B->packed && !pb) || (blocks > 1 && !w) || (tail_pairs && !tails)) {   // a few MB at most; never seen
         free(pa);
         free(pb);
         free(w);
+        free(tails);
         mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the packed operands; this one in fp32", M, N, K);
         if (bias) fill_bias(C, ldc, M, N, bias, &beta);
         if (A->data && B->data && !B->im2col) {
@@ -564,21 +557,7 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
         gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);   // a packed or im2col operand
         return;
     }
-    const int amx = mlb_gemm_amx_on();
-    // AMX: the panels' last pairs past whole tile steps, zero-padded ([npanels] B tails, [MC] A tails)
-    const int tail_pairs = amx && ((kp - 1) % KC + 1) % 16;   // only the last block can end inside a tile step
-    uint32_t* tails = tail_pairs ? malloc(sizeof(uint32_t) * (mlb_gemm_amx_tail_words(1) * (size_t)npanels +
-                                                       mlb_gemm_amx_tail_words(0) * (size_t)mc)) : NULL;
-    uint32_t* a_tails = tails ? tails + mlb_gemm_amx_tail_words(1) * (size_t)npanels : NULL;
-    if (tail_pairs && !tails) {
-        free(pa);
-        free(pb);
-        free(w);
-        mlb_log(MLB_LOG_WARN, "bf16 GEMM %dx%dx%d: out of memory for the AMX tails; this one in fp32", M, N, K);
-        if (bias) fill_bias(C, ldc, M, N, bias, &beta);
-        gemm_elementwise(ta, tb, M, N, K, alpha, A, B, beta, C, ldc);
-        return;
-    }
+    uint32_t* a_tails = tails ? tails + b_tail_words : NULL;
     if (amx) mlb_gemm_amx_begin();
     for (int blk = 0; blk < blocks; blk++) {
         const int p0 = blk * KC, np = kp - p0 < KC ? kp - p0 : KC;

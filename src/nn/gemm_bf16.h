@@ -58,15 +58,13 @@ void mlb_gemm_bf16_kernel_bias(int ta, int tb, int M, int N, int K, float alpha,
 size_t mlb_gemm_bf16_packed_words(int side_b, int R, int K);
 void mlb_gemm_bf16_pack(int side_b, int trans, int R, int K, const mlb_bf16_operand* X, uint32_t* out);
 
-// The tile on Intel AMX (gemm_amx.c). mlb_gemm_amx_on(): the CPU has AMX-BF16, Linux granted its
-// tile state, and neither $MATLABER_CPU_AMX (0/off) nor a test turned it off; then op(A) is packed
+// The tile on Intel AMX (gemm_amx.c). Where mlb_gemm_bf16_amx() (nn.h) says so (the CPU has AMX-BF16,
+// Linux granted its tile state, neither $MATLABER_CPU_AMX nor a test turned it off), op(A) is packed
 // row-major along K in each panel ([MR][np]) and every tile runs on AMX. A thread brackets its
 // tiles with _begin (the tile configuration) and _end. _tiles: gemm_bf16.c's micro_body contract
 // for `panels` (1 or 2) consecutive A panels (rows m counted from the first; the second panel's
 // fp32 sums at w_in / w_out + w_step) against one B panel, the block's last pairs from a_tail and
 // b_tail when np is not a multiple of 16.
-int mlb_gemm_amx_cpu_has(void);
-int mlb_gemm_amx_on(void);
 void mlb_gemm_amx_begin(void);
 void mlb_gemm_amx_end(void);
 void mlb_gemm_amx_tiles(int panels, int kp, const uint32_t* a, const uint32_t* b, const uint32_t* a_tail,

@@ -5,6 +5,7 @@
 #include "test.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
+#include "nn/simd_rows.h"
 #include <cblas.h>
 #include <float.h>
 #include <omp.h>
@@ -702,6 +703,74 @@ TEST(activation_silu_blocks_bitwise) {
     free(x); free(f); free(g); free(h); free(rf); free(rg); free(rh); free(y);
 }
 
+// Adam and the ReLU / identity activations run as 8- or 16-lane kernels where the CPU has them
+// (nn/simd_rows.h): bit for bit the scalar loops (the level capped at scalar), for both Adam and
+// AdamW over steps 1..3, n not a multiple of the lanes or the blocks, special values, in place, on
+// 1 and 2 threads. Checks nothing on a CPU without AVX2 (the scalar loop is then the only one).
+TEST(adam_and_relu_vector_kernels_bitwise) {
+    enum { N = 70001 };
+    float* buf = malloc(sizeof(float) * N * 12);
+    REQUIRE(buf);
+    float *x = buf, *g = buf + N, *p0 = buf + 2 * N, *m0 = buf + 3 * N, *v0 = buf + 4 * N;
+    float *p1 = buf + 5 * N, *m1 = buf + 6 * N, *v1 = buf + 7 * N, *f0 = buf + 8 * N, *d0 = buf + 9 * N;
+    float *f1 = buf + 10 * N, *d1 = buf + 11 * N;
+    mlb_rng_fill_normal(x, N, 11, 1, 0, 0, 1);
+    mlb_rng_fill_normal(g, N, 11, 2, 0, 0, 1e-3f);
+    const float special[] = {0.0f, -0.0f, 1e-40f, -1e-40f, INFINITY, -INFINITY, NAN, 1e30f, -1e30f};
+    for (size_t i = 0; i < sizeof special / sizeof special[0]; i++) x[i * 991 + 5] = special[i];
+    g[17] = 0.0f;
+    g[18] = -0.0f;
+    g[19] = 1e-30f;
+    int levels = 0;
+    for (int level = MLB_SIMD_AVX2; level <= MLB_SIMD_AVX512; level++) {
+        mlb_simd_force(level);
+        if ((int)mlb_simd_kernels() != level) break;
+        levels++;
+        for (int threads = 1; threads <= 2; threads++) {
+            omp_set_num_threads(threads);
+            for (int decoupled = 0; decoupled < 2; decoupled++) {
+                mlb_adam_config c = {.lr = 3e-3, .beta1 = 0.9, .beta2 = 0.99, .eps = 1e-15, .weight_decay = 0.05,
+                                     .decoupled = decoupled};
+                memcpy(p0, x, sizeof(float) * N);
+                memcpy(p1, x, sizeof(float) * N);
+                memset(m0, 0, sizeof(float) * N); memset(v0, 0, sizeof(float) * N);
+                memset(m1, 0, sizeof(float) * N); memset(v1, 0, sizeof(float) * N);
+                for (long t = 1; t <= 3; t++) {
+                    mlb_simd_force(MLB_SIMD_SCALAR);
+                    adam_update(p0, g, m0, v0, N, &c, t);
+                    mlb_simd_force(level);
+                    adam_update(p1, g, m1, v1, N, &c, t);
+                }
+                CHECK_MSG(same_bits_or_both_nan(p0, p1, N) && same_bits_or_both_nan(m0, m1, N) &&
+                              same_bits_or_both_nan(v0, v1, N),
+                          "Adam (decoupled %d) in %s on %d threads: not the scalar loop's bits", decoupled,
+                          mlb_simd_name((mlb_simd_level)level), threads);
+            }
+            for (int relu = 0; relu < 2; relu++) {
+                const mlb_activation act = relu ? MLB_ACT_RELU : MLB_ACT_IDENTITY;
+                float d2[7], e2[7];
+                mlb_simd_force(MLB_SIMD_SCALAR);
+                activation_forward_derivs(f0, d0, NULL, x, N, act);
+                activation_forward_derivs(d2, NULL, e2, x, 7, act);
+                mlb_simd_force(level);
+                activation_forward_derivs(f1, d1, NULL, x, N, act);
+                CHECK_MSG(same_bits_or_both_nan(f0, f1, N) && same_bits_or_both_nan(d0, d1, N),
+                          "%s in %s: not the scalar loop's bits", mlb_activation_name(act), mlb_simd_name((mlb_simd_level)level));
+                float e3[7], d3[7];
+                activation_forward_derivs(d3, NULL, e3, x, 7, act);
+                CHECK(memcmp(e2, e3, sizeof e2) == 0 && memcmp(d2, d3, sizeof d2) == 0);
+                memcpy(f1, x, sizeof(float) * N);
+                activation_forward_derivs(f1, NULL, NULL, f1, N, act);   // in place
+                CHECK_MSG(same_bits_or_both_nan(f0, f1, N), "%s in place: not the scalar loop's bits", mlb_activation_name(act));
+            }
+        }
+    }
+    mlb_simd_force(-1);
+    omp_set_num_threads(omp_get_num_procs());
+    printf("  (%d vector levels checked)\n", levels);
+    free(buf);
+}
+
 int main(void) {
     RUN(linear_backward_fd);
     RUN(linear_backward_null);
@@ -724,6 +793,7 @@ int main(void) {
     RUN(adam_l2_differs_from_adamw);
     RUN(determinism_threads);
     RUN(activation_forward_derivs_matches_scalar);
+    RUN(adam_and_relu_vector_kernels_bitwise);
     RUN(activation_silu_blocks_bitwise);
     return test_summary();
 }

@@ -8,6 +8,7 @@
 //     over independent outputs, and every reduction runs in a fixed order (in double).
 #include "matlaber/nn.h"
 #include "core/real.h"
+#include "nn/simd_rows.h"
 #include <stdint.h>
 #include <string.h>
 
@@ -23,6 +24,8 @@
 // Elementwise loops go parallel only above this many values; below it the thread start-up
 // costs more than the work.
 #define OPS_PARALLEL_MIN 32768
+// Values per call of a vectorised row kernel (nn/simd_rows.h) inside those loops.
+#define ROW_BLOCK 4096
 
 // ---------------------------------------------------------------------------------------------
 // linear
@@ -275,6 +278,18 @@ void FN(activation_forward_derivs)(real* out, real* d1, real* d2, const real* in
         }
         return;
     }
+#ifndef MLB_F64
+    const mlb_simd_level level = mlb_simd_kernels();
+    if ((act == MLB_ACT_RELU || act == MLB_ACT_IDENTITY) && level != MLB_SIMD_SCALAR) {   // the loop's bits below
+        const size_t blocks = (n + ROW_BLOCK - 1) / ROW_BLOCK;
+#pragma omp parallel for schedule(static) if (n >= OPS_PARALLEL_MIN)
+        for (size_t b = 0; b < blocks; b++) {
+            const size_t i = b * ROW_BLOCK, m = n - i < ROW_BLOCK ? n - i : ROW_BLOCK;
+            mlb_relu_row(level, out + i, d1 ? d1 + i : NULL, d2 ? d2 + i : NULL, in + i, m, act == MLB_ACT_RELU);
+        }
+        return;
+    }
+#endif
 #pragma omp parallel for schedule(static) if (n >= OPS_PARALLEL_MIN)
     for (size_t i = 0; i < n; i++) {
         real x = in[i], f, g, h;
@@ -410,6 +425,19 @@ void FN(adam_update)(real* params, const real* grads, real* m, real* v, size_t n
     // exactly (1 - lr wd) per step.
     real decay = cfg->decoupled ? (real)(1.0 - lr * wd) : (real)1;
     real l2 = cfg->decoupled ? (real)0 : (real)wd;
+#ifndef MLB_F64
+    const mlb_simd_level level = mlb_simd_kernels();
+    if (level != MLB_SIMD_SCALAR) {   // the same bits, 8 or 16 at a time (the dense hash tables' steps)
+        const mlb_adam_consts k = {l2, decay, beta1, one_minus_b1, beta2, one_minus_b2, inv_sqrt_bc2, eps, step};
+        const size_t blocks = (n + ROW_BLOCK - 1) / ROW_BLOCK;
+#pragma omp parallel for schedule(static) if (n >= OPS_PARALLEL_MIN)
+        for (size_t b = 0; b < blocks; b++) {
+            const size_t i = b * ROW_BLOCK;
+            mlb_adam_row(level, params + i, grads + i, m + i, v + i, n - i < ROW_BLOCK ? n - i : ROW_BLOCK, &k);
+        }
+        return;
+    }
+#endif
 #pragma omp parallel for schedule(static) if (n >= OPS_PARALLEL_MIN)
     for (size_t i = 0; i < n; i++) {
         real p = params[i];

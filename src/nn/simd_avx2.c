@@ -32,6 +32,11 @@ static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm256_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm256_max_ps(a, b); }
 static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm256_div_ps(a, b); }
 static inline SIMD_TARGET vf v_abs(vf a) { return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), a); }
+static inline SIMD_TARGET vf v_sqrt(vf a) { return _mm256_sqrt_ps(a); }
+// 1 where x > 0, else 0 (NaN: 0)
+static inline SIMD_TARGET vf v_step_positive(vf x) {
+    return _mm256_and_ps(_mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_GT_OQ), _mm256_set1_ps(1.0f));
+}
 // where x < 0 the lanes of if_neg, elsewhere those of if_not
 static inline SIMD_TARGET vf v_select_negative(vf x, vf if_neg, vf if_not) {
     return _mm256_blendv_ps(if_not, if_neg, _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ));

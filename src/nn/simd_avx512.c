@@ -30,6 +30,11 @@ static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm512_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm512_max_ps(a, b); }
 static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm512_div_ps(a, b); }
 static inline SIMD_TARGET vf v_abs(vf a) { return _mm512_abs_ps(a); }
+static inline SIMD_TARGET vf v_sqrt(vf a) { return _mm512_sqrt_ps(a); }
+// 1 where x > 0, else 0 (NaN: 0)
+static inline SIMD_TARGET vf v_step_positive(vf x) {
+    return _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(x, _mm512_setzero_ps(), _CMP_GT_OQ), _mm512_set1_ps(1.0f));
+}
 // where x < 0 the lanes of if_neg, elsewhere those of if_not
 static inline SIMD_TARGET vf v_select_negative(vf x, vf if_neg, vf if_not) {
     return _mm512_mask_mov_ps(if_not, _mm512_cmp_ps_mask(x, _mm512_setzero_ps(), _CMP_LT_OQ), if_neg);

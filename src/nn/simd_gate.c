@@ -91,3 +91,24 @@ void mlb_geglu_backward_row(mlb_simd_level level, float* da, float* dgate, const
     abort();
 #endif
 }
+
+void mlb_adam_row(mlb_simd_level level, float* params, const float* grads, float* m, float* v, size_t n,
+                  const mlb_adam_consts* k) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_adam_row_avx512(params, grads, m, v, n, k);
+    else mlb_adam_row_avx2(params, grads, m, v, n, k);
+#else
+    (void)level; (void)params; (void)grads; (void)m; (void)v; (void)n; (void)k;
+    abort();
+#endif
+}
+
+void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const float* in, size_t n, int relu) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_relu_row_avx512(out, d1, d2, in, n, relu);
+    else mlb_relu_row_avx2(out, d1, d2, in, n, relu);
+#else
+    (void)level; (void)out; (void)d1; (void)d2; (void)in; (void)n; (void)relu;
+    abort();
+#endif
+}

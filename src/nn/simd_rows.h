@@ -1,6 +1,7 @@
 // Internal: the CPU's vectorised fp32 row kernels (simd_rows.inc, compiled as simd_avx512.c and
 // simd_avx2.c) and the one switch that picks them (simd_gate.c), for the float pass of group norm
-// and of the attention's softmax (conv_ops.c) and for the bf16 attention (attention_bf16.c).
+// and of the attention's softmax (conv_ops.c), for the bf16 attention (attention_bf16.c), and for
+// Adam and the ReLU / identity activations (ops.c).
 #ifndef MATLABER_NN_SIMD_ROWS_H
 #define MATLABER_NN_SIMD_ROWS_H
 #include <stddef.h>
@@ -41,6 +42,18 @@ void mlb_geglu_row(mlb_simd_level level, float* out, const float* a, const float
 void mlb_geglu_backward_row(mlb_simd_level level, float* da, float* dgate, const float* dout, const float* a,
                             const float* gate, int n);
 
+// One Adam step over n values (ops.c's adam_update): the step's constants folded as there, and the
+// loop's operations in its order with no fused multiply-add, so the bits are the scalar loop's.
+typedef struct {
+    float l2, decay, beta1, one_minus_b1, beta2, one_minus_b2, inv_sqrt_bc2, eps, step;
+} mlb_adam_consts;
+void mlb_adam_row(mlb_simd_level level, float* params, const float* grads, float* m, float* v, size_t n,
+                  const mlb_adam_consts* k);
+
+// ReLU (relu = 1) or the identity over n values, with f' where d1 is not NULL and f'' = 0 where d2
+// is not NULL: the bits of ops.c's per-value loop (x > 0 ? x : 0; a NaN gives 0).
+void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const float* in, size_t n, int relu);
+
 #ifdef MLB_SIMD_X86
 // The kernels themselves (call only where mlb_simd_kernels() is at least their level).
 void mlb_groupnorm_forward_group_avx512(float* out, double* mean, double* rstd, const float* x, const float* w,
@@ -57,5 +70,9 @@ void mlb_geglu_row_avx512(float* out, const float* a, const float* gate, int n);
 void mlb_geglu_row_avx2(float* out, const float* a, const float* gate, int n);
 void mlb_geglu_backward_row_avx512(float* da, float* dgate, const float* dout, const float* a, const float* gate, int n);
 void mlb_geglu_backward_row_avx2(float* da, float* dgate, const float* dout, const float* a, const float* gate, int n);
+void mlb_adam_row_avx512(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_consts* k);
+void mlb_adam_row_avx2(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_consts* k);
+void mlb_relu_row_avx512(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
+void mlb_relu_row_avx2(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
 #endif
 #endif

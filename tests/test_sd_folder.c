@@ -113,6 +113,37 @@ TEST(write_and_load) {
     free(e1);
     free(e2);
     mlb_sd_model_free(m);
+    // the fp16 variant's names (model.fp16.safetensors, diffusion_pytorch_model.fp16.safetensors in
+    // each component's folder): every component found, the same numbers
+    static const char* comp[][2] = {{"text_encoder", "model"}, {"unet", "diffusion_pytorch_model"},
+                                    {"vae", "diffusion_pytorch_model"}};
+    char from[700], to[700];
+    for (int i = 0; i < 3; i++) {
+        snprintf(from, sizeof from, "%s/%s/%s.safetensors", dir, comp[i][0], comp[i][1]);
+        snprintf(to, sizeof to, "%s/%s/%s.fp16.safetensors", dir, comp[i][0], comp[i][1]);
+        REQUIRE(rename(from, to) == 0);
+    }
+    st = mlb_sd_model_load(dir, &o, &m);
+    CHECK_MSG(st == MLB_OK, "%s", mlb_last_error());
+    if (st == MLB_OK) {
+        CHECK(m->unet->n_params == u->n_params && !memcmp(m->unet->params, u->params, u->n_params * sizeof(float)));
+        CHECK(m->vae && !memcmp(m->vae->params, v->params, v->n_params * sizeof(float)));
+        mlb_sd_model_free(m);
+    }
+    // a UNet folder with only PyTorch's pickle: refused with the way out, naming the component
+    snprintf(p, sizeof p, "%s/unet_pickle", dir);
+    REQUIRE(mlb_mkdir_p(p) == MLB_OK);
+    snprintf(to, sizeof to, "%s/diffusion_pytorch_model.bin", p);
+    REQUIRE(mlb_write_file_atomic(to, "x", 1) == MLB_OK);
+    mlb_unet* up = NULL;
+    CHECK(mlb_unet_load(p, NULL, &up) == MLB_ERR_UNSUPPORTED);
+    CHECK_MSG(strstr(mlb_last_error(), "UNet") && strstr(mlb_last_error(), "convert it to .safetensors"), "%s",
+              mlb_last_error());
+    for (int i = 0; i < 3; i++) {   // back as the later tests expect them
+        snprintf(from, sizeof from, "%s/%s/%s.fp16.safetensors", dir, comp[i][0], comp[i][1]);
+        snprintf(to, sizeof to, "%s/%s/%s.safetensors", dir, comp[i][0], comp[i][1]);
+        REQUIRE(rename(from, to) == 0);
+    }
     mlb_unet_free(u);
     mlb_vae_free(v);
 }

@@ -188,7 +188,16 @@ TEST(sd1_f16_weights) {
 TEST(errors) {
     mlb_unet* u = NULL;
     CHECK(mlb_unet_load("/nonexistent/unet.safetensors", NULL, &u) != MLB_OK && u == NULL);
-    CHECK(mlb_unet_load("model.ckpt", NULL, &u) == MLB_ERR_UNSUPPORTED);
+    CHECK(mlb_unet_load("/nonexistent/model.ckpt", NULL, &u) == MLB_ERR_NOT_FOUND);
+    // an existing pickle: refused unread, with the way out (sd_files.c, as for the other components)
+    const char* ckpt = "tmp_unet_model.ckpt";
+    FILE* f = fopen(ckpt, "wb");
+    REQUIRE(f);
+    fputs("x", f);
+    fclose(f);
+    CHECK(mlb_unet_load(ckpt, NULL, &u) == MLB_ERR_UNSUPPORTED && u == NULL);
+    CHECK_MSG(strstr(mlb_last_error(), "UNet tmp_unet_model.ckpt: pickle checkpoints run code"), "%s", mlb_last_error());
+    remove(ckpt);
     const char* p = ref_path("sd1_diffusers/unet/diffusion_pytorch_model.safetensors");
     if (!p) return;
     // A file with one tensor dropped / one reshaped: the error names the tensor and the file.

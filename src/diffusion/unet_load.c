@@ -428,22 +428,9 @@ mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet
     *out = NULL;
     if (strlen(path) > UNET_PATH_MAX - 64) return mlb_fail(MLB_ERR_ARG, "UNet path too long");
     char weights[UNET_PATH_MAX], cfg[UNET_PATH_MAX];
-    cfg[0] = 0;
-    if (mlb_is_dir(path)) {
-        snprintf(weights, sizeof weights, "%s/unet/diffusion_pytorch_model.safetensors", path);
-        if (mlb_is_file(weights)) snprintf(cfg, sizeof cfg, "%s/unet/config.json", path);
-        else {
-            snprintf(weights, sizeof weights, "%s/diffusion_pytorch_model.safetensors", path);
-            if (!mlb_is_file(weights))
-                return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no diffusion_pytorch_model.safetensors in the folder or in unet/", path);
-            snprintf(cfg, sizeof cfg, "%s/config.json", path);
-        }
-        if (!mlb_is_file(cfg)) cfg[0] = 0;
-    } else {
-        if (mlb_ends_with(path, ".ckpt") || mlb_ends_with(path, ".bin") || mlb_ends_with(path, ".pt") || mlb_ends_with(path, ".pth"))
-            return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: pickle checkpoints are not read; convert it to .safetensors", path);
-        snprintf(weights, sizeof weights, "%s", path);
-    }
+    // a model folder, the unet/ folder (either with .safetensors or the fp16 variant's
+    // .fp16.safetensors) or one file; pickles refused, as for the other components
+    MLB_TRY(mlb_sd_component_files("UNet", path, "unet", "diffusion_pytorch_model", weights, cfg, sizeof weights));
     mlb_safetensors* st = NULL;
     MLB_TRY(mlb_st_open(&st, weights));
     if (!cfg[0] && mlb_st_find(st, "conv_in.weight")) {   // a diffusers file: a config beside it

@@ -3,6 +3,7 @@
 // against double, known values, Adam/AdamW against a naive reference, and thread-count
 // independence. Method and tolerances: docs/ops.md.
 #include "test.h"
+#include "matlaber/backend.h"
 #include "matlaber/nn.h"
 #include "matlaber/rng.h"
 #include "nn/simd_rows.h"
@@ -707,6 +708,38 @@ TEST(activation_silu_blocks_bitwise) {
 // (nn/simd_rows.h): bit for bit the scalar loops (the level capped at scalar), for both Adam and
 // AdamW over steps 1..3, n not a multiple of the lanes or the blocks, special values, in place, on
 // 1 and 2 threads. Checks nothing on a CPU without AVX2 (the scalar loop is then the only one).
+// The CPU table's add (y += x: residuals, gradient sums) in 16 or 8 lanes: the scalar loop's bits,
+// for every length around the lanes and with y = x.
+TEST(add_vector_kernel_bitwise) {
+    enum { N = 1000 };
+    float x[N], y0[N], y1[N];
+    mlb_rng_fill_normal(x, N, 12, 1, 0, 0, 1);
+    const float special[] = {0.0f, -0.0f, 1e-40f, INFINITY, -INFINITY, NAN, 3e38f};
+    for (size_t i = 0; i < sizeof special / sizeof special[0]; i++) x[i * 37 + 3] = special[i];
+    const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_FP32);
+    int levels = 0;
+    for (int level = MLB_SIMD_AVX2; level <= MLB_SIMD_AVX512; level++) {
+        mlb_simd_force(level);
+        if ((int)mlb_simd_kernels() != level) break;
+        levels++;
+        for (int n = 0; n <= 40; n++)
+            for (int same = 0; same < 2; same++) {
+                for (int i = 0; i < N; i++) y0[i] = y1[i] = x[N - 1 - i];
+                const float* a0 = same ? y0 : x + 1;
+                const float* a1 = same ? y1 : x + 1;
+                size_t len = n == 40 ? N - 1 : (size_t)n;
+                mlb_simd_force(MLB_SIMD_SCALAR);
+                REQUIRE(be->add(y0, a0, len) == MLB_OK);
+                mlb_simd_force(level);
+                REQUIRE(be->add(y1, a1, len) == MLB_OK);
+                CHECK_MSG(same_bits_or_both_nan(y0, y1, N), "add of %zu values%s in %s: not the scalar loop's bits", len,
+                          same ? " (y = x)" : "", mlb_simd_name((mlb_simd_level)level));
+            }
+    }
+    mlb_simd_force(-1);
+    if (!levels) printf("  (no AVX2 here: the scalar loop only)\n");
+}
+
 TEST(adam_and_relu_vector_kernels_bitwise) {
     enum { N = 70001 };
     float* buf = malloc(sizeof(float) * N * 12);
@@ -794,6 +827,7 @@ int main(void) {
     RUN(adam_l2_differs_from_adamw);
     RUN(determinism_threads);
     RUN(activation_forward_derivs_matches_scalar);
+    RUN(add_vector_kernel_bitwise);
     RUN(adam_and_relu_vector_kernels_bitwise);
     RUN(activation_silu_blocks_bitwise);
     return test_summary();

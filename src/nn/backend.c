@@ -92,8 +92,12 @@ static mlb_status cpu_embedding(float* out, const int32_t* tokens, const float* 
                                int C, int V) {
     return embedding_forward(out, (const int*)tokens, wte, wpe, B, T, C, V);
 }
+// (GCC's -O2 leaves the plain loop scalar: y may alias x. 2-3% of a tiny generation.)
 static mlb_status cpu_add(float* y, const float* x, size_t n) {
-    for (size_t i = 0; i < n; i++) y[i] += x[i];
+    const mlb_simd_level lv = mlb_simd_kernels();
+    if (lv != MLB_SIMD_SCALAR) mlb_add_row(lv, y, x, n);
+    else
+        for (size_t i = 0; i < n; i++) y[i] += x[i];
     return MLB_OK;
 }
 static mlb_status cpu_add_channel(float* x, const float* v, int N, int C, int HW) {

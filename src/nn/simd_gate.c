@@ -112,3 +112,13 @@ void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const 
     abort();
 #endif
 }
+
+void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_add_row_avx512(y, x, n);
+    else mlb_add_row_avx2(y, x, n);
+#else
+    (void)level; (void)y; (void)x; (void)n;
+    abort();
+#endif
+}

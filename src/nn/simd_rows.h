@@ -54,6 +54,9 @@ void mlb_adam_row(mlb_simd_level level, float* params, const float* grads, float
 // is not NULL: the bits of ops.c's per-value loop (x > 0 ? x : 0; a NaN gives 0).
 void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const float* in, size_t n, int relu);
 
+// y += x over n values, the scalar loop's bits (additions are per value); y may be x.
+void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n);
+
 #ifdef MLB_SIMD_X86
 // The kernels themselves (call only where mlb_simd_kernels() is at least their level).
 void mlb_groupnorm_forward_group_avx512(float* out, double* mean, double* rstd, const float* x, const float* w,
@@ -74,5 +77,7 @@ void mlb_adam_row_avx512(float* params, const float* grads, float* m, float* v, 
 void mlb_adam_row_avx2(float* params, const float* grads, float* m, float* v, size_t n, const mlb_adam_consts* k);
 void mlb_relu_row_avx512(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
 void mlb_relu_row_avx2(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
+void mlb_add_row_avx512(float* y, const float* x, size_t n);
+void mlb_add_row_avx2(float* y, const float* x, size_t n);
 #endif
 #endif

@@ -704,10 +704,6 @@ TEST(activation_silu_blocks_bitwise) {
     free(x); free(f); free(g); free(h); free(rf); free(rg); free(rh); free(y);
 }
 
-// Adam and the ReLU / identity activations run as 8- or 16-lane kernels where the CPU has them
-// (nn/simd_rows.h): bit for bit the scalar loops (the level capped at scalar), for both Adam and
-// AdamW over steps 1..3, n not a multiple of the lanes or the blocks, special values, in place, on
-// 1 and 2 threads. Checks nothing on a CPU without AVX2 (the scalar loop is then the only one).
 // The CPU table's add (y += x: residuals, gradient sums) in 16 or 8 lanes: the scalar loop's bits,
 // for every length around the lanes and with y = x.
 TEST(add_vector_kernel_bitwise) {
@@ -740,6 +736,10 @@ TEST(add_vector_kernel_bitwise) {
     if (!levels) printf("  (no AVX2 here: the scalar loop only)\n");
 }
 
+// Adam and the ReLU / identity activations run as 8- or 16-lane kernels where the CPU has them
+// (nn/simd_rows.h): bit for bit the scalar loops (the level capped at scalar), for both Adam and
+// AdamW over steps 1..3, n not a multiple of the lanes or the blocks, special values, in place, on
+// 1 and 2 threads. Checks nothing on a CPU without AVX2 (the scalar loop is then the only one).
 TEST(adam_and_relu_vector_kernels_bitwise) {
     enum { N = 70001 };
     float* buf = malloc(sizeof(float) * N * 12);

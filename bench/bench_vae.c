@@ -162,10 +162,7 @@ static int profile_sd_vae(int S, int B, const char* path, mlb_gemm_precision pre
 }
 
 int main(int argc, char** argv) {
-    // As the program does for OpenBLAS's kernels: restart once with the right settings. libgomp's
-    // default spin-wait after every OpenMP loop takes the second core from OpenBLAS's GEMM threads
-    // (5-15x slower on 2 cores, docs/vae.md), and both are read only when the runtimes load.
-    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h)
+    mlb_runtime_restart(argv);   // the program's runtime settings (threads.h; docs/vae.md, "Threads")
     int sd512 = 0, profile_size = 0, profile_batch = 1;
     mlb_gemm_precision prec = MLB_GEMM_FP32;
     for (int i = 1; i < argc; i++) {

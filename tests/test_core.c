@@ -1,7 +1,8 @@
 // Core: CPU feature detection against the kernel's /proc/cpuinfo and the BLAS kernel choice, Philox
-// against Random123's known answers, the distributions it feeds, permutations, error messages, the progress reporter's plain mode, atomic files and small-file reading.
+// against Random123's known answers, the distributions it feeds, permutations, error messages, the progress reporter's plain mode, atomic files and small-file reading, and the runtime restart's OpenMP wait policy.
 #include "test.h"
 #include <omp.h>
+#include <sys/wait.h>
 #include <unistd.h>
 #include "matlaber/cpu.h"
 #include "matlaber/error.h"
@@ -9,6 +10,7 @@
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
 #include "matlaber/rng.h"
+#include "matlaber/threads.h"
 
 TEST(philox_known_answers) {
     // Random123's kat_vectors for philox4x32_10 (Salmon et al. 2011)
@@ -226,7 +228,51 @@ TEST(blas_coretype_follows_features) {
     }
 }
 
-int main(void) {
+// The restarted test reports its OpenMP wait policy: exit 0 when OMP_WAIT_POLICY is `want` ("-" for
+// unset), else 1.
+static int report_wait_policy(const char* want) {
+    const char* got = getenv("OMP_WAIT_POLICY");
+    if (!strcmp(want, "-") ? got == NULL : got && !strcmp(got, want)) return 0;
+    fprintf(stderr, "OMP_WAIT_POLICY %s, want %s\n", got ? got : "unset", want);
+    return 1;
+}
+
+// mlb_runtime_restart in a child with the launcher's variable `local` (NULL: none) and the user's
+// OMP_WAIT_POLICY `user` (NULL: none): the child's exit status, with the policy the (re)started
+// child must see.
+static int restarted_policy_status(const char* local, const char* user, const char* want) {
+    fflush(stdout);
+    pid_t pid = fork();
+    if (pid == 0) {
+        unsetenv("MATLABER_REEXEC");
+        unsetenv("GOMP_SPINCOUNT");
+        unsetenv("MPI_LOCALNRANKS");
+        unsetenv("SLURM_NTASKS_PER_NODE");
+        if (user) setenv("OMP_WAIT_POLICY", user, 1);
+        else unsetenv("OMP_WAIT_POLICY");
+        if (local) setenv("OMPI_COMM_WORLD_LOCAL_SIZE", local, 1);
+        else unsetenv("OMPI_COMM_WORLD_LOCAL_SIZE");
+        char* argv[] = {"test_core", "--report-wait-policy", (char*)want, NULL};
+        mlb_runtime_restart(argv);   // returns where nothing needed a restart
+        _exit(report_wait_policy(want));
+    }
+    int st = -1;
+    if (pid < 0 || waitpid(pid, &st, 0) != pid) return -1;
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+// Idle OpenMP threads sleep at once only where several processes of a job share the node; a process
+// alone keeps libgomp's default; the user's setting always stands.
+TEST(runtime_restart_wait_policy) {
+    CHECK_MSG(restarted_policy_status(NULL, NULL, "-") == 0, "alone: no policy forced");
+    CHECK_MSG(restarted_policy_status("1", NULL, "-") == 0, "one local process: no policy forced");
+    CHECK_MSG(restarted_policy_status("2", NULL, "passive") == 0, "two local processes: passive");
+    CHECK_MSG(restarted_policy_status("2", "active", "active") == 0, "the user's active kept");
+    CHECK_MSG(restarted_policy_status("x", NULL, "-") == 0, "a malformed count is ignored");
+}
+
+int main(int argc, char** argv) {
+    if (argc == 3 && !strcmp(argv[1], "--report-wait-policy")) return report_wait_policy(argv[2]);
     RUN(cpu_features_match_proc_cpuinfo);
     RUN(blas_coretype_follows_features);
     RUN(philox_known_answers);
@@ -237,5 +283,6 @@ int main(void) {
     RUN(log_levels_and_sink);
     RUN(progress_plain_lines);
     RUN(atomic_files);
+    RUN(runtime_restart_wait_policy);
     return test_summary();
 }

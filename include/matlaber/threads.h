@@ -15,7 +15,9 @@ const char* mlb_blas_better_coretype(void);
 // Two settings the OpenMP and OpenBLAS runtimes read only when they load, so a program restarts
 // itself once with them (execv of /proc/self/exe, MATLABER_REEXEC=1 marking the second start):
 // OpenBLAS pointed at the kernels this CPU can run (above; MATLABER_BLAS_CHOSEN=1 then), and
-// OMP_WAIT_POLICY=passive, without which libgomp's idle threads spin after every loop. The user's
-// own settings are kept. Returns (doing nothing) when neither is needed or the restart failed.
+// OMP_WAIT_POLICY=passive where the launcher says several processes of the job share this node
+// (mpirun, srun): libgomp's idle threads would otherwise spin after every loop on cores the others
+// need. A process alone keeps libgomp's default (a short spin, then sleep). The user's own settings
+// are kept. Returns (doing nothing) when neither is needed or the restart failed.
 void mlb_runtime_restart(char** argv);
 #endif

@@ -27,10 +27,26 @@ const char* mlb_blas_better_coretype(void) {
     return mlb_blas_coretype_for(openblas_get_corename(), &cpu);
 }
 
+// The processes of this job on this node, as the launcher tells them (Open MPI's mpirun, MPICH's
+// hydra, Slurm's srun with --ntasks-per-node); 1 when none does.
+static long local_processes(void) {
+    static const char* const names[] = {"OMPI_COMM_WORLD_LOCAL_SIZE", "MPI_LOCALNRANKS", "SLURM_NTASKS_PER_NODE"};
+    for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
+        const char* v = getenv(names[i]);
+        char* end;
+        long n = v ? strtol(v, &end, 10) : 0;
+        if (v && end != v && n > 0) return n;
+    }
+    return 1;
+}
+
 void mlb_runtime_restart(char** argv) {
     if (getenv("MATLABER_REEXEC")) return;
     const char* core = mlb_blas_better_coretype();
-    int set_wait = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT");
+    // Idle OpenMP threads sleep at once (passive) only where processes share the node's cores; alone,
+    // libgomp's default short spin before sleeping is faster: a goblet on 2 threads 45 s against 54 s,
+    // a UNet training step 0.90x (docs/benchmarks.md, "Idle threads spin again when alone").
+    int set_wait = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT") && local_processes() > 1;
     if (!core && !set_wait) return;
     if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);
     if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);

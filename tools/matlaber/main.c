@@ -67,11 +67,11 @@ static void usage(FILE* out) {
 }
 
 // The program restarts itself once with the runtime settings OpenBLAS and OpenMP read at load
-// (mlb_runtime_restart, threads.h): OpenBLAS pointed at the kernels this CPU can run, and
-// OMP_WAIT_POLICY=passive, without which libgomp's idle threads spin after every loop. That took
-// the cores OpenBLAS's own GEMM threads needed (the VAE ran 8-35x slower on 2 cores; docs/vae.md);
-// GEMMs now run on OpenMP threads (mlb_gemm) and no longer care (docs/benchmarks.md), but passive
-// still leaves idle cores to other processes.
+// (mlb_runtime_restart, threads.h): OpenBLAS pointed at the kernels this CPU can run, and, where
+// several processes of an MPI job share the node, OMP_WAIT_POLICY=passive, so that idle OpenMP
+// threads leave the cores to the others. A process alone keeps libgomp's short spin: once OpenBLAS
+// had threads of its own, which that spin starved (the VAE ran 8-35x slower on 2 cores;
+// docs/vae.md); GEMMs now run on OpenMP threads (mlb_gemm), and the spin saves the wake-ups.
 static int run_command(int argc, char** argv);
 int cli_rc_agreed;
 

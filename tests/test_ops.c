@@ -736,6 +736,56 @@ TEST(add_vector_kernel_bitwise) {
     if (!levels) printf("  (no AVX2 here: the scalar loop only)\n");
 }
 
+// The attention backward's rows (nn/simd_rows.h): e^min(p - c, 0) within 3e-7 of libm's exp (and
+// exactly 1 where p - c > 0: rounding past the row's log-sum-exp), the softmax's backward bit for bit
+// the scalar loop, every length 0..40, in 8 and 16 lanes where the CPU has them.
+TEST(attention_backward_rows) {
+    enum { N = 300 };
+    float x[N], p[N], g0[N], g1[N];
+    mlb_rng_fill_normal(x, N, 21, 1, 0, 0, 4);   // scores around c = 1: most below, some above
+    x[5] = -200.0f;   // far under fp32's range
+    x[9] = 1.0f;      // exactly c
+    const float c = 1.0f, d = 0.375f, scale = 0.17677669f;
+    int levels = 0;
+    for (int level = MLB_SIMD_AVX2; level <= MLB_SIMD_AVX512; level++) {
+        mlb_simd_force(level);
+        if ((int)mlb_simd_kernels() != level) break;
+        levels++;
+        double worst = 0;
+        int n_above = 0, above_ok = 1, tail_ok = 1;
+        for (int n = 0; n <= 41; n++) {
+            const int len = n == 41 ? N : n;
+            for (int i = 0; i < N; i++) p[i] = x[i];
+            mlb_exp_shifted_row((mlb_simd_level)level, p, len, c);
+            for (int i = len; i < N; i++) tail_ok &= p[i] == x[i];   // nothing past the row
+            for (int i = 0; i < len; i++) {
+                const float shifted = x[i] - c;   // in fp32, as the scalar loop subtracts
+                double want = exp((double)shifted);
+                if (shifted > 0) {
+                    n_above++;
+                    above_ok &= p[i] == 1.0f;
+                } else if (want > 1e-30) {
+                    double e = fabs(p[i] - want) / want;
+                    if (e > worst) worst = e;
+                } else {
+                    tail_ok &= p[i] >= 0 && p[i] < 1e-30f;
+                }
+            }
+            for (int i = 0; i < N; i++) g0[i] = g1[i] = x[N - 1 - i];
+            for (int i = 0; i < len; i++) g0[i] = p[i] * (g0[i] - d) * scale;
+            mlb_softmax_grad_row((mlb_simd_level)level, g1, p, len, d, scale);
+            CHECK_MSG(same_bits_or_both_nan(g0, g1, N), "softmax grad row of %d in %s: not the scalar loop's bits", len,
+                      mlb_simd_name((mlb_simd_level)level));
+        }
+        CHECK_MSG(worst < 3e-7, "%s: e^(p - c) off libm's by %.3g relative", mlb_simd_name((mlb_simd_level)level), worst);
+        CHECK_MSG(n_above > 0 && above_ok, "%s: p - c > 0 must give 1 (%d such values)", mlb_simd_name((mlb_simd_level)level),
+                  n_above);
+        CHECK_MSG(tail_ok, "%s: a value past the row changed, or e^-201 is not ~0", mlb_simd_name((mlb_simd_level)level));
+    }
+    mlb_simd_force(-1);
+    if (!levels) printf("  (no AVX2 here: the scalar loops only)\n");
+}
+
 // Adam and the ReLU / identity activations run as 8- or 16-lane kernels where the CPU has them
 // (nn/simd_rows.h): bit for bit the scalar loops (the level capped at scalar), for both Adam and
 // AdamW over steps 1..3, n not a multiple of the lanes or the blocks, special values, in place, on
@@ -828,6 +878,7 @@ int main(void) {
     RUN(determinism_threads);
     RUN(activation_forward_derivs_matches_scalar);
     RUN(add_vector_kernel_bitwise);
+    RUN(attention_backward_rows);
     RUN(adam_and_relu_vector_kernels_bitwise);
     RUN(activation_silu_blocks_bitwise);
     return test_summary();

@@ -533,6 +533,37 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
     return MLB_OK;
 }
 
+// The backward's rows: p <- e^(p - c) and g <- p (g - d) scale. The float pass takes simd_rows.h's
+// rows on a CPU with AVX2 or AVX-512 (the exponential clamped at 0, as a probability is at most 1);
+// the double pass, the finite-difference reference, keeps libm's exp.
+static mlb_simd_level FN(rows_vectorised)(void) {
+#ifndef MLB_F64
+    return mlb_simd_kernels();
+#else
+    return MLB_SIMD_SCALAR;
+#endif
+}
+static void FN(exp_shifted_row)(real* p, int n, real c, mlb_simd_level vec) {
+#ifndef MLB_F64
+    if (vec != MLB_SIMD_SCALAR) {
+        mlb_exp_shifted_row(vec, p, n, c);
+        return;
+    }
+#endif
+    (void)vec;
+    for (int s = 0; s < n; s++) p[s] = R_EXP(p[s] - c);
+}
+static void FN(softmax_grad_row)(real* g, const real* p, int n, real d, real scale, mlb_simd_level vec) {
+#ifndef MLB_F64
+    if (vec != MLB_SIMD_SCALAR) {
+        mlb_softmax_grad_row(vec, g, p, n, d, scale);
+        return;
+    }
+#endif
+    (void)vec;
+    for (int s = 0; s < n; s++) g[s] = p[s] * (g[s] - d) * scale;
+}
+
 static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* dk, real* dv, const real* dout,
                                          const real* out, const real* lse, const real* q, const real* k, const real* v,
                                          int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv, real* ws) {
@@ -551,6 +582,7 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
     }
     real* P = ws;
     real* dP = ws + rows * (size_t)Tk;
+    const mlb_simd_level vec = FN(rows_vectorised)();
     for (int b = 0; b < B; b++)
         for (int h = 0; h < NH; h++) {
             const real* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
@@ -564,10 +596,7 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
                 const real* lb = lse + ((size_t)b * NH + h) * Tq + t0;
                 gemm(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
-                for (int i = 0; i < nr; i++) {
-                    real* p = P + (size_t)i * Tk;
-                    for (int s = 0; s < Tk; s++) p[s] = R_EXP(p[s] - lb[i]);
-                }
+                for (int i = 0; i < nr; i++) FN(exp_shifted_row)(P + (size_t)i * Tk, Tk, lb[i], vec);
                 if (dv)   // dv[Tk, hd] += P^T . dout_block
                     gemm(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
                          dv + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
@@ -580,10 +609,7 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
                     const real* a = dob + (size_t)i * C;
                     const real* o = ob + (size_t)i * C;
                     for (int d = 0; d < hd; d++) di += (double)a[d] * (double)o[d];
-                    real* p = P + (size_t)i * Tk;
-                    real* g = dP + (size_t)i * Tk;
-                    real dr = (real)di;
-                    for (int s = 0; s < Tk; s++) g[s] = p[s] * (g[s] - dr) * scale;
+                    FN(softmax_grad_row)(dP + (size_t)i * Tk, P + (size_t)i * Tk, Tk, (real)di, scale, vec);
                 }
                 if (dq)   // dq_block += dS . k
                     gemm(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,

@@ -30,6 +30,7 @@ static inline SIMD_TARGET vf v_add(vf a, vf b) { return _mm256_add_ps(a, b); }
 static inline SIMD_TARGET vf v_sub(vf a, vf b) { return _mm256_sub_ps(a, b); }
 static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm256_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm256_max_ps(a, b); }
+static inline SIMD_TARGET vf v_min(vf a, vf b) { return _mm256_min_ps(a, b); }
 static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm256_div_ps(a, b); }
 static inline SIMD_TARGET vf v_abs(vf a) { return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), a); }
 static inline SIMD_TARGET vf v_sqrt(vf a) { return _mm256_sqrt_ps(a); }

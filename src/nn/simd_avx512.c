@@ -28,6 +28,7 @@ static inline SIMD_TARGET vf v_add(vf a, vf b) { return _mm512_add_ps(a, b); }
 static inline SIMD_TARGET vf v_sub(vf a, vf b) { return _mm512_sub_ps(a, b); }
 static inline SIMD_TARGET vf v_mul(vf a, vf b) { return _mm512_mul_ps(a, b); }
 static inline SIMD_TARGET vf v_max(vf a, vf b) { return _mm512_max_ps(a, b); }
+static inline SIMD_TARGET vf v_min(vf a, vf b) { return _mm512_min_ps(a, b); }
 static inline SIMD_TARGET vf v_div(vf a, vf b) { return _mm512_div_ps(a, b); }
 static inline SIMD_TARGET vf v_abs(vf a) { return _mm512_abs_ps(a); }
 static inline SIMD_TARGET vf v_sqrt(vf a) { return _mm512_sqrt_ps(a); }

@@ -122,3 +122,23 @@ void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n) {
     abort();
 #endif
 }
+
+void mlb_exp_shifted_row(mlb_simd_level level, float* p, int n, float c) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_exp_shifted_row_avx512(p, n, c);
+    else mlb_exp_shifted_row_avx2(p, n, c);
+#else
+    (void)level; (void)p; (void)n; (void)c;
+    abort();
+#endif
+}
+
+void mlb_softmax_grad_row(mlb_simd_level level, float* g, const float* p, int n, float d, float scale) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_softmax_grad_row_avx512(g, p, n, d, scale);
+    else mlb_softmax_grad_row_avx2(g, p, n, d, scale);
+#else
+    (void)level; (void)g; (void)p; (void)n; (void)d; (void)scale;
+    abort();
+#endif
+}

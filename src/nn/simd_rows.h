@@ -57,6 +57,11 @@ void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const 
 // y += x over n values, the scalar loop's bits (additions are per value); y may be x.
 void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n);
 
+// The attention backward's rows (conv_ops.c): p <- e^min(p - c, 0) (the exponential as the softmax
+// row's, not libm's), and g <- p (g - d) scale (the scalar loop's bits).
+void mlb_exp_shifted_row(mlb_simd_level level, float* p, int n, float c);
+void mlb_softmax_grad_row(mlb_simd_level level, float* g, const float* p, int n, float d, float scale);
+
 #ifdef MLB_SIMD_X86
 // The kernels themselves (call only where mlb_simd_kernels() is at least their level).
 void mlb_groupnorm_forward_group_avx512(float* out, double* mean, double* rstd, const float* x, const float* w,
@@ -79,5 +84,9 @@ void mlb_relu_row_avx512(float* out, float* d1, float* d2, const float* in, size
 void mlb_relu_row_avx2(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
 void mlb_add_row_avx512(float* y, const float* x, size_t n);
 void mlb_add_row_avx2(float* y, const float* x, size_t n);
+void mlb_exp_shifted_row_avx512(float* p, int n, float c);
+void mlb_exp_shifted_row_avx2(float* p, int n, float c);
+void mlb_softmax_grad_row_avx512(float* g, const float* p, int n, float d, float scale);
+void mlb_softmax_grad_row_avx2(float* g, const float* p, int n, float d, float scale);
 #endif
 #endif

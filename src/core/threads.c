@@ -45,7 +45,7 @@ void mlb_runtime_restart(char** argv) {
     const char* core = mlb_blas_better_coretype();
     // Idle OpenMP threads sleep at once (passive) only where processes share the node's cores; alone,
     // libgomp's default short spin before sleeping is faster: a goblet on 2 threads 45 s against 54 s,
-    // a UNet training step 0.90x (docs/benchmarks.md, "Idle threads spin again when alone").
+    // a UNet training step 0.89x (docs/benchmarks.md, "Idle threads spin again when alone").
     int set_wait = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT") && local_processes() > 1;
     if (!core && !set_wait) return;
     if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);

@@ -533,34 +533,27 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
     return MLB_OK;
 }
 
-// The backward's rows: p <- e^(p - c) and g <- p (g - d) scale. The float pass takes simd_rows.h's
-// rows on a CPU with AVX2 or AVX-512 (the exponential clamped at 0, as a probability is at most 1);
-// the double pass, the finite-difference reference, keeps libm's exp.
-static mlb_simd_level FN(rows_vectorised)(void) {
+// The backward's rows: p <- e^(p - c) and g <- p (g - d) scale. As softmax_row_exp: the float pass
+// takes simd_rows.h's rows on a CPU with AVX2 or AVX-512 (the exponential clamped at 0, as a
+// probability is at most 1); the double pass, the finite-difference reference, keeps libm's exp.
+static void FN(exp_shifted_row)(real* p, int n, real c) {
 #ifndef MLB_F64
-    return mlb_simd_kernels();
-#else
-    return MLB_SIMD_SCALAR;
-#endif
-}
-static void FN(exp_shifted_row)(real* p, int n, real c, mlb_simd_level vec) {
-#ifndef MLB_F64
-    if (vec != MLB_SIMD_SCALAR) {
-        mlb_exp_shifted_row(vec, p, n, c);
+    const mlb_simd_level lv = mlb_simd_kernels();
+    if (lv != MLB_SIMD_SCALAR) {
+        mlb_exp_shifted_row(lv, p, n, c);
         return;
     }
 #endif
-    (void)vec;
     for (int s = 0; s < n; s++) p[s] = R_EXP(p[s] - c);
 }
-static void FN(softmax_grad_row)(real* g, const real* p, int n, real d, real scale, mlb_simd_level vec) {
+static void FN(softmax_grad_row)(real* g, const real* p, int n, real d, real scale) {
 #ifndef MLB_F64
-    if (vec != MLB_SIMD_SCALAR) {
-        mlb_softmax_grad_row(vec, g, p, n, d, scale);
+    const mlb_simd_level lv = mlb_simd_kernels();
+    if (lv != MLB_SIMD_SCALAR) {
+        mlb_softmax_grad_row(lv, g, p, n, d, scale);
         return;
     }
 #endif
-    (void)vec;
     for (int s = 0; s < n; s++) g[s] = p[s] * (g[s] - d) * scale;
 }
 
@@ -582,7 +575,6 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
     }
     real* P = ws;
     real* dP = ws + rows * (size_t)Tk;
-    const mlb_simd_level vec = FN(rows_vectorised)();
     for (int b = 0; b < B; b++)
         for (int h = 0; h < NH; h++) {
             const real* kb = k + (size_t)b * Tk * ldkv + (size_t)h * hd;
@@ -596,7 +588,7 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
                 const real* lb = lse + ((size_t)b * NH + h) * Tq + t0;
                 gemm(MLB_NOTRANS, MLB_TRANS, nr, Tk, hd, scale, qb, ldq, kb, ldkv, (real)0, P, Tk);
 #pragma omp parallel for schedule(static) if ((size_t)nr * Tk >= COPS_PARALLEL_MIN)
-                for (int i = 0; i < nr; i++) FN(exp_shifted_row)(P + (size_t)i * Tk, Tk, lb[i], vec);
+                for (int i = 0; i < nr; i++) FN(exp_shifted_row)(P + (size_t)i * Tk, Tk, lb[i]);
                 if (dv)   // dv[Tk, hd] += P^T . dout_block
                     gemm(MLB_TRANS, MLB_NOTRANS, Tk, hd, nr, (real)1, P, Tk, dob, C, (real)1,
                          dv + (size_t)b * Tk * ldkv + (size_t)h * hd, ldkv);
@@ -609,7 +601,7 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
                     const real* a = dob + (size_t)i * C;
                     const real* o = ob + (size_t)i * C;
                     for (int d = 0; d < hd; d++) di += (double)a[d] * (double)o[d];
-                    FN(softmax_grad_row)(dP + (size_t)i * Tk, P + (size_t)i * Tk, Tk, (real)di, scale, vec);
+                    FN(softmax_grad_row)(dP + (size_t)i * Tk, P + (size_t)i * Tk, Tk, (real)di, scale);
                 }
                 if (dq)   // dq_block += dS . k
                     gemm(MLB_NOTRANS, MLB_NOTRANS, nr, hd, Tk, (real)1, dP, Tk, kb, ldkv, (real)1,

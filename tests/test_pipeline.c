@@ -22,6 +22,7 @@
 #include "matlaber/unet_random.h"
 #include "matlaber/vae.h"
 #include "matlaber/views.h"
+#include "pipeline/pipeline_internal.h"
 #include "test.h"
 #include "matlaber/threads.h"
 
@@ -604,6 +605,70 @@ TEST(auto_init_needs_a_clear_win) {
     free(b);
 }
 
+// ---- starting-shape fits kept between the runs of one process (shape_fits.c) -------------------------
+// The "shape init" lines of the log, kept by the test's sink.
+static char init_log[4096];
+static void keep_init_lines(mlb_log_level level, const char* message, void* user) {
+    (void)level, (void)user;
+    if (strstr(message, "shape init") && strlen(init_log) + strlen(message) + 2 < sizeof init_log) {
+        strcat(init_log, message);
+        strcat(init_log, "\n");
+    }
+}
+static char* start_logged(const char* run, const char* init, long* size) {
+    init_log[0] = 0;
+    mlb_log_level level = mlb_log_get_level();
+    mlb_log_set_level(MLB_LOG_INFO);
+    mlb_log_set_sink(keep_init_lines, NULL);
+    char* bytes = start_of(run, init, 1e-9, size);
+    mlb_log_set_sink(NULL, NULL);
+    mlb_log_set_level(level);
+    return bytes;
+}
+
+// A second run of the process takes the first's fits and starts from the same bytes; a fit from
+// another network state is fitted again, and gives what a process keeping nothing gets.
+TEST(shape_fits_kept) {
+    char run[4][512];
+    for (int k = 0; k < 4; k++) snprintf(run[k], sizeof run[k], "%s/kept_%d", tmpdir, k);
+    long n[4] = {0};
+    mlb_pipeline_keep_shape_fits(64 << 20);
+    char* a = start_logged(run[0], "auto:ellipsoid,slab", &n[0]);
+    CHECK(strstr(init_log, "(slab): SDF") && !strstr(init_log, "kept"));
+    char* b = start_logged(run[1], "auto:ellipsoid,slab", &n[1]);
+    printf("%s", init_log);
+    CHECK(strstr(init_log, "(ellipsoid): SDF") && strstr(init_log, "(slab): SDF"));
+    CHECK(strstr(init_log, "steps (kept") && !strstr(init_log, "steps\n"));   // both kept
+    REQUIRE(a && b);
+    CHECK_MSG(n[0] == n[1] && !memcmp(a, b, (size_t)n[0]), "the kept fits start another run");
+    free(a);
+    free(b);
+
+    // the key: the network's state before the fit (a fresh one at another seed, the slab itself)
+    mlb_geometry_config gc = mlb_geometry_default();
+    gc.enc.table_size = 1u << 12;
+    mlb_pipeline_config c = mlb_pipeline_default();
+    c.init_iters = 20;
+    mlb_geometry_net net, ref;
+    memset(&net, 0, sizeof net);
+    memset(&ref, 0, sizeof ref);
+    REQUIRE(!geometry_net_init(&net, &gc) && !geometry_net_init(&ref, &gc));
+    float* fit1 = malloc(sizeof(float) * net.n_params);
+    REQUIRE(fit1);
+    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0));
+    memcpy(fit1, net.params, sizeof(float) * net.n_params);
+    net.params[7] += 1e-3f;   // another start: not the kept fit's
+    memcpy(ref.params, net.params, sizeof(float) * net.n_params);
+    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0));
+    mlb_pipeline_keep_shape_fits(0);   // the reference: nothing kept
+    REQUIRE(!pipeline_init_shape(&ref, &c, "torus", 0));
+    CHECK_MSG(!memcmp(net.params, ref.params, sizeof(float) * net.n_params), "a fit from another start was not fitted");
+    CHECK(memcmp(net.params, fit1, sizeof(float) * net.n_params) != 0);
+    geometry_net_free(&net);
+    geometry_net_free(&ref);
+    free(fit1);
+}
+
 // ---- material_start with a guidance written by the test -----------------------------------------
 // Its score favours the archetype rendered at one call (the archetypes are scored one call each, in
 // material_start.c's order: grey metal 0, warm metal 1, white glossy 2, grey rough 3, warm glossy 4,
@@ -829,6 +894,7 @@ int main(void) {
     RUN(sds_generate_two_steps_per_stage);
     RUN(auto_init_looks_ahead);
     RUN(auto_init_needs_a_clear_win);
+    RUN(shape_fits_kept);
     RUN(material_start_picks_a_metal);
     RUN(metal_start_resumes_at_its_rate);
     char cmd[400];

@@ -12,7 +12,9 @@
 #include "matlaber/sds.h"
 #include "pipeline/pipeline_internal.h"
 
-mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels) {
+// Fits net to the shape, from the network's state as it is.
+static mlb_status fit_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels,
+                            double* final_loss) {
     mlb_shape shape;
     memset(&shape, 0, sizeof shape);
     mlb_status s = MLB_OK;
@@ -32,13 +34,33 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
     mlb_shape_fit_config fc = mlb_shape_fit_default();
     fc.iters = c->init_iters;
     fc.seed = c->seed + 1;
-    double final_loss = 0;
     net->active_levels = active_levels;   // the initial shape in the levels step 0 sees
-    s = mlb_geometry_fit_shape(net, &shape, &fc, NULL, &final_loss);
+    s = mlb_geometry_fit_shape(net, &shape, &fc, NULL, final_loss);
     net->active_levels = 0;
     mlb_shape_free(&shape);
-    if (!s) mlb_log(MLB_LOG_INFO, "shape init (%s): SDF MSE %.3g after %d steps", init, final_loss, fc.iters);
     return s;
+}
+
+mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels) {
+    mlb_shape probe;
+    memset(&probe, 0, sizeof probe);
+    const int builtin = mlb_shape_builtin(&probe, init, 1.0f);   // an OBJ file could change between two runs
+    mlb_shape_free(&probe);
+    double final_loss = 0;
+    uint64_t key[2];
+    if (builtin) pipeline_shape_fit_key(net, c, init, active_levels, key);
+    const int kept = builtin && pipeline_shape_fit_recall(key, net, &final_loss);   // a fit this process made before
+    if (!kept) {
+        MLB_TRY(fit_shape(net, c, init, active_levels, &final_loss));
+        if (builtin) pipeline_shape_fit_keep(key, net, final_loss);
+    }
+    // the optimiser starts fresh after the fit (a kept fit has no moments to give)
+    memset(net->adam_m, 0, sizeof(float) * net->n_params);
+    memset(net->adam_v, 0, sizeof(float) * net->n_params);
+    net->step = 0;
+    mlb_log(MLB_LOG_INFO, "shape init (%s): SDF MSE %.3g after %d steps%s", init, final_loss, c->init_iters,
+            kept ? " (kept from an earlier run of this process)" : "");
+    return MLB_OK;
 }
 
 // --init auto: each candidate is fitted and rendered as the geometry stage's first steps see it

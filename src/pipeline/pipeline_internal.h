@@ -61,8 +61,16 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
 
 // pipeline_init.c
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab", "cup" or an OBJ file) in the
-// hash grid's first active_levels levels (0: all).
+// hash grid's first active_levels levels (0: all). Adam's moments and step are zero after it.
 mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
+
+// shape_fits.c: the built-in shapes' fits kept for the process's next run (mlb_pipeline_keep_shape_fits).
+// key: a 128-bit hash of all a fit depends on (the network's state before it, the config's fields
+// that enter it, the shape, the levels). recall: 1 and net->params set as the fit left them, or 0.
+void pipeline_shape_fit_key(const mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int levels,
+                            uint64_t key[2]);
+int pipeline_shape_fit_recall(const uint64_t key[2], mlb_geometry_net* net, double* loss);
+void pipeline_shape_fit_keep(const uint64_t key[2], const mlb_geometry_net* net, double loss);
 // Mean and standard error of the paired differences a[k] - b[k] over n per-view scores (se infinite
 // for n < 2): how --init auto and the material start tell a real win from the views' noise.
 void pipeline_paired_difference(const double* a, const double* b, int n, double* mean, double* se);

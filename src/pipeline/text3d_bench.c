@@ -300,6 +300,7 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     double gen_wall = 0;
     int done_here = 0, mine = 0;
     for (int i = rank; i < total; i += size) mine++;
+    mlb_pipeline_keep_shape_fits(MLB_PIPELINE_KEEP_FITS_BYTES);   // every prompt starts from the same fits
     for (int i = rank; !s && i < total; i += size) {
         int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);
         mlb_text3d_row* row = &rows[i];
@@ -338,6 +339,7 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         if (!s) s = sg;
         if (bad && !s) s = mlb_fail(MLB_ERR_ARG, "text3d: another process stopped with an error (see its message above)");
     }
+    mlb_pipeline_keep_shape_fits(0);
     // the rows done: the prompts before the first that is not
     *n_rows = 0;
     while (*n_rows < total && done[*n_rows]) (*n_rows)++;

@@ -17,6 +17,7 @@
 #include "matlaber/error.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
+#include "matlaber/pipeline.h"
 #include "matlaber/progress.h"
 
 enum { MAX_TOKENS = 64, PATH_CAP = 4096 };
@@ -318,6 +319,7 @@ int generate_prompts_main(int argc, char** argv) {
     int* mine = calloc((size_t)n + 1, sizeof(int));   // the indices this process ran
     int n_mine = 0;
     double t_job = mlb_now_seconds();
+    mlb_pipeline_keep_shape_fits(MLB_PIPELINE_KEEP_FITS_BYTES);   // prompts with one seed start from the same fits
     for (int i = 0; i < n; i++) {
         char dir[PATH_CAP];
         snprintf(dir, sizeof dir, "%s/%s", out, items[i].name);
@@ -335,6 +337,7 @@ int generate_prompts_main(int argc, char** argv) {
         rec[i] = (record){i, st, rank, 0, secs};
         mine[n_mine++] = i;
     }
+    mlb_pipeline_keep_shape_fits(0);
     // every process's records to every process (fixed-size records, so two gathers)
     int* counts = calloc((size_t)size, sizeof(int));
     counts[rank] = n_mine;

@@ -2,6 +2,9 @@
 // against Random123's known answers, the distributions it feeds, permutations, error messages, the progress reporter's plain mode, atomic files and small-file reading, and the runtime restart's OpenMP wait policy.
 #include "test.h"
 #include <omp.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include "matlaber/cpu.h"
@@ -271,6 +274,43 @@ TEST(runtime_restart_wait_policy) {
     CHECK_MSG(restarted_policy_status("x", NULL, "-") == 0, "a malformed count is ignored");
 }
 
+// mlb_runtime_tune_malloc in a child with the user's MALLOC_MMAP_THRESHOLD_ `user` (NULL: none): 0
+// when a 48 MB block then comes from the heap (glibc marks a block of its own mapping with bit 1 of
+// the size word before it) as `want_heap` says, else 1.
+static int malloc_status(const char* user, int want_heap) {
+    fflush(stdout);
+    pid_t pid = fork();
+    if (pid == 0) {
+        unsetenv("MALLOC_TRIM_THRESHOLD_");
+        unsetenv("GLIBC_TUNABLES");
+        if (user) setenv("MALLOC_MMAP_THRESHOLD_", user, 1);
+        else unsetenv("MALLOC_MMAP_THRESHOLD_");
+        mlb_runtime_tune_malloc();
+        char* p = malloc((size_t)48 << 20);
+        if (!p) _exit(2);
+        size_t size_word;   // glibc's chunk header, just before the block
+        memcpy(&size_word, (const char*)((uintptr_t)p - sizeof size_word), sizeof size_word);
+        int heap = !(size_word & 2);
+        free(p);
+        _exit(heap == want_heap ? 0 : 1);
+    }
+    int st = -1;
+    if (pid < 0 || waitpid(pid, &st, 0) != pid) return -1;
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+// Large blocks from the heap, unless the user set glibc's own variables (glibc reads them when the
+// process starts, so the child that sets one sees what glibc does by default: a 48 MB block is
+// above its largest dynamic threshold, 32 MB, and gets a mapping of its own).
+TEST(runtime_tune_malloc) {
+#if defined(__SANITIZE_ADDRESS__)
+    SKIP("AddressSanitizer's allocator is not glibc's");
+#else
+    CHECK_MSG(malloc_status(NULL, 1) == 0, "a 48 MB block not from the heap after mlb_runtime_tune_malloc");
+    CHECK_MSG(malloc_status("1000000000", 0) == 0, "the user's MALLOC_MMAP_THRESHOLD_ not left to glibc");
+#endif
+}
+
 int main(int argc, char** argv) {
     if (argc == 3 && !strcmp(argv[1], "--report-wait-policy")) return report_wait_policy(argv[2]);
     RUN(cpu_features_match_proc_cpuinfo);
@@ -284,5 +324,6 @@ int main(int argc, char** argv) {
     RUN(progress_plain_lines);
     RUN(atomic_files);
     RUN(runtime_restart_wait_policy);
+    RUN(runtime_tune_malloc);
     return test_summary();
 }

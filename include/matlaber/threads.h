@@ -20,4 +20,8 @@ const char* mlb_blas_better_coretype(void);
 // need. A process alone keeps libgomp's default (a short spin, then sleep). The user's own settings
 // are kept. Returns (doing nothing) when neither is needed or the restart failed.
 void mlb_runtime_restart(char** argv);
+// glibc's malloc set to keep freed memory (up to 1 GB at the heap's top, blocks up to 256 MB from
+// the heap rather than their own mappings): the stages free and allocate the same buffers every
+// step. Not when the user set MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_ or GLIBC_TUNABLES.
+void mlb_runtime_tune_malloc(void);
 #endif

@@ -4,6 +4,7 @@
 #include "matlaber/threads.h"
 #include "matlaber/cpu.h"
 #include <cblas.h>
+#include <malloc.h>
 #include <omp.h>
 #include <stdlib.h>
 #include <unistd.h>
@@ -52,4 +53,16 @@ void mlb_runtime_restart(char** argv) {
     if (set_wait) setenv("OMP_WAIT_POLICY", "passive", 1);
     setenv("MATLABER_REEXEC", "1", 1);
     execv("/proc/self/exe", argv);   // returns only on failure: carry on as we are
+}
+
+// A generation allocates and frees the same large buffers step after step (activations of tens of
+// MB). glibc serves those above its mmap threshold (dynamic, at most 32 MB) from fresh mappings and
+// gives the top of the heap back beyond 128 KB, so every step pays page faults and zeroing in the
+// kernel for memory it had a moment ago. Kept in the heap instead: 0.98x the time of a `tiny`
+// goblet on one thread (docs/benchmarks.md, "Freed memory kept in the heap"). The user's own
+// MALLOC_* / GLIBC_TUNABLES settings are kept.
+void mlb_runtime_tune_malloc(void) {
+    if (getenv("MALLOC_MMAP_THRESHOLD_") || getenv("MALLOC_TRIM_THRESHOLD_") || getenv("GLIBC_TUNABLES")) return;
+    mallopt(M_MMAP_THRESHOLD, 256 << 20);
+    mallopt(M_TRIM_THRESHOLD, 1 << 30);
 }

@@ -79,6 +79,7 @@ int cli_rc_agreed;
 // MPI starts before the command and ends after it; a failure on one rank ends them all.
 int main(int argc, char** argv) {
     mlb_runtime_restart(argv);
+    mlb_runtime_tune_malloc();
     mlb_log_set_sink(mlb_log_file_sink, stderr);
     if (mlb_dist_init(&argc, &argv) != MLB_OK) return cli_fail(MLB_ERR_UNSUPPORTED, "matlaber");
     int rc = run_command(argc, argv);

@@ -5,6 +5,7 @@
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/transformer_ops.h"
+#include "nn/simd_rows.h"
 #include "test.h"
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -95,6 +96,58 @@ TEST(layernorm_matches_naive) {
     double e64 = 0;
     for (int i = 0; i < N * C; i++) e64 = fmax(e64, fabs(outd[i] - ref[i]));
     CHECK(e64 < 1e-12);
+}
+
+// The float pass on every SIMD level this CPU has (the rows in 8 or 16 lanes, nn/simd_rows.h, or
+// the scalar loop): against the double reference for row lengths around the lanes, with and without
+// the affine parameters, in place, a large mean; the same bits on 1 and 2 threads.
+TEST(layernorm_rows_every_level) {
+    enum { N = 300, CMAX = 130 };
+    const int lengths[] = {1, 2, 7, 8, 9, 15, 16, 17, 31, 33, 64, 77, 128, 130};
+    float* x = malloc(sizeof(float) * N * CMAX);
+    float* out = malloc(sizeof(float) * N * CMAX);
+    float* out2 = malloc(sizeof(float) * N * CMAX);
+    double* xd = malloc(sizeof(double) * N * CMAX);
+    double* ref = malloc(sizeof(double) * N * CMAX);
+    float w[CMAX], b[CMAX], mean[N], rstd[N];
+    double wd[CMAX], bd[CMAX];
+    REQUIRE(x && out && out2 && xd && ref);
+    fill(w, wd, CMAX, 0.5, 1.0);
+    fill(b, bd, CMAX, 0.3, 0.0);
+    int levels = 0;
+    for (int level = MLB_SIMD_SCALAR; level <= MLB_SIMD_AVX512; level++) {
+        mlb_simd_force(level);
+        if ((int)mlb_simd_kernels() != level) break;
+        levels++;
+        double worst = 0;
+        for (size_t li = 0; li < sizeof lengths / sizeof *lengths; li++) {
+            const int C = lengths[li];
+            fill(x, xd, (size_t)N * C, 3.0, li % 2 ? 100.0 : 0.0);
+            for (int affine = 0; affine < 2; affine++) {
+                naive_layernorm(ref, xd, affine ? wd : NULL, affine ? bd : NULL, N, C, 1e-5);
+                omp_set_num_threads(1);
+                layernorm_forward(out, mean, rstd, x, affine ? w : NULL, affine ? b : NULL, N, C, 1e-5f);
+                omp_set_num_threads(2);
+                layernorm_forward(out2, NULL, NULL, x, affine ? w : NULL, affine ? b : NULL, N, C, 1e-5f);
+                CHECK_MSG(!memcmp(out, out2, sizeof(float) * N * C), "level %d, C %d: 1 and 2 threads differ", level, C);
+                double err = max_abs_diff_fd(out, ref, (size_t)N * C);
+                if (err > worst) worst = err;
+                CHECK_MSG(err < 2e-5, "level %d, C %d, affine %d: %.3g from the double reference", level, C, affine, err);
+                double m0 = 0;
+                for (int c = 0; c < C; c++) m0 += xd[c];
+                CHECK_CLOSE(mean[0], m0 / C, 1e-6, 1e-6);
+            }
+            memcpy(out2, x, sizeof(float) * N * C);
+            layernorm_forward(out2, NULL, NULL, out2, w, b, N, C, 1e-5f);   // in place
+            layernorm_forward(out, NULL, NULL, x, w, b, N, C, 1e-5f);
+            CHECK_MSG(!memcmp(out, out2, sizeof(float) * N * C), "level %d, C %d: in place differs", level, C);
+        }
+        printf("  level %d: within %.3g of the double reference\n", level, worst);
+    }
+    CHECK(levels >= 1);
+    mlb_simd_force(-1);
+    omp_set_num_threads(omp_get_num_procs());
+    free(x); free(out); free(out2); free(xd); free(ref);
 }
 
 // d/dtheta of L = sum(dout * layernorm(x; w, b)) by central differences, in double.
@@ -266,6 +319,7 @@ TEST(embedding_lookup) {
 
 int main(void) {
     RUN(layernorm_matches_naive);
+    RUN(layernorm_rows_every_level);
     RUN(layernorm_backward_fd);
     RUN(attention_matches_naive);
     RUN(attention_causal_mask);

@@ -123,6 +123,17 @@ void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n) {
 #endif
 }
 
+void mlb_layernorm_row(mlb_simd_level level, float* o, float* mean, float* rstd, const float* x, const float* w,
+                       const float* b, int C, float eps) {
+#ifdef MLB_SIMD_X86
+    if (level == MLB_SIMD_AVX512) mlb_layernorm_row_avx512(o, mean, rstd, x, w, b, C, eps);
+    else mlb_layernorm_row_avx2(o, mean, rstd, x, w, b, C, eps);
+#else
+    (void)level; (void)o; (void)mean; (void)rstd; (void)x; (void)w; (void)b; (void)C; (void)eps;
+    abort();
+#endif
+}
+
 void mlb_exp_shifted_row(mlb_simd_level level, float* p, int n, float c) {
 #ifdef MLB_SIMD_X86
     if (level == MLB_SIMD_AVX512) mlb_exp_shifted_row_avx512(p, n, c);

@@ -57,6 +57,12 @@ void mlb_relu_row(mlb_simd_level level, float* out, float* d1, float* d2, const 
 // y += x over n values, the scalar loop's bits (additions are per value); y may be x.
 void mlb_add_row(mlb_simd_level level, float* y, const float* x, size_t n);
 
+// One row of layer norm's float pass (transformer_ops.c): the mean and variance in double as the
+// group norm's (the lanes' sums, then their sum), xhat and the affine in fp32; w, b, mean, rstd may be
+// NULL; o may be x.
+void mlb_layernorm_row(mlb_simd_level level, float* o, float* mean, float* rstd, const float* x, const float* w,
+                       const float* b, int C, float eps);
+
 // The attention backward's rows (conv_ops.c): p <- e^min(p - c, 0) (the exponential as the softmax
 // row's, not libm's), and g <- p (g - d) scale (the scalar loop's bits).
 void mlb_exp_shifted_row(mlb_simd_level level, float* p, int n, float c);
@@ -84,6 +90,10 @@ void mlb_relu_row_avx512(float* out, float* d1, float* d2, const float* in, size
 void mlb_relu_row_avx2(float* out, float* d1, float* d2, const float* in, size_t n, int relu);
 void mlb_add_row_avx512(float* y, const float* x, size_t n);
 void mlb_add_row_avx2(float* y, const float* x, size_t n);
+void mlb_layernorm_row_avx512(float* o, float* mean, float* rstd, const float* x, const float* w, const float* b, int C,
+                              float eps);
+void mlb_layernorm_row_avx2(float* o, float* mean, float* rstd, const float* x, const float* w, const float* b, int C,
+                            float eps);
 void mlb_exp_shifted_row_avx512(float* p, int n, float c);
 void mlb_exp_shifted_row_avx2(float* p, int n, float c);
 void mlb_softmax_grad_row_avx512(float* g, const float* p, int n, float d, float scale);

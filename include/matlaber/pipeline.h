@@ -131,7 +131,7 @@ typedef struct {
 mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_guidance* g, const mlb_views* views,
                             int resume, mlb_progress* progress, mlb_pipeline_result* result);
 // A process that runs several generations (bench text3d, generate --prompts) fits the same
-// starting shapes for each one with a seed (--init auto: four, ~13% of a `tiny` generation). With
+// starting shapes for each one with a seed (--init auto: four, ~7% of a `tiny` generation). With
 // bytes > 0 the fits of the built-in shapes are kept (their parameters, at most `bytes`, the oldest
 // dropped first) and a repeat takes them: the same bits as fitting again (src/pipeline/shape_fits.c).
 // 0 (the default) keeps none and frees what is kept. Not thread-safe: call it between runs.

@@ -1,7 +1,7 @@
 // Starting-shape fits kept for the process's next generation (mlb_pipeline_keep_shape_fits).
 //
 // --init auto fits the SDF network to four primitives before every generation: 100 Adam steps over
-// 12288 points each, ~8.6 s of a 64 s `tiny` generation on one thread. A fit is a function of the
+// 12288 points each, ~1.1 s, 4.4 s of a 64 s `tiny` generation on one thread. A fit is a function of the
 // network's state before it (parameters, Adam's moments, step), the shape's name, the fit's settings
 // and the hash grid's active levels; nothing else enters it (no prompt, no guidance). A process
 // that runs many generations with one seed (bench text3d, generate --prompts) starts each from the

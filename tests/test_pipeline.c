@@ -506,13 +506,13 @@ static mlb_status cov_score(mlb_guidance* g, mlb_stage stage, const mlb_view* vi
     return MLB_OK;
 }
 
-// The --init auto lines of the log, kept by the test's sink.
-static char auto_log[4096];
-static void keep_auto_lines(mlb_log_level level, const char* message, void* user) {
-    (void)level, (void)user;
-    if (strstr(message, "--init auto") && strlen(auto_log) + strlen(message) + 2 < sizeof auto_log) {
-        strcat(auto_log, message);
-        strcat(auto_log, "\n");
+// The log lines that contain the sink's `user` string, kept by the test's sink.
+static char kept_log[4096];
+static void keep_lines(mlb_log_level level, const char* message, void* user) {
+    (void)level;
+    if (strstr(message, (const char*)user) && strlen(kept_log) + strlen(message) + 2 < sizeof kept_log) {
+        strcat(kept_log, message);
+        strcat(kept_log, "\n");
     }
 }
 
@@ -553,21 +553,21 @@ TEST(auto_init_looks_ahead) {
         snprintf(run_auto, sizeof run_auto, "%s/auto_%d", tmpdir, k);
         snprintf(run_fixed, sizeof run_fixed, "%s/fixed_%d", tmpdir, k);
         long na = 0, nb = 0;
-        auto_log[0] = 0;
+        kept_log[0] = 0;
         mlb_log_level level = mlb_log_get_level();
         mlb_log_set_level(MLB_LOG_INFO);
-        mlb_log_set_sink(keep_auto_lines, NULL);
+        mlb_log_set_sink(keep_lines, (void*)"--init auto");
         char* a = start_of(run_auto, "auto:ellipsoid,slab", lrs[k], &na);
         mlb_log_set_sink(NULL, NULL);
         mlb_log_set_level(level);
         char* b = start_of(run_fixed, expect[k], lrs[k], &nb);
         REQUIRE(a && b);
-        printf("  lr %g:\n%s", lrs[k], auto_log);
-        CHECK(strstr(auto_log, "16 views: ellipsoid") && strstr(auto_log, "best: the slab\n"));   // the start: the slab
-        CHECK(strstr(auto_log, "after 20 steps") != NULL);
-        if (k == 0) CHECK(!strstr(auto_log, "vanished") && strstr(auto_log, "starting from the slab"));
-        else CHECK(strstr(auto_log, "slab vanished") && !strstr(auto_log, "ellipsoid vanished") &&
-                   strstr(auto_log, "starting from the ellipsoid"));
+        printf("  lr %g:\n%s", lrs[k], kept_log);
+        CHECK(strstr(kept_log, "16 views: ellipsoid") && strstr(kept_log, "best: the slab\n"));   // the start: the slab
+        CHECK(strstr(kept_log, "after 20 steps") != NULL);
+        if (k == 0) CHECK(!strstr(kept_log, "vanished") && strstr(kept_log, "starting from the slab"));
+        else CHECK(strstr(kept_log, "slab vanished") && !strstr(kept_log, "ellipsoid vanished") &&
+                   strstr(kept_log, "starting from the ellipsoid"));
         CHECK_MSG(na == nb && !memcmp(a, b, (size_t)na), "the start differs from --init %s", expect[k]);
         free(a);
         free(b);
@@ -582,10 +582,10 @@ TEST(auto_init_needs_a_clear_win) {
     snprintf(run_auto, sizeof run_auto, "%s/auto_spread", tmpdir);
     snprintf(run_fixed, sizeof run_fixed, "%s/fixed_spread", tmpdir);
     long na = 0, nb = 0;
-    auto_log[0] = 0;
+    kept_log[0] = 0;
     mlb_log_level level = mlb_log_get_level();
     mlb_log_set_level(MLB_LOG_INFO);
-    mlb_log_set_sink(keep_auto_lines, NULL);
+    mlb_log_set_sink(keep_lines, (void*)"--init auto");
     cov_spread = 0.9;
     char* a = start_of(run_auto, "auto:ellipsoid,slab", 1e-9, &na);
     cov_spread = 0;
@@ -593,33 +593,25 @@ TEST(auto_init_needs_a_clear_win) {
     mlb_log_set_level(level);
     char* b = start_of(run_fixed, "ellipsoid", 1e-9, &nb);
     REQUIRE(a && b);
-    printf("%s", auto_log);
+    printf("%s", kept_log);
     double m = 0, se = 0;
-    const char* slab = strstr(auto_log, "slab ");
+    const char* slab = strstr(kept_log, "slab ");
     REQUIRE(slab && sscanf(slab, "slab %*f (%lf +- %lf)", &m, &se) == 2 && se > 0);
     CHECK_MSG(m / se > 3 && m / se < 5, "the slab wins by %.2f standard errors: the case is not between 3 and 5", m / se);
-    CHECK(strstr(auto_log, "best: the ellipsoid\n") && !strstr(auto_log, "after 20 steps"));
-    CHECK(strstr(auto_log, "starting from the ellipsoid") != NULL);
+    CHECK(strstr(kept_log, "best: the ellipsoid\n") && !strstr(kept_log, "after 20 steps"));
+    CHECK(strstr(kept_log, "starting from the ellipsoid") != NULL);
     CHECK_MSG(na == nb && !memcmp(a, b, (size_t)na), "the start differs from --init ellipsoid");
     free(a);
     free(b);
 }
 
 // ---- starting-shape fits kept between the runs of one process (shape_fits.c) -------------------------
-// The "shape init" lines of the log, kept by the test's sink.
-static char init_log[4096];
-static void keep_init_lines(mlb_log_level level, const char* message, void* user) {
-    (void)level, (void)user;
-    if (strstr(message, "shape init") && strlen(init_log) + strlen(message) + 2 < sizeof init_log) {
-        strcat(init_log, message);
-        strcat(init_log, "\n");
-    }
-}
+// start_of with the run's "shape init" lines in kept_log.
 static char* start_logged(const char* run, const char* init, long* size) {
-    init_log[0] = 0;
+    kept_log[0] = 0;
     mlb_log_level level = mlb_log_get_level();
     mlb_log_set_level(MLB_LOG_INFO);
-    mlb_log_set_sink(keep_init_lines, NULL);
+    mlb_log_set_sink(keep_lines, (void*)"shape init");
     char* bytes = start_of(run, init, 1e-9, size);
     mlb_log_set_sink(NULL, NULL);
     mlb_log_set_level(level);
@@ -634,11 +626,11 @@ TEST(shape_fits_kept) {
     long n[4] = {0};
     mlb_pipeline_keep_shape_fits(64 << 20);
     char* a = start_logged(run[0], "auto:ellipsoid,slab", &n[0]);
-    CHECK(strstr(init_log, "(slab): SDF") && !strstr(init_log, "kept"));
+    CHECK(strstr(kept_log, "(slab): SDF") && !strstr(kept_log, "kept"));
     char* b = start_logged(run[1], "auto:ellipsoid,slab", &n[1]);
-    printf("%s", init_log);
-    CHECK(strstr(init_log, "(ellipsoid): SDF") && strstr(init_log, "(slab): SDF"));
-    CHECK(strstr(init_log, "steps (kept") && !strstr(init_log, "steps\n"));   // both kept
+    printf("%s", kept_log);
+    CHECK(strstr(kept_log, "(ellipsoid): SDF") && strstr(kept_log, "(slab): SDF"));
+    CHECK(strstr(kept_log, "steps (kept") && !strstr(kept_log, "steps\n"));   // both kept
     REQUIRE(a && b);
     CHECK_MSG(n[0] == n[1] && !memcmp(a, b, (size_t)n[0]), "the kept fits start another run");
     free(a);

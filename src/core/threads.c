@@ -59,7 +59,7 @@ void mlb_runtime_restart(char** argv) {
 // MB). glibc serves those above its mmap threshold (dynamic, at most 32 MB) from fresh mappings and
 // gives the top of the heap back beyond 128 KB, so every step pays page faults and zeroing in the
 // kernel for memory it had a moment ago. Kept in the heap instead: 0.98x the time of a `tiny`
-// goblet on one thread (docs/benchmarks.md, "Freed memory kept in the heap"). The user's own
+// goblet on one thread (docs/benchmarks.md, "Four cuts to a generation"). The user's own
 // MALLOC_* / GLIBC_TUNABLES settings are kept.
 void mlb_runtime_tune_malloc(void) {
     if (getenv("MALLOC_MMAP_THRESHOLD_") || getenv("MALLOC_TRIM_THRESHOLD_") || getenv("GLIBC_TUNABLES")) return;

@@ -58,7 +58,7 @@ TEST(base_config) {
     CHECK(c.geometry_iters == (int)lround(p.geometry_iters * 0.1) && c.appearance_iters == (int)lround(p.appearance_iters * 0.1) &&
           c.init_iters == (int)lround(p.init_iters * 0.1));
     CHECK(c.grid == p.grid && c.geometry_t_min == p.geometry_t_min);
-    CHECK(c.guidance_scale == 20 && c.appearance_guidance_scale == 100);   // the preset's, per stage
+    CHECK(c.guidance_scale == 10 && c.appearance_guidance_scale == 100);   // the preset's, per stage
     CHECK(c.res == 128 && c.views == 4 && c.seed == 5 && c.export_texture == 0 && c.latent_iters == 0);
     snprintf(c.prompt, sizeof c.prompt, "a gold mug");   // filled per run by the benchmark
     CHECK(mlb_pipeline_validate(&c) == MLB_OK);

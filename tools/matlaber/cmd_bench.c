@@ -113,7 +113,7 @@ static int bench_text3d(int argc, char** argv) {
                    "the median BRDF on the surface against the material's (RMSE over the 7 numbers; metal when mean\n"
                    "ks > %.2f and mean kd < %.2f), and relighting PSNR against the prompted class's best-fitting\n"
                    "member in the true material under a light no run saw.\n"
-                   "Writes DIR/report.md. A full run is 88 generations: 53 min on 2 cores as mpirun -n 2 matlaber --threads 1 bench text3d.\n\n",
+                   "Writes DIR/report.md. A full run is 88 generations: 46-50 min on 2 cores as mpirun -n 2 matlaber --threads 1 bench text3d.\n\n",
                    MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
             cli_print_options(stdout, options);
             return 0;

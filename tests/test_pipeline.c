@@ -671,12 +671,16 @@ TEST(shape_fits_kept) {
 // With `close` set it makes a close call instead: on the first look (8 views) the grey metal wins
 // by 0.1 with per-view scores of 0.3 and -0.1 in turn (the white glossy 0, the rest -1), within 2
 // standard errors; on the second look (the two, 32 views: calls 8 and 9) the metal scores -0.2 on
-// the 24 new views, so the white glossy wins.
+// the 24 new views, so the white glossy wins. With `close` TIE_METAL or TIE_CENTRE the second look
+// is a tie (the metal 0.3 and -0.5 in turn on the new views: -0.05 +- 0.07 on 32), so the stage is
+// tried from both starts (calls 10 and 11: the network trained from the metal, then from the
+// centre), and the trial named wins.
 enum { ARCH_N = 8, ARCH_GREY_METAL = 0, ARCH_WHITE = 2, ARCH_RED = 5, ARCH_BLUE = 6 };
+enum { CLOSE_CALL = 1, TIE_METAL = 2, TIE_CENTRE = 3 };
 typedef struct {
     mlb_orbit_config orbit;
     int want, calls, close;
-    int n_views[ARCH_N + 2];   // each call's views
+    int n_views[ARCH_N + 4];   // each call's views
     int t_range[2];   // the timesteps the start asked to be scored at
     double rgb[ARCH_N][3];
 } arch_guidance;
@@ -689,12 +693,22 @@ static mlb_status arch_score(mlb_guidance* g, mlb_stage stage, const mlb_view* v
                              int W, const int* t_range, double* per_view) {
     (void)views;
     arch_guidance* a = g->impl;
-    if (stage != MLB_STAGE_APPEARANCE || a->calls >= ARCH_N + 2 * a->close) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
+    const int expected = ARCH_N + (a->close ? 2 : 0) + (a->close > CLOSE_CALL ? 2 : 0);
+    if (stage != MLB_STAGE_APPEARANCE || a->calls >= expected) return mlb_fail(MLB_ERR_ARG, "arch_score: unexpected call");
     a->n_views[a->calls] = n;
+    if (a->close && a->calls >= ARCH_N + 2) {   // a tie's trials: from the metal (call 10), from the centre (11)
+        int from_metal = a->calls == ARCH_N + 2;
+        for (int v = 0; v < n; v++) per_view[v] = from_metal == (a->close == TIE_METAL) ? 1.0 : 0.0;
+        a->calls++;
+        return MLB_OK;
+    }
     if (a->close) {   // the close call: the archetype by the call (the first look's order, then the pair)
         int arch = a->calls < ARCH_N ? a->calls : a->calls == ARCH_N ? ARCH_GREY_METAL : ARCH_WHITE;
-        for (int v = 0; v < n; v++)
-            per_view[v] = arch == ARCH_WHITE ? 0.0 : arch != ARCH_GREY_METAL ? -1.0 : v < 8 ? (v % 2 ? -0.1 : 0.3) : -0.2;
+        double later = a->close == CLOSE_CALL ? -0.2 : 0;
+        for (int v = 0; v < n; v++) {
+            if (a->close != CLOSE_CALL && v >= 8) later = v % 2 ? -0.5 : 0.3;
+            per_view[v] = arch == ARCH_WHITE ? 0.0 : arch != ARCH_GREY_METAL ? -1.0 : v < 8 ? (v % 2 ? -0.1 : 0.3) : later;
+        }
         a->calls++;
         return MLB_OK;
     }
@@ -836,6 +850,27 @@ TEST(material_start_picks_a_metal) {
     CHECK(checkpoint_lr(run) == 1e-2);   // not a metal start
     CHECK(n_close == n_off && !memcmp(closed, off, (size_t)n_off));
     free(closed);
+    // a tie on the 32 views: the stage tried from the grey metal and from the centre (one step each,
+    // the stage's length here), each result scored on the 32 views; the trial that wins decides,
+    // and a trial leaves nothing behind: the centre's win is material_start 0's run, bit for bit
+    for (int who = TIE_METAL; who <= TIE_CENTRE; who++) {
+        const mstart_opts tie = {.lr_scale = 0.1, .close = who};
+        long n_tie = 0;
+        double kd_tie, ks_tie;
+        snprintf(run, sizeof run, "%s/mstart_tie%d", tmpdir, who);
+        char* tied = material_start_run(run, 1, ARCH_GREY_METAL, MLB_MATERIAL_LATENT, &a, &tie, &n_tie, &kd_tie, &ks_tie);
+        REQUIRE(tied);
+        CHECK_MSG(a.calls == ARCH_N + 4 && a.n_views[ARCH_N + 2] == 32 && a.n_views[ARCH_N + 3] == 32, "%d calls", a.calls);
+        if (who == TIE_METAL) {
+            CHECK(checkpoint_lr(run) == 1e-2 * 0.1);   // the metal start, at its rate
+            CHECK(kd_tie < 0.08 && ks_tie > 0.8);
+            CHECK(n_tie == n_metal && !memcmp(tied, metal, (size_t)n_metal));   // the metal start's run, bit for bit
+        } else {
+            CHECK(checkpoint_lr(run) == 1e-2);
+            CHECK(n_tie == n_off && !memcmp(tied, off, (size_t)n_off));
+        }
+        free(tied);
+    }
     const float centre[7] = {(float)kd[2], (float)kd[2], (float)kd[2], (float)ks[2], (float)ks[2], (float)ks[2], 0.5f};
     CHECK(!mlb_text3d_is_metal(centre));   // (the benchmark's rule on the means)
     // a dielectric's win: the run as material_start 0 makes it, bit for bit

@@ -343,16 +343,25 @@ static mlb_status geometry_stage(pipeline_run* r) {
 }
 
 // ---- appearance stage --------------------------------------------------------------------------
-static mlb_status appearance_stage(pipeline_run* r) {
+// trial: NULL for the stage itself; else the first trial->steps steps from the network as it is (a
+// material start's tie, material_start.c), with no material start, checkpoint, preview, loss row or
+// progress: only r->mat changes.
+typedef struct {
+    long steps;
+    int metal;   // the start is a metal: the metal start's rate
+} appearance_trial;
+
+static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* trial) {
     const mlb_pipeline_config* c = r->c;
     mlb_material_net* net = &r->mat;
     stage_state ss = stage_of(r, MLB_STAGE_APPEARANCE);
-    long start = 0;
+    long start = 0, end = c->appearance_iters;
     int found = 0;
-    mlb_status s = stage_resume(r, &ss, &start, &found);
+    mlb_status s = trial ? MLB_OK : stage_resume(r, &ss, &start, &found);
     if (s) return s;
-    if (start >= c->appearance_iters) return MLB_OK;
-    if (r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
+    if (trial && trial->steps < end) end = trial->steps;
+    if (start >= end) return MLB_OK;
+    if (!trial && r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
     const int paint_images = c->paint_mesh[0] && !strcmp(c->guidance, "images");
     int n = r->g->n_views;
@@ -371,16 +380,16 @@ static mlb_status appearance_stage(pipeline_run* r) {
     app.images_on_table = r->g->loss_on != NULL;
     const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
-    int metal = 0;
-    if (!s && start == 0) s = pipeline_material_start(r, &metal);   // before the network goes to a device
+    int metal = trial ? trial->metal : 0;
+    if (!s && !trial && start == 0) s = pipeline_material_start(r, &metal);   // before the network goes to a device
     if (metal) {
         ss.lr *= c->metal_start_lr_scale;
-        mlb_log(MLB_LOG_INFO, "appearance stage: refining the metal start at learning rate %g", ss.lr);
+        if (!trial) mlb_log(MLB_LOG_INFO, "appearance stage: refining the metal start at learning rate %g", ss.lr);
     }
     mlb_adam_config adam = mlb_material_adam(ss.lr);
     if (!s && r->field_be) {
         s = mlb_field_use_device(net, r->field_be);
-        if (!s) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");
+        if (!s && !trial) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");
     }
     // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
     // guidance call each, the same calls on any number of processes. Each batch is rendered, guided
@@ -409,7 +418,7 @@ static mlb_status appearance_stage(pipeline_run* r) {
     // benchmark machine): before the clock, so that the stage report's work per step is the steps'
     if (!s && !mlb_splitsum_lut()) s = mlb_fail_context(MLB_ERR_NOMEM, "appearance stage");
     stage_clock clock = stage_clock_start();
-    for (long it = start; !s && it < c->appearance_iters; it++) {
+    for (long it = start; !s && it < end; it++) {
         s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
         if (!s) s = pipeline_fix_env(r, views, n);
         // paint with image guidance: the views were taken of the mesh as given; move their cameras
@@ -440,7 +449,8 @@ static mlb_status appearance_stage(pipeline_run* r) {
                                                  c->seed, it, 1, &losses[nb + b]);
             if (!s && mine) s = mlb_field_grads_get(net, mine + net->n_params * (size_t)j);
         }
-        if (!s && app.images_on_table && cnt > 0 && preview_at(c, it))   // this process's renders down for the previews
+        const int preview = !trial && preview_at(c, it);
+        if (!s && app.images_on_table && cnt > 0 && preview)   // this process's renders down for the previews
             s = atb->download(images + img * (size_t)v0, app.t_images + img * (size_t)v0, img * (size_t)cnt);
         s = pipeline_agree(s);   // the collectives below need every rank
         if (!s && sum_grads) {
@@ -451,17 +461,18 @@ static mlb_status appearance_stage(pipeline_run* r) {
         if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + b0, losses, nb, sizeof(double));
         if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + nb + b0, losses + nb, nb, sizeof(double));
         for (int b = 0; !s && b < nb; b++) { loss += losses[b]; smooth += losses[nb + b]; }   // in batch order
-        if (!s && mlb_dist_size() > 1 && preview_at(c, it))   // previews: every view's render
+        if (!s && mlb_dist_size() > 1 && preview)   // previews: every view's render
             s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
         if (!s) s = material_net_update(net, &adam);
         s = pipeline_agree(s);
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
+        if (trial) continue;
         double row[3] = {loss, smooth, r->scene.mesh.n_faces};
         int stop = 0;
         s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
         if (stop) break;
     }
-    stage_clock_report(&clock, "appearance", r->result.appearance_steps);
+    if (!trial) stage_clock_report(&clock, "appearance", r->result.appearance_steps);
     mlb_appearance_free(&app);
     mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
     if (!s) s = left;
@@ -472,6 +483,11 @@ static mlb_status appearance_stage(pipeline_run* r) {
     free(losses);
     free(mine);
     return s;
+}
+
+mlb_status pipeline_appearance_trial(pipeline_run* r, int metal, long steps) {
+    appearance_trial t = {steps, metal};
+    return appearance_stage(r, &t);
 }
 
 // ---- the run -----------------------------------------------------------------------------------
@@ -622,7 +638,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
         mc.enc.table_size = gc.enc.table_size;
         if (!s) s = material_net_init(&r.mat, &mc, &prior);
         r.prior = &prior;
-        if (!s) s = appearance_stage(&r);
+        if (!s) s = appearance_stage(&r, NULL);
     }
     if (!s && geometry_done && !r.stopped) {
         s = writer ? pipeline_write_final(&r) : MLB_OK;

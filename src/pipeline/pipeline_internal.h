@@ -96,6 +96,9 @@ mlb_status pipeline_fix_env(pipeline_run* r, mlb_view* views, int n);
 // (docs/pipeline.md, "Material start"). Before the network goes to a device. *metal: 1 when it
 // started from a metal (the stage then refines it at metal_start_lr_scale times the rate).
 mlb_status pipeline_material_start(pipeline_run* r, int* metal);
+// pipeline.c: the appearance stage's first `steps` steps from r->mat as it is (metal: at the metal
+// start's rate), with no checkpoint, preview, loss row or progress (a tie of the material start).
+mlb_status pipeline_appearance_trial(pipeline_run* r, int metal, long steps);
 // previews/<stage>_<step>.png: the step's renders side by side.
 mlb_status pipeline_preview(pipeline_run* r, mlb_stage stage, long step, const float* images, int n);
 void pipeline_progress(pipeline_run* r, long done, double loss, int faces);

@@ -129,13 +129,10 @@ static mlb_status trial_starts(pipeline_run* r, mlb_appearance* app, float (*cod
     mlb_material_net* net = &r->mat;
     mlb_mlp* mlp = &net->mlp;
     const int L = mlp->n_layers - 1, O = mlp->dims[L + 1];
-    const size_t np = net->n_params;
-    float* keep = malloc(sizeof(float) * np * 3);   // parameters, Adam's moments
+    float* keep = malloc(sizeof(float) * net->n_params * 3);   // parameters, Adam's moments
     if (!keep) return mlb_fail(MLB_ERR_NOMEM, "material start: out of memory for a trial");
-    memcpy(keep, net->params, sizeof(float) * np);
-    memcpy(keep + np, net->adam_m, sizeof(float) * np);
-    memcpy(keep + 2 * np, net->adam_v, sizeof(float) * np);
-    const long step = net->step;
+    long step;
+    pipeline_field_keep(net, keep, &step);
     double mean[2] = {0, 0};
     mlb_status s = MLB_OK;
     for (int k = 0; !s && k < 2; k++) {
@@ -143,10 +140,7 @@ static mlb_status trial_starts(pipeline_run* r, mlb_appearance* app, float (*cod
         s = pipeline_appearance_trial(r, k == 0, TRIAL_STEPS);
         if (!s) s = score_shared(r, app, NULL, NULL, 1, views, n, images, pv);
         if (!s) mean[k] = row_mean(pv, n);
-        memcpy(net->params, keep, sizeof(float) * np);
-        memcpy(net->adam_m, keep + np, sizeof(float) * np);
-        memcpy(net->adam_v, keep + 2 * np, sizeof(float) * np);
-        net->step = step;
+        pipeline_field_restore(net, keep, step);
     }
     free(keep);
     if (s) return s;

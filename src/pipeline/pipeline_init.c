@@ -139,6 +139,22 @@ static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
     return s;
 }
 
+void pipeline_field_keep(const mlb_field* f, float* keep, long* step) {
+    const size_t np = f->n_params;
+    memcpy(keep, f->params, sizeof(float) * np);
+    memcpy(keep + np, f->adam_m, sizeof(float) * np);
+    memcpy(keep + 2 * np, f->adam_v, sizeof(float) * np);
+    *step = f->step;
+}
+
+void pipeline_field_restore(mlb_field* f, const float* keep, long step) {
+    const size_t np = f->n_params;
+    memcpy(f->params, keep, sizeof(float) * np);
+    memcpy(f->adam_m, keep + np, sizeof(float) * np);
+    memcpy(f->adam_v, keep + 2 * np, sizeof(float) * np);
+    f->step = step;
+}
+
 void pipeline_paired_difference(const double* a, const double* b, int n, double* mean, double* se) {
     double m = 0, v = 0;
     for (int k = 0; k < n; k++) m += a[k] - b[k];
@@ -221,13 +237,9 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     // the network as it came (parameters, Adam's moments) and every candidate's fitted parameters
     float* start = malloc(sizeof(float) * 3 * np);
     float* fit = malloc(sizeof(float) * np * N);
-    const long step0 = net->step;
+    long step0 = net->step;
     s = sc && start && fit ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
-    if (!s) {
-        memcpy(start, net->params, sizeof(float) * np);
-        memcpy(start + np, net->adam_m, sizeof(float) * np);
-        memcpy(start + 2 * np, net->adam_v, sizeof(float) * np);
-    }
+    if (!s) pipeline_field_keep(net, start, &step0);
     int vanished[AUTO_MAX] = {0}, first, count;
     // Several processes (dist.h): each fits and scores its share of the candidates alone, and every
     // rank gets all the fits and scores; a candidate's work is the same bits on any rank, so the
@@ -235,10 +247,7 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     mlb_dist_share(N, &first, &count);
     int was = mlb_dist_solo(1);
     for (int i = first; !s && i < first + count; i++) {
-        memcpy(net->params, start, sizeof(float) * np);
-        memcpy(net->adam_m, start + np, sizeof(float) * np);
-        memcpy(net->adam_v, start + 2 * np, sizeof(float) * np);
-        net->step = step0;
+        pipeline_field_restore(net, start, step0);
         s = pipeline_init_shape(net, c, names[i], active_levels);
         if (!s) memcpy(fit + (size_t)i * np, net->params, sizeof(float) * np);
         net->active_levels = active_levels;

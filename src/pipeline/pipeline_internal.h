@@ -71,6 +71,10 @@ void pipeline_shape_fit_key(const mlb_geometry_net* net, const mlb_pipeline_conf
                             uint64_t key[2]);
 int pipeline_shape_fit_recall(const uint64_t key[2], mlb_geometry_net* net, double* loss);
 void pipeline_shape_fit_keep(const uint64_t key[2], const mlb_geometry_net* net, double loss);
+// A network's state (parameters, Adam's moments, step), kept before something is tried on it and put
+// back after: keep [3, n_params].
+void pipeline_field_keep(const mlb_field* f, float* keep, long* step);
+void pipeline_field_restore(mlb_field* f, const float* keep, long step);
 // Mean and standard error of the paired differences a[k] - b[k] over n per-view scores (se infinite
 // for n < 2): how --init auto and the material start tell a real win from the views' noise.
 void pipeline_paired_difference(const double* a, const double* b, int n, double* mean, double* se);

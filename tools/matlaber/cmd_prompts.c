@@ -162,7 +162,9 @@ static int run_item(const item* it, const char* out, int argc, char** argv, cons
     char dir[PATH_CAP], cfg[PATH_CAP + 16];
     snprintf(dir, sizeof dir, "%s/%s", out, it->name);
     snprintf(cfg, sizeof cfg, "%s/config.json", dir);
-    char* args[2 * MAX_TOKENS + 256];
+    // every word of the command line, the line's options and at most 7 of our own, and the NULL
+    char** args = malloc(sizeof(char*) * ((size_t)argc + (size_t)it->n_opts + 8));
+    if (!args) return cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), "--prompts");
     int n = 0;
     args[n++] = "generate";
     *resumed = mlb_is_file(cfg);
@@ -171,7 +173,7 @@ static int run_item(const item* it, const char* out, int argc, char** argv, cons
         args[n++] = dir;
     } else {
         // the command line's options (less --prompts, -o, --stop-after), then the line's
-        for (int i = 1; i < argc && n < 2 * MAX_TOKENS + 200; i++) {
+        for (int i = 1; i < argc; i++) {
             const char* a = argv[i];
             if (!strcmp(a, "--prompts") || !strcmp(a, "-o") || !strcmp(a, "--out") || !strcmp(a, "--stop-after")) { i++; continue; }
             if (!strncmp(a, "--prompts=", 10) || !strncmp(a, "--out=", 6) || !strncmp(a, "--stop-after=", 13)) continue;
@@ -191,6 +193,7 @@ static int run_item(const item* it, const char* out, int argc, char** argv, cons
     int was = mlb_dist_solo(1);   // this process alone: a group of one
     int rc = generate_run_quiet(n, args);
     mlb_dist_solo(was);
+    free(args);
     return rc;
 }
 

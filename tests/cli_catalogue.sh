@@ -51,6 +51,19 @@ grep -q '"caption": "a gold goblet, front view"' "$T/r/captions.json" && grep -q
 expect 0 "render orbit views" -- $M catalogue render --class table --material stone --seed 4 --orbit --views 2 --res 32 -o "$T/o"
 [ -s "$T/o/rgb_001.png" ] && ok "orbit views written" || bad "orbit views missing"
 
+# measure: a catalogue goblet (seed 5: one of the truth's 8 seeds, so no fit is needed) against its
+# class is exact; against the mugs it is far, its stem not a handle
+expect 0 "export a goblet (seed 5)" -- $M catalogue export --class goblet --seed 5 -o "$T/g5.obj"
+expect 0 "measure it as a goblet" -- $M catalogue measure "$T/g5.obj" --class goblet --shape-fit 0
+grep -q "nearest class goblet" "$T/out" && grep -q "stem 0.00" "$T/out" && ok "the goblet: nearest, its stem present" || bad "measure: $(cat "$T/out")"
+deg=$(sed -n 's/.*normal error \([0-9.]*\) deg.*/\1/p' "$T/out")
+awk -v d="$deg" 'BEGIN { exit !(d < 5) }' && ok "its normals agree ($deg deg)" || bad "normal error $deg"
+expect 0 "measure it as a mug" -- $M catalogue measure "$T/g5.obj" --class mug --shape-fit 0
+grep -q "nearest class goblet" "$T/out" && grep -q "handle 0.[0-9]* (missing)" "$T/out" && ok "as a mug: the handle missing" || bad "measure: $(cat "$T/out")"
+expect 2 "measure without --class" -- $M catalogue measure "$T/g5.obj"
+expect 1 "measure a missing file" -- $M catalogue measure "$T/none.obj" --class mug
+err_has "names the file" "none.obj"
+
 # errors
 expect 2 "unknown subcommand" -- $M catalogue draw
 expect 2 "export needs --class" -- $M catalogue export -o "$T/x.obj"

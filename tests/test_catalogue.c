@@ -196,6 +196,75 @@ TEST(mesh_params) {
     CHECK(mlb_catalogue_mesh_params(99, u, &m) == MLB_ERR_ARG);
 }
 
+// Face centroid f of m: c[3].
+static void centroid(const mlb_mesh* m, int f, float c[3]) {
+    for (int k = 0; k < 3; k++) {
+        c[k] = 0;
+        for (int j = 0; j < 3; j++) c[k] += m->pos[3 * (size_t)m->faces[3 * f + j] + k] / 3;
+    }
+}
+
+// The named parts: the same mesh as mlb_catalogue_mesh_params, every part carried by some faces of
+// every member, and each where it belongs: stems near the axis and below the rest, legs reaching
+// far below the top, the mug's handle and the teapot's spout on +x and its handle on -x, the lamp's shade above
+// its pole, the ring's hole the tube's inner half.
+TEST(parts) {
+    const char* const want[][3] = {{"goblet", "stem", NULL}, {"mushroom", "stem", NULL}, {"lamp", "stem", "shade"},
+                                   {"table", "legs", NULL}, {"stool", "legs", NULL}, {"mug", "handle", NULL},
+                                   {"teapot", "spout", "handle"}, {"ring", "hole", NULL}, {"vase", NULL, NULL},
+                                   {"bowl", NULL, NULL}, {"bottle", NULL, NULL}};
+    CHECK((int)(sizeof want / sizeof want[0]) == mlb_catalogue_n_classes());
+    for (size_t w = 0; w < sizeof want / sizeof want[0]; w++) {
+        int c;
+        REQUIRE(mlb_catalogue_class_parse(want[w][0], &c) == MLB_OK);
+        int n = mlb_catalogue_class_n_parts(c);
+        CHECK_MSG(n == (want[w][1] != NULL) + (want[w][2] != NULL), "%s: %d parts", want[w][0], n);
+        for (int k = 1; k <= n; k++) CHECK(!strcmp(mlb_catalogue_part_name(c, k), want[w][k]));
+        CHECK(mlb_catalogue_part_name(c, 0) == NULL && mlb_catalogue_part_name(c, n + 1) == NULL);
+        for (uint64_t seed = 0; seed < 4; seed++) {
+            float u[MLB_CATALOGUE_MAX_PARAMS];
+            mlb_catalogue_seed_params(c, seed, u);
+            mlb_mesh a, b;
+            uint8_t* part = NULL;
+            REQUIRE(mlb_catalogue_mesh_params(c, u, &a) == MLB_OK);
+            REQUIRE(mlb_catalogue_mesh_parts(c, u, &b, &part) == MLB_OK && part);
+            CHECK(a.n_faces == b.n_faces && !memcmp(a.pos, b.pos, sizeof(float) * 3 * a.n_verts) &&
+                  !memcmp(a.faces, b.faces, sizeof(int32_t) * 3 * a.n_faces));
+            int count[MLB_CATALOGUE_MAX_PARTS + 1] = {0};
+            float rmax[3] = {0}, ymin[3] = {1e9f, 1e9f, 1e9f}, ymax[3] = {-1e9f, -1e9f, -1e9f}, xmin[3] = {1e9f, 1e9f, 1e9f};
+            float xmax[3] = {-1e9f, -1e9f, -1e9f}, rxy_min[3] = {1e9f, 1e9f, 1e9f}, rxy_max[3] = {0};
+            for (int f = 0; f < b.n_faces; f++) {
+                REQUIRE(part[f] <= n);
+                int p = part[f];
+                count[p]++;
+                float q[3];
+                centroid(&b, f, q);
+                float r = hypotf(q[0], q[2]), rxy = hypotf(q[0], q[1]);
+                rmax[p] = fmaxf(rmax[p], r), ymin[p] = fminf(ymin[p], q[1]), ymax[p] = fmaxf(ymax[p], q[1]);
+                xmin[p] = fminf(xmin[p], q[0]), xmax[p] = fmaxf(xmax[p], q[0]);
+                rxy_min[p] = fminf(rxy_min[p], rxy), rxy_max[p] = fmaxf(rxy_max[p], rxy);
+            }
+            for (int k = 1; k <= n; k++) CHECK_MSG(count[k] > 0, "%s seed %d: no %s", want[w][0], (int)seed, want[w][k]);
+            const char* nm = want[w][0];
+            if (!strcmp(nm, "goblet") || !strcmp(nm, "mushroom"))   // a stem: near the axis, under the rest
+                CHECK_MSG(rmax[1] < 0.5f * rmax[0] && ymax[1] <= ymax[0], "%s: stem r %g of %g", nm, rmax[1], rmax[0]);
+            if (!strcmp(nm, "lamp")) CHECK(rmax[1] < 0.2f * rmax[2] && ymax[1] <= ymin[2] + 0.01f);
+            if (!strcmp(nm, "table") || !strcmp(nm, "stool")) CHECK(ymin[1] < ymin[0] - 0.3f);   // down to the floor
+            if (!strcmp(nm, "mug")) CHECK(xmin[1] > 0);
+            if (!strcmp(nm, "teapot")) CHECK(xmin[1] > 0 && xmax[2] < 0);
+            if (!strcmp(nm, "ring")) CHECK(rxy_max[1] <= rxy_min[0] + 0.02f && count[1] > count[0] / 3);
+            free(part);
+            mlb_mesh_free(&a);
+            mlb_mesh_free(&b);
+        }
+    }
+    mlb_mesh m;
+    uint8_t* part;
+    float u[MLB_CATALOGUE_MAX_PARAMS] = {0};
+    CHECK(mlb_catalogue_mesh_parts(0, u, &m, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_catalogue_mesh_parts(99, u, &m, &part) == MLB_ERR_ARG && part == NULL);
+}
+
 // Classes are told apart: the Chamfer distance between two classes' canonical shapes is well above
 // the distance between a class's canonical shape and its seeded variations.
 TEST(classes_distinguishable) {
@@ -317,6 +386,7 @@ int main(void) {
     RUN(captions);
     RUN(meshes);
     RUN(mesh_params);
+    RUN(parts);
     RUN(classes_distinguishable);
     RUN(samples);
     RUN(renders);

@@ -365,6 +365,102 @@ TEST(chamfer_many_matches_chamfer) {
     mlb_mesh_free(&a);
 }
 
+// A square [0, 1]² in the plane z = 0 (two triangles), turned by `deg` about the x axis through
+// its centre line y = 0.5, and lifted by dz.
+static void square(mlb_mesh* m, float* pos, int32_t* faces, double deg, float dz) {
+    static const float xy[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    double c = cos(deg * M_PI / 180), s = sin(deg * M_PI / 180);
+    for (int i = 0; i < 4; i++) {
+        double y = xy[i][1] - 0.5;
+        pos[3 * i] = xy[i][0], pos[3 * i + 1] = (float)(0.5 + c * y), pos[3 * i + 2] = (float)(s * y) + dz;
+    }
+    static const int32_t f[6] = {0, 1, 2, 0, 2, 3};
+    memcpy(faces, f, sizeof f);
+    memset(m, 0, sizeof *m);
+    m->pos = pos, m->faces = faces, m->n_verts = 4, m->n_faces = 2;
+}
+
+// The nearest face and the masked sampler: the face each point came from is the one nearest to it
+// (points on a surface), a mask restricts the samples to its faces, and no mask is bitwise
+// mlb_mesh_sample_surface.
+TEST(nearest_faces_and_masked_samples) {
+    mlb_mesh m;
+    REQUIRE(mlb_catalogue_mesh(3, 1, &m) == MLB_OK);   // a mug
+    enum { N = 500 };
+    float p[3 * N], q[3 * N], d[N];
+    int32_t from[N], near[N];
+    REQUIRE(mlb_mesh_sample_surface(&m, q, N, 5, 9) == MLB_OK);
+    REQUIRE(mlb_mesh_sample_faces(&m, NULL, p, from, N, 5, 9) == MLB_OK);
+    CHECK(memcmp(p, q, sizeof p) == 0);
+    mlb_mesh_bvh b;
+    REQUIRE(mlb_mesh_bvh_build(&b, &m) == MLB_OK);
+    mlb_mesh_bvh_nearest_faces(&b, p, d, near, N);
+    int same = 0;
+    for (int i = 0; i < N; i++) {
+        CHECK(d[i] < 1e-5f);
+        // the point's own face, or a neighbour it lies on as well (an edge) at distance ~0
+        const int32_t *a = m.faces + 3 * (size_t)from[i], *e = m.faces + 3 * (size_t)near[i];
+        double q2[3] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]};
+        same += near[i] == from[i];
+        CHECK(mlb_point_triangle_dist2(q2, m.pos + 3 * e[0], m.pos + 3 * e[1], m.pos + 3 * e[2]) < 1e-10);
+        (void)a;
+    }
+    CHECK_MSG(same > N * 9 / 10, "%d of %d on their own face", same, N);
+    uint8_t* mask = calloc((size_t)m.n_faces, 1);
+    REQUIRE(mask);
+    for (int f = 0; f < m.n_faces; f += 7) mask[f] = 1;
+    REQUIRE(mlb_mesh_sample_faces(&m, mask, p, from, N, 5, 9) == MLB_OK);
+    for (int i = 0; i < N; i++) CHECK(mask[from[i]]);
+    memset(mask, 0, (size_t)m.n_faces);
+    CHECK(mlb_mesh_sample_faces(&m, mask, p, from, N, 5, 9) == MLB_ERR_ARG);   // no area left
+    free(mask);
+    mlb_mesh_bvh_free(&b);
+    mlb_mesh_free(&m);
+}
+
+// The surface measures on cases with a known answer: a square against itself lifted by 0.1 (every
+// distance 0.1, normals equal), turned by 30° about its centre line (every normal 30° off), and a
+// square half of which is labelled a part and half of which the asset lacks.
+TEST(surface_compare_analytic) {
+    float pa[12], pb[12];
+    int32_t fa[6], fb[6];
+    mlb_mesh a, b;
+    mlb_surface_result r;
+    square(&b, pb, fb, 0, 0);
+    const double diag = sqrt(2.0);
+    square(&a, pa, fa, 0, 0.1f);
+    REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
+    CHECK_CLOSE(r.diag, diag, 1e-6, 0);
+    CHECK_CLOSE(r.normal_deg, 0, 0, 1e-4);
+    CHECK_CLOSE(r.accuracy, 0.1 / diag, 1e-5, 0);
+    CHECK_CLOSE(r.completeness, 0.1 / diag, 1e-5, 0);
+    CHECK(isnan(r.part_completeness[0]));
+    square(&a, pa, fa, 30, 0);
+    REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
+    CHECK_CLOSE(r.normal_deg, 30, 1e-5, 0);
+    // the asset turned upside down (winding reversed): every normal 180° off
+    int32_t flip[6] = {0, 2, 1, 0, 3, 2};
+    square(&a, pa, fa, 0, 0.0f);
+    a.faces = flip;
+    REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
+    CHECK_CLOSE(r.normal_deg, 180, 1e-5, 0);
+    // the truth's triangle (0 1 2) is part 1, (0 2 3) part 2; the asset is triangle (0 1 2) alone:
+    // part 1 is complete, part 2's far corner (0, 1) is sqrt(0.5) from the asset's hypotenuse
+    square(&a, pa, fa, 0, 0);
+    a.n_faces = 1;
+    uint8_t part[2] = {1, 2};
+    REQUIRE(mlb_surface_compare(&a, &b, part, 2, 4000, 1, &r) == MLB_OK);
+    CHECK_CLOSE(r.part_completeness[0], 0, 0, 1e-6);
+    // distances from the far corner's triangle to the diagonal y = x: the 95th percentile of
+    // (y - x)/sqrt2 over a uniform triangle, 1 - sqrt(0.05) of the corner's sqrt(0.5), /diag
+    double p95 = (1 - sqrt(0.05)) * sqrt(0.5) / diag;
+    CHECK_CLOSE(r.part_completeness[1], p95, 0.03, 0);
+    CHECK(r.completeness > 0.5 * p95 && r.completeness < p95);   // half the truth is complete
+    CHECK_CLOSE(r.accuracy, 0, 0, 1e-6);                          // and the asset lies on it
+    CHECK(mlb_surface_compare(&a, &b, part, MLB_SURFACE_MAX_PARTS + 1, 400, 1, &r) == MLB_ERR_ARG);
+    CHECK(mlb_surface_compare(&a, &b, NULL, 0, 1, 1, &r) == MLB_ERR_ARG);
+}
+
 int main(void) {
     RUN(triangle_never_nearer_than_its_box);
     RUN(degenerate_triangle_distance);
@@ -375,5 +471,7 @@ int main(void) {
     RUN(threads_same_bits);
     RUN(lopsided_tree_stays_shallow);
     RUN(chamfer_many_matches_chamfer);
+    RUN(nearest_faces_and_masked_samples);
+    RUN(surface_compare_analytic);
     return test_summary();
 }

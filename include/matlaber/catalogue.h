@@ -62,6 +62,15 @@ mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out);
 int mlb_catalogue_class_n_params(int c);
 int mlb_catalogue_seed_params(int c, uint64_t seed, float u[MLB_CATALOGUE_MAX_PARAMS]);
 mlb_status mlb_catalogue_mesh_params(int c, const float* u, mlb_mesh* out);
+// Named parts: the thin ones a generation may lose (goblet, mushroom and lamp stems, the lamp's
+// shade, table and stool legs, mug and teapot handles, the teapot's spout, the ring's hole: the
+// inner half of its tube). Part k of class c is 1..mlb_catalogue_class_n_parts(c) (at most
+// MLB_CATALOGUE_MAX_PARTS); mlb_catalogue_mesh_parts is mlb_catalogue_mesh_params with each face's
+// part (0: none) in *part ([n_faces], malloc'd: free() it).
+#define MLB_CATALOGUE_MAX_PARTS 2
+int mlb_catalogue_class_n_parts(int c);
+const char* mlb_catalogue_part_name(int c, int k);   // NULL when out of range
+mlb_status mlb_catalogue_mesh_parts(int c, const float* u, mlb_mesh* out, uint8_t** part);
 
 // ---- materials ----
 int mlb_catalogue_n_materials(void);

@@ -149,6 +149,7 @@ typedef struct {
     int depth;            // levels, the root's included
     mlb_bvh_node* nodes;  // [n_nodes], the root first; NULL when n_tris = 0
     float* tri;           // [n_tris, 9] corners, in leaf order
+    int32_t* face;        // [n_tris]: each one's face in the mesh
 } mlb_mesh_bvh;
 // Copies what it needs: the mesh may change or go afterwards. MLB_ERR_NOMEM, or MLB_ERR_ARG beyond
 // 2^29 faces; *b zeroed on failure.
@@ -159,8 +160,15 @@ void mlb_mesh_bvh_free(mlb_mesh_bvh* b);   // safe on a zeroed one
 double mlb_mesh_bvh_dist2(const mlb_mesh_bvh* b, const double q[3]);
 // mlb_mesh_distance with a built BVH: out[i] = (float)sqrt(dist2(p_i)). Parallel over points.
 void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, int n);
+// The same, and face[i]: the mesh face nearest p_i (the lowest-numbered in leaf order of those at
+// that distance; -1 without triangles). face may be NULL.
+void mlb_mesh_bvh_nearest_faces(const mlb_mesh_bvh* b, const float* p, float* out, int32_t* face, int n);
 // n area-uniform points on the mesh's triangles (Philox (seed, stream)); MLB_ERR_ARG for zero area.
 mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t seed, uint64_t stream);
+// The same on the triangles f with mask[f] != 0 (mask NULL: all, bitwise mlb_mesh_sample_surface),
+// and each point's triangle in face[i] (face may be NULL). MLB_ERR_ARG when they have no area.
+mlb_status mlb_mesh_sample_faces(const mlb_mesh* m, const uint8_t* mask, float* p, int32_t* face, int n, uint64_t seed,
+                                 uint64_t stream);
 
 // ---- the SDF initialisation ------------------------------------------------------------------
 typedef struct {
@@ -196,5 +204,22 @@ mlb_status mlb_chamfer(const mlb_mesh* a, const mlb_mesh* b, int n, uint64_t see
 // each b[j]) when they are measured against often. The first failing target's error, naming it.
 mlb_status mlb_chamfer_many(const mlb_mesh* a, const mlb_mesh* b, const mlb_mesh_bvh* b_bvh, int m, int n, uint64_t seed,
                             mlb_chamfer_result* r);
+
+// ---- surface agreement (surface_compare.c) ---------------------------------------------------
+#define MLB_SURFACE_MAX_PARTS 4
+typedef struct {
+    double normal_deg;       // mean angle (degrees) between the asset's shading normal (area-weighted
+                             //   vertex normals of its positions, interpolated) at n area-uniform
+                             //   samples and the face normal of the truth's nearest face
+    double accuracy;         // 95th percentile of the samples' distances to the truth / diag
+    double completeness;     // 95th percentile of distances from n samples on the truth to the asset / diag
+    double part_completeness[MLB_SURFACE_MAX_PARTS];   // the same on part k + 1's faces alone (n samples
+                             //   there); NAN for a part the truth's faces do not carry
+    double diag;             // the truth's bounding-box diagonal
+} mlb_surface_result;
+// The asset's surface against the truth's: part NULL, or a label per truth face (0: no part,
+// 1..n_parts: a named part). Philox (seed); the same bits for any thread count.
+mlb_status mlb_surface_compare(const mlb_mesh* asset, const mlb_mesh* truth, const uint8_t* part, int n_parts, int n,
+                               uint64_t seed, mlb_surface_result* r);
 
 #endif

@@ -11,6 +11,13 @@
 //   relight   PSNR (mlb_eval_relight) of the asset against the truth instance (prompted class, its
 //             best shape seed, the true material everywhere) under a light no run sees (default the
 //             built-in "white"; the pipeline's pool is sky, studio, overcast).
+//   surface   what a person sees (mlb_surface_compare against the truth instance): the mean angle
+//             between the asset's face normals and the truth's nearest ones; completeness (truth ->
+//             asset) and accuracy (asset -> truth), 95th percentiles of the distances relative to the
+//             truth's diagonal; completeness on each named part (catalogue.h: legs, handles, stems,
+//             spout, shade, the ring's hole) alone.
+//   colour    the catalogue material the median BRDF's colour reads as (mlb_text3d_colour_of): metals
+//             told apart by the specular colour, dielectrics by the diffuse colour.
 #ifndef MATLABER_TEXT3D_H
 #define MATLABER_TEXT3D_H
 #include <stddef.h>
@@ -31,6 +38,12 @@
 #define MLB_TEXT3D_METAL_KS 0.3
 #define MLB_TEXT3D_METAL_KD 0.15
 int mlb_text3d_is_metal(const float k[7]);
+// The catalogue material whose colour is nearest k's, among the metals when k is a metal by the rule
+// above (their specular colours' chromaticity: ks over its largest channel) and else among the
+// dielectrics (the diffuse colour, lightness included); distances between sRGB-encoded colours.
+int mlb_text3d_colour_of(const float k[7]);
+// A part is present when its completeness is at most this fraction of the truth's diagonal.
+#define MLB_TEXT3D_PART_PRESENT 0.05
 
 // ---- the truth shapes: n_seeds meshes (seeds 0 .. n_seeds-1) of every class, built once ------
 typedef struct {
@@ -52,6 +65,7 @@ typedef struct {
     // whose best seed is within fit_margin times the nearest class's: 64 rounds, 1.5.
     int fit_rounds;
     double fit_margin;
+    int surface_samples;     // points on each side of the surface measures (and on each part): 4000
 } mlb_text3d_measure_config;
 mlb_text3d_measure_config mlb_text3d_measure_default(void);
 
@@ -76,6 +90,11 @@ typedef struct {
     // the nearest of the three (the one-sided part on both sides), mirrored = 1 when M is.
     int janus, mirrored;
     double chamfer_truth, chamfer_mirror, chamfer_both;
+    // the surface against the truth instance (mlb_surface_compare)
+    double normal_deg, accuracy, completeness;
+    double part_completeness[MLB_CATALOGUE_MAX_PARTS];   // the class's parts; NAN beyond them
+    double thin;                  // the largest part completeness (NAN for a class without parts)
+    int colour_pred, colour_ok;   // mlb_text3d_colour_of(median_k), == mat
 } mlb_text3d_scores;
 
 // Per-channel median of k [n, 7] into out.
@@ -137,6 +156,12 @@ typedef struct {
     double relight_psnr;              // mean
     int n_janus_measured;             // assets of classes with a mirror axis (text3d_scores janus)
     int n_janus, n_mirrored;          //   of which two-faced, mirrored
+    // the surface (failed generations: infinite in the medians and the worst, not present, wrong)
+    double median_normal_deg, max_normal_deg;
+    double median_completeness, median_accuracy;
+    int n_with_parts, n_parts_present;   // prompts of classes with parts; of which every part present
+    double colour_acc;
+    double colour_acc_by_material[MLB_TEXT3D_MAX_CLASSES];   // NAN for a material with no prompt
     double seconds;                   // the whole invocation
 } mlb_text3d_summary;
 
@@ -151,6 +176,12 @@ void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb
 // The table (one row per prompt) and the summary, as Markdown.
 void mlb_text3d_print(FILE* f, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows, int n,
                       const mlb_text3d_summary* sum);
+// The contact sheet: each row's truth instance in its true material beside its asset (grey when the
+// generation failed), one view (azimuth 30°, elevation 20°) at res² under the built-in light or file
+// env (built at env_height rows and cube_size faces), `cols` pairs a line, labelled with the
+// caption and the asset's normal error and colour; an 8-bit PNG at path.
+mlb_status mlb_text3d_sheet_write(const char* path, const mlb_text3d_row* rows, int n, const char* env, int env_height,
+                                  int cube_size, int res, int cols);
 mlb_status mlb_text3d_write_json(const char* path, const mlb_text3d_bench_config* c, const mlb_text3d_row* rows,
                                  int n, const mlb_text3d_summary* sum);
 

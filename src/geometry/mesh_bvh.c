@@ -170,8 +170,9 @@ mlb_status mlb_mesh_bvh_build(mlb_mesh_bvh* b, const mlb_mesh* m) {
     bvh_item* items = malloc(sizeof(bvh_item) * cap);
     mlb_bvh_node* nodes = malloc(sizeof(mlb_bvh_node) * 2 * cap);
     float* tri = malloc(sizeof(float) * 9 * cap);
-    if (!items || !nodes || !tri) {
-        free(items); free(nodes); free(tri);
+    int32_t* face = malloc(sizeof(int32_t) * cap);
+    if (!items || !nodes || !tri || !face) {
+        free(items); free(nodes); free(tri); free(face);
         return mlb_fail(MLB_ERR_NOMEM, "mesh BVH: out of memory (%d faces)", F);
     }
     // triangles with a non-finite coordinate have no distance: left out (their box would be NaN)
@@ -199,12 +200,15 @@ mlb_status mlb_mesh_bvh_build(mlb_mesh_bvh* b, const mlb_mesh* m) {
         for (int i = 0; i < n; i++) {
             const int32_t* t = m->faces + 3 * (size_t)items[i].face;
             for (int c = 0; c < 3; c++) memcpy(tri + 9 * (size_t)i + 3 * c, m->pos + 3 * (size_t)t[c], sizeof(float) * 3);
+            face[i] = items[i].face;
         }
         b->nodes = nodes;
         b->tri = tri;
+        b->face = face;
     } else {
         free(nodes);
         free(tri);
+        free(face);
     }
     free(items);
     return MLB_OK;
@@ -214,6 +218,7 @@ void mlb_mesh_bvh_free(mlb_mesh_bvh* b) {
     if (!b) return;
     free(b->nodes);
     free(b->tri);
+    free(b->face);
     memset(b, 0, sizeof *b);
 }
 
@@ -323,7 +328,7 @@ static int morton_order(const float* p, int n, int32_t* order) {
     return 1;
 }
 
-void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, int n) {
+void mlb_mesh_bvh_nearest_faces(const mlb_mesh_bvh* b, const float* p, float* out, int32_t* face, int n) {
     if (n < 1) return;
     // In Morton order consecutive points are near each other, so the previous point's nearest
     // triangle is a tight first bound (and the nodes they visit are still in cache): ~2x fewer
@@ -336,6 +341,11 @@ void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, in
         size_t i = order ? (size_t)order[j] : (size_t)j;
         double q[3] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]};
         out[i] = (float)sqrt(nearest(b, q, &hint));
+        if (face) face[i] = hint >= 0 ? b->face[hint] : -1;
     }
     free(order);
+}
+
+void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, int n) {
+    mlb_mesh_bvh_nearest_faces(b, p, out, NULL, n);
 }

@@ -277,14 +277,15 @@ void mlb_shape_sdf(const mlb_shape* s, const float* p, float* out, int n) {
 
 // ---- sampling ----------------------------------------------------------------------------------
 
-mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t seed, uint64_t stream) {
+mlb_status mlb_mesh_sample_faces(const mlb_mesh* m, const uint8_t* mask, float* p, int32_t* face, int n, uint64_t seed,
+                                 uint64_t stream) {
     int F = m->n_faces;
     double* cdf = malloc(sizeof(double) * (size_t)(F > 0 ? F : 1));
     if (!cdf) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     double total = 0;
     for (int f = 0; f < F; f++) {
         const int32_t* t = m->faces + 3 * f;
-        total += tri_area(m->pos + 3 * t[0], m->pos + 3 * t[1], m->pos + 3 * t[2]);
+        if (!mask || mask[f]) total += tri_area(m->pos + 3 * t[0], m->pos + 3 * t[1], m->pos + 3 * t[2]);
         cdf[f] = total;
     }
     if (!(total > 0)) { free(cdf); return mlb_fail(MLB_ERR_ARG, "mesh sampling: zero surface area"); }
@@ -292,16 +293,21 @@ mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t 
     for (int i = 0; i < n; i++) {
         mlb_u32x4 w = mlb_rng_words(seed, stream, (uint64_t)i);
         double u = mlb_u32_to_unit(w.v[0]) * total;
-        int lo = 0, hi = F - 1;
+        int lo = 0, hi = F - 1;   // the first face whose running area passes u (a masked face adds none)
         while (lo < hi) { int mid = (lo + hi) / 2; if (cdf[mid] > u) hi = mid; else lo = mid + 1; }
         const int32_t* t = m->faces + 3 * lo;
         double r1 = sqrt(mlb_u32_to_unit(w.v[1])), r2 = mlb_u32_to_unit(w.v[2]);
         double ba = 1 - r1, bb = r1 * (1 - r2), bc = r1 * r2;
         for (int k = 0; k < 3; k++)
             p[3 * i + k] = (float)(ba * m->pos[3 * t[0] + k] + bb * m->pos[3 * t[1] + k] + bc * m->pos[3 * t[2] + k]);
+        if (face) face[i] = lo;
     }
     free(cdf);
     return MLB_OK;
+}
+
+mlb_status mlb_mesh_sample_surface(const mlb_mesh* m, float* p, int n, uint64_t seed, uint64_t stream) {
+    return mlb_mesh_sample_faces(m, NULL, p, NULL, n, seed, stream);
 }
 
 void mlb_shape_surface_samples(const mlb_shape* s, float* p, int n, uint64_t seed, uint64_t stream) {

@@ -17,7 +17,9 @@
 typedef struct {
     float* pos;       // [nv, 3]
     int32_t* faces;   // [nf, 3]
+    uint8_t* part;    // [nf]: the named part each face belongs to (0: none), `part_now` when added
     int nv, nf, cap_v, cap_f;
+    int part_now;
     int oom;
 } builder;
 
@@ -39,10 +41,23 @@ static void add_face(builder* b, int i, int j, int k) {
         int n = b->cap_f ? 2 * b->cap_f : 2048;
         int32_t* f = realloc(b->faces, sizeof(int32_t) * 3 * (size_t)n);
         if (!f) { b->oom = 1; return; }
-        b->faces = f, b->cap_f = n;
+        b->faces = f;
+        uint8_t* pt = realloc(b->part, (size_t)n);
+        if (!pt) { b->oom = 1; return; }
+        b->part = pt, b->cap_f = n;
     }
+    b->part[b->nf] = (uint8_t)b->part_now;
     int32_t* f = b->faces + 3 * (size_t)b->nf++;
     f[0] = i, f[1] = j, f[2] = k;
+}
+
+// Faces from f0 on whose centroid height lies in (y0, y1) become part k: a lathe's stem or shade.
+static void part_by_height(builder* b, int f0, float y0, float y1, int k) {
+    for (int f = f0; !b->oom && f < b->nf; f++) {
+        const int32_t* t = b->faces + 3 * (size_t)f;
+        float y = (b->pos[3 * t[0] + 1] + b->pos[3 * t[1] + 1] + b->pos[3 * t[2] + 1]) / 3;
+        if (y > y0 && y < y1) b->part[f] = (uint8_t)k;
+    }
 }
 
 // ---- swept rings ----------------------------------------------------------------------------------
@@ -234,6 +249,7 @@ static void goblet(builder* b, params* q) {
     float top = y0 + cup_h;
     PT(cup_r * 0.97f, top); PT(cup_r * 0.8f, top); PT(cup_r * 0.45f, top - 0.12f); PT(0, top - 0.14f);
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
+    part_by_height(b, 0, 0.14f, y0, 1);   // the stem with its flare: above the foot's slope, below the bowl
 }
 
 static void vase(builder* b, params* q) {
@@ -292,7 +308,9 @@ static void mug(builder* b, params* q) {
     float Rb = R * taper;
     PT(0, 0); PT(Rb - 0.02f, 0); PT(Rb, 0.02f); PT(R, H); PT(R - wall, H); PT(Rb - wall, 0.12f); PT(0, 0.12f);
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
+    b->part_now = 1;
     handle(b, 1, 0.5f * (R + Rb), 0.5f * H, reach, hh * H, hr);
+    b->part_now = 0;
 }
 
 static void bottle(builder* b, params* q) {
@@ -318,6 +336,7 @@ static void mushroom(builder* b, params* q) {
     PT(c * 0.9f, h + 0.04f); PT(c, h + 0.1f);   // gills, the cap's edge
     arc(prof, &np, c, h + 0.1f, 0, h + 0.1f + ch, 12, 1);   // up, then in: a dome
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
+    part_by_height(b, 0, 0.02f, h, 1);   // the stem, less its base disc
 }
 
 // A slab: a unit disc profile of thickness th at height y, rounded edge, cross-section scaled.
@@ -331,6 +350,7 @@ static void table(builder* b, params* q) {
     float wx = P(q, 0.8f, 1.0f), wz = P(q, 0.42f, 0.6f), th = P(q, 0.06f, 0.1f), H = P(q, 0.65f, 0.9f);
     float lr = P(q, 0.035f, 0.055f), inset = P(q, 0.06f, 0.14f);
     slab(b, H, th, wx, wz, 8);
+    b->part_now = 1;   // the legs
     for (int i = 0; i < 4; i++) {
         float x = (i & 1 ? 1 : -1) * (wx - inset), z = (i & 2 ? 1 : -1) * (wz - inset);
         float pts[2][3] = {{x, lr, z}, {x, H - th * 0.5f, z}}, rr[2] = {lr * 0.8f, lr};
@@ -342,6 +362,7 @@ static void stool(builder* b, params* q) {
     float R = P(q, 0.45f, 0.55f), th = P(q, 0.07f, 0.11f), H = P(q, 0.75f, 0.95f), lr = P(q, 0.035f, 0.05f);
     float splay = P(q, 1.1f, 1.3f);
     slab(b, H, th, R, R, 2);
+    b->part_now = 1;   // the legs
     for (int i = 0; i < 3; i++) {   // leg 0 to the front (+z)
         double a = 2 * M_PI * i / 3;
         float top_r = 0.7f * R, bot_r = 0.7f * R * splay;
@@ -360,6 +381,8 @@ static void lamp(builder* b, params* q) {
     PT(0, 0); PT(base, 0); PT(base, 0.05f); PT(base * 0.85f, 0.09f); PT(pole * 1.6f, 0.11f); PT(pole, 0.14f);
     PT(pole, ph); PT(sb, ph + 0.02f); PT(sb, ph + 0.05f); PT(st, ph + sh); PT(0, ph + sh);
     lathe(b, (const float(*)[2])prof, np, 1, 1, 2, MLB_CATALOGUE_SEGMENTS);
+    part_by_height(b, 0, 0.14f, ph, 1);        // the pole
+    part_by_height(b, 0, ph, ph + sh + 1, 2);  // the shade
 }
 
 static void ring(builder* b, params* q) {
@@ -372,6 +395,13 @@ static void ring(builder* b, params* q) {
         rr[i] = minor;
     }
     tube(b, (const float(*)[3])pts, rr, N, 1);
+    // the hole: the tube's inner half, facing the centre (a filled hole leaves it far from the surface)
+    for (int f = 0; f < b->nf; f++) {
+        const int32_t* t = b->faces + 3 * (size_t)f;
+        float x = 0, y = 0;
+        for (int j = 0; j < 3; j++) x += b->pos[3 * t[j]] / 3, y += b->pos[3 * t[j] + 1] / 3;
+        if (x * x + (y / squash) * (y / squash) < 1) b->part[f] = 1;
+    }
 }
 
 static void teapot(builder* b, params* q) {
@@ -388,8 +418,11 @@ static void teapot(builder* b, params* q) {
     // spout on +x: from inside the body up and out, tapering
     float pts[4][3] = {{R * 0.7f, 0.3f * H, 0}, {R + 0.1f, 0.45f * H, 0}, {R + 0.5f * sp, 0.7f * H, 0}, {R + sp, 0.95f * H, 0}};
     float rr[4] = {0.1f, 0.075f, 0.055f, 0.045f};
+    b->part_now = 1;
     tube(b, (const float(*)[3])pts, rr, 4, 0);
+    b->part_now = 2;
     handle(b, -1, R * 0.93f, 0.5f * H, 0.25f, 0.3f * H, hr);
+    b->part_now = 0;
 }
 
 typedef void (*shape_fn)(builder*, params*);
@@ -397,6 +430,19 @@ static const shape_fn SHAPES[MLB_CATALOGUE_N_CLASSES] = {goblet, vase, bowl, mug
 
 // How many parameters each shape function draws (P calls, none conditional); checked at every build.
 static const int N_PARAMS[MLB_CATALOGUE_N_CLASSES] = {6, 6, 3, 6, 5, 4, 6, 5, 6, 2, 5};
+// The named parts each shape function labels (part 1, 2, ...): the thin ones a generation may lose.
+static const char* const PARTS[MLB_CATALOGUE_N_CLASSES][MLB_CATALOGUE_MAX_PARTS] = {
+    {"stem"}, {0}, {0}, {"handle"}, {0}, {"stem"}, {"legs"}, {"legs"}, {"stem", "shade"}, {"hole"}, {"spout", "handle"}};
+
+int mlb_catalogue_class_n_parts(int c) {
+    int n = 0;
+    while (c >= 0 && c < MLB_CATALOGUE_N_CLASSES && n < MLB_CATALOGUE_MAX_PARTS && PARTS[c][n]) n++;
+    return n;
+}
+
+const char* mlb_catalogue_part_name(int c, int k) {
+    return k >= 1 && k <= mlb_catalogue_class_n_parts(c) ? PARTS[c][k - 1] : NULL;
+}
 
 int mlb_catalogue_class_n_params(int c) { return c >= 0 && c < MLB_CATALOGUE_N_CLASSES ? N_PARAMS[c] : 0; }
 
@@ -406,7 +452,8 @@ int mlb_catalogue_seed_params(int c, uint64_t seed, float u[MLB_CATALOGUE_MAX_PA
     return n;
 }
 
-static mlb_status build(int c, uint64_t seed, const float* u, mlb_mesh* out) {
+static mlb_status build(int c, uint64_t seed, const float* u, mlb_mesh* out, uint8_t** part) {
+    if (part) *part = NULL;
     if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_catalogue_mesh: NULL mesh");
     memset(out, 0, sizeof *out);
     if (c < 0 || c >= MLB_CATALOGUE_N_CLASSES)
@@ -415,11 +462,11 @@ static mlb_status build(int c, uint64_t seed, const float* u, mlb_mesh* out) {
     params q = {seed, u, c, 0};
     SHAPES[c](&b, &q);
     if (q.k != N_PARAMS[c]) {
-        free(b.pos); free(b.faces);
+        free(b.pos); free(b.faces); free(b.part);
         return mlb_fail(MLB_ERR_ARG, "catalogue: a %s draws %d parameters, N_PARAMS says %d", mlb_catalogue_class_name(c), q.k, N_PARAMS[c]);
     }
     if (b.oom || !b.nv || !b.nf) {
-        free(b.pos); free(b.faces);
+        free(b.pos); free(b.faces); free(b.part);
         return mlb_fail(MLB_ERR_NOMEM, "catalogue: out of memory building a %s", mlb_catalogue_class_name(c));
     }
     // into the frame: bounding box centred at the origin, farthest vertex at MLB_CATALOGUE_RADIUS
@@ -443,12 +490,19 @@ static mlb_status build(int c, uint64_t seed, const float* u, mlb_mesh* out) {
     out->n_faces = b.nf;
     mlb_status s = mlb_mesh_compute_normals(out);
     if (s) mlb_mesh_free(out);
+    if (!s && part) *part = b.part;
+    else free(b.part);
     return s;
 }
 
-mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out) { return build(c, seed, NULL, out); }
+mlb_status mlb_catalogue_mesh(int c, uint64_t seed, mlb_mesh* out) { return build(c, seed, NULL, out, NULL); }
 
 mlb_status mlb_catalogue_mesh_params(int c, const float* u, mlb_mesh* out) {
     if (!u) return mlb_fail(MLB_ERR_ARG, "mlb_catalogue_mesh_params: NULL parameters");
-    return build(c, 0, u, out);
+    return build(c, 0, u, out, NULL);
+}
+
+mlb_status mlb_catalogue_mesh_parts(int c, const float* u, mlb_mesh* out, uint8_t** part) {
+    if (!u || !part) return mlb_fail(MLB_ERR_ARG, "mlb_catalogue_mesh_parts: NULL parameters or parts");
+    return build(c, 0, u, out, part);
 }

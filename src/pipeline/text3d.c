@@ -15,6 +15,33 @@ int mlb_text3d_is_metal(const float k[7]) {
     return ks > MLB_TEXT3D_METAL_KS && kd < MLB_TEXT3D_METAL_KD;
 }
 
+static double srgb(double v) {
+    v = fmin(fmax(v, 0.0), 1.0);
+    return v <= 0.0031308 ? 12.92 * v : 1.055 * pow(v, 1 / 2.4) - 0.055;
+}
+
+// k's colour for the comparison: a metal's specular colour over its largest channel (its hue and
+// saturation, not its brightness), a dielectric's diffuse colour; sRGB-encoded.
+static void colour_key(const float k[7], int metal, double out[3]) {
+    const float* c = metal ? k + 3 : k;
+    double mx = fmax(fmax(c[0], c[1]), fmax(c[2], 1e-6f));
+    for (int j = 0; j < 3; j++) out[j] = srgb(metal ? c[j] / mx : c[j]);
+}
+
+int mlb_text3d_colour_of(const float k[7]) {
+    int metal = mlb_text3d_is_metal(k), best = -1;
+    double key[3], best_d = INFINITY;
+    colour_key(k, metal, key);
+    for (int m = 0; m < mlb_catalogue_n_materials(); m++) {
+        if (mlb_catalogue_material_metal(m) != metal) continue;
+        double ref[3], d = 0;
+        colour_key(mlb_catalogue_material_brdf(m), metal, ref);
+        for (int j = 0; j < 3; j++) d += (key[j] - ref[j]) * (key[j] - ref[j]);
+        if (d < best_d) best_d = d, best = m;
+    }
+    return best;
+}
+
 mlb_status mlb_text3d_truth_create(mlb_text3d_truth* t, int n_seeds) {
     memset(t, 0, sizeof *t);
     int nc = mlb_catalogue_n_classes();
@@ -51,7 +78,7 @@ void mlb_text3d_truth_free(mlb_text3d_truth* t) {
 
 mlb_text3d_measure_config mlb_text3d_measure_default(void) {
     mlb_text3d_measure_config m = {.chamfer_samples = 2000, .chamfer_seed = 7, .relight_views = 4, .relight_res = 128,
-                                   .fit_rounds = 64, .fit_margin = 1.5};
+                                   .fit_rounds = 64, .fit_margin = 1.5, .surface_samples = 4000};
     return m;
 }
 
@@ -253,11 +280,29 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     out->metal_truth = mlb_catalogue_material_metal(mat);
     out->metal_pred = mlb_text3d_is_metal(out->median_k);
     out->metal_ok = out->metal_truth == out->metal_pred;
-    // relighting against the truth instance: the prompted class's fitted shape, the true material
+    out->colour_pred = mlb_text3d_colour_of(out->median_k);
+    out->colour_ok = out->colour_pred == mat;
+    // the surface and relighting against the truth instance: the prompted class's fitted shape
+    // (with its parts), the true material
     mlb_mesh tm;
-    s = mlb_catalogue_mesh_params(cls, out->shape_u[cls], &tm);
+    uint8_t* part = NULL;
+    s = mlb_catalogue_mesh_parts(cls, out->shape_u[cls], &tm, &part);
     if (s) return mlb_fail_context(s, "text3d measure: the truth instance");
-    s = measure_janus(mesh, &tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
+    int n_parts = mlb_catalogue_class_n_parts(cls);
+    mlb_surface_result sr;
+    s = mlb_surface_compare(mesh, &tm, part, n_parts, mc->surface_samples, mc->chamfer_seed, &sr);
+    free(part);
+    if (!s) {
+        out->normal_deg = sr.normal_deg;
+        out->accuracy = sr.accuracy;
+        out->completeness = sr.completeness;
+        out->thin = NAN;
+        for (int k = 0; k < MLB_CATALOGUE_MAX_PARTS; k++) {
+            out->part_completeness[k] = k < n_parts ? sr.part_completeness[k] : NAN;
+            if (k < n_parts && !isnan(out->part_completeness[k]) && !(out->thin >= out->part_completeness[k])) out->thin = out->part_completeness[k];
+        }
+    }
+    if (!s) s = measure_janus(mesh, &tm, mlb_catalogue_class_mirror_axis(cls), mc, out);
     float* tk = NULL;
     if (!s && !(tk = malloc(sizeof(float) * 7 * (size_t)tm.n_verts))) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
     if (!s) {

@@ -60,6 +60,8 @@ int generate_run_quiet(int argc, char** argv);
 // matlaber generate --prompts FILE -o DIR (cmd_prompts.c)
 int generate_prompts_main(int argc, char** argv);
 int cmd_fit(int argc, char** argv);
+// matlaber catalogue measure (cmd_catalogue_measure.c)
+int catalogue_measure(int argc, char** argv);
 int cmd_paint(int argc, char** argv);
 int cmd_relight_run(int argc, char** argv);
 int cmd_interp(int argc, char** argv);

@@ -30,6 +30,8 @@ static const cli_option options[] = {
     {"relight-env", 1, 'e', "NAME|FILE", "the unseen relighting light (default white)"},
     {"out", 1, 'o', "DIR", "the run folders, DIR/<class>_<material> (default bench-text3d); a rerun resumes"},
     {"json", 1, 'j', "FILE", "the table and summary as JSON"},
+    {"sheet", 1, 'P', "FILE.png", "a contact sheet: each prompt's truth beside its asset (docs/images/text3d.png)"},
+    {"sheet-env", 1, 'E', "NAME|FILE", "the contact sheet's light (default studio)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 
@@ -65,7 +67,8 @@ static int parse_pairs(const char* text, mlb_text3d_bench_config* bc) {
 static int bench_text3d(int argc, char** argv) {
     const char* cmd = "bench text3d";
     mlb_text3d_bench_config bc = mlb_text3d_bench_default();
-    const char *preset = "tiny", *model = NULL, *appearance_model = NULL, *json = NULL, *init = NULL;
+    const char *preset = "tiny", *model = NULL, *appearance_model = NULL, *json = NULL, *init = NULL, *sheet = NULL;
+    const char* sheet_env = "studio";
     long v;
     double x, scale = 1.0;
     uint64_t seed = 0;
@@ -103,6 +106,8 @@ static int bench_text3d(int argc, char** argv) {
         case 'e': bc.relight_env = optarg; break;
         case 'o': bc.out_dir = optarg; break;
         case 'j': json = optarg; break;
+        case 'P': sheet = optarg; break;
+        case 'E': sheet_env = optarg; break;
         case 'h':
             printf("usage: matlaber bench text3d [--classes A,B] [--materials X,Y] | [--pairs C:M,..] [-o DIR] [--json FILE] [options]\n\n"
                    "Text to 3D against known truth: every catalogue prompt \"a {material} {class}\" (seen and held-out\n"
@@ -159,11 +164,15 @@ static int bench_text3d(int argc, char** argv) {
         mlb_text3d_print(stdout, &bc, rows, n, &sum);
     }
     mlb_status sj = json && n && lead ? mlb_text3d_write_json(json, &bc, rows, n, &sum) : MLB_OK;
+    // the sheet: the materials of one class a line when the prompts are the cross product
+    int cols = bc.n_pairs ? (n < 8 ? n : 8) : (bc.n_materials ? bc.n_materials : mlb_catalogue_n_materials());
+    if (!sj && sheet && n && lead) sj = mlb_text3d_sheet_write(sheet, rows, n, sheet_env, bc.base.env_height, bc.base.cube_size, 96, cols);
     free(rows);
     cli_rc_agreed = !sj;   // the run's status is agreed by every process (a failed JSON is rank 0's own)
     if (s) return cli_fail(s, cmd);
     if (sj) return cli_fail(sj, cmd);
-    if (lead) printf("\nreport: %s/report.md%s%s\n", bc.out_dir, json ? ", JSON: " : "", json ? json : "");
+    if (lead) printf("\nreport: %s/report.md%s%s%s%s\n", bc.out_dir, json ? ", JSON: " : "", json ? json : "",
+                     sheet ? ", contact sheet: " : "", sheet ? sheet : "");
     return 0;
 }
 

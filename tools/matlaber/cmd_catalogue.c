@@ -1,5 +1,6 @@
-// matlaber catalogue list | export | render: the procedural catalogue of objects and materials
-// (include/matlaber/catalogue.h, docs/catalogue.md), for people to look at.
+// matlaber catalogue list | export | render | measure: the procedural catalogue of objects and
+// materials (include/matlaber/catalogue.h, docs/catalogue.md), for people to look at; measure is in
+// cmd_catalogue_measure.c.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -290,11 +291,13 @@ int cmd_catalogue(int argc, char** argv) {
         fprintf(o, "usage: matlaber catalogue list|export|render [options]  ('matlaber catalogue <sub> --help')\n"
                    "  list      classes, materials (7-d BRDF) and the held-out pairs (--json)\n"
                    "  export    a class's mesh for a shape seed as an OBJ; with a material as .glb or OBJ + MTL\n"
-                   "  render    rgb and normal images with captions, as the pipeline's stages see them\n");
+                   "  render    rgb and normal images with captions, as the pipeline's stages see them\n"
+                   "  measure   a mesh or run folder against a class's truth, as bench text3d measures an asset\n");
         return argc < 2 ? EXIT_USAGE : 0;
     }
     if (strcmp(argv[1], "list") == 0) return catalogue_list(argc - 1, argv + 1);
     if (strcmp(argv[1], "export") == 0) return catalogue_export(argc - 1, argv + 1);
     if (strcmp(argv[1], "render") == 0) return catalogue_render(argc - 1, argv + 1);
-    return cli_usage_error("catalogue", "unknown subcommand '%s' (list, export, render)", argv[1]);
+    if (strcmp(argv[1], "measure") == 0) return catalogue_measure(argc - 1, argv + 1);
+    return cli_usage_error("catalogue", "unknown subcommand '%s' (list, export, render, measure)", argv[1]);
 }

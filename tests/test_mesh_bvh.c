@@ -419,7 +419,8 @@ TEST(nearest_faces_and_masked_samples) {
 }
 
 // The surface measures on cases with a known answer: a square against itself lifted by 0.1 (every
-// distance 0.1, normals equal), turned by 30° about its centre line (every normal 30° off), and a
+// distance 0.1, normals equal), turned by 30° about its centre line (every normal 30° off; 120° is
+// 60° either way round, a reversed winding 0°), and a
 // square half of which is labelled a part and half of which the asset lacks.
 TEST(surface_compare_analytic) {
     float pa[12], pb[12];
@@ -438,12 +439,14 @@ TEST(surface_compare_analytic) {
     square(&a, pa, fa, 30, 0);
     REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
     CHECK_CLOSE(r.normal_deg, 30, 1e-5, 0);
-    // the asset turned upside down (winding reversed): every normal 180° off
-    int32_t flip[6] = {0, 2, 1, 0, 3, 2};
+    square(&a, pa, fa, 120, 0);   // 120° is 60° the other way round: a thin wall's other side
+    REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
+    CHECK_CLOSE(r.normal_deg, 60, 1e-5, 0);
+    int32_t flip[6] = {0, 2, 1, 0, 3, 2};   // the winding reversed: the same plane
     square(&a, pa, fa, 0, 0.0f);
     a.faces = flip;
     REQUIRE(mlb_surface_compare(&a, &b, NULL, 0, 400, 1, &r) == MLB_OK);
-    CHECK_CLOSE(r.normal_deg, 180, 1e-5, 0);
+    CHECK_CLOSE(r.normal_deg, 0, 0, 1e-4);
     // the truth's triangle (0 1 2) is part 1, (0 2 3) part 2; the asset is triangle (0 1 2) alone:
     // part 1 is complete, part 2's far corner (0, 1) is sqrt(0.5) from the asset's hypotenuse
     square(&a, pa, fa, 0, 0);

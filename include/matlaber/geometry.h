@@ -210,7 +210,8 @@ mlb_status mlb_chamfer_many(const mlb_mesh* a, const mlb_mesh* b, const mlb_mesh
 typedef struct {
     double normal_deg;       // mean angle (degrees) between the asset's shading normal (area-weighted
                              //   vertex normals of its positions, interpolated) at n area-uniform
-                             //   samples and the face normal of the truth's nearest face
+                             //   samples and the face normal of the truth's nearest face, either way
+                             //   round (0..90: a thin wall's two sides are both the truth)
     double accuracy;         // 95th percentile of the samples' distances to the truth / diag
     double completeness;     // 95th percentile of distances from n samples on the truth to the asset / diag
     double part_completeness[MLB_SURFACE_MAX_PARTS];   // the same on part k + 1's faces alone (n samples

@@ -2,8 +2,9 @@
 // person sees that a mean distance hides. Normal error: at area-uniform samples on the asset, the
 // angle between the asset's shading normal there (area-weighted vertex normals made from its
 // positions, interpolated: what renders and exports show, and what stored normals cannot hide)
-// and the normal of the nearest face of the truth (a crumpled surface scores high where its
-// distance is small). Accuracy and completeness: the 95th percentiles
+// and the normal of the nearest face of the truth, either way round (a crumpled surface scores high
+// where its distance is small; the two sides of a thin wall, a mug's or a bowl's, are both the
+// truth, and a surface that runs along the wall between them matches whichever side is nearer). Accuracy and completeness: the 95th percentiles
 // of the distances asset -> truth (spikes, drips) and truth -> asset (a missing handle, leg or stem),
 // relative to the truth's bounding-box diagonal; completeness again on each labelled part of the
 // truth alone (its own samples, so a small part is measured as finely as the whole).
@@ -112,8 +113,8 @@ mlb_status mlb_surface_compare(const mlb_mesh* asset, const mlb_mesh* truth, con
             double na[3], nt[3];
             shading_normal(asset, shading.normal, fa[i], p + 3 * (size_t)i, na);
             face_normal(truth, ft[i] >= 0 ? ft[i] : 0, nt);
-            double c = na[0] * nt[0] + na[1] * nt[1] + na[2] * nt[2];
-            sum += acos(fmin(fmax(c, -1.0), 1.0));   // a degenerate face (no normal): 90 degrees
+            double c = fabs(na[0] * nt[0] + na[1] * nt[1] + na[2] * nt[2]);
+            sum += acos(fmin(c, 1.0));   // a degenerate face (no normal): 90 degrees
         }
         r->normal_deg = sum / n * (180.0 / M_PI);
         r->accuracy = quantile(d, n, 0.95) / r->diag;

@@ -162,6 +162,8 @@ TEST(config_round_trip_and_errors) {
     optional_key(&c, path, "metal_start_lr_scale", "0.1", "1", "0");
     // "appearance_model": a run from before it guided both stages with "model" ("")
     optional_key(&c, path, "appearance_model", "/models/other one", "", NULL);
+    // "surface_smooth": a run from before it used the surface as extracted (0)
+    optional_key(&c, path, "surface_smooth", "10", "0", "-1");
     mlb_pipeline_config img = c;   // a model for image guidance's appearance stage makes no sense
     snprintf(img.guidance, sizeof img.guidance, "images");
     snprintf(img.views_dir, sizeof img.views_dir, "/views");
@@ -400,6 +402,51 @@ TEST(resume_reaches_the_uninterrupted_result) {
         snprintf(pb, sizeof pb, "%s/%s", b, files[i]);
         CHECK_MSG(same_file(pa, pb), "%s differs after resume", files[i]);
     }
+}
+
+// surface_smooth: the appearance stage's and the outputs' mesh is the extraction smoothed by Taubin's
+// rounds (the same faces, the vertices of mlb_mesh_smooth_taubin on the unsmoothed run's mesh, to
+// the OBJ's printed digits), and a run stopped in the appearance stage resumes to the same bytes
+// (the surface is extracted and smoothed again the same way).
+TEST(surface_smooth) {
+    char views[512], a[512], b[512], b2[512], pa[700], pb[700];
+    tmp_path(views, sizeof views, "sphere_views");
+    tmp_path(a, sizeof a, "smooth_0");
+    tmp_path(b, sizeof b, "smooth_4");
+    tmp_path(b2, sizeof b2, "smooth_4_resumed");
+    if (!mlb_is_dir(views)) REQUIRE(sphere_views(views, 32) == MLB_OK);
+    mlb_pipeline_config c = small_fit(views, 3, 3);
+    c.init_iters = 20;
+    mlb_pipeline_result r;
+    REQUIRE(run_fit(a, &c, 0, &r) == MLB_OK && r.finished);
+    c.surface_smooth = 4;
+    REQUIRE(run_fit(b, &c, 0, &r) == MLB_OK && r.finished);
+    c.stop_after = 4;   // the geometry stage's 3 steps and the appearance stage's first
+    REQUIRE(run_fit(b2, &c, 0, &r) == MLB_OK && !r.finished);
+    c.stop_after = 0;
+    REQUIRE(run_fit(b2, &c, 1, &r) == MLB_OK && r.finished);
+    mlb_run_asset ra, rb;
+    REQUIRE(mlb_run_asset_load(&ra, a) == MLB_OK);
+    REQUIRE(mlb_run_asset_load(&rb, b) == MLB_OK);
+    CHECK(ra.config.surface_smooth == 0 && rb.config.surface_smooth == 4);
+    REQUIRE(ra.mesh.n_verts == rb.mesh.n_verts && ra.mesh.n_faces == rb.mesh.n_faces);
+    CHECK(!memcmp(ra.mesh.faces, rb.mesh.faces, sizeof(int32_t) * 3 * (size_t)ra.mesh.n_faces));
+    REQUIRE(mlb_mesh_smooth_taubin(&ra.mesh, 4, 0.5f, -0.53f) == MLB_OK);
+    double worst = 0, moved = 0;
+    for (int i = 0; i < 3 * ra.mesh.n_verts; i++) worst = fmax(worst, fabs((double)ra.mesh.pos[i] - rb.mesh.pos[i]));
+    mlb_run_asset_free(&ra);
+    REQUIRE(mlb_run_asset_load(&ra, a) == MLB_OK);
+    for (int i = 0; i < 3 * ra.mesh.n_verts; i++) moved = fmax(moved, fabs((double)ra.mesh.pos[i] - rb.mesh.pos[i]));
+    printf("  smoothed: vertices moved up to %.4f, off the smoothing by %.2g\n", moved, worst);
+    CHECK(worst < 1e-5 && moved > 1e-3);
+    const char* files[] = {"final/material.safetensors", "final/mesh.obj", "loss.csv"};
+    for (size_t i = 0; i < sizeof files / sizeof *files; i++) {
+        snprintf(pa, sizeof pa, "%s/%s", b, files[i]);
+        snprintf(pb, sizeof pb, "%s/%s", b2, files[i]);
+        CHECK_MSG(same_file(pa, pb), "%s differs after resume", files[i]);
+    }
+    mlb_run_asset_free(&ra);
+    mlb_run_asset_free(&rb);
 }
 
 // ---- score distillation with a tiny random SD model --------------------------------------------
@@ -918,6 +965,7 @@ int main(void) {
     RUN(presets);
     RUN(image_fit_recovers_a_known_albedo);
     RUN(resume_reaches_the_uninterrupted_result);
+    RUN(surface_smooth);
     RUN(sds_generate_two_steps_per_stage);
     RUN(auto_init_looks_ahead);
     RUN(auto_init_needs_a_clear_win);

@@ -24,6 +24,10 @@ void mlb_mesh_bounds(const mlb_mesh* m, float lo[3], float hi[3]);
 void mlb_mesh_normalize_unit_sphere(mlb_mesh* m);
 // The largest distance from c to a vertex (double arithmetic; 0 for a mesh without vertices).
 double mlb_mesh_radius_about(const mlb_mesh* m, const double c[3]);
+// Taubin smoothing (src/mesh/mesh_smooth.c): `rounds` times, every vertex towards the mean of its
+// neighbours by lambda, then by mu (0 < lambda < -mu < 1; Taubin's 0.5 and -0.53 pass noise of a
+// few edges' length and keep the size). Positions only: recompute the normals after.
+mlb_status mlb_mesh_smooth_taubin(mlb_mesh* m, int rounds, float lambda, float mu);
 // A UV sphere at the origin with normals and uvs: `segments` around, `rings` from pole to pole.
 mlb_status mlb_mesh_uv_sphere(mlb_mesh* m, float radius, int segments, int rings);
 

@@ -57,6 +57,8 @@ typedef struct {
     double coarse_to_fine;        // hash-grid levels unlocked from 4 to all over this fraction of the
                                   // geometry steps (0: all levels from the start)
     double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
+    int surface_smooth;           // rounds of Taubin smoothing (0.5, -0.53) of the extracted surface, the
+                                  // appearance stage's and the outputs' mesh (0: as extracted)
     // appearance stage
     int appearance_iters;         // 2000
     int material_start;           // 1: the model picks the start among material archetypes (a metal's, or

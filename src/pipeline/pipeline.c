@@ -620,11 +620,12 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
 
     if (!s && !paint) s = geometry_stage(&r);
     int geometry_done = !s && !r.stopped;
-    // the fixed mesh of the appearance stage: the geometry network's surface, extracted, or the
-    // painted mesh in the generation frame
+    // the fixed mesh of the appearance stage: the geometry network's surface, extracted (and
+    // smoothed: surface_smooth), or the painted mesh in the generation frame
     if (geometry_done) s = pipeline_scene_init(&r.scene, c, r.views);
     if (!s && geometry_done && paint) s = paint_scene_mesh(c, &input, &r.scene.mesh);
     if (!s && geometry_done && !paint) s = mlb_geometry_extract_on(r.be, &r.geo, &r.grid, &r.scene.mesh);
+    if (!s && geometry_done && !paint) s = mlb_mesh_smooth_taubin(&r.scene.mesh, c->surface_smooth, 0.5f, -0.53f);
     if (!s && geometry_done && !paint) s = mlb_mesh_compute_normals(&r.scene.mesh);
     mlb_brdf_ae prior;
     memset(&prior, 0, sizeof prior);

@@ -147,6 +147,7 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->appearance_t_max_end != 0 && (c->appearance_t_max_end < 20 || c->appearance_t_max_end > 999))
         bad = "appearance_t_max_end must be 0 (no annealing) or in 20..999";
     else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
+    else if (c->surface_smooth < 0 || c->surface_smooth > 1000) bad = "surface_smooth: 0..1000 rounds";
     else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
     else if (!(c->w_mat >= 0) || !(c->w_mat_spec >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weights >= 0 and sigma > 0";
     else if (c->n_envs < 1 || c->n_envs > MLB_PIPELINE_MAX_ENVS) bad = "the environment pool needs 1..8 entries";
@@ -225,6 +226,7 @@ static const field FIELDS[] = {
     FLD_OPT("material_start", F_INT, material_start, 0),              // added 2026-11-29; before: the prior's centre
     FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // added 2026-11-29; before: the same rate
     FLD_OPT("appearance_model", F_STR, appearance_model, 0),          // added 2026-11-30; before: the model's
+    FLD_OPT("surface_smooth", F_INT, surface_smooth, 0),              // before: the surface as extracted
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),

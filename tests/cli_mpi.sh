@@ -31,7 +31,11 @@ small="--geometry-iters 4 --appearance-iters 2 --export-texture 0 --hash-table-l
 # under the sanitizers (MLB_TEST_SANITIZED, from CMake) the same runs at 32² views (the bitwise
 # comparisons hold at any size; ~35 min of a busy 2-core AVX2 machine at 64²). Fewer
 # initialisation steps were tried too: the red mug's surface vanished at step 2.
-if [ "${MLB_TEST_SANITIZED:-0}" = 1 ]; then small=${small/--res 64/--res 32}; fi
+# The sanitizers look for memory errors, which every multi-process run below still exercises; the
+# 1-process references of --init auto, --prompts and bench text3d (~17 of 45 minutes there) and the
+# comparisons with them are left to the plain build.
+full=1
+if [ "${MLB_TEST_SANITIZED:-0}" = 1 ]; then small=${small/--res 64/--res 32}; full=0; fi
 same_run() {   # same_run NAME DIR_A DIR_B: the asset's bytes
   local f d=0
   for f in final/mesh.obj final/material.safetensors final/geometry.safetensors loss.csv; do
@@ -77,14 +81,18 @@ err_has "names the option and its range" "view-batch: expected 0..64"
 # same scores and the same start as 1 process (the material start's archetypes are shared the same
 # way, checked by every run above). 128² views: at 64² no candidate wins clearly enough to look ahead.
 init=(-p "a red table" --seed 5 --init-iters 20 --appearance-iters 0 --stop-after 1)
-expect 0 "--init auto, 1 process" -- $Q --log-level info generate "${init[@]}" -o "$T/i1"
-grep "^--init auto" "$T/err" > "$T/i1.log"
-grep -q "after 20 steps" "$T/i1.log" && ok "the slab wins and is looked ahead" || bad "no look-ahead (the test's premise): $(cat "$T/i1.log")"
+if [ $full = 1 ]; then
+  expect 0 "--init auto, 1 process" -- $Q --log-level info generate "${init[@]}" -o "$T/i1"
+  grep "^--init auto" "$T/err" > "$T/i1.log"
+  grep -q "after 20 steps" "$T/i1.log" && ok "the slab wins and is looked ahead" || bad "no look-ahead (the test's premise): $(cat "$T/i1.log")"
+fi
 expect 0 "--init auto, 3 processes" -- $MPI -n 3 $Q --log-level info generate "${init[@]}" -o "$T/i3"
 grep "^--init auto" "$T/err" | sort -u > "$T/i3.log"
-cmp -s <(sort -u "$T/i1.log") "$T/i3.log" && ok "3 processes: the same scores and choice" || bad "3 processes scored otherwise: $(cat "$T/i3.log")"
-cmp -s "$T/i1/checkpoints/geometry.safetensors" "$T/i3/checkpoints/geometry.safetensors" &&
-  ok "3 processes: the same start, bit for bit" || bad "3 processes started from other bits"
+if [ $full = 1 ]; then
+  cmp -s <(sort -u "$T/i1.log") "$T/i3.log" && ok "3 processes: the same scores and choice" || bad "3 processes scored otherwise: $(cat "$T/i3.log")"
+  cmp -s "$T/i1/checkpoints/geometry.safetensors" "$T/i3/checkpoints/geometry.safetensors" &&
+    ok "3 processes: the same start, bit for bit" || bad "3 processes started from other bits"
+fi
 
 # stopped on 2, resumed on 1 (geometry stage) and on 3 (appearance stage), the batch kept in config.json
 expect 0 "2 processes, --view-batch 2, stopped after 3 steps" -- $MPI -n 2 $Q generate -p "a gold goblet" $small \
@@ -108,10 +116,12 @@ cat > "$P" << 'EOF'
 --name d a silver bowl
 EOF
 head -4 "$P" > "$T/first2.txt"   # the comment, the blank line, prompts a and b
-expect 0 "--prompts on 1 process" -- $Q generate --prompts "$P" -o "$T/b1" $small
-grep -c '"status":[[:space:]]*"done"' "$T/b1/summary.json" | grep -qx 4 && ok "summary.json: 4 done" || bad "summary.json: not 4 done"
-grep -q "a blue vase" "$T/out" && ok "summary table names the prompts" || bad "no summary table"
-same_run "prompt a is the plain generate run" "$T/one" "$T/b1/a"
+if [ $full = 1 ]; then
+  expect 0 "--prompts on 1 process" -- $Q generate --prompts "$P" -o "$T/b1" $small
+  grep -c '"status":[[:space:]]*"done"' "$T/b1/summary.json" | grep -qx 4 && ok "summary.json: 4 done" || bad "summary.json: not 4 done"
+  grep -q "a blue vase" "$T/out" && ok "summary table names the prompts" || bad "no summary table"
+  same_run "prompt a is the plain generate run" "$T/one" "$T/b1/a"
+fi
 expect 0 "--prompts, first 2 lines, 2 processes" -- $MPI -n 2 $Q generate --prompts "$T/first2.txt" -o "$T/b2" $small
 # a third prompt killed half way (as --stop-after stops: no checkpoint after its last step)
 expect 0 "prompt c stopped after 3 steps" -- $Q generate $small --guidance-scale 30 -p "a blue vase" --stop-after 3 -o "$T/b2/c"
@@ -119,7 +129,9 @@ expect 0 "--prompts again, all 4 lines, 2 processes" -- $MPI -n 2 $Q generate --
 for kv in 'a gold goblet.*skipped' 'a red mug.*skipped' 'a blue vase.*resumed' 'a silver bowl.*done'; do
   grep -q "$kv" "$T/out" && ok "rerun: $kv" || { bad "rerun: no '$kv'"; cat "$T/out"; }
 done
-for r in a b c d; do same_run "prompt $r on 2 processes (with a rerun) = on 1" "$T/b1/$r" "$T/b2/$r"; done
+if [ $full = 1 ]; then
+  for r in a b c d; do same_run "prompt $r on 2 processes (with a rerun) = on 1" "$T/b1/$r" "$T/b2/$r"; done
+fi
 [ -e "$T/b2/.claims" ] && bad "claims left behind" || ok "no claims left behind"
 echo "--bogus 1 x" > "$T/bad.txt"
 expect 2 "a prompt line with an unknown option" -- $Q generate --prompts "$T/bad.txt" -o "$T/b3" $small
@@ -128,17 +140,19 @@ expect 2 "--prompts without -o" -- $Q generate --prompts "$P"
 # bench text3d on 2 processes: prompt i to process i mod 2, each generated and measured alone; the
 # table and JSON (rank 0's) hold the numbers of 1 process, and the run folders its bytes
 B="bench text3d --pairs vase:gold,mug:red --init ellipsoid --steps-scale 0.02 --shape-fit 0 --shape-seeds 2"
-expect 0 "bench text3d, 1 process" -- $Q $B -o "$T/t1" --json "$T/t1.json"
+[ $full = 1 ] && expect 0 "bench text3d, 1 process" -- $Q $B -o "$T/t1" --json "$T/t1.json"
 expect 0 "bench text3d, 2 processes" -- $MPI -n 2 $Q --log-level info $B -o "$T/t2" --json "$T/t2.json"
 err_has "process 0 took the first prompt" "(process 0) 'a gold vase'"
 grep -q "'a red mug' (seen) into" "$T/err" && bad "process 0 generated the second prompt too" || ok "the second prompt went to process 1"
 [ "$(grep -c '^report:' "$T/out")" = 1 ] && ok "one process prints the report" || bad "report printed $(grep -c '^report:' "$T/out") times"
 grep -q '"processes":[[:space:]]*2' "$T/t2.json" && ok "the JSON says 2 processes" || bad "the JSON lacks processes 2"
-if diff <(sed "s#$T/t1#D#g" "$T/t1.json" | grep -v -e '"seconds"' -e '"processes"') \
-        <(sed "s#$T/t2#D#g" "$T/t2.json" | grep -v -e '"seconds"' -e '"processes"') > "$T/diff"; then
-  ok "bench text3d on 2 processes: the numbers of 1"
-else bad "bench text3d on 2 processes differs: $(head -5 "$T/diff")"; fi
-for r in vase_gold mug_red; do same_run "bench text3d: $r on 2 processes = on 1" "$T/t1/$r" "$T/t2/$r"; done
+if [ $full = 1 ]; then
+  if diff <(sed "s#$T/t1#D#g" "$T/t1.json" | grep -v -e '"seconds"' -e '"processes"') \
+          <(sed "s#$T/t2#D#g" "$T/t2.json" | grep -v -e '"seconds"' -e '"processes"') > "$T/diff"; then
+    ok "bench text3d on 2 processes: the numbers of 1"
+  else bad "bench text3d on 2 processes differs: $(head -5 "$T/diff")"; fi
+  for r in vase_gold mug_red; do same_run "bench text3d: $r on 2 processes = on 1" "$T/t1/$r" "$T/t2/$r"; done
+fi
 # paint on 2 processes: the views split as generate's (2 views, a call of 1 on each process); every
 # process loads the mesh, rank 0 alone
 # writes the run folder (input/mesh.obj included): the same bytes as 1 process, and a resume on 2

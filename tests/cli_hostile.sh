@@ -17,4 +17,16 @@ err_has "the command line's last word reached generate" "res: expected a multipl
 grep -q '"status":[[:space:]]*"failed"' "$T/many/summary.json" && ok "summary.json: the prompt failed" || bad "summary.json: not failed"
 [ -e "$T/many/.claims" ] && bad "claims left behind" || ok "no claims left behind"
 
+# ---- 2. hangs ----
+# One triangle given 400 times in one OBJ polygon (2.4 KB: 400 copies and 798 slivers once kept the
+# UV atlas busy for minutes, at paint's end and in export): painted, its asset written, exported.
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf' > "$T/rep.obj"
+for i in $(seq 400); do printf ' 1 2 3'; done >> "$T/rep.obj"
+echo >> "$T/rep.obj"
+small="--res 32 --views 2 --appearance-iters 1 --preview-every 0 --set material_start=0 --export-texture 256"
+expect 0 "paint: one triangle given 400 times" -- timeout 900 $Q paint --mesh "$T/rep.obj" -p "a red cube" $small -o "$T/rep"
+[ -s "$T/rep/final/asset.glb" ] && ok "its asset written" || bad "no final/asset.glb"
+expect 0 "export of that run" -- timeout 300 $M export "$T/rep" --texture-size 256 -o "$T/rep.glb"
+err_has "two charts: the triangle and its slivers" "UV atlas: 2 charts"
+
 finish

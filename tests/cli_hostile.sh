@@ -29,4 +29,23 @@ expect 0 "paint: one triangle given 400 times" -- timeout 900 $Q paint --mesh "$
 expect 0 "export of that run" -- timeout 300 $M export "$T/rep" --texture-size 256 -o "$T/rep.glb"
 err_has "two charts: the triangle and its slivers" "UV atlas: 2 charts"
 
+# A named pipe wherever a file is read: refused at once, never waited on (opening a pipe for reading
+# blocks until a writer comes); `timeout` turns a hang into exit 124.
+mkfifo "$T/pipe.obj" "$T/pipe.txt" "$T/pipe.bin"
+printf '{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3"}],"bufferViews":[{"buffer":0,"byteLength":36}],"buffers":[{"byteLength":36,"uri":"pipe.bin"}]}' > "$T/piped.gltf"
+mkdir -p "$T/piperun"
+mkfifo "$T/piperun/config.json"
+pipe_refused() {   # NAME RUN_DIR_OR_- command...
+  local name=$1 dir=$2; shift 2
+  expect 1 "$name: refused" -- timeout 20 "$@"
+  err_has "$name: the pipe named" "not a regular file (a named pipe)"
+  [ "$dir" = - ] || { [ -e "$dir" ] && bad "$name: $dir left behind" || ok "$name: nothing written"; }
+}
+pipe_refused "paint --mesh a pipe" "$T/p1" $Q paint --mesh "$T/pipe.obj" -p "a red cube" -o "$T/p1"
+pipe_refused "a .gltf whose buffer is a pipe" "$T/p2" $Q paint --mesh "$T/piped.gltf" -p "a red cube" -o "$T/p2"
+pipe_refused "generate --prompts a pipe" "$T/p3" $Q generate --prompts "$T/pipe.txt" -o "$T/p3"
+pipe_refused "a run whose config.json is a pipe: generate --resume" - $Q generate --resume "$T/piperun"
+pipe_refused "a run whose config.json is a pipe: export" - $Q export "$T/piperun" -o "$T/p5.glb"
+[ -e "$T/p5.glb" ] && bad "export: p5.glb left behind" || ok "export: nothing written"
+
 finish

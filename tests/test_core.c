@@ -5,6 +5,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include "matlaber/cpu.h"
@@ -168,6 +169,35 @@ TEST(atomic_files) {
     CHECK(mlb_mkdir_p(path) == MLB_ERR_IO);   // exists and is a file
 }
 
+// Outside files: only regular files are opened, and a named pipe with no writer is refused at once
+// (opening it for reading would wait for a writer forever); an alarm ends the test if it blocks.
+TEST(input_files_regular_only) {
+    const char* dir = test_tmpdir("core_input");
+    REQUIRE(dir);
+    char fifo[4200], file[4200];
+    snprintf(fifo, sizeof fifo, "%s/pipe.obj", dir);
+    snprintf(file, sizeof file, "%s/data.txt", dir);
+    unlink(fifo);
+    REQUIRE(mkfifo(fifo, 0600) == 0);
+    REQUIRE(mlb_write_file_atomic(file, "abc", 3) == MLB_OK);
+    alarm(20);
+    char* text; size_t n;
+    int fd = -1;
+    size_t size = 0;
+    CHECK(mlb_read_file(fifo, &text, &n, 100) == MLB_ERR_IO);
+    CHECK(strstr(mlb_last_error(), "pipe.obj: not a regular file (a named pipe)") != NULL && text == NULL);
+    CHECK(mlb_open_input(fifo, &fd, &size) == MLB_ERR_IO && fd == -1);
+    CHECK(mlb_open_input_file(fifo) == NULL);
+    CHECK(mlb_open_input(dir, &fd, &size) == MLB_ERR_IO && strstr(mlb_last_error(), "(a folder)"));
+    CHECK(mlb_open_input("/dev/null", &fd, &size) == MLB_ERR_IO && strstr(mlb_last_error(), "(a device)"));
+    alarm(0);
+    REQUIRE(mlb_open_input(file, &fd, &size) == MLB_OK);
+    char buf[8];
+    CHECK(size == 3 && read(fd, buf, sizeof buf) == 3 && memcmp(buf, "abc", 3) == 0);
+    close(fd);
+    unlink(fifo);
+}
+
 // The features read from cpuid + XCR0 agree with the kernel's flags in /proc/cpuinfo (which also
 // hides what the OS does not save); skipped where there is no such file or no x86 CPU.
 TEST(cpu_features_match_proc_cpuinfo) {
@@ -323,6 +353,7 @@ int main(int argc, char** argv) {
     RUN(log_levels_and_sink);
     RUN(progress_plain_lines);
     RUN(atomic_files);
+    RUN(input_files_regular_only);
     RUN(runtime_restart_wait_policy);
     RUN(runtime_tune_malloc);
     return test_summary();

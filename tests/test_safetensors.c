@@ -416,7 +416,7 @@ TEST(read_and_expect_errors) {
     mlb_st_close(NULL);
     mlb_safetensors* none = NULL;
     CHECK(mlb_st_open(&none, "/nonexistent/x.safetensors") == MLB_ERR_NOT_FOUND && none == NULL);
-    CHECK(strstr(mlb_last_error(), "/nonexistent/x.safetensors: cannot open"));
+    CHECK(strstr(mlb_last_error(), "/nonexistent/x.safetensors: No such file"));
     CHECK(mlb_st_open(&none, tmpdir) == MLB_ERR_IO && strstr(mlb_last_error(), "not a regular file"));
 }
 

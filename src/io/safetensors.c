@@ -444,19 +444,11 @@ mlb_status mlb_st_open_memory(mlb_safetensors** out, const void* data, size_t n,
 mlb_status mlb_st_open(mlb_safetensors** out, const char* path) {
     if (!out || !path) return mlb_fail(MLB_ERR_ARG, "mlb_st_open needs an output pointer and a path");
     *out = NULL;
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0) {
-        int e = errno;
-        return mlb_fail(e == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: cannot open: %s", path, strerror(e));
-    }
-    struct stat sb;
-    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
-        close(fd);
-        return mlb_fail(MLB_ERR_IO, "%s: not a regular file", path);
-    }
+    int fd;
+    size_t size;
+    MLB_TRY(mlb_open_input(path, &fd, &size));   // regular files only (fileio.h)
     mlb_safetensors* st = new_handle(path);
     if (!st) { close(fd); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
-    size_t size = (size_t)sb.st_size;
     const unsigned char* p = (const unsigned char*)"";
     if (size > 0) {   // mmap of 0 bytes fails; the parser reports the short file itself
         void* m = mmap(NULL, size, PROT_READ, MAP_PRIVATE, fd, 0);

@@ -48,4 +48,35 @@ pipe_refused "a run whose config.json is a pipe: generate --resume" - $Q generat
 pipe_refused "a run whose config.json is a pipe: export" - $Q export "$T/piperun" -o "$T/p5.glb"
 [ -e "$T/p5.glb" ] && bad "export: p5.glb left behind" || ok "export: nothing written"
 
+# ---- 4. every input checked before the run folder is made ----
+# a file that is not what the option wants (a password file's look-alike), learning rates and --set
+# values the options refuse, an --asset in a folder that is not there: exit 1 or 2 at once, naming
+# the input and the problem, no run folder
+printf 'root:$y$j9T$SECRETHASHabc$xyz:19000:0:99999:7:::\ndaemon:*:19000:0:99999:7:::\n' > "$T/shadow"
+refused_early() {   # NAME CODE TEXT generate-or-paint options...
+  local name=$1 code=$2 text=$3; shift 3
+  rm -rf "$T/early"
+  expect "$code" "$name: refused" -- timeout 120 $Q "$@" -o "$T/early"
+  err_has "$name: the problem named" "$text"
+  [ -e "$T/early" ] && bad "$name: a run folder was made" || ok "$name: no run folder"
+}
+G="generate -p a-red-cube --init-iters 1 --geometry-iters 1 --appearance-iters 1"
+refused_early "--env a text file" 1 "$T/shadow: not a Radiance .hdr or OpenEXR file" $G --env "$T/shadow"
+refused_early "--set envs=a text file" 1 "environment 1 ($T/shadow)" $G --set "envs=sky,$T/shadow"
+refused_early "--init a text file" 1 "--init $T/shadow" $G --init "$T/shadow"
+refused_early "--init auto: a text file among the candidates" 1 "--init $T/shadow" $G --init "auto:torus,$T/shadow"
+refused_early "--init a pipe" 1 "not a regular file (a named pipe)" $G --init "$T/pipe.obj"
+refused_early "--set geometry_lr=1e308" 1 "learning rates" $G --set geometry_lr=1e308
+refused_early "--set appearance_lr=1e308" 1 "learning rates" $G --set appearance_lr=1e308
+refused_early "--set res=12" 1 "multiple of 8 in 16..2048" $G --set res=12
+refused_early "--set latent_size=7" 1 "latent_size must be 0 (64) or a multiple of 8" $G --set latent_size=7
+refused_early "--set geometry_iters=20000000" 1 "iteration counts" generate -p a-red-cube --set geometry_iters=20000000
+refused_early "--set init_iters=2000000" 1 "init_iters" generate -p a-red-cube --set init_iters=2000000
+refused_early "--set seed=2^64" 2 "more than 18446744073709551615" $G --set seed=18446744073709551616
+refused_early "--seed 2^64" 2 "--seed: expected an integer in 0..18446744073709551615" $G --seed 18446744073709551616
+refused_early "paint --asset in a missing folder" 1 "/nonexistent/dir/x.glb: cannot create a temporary file beside it" \
+  paint --mesh "$T/rep.obj" -p "a red cube" --asset /nonexistent/dir/x.glb
+expect 1 "export -o in a missing folder: refused before the atlas" -- $Q export "$T/rep" -o /nonexistent/dir/x.glb
+err_has "export names the output" "/nonexistent/dir/x.glb"
+
 finish

@@ -16,6 +16,10 @@ mlb_status mlb_atomic_open(mlb_atomic_file* af, const char* path);
 // Flushes, fsyncs and renames; on any failure removes the temporary and leaves `path` untouched.
 mlb_status mlb_atomic_commit(mlb_atomic_file* af);
 void mlb_atomic_abort(mlb_atomic_file* af);     // removes the temporary file
+// Whether `path` could be written atomically now (its folder exists and takes a new file; it is not
+// a folder): a command checks its outputs this way before the work that ends in writing them.
+// Nothing is left behind. Errors name the path and the reason.
+mlb_status mlb_check_writable(const char* path);
 // Whole buffer to `path`, atomically.
 mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n);
 // Opens a file from outside for reading: a regular file only, refused before anything can block (a

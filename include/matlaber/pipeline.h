@@ -19,7 +19,18 @@
 #include "matlaber/views.h"
 
 #define MLB_PIPELINE_MAX_ENVS 8
+// Every text field (prompts, paths, names) holds at most MLB_PIPELINE_PATH - 1 bytes: longer text is
+// refused naming the option or key, never cut (docs/files.md, "What each input may be").
 #define MLB_PIPELINE_PATH 1024
+// The ranges the command-line options and config.json share (mlb_pipeline_validate checks them for
+// both: --set and a run's config.json take nothing the options refuse)
+#define MLB_PIPELINE_MAX_ITERS 10000000       // geometry / appearance steps, checkpoint and preview intervals
+#define MLB_PIPELINE_MAX_INIT_ITERS 1000000   // steps of the shape initialisation
+#define MLB_PIPELINE_LR_MIN 1e-9              // learning rates
+#define MLB_PIPELINE_LR_MAX 10.0
+#define MLB_PIPELINE_MAX_SCALE 1e4            // guidance scales
+#define MLB_PIPELINE_MAX_WEIGHT 100.0         // material smoothness weights
+#define MLB_PIPELINE_MAX_LATENT 256           // latent_size: 0 (64) or a multiple of 8 up to this (a 2048² render / 8)
 
 typedef struct {
     char guidance[16];            // "sds" or "images"

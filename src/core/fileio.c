@@ -77,6 +77,14 @@ mlb_status mlb_atomic_commit(mlb_atomic_file* af) {
     return MLB_OK;
 }
 
+mlb_status mlb_check_writable(const char* path) {
+    if (mlb_is_dir(path)) return mlb_fail(MLB_ERR_IO, "%s: a folder, not a file that can be written", path);
+    mlb_atomic_file af;
+    MLB_TRY(mlb_atomic_open(&af, path));   // a temporary beside it: the folder is there and writable
+    mlb_atomic_abort(&af);
+    return MLB_OK;
+}
+
 mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n) {
     mlb_atomic_file af;
     MLB_TRY(mlb_atomic_open(&af, path));

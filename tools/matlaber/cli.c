@@ -2,6 +2,7 @@
 #include "cli.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
+#include <ctype.h>
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
@@ -67,6 +68,15 @@ int cli_parse_long(const char* text, long lo, long hi, long* out) {
     long v = strtol(text, &end, 10);
     if (end == text || *end || errno || v < lo || v > hi) return -1;
     *out = v;
+    return 0;
+}
+
+int cli_parse_u64(const char* text, uint64_t* out) {
+    char* end;
+    errno = 0;
+    unsigned long long v = strtoull(text, &end, 10);
+    if (!isdigit((unsigned char)text[0]) || *end || errno) return -1;   // no sign, no overflow to 2^64 - 1
+    *out = (uint64_t)v;
     return 0;
 }
 

@@ -15,6 +15,8 @@ int cli_usage_error(const char* command, const char* fmt, ...) __attribute__((fo
 // Comma-separated numbers into out[n]; exactly n values, all finite. 0 on success.
 int cli_parse_floats(const char* text, float* out, int n);
 int cli_parse_long(const char* text, long lo, long hi, long* out);
+// A decimal integer in 0..2^64-1 (no sign; overflow refused, not clamped). 0 on success.
+int cli_parse_u64(const char* text, uint64_t* out);
 int cli_parse_double(const char* text, double lo, double hi, double* out);
 // ../shared/data beside the source tree, or $MLB_SHARED_DATA; NULL when absent.
 const char* cli_shared_data(void);

@@ -79,4 +79,28 @@ refused_early "paint --asset in a missing folder" 1 "/nonexistent/dir/x.glb: can
 expect 1 "export -o in a missing folder: refused before the atlas" -- $Q export "$T/rep" -o /nonexistent/dir/x.glb
 err_has "export names the output" "/nonexistent/dir/x.glb"
 
+# ---- 3. nothing cut without a word ----
+# a path of 1023 bytes naming a mesh, and that path with more after it: the longer one was once cut
+# back to the first and painted it; now any argument over 1023 bytes is refused, naming its option
+deep="$T"; while [ ${#deep} -lt 900 ]; do deep="$deep/dddddddddddddddddddddddddddddddddddddddddddddddd"; done
+mkdir -p "$deep"
+fill=$((1023 - ${#deep} - 5)); name=$(head -c "$fill" /dev/zero | tr '\0' m)
+prefix="$deep/$name.obj"
+cp "$T/rep.obj" "$prefix"
+[ ${#prefix} = 1023 ] && ok "a mesh path of 1023 bytes" || bad "prefix is ${#prefix} bytes"
+refused_early "paint --mesh of 1037 bytes" 2 "the value of --mesh is 1037 bytes" paint --mesh "$prefix.NOT_THERE.obj" -p "a red cube"
+refused_early "paint --mesh of 5000 bytes" 2 "the value of --mesh is 5000 bytes: a path, a prompt or a name may have at most 1023" \
+  paint --mesh "$(head -c 5000 /dev/zero | tr '\0' p)" -p "a red cube"
+# a prompt of 1024 bytes whose 1023rd byte starts a UTF-8 character: refused whole, not cut into invalid UTF-8
+long_prompt="$(head -c 1022 /dev/zero | tr '\0' a)é"
+refused_early "a prompt of 1024 bytes" 2 "the value of -p is 1024 bytes" $G -p "$long_prompt"
+# --prompts: a NUL byte was the silent end of the file, CR-only line ends one merged prompt
+printf 'a gold goblet\n--seed 2 a red mug\0 --seed 3 a hidden line\n' > "$T/nul.txt"
+expect 2 "--prompts with a NUL byte" -- $Q generate --prompts "$T/nul.txt" -o "$T/pn"
+err_has "the NUL byte's line and column" "nul.txt: line 2: a NUL byte at column 19"
+[ -e "$T/pn" ] && bad "--prompts NUL: folder made" || ok "--prompts NUL: no folder"
+printf 'a gold goblet\ra gold goblet\r' > "$T/cr.txt"
+expect 2 "--prompts with CR line ends: two lines" -- $Q generate --prompts "$T/cr.txt" -o "$T/pc"
+err_has "the two CR-ended lines seen apart" "lines 1 and 2 both make the run a-gold-goblet-2d3c54a6"
+
 finish

@@ -90,6 +90,27 @@ TEST(error_messages_and_context) {
     CHECK(mlb_fail_context(MLB_ERR_FORMAT, "loading %s", "model") == MLB_ERR_FORMAT);
     CHECK(strcmp(mlb_last_error(), "loading model: x.bin: bad header") == 0);
     CHECK(strcmp(mlb_status_name(MLB_ERR_NOMEM), "out of memory") == 0);
+    // a message longer than the buffer keeps its beginning and its end (the reason comes last)
+    static char path[5001];
+    memset(path, 'p', 5000);
+    mlb_fail(MLB_ERR_IO, "%s: not a regular file (a named pipe)", path);
+    const char* m = mlb_last_error();
+    size_t n = strlen(m);
+    CHECK(n < 4096 && strncmp(m, "pppp", 4) == 0 && strstr(m, "p ... p") != NULL);
+    CHECK(n > 30 && strcmp(m + n - 30, "not a regular file (a named pipe)" + 3) == 0);
+    mlb_fail_context(MLB_ERR_IO, "reading %s", path);
+    m = mlb_last_error();
+    n = strlen(m);
+    CHECK(n < 4096 && strncmp(m, "reading ppp", 11) == 0 && strcmp(m + n - 14, "(a named pipe)") == 0);
+    // cut between characters, never inside one
+    static char wide[6001];
+    for (int i = 0; i < 3000; i++) memcpy(wide + 2 * i, "\xC3\xA9", 2);
+    mlb_fail(MLB_ERR_ARG, "%s!", wide);
+    m = mlb_last_error();
+    const char* gap = strstr(m, " ... ");
+    REQUIRE(gap);
+    CHECK((gap - m) % 2 == 0 && ((unsigned char)gap[5] == 0xC3) && strcmp(m + strlen(m) - 1, "!") == 0);
+    mlb_clear_error();
 }
 
 static char log_seen[256];

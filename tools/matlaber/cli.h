@@ -12,6 +12,11 @@
 int cli_fail(mlb_status s, const char* what);
 // Usage errors: message + hint to --help; returns EXIT_USAGE.
 int cli_usage_error(const char* command, const char* fmt, ...) __attribute__((format(printf, 2, 3)));
+// Every argument of the command line (a path, a prompt, a name, --set KEY=VALUE) has at most this many
+// bytes (the run's config.json fields hold as much): a longer one is refused, never cut
+// (docs/files.md). Returns EXIT_USAGE naming the argument's place or option, 0 when all fit.
+#define CLI_MAX_ARG 1023
+int cli_check_args(int argc, char** argv);
 // Comma-separated numbers into out[n]; exactly n values, all finite. 0 on success.
 int cli_parse_floats(const char* text, float* out, int n);
 int cli_parse_long(const char* text, long lo, long hi, long* out);

@@ -126,6 +126,8 @@ enum { MODE_GENERATE, MODE_FIT, MODE_PAINT };
 
 static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     const int is_fit = mode == MODE_FIT, is_paint = mode == MODE_PAINT;
+    int bad_arg = cli_check_args(argc, argv);   // (--prompts hands each line's options here)
+    if (bad_arg) return bad_arg;
     mlb_pipeline_config c = mlb_pipeline_default();
     if (is_fit) {
         snprintf(c.guidance, sizeof c.guidance, "images");
@@ -160,8 +162,11 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (!m) return cli_usage_error(command, "-m MODEL is required: no Stable Diffusion weights given and the project's own "
                                            "model is not there (train it: matlaber sd train -o models/%s; docs/sd_train.md)",
                                            MLB_DEFAULT_MODEL);
-            snprintf(c.model, sizeof c.model, "%s", m);
             const char* am = cli_default_appearance_model();   // --appearance-model, when given, replaces it
+            if (strlen(m) > CLI_MAX_ARG || (am && strlen(am) > CLI_MAX_ARG))   // ($MATLABER_MODEL: not an argument)
+                return cli_usage_error(command, "$MATLABER_MODEL or $MATLABER_APPEARANCE_MODEL: a path of more than %d bytes",
+                                       CLI_MAX_ARG);
+            snprintf(c.model, sizeof c.model, "%s", m);
             if (am) snprintf(c.appearance_model, sizeof c.appearance_model, "%s", am);
             if (!preset) preset = "tiny";
         }

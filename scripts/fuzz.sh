@@ -25,7 +25,7 @@ if [ -z "$cc" ]; then echo "fuzz.sh: clang not found (apt-get install clang-14 l
 if [ "$target" = obj ]; then
   srcs="src/io/obj.c src/mesh/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
 elif [ "$target" = gltf ]; then   # the exporter too, for the seeder's .glb
-  srcs="src/io/gltf_read.c src/export/gltf.c src/mesh/mesh.c src/mesh/primitives.c src/core/error.c src/core/fileio.c"
+  srcs="src/io/gltf_read.c src/export/gltf.c src/mesh/mesh.c src/mesh/primitives.c src/core/error.c src/core/fileio.c src/core/json_why.c"
   libs="-lcjson -lpng -lm"
 else
   srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"; libs="-lcjson -lm"

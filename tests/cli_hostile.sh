@@ -103,4 +103,16 @@ printf 'a gold goblet\ra gold goblet\r' > "$T/cr.txt"
 expect 2 "--prompts with CR line ends: two lines" -- $Q generate --prompts "$T/cr.txt" -o "$T/pc"
 err_has "the two CR-ended lines seen apart" "lines 1 and 2 both make the run a-gold-goblet-2d3c54a6"
 
+# ---- 5. messages name the file and the problem, never another file's contents ----
+for opt in "generate -p a-red-cube --init-iters 1 --init" "paint -p a-red-cube --mesh"; do
+  rm -rf "$T/m5"
+  expect 1 "${opt##* }: a password file's look-alike refused" -- timeout 120 $Q $opt "$T/shadow" -o "$T/m5"
+  err_has "${opt##* }: the file and the line named" "$T/shadow: line 1: not an OBJ statement"
+  grep -q "SECRETHASH\|root:" "$T/err" && bad "${opt##* }: the message quotes the file" || ok "${opt##* }: nothing of the file quoted"
+done
+# a .gltf nested 200000 deep: cJSON stops at 1000 levels, and the message says so
+{ head -c 200000 /dev/zero | tr '\0' '['; head -c 200000 /dev/zero | tr '\0' ']'; } > "$T/deep.gltf"
+expect 1 "a .gltf nested 200000 deep" -- $Q paint --mesh "$T/deep.gltf" -p "a red cube" -o "$T/m6"
+err_has "nesting named" "deep.gltf: not glTF: neither a .glb nor JSON text (JSON nested more than 1000 levels deep"
+
 finish

@@ -119,6 +119,9 @@ int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
+// The same from memory (path names the text in errors); c is left as it was on error.
+mlb_status mlb_pipeline_config_parse(mlb_pipeline_config* c, const char* text, size_t n, const char* path);
+#define MLB_PIPELINE_CONFIG_MAX (1 << 20)   // bytes of a config.json
 // One config.json key from "KEY=VALUE" (the CLI's --set; numbers and strings as config.json has
 // them, "envs" as names comma-separated): MLB_ERR_ARG naming the key when it is unknown or the value
 // has the wrong type; c is unchanged then. Ranges are checked by mlb_pipeline_validate.

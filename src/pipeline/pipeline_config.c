@@ -8,6 +8,7 @@
 #include <string.h>
 #include "matlaber/device.h"
 #include "matlaber/fileio.h"
+#include "matlaber/json_why.h"
 #include "matlaber/pipeline.h"
 
 mlb_pipeline_config mlb_pipeline_default(void) {
@@ -319,7 +320,7 @@ static mlb_status parse_field(const field* f, const cJSON* it, char* p, const ch
         return MLB_OK;
     case F_MATERIAL:
         if (mlb_material_mode_parse(it->valuestring, (mlb_material_mode*)p))
-            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\": unknown material mode \"%s\"", where, f->key, it->valuestring);
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be \"latent\" or \"direct\"", where, f->key);
         return MLB_OK;
     }
     return MLB_OK;
@@ -391,14 +392,22 @@ const char* mlb_pipeline_config_differs(const mlb_pipeline_config* a, const mlb_
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) {
     char* text = NULL;
     size_t n = 0;
-    mlb_status s = mlb_read_file(path, &text, &n, 1 << 20);
+    mlb_status s = mlb_read_file(path, &text, &n, MLB_PIPELINE_CONFIG_MAX);
     if (s) return s;
-    cJSON* root = cJSON_ParseWithLength(text, n);
+    s = mlb_pipeline_config_parse(out, text, n, path);
     free(text);
+    return s;
+}
+
+mlb_status mlb_pipeline_config_parse(mlb_pipeline_config* out, const char* text, size_t n, const char* path) {
+    cJSON* root = cJSON_ParseWithLength(text, n);
     if (!root || !cJSON_IsObject(root)) {
+        char why[96];
+        if (!root) mlb_json_why(text, n, why, sizeof why);
         cJSON_Delete(root);
-        return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path);
+        return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object%s%s%s", path, root ? "" : " (", root ? "" : why, root ? "" : ")");
     }
+    mlb_status s = MLB_OK;
     mlb_pipeline_config c = mlb_pipeline_default();
     const cJSON* fmt = cJSON_GetObjectItemCaseSensitive(root, "format");
     if (!cJSON_IsString(fmt) || strcmp(fmt->valuestring, "matlaber-run") != 0)

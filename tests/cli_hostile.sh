@@ -115,4 +115,27 @@ done
 expect 1 "a .gltf nested 200000 deep" -- $Q paint --mesh "$T/deep.gltf" -p "a red cube" -o "$T/m6"
 err_has "nesting named" "deep.gltf: not glTF: neither a .glb nor JSON text (JSON nested more than 1000 levels deep"
 
+# ---- 6. no NaN read in ----
+nan_tail() { printf "$2" | dd of="$1" bs=1 seek=$(( $(stat -c %s "$1") - 4 )) conv=notrunc status=none; }   # FILE BYTES
+# a paint run stopped after a checkpoint, its checkpoint's last number made NaN: --resume refuses it
+# naming the file, and the run is left as it was (once it resumed and wrote 1000 NaNs into
+# final/material.safetensors, exit 0)
+expect 0 "paint stopped after its first checkpoint" -- $Q paint --mesh "$T/rep.obj" -p "a red cube" $small \
+  --appearance-iters 2 --checkpoint-every 1 --stop-after 1 -o "$T/nanrun"
+ck="$T/nanrun/checkpoints/appearance.safetensors"
+nan_tail "$ck" '\x00\x00\xc0\x7f'
+cp "$T/nanrun/loss.csv" "$T/loss_before.csv"
+expect 1 "paint --resume of a checkpoint holding a NaN" -- $Q paint --resume "$T/nanrun"
+err_has "the checkpoint and the tensor named" "appearance.safetensors: tensor 'adam_v' holds a NaN or an infinity"
+[ -e "$T/nanrun/final/material.safetensors" ] && bad "a material written from the NaN" || ok "no material written"
+cmp -s "$T/loss_before.csv" "$T/nanrun/loss.csv" && ok "the run left as it was (loss.csv)" || bad "loss.csv changed"
+# a diffusion model whose UNet holds a NaN: refused when it loads (a NaN UNet once gave a guidance
+# loss of 0 without a word)
+cp -r "$(dirname "$0")/../models/matlaber-tiny-appearance" "$T/nanmodel"
+nan_tail "$T/nanmodel/unet/diffusion_pytorch_model.safetensors" '\x00\xfe\xff\x7f'   # NaN as F32, F16 or BF16
+expect 1 "sd txt2img with a NaN in the UNet" -- $Q sd txt2img -m "$T/nanmodel" -p "a red cube" -o "$T/nan.png"
+err_has "the weights file named" "diffusion_pytorch_model.safetensors: tensor '.*' holds a NaN or an infinity"
+[ -e "$T/nan.png" ] && bad "an image written" || ok "no image written"
+refused_early "generate with a NaN in the UNet" 1 "holds a NaN or an infinity" $G -m "$T/nanmodel" --preset tiny
+
 finish

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 #include "matlaber/brdf_ae.h"
 #include "matlaber/dist.h"
 #include "matlaber/dmtet.h"
@@ -131,6 +132,24 @@ static mlb_status pipeline_scene_lights(pipeline_scene* sc, const mlb_pipeline_c
         sc->light_ptrs[i] = &sc->lights[i];
     }
     return s;
+}
+
+// A resumed run's checkpoints, opened and checked (finite, as every load checks) before anything in
+// its folder changes: a damaged checkpoint ends the command with the run as it was.
+static mlb_status pipeline_check_checkpoints(const char* dir) {
+    static const char* const rel[2] = {"checkpoints/geometry.safetensors", "checkpoints/appearance.safetensors"};
+    for (int k = 0; k < 2; k++) {
+        char path[MLB_PIPELINE_PATH + 64];
+        pipeline_path(path, sizeof path, dir, rel[k]);
+        if (access(path, F_OK) != 0) continue;   // not there yet (anything there is read: a pipe is refused)
+        mlb_safetensors* st = NULL;
+        MLB_TRY(mlb_st_open(&st, path));
+        mlb_status s = MLB_OK;
+        for (size_t i = 0; !s && i < mlb_st_count(st); i++) s = mlb_st_check_finite(st, mlb_st_tensor_at(st, i));
+        mlb_st_close(st);
+        if (s) return s;
+    }
+    return MLB_OK;
 }
 
 // A fresh run's --init shapes that are files (one, or auto:A,B,..'s), read and checked before its
@@ -584,12 +603,14 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     }
     pipeline_run r;
     memset(&r, 0, sizeof r);
-    // every input the run reads is read before its folder is made: the environments, the --init
-    // files, the BRDF prior (a failure here leaves nothing behind; docs/files.md)
+    // every input the run reads is read before its folder is made or changed: the environments, the
+    // --init files, a resumed run's checkpoints, the BRDF prior (a failure here leaves nothing
+    // behind; docs/files.md)
     mlb_brdf_ae prior;
     memset(&prior, 0, sizeof prior);
     s = pipeline_scene_open(&r.scene, c, views);
     if (!s && !resume && !paint) s = pipeline_check_init(c);
+    if (!s && resume && mlb_dist_rank() == 0) s = pipeline_check_checkpoints(dir);
     if (!s) {
         char source[256];
         s = mlb_brdf_ae_load_default(&prior, source, sizeof source);

@@ -138,4 +138,17 @@ err_has "the weights file named" "diffusion_pytorch_model.safetensors: tensor '.
 [ -e "$T/nan.png" ] && bad "an image written" || ok "no image written"
 refused_early "generate with a NaN in the UNet" 1 "holds a NaN or an infinity" $G -m "$T/nanmodel" --preset tiny
 
+# ---- 7. sd txt2img says what it takes ----
+expect 0 "sd txt2img --help" -- $M sd txt2img --help
+grep -q -- "--steps N .*1\.\.999" "$T/out" && ok "help gives the steps' range" || bad "help: $(grep -- --steps "$T/out")"
+expect 2 "sd txt2img --steps 1000 (a 1000th step would be timestep 1000 of 0..999)" -- $Q sd txt2img -p "a red cube" --steps 1000 -o "$T/s.png"
+err_has "the range named" "--steps: expected 1..999"
+expect 2 "sd txt2img -o x.jpg (the bytes are PNG)" -- $Q sd txt2img -p "a red cube" --steps 1 -o "$T/x.jpg"
+err_has "the name refused" "-o $T/x.jpg: the image is written as PNG: give a name ending in .png"
+[ -e "$T/x.jpg" ] && bad "x.jpg written" || ok "no x.jpg"
+expect 1 "sd txt2img -o in a missing folder: before sampling" -- $Q sd txt2img -p "a red cube" --steps 1 -o /nonexistent/dir/x.png
+err_has "the output named" "/nonexistent/dir/x.png: cannot create a temporary file beside it"
+expect 0 "sd txt2img -o X.PNG" -- $Q sd txt2img -p "a red cube" --steps 1 -o "$T/x.PNG"
+[ "$(head -c 4 "$T/x.PNG" | od -An -c | tr -d ' ')" = "211PNG" ] && ok "a PNG" || bad "not a PNG"
+
 finish

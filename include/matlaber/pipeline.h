@@ -10,6 +10,7 @@
 // (on any thread count; with the same BLAS kernels, i.e. on the same kind of CPU).
 #ifndef MATLABER_PIPELINE_H
 #define MATLABER_PIPELINE_H
+#include <stddef.h>
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/guidance.h"
@@ -118,6 +119,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
 int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
+// The text config.json holds (malloc'd, free() it); NULL when out of memory.
+char* mlb_pipeline_config_text(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
 // The same from memory (path names the text in errors); c is left as it was on error.
 mlb_status mlb_pipeline_config_parse(mlb_pipeline_config* c, const char* text, size_t n, const char* path);

@@ -189,6 +189,9 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "precision must be empty (the program's) or one of --precision's names";
     else if (c->paint_mesh[0] && c->geometry_iters != 0) bad = "a paint run has no geometry stage (geometry_iters 0)";
     else if (c->paint_keep_uv != 0 && c->paint_keep_uv != 1) bad = "paint_keep_uv must be 0 or 1";
+    else if (!c->paint_mesh[0] && (c->paint_keep_uv != 1 || c->paint_scale != 0 || c->paint_centre[0] != 0 ||
+                                   c->paint_centre[1] != 0 || c->paint_centre[2] != 0))
+        bad = "paint_keep_uv, paint_centre_* and paint_scale belong to paint runs (paint_mesh)";
     else if (!(c->paint_scale >= 0) || !isfinite(c->paint_scale) || !isfinite(c->paint_centre[0]) ||
              !isfinite(c->paint_centre[1]) || !isfinite(c->paint_centre[2]))
         bad = "the paint frame (paint_centre_*, paint_scale) must be finite, the scale >= 0";
@@ -252,9 +255,9 @@ static const field FIELDS[] = {
 #undef FLD_OPT
 #define N_FIELDS (sizeof FIELDS / sizeof *FIELDS)
 
-mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
+char* mlb_pipeline_config_text(const mlb_pipeline_config* c) {
     cJSON* root = cJSON_CreateObject();
-    if (!root) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    if (!root) return NULL;
     cJSON_AddStringToObject(root, "format", "matlaber-run");
     cJSON_AddNumberToObject(root, "version", 1);
     for (size_t i = 0; i < N_FIELDS; i++) {
@@ -278,11 +281,22 @@ mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* pa
     for (int i = 0; envs && i < c->n_envs; i++) cJSON_AddItemToArray(envs, cJSON_CreateString(c->envs[i]));
     char* text = cJSON_Print(root);
     cJSON_Delete(root);
-    if (!text) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    if (!text) return NULL;
     size_t n = strlen(text);
-    text[n] = '\n';   // cJSON_Print's buffer ends in NUL: replace it, write n + 1 bytes
-    mlb_status s = mlb_write_file_atomic(path, text, n + 1);
+    char* out = malloc(n + 2);   // with a final newline, ours to free()
+    if (out) {
+        memcpy(out, text, n);
+        memcpy(out + n, "\n", 2);
+    }
     cJSON_free(text);
+    return out;
+}
+
+mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
+    char* text = mlb_pipeline_config_text(c);
+    if (!text) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    mlb_status s = mlb_write_file_atomic(path, text, strlen(text));
+    free(text);
     return s;
 }
 

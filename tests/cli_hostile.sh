@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
 # Hostile input to the command line (docs/files.md, "What each input may be"): each case ends in a
 # clear error naming the input and the problem, or in correct output, with nothing left behind.
+# In order: a long argument vector for --prompts; hangs (an OBJ that made the UV atlas cubic, named
+# pipes wherever a file is read); inputs checked before the run folder is made; nothing cut
+# (long paths and prompts, NUL bytes and CR line ends in --prompts); messages that repeat nothing
+# of another file; no NaN read in; sd txt2img's steps and output name.
 set -u
 M=${1:?usage: cli_hostile.sh path/to/matlaber}
 . "$(dirname "$0")/lib_cli.sh"

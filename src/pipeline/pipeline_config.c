@@ -255,6 +255,18 @@ static const field FIELDS[] = {
 #undef FLD_OPT
 #define N_FIELDS (sizeof FIELDS / sizeof *FIELDS)
 
+// A double as the shortest decimal that reads back as the same bits (cJSON prints 15 digits when
+// they come within an epsilon: 0.8888888888888888 was saved as 0.888888888888889, and a resumed run
+// read another number than the one it started with).
+static void add_double(cJSON* root, const char* key, double v) {
+    char buf[40];
+    for (int digits = 15; digits <= 17; digits++) {
+        snprintf(buf, sizeof buf, "%.*g", digits, v);
+        if (strtod(buf, NULL) == v) break;
+    }
+    cJSON_AddRawToObject(root, key, buf);
+}
+
 char* mlb_pipeline_config_text(const mlb_pipeline_config* c) {
     cJSON* root = cJSON_CreateObject();
     if (!root) return NULL;
@@ -273,7 +285,7 @@ char* mlb_pipeline_config_text(const mlb_pipeline_config* c) {
             cJSON_AddStringToObject(root, f->key, buf);
             break;
         }
-        case F_DOUBLE: cJSON_AddNumberToObject(root, f->key, *(const double*)p); break;
+        case F_DOUBLE: add_double(root, f->key, *(const double*)p); break;
         case F_MATERIAL: cJSON_AddStringToObject(root, f->key, mlb_material_mode_name(*(const mlb_material_mode*)p)); break;
         }
     }

@@ -1,19 +1,22 @@
 #!/usr/bin/env bash
 # Fuzz a file reader with libFuzzer + AddressSanitizer + UndefinedBehaviorSanitizer.
-#   scripts/fuzz.sh [safetensors|obj|gltf] [SECONDS]      (default: safetensors, 600 s)
+#   scripts/fuzz.sh [safetensors|obj|gltf|prompts|config] [SECONDS]      (default: safetensors, 600 s)
+#   MLB_FUZZ_RUNS=N stops after N executions instead (and SECONDS, if given, still bounds the time)
 # Builds fuzz/corpus-run[-obj]/fuzz_TARGET with clang straight from the sources it needs (not part
 # of the CMake build), writes seed files with the same source built as a seeder, then fuzzes for
 # SECONDS. The corpus grows in fuzz/corpus-run/corpus (gitignored, kept between runs); crashes
 # land in fuzz/crash-* (gitignored). The log is fuzz/corpus-run/fuzz.log. Exit status 0 = no crash.
 set -euo pipefail
 target=safetensors
-case "${1:-}" in safetensors|obj|gltf) target="$1"; shift ;; esac
+case "${1:-}" in safetensors|obj|gltf|prompts|config) target="$1"; shift ;; esac
 secs="${1:-600}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 run=fuzz/corpus-run
 [ "$target" = obj ] && run=fuzz/corpus-run-obj
 [ "$target" = gltf ] && run=fuzz/corpus-run-gltf
+[ "$target" = prompts ] && run=fuzz/corpus-run-prompts
+[ "$target" = config ] && run=fuzz/corpus-run-config
 mkdir -p "$run/corpus"
 
 cc=""
@@ -25,12 +28,17 @@ if [ -z "$cc" ]; then echo "fuzz.sh: clang not found (apt-get install clang-14 l
 if [ "$target" = obj ]; then
   srcs="src/io/obj.c src/mesh/mesh.c src/core/error.c src/core/fileio.c"; libs="-lm"
 elif [ "$target" = gltf ]; then   # the exporter too, for the seeder's .glb
-  srcs="src/io/gltf_read.c src/export/gltf.c src/mesh/mesh.c src/mesh/primitives.c src/core/error.c src/core/fileio.c"
+  srcs="src/io/gltf_read.c src/export/gltf.c src/mesh/mesh.c src/mesh/primitives.c src/core/error.c src/core/fileio.c src/core/json_why.c"
   libs="-lcjson -lpng -lm"
+elif [ "$target" = prompts ]; then   # the tokenizer's UTF-8 reader checks the lines
+  srcs="src/pipeline/prompts.c src/diffusion/tokenizer_text.c src/core/error.c"; libs="-lutf8proc -lm"
+elif [ "$target" = config ]; then
+  srcs="src/pipeline/pipeline_config.c src/pipeline/material_mode.c src/core/precision.c src/core/json_why.c src/core/error.c src/core/fileio.c"
+  libs="-lcjson -lm"
 else
   srcs="src/io/safetensors.c src/io/half.c src/core/error.c src/core/fileio.c"; libs="-lcjson -lm"
 fi
-flags="-std=c11 -D_GNU_SOURCE -g -O1 -Iinclude -fno-omit-frame-pointer"
+flags="-std=c11 -D_GNU_SOURCE -g -O1 -Iinclude -Isrc -fno-omit-frame-pointer"
 san="-fsanitize=address,undefined -fno-sanitize-recover=all"
 
 echo "fuzz.sh: building with $cc"
@@ -47,6 +55,13 @@ if [ "$target" = gltf ]; then
     '"byteStride"' '"componentType"' '"count"' '"VEC3"' '"SCALAR"' '"POSITION"' '"NORMAL"' '"TEXCOORD_0"' '"indices"' \
     '"mode"' '"nodes"' '"children"' '"matrix"' '"scale"' '"scenes"' '"meshes"' '"primitives"' '"buffers"' '"uri"' \
     '"5126"' '"5125"' '"5123"' '"5121"' '"4294967295"' '"1e308"' '"-1"' '"data:;base64,"' > "$run/$target.dict"
+elif [ "$target" = prompts ]; then
+  printf '%s\n' '"--"' '"--name "' '"--seed "' '"--init="' '"--fixed-env "' '"\x0d"' '"\x0a"' '"\x0d\x0a"' '"#"' \
+    '"\x00"' '"\xef\xbb\xbf"' '"\xc3\xa9"' '"\xed\xa0\x80"' '"\xf4\x90\x80\x80"' '"\x09"' > "$run/$target.dict"
+elif [ "$target" = config ]; then
+  printf '%s\n' '"\"format\""' '"\"matlaber-run\""' '"\"envs\""' '"\"seed\""' '"\"18446744073709551616\""' '"\"paint_mesh\""' \
+    '"\"latent_size\""' '"\"geometry_lr\""' '"1e308"' '"-0"' '"\\u0000"' '"[[[[["' '"\"init\""' '"\"auto:\""' \
+    '"\"precision\""' '"\"bf16\""' '"\"material\""' '"\"direct\""' > "$run/$target.dict"
 elif [ "$target" = obj ]; then
   printf '%s\n' '"v "' '"vt "' '"vn "' '"f "' '"/"' '"//"' '"-1"' '"1e38"' '"nan"' '"# "' '"mtllib "' > "$run/$target.dict"
 else
@@ -88,7 +103,9 @@ fi
 before=$(ls fuzz/crash-* fuzz/leak-* fuzz/timeout-* fuzz/oom-* 2>/dev/null | wc -l || true)
 start=$(date +%s)
 set +e
-"$run/fuzz_$target" -max_total_time="$secs" -max_len=4096 -timeout=10 -rss_limit_mb=2048 \
+runs=()
+[ -n "${MLB_FUZZ_RUNS:-}" ] && runs=(-runs="$MLB_FUZZ_RUNS")
+"$run/fuzz_$target" -max_total_time="$secs" "${runs[@]}" -max_len=4096 -timeout=10 -rss_limit_mb=2048 \
   -dict="$run/$target.dict" -artifact_prefix=fuzz/ -print_final_stats=1 "$run/corpus" >"$run/fuzz.log" 2>&1
 rc=$?
 set -e

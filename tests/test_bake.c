@@ -301,6 +301,72 @@ TEST(thin_triangle_covered) {
     mlb_baked_free(&b);
 }
 
+// One uv triangle given n times (copies: the same corners; else each shifted by i/4096 in u),
+// positions on the plane z = 0 with x = u, y = v.
+static void stack_mesh(mlb_uv_mesh* u, int n, int copies, const float tri[6]) {
+    memset(u, 0, sizeof *u);
+    u->mesh.n_verts = 3 * n;
+    u->mesh.n_faces = n;
+    u->mesh.pos = calloc(9 * (size_t)n, sizeof(float));
+    u->mesh.uv = malloc(sizeof(float) * 6 * (size_t)n);
+    u->mesh.faces = malloc(sizeof(int32_t) * 3 * (size_t)n);
+    u->face_chart = calloc((size_t)n, sizeof(int32_t));
+    u->n_charts = 1;
+    for (int f = 0; f < n; f++)
+        for (int k = 0; k < 3; k++) {
+            float a = tri[2 * k] + (copies ? 0 : f / 4096.0f), b = tri[2 * k + 1];
+            u->mesh.uv[6 * f + 2 * k] = a;
+            u->mesh.uv[6 * f + 2 * k + 1] = b;
+            u->mesh.pos[9 * f + 3 * k] = a;
+            u->mesh.pos[9 * f + 3 * k + 1] = b;
+            u->mesh.faces[3 * f + k] = 3 * f + k;
+        }
+}
+
+// Each face is rasterised over its own extent row by row: a needle across the texture covers
+// exactly the texels within half a texel diagonal of it (brute force over every texel agrees); a
+// face given 100 times bakes as once; 100 different faces over the whole square are refused.
+TEST(stacked_and_needle_uvs) {
+    const float needle[6] = {0.02f, 0.02f, 0.98f, 0.98f, 0.5f, 0.5f};   // a segment along the diagonal
+    mlb_uv_mesh u;
+    stack_mesh(&u, 1, 1, needle);
+    mlb_baked b;
+    REQUIRE(mlb_bake(&u, 128, field_fn, NULL, 0, &b) == MLB_OK);
+    int differ = 0, covered = 0;
+    for (int y = 0; y < 128; y++)
+        for (int x = 0; x < 128; x++) {
+            // texel centre in texel units against the segment (x = u·128, y = (1 − v)·128)
+            double cx = x + 0.5, cy = y + 0.5, px = 0.02 * 128, py = (1 - 0.02) * 128, qx = 0.98 * 128, qy = (1 - 0.98) * 128;
+            double dx = qx - px, dy = qy - py, t = ((cx - px) * dx + (cy - py) * dy) / (dx * dx + dy * dy);
+            t = t < 0 ? 0 : t > 1 ? 1 : t;
+            double ex = px + t * dx - cx, ey = py + t * dy - cy;
+            int want = sqrt(ex * ex + ey * ey) <= 0.7072;
+            differ += want != b.mask[y * 128 + x];
+            covered += want;
+        }
+    CHECK(differ == 0 && covered > 2 * 120);
+    mlb_baked_free(&b);
+    mlb_uv_mesh_free(&u);
+    // one face over the lower-left half, 100 times: the same texels as once
+    const float half[6] = {0, 0, 1, 0, 0, 1};
+    stack_mesh(&u, 1, 1, half);
+    mlb_baked once;
+    REQUIRE(mlb_bake(&u, 64, field_fn, NULL, 0, &once) == MLB_OK);
+    mlb_uv_mesh_free(&u);
+    stack_mesh(&u, 100, 1, half);
+    REQUIRE(mlb_bake(&u, 64, field_fn, NULL, 0, &b) == MLB_OK);
+    CHECK(b.n_covered == once.n_covered && !memcmp(b.kd, once.kd, sizeof(float) * 3 * 64 * 64));
+    mlb_baked_free(&b);
+    mlb_baked_free(&once);
+    mlb_uv_mesh_free(&u);
+    // 200 faces, each shifted a little: 200 layers over half the texture
+    stack_mesh(&u, 200, 0, half);
+    CHECK(mlb_bake(&u, 64, field_fn, NULL, 0, &b) == MLB_ERR_UNSUPPORTED);
+    CHECK(strstr(mlb_last_error(), "layers deep") != NULL);
+    CHECK(b.kd == NULL && b.mask == NULL);
+    mlb_uv_mesh_free(&u);
+}
+
 TEST(errors) {
     mlb_mesh m;
     REQUIRE(mlb_mesh_uv_sphere(&m, 1.0f, 16, 8) == MLB_OK);
@@ -325,6 +391,7 @@ int main(void) {
     RUN(dilation_radius_and_chart);
     RUN(mip_border_no_seam);
     RUN(thin_triangle_covered);
+    RUN(stacked_and_needle_uvs);
     RUN(errors);
     return test_summary();
 }

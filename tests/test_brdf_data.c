@@ -800,7 +800,7 @@ TEST(image_loading) {
     expect_error("text", mlb_image_load(&im, path2(dir, "notes.png"), 0), MLB_ERR_UNSUPPORTED, "notes.png", "looks like text");
     REQUIRE(write_text(path2(dir, "empty.png"), ""));
     expect_error("empty", mlb_image_load(&im, path2(dir, "empty.png"), 0), MLB_ERR_FORMAT, "empty.png", "empty file");
-    expect_error("missing", mlb_image_load(&im, path2(dir, "absent.png"), 0), MLB_ERR_IO, "absent.png", "no such file");
+    expect_error("missing", mlb_image_load(&im, path2(dir, "absent.png"), 0), MLB_ERR_IO, "absent.png", "No such file");
     expect_error("folder", mlb_image_load(&im, dir, 0), MLB_ERR_IO, dir, NULL);
     expect_error("channels", mlb_image_load(&im, path2(dir, "rgb8.png"), 5), MLB_ERR_ARG, "rgb8.png", "channels");
     mlb_image_free(&im);

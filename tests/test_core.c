@@ -5,6 +5,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include "matlaber/cpu.h"
@@ -89,6 +90,27 @@ TEST(error_messages_and_context) {
     CHECK(mlb_fail_context(MLB_ERR_FORMAT, "loading %s", "model") == MLB_ERR_FORMAT);
     CHECK(strcmp(mlb_last_error(), "loading model: x.bin: bad header") == 0);
     CHECK(strcmp(mlb_status_name(MLB_ERR_NOMEM), "out of memory") == 0);
+    // a message longer than the buffer keeps its beginning and its end (the reason comes last)
+    static char path[5001];
+    memset(path, 'p', 5000);
+    mlb_fail(MLB_ERR_IO, "%s: not a regular file (a named pipe)", path);
+    const char* m = mlb_last_error();
+    size_t n = strlen(m);
+    CHECK(n < 4096 && strncmp(m, "pppp", 4) == 0 && strstr(m, "p ... p") != NULL);
+    CHECK(n > 30 && strcmp(m + n - 30, "not a regular file (a named pipe)" + 3) == 0);
+    mlb_fail_context(MLB_ERR_IO, "reading %s", path);
+    m = mlb_last_error();
+    n = strlen(m);
+    CHECK(n < 4096 && strncmp(m, "reading ppp", 11) == 0 && strcmp(m + n - 14, "(a named pipe)") == 0);
+    // cut between characters, never inside one
+    static char wide[6001];
+    for (int i = 0; i < 3000; i++) memcpy(wide + 2 * i, "\xC3\xA9", 2);
+    mlb_fail(MLB_ERR_ARG, "%s!", wide);
+    m = mlb_last_error();
+    const char* gap = strstr(m, " ... ");
+    REQUIRE(gap);
+    CHECK((gap - m) % 2 == 0 && ((unsigned char)gap[5] == 0xC3) && strcmp(m + strlen(m) - 1, "!") == 0);
+    mlb_clear_error();
 }
 
 static char log_seen[256];
@@ -166,6 +188,35 @@ TEST(atomic_files) {
     snprintf(bad, sizeof bad, "%s/a/b/c", dir);
     CHECK(mlb_mkdir_p(bad) == MLB_OK);
     CHECK(mlb_mkdir_p(path) == MLB_ERR_IO);   // exists and is a file
+}
+
+// Outside files: only regular files are opened, and a named pipe with no writer is refused at once
+// (opening it for reading would wait for a writer forever); an alarm ends the test if it blocks.
+TEST(input_files_regular_only) {
+    const char* dir = test_tmpdir("core_input");
+    REQUIRE(dir);
+    char fifo[4200], file[4200];
+    snprintf(fifo, sizeof fifo, "%s/pipe.obj", dir);
+    snprintf(file, sizeof file, "%s/data.txt", dir);
+    unlink(fifo);
+    REQUIRE(mkfifo(fifo, 0600) == 0);
+    REQUIRE(mlb_write_file_atomic(file, "abc", 3) == MLB_OK);
+    alarm(20);
+    char* text; size_t n;
+    int fd = -1;
+    size_t size = 0;
+    CHECK(mlb_read_file(fifo, &text, &n, 100) == MLB_ERR_IO);
+    CHECK(strstr(mlb_last_error(), "pipe.obj: not a regular file (a named pipe)") != NULL && text == NULL);
+    CHECK(mlb_open_input(fifo, &fd, &size) == MLB_ERR_IO && fd == -1);
+    CHECK(mlb_open_input_file(fifo) == NULL);
+    CHECK(mlb_open_input(dir, &fd, &size) == MLB_ERR_IO && strstr(mlb_last_error(), "(a folder)"));
+    CHECK(mlb_open_input("/dev/null", &fd, &size) == MLB_ERR_IO && strstr(mlb_last_error(), "(a device)"));
+    alarm(0);
+    REQUIRE(mlb_open_input(file, &fd, &size) == MLB_OK);
+    char buf[8];
+    CHECK(size == 3 && read(fd, buf, sizeof buf) == 3 && memcmp(buf, "abc", 3) == 0);
+    close(fd);
+    unlink(fifo);
 }
 
 // The features read from cpuid + XCR0 agree with the kernel's flags in /proc/cpuinfo (which also
@@ -323,6 +374,7 @@ int main(int argc, char** argv) {
     RUN(log_levels_and_sink);
     RUN(progress_plain_lines);
     RUN(atomic_files);
+    RUN(input_files_regular_only);
     RUN(runtime_restart_wait_policy);
     RUN(runtime_tune_malloc);
     return test_summary();

@@ -141,7 +141,7 @@ TEST(hostile_hdr_files) {
     write_bytes(path, "hello, world\n", 13);
     CHECK(fails_naming(mlb_envmap_load(&env, path, 1.0f, NULL), MLB_ERR_UNSUPPORTED, path, NULL));
     snprintf(path, sizeof path, "%s/missing.hdr", dir);
-    CHECK(fails_naming(mlb_envmap_load(&env, path, 1.0f, NULL), MLB_ERR_IO, path, "no such file"));
+    CHECK(fails_naming(mlb_envmap_load(&env, path, 1.0f, NULL), MLB_ERR_IO, path, "No such file"));
     CHECK(fails_naming(mlb_envmap_load(&env, dir, 1.0f, NULL), MLB_ERR_IO, dir, "not a regular file"));
     snprintf(path, sizeof path, "%s/ok0.hdr", dir);
     CHECK(fails_naming(mlb_envmap_load(&env, path, -1.0f, NULL), MLB_ERR_ARG, path, "scale"));

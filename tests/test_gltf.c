@@ -423,6 +423,17 @@ TEST(malformed) {
     // not glTF at all
     s = mlb_gltf_parse((const unsigned char*)"v 0 0 0\n", 8, "x.gltf", NULL, &m, NULL, NULL);
     CHECK(s == MLB_ERR_FORMAT && strstr(mlb_last_error(), "x.gltf: not glTF"));
+    CHECK(strstr(mlb_last_error(), "a JSON syntax error at byte 0") != NULL);
+    // JSON nested 200000 deep (past cJSON's 1000 levels, which it refuses without a word): said so
+    const size_t D = 200000;
+    char* deep = malloc(2 * D + 1);
+    REQUIRE(deep);
+    memset(deep, '[', D);
+    memset(deep + D, ']', D);
+    s = mlb_gltf_parse((const unsigned char*)deep, 2 * D, "deep.gltf", NULL, &m, NULL, NULL);
+    CHECK_MSG(s == MLB_ERR_FORMAT && strstr(mlb_last_error(), "deep.gltf: not glTF: neither a .glb nor JSON text (JSON nested "
+                                                                "more than 1000 levels deep (at byte 1000))"), "%s", mlb_last_error());
+    free(deep);
     s = mlb_gltf_load("/nonexistent/y.glb", &m, NULL, NULL);
     CHECK(s != MLB_OK && strstr(mlb_last_error(), "/nonexistent/y.glb") && mesh_is_zero(&m));
     free(good);

@@ -98,6 +98,8 @@ TEST(config_round_trip_and_errors) {
     c.seed = 0xFFFFFFFFFFFFFFF1ull;   // beyond a double's integers: stored as a decimal string
     c.material = MLB_MATERIAL_DIRECT;
     c.geometry_lr = 3.3e-4;
+    c.reg_end = 8.0 / 9;          // no 15-digit decimal reads back as this double: saved with 16
+    c.guidance_scale = 0.1 + 0.2;   // (0.30000000000000004: 17 digits)
     c.n_envs = 2;
     snprintf(c.envs[1], sizeof c.envs[1], "/maps/a b.hdr");
     char path[512];
@@ -106,7 +108,7 @@ TEST(config_round_trip_and_errors) {
     REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
     CHECK(back.seed == c.seed);
     CHECK(back.material == MLB_MATERIAL_DIRECT);
-    CHECK(back.geometry_lr == c.geometry_lr);
+    CHECK(back.geometry_lr == c.geometry_lr && back.reg_end == c.reg_end && back.guidance_scale == c.guidance_scale);
     CHECK(!strcmp(back.prompt, c.prompt) && !strcmp(back.envs[1], c.envs[1]) && back.n_envs == 2);
     back.stop_after = c.stop_after;
     back.overwrite = c.overwrite;
@@ -194,12 +196,34 @@ TEST(config_set) {
     CHECK(c.n_envs == 2 && !strcmp(c.envs[0], "studio") && !strcmp(c.envs[1], "/maps/a b.hdr"));
     before = c;
     const char* bad[] = {"rez=64", "res", "=3", "res=abc", "res=64.5", "material=shiny", "envs=", "envs=sky,", "envs=a,,b",
-                         "res=", "seed=-1"};
-    for (int i = 0; i < 11; i++) {
+                         "res=", "seed=-1", "seed=18446744073709551616", "seed=+5", "geometry_iters=3000000000"};
+    for (int i = 0; i < 14; i++) {
         CHECK_MSG(mlb_pipeline_config_set(&c, bad[i]) != MLB_OK, "%s accepted", bad[i]);
         CHECK_MSG(strstr(mlb_last_error(), "--set") != NULL, "%s: %s", bad[i], mlb_last_error());
     }
+    CHECK(strstr(mlb_last_error(), "out of range") != NULL);
+    // text longer than a field holds is refused, never cut
+    char long_prompt[1100 + 8];
+    snprintf(long_prompt, sizeof long_prompt, "prompt=%01100d", 7);
+    CHECK(mlb_pipeline_config_set(&c, long_prompt) != MLB_OK && strstr(mlb_last_error(), "too long"));
     CHECK(!memcmp(&c, &before, sizeof c));
+    // what the command-line options refuse, the validation refuses too (--set and config.json)
+    const char* out_of_range[] = {"geometry_lr=1e308", "appearance_lr=0", "geometry_iters=10000001", "appearance_iters=-1",
+                                  "init_iters=1000001", "latent_size=7", "latent_size=264", "latent_size=-8",
+                                  "guidance_scale=1e300", "appearance_guidance_scale=10001", "checkpoint_every=0",
+                                  "preview_every=10000001", "material_smoothness=1000", "res=2056", "latent_iters=-2"};
+    const char* named[] = {"learning rates", "learning rates", "iteration counts", "iteration counts", "init_iters",
+                           "latent_size", "latent_size", "latent_size", "guidance scale", "appearance guidance scale",
+                           "checkpoint_every", "preview_every", "material smoothness", "--res", "latent_iters"};
+    for (int i = 0; i < 15; i++) {
+        mlb_pipeline_config t = c;
+        REQUIRE(mlb_pipeline_config_set(&t, out_of_range[i]) == MLB_OK);
+        CHECK_MSG(mlb_pipeline_validate(&t) == MLB_ERR_ARG && strstr(mlb_last_error(), named[i]), "%s: %s", out_of_range[i],
+                  mlb_last_error());
+    }
+    mlb_pipeline_config t = c;
+    REQUIRE(mlb_pipeline_config_set(&t, "latent_size=16") == MLB_OK && mlb_pipeline_config_set(&t, "geometry_lr=10") == MLB_OK);
+    CHECK(mlb_pipeline_validate(&t) == MLB_OK);
     mlb_pipeline_config other = c;
     CHECK(mlb_pipeline_config_differs(&c, &other, NULL) == NULL);
     REQUIRE(mlb_pipeline_config_set(&other, "geometry_t_max_end=250") == MLB_OK);

@@ -5,6 +5,7 @@
 #include "matlaber/image.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
+#include <float.h>
 #include <stdint.h>
 
 static char tmp[4096];
@@ -129,10 +130,10 @@ TEST(checkpoint_round_trip_bitwise) {
     path_of(p, "ckpt.safetensors");
     float s0 = 3.5f, a[7], b[6], c[2 * 1 * 3 * 2], e[1];
     for (int i = 0; i < 7; i++) a[i] = float_of(0x3f800000u + 12345u * (uint32_t)i);
-    a[1] = float_of(0x7fc12345u);   // NaN with a payload
+    a[1] = float_of(0x7f7fffffu);   // the largest float (NaN and infinities are refused: checkpoint_nan)
     a[2] = -0.0f;
     a[3] = float_of(1u);            // smallest denormal
-    a[4] = INFINITY;
+    a[4] = -FLT_MAX;
     for (int i = 0; i < 6; i++) b[i] = (float)i * 0.1f - 0.25f;
     for (int i = 0; i < 12; i++) c[i] = 1.0f / (float)(i + 1);
     mlb_ckpt_tensor t[5] = {
@@ -213,6 +214,34 @@ TEST(checkpoint_load_errors) {
     CHECK(mlb_checkpoint_load(p, v, 2, NULL) == MLB_OK && x[5] == 6 && y[1] == 8);
     path_of(q, "none.safetensors");
     CHECK(mlb_checkpoint_load(q, v, 2, NULL) != MLB_OK && has(q));
+}
+
+// Never a NaN or an infinity in a checkpoint: saving one is refused naming the tensor and the
+// element, and a file holding one (damaged, or written by something else) is refused on load with
+// nothing copied: a resumed run would carry it into every file after it.
+TEST(checkpoint_nan) {
+    char p[4096];
+    path_of(p, "nan.safetensors");
+    float a[4] = {1, 2, NAN, 4}, b[3] = {0, INFINITY, 0};
+    mlb_ckpt_tensor t[2] = {{"params", a, 1, {4}}, {"adam_v", b, 1, {3}}};
+    CHECK(mlb_checkpoint_save(p, t, 2, NULL) == MLB_ERR_NUMERIC);
+    CHECK_MSG(has(p) && has("not written: tensor 'params' holds a NaN or an infinity (element 2 of 4)"), "%s", mlb_last_error());
+    struct stat sb;
+    CHECK(stat(p, &sb) != 0);   // nothing on disk
+    a[2] = 3;
+    CHECK(mlb_checkpoint_save(p, t, 2, NULL) == MLB_ERR_NUMERIC && has("'adam_v'") && has("element 1 of 3"));
+    b[1] = 5;
+    REQUIRE(mlb_checkpoint_save(p, t, 2, NULL) == MLB_OK);
+    // the same file with a NaN written by another writer
+    int64_t s4[1] = {4}, s3[1] = {3};
+    float bad[4] = {1, 2, 3, NAN};
+    mlb_st_entry e[2] = {{"params", MLB_DT_F32, 1, s4, bad}, {"adam_v", MLB_DT_F32, 1, s3, b}};
+    REQUIRE(mlb_st_write(p, e, 2, NULL, 0) == MLB_OK);
+    float x[4] = {-1, -1, -1, -1}, y[3] = {-1, -1, -1};
+    mlb_ckpt_tensor u[2] = {{"params", x, 1, {4}}, {"adam_v", y, 1, {3}}};
+    CHECK(mlb_checkpoint_load(p, u, 2, NULL) == MLB_ERR_NUMERIC);
+    CHECK_MSG(has(p) && has("tensor 'params' holds a NaN or an infinity (element 3 of 4)"), "%s", mlb_last_error());
+    CHECK(x[0] == -1 && y[0] == -1);   // nothing copied
 }
 
 static const char* COLS[3] = {"loss", "sds", "lr"};
@@ -354,6 +383,7 @@ int main(void) {
     RUN(json_round_trip_and_errors);
     RUN(checkpoint_round_trip_bitwise);
     RUN(checkpoint_load_errors);
+    RUN(checkpoint_nan);
     RUN(losslog_resume_is_byte_identical);
     RUN(losslog_errors);
     RUN(losslog_plot);

@@ -416,8 +416,63 @@ TEST(read_and_expect_errors) {
     mlb_st_close(NULL);
     mlb_safetensors* none = NULL;
     CHECK(mlb_st_open(&none, "/nonexistent/x.safetensors") == MLB_ERR_NOT_FOUND && none == NULL);
-    CHECK(strstr(mlb_last_error(), "/nonexistent/x.safetensors: cannot open"));
+    CHECK(strstr(mlb_last_error(), "/nonexistent/x.safetensors: No such file"));
     CHECK(mlb_st_open(&none, tmpdir) == MLB_ERR_IO && strstr(mlb_last_error(), "not a regular file"));
+}
+
+// A NaN or an infinity in a floating-point tensor is refused by both readers, naming the file, the
+// tensor and the element, in every float dtype (the bits of each: F16 0x7E00 and 0xFC00, BF16 0x7FC0
+// and 0xFF80, F32 0x7FC00000, F64 +inf, F8_E5M2 0x7C, F8_E4M3 0x7F); an F64 beyond float range is
+// refused by the converting reader; finite extremes and integer tensors pass.
+TEST(non_finite_refused) {
+    static const struct { const char* dtype; int size; uint64_t bits; } bad[] = {
+        {"F16", 2, 0x7E00}, {"F16", 2, 0xFC00}, {"BF16", 2, 0x7FC0}, {"BF16", 2, 0xFF80}, {"F32", 4, 0x7FC00000},
+        {"F32", 4, 0xFF800000}, {"F64", 8, 0x7FF0000000000000ull}, {"F8_E5M2", 1, 0x7C}, {"F8_E4M3", 1, 0x7F}};
+    for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+        char h[160];
+        int sz = bad[k].size;
+        snprintf(h, sizeof h, "{\"w\":{\"dtype\":\"%s\",\"shape\":[3],\"data_offsets\":[0,%d]}}", bad[k].dtype, 3 * sz);
+        size_t n;
+        unsigned char* b = make_file(h, strlen(h), (size_t)(3 * sz), &n);
+        memset(b + 8 + strlen(h), 0, (size_t)(3 * sz));            // zeros: finite
+        memcpy(b + 8 + strlen(h) + 2 * sz, &bad[k].bits, (size_t)sz);   // the third element (little-endian)
+        mlb_safetensors* st = NULL;
+        REQUIRE(mlb_st_open_memory(&st, b, n, "w.safetensors") == MLB_OK);
+        float out[3] = {-1, -1, -1};
+        unsigned char raw[24];
+        mlb_dtype dt;
+        REQUIRE(mlb_dtype_parse(bad[k].dtype, &dt) == MLB_OK);
+        if (dt == MLB_DT_F32 || dt == MLB_DT_F16 || dt == MLB_DT_BF16 || dt == MLB_DT_F64) {
+            CHECK_MSG(mlb_st_read_f32(st, "w", out, 3) == MLB_ERR_NUMERIC, "%s: read_f32", bad[k].dtype);
+            CHECK_MSG(strstr(mlb_last_error(), "w.safetensors: tensor 'w' holds a NaN or an infinity (element 2 of 3)"), "%s: %s",
+                      bad[k].dtype, mlb_last_error());
+        }
+        CHECK_MSG(mlb_st_read_raw(st, "w", dt, raw, (size_t)(3 * sz)) == MLB_ERR_NUMERIC, "%s: read_raw", bad[k].dtype);
+        CHECK(mlb_st_check_finite(st, mlb_st_find(st, "w")) == MLB_ERR_NUMERIC);
+        mlb_st_close(st);
+        free(b);
+    }
+    // an F64 beyond float range, and finite extremes that pass
+    const char* h = "{\"d\":{\"dtype\":\"F64\",\"shape\":[2],\"data_offsets\":[0,16]},"
+                    "\"f\":{\"dtype\":\"F32\",\"shape\":[2],\"data_offsets\":[16,24]},"
+                    "\"i\":{\"dtype\":\"I32\",\"shape\":[1],\"data_offsets\":[24,28]}}";
+    size_t n;
+    unsigned char* b = make_file(h, strlen(h), 28, &n);
+    double d[2] = {1e300, 1};
+    float f[2] = {FLT_MAX, -FLT_MAX};
+    uint32_t i32 = 0x7FC00000u;   // an integer with a NaN's bits: not a float, passes
+    memcpy(b + 8 + strlen(h), d, 16);
+    memcpy(b + 8 + strlen(h) + 16, f, 8);
+    memcpy(b + 8 + strlen(h) + 24, &i32, 4);
+    mlb_safetensors* st = NULL;
+    REQUIRE(mlb_st_open_memory(&st, b, n, "x.safetensors") == MLB_OK);
+    float out[2];
+    CHECK(mlb_st_read_f32(st, "d", out, 2) == MLB_ERR_NUMERIC && strstr(mlb_last_error(), "element 0 (1e+300) is beyond float range"));
+    CHECK(mlb_st_read_f32(st, "f", out, 2) == MLB_OK && out[0] == FLT_MAX);
+    int32_t iv;
+    CHECK(mlb_st_read_raw(st, "i", MLB_DT_I32, &iv, 4) == MLB_OK);
+    mlb_st_close(st);
+    free(b);
 }
 
 // ---------------------------------------------------------------- writer
@@ -731,6 +786,7 @@ int main(void) {
     RUN(valid_edge_cases);
     RUN(valid_unaligned);
     RUN(read_and_expect_errors);
+    RUN(non_finite_refused);
     RUN(write_round_trip);
     RUN(read_drops_pages_keeps_data);
     RUN(write_errors_leave_file_alone);

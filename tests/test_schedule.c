@@ -1,6 +1,7 @@
 // The noise schedule and the DDIM scheduler against ../shared/data/sd_reference (ref_schedule,
 // ref_ddim_sd1: the DDIM update alone, fed the reference's guided eps).
 #include "test.h"
+#include "matlaber/sd_model.h"
 #include "matlaber/safetensors.h"
 #include "matlaber/schedule.h"
 
@@ -63,6 +64,16 @@ TEST(ddim_timesteps) {
     CHECK(mlb_ddim_prev_timestep(1, 4, 1000) == -249);
     REQUIRE(mlb_ddim_timesteps(ts, 50, 1000, 1) == MLB_OK);
     CHECK(ts[0] == 981 && ts[49] == 1 && ts[1] == 961);
+    // the most steps the sampler takes (MLB_DDIM_MAX_STEPS): every timestep 999..1, none past the end
+    int all[MLB_DDIM_MAX_STEPS];
+    REQUIRE(mlb_ddim_timesteps(all, MLB_DDIM_MAX_STEPS, 1000, 1) == MLB_OK);
+    CHECK(all[0] == 999 && all[MLB_DDIM_MAX_STEPS - 1] == 1);
+    // and the sampler says 1000 is past it before touching its arguments' contents
+    float ac[1000] = {0}, x[1] = {0};
+    mlb_unet u;
+    memset(&u, 0, sizeof u);
+    CHECK(mlb_sd_ddim_sample(&u, ac, 0, x, x, 1, x, 1, 1, 1000, 1.0f, NULL, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(strstr(mlb_last_error(), "DDIM steps 1000 outside 1..999") != NULL);
     mlb_safetensors* st = open_ref("ref_ddim_sd1.safetensors");
     if (!st) return;
     const mlb_st_tensor* t = mlb_st_find(st, "timesteps");

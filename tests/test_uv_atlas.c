@@ -17,6 +17,30 @@ static double l2_bound(float deg) { double c = cos(deg * M_PI / 180.0); return s
 
 typedef struct { int overlaps, out_of_range, non_positive, bad_corners; } atlas_check;
 
+// A face's vertices turned so that the smallest comes first: equal keys are one face given twice.
+typedef struct { int32_t v[3], f; } tri_key;
+static int tri_key_cmp(const void* x, const void* y) {
+    const tri_key *a = x, *b = y;
+    int c = memcmp(a->v, b->v, sizeof a->v);
+    return c ? c : a->f - b->f;
+}
+
+// [F] 1 for a face that repeats an earlier one with the same output vertices (uv_atlas.h: a repeated
+// face shares its first copy's UVs, so the two cover the same texels by design)
+static uint8_t* repeated_faces(const mlb_mesh* M) {
+    tri_key* k = malloc(sizeof *k * (size_t)M->n_faces);
+    uint8_t* rep = calloc((size_t)M->n_faces, 1);
+    for (int f = 0; f < M->n_faces; f++) {
+        const int32_t* t = M->faces + 3 * f;
+        int r = (t[1] < t[0] && t[1] <= t[2]) ? 1 : (t[2] < t[0] && t[2] < t[1]) ? 2 : 0;
+        k[f] = (tri_key){{t[r], t[(r + 1) % 3], t[(r + 2) % 3]}, f};
+    }
+    qsort(k, (size_t)M->n_faces, sizeof *k, tri_key_cmp);
+    for (int i = 1; i < M->n_faces; i++) rep[k[i].f] = !memcmp(k[i].v, k[i - 1].v, sizeof k[i].v);
+    free(k);
+    return rep;
+}
+
 static atlas_check check_atlas(const mlb_mesh* in, const mlb_uv_mesh* u) {
     atlas_check r = {0};
     const mlb_mesh* M = &u->mesh;
@@ -44,8 +68,10 @@ static atlas_check check_atlas(const mlb_mesh* in, const mlb_uv_mesh* u) {
     // strict-interior coverage of texel centres: no centre may lie inside two faces
     const int G = 2048;
     int32_t* owner = malloc(sizeof *owner * G * G);
+    uint8_t* repeated = repeated_faces(M);
     for (int i = 0; i < G * G; i++) owner[i] = -1;
     for (int f = 0; f < M->n_faces; f++) {
+        if (repeated[f]) continue;
         double P[3][2];
         for (int i = 0; i < 3; i++) { P[i][0] = M->uv[2 * M->faces[3 * f + i]] * G; P[i][1] = M->uv[2 * M->faces[3 * f + i] + 1] * G; }
         double A = (P[1][0] - P[0][0]) * (P[2][1] - P[0][1]) - (P[2][0] - P[0][0]) * (P[1][1] - P[0][1]);
@@ -70,6 +96,7 @@ static atlas_check check_atlas(const mlb_mesh* in, const mlb_uv_mesh* u) {
             }
     }
     free(owner);
+    free(repeated);
     return r;
 }
 
@@ -329,9 +356,95 @@ TEST(odd_topology) {
     CHECK(r.overlaps == 0 && r.out_of_range == 0 && r.non_positive == 0 && r.bad_corners == 0);
     CHECK(st.n_degenerate == 2);
     CHECK(st.stretch_linf <= linf_bound(mlb_uv_default().max_angle_deg));
+    // the repeated face is face 0 again: its first copy's vertices, so its UVs
+    for (int k = 0; k < 3; k++) CHECK(u.mesh.faces[3 * 13 + k] == u.mesh.faces[k]);
     mlb_uv_mesh_free(&u);
     mlb_mesh_free(&m);
     mlb_mesh_free(&cube);
+}
+
+// Input that once made the unwrap super-linear, each ending in a valid atlas (or a clear error):
+// one triangle given 400 times as an OBJ polygon (`f 1 2 3 1 2 3 ...`: 400 copies of the triangle
+// and 798 slivers, fanned), a disc fanned into 2000 slivers round its centre, a strip of slivers
+// joined to one triangle at its far end, and more disjoint triangles than a texture has room for.
+static void mesh_alloc(mlb_mesh* m, int nv, int nf) {
+    memset(m, 0, sizeof *m);
+    m->n_verts = nv;
+    m->n_faces = nf;
+    m->pos = calloc(3 * (size_t)nv, sizeof(float));
+    m->faces = malloc(sizeof(int32_t) * 3 * (size_t)nf);
+}
+
+TEST(hostile_faces) {
+    mlb_mesh m;
+    mlb_uv_mesh u;
+    mlb_uv_stats st;
+    // 1 2 3 x 400, fanned by the reader: faces (1, c_i, c_i+1)
+    mesh_alloc(&m, 3, 3 * 400 - 2);
+    m.pos[3] = 1;
+    m.pos[7] = 1;
+    for (int f = 0; f < m.n_faces; f++) {
+        m.faces[3 * f] = 0;
+        m.faces[3 * f + 1] = (f + 1) % 3;
+        m.faces[3 * f + 2] = (f + 2) % 3;
+    }
+    REQUIRE(mlb_uv_unwrap(&m, NULL, &u, &st) == MLB_OK);
+    atlas_check r = check_atlas(&m, &u);
+    CHECK(r.overlaps == 0 && r.out_of_range == 0 && r.non_positive == 0 && r.bad_corners == 0);
+    CHECK(st.n_charts == 2);   // the triangle, and the slivers no chart borders
+    CHECK(st.n_degenerate == 798);
+    for (int f = 3; f < m.n_faces; f += 3)   // every copy of (1 2 3): the first copy's vertices
+        for (int k = 0; k < 3; k++) CHECK(u.mesh.faces[3 * f + k] == u.mesh.faces[k]);
+    mlb_uv_mesh_free(&u);
+    mlb_mesh_free(&m);
+    // a disc of 2000 slices: the overlap check's work is bounded, the disc cut where it runs out
+    const int N = 2000;
+    mesh_alloc(&m, N + 1, N);
+    for (int i = 0; i < N; i++) {
+        m.pos[3 * (i + 1)] = (float)cos(2 * M_PI * i / N);
+        m.pos[3 * (i + 1) + 1] = (float)sin(2 * M_PI * i / N);
+        m.faces[3 * i] = 0;
+        m.faces[3 * i + 1] = 1 + i;
+        m.faces[3 * i + 2] = 1 + (i + 1) % N;
+    }
+    REQUIRE(mlb_uv_unwrap(&m, NULL, &u, &st) == MLB_OK);
+    r = check_atlas(&m, &u);
+    CHECK(r.overlaps == 0 && r.out_of_range == 0 && r.non_positive == 0 && r.bad_corners == 0);
+    CHECK(st.n_degenerate == 0 && st.n_charts > 1 && st.n_charts == st.n_split + 1);
+    mlb_uv_mesh_free(&u);
+    mlb_mesh_free(&m);
+    // a strip of 4000 slivers (1e-9 high) listed from the end away from its one triangle: they all
+    // join that triangle's chart, breadth-first along the strip
+    mesh_alloc(&m, 2 * (N + 1) + 1, 2 * N + 1);
+    for (int i = 0; i <= N; i++) {
+        m.pos[3 * (2 * i)] = m.pos[3 * (2 * i + 1)] = (float)i / N;
+        m.pos[3 * (2 * i + 1) + 1] = 1e-9f;
+    }
+    m.pos[3 * (2 * N + 2) + 1] = -1;   // the triangle's apex, below the strip's start
+    int32_t* t = m.faces;
+    for (int i = N - 1; i >= 0; i--) {   // quad i: (a_i, a_i+1, b_i+1, b_i), counter-clockwise
+        int a0 = 2 * i, b0 = 2 * i + 1, a1 = 2 * i + 2, b1 = 2 * i + 3;
+        *t++ = a0; *t++ = a1; *t++ = b1;
+        *t++ = a0; *t++ = b1; *t++ = b0;
+    }
+    *t++ = 0; *t++ = 2 * N + 2; *t++ = 2;   // below edge a_0 a_1, which the strip's quad 0 uses as a_0 -> a_1
+    REQUIRE(mlb_uv_unwrap(&m, NULL, &u, &st) == MLB_OK);
+    CHECK(st.n_degenerate == 2 * N && st.n_charts == 1);
+    mlb_uv_mesh_free(&u);
+    mlb_mesh_free(&m);
+    // 16385 disjoint triangles: more charts than a 1024² texture with 4-texel gutters holds, said at once
+    const int D = 16385;
+    mesh_alloc(&m, 3 * D, D);
+    for (int f = 0; f < D; f++) {
+        float x = (float)(f % 128), y = (float)(f / 128);
+        float c[3][3] = {{x, y, 0}, {x + 0.5f, y, 0}, {x, y + 0.5f, 0}};
+        memcpy(m.pos + 9 * (size_t)f, c, sizeof c);
+        for (int k = 0; k < 3; k++) m.faces[3 * f + k] = 3 * f + k;
+    }
+    CHECK(mlb_uv_unwrap(&m, NULL, &u, &st) == MLB_ERR_NUMERIC);
+    CHECK(strstr(mlb_last_error(), "16385 charts") && strstr(mlb_last_error(), "at most 16384"));
+    CHECK(u.mesh.uv == NULL);
+    mlb_mesh_free(&m);
 }
 
 TEST(errors) {
@@ -390,6 +503,7 @@ int main(void) {
     RUN(helix_overlap_is_cut);
     RUN(options_and_determinism);
     RUN(odd_topology);
+    RUN(hostile_faces);
     RUN(errors);
     RUN(spot);
     RUN(bob);

@@ -8,6 +8,9 @@
 // distance, breadth-first, 8-neighbours in a fixed order) copies the value of its nearest covered
 // texel, so mipmaps do not mix in background; dilate < 0 fills the whole texture that way. Texels
 // still empty after that hold the mean of the covered texels.
+// Each face is visited row by row over its own extent; a face with an earlier face's uv triangle is
+// skipped; UVs stacked more than 64 layers deep are refused (MLB_ERR_UNSUPPORTED), so the work is
+// at most 64 × (size² + faces) texels.
 // Images are row-major, top row first; texel (x, y) has its centre at uv ((x+0.5)/size, 1 − (y+0.5)/size).
 #ifndef MATLABER_BAKE_H
 #define MATLABER_BAKE_H
@@ -33,7 +36,8 @@ typedef struct {
     int n_dilated;      // texels filled by dilation
 } mlb_baked;
 
-// size in 1..16384. Errors: MLB_ERR_ARG (bad mesh/size, NULL fn), MLB_ERR_NOMEM, a failing fn's
+// size in 1..16384. Errors: MLB_ERR_ARG (bad mesh/size, NULL fn), MLB_ERR_NOMEM,
+// MLB_ERR_UNSUPPORTED (UVs stacked more than 64 layers deep), a failing fn's
 // status (with "baking: " in front of its message), MLB_ERR_NUMERIC (fn returned NaN/Inf).
 // *out is overwritten; on error it is left zeroed.
 mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out);

@@ -12,6 +12,7 @@
 // so both stages hand the guidance premultiplied colour and an antialiased mask.
 #ifndef MATLABER_GUIDANCE_H
 #define MATLABER_GUIDANCE_H
+#include <stddef.h>
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/raster.h"

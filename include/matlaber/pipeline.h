@@ -10,6 +10,7 @@
 // (on any thread count; with the same BLAS kernels, i.e. on the same kind of CPU).
 #ifndef MATLABER_PIPELINE_H
 #define MATLABER_PIPELINE_H
+#include <stddef.h>
 #include <stdint.h>
 #include "matlaber/error.h"
 #include "matlaber/guidance.h"
@@ -19,7 +20,18 @@
 #include "matlaber/views.h"
 
 #define MLB_PIPELINE_MAX_ENVS 8
+// Every text field (prompts, paths, names) holds at most MLB_PIPELINE_PATH - 1 bytes: longer text is
+// refused naming the option or key, never cut (docs/files.md, "What each input may be").
 #define MLB_PIPELINE_PATH 1024
+// The ranges the command-line options and config.json share (mlb_pipeline_validate checks them for
+// both: --set and a run's config.json take nothing the options refuse)
+#define MLB_PIPELINE_MAX_ITERS 10000000       // geometry / appearance steps, checkpoint and preview intervals
+#define MLB_PIPELINE_MAX_INIT_ITERS 1000000   // steps of the shape initialisation
+#define MLB_PIPELINE_LR_MIN 1e-9              // learning rates
+#define MLB_PIPELINE_LR_MAX 10.0
+#define MLB_PIPELINE_MAX_SCALE 1e4            // guidance scales
+#define MLB_PIPELINE_MAX_WEIGHT 100.0         // material smoothness weights
+#define MLB_PIPELINE_MAX_LATENT 256           // latent_size: 0 (64) or a multiple of 8 up to this (a 2048² render / 8)
 
 typedef struct {
     char guidance[16];            // "sds" or "images"
@@ -109,7 +121,12 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
 int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.
 mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path);
+// The text config.json holds (malloc'd, free() it); NULL when out of memory.
+char* mlb_pipeline_config_text(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* c, const char* path);
+// The same from memory (path names the text in errors); c is left as it was on error.
+mlb_status mlb_pipeline_config_parse(mlb_pipeline_config* c, const char* text, size_t n, const char* path);
+#define MLB_PIPELINE_CONFIG_MAX (1 << 20)   // bytes of a config.json
 // One config.json key from "KEY=VALUE" (the CLI's --set; numbers and strings as config.json has
 // them, "envs" as names comma-separated): MLB_ERR_ARG naming the key when it is unknown or the value
 // has the wrong type; c is unchanged then. Ranges are checked by mlb_pipeline_validate.

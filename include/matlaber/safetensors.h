@@ -68,11 +68,17 @@ int mlb_st_metadata_at(const mlb_safetensors* st, size_t i, const char** key, co
 
 // Copies tensor `name` into out[0..n_elems-1] as float32, converting from F32, F16, BF16 or F64
 // (F64 rounds to nearest). Errors name the tensor and the file: MLB_ERR_NOT_FOUND when missing,
-// MLB_ERR_FORMAT when it holds a different number of elements, MLB_ERR_UNSUPPORTED for other dtypes.
+// MLB_ERR_FORMAT when it holds a different number of elements, MLB_ERR_UNSUPPORTED for other dtypes,
+// MLB_ERR_NUMERIC when an element is NaN or infinite (or an F64 beyond float range): weights and
+// checkpoints are finite, and a NaN read in would spread silently through every step after it.
 mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* out, size_t n_elems);
 // Copies tensor `name` as the file stores it (no conversion) into out[0..nbytes-1], its pages then
-// dropped as mlb_st_read_f32 drops them: MLB_ERR_FORMAT unless it is `dtype` and holds nbytes bytes.
+// dropped as mlb_st_read_f32 drops them: MLB_ERR_FORMAT unless it is `dtype` and holds nbytes bytes;
+// a floating-point tensor with a NaN or an infinity: MLB_ERR_NUMERIC, as mlb_st_read_f32.
 mlb_status mlb_st_read_raw(const mlb_safetensors* st, const char* name, mlb_dtype dtype, void* out, size_t nbytes);
+// MLB_ERR_NUMERIC naming the file, the tensor and the first element when a floating-point tensor
+// (F64, F32, F16, BF16, F8) holds a NaN or an infinity; MLB_OK otherwise (other dtypes too).
+mlb_status mlb_st_check_finite(const mlb_safetensors* st, const mlb_st_tensor* t);
 // MLB_OK when tensor `name` exists with exactly this shape; otherwise MLB_ERR_NOT_FOUND or
 // MLB_ERR_FORMAT ("model.safetensors: tensor 'enc.w0' has shape [64, 7], expected [64, 8]").
 mlb_status mlb_st_expect(const mlb_safetensors* st, const char* name, int ndim, const int64_t* shape);

@@ -69,6 +69,8 @@ int mlb_sd_model_context_width(const mlb_sd_model* m);   // text width (768 SD1,
 // latent [4, h, w]: in x_T, out the final latent. ac: alphas_cumprod [1000] (float32 values).
 // v_prediction converts the UNet's v to eps first. trace_eps / trace_latents (may be NULL) receive
 // [steps, 4, h, w]: the guided eps and the latent after each step. progress may be NULL.
+// steps in 1..MLB_DDIM_MAX_STEPS: with steps_offset 1 a 1000th step would be timestep 1000 of 0..999.
+#define MLB_DDIM_MAX_STEPS 999
 mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_prediction, const float* ctx_uncond,
                               const float* ctx_cond, int Tc, float* latent, int h, int w, int steps, float cfg,
                               float* trace_eps, float* trace_latents, mlb_progress* progress);

@@ -14,6 +14,10 @@
 //      surely fits; then a horizon ("Tetris", Lévy et al. 2002) packer that drops each chart, in
 //      one of four quarter turns, onto per-column height profiles (its real outline, not its
 //      rectangle) raises the density by bisection as far as it still fits.
+// A face given again (the same welded corners in the same turn) shares its first copy's chart and
+// UVs. The work is near-linear in faces: the overlap check is bounded per face (a chart that would
+// need more is cut), slivers join charts breadth-first, and more charts than the gutter leaves room
+// for ((texture_size / 2·gutter)², 16384 at the defaults) are an error before any packing.
 // Charts are projection charts, so they need not be discs (a torus' top band is an annulus and
 // projects injectively); what matters is that each projects without overlap, which is checked.
 // Vertices are split at chart seams: the output mesh has one vertex per (input vertex, chart),
@@ -29,6 +33,9 @@
 // A face whose smallest height (2·area / longest edge) is below this × the bounding-box diagonal
 // is degenerate: 1e-5 of the diagonal is 1/100 texel at 1024² and still ~10 float ulps in uv.
 #define MLB_UV_DEGENERATE_REL 1e-5
+// Past this many charts the horizon packer is skipped and the rectangles' packing kept: it scans
+// the atlas' columns for every chart, and so many charts are small ones that gain little by it.
+#define MLB_UV_HORIZON_MAX_CHARTS 4096
 
 typedef struct {
     int texture_size;      // resolution the gutter is measured at; default 1024

@@ -2,26 +2,76 @@
 #include "matlaber/error.h"
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
-static _Thread_local char last_message[2048];
+// A message longer than this keeps its beginning and its end (the reason comes last) around " ... ":
+// a long path in it can never push the problem out of the message.
+#define MESSAGE_CAP 4096
+#define MESSAGE_HEAD 1024
+static _Thread_local char last_message[MESSAGE_CAP];
+
+// The start of the UTF-8 character at or before s[i] (a cut falls between characters).
+static size_t char_start(const char* s, size_t i) {
+    while (i > 0 && ((unsigned char)s[i] & 0xC0) == 0x80) i--;
+    return i;
+}
+
+// text (n bytes) into last_message, whole or with its middle left out
+static void keep(const char* text, size_t n) {
+    if (n < MESSAGE_CAP) { memcpy(last_message, text, n + 1); return; }
+    static const char gap[] = " ... ";
+    size_t head = char_start(text, MESSAGE_HEAD);
+    size_t tail_len = MESSAGE_CAP - 1 - head - (sizeof gap - 1);
+    size_t from = n - tail_len;
+    while (from < n && ((unsigned char)text[from] & 0xC0) == 0x80) from++;   // whole characters only
+    memcpy(last_message, text, head);
+    memcpy(last_message + head, gap, sizeof gap - 1);
+    memcpy(last_message + head + sizeof gap - 1, text + from, n - from + 1);
+}
+
+// vsnprintf into a buffer of the message's own size; NULL when out of memory
+static char* format(const char* fmt, va_list ap, size_t* n) {
+    va_list aq;
+    va_copy(aq, ap);
+    int len = vsnprintf(NULL, 0, fmt, aq);
+    va_end(aq);
+    if (len < 0) return NULL;
+    char* text = malloc((size_t)len + 1);
+    if (text) vsnprintf(text, (size_t)len + 1, fmt, ap);
+    *n = (size_t)len;
+    return text;
+}
 
 mlb_status mlb_fail(mlb_status code, const char* fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(last_message, sizeof last_message, fmt, ap);
+    size_t n = 0;
+    char* text = format(fmt, ap, &n);
     va_end(ap);
+    if (text) keep(text, n);
+    else snprintf(last_message, sizeof last_message, "%s (and out of memory for its message)", mlb_status_name(code));
+    free(text);
     return code;
 }
 
 mlb_status mlb_fail_context(mlb_status code, const char* fmt, ...) {
-    char prefix[1024], old[sizeof last_message];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(prefix, sizeof prefix, fmt, ap);
+    size_t n = 0;
+    char* prefix = format(fmt, ap, &n);
     va_end(ap);
-    memcpy(old, last_message, sizeof old);
-    snprintf(last_message, sizeof last_message, "%s: %s", prefix, old[0] ? old : mlb_status_name(code));
+    const char* old = last_message[0] ? last_message : mlb_status_name(code);
+    size_t m = strlen(old);
+    char* text = prefix ? malloc(n + 2 + m + 1) : NULL;
+    if (text) {
+        memcpy(text, prefix, n);
+        memcpy(text + n, ": ", 2);
+        memcpy(text + n + 2, old, m + 1);
+        keep(text, n + 2 + m);
+    }
+    free(prefix);
+    free(text);
     return code;
 }
 

@@ -77,6 +77,14 @@ mlb_status mlb_atomic_commit(mlb_atomic_file* af) {
     return MLB_OK;
 }
 
+mlb_status mlb_check_writable(const char* path) {
+    if (mlb_is_dir(path)) return mlb_fail(MLB_ERR_IO, "%s: a folder, not a file that can be written", path);
+    mlb_atomic_file af;
+    MLB_TRY(mlb_atomic_open(&af, path));   // a temporary beside it: the folder is there and writable
+    mlb_atomic_abort(&af);
+    return MLB_OK;
+}
+
 mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n) {
     mlb_atomic_file af;
     MLB_TRY(mlb_atomic_open(&af, path));
@@ -88,21 +96,75 @@ mlb_status mlb_write_file_atomic(const char* path, const void* data, size_t n) {
     return mlb_atomic_commit(&af);
 }
 
+mlb_status mlb_open_input(const char* path, int* fd, size_t* size) {
+    *fd = -1;
+    if (size) *size = 0;
+    // O_NONBLOCK: opening a named pipe for reading would otherwise wait for a writer (forever)
+    int f = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+    if (f < 0) {
+        int e = errno;
+        return mlb_fail(e == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s", path, strerror(e));
+    }
+    struct stat st;
+    if (fstat(f, &st) != 0) {
+        int e = errno;
+        close(f);
+        return mlb_fail(MLB_ERR_IO, "%s: %s", path, strerror(e));
+    }
+    if (!S_ISREG(st.st_mode)) {
+        close(f);
+        return mlb_fail(MLB_ERR_IO, "%s: not a regular file (%s)", path,
+                        S_ISDIR(st.st_mode) ? "a folder" : S_ISFIFO(st.st_mode) ? "a named pipe" : S_ISSOCK(st.st_mode) ? "a socket"
+                        : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device" : "not a file");
+    }
+    int flags = fcntl(f, F_GETFL);   // a regular file's reads never block; reads as usual from here
+    if (flags < 0 || fcntl(f, F_SETFL, flags & ~O_NONBLOCK) != 0) {
+        int e = errno;
+        close(f);
+        return mlb_fail(MLB_ERR_IO, "%s: %s", path, strerror(e));
+    }
+    *fd = f;
+    if (size) *size = (size_t)st.st_size;
+    return MLB_OK;
+}
+
+FILE* mlb_open_input_file(const char* path) {
+    int fd;
+    if (mlb_open_input(path, &fd, NULL)) return NULL;
+    FILE* f = fdopen(fd, "rb");
+    if (!f) {
+        int e = errno;
+        close(fd);
+        mlb_fail(MLB_ERR_IO, "%s: %s", path, strerror(e));
+    }
+    return f;
+}
+
 mlb_status mlb_read_file(const char* path, char** data, size_t* n, size_t max_bytes) {
     *data = NULL; *n = 0;
-    FILE* f = fopen(path, "rb");
-    if (!f) return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s", path, strerror(errno));
-    struct stat st;
-    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode)) { fclose(f); return mlb_fail(MLB_ERR_IO, "%s: not a regular file", path); }
-    if ((size_t)st.st_size > max_bytes) {
-        fclose(f);
-        return mlb_fail(MLB_ERR_FORMAT, "%s: %lld bytes, more than the %zu allowed", path, (long long)st.st_size, max_bytes);
+    int fd;
+    size_t size;
+    MLB_TRY(mlb_open_input(path, &fd, &size));
+    if (size > max_bytes) {
+        close(fd);
+        return mlb_fail(MLB_ERR_FORMAT, "%s: %zu bytes, more than the %zu allowed", path, size, max_bytes);
     }
-    char* buf = malloc((size_t)st.st_size + 1);
-    if (!buf) { fclose(f); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
-    size_t got = fread(buf, 1, (size_t)st.st_size, f);
-    fclose(f);
-    if (got != (size_t)st.st_size) { free(buf); return mlb_fail(MLB_ERR_IO, "%s: short read", path); }
+    char* buf = malloc(size + 1);
+    if (!buf) { close(fd); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
+    size_t got = 0;
+    while (got < size) {
+        ssize_t r = read(fd, buf + got, size - got);
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) break;
+        got += (size_t)r;
+    }
+    int e = errno;
+    close(fd);
+    if (got != size) {
+        free(buf);
+        return mlb_fail(MLB_ERR_IO, "%s: read %zu of %zu bytes%s%s", path, got, size, got < size && e ? ": " : "",
+                        got < size && e ? strerror(e) : "");
+    }
     buf[got] = 0;
     *data = buf; *n = got;
     return MLB_OK;

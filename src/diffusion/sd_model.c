@@ -202,7 +202,9 @@ mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_predi
                               const float* ctx_cond, int Tc, float* latent, int h, int w, int steps, float cfg,
                               float* trace_eps, float* trace_latents, mlb_progress* progress) {
     if (!unet || !ac || !ctx_uncond || !ctx_cond || !latent) return mlb_fail(MLB_ERR_ARG, "mlb_sd_ddim_sample: NULL argument");
-    if (steps < 1 || steps > 1000) return mlb_fail(MLB_ERR_ARG, "DDIM steps %d outside 1..1000", steps);
+    if (steps < 1 || steps > MLB_DDIM_MAX_STEPS)
+        return mlb_fail(MLB_ERR_ARG, "DDIM steps %d outside 1..%d (steps_offset 1: a 1000th step would be timestep 1000 of 0..999)",
+                        steps, MLB_DDIM_MAX_STEPS);
     if (!isfinite(cfg)) return mlb_fail(MLB_ERR_ARG, "guidance scale is not finite");
     const int C = unet->cfg.in_channels, Dc = unet->cfg.context_dim;
     const size_t n = (size_t)C * h * w, nc = (size_t)Tc * Dc;

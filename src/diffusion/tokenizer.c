@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 #include <zlib.h>
 #include "diffusion/tokenizer_internal.h"
 #include "matlaber/fileio.h"
@@ -275,12 +276,12 @@ static mlb_status build_from_merges(mlb_tokenizer* t, const char* text, size_t n
 // ---- reading the files ----------------------------------------------------------------------------
 
 
-// A whole gzip file into memory, checking the stream to its end (CRC and length included).
-static mlb_status read_gzip(const char* path, char** data, size_t* n) {
+// A whole gzip file into memory from fd (which it closes), checking the stream to its end (CRC and
+// length included).
+static mlb_status read_gzip(const char* path, int fd, char** data, size_t* n) {
     *data = NULL; *n = 0;
-    gzFile f = gzopen(path, "rb");
-    if (!f) return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: cannot open: %s", path,
-                            errno ? strerror(errno) : "out of memory");
+    gzFile f = gzdopen(fd, "rb");
+    if (!f) { close(fd); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
     size_t cap = 4u << 20, used = 0;
     char* buf = malloc(cap + 1);
     if (!buf) { gzclose(f); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
@@ -395,21 +396,21 @@ static mlb_status load_folder(mlb_tokenizer* t, const char* dir) {
 }
 
 static mlb_status load_file(mlb_tokenizer* t, const char* path) {
-    FILE* f = fopen(path, "rb");
-    if (!f) return mlb_fail(errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s", path, strerror(errno));
+    int fd;
+    MLB_TRY(mlb_open_input(path, &fd, NULL));   // regular files only (fileio.h)
     unsigned char magic[2] = {0, 0};
-    size_t got = fread(magic, 1, 2, f);
-    fclose(f);
+    ssize_t got = read(fd, magic, 2);
     char* text;
     size_t n;
-    if (got == 2 && magic[0] == 0x1F && magic[1] == 0x8B) {
-        MLB_TRY(read_gzip(path, &text, &n));
+    if (got == 2 && magic[0] == 0x1F && magic[1] == 0x8B && lseek(fd, 0, SEEK_SET) == 0) {
+        MLB_TRY(read_gzip(path, fd, &text, &n));
         mlb_status s = load_merges_text(t, path, text, n);
         free(text);
         if (s) return s;
         snprintf(t->source, sizeof t->source, "%s (gzipped merges, %d merges)", path, t->n_merges);
         return MLB_OK;
     }
+    close(fd);
     if (mlb_ends_with(path, ".gz"))
         return mlb_fail(MLB_ERR_FORMAT, "%s: not gzip-compressed (no gzip signature); expected the gzipped CLIP merges "
                         "file bpe_simple_vocab_16e6.txt.gz", path);

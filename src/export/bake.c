@@ -33,6 +33,42 @@ static double seg_closest(const double* p, const double* q, const double* c, dou
 
 #define CONSERVATIVE_R 0.7072   // half a texel diagonal (sqrt(2)/2, rounded up)
 
+// The x extent of triangle P (texel units; a segment or a point when degenerate) within rows
+// y0 <= y <= y1: the min and max x of its edges clipped to the band. 0 when it misses the band.
+static int band_extent(const double P[3][2], double y0, double y1, double* xlo, double* xhi) {
+    double lo = INFINITY, hi = -INFINITY;
+    for (int i = 0; i < 3; i++) {
+        const double *p = P[i], *q = P[(i + 1) % 3];
+        double t0 = 0, t1 = 1, dy = q[1] - p[1];
+        if (dy != 0) {
+            double ta = (y0 - p[1]) / dy, tb = (y1 - p[1]) / dy;
+            t0 = MAX2(t0, MIN2(ta, tb));
+            t1 = MIN2(t1, MAX2(ta, tb));
+        } else if (p[1] < y0 || p[1] > y1) continue;
+        if (t0 > t1) continue;
+        double xa = p[0] + t0 * (q[0] - p[0]), xb = p[0] + t1 * (q[0] - p[0]);
+        lo = MIN2(lo, MIN2(xa, xb));
+        hi = MAX2(hi, MAX2(xa, xb));
+    }
+    *xlo = lo;
+    *xhi = hi;
+    return lo <= hi;
+}
+
+// A uv triangle's corners turned so that the smallest comes first (the winding kept): a face whose
+// uv triangle another face already has covers the same texels, and the first face keeps them.
+typedef struct { float uv[6]; int32_t face; } uv_key;
+static int uv_key_cmp(const void* x, const void* y) {
+    const uv_key *a = x, *b = y;
+    int c = memcmp(a->uv, b->uv, sizeof a->uv);
+    return c ? c : (a->face > b->face) - (a->face < b->face);
+}
+
+// Texels visited per texel of the texture (and per face) before baking gives up: UVs stacked this
+// many layers deep hold one surface point per texel and many that cannot be seen.
+#define BAKE_WORK_PER_TEXEL 64
+#define BAKE_WORK_PER_FACE 64
+
 mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out) {
     if (out) memset(out, 0, sizeof *out);
     if (!m || !out || !fn) return mlb_fail(MLB_ERR_ARG, "mlb_bake: NULL mesh, output or material function");
@@ -53,6 +89,8 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
     float* bary = malloc(sizeof *bary * 3 * N);  // [N,3]
     int32_t* cov = NULL;
     float *pos = NULL, *k = NULL;
+    uv_key* keys = malloc(sizeof *keys * (size_t)M->n_faces);
+    uint8_t* same = calloc((size_t)M->n_faces, 1);   // [F] 1: an earlier face has this uv triangle
     int32_t* queue = NULL;
     int32_t* dist = NULL;
     out->size = size;
@@ -61,11 +99,29 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
     out->roughness = malloc(sizeof(float) * N);
     out->mask = calloc(N, 1);
     out->face = malloc(sizeof(int32_t) * N);
-    if (!best || !bary || !out->kd || !out->ks || !out->roughness || !out->mask || !out->face) goto nomem;
+    if (!best || !bary || !out->kd || !out->ks || !out->roughness || !out->mask || !out->face || !keys || !same) goto nomem;
     for (size_t i = 0; i < N; i++) { best[i] = INFINITY; out->face[i] = -1; }
-
-    // rasterise in texel coordinates: x = u·size, y = (1 − v)·size
     for (int f = 0; f < M->n_faces; f++) {
+        const int32_t* t = M->faces + 3 * (size_t)f;
+        float c[3][2];
+        for (int i = 0; i < 3; i++) memcpy(c[i], M->uv + 2 * (size_t)t[i], sizeof c[i]);
+        int r = 0;
+        for (int i = 1; i < 3; i++)
+            if (memcmp(c[i], c[r], sizeof c[i]) < 0) r = i;
+        for (int i = 0; i < 3; i++) memcpy(keys[f].uv + 2 * i, c[(r + i) % 3], sizeof c[0]);
+        keys[f].face = f;
+    }
+    qsort(keys, (size_t)M->n_faces, sizeof *keys, uv_key_cmp);
+    for (int i = 1; i < M->n_faces; i++) same[keys[i].face] = !memcmp(keys[i].uv, keys[i - 1].uv, sizeof keys[i].uv);
+    free(keys);
+    keys = NULL;
+    const size_t budget = BAKE_WORK_PER_TEXEL * N + BAKE_WORK_PER_FACE * (size_t)M->n_faces;
+    size_t work = 0;
+
+    // rasterise in texel coordinates: x = u·size, y = (1 − v)·size; each row over the face's own
+    // extent in it (a sliver across the texture is a few texels a row, not its bounding box)
+    for (int f = 0; f < M->n_faces; f++) {
+        if (same[f]) continue;
         double P[3][2];
         for (int i = 0; i < 3; i++) {
             int v = M->faces[3 * (size_t)f + i];
@@ -80,8 +136,21 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
         if (iy0 < 0) iy0 = 0;
         if (ix1 > size - 1) ix1 = size - 1;
         if (iy1 > size - 1) iy1 = size - 1;
-        for (int y = iy0; y <= iy1; y++)
-            for (int x = ix0; x <= ix1; x++) {
+        for (int y = iy0; y <= iy1; y++) {
+            double xlo, xhi;
+            work++;
+            if (!band_extent(P, y + 0.5 - CONSERVATIVE_R, y + 0.5 + CONSERVATIVE_R, &xlo, &xhi)) continue;
+            int rx0 = (int)floor(xlo - CONSERVATIVE_R - 0.5), rx1 = (int)ceil(xhi + CONSERVATIVE_R - 0.5);
+            rx0 = MAX2(rx0, ix0);
+            rx1 = MIN2(rx1, ix1);
+            work += rx1 >= rx0 ? (size_t)(rx1 - rx0 + 1) : 0;
+            if (work > budget) {
+                st = mlb_fail(MLB_ERR_UNSUPPORTED, "mlb_bake: the faces' UVs lie on one another more than %d layers deep "
+                              "in the %d² texture (a texel holds one point of the surface): give the mesh an atlas "
+                              "(paint --uv atlas)", BAKE_WORK_PER_TEXEL, size);
+                goto done;
+            }
+            for (int x = rx0; x <= rx1; x++) {
                 double c[2] = {x + 0.5, y + 0.5};
                 size_t t = (size_t)y * size + x;
                 double b[3];
@@ -120,6 +189,7 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
                     for (int i = 0; i < 3; i++) bary[3 * t + i] = (float)bb[i];
                 }
             }
+        }
     }
 
     // gather the covered texels (row-major order), evaluate the material once
@@ -201,6 +271,6 @@ nomem:
 fail:
 done:
     if (st != MLB_OK) mlb_baked_free(out);
-    free(best); free(bary); free(cov); free(pos); free(k); free(queue); free(dist);
+    free(best); free(bary); free(cov); free(pos); free(k); free(queue); free(dist); free(keys); free(same);
     return st;
 }

@@ -67,6 +67,17 @@ static int edge_cmp(const void* x, const void* y) {
     return a->face < b->face ? -1 : a->face > b->face;
 }
 
+// A face's welded corners turned so that the smallest comes first (the winding kept): two faces
+// with the same key are one surface given twice.
+typedef struct { int32_t v[3], face; } face_key;
+
+static int face_key_cmp(const void* x, const void* y) {
+    const face_key *a = x, *b = y;
+    for (int k = 0; k < 3; k++)
+        if (a->v[k] != b->v[k]) return a->v[k] < b->v[k] ? -1 : 1;
+    return a->face < b->face ? -1 : a->face > b->face;
+}
+
 typedef struct {
     int32_t* faces;
     int n, cap;
@@ -136,7 +147,13 @@ static int tri_overlap(const double* a, const double* b, double eps) {
 }
 
 // 1 when two faces of the chart overlap in the projection, -1 on out-of-memory, 0 otherwise.
-// uv [n,3,2]: the corners of the chart's faces.
+// uv [n,3,2]: the corners of the chart's faces (those with area: a face without cannot overlap).
+// Long faces across many cells or many faces in one cell (a fan of slivers round a point) would
+// make the grid's entries or the pair tests quadratic: past OVERLAP_WORK_PER_FACE of them a face
+// (and OVERLAP_WORK_FLOOR for any chart) the chart counts as overlapping and is cut, which costs
+// seams, never an overlap, and keeps the check linear in the chart's faces.
+#define OVERLAP_WORK_PER_FACE 64
+#define OVERLAP_WORK_FLOOR 16384
 static int chart_overlaps(const double* uv, int n) {
     if (n < 2) return 0;
     double lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
@@ -152,7 +169,7 @@ static int chart_overlaps(const double* uv, int n) {
     int* cnt = calloc((size_t)g * g + 1, sizeof *cnt);
     int (*box)[4] = malloc(sizeof *box * (size_t)n);
     if (!cnt || !box) { free(cnt); free(box); return -1; }
-    size_t total = 0;
+    size_t total = 0, budget = (size_t)OVERLAP_WORK_PER_FACE * (size_t)n + OVERLAP_WORK_FLOOR;
     for (int f = 0; f < n; f++) {
         const double* t = uv + 6 * f;
         double x0 = MIN2(t[0], MIN2(t[2], t[4])), x1 = MAX2(t[0], MAX2(t[2], t[4]));
@@ -162,10 +179,12 @@ static int chart_overlaps(const double* uv, int n) {
         i0 = i0 < 0 ? 0 : i0 >= g ? g - 1 : i0; i1 = i1 < 0 ? 0 : i1 >= g ? g - 1 : i1;
         j0 = j0 < 0 ? 0 : j0 >= g ? g - 1 : j0; j1 = j1 < 0 ? 0 : j1 >= g ? g - 1 : j1;
         box[f][0] = i0; box[f][1] = i1; box[f][2] = j0; box[f][3] = j1;
-        for (int j = j0; j <= j1; j++)
-            for (int i = i0; i <= i1; i++) cnt[j * g + i + 1]++;
         total += (size_t)(i1 - i0 + 1) * (size_t)(j1 - j0 + 1);
     }
+    if (total > budget) { free(cnt); free(box); return 1; }
+    for (int f = 0; f < n; f++)
+        for (int j = box[f][2]; j <= box[f][3]; j++)
+            for (int i = box[f][0]; i <= box[f][1]; i++) cnt[j * g + i + 1]++;
     for (int c = 0; c < g * g; c++) cnt[c + 1] += cnt[c];
     int* ent = malloc(sizeof *ent * (total ? total : 1));
     int* fill = malloc(sizeof *fill * (size_t)g * g);
@@ -175,11 +194,15 @@ static int chart_overlaps(const double* uv, int n) {
         for (int j = box[f][2]; j <= box[f][3]; j++)
             for (int i = box[f][0]; i <= box[f][1]; i++) ent[fill[j * g + i]++] = f;
     int found = 0;
+    size_t tests = total;
     for (int c = 0; c < g * g && !found; c++)
         for (int x = cnt[c]; x < cnt[c + 1] && !found; x++)
             for (int y = x + 1; y < cnt[c + 1] && !found; y++) {
+                if (++tests > budget) { found = 1; break; }
                 int a = ent[x], b = ent[y];
                 if (box[a][1] < box[b][0] || box[b][1] < box[a][0] || box[a][3] < box[b][2] || box[b][3] < box[a][2]) continue;
+                // a pair whose boxes share several cells is tested in the first of them only
+                if (c % g != MAX2(box[a][0], box[b][0]) || c / g != MAX2(box[a][2], box[b][2])) continue;
                 if (tri_overlap(uv + 6 * a, uv + 6 * b, eps)) found = 1;
             }
     free(cnt); free(box); free(ent); free(fill);
@@ -247,6 +270,8 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
     int32_t* fchart = malloc(sizeof *fchart * (size_t)F);
     int32_t* mark = malloc(sizeof *mark * (size_t)F);
     int32_t* queue = malloc(sizeof *queue * (size_t)F);
+    int32_t* dup = malloc(sizeof *dup * (size_t)F);             // [F] the earlier face it repeats, -1 none
+    face_key* fk = malloc(sizeof *fk * (size_t)F);
     chart_list L = {0};
     chart_frame* fr = NULL;
     int* ord = NULL;
@@ -258,7 +283,7 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
     double* ltri = NULL;
     int32_t* last_chart = NULL;
     int32_t* newid = NULL;
-    if (!weld || !fn || !farea || !degen || !er || !adj || !fchart || !mark || !queue) goto nomem;
+    if (!weld || !fn || !farea || !degen || !er || !adj || !fchart || !mark || !queue || !dup || !fk) goto nomem;
 
     // weld by exact position (the mesh may come with seams already split)
     if (mlb_mesh_weld_map(in->pos, V, weld)) goto nomem;
@@ -286,6 +311,26 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
         }
     }
 
+    // A face given again (the same welded corners in the same turn) is the same surface: it takes no
+    // part in the adjacency or the charts, and at the end gets the first copy's chart and so its
+    // UVs. (400 copies of one face were 400 charts, and their shared edges joined nothing.)
+    for (int f = 0; f < F; f++) {
+        const int32_t* t = in->faces + 3 * (size_t)f;
+        int32_t a = weld[t[0]], b = weld[t[1]], c = weld[t[2]];
+        int r = (b < a && b <= c) ? 1 : (c < a && c < b) ? 2 : 0;
+        int32_t w[3] = {a, b, c};
+        fk[f] = (face_key){{w[r], w[(r + 1) % 3], w[(r + 2) % 3]}, f};
+        dup[f] = -1;
+    }
+    qsort(fk, (size_t)F, sizeof *fk, face_key_cmp);
+    for (int i = 1; i < F; i++) {
+        const face_key *a = &fk[i - 1], *b = &fk[i];
+        int first = dup[a->face] >= 0 ? dup[a->face] : a->face;
+        if (!memcmp(a->v, b->v, sizeof a->v) && !degen[first]) dup[b->face] = first;
+    }
+    free(fk);
+    fk = NULL;
+
     // edge adjacency: an edge used by exactly two faces in opposite directions joins them
     for (int f = 0; f < F; f++)
         for (int k = 0; k < 3; k++) {
@@ -295,7 +340,7 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
             r->face = f;
             r->dir = (int8_t)(a < b);
             adj[3 * (size_t)f + k] = -1;
-            if (a == b) r->key = UINT64_MAX;   // collapsed edge: joins nothing
+            if (a == b || dup[f] >= 0) r->key = UINT64_MAX;   // a collapsed edge, a repeated face: join nothing
         }
     qsort(er, 3 * (size_t)F, sizeof *er, edge_cmp);
     for (size_t i = 0; i < 3 * (size_t)F;) {
@@ -320,7 +365,7 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
     for (int f = 0; f < F; f++) { fchart[f] = -1; mark[f] = -1; }
     int stamp = 0;
     for (int seed = 0; seed < F; seed++) {
-        if (fchart[seed] >= 0 || degen[seed]) continue;
+        if (fchart[seed] >= 0 || degen[seed] || dup[seed] >= 0) continue;
         double axis[3] = {fn[3 * seed], fn[3 * seed + 1], fn[3 * seed + 2]};
         int qn = 0;
         for (int round = 0; round < 3; round++) {
@@ -357,26 +402,38 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
             if (!chart_push(c, queue[qi])) goto nomem;
         }
     }
-    // degenerate faces join a neighbouring chart (repeat until none can); leftovers form one chart
-    for (int changed = 1; changed;) {
-        changed = 0;
+    // degenerate faces join a neighbouring chart: in face order those beside a chart, then breadth-
+    // first from them those beside a face that joined (linear: a chain of slivers is one walk, not
+    // a pass over the mesh per link); leftovers form one chart
+    {
+        int qn = 0;
         for (int f = 0; f < F; f++) {
-            if (fchart[f] >= 0) continue;
+            if (fchart[f] >= 0 || dup[f] >= 0) continue;
             for (int k = 0; k < 3; k++) {
                 int g = adj[3 * (size_t)f + k];
                 if (g >= 0 && fchart[g] >= 0) {
                     fchart[f] = fchart[g];
                     if (!chart_push(&L.v[fchart[g]], f)) goto nomem;
-                    changed = 1;
+                    queue[qn++] = f;
                     break;
                 }
+            }
+        }
+        for (int qi = 0; qi < qn; qi++) {
+            int f = queue[qi];
+            for (int k = 0; k < 3; k++) {
+                int g = adj[3 * (size_t)f + k];
+                if (g < 0 || fchart[g] >= 0 || dup[g] >= 0) continue;
+                fchart[g] = fchart[f];
+                if (!chart_push(&L.v[fchart[f]], g)) goto nomem;
+                queue[qn++] = g;
             }
         }
     }
     {
         int leftover = -1;
         for (int f = 0; f < F; f++) {
-            if (fchart[f] >= 0) continue;
+            if (fchart[f] >= 0 || dup[f] >= 0) continue;
             if (leftover < 0) {
                 chart* c = chart_new(&L);
                 if (!c) goto nomem;
@@ -389,7 +446,8 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
     }
 
     // overlap check per chart; an overlapping chart is cut in two along the surface (the new part
-    // keeps the axis) and both parts are checked again
+    // keeps the axis) and both parts are checked again. Only faces with area are checked and
+    // counted (a degenerate face covers no texel), so the leftover chart of slivers is never cut.
     int n_split = 0, n_cut = 0;
     for (int ci = 0; ci < L.n; ci++) {
         for (;;) {
@@ -399,27 +457,31 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
             double* p = realloc(cuv, sizeof *cuv * (12 * (size_t)c->n + 4));
             if (!p) goto nomem;
             cuv = p;
-            for (int i = 0; i < c->n; i++)
+            int na = 0;   // the chart's faces with area, projected
+            for (int i = 0; i < c->n; i++) {
+                if (degen[c->faces[i]]) continue;
                 for (int k = 0; k < 3; k++) {
                     const float* q = in->pos + 3 * (size_t)weld[in->faces[3 * (size_t)c->faces[i] + k]];
                     double qd[3] = {q[0], q[1], q[2]};
-                    cuv[6 * i + 2 * k] = dot3(qd, t1);
-                    cuv[6 * i + 2 * k + 1] = dot3(qd, t2);
+                    cuv[6 * na + 2 * k] = dot3(qd, t1);
+                    cuv[6 * na + 2 * k + 1] = dot3(qd, t2);
                 }
-            int ov = chart_overlaps(cuv, c->n);
-            if (ov < 0) goto nomem;
+                na++;
+            }
             if (c->n < 2) break;
+            int ov = chart_overlaps(cuv, na);
+            if (ov < 0) goto nomem;
             if (!ov) {
                 // convexity = chart area / hull area: an annulus or a C shape wastes its rectangle
                 // in the packing, so a poorly convex chart of MIN_CUT_FACES or more is cut too
-                if (c->n < MIN_CUT_FACES) break;
+                if (na < MIN_CUT_FACES) break;
                 double a = 0;
-                for (int i = 0; i < c->n; i++) {
+                for (int i = 0; i < na; i++) {
                     const double* t = cuv + 6 * i;
                     a += 0.5 * fabs((t[2] - t[0]) * (t[5] - t[1]) - (t[4] - t[0]) * (t[3] - t[1]));
                 }
-                double* hull = cuv + 6 * (size_t)c->n;
-                int nh = mlb_uv_convex_hull(cuv, 3 * c->n, hull);
+                double* hull = cuv + 6 * (size_t)na;
+                int nh = mlb_uv_convex_hull(cuv, 3 * na, hull);
                 double ha = 0;
                 for (int e = 0; e < nh; e++) {
                     const double *p0 = hull + 2 * e, *p1 = hull + 2 * ((e + 1) % nh);
@@ -429,10 +491,11 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
                 n_cut++;
             } else n_split++;
             // split along the surface: breadth-first from a far face (the last one reached from
-            // the chart's first face), the first half reached stays, the rest is a new chart;
-            // a disconnected chart splits into the component reached and the rest
-            int seed = c->faces[0];
-            for (int pass = 0; pass < 2; pass++) {
+            // the chart's first face), the first half reached stays, the rest is a new chart; a
+            // disconnected chart keeps the part reached and every other part becomes a chart of
+            // its own, all in one pass (one part at a time was a pass over the chart per part)
+            int seed = c->faces[0], whole = 1;
+            for (int pass = 0; pass < 2 && whole; pass++) {
                 stamp++;
                 int qn = 0;
                 queue[qn++] = seed;
@@ -446,28 +509,67 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
                         queue[qn++] = g;
                     }
                 }
-                if (qn < c->n) break;     // disconnected: split off what was reached
-                if (pass == 0) seed = queue[qn - 1];
-                else {                    // keep the first half
+                if (qn < c->n) whole = 0;   // disconnected: the part reached stays
+                else if (pass == 0) seed = queue[qn - 1];
+                else {                      // keep the first half
                     stamp++;
                     for (int qi = 0; qi < qn / 2; qi++) mark[queue[qi]] = stamp;
                 }
             }
             double axis[3];
             memcpy(axis, c->axis, sizeof axis);
-            chart* d = chart_new(&L);
-            if (!d) goto nomem;
-            c = &L.v[ci];   // chart_new may move the list
-            memcpy(d->axis, axis, sizeof axis);
+            const int n_before = c->n;
             int keep = 0;
-            for (int i = 0; i < c->n; i++) {
-                if (mark[c->faces[i]] == stamp) c->faces[keep++] = c->faces[i];
-                else {
-                    if (!chart_push(d, c->faces[i])) goto nomem;
-                    fchart[c->faces[i]] = L.n - 1;
+            for (int i = 0; i < n_before; i++) {
+                int f = L.v[ci].faces[i];
+                if (mark[f] == stamp) { L.v[ci].faces[keep++] = f; continue; }
+                if (fchart[f] != ci) continue;   // moved with an earlier part
+                // f starts the next part: all of it (a connected chart: all the rest) to a new chart
+                chart* d = chart_new(&L);
+                if (!d) goto nomem;
+                memcpy(d->axis, axis, sizeof axis);
+                const int id = L.n - 1;
+                int qn = 0;
+                queue[qn++] = f;
+                fchart[f] = id;
+                for (int qi = 0; qi < qn; qi++) {
+                    int h = queue[qi];
+                    if (!chart_push(&L.v[id], h)) goto nomem;
+                    for (int k = 0; k < 3 && !whole; k++) {
+                        int g = adj[3 * (size_t)h + k];
+                        if (g < 0 || fchart[g] != ci || mark[g] == stamp) continue;
+                        fchart[g] = id;
+                        queue[qn++] = g;
+                    }
                 }
+                if (whole)   // the rest of a connected chart's order, whatever its adjacency
+                    for (int j = i + 1; j < n_before; j++) {
+                        int h = L.v[ci].faces[j];
+                        if (mark[h] == stamp || fchart[h] != ci) continue;
+                        fchart[h] = id;
+                        if (!chart_push(&L.v[id], h)) goto nomem;
+                    }
             }
-            c->n = keep;
+            L.v[ci].n = keep;
+        }
+    }
+
+    // the repeated faces join their first copy's chart: the same UVs, the same texels
+    for (int f = 0; f < F; f++)
+        if (dup[f] >= 0) {
+            fchart[f] = fchart[dup[f]];
+            if (!chart_push(&L.v[fchart[f]], f)) goto nomem;
+        }
+    // Every chart takes at least 2·gutter texels a side: more than (size / 2·gutter)² charts
+    // cannot fit at any density (16384 at the defaults). Said here, before the packers' bisections
+    // spend time on a mesh of disconnected faces.
+    if (opt.gutter > 0) {
+        double side = floor(opt.texture_size / (2.0 * opt.gutter));
+        if ((double)L.n > side * side) {
+            st = mlb_fail(MLB_ERR_NUMERIC, "mlb_uv_unwrap: %d charts with a %d-texel gutter do not fit a %d² texture (at "
+                          "most %.0f: faces that share no edge with another make a chart each)", L.n, opt.gutter,
+                          opt.texture_size, side * side);
+            goto done;
         }
     }
 
@@ -581,8 +683,12 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
         double chart_area = 0;
         for (int ci = 0; ci < L.n; ci++) {
             const chart_frame* q = &fr[ci];
-            pc[ci] = (mlb_uv_pack_chart){ltri + off, L.v[ci].n, q->w, q->h};
+            // the outline of the faces with area, each surface once (slivers and repeats cover no
+            // more, and 80,000 slivers across a chart were 80,000 profiles across its columns)
+            int nt = 0;
             for (int i = 0; i < L.v[ci].n; i++) {
+                if (degen[L.v[ci].faces[i]] || dup[L.v[ci].faces[i]] >= 0) continue;
+                nt++;
                 for (int k = 0; k < 3; k++) {
                     const float* pp = in->pos + 3 * (size_t)in->faces[3 * (size_t)L.v[ci].faces[i] + k];
                     double pd[3] = {pp[0], pp[1], pp[2]};
@@ -594,9 +700,13 @@ mlb_status mlb_uv_unwrap(const mlb_mesh* in, const mlb_uv_options* opt_in, mlb_u
                 chart_area += 0.5 * fabs((t[2] - t[0]) * (t[5] - t[1]) - (t[4] - t[0]) * (t[3] - t[1]));
                 off += 6;
             }
+            pc[ci] = (mlb_uv_pack_chart){ltri + off - 6 * (size_t)nt, nt, q->w, q->h};
         }
         double h_lo = s, h_hi = size / sqrt(chart_area > 0 ? chart_area : 1e-300);
-        int r = mlb_uv_pack_horizon(pc, ord, L.n, h_lo, opt.gutter, opt.texture_size, pl_try);
+        if (wmax > 0) h_hi = MIN2(h_hi, size / wmax);   // no chart wider than the atlas (all slivers: no area bound)
+        // a chart costs the horizon packer a scan of the atlas' columns per quarter turn: past
+        // MLB_UV_HORIZON_MAX_CHARTS charts the rectangles' packing is kept (linear time)
+        int r = L.n > MLB_UV_HORIZON_MAX_CHARTS ? 0 : mlb_uv_pack_horizon(pc, ord, L.n, h_lo, opt.gutter, opt.texture_size, pl_try);
         if (r < 0) goto nomem;
         if (r == 1) {
             memcpy(pl, pl_try, sizeof *pl * (size_t)L.n);
@@ -684,7 +794,7 @@ done:
         if (stats) memset(stats, 0, sizeof *stats);
     }
     free(weld); free(fn); free(farea); free(degen); free(er); free(adj); free(fchart);
-    free(mark); free(queue); free(fr); free(ord); free(cuv); free(last_chart); free(newid); free(sky); free(wh);
+    free(mark); free(queue); free(dup); free(fk); free(fr); free(ord); free(cuv); free(last_chart); free(newid); free(sky); free(wh);
     free(pl); free(pl_try); free(pc); free(ltri);
     chart_list_free(&L);
     return st;
@@ -706,8 +816,23 @@ void mlb_uv_measure(const mlb_uv_mesh* m, mlb_uv_stats* st) {
     double diag = 0;
     for (int k = 0; k < 3; k++) diag += (double)(hi[k] - lo[k]) * (hi[k] - lo[k]);
     diag = sqrt(diag);
+    // a face given again (the same vertices in the same turn: the unwrap gives a repeated face its
+    // first copy's) covers nothing more: counted once
+    face_key* fk = malloc(sizeof *fk * (size_t)M->n_faces);
+    uint8_t* again = calloc((size_t)M->n_faces, 1);
+    if (fk && again) {
+        for (int f = 0; f < M->n_faces; f++) {
+            const int32_t* t = M->faces + 3 * (size_t)f;
+            int r = (t[1] < t[0] && t[1] <= t[2]) ? 1 : (t[2] < t[0] && t[2] < t[1]) ? 2 : 0;
+            fk[f] = (face_key){{t[r], t[(r + 1) % 3], t[(r + 2) % 3]}, f};
+        }
+        qsort(fk, (size_t)M->n_faces, sizeof *fk, face_key_cmp);
+        for (int i = 1; i < M->n_faces; i++) again[fk[i].face] = !memcmp(fk[i].v, fk[i - 1].v, sizeof fk[i].v);
+    }
+    free(fk);
     double sum_uv = 0, sum_3d = 0, sum_l2 = 0, max_g = 0;
     for (int f = 0; f < M->n_faces; f++) {
+        const int rep = again && again[f];
         const int32_t* t = M->faces + 3 * (size_t)f;
         double q[3][3], s[3], tt[3];
         for (int i = 0; i < 3; i++) {
@@ -720,8 +845,9 @@ void mlb_uv_measure(const mlb_uv_mesh* m, mlb_uv_stats* st) {
         double hgt = face_height(qf, c);
         double a3 = 0.5 * sqrt(dot3(c, c));
         double auv = 0.5 * ((s[1] - s[0]) * (tt[2] - tt[0]) - (s[2] - s[0]) * (tt[1] - tt[0]));
-        sum_uv += fabs(auv);
         if (!(hgt >= MLB_UV_DEGENERATE_REL * diag)) { st->n_degenerate++; continue; }
+        if (rep) continue;
+        sum_uv += fabs(auv);
         sum_3d += a3;
         if (!(auv > 0)) { max_g = INFINITY; sum_l2 = INFINITY; continue; }
         double Ss[3], St[3];
@@ -734,6 +860,7 @@ void mlb_uv_measure(const mlb_uv_mesh* m, mlb_uv_stats* st) {
         sum_l2 += 0.5 * (a + cc) * a3;
         max_g = MAX2(max_g, G);
     }
+    free(again);
     st->utilisation = sum_uv;
     if (sum_3d > 0) {
         double norm = sqrt(sum_uv / sum_3d);

@@ -66,6 +66,7 @@ int mlb_uv_pack_horizon(const mlb_uv_pack_chart* c, const int* order, int n, dou
     for (int k = 0; k < n && ok == 1; k++) {
         const mlb_uv_pack_chart* ch = &c[order[k]];
         double W = ch->w * s, H = ch->h * s;
+        if (!(W + 2 * g <= size && H + 2 * g <= size)) { ok = 0; break; }   // no room at this density (and no huge profiles)
         int ncr[4], nr[4];
         ncr[0] = ncr[2] = (int)ceil(W) > 0 ? (int)ceil(W) : 1;
         ncr[1] = ncr[3] = (int)ceil(H) > 0 ? (int)ceil(H) : 1;

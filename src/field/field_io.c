@@ -93,6 +93,17 @@ mlb_status mlb_field_save(const mlb_field* f, const char* path, int with_optimiz
         k++;
     }
     for (size_t i = 0; i < n_extra; i++) meta[nm++] = extra[i];
+    // never a NaN on disk: a network that diverged is an error here, not a file that loads as one
+    for (size_t i = 0; i < ne; i++) {
+        size_t n = (size_t)e[i].shape[0] * (size_t)(e[i].ndim == 2 ? e[i].shape[1] : 1);
+        const float* x = e[i].data;
+        for (size_t j = 0; j < n; j++)
+            if (!isfinite(x[j])) {
+                free(meta);
+                return mlb_fail(MLB_ERR_NUMERIC, "%s: not written: the %s network's '%s' holds a NaN or an infinity (element %zu "
+                                "of %zu): the run diverged", path, prefix, e[i].name, j, n);
+            }
+    }
     mlb_status s = mlb_st_write(path, e, ne, meta, nm);
     free(meta);
     return s ? mlb_fail_context(s, "saving the %s network", prefix) : MLB_OK;

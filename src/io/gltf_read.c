@@ -5,6 +5,7 @@
 // any pointer arithmetic, and byte ranges are checked as "offset <= length && size <= length -
 // offset" so that nothing can overflow. Nothing reaches `out` until the whole file is accepted.
 #include "matlaber/gltf.h"
+#include "matlaber/json_why.h"
 #include <cjson/cJSON.h>
 #include <errno.h>
 #include <limits.h>
@@ -618,7 +619,11 @@ static mlb_status parse(reader* R, const unsigned char* data, size_t n) {
     size_t jn = 0;
     MLB_TRY(split_file(R, data, n, &json, &jn));
     R->root = cJSON_ParseWithLength(json, jn);
-    if (!R->root) return gerr(R, MLB_ERR_FORMAT, "not glTF: %s", R->info.binary ? "the JSON chunk does not parse" : "neither a .glb nor JSON text");
+    if (!R->root) {
+        char why[96];
+        mlb_json_why(json, jn, why, sizeof why);
+        return gerr(R, MLB_ERR_FORMAT, "not glTF: %s (%s)", R->info.binary ? "the JSON chunk does not parse" : "neither a .glb nor JSON text", why);
+    }
     if (!cJSON_IsObject(R->root)) return gerr(R, MLB_ERR_FORMAT, "not glTF: the JSON is not an object");
     const cJSON* asset = item(R->root, "asset");
     const cJSON* ver = cJSON_IsObject(asset) ? item(asset, "version") : NULL;

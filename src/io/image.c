@@ -4,6 +4,7 @@
 // without complaint. Material maps feed training directly, so silently wrong pixels are worse
 // than an error; hence the structural checks here before stb_image sees the bytes.
 #include "matlaber/image.h"
+#include "matlaber/fileio.h"
 #include <errno.h>
 #include <limits.h>
 #include <stdint.h>
@@ -19,48 +20,11 @@ enum { FMT_PNG = 1, FMT_JPEG = 2 };
 // Whole file into memory. stb_image takes an int length, so files over INT_MAX are refused
 // (no material map comes near 2 GiB compressed).
 static mlb_status read_all(const char* path, unsigned char** out, size_t* n_out) {
-    *out = NULL;
-    *n_out = 0;
-    struct stat st;
-    if (stat(path, &st) != 0) {
-        int e = errno;
-        if (e == ENOENT) return mlb_fail(MLB_ERR_IO, "%s: no such file", path);
-        return mlb_fail(MLB_ERR_IO, "%s: cannot open: %s", path, strerror(e));
-    }
-    if (!S_ISREG(st.st_mode)) return mlb_fail(MLB_ERR_IO, "%s: not a regular file (a folder?), cannot read an image", path);
-    FILE* f = fopen(path, "rb");
-    if (!f) return mlb_fail(MLB_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    if (fseek(f, 0, SEEK_END) != 0) {
-        int e = errno;
-        fclose(f);
-        return mlb_fail(MLB_ERR_IO, "%s: cannot seek: %s", path, strerror(e));
-    }
-    long size = ftell(f);
-    if (size < 0) {
-        int e = errno;
-        fclose(f);
-        return mlb_fail(MLB_ERR_IO, "%s: cannot read: %s", path, strerror(e));
-    }
-    if ((unsigned long)size > (unsigned long)INT_MAX) {
-        fclose(f);
-        return mlb_fail(MLB_ERR_ARG, "%s: file of %ld bytes is too large for an image", path, size);
-    }
-    rewind(f);
-    unsigned char* buf = malloc(size > 0 ? (size_t)size : 1);
-    if (!buf) {
-        fclose(f);
-        return mlb_fail(MLB_ERR_NOMEM, "%s: cannot allocate %ld bytes", path, size);
-    }
-    size_t got = fread(buf, 1, (size_t)size, f);
-    int err = ferror(f);
-    fclose(f);
-    if (got != (size_t)size || err) {
-        free(buf);
-        return mlb_fail(MLB_ERR_IO, "%s: read %zu of %ld bytes", path, got, size);
-    }
-    *out = buf;
-    *n_out = (size_t)size;
-    return MLB_OK;
+    char* b = NULL;
+    mlb_status s = mlb_read_file(path, &b, n_out, INT_MAX);   // regular files only (fileio.h)
+    if (s == MLB_ERR_NOT_FOUND) s = MLB_ERR_IO;   // this reader's contract: missing is an I/O error
+    *out = (unsigned char*)b;
+    return s;
 }
 
 static uint32_t be32(const unsigned char* p) {

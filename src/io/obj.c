@@ -43,12 +43,15 @@ static mlb_status perr(parser* P, mlb_status code, const char* fmt, ...) {
     return mlb_fail(code, "%s: line %d: %s", P->name, P->line, msg);
 }
 
-// A token as it may appear in a message: at most 40 bytes, non-ASCII shown as '?'.
+// A token as a message shows it: quoted when it could be a number or a face corner (at most 24
+// bytes of digits, signs, points, commas, slashes and the letters of e, 0x, nan, inf), else only its
+// length. The file may be anything (a password file given as a mesh): its words are not repeated.
 static const char* show(const char* s, char buf[48]) {
-    size_t i = 0;
-    for (; s[i] && i < 40; i++) buf[i] = (s[i] > 32 && s[i] < 127) ? s[i] : '?';
-    if (s[i]) { buf[i++] = '.'; buf[i++] = '.'; buf[i++] = '.'; }
-    buf[i] = 0;
+    size_t n = strlen(s);
+    int ok = n <= 24;
+    for (size_t i = 0; ok && i < n; i++) ok = strchr("0123456789+-.,/eExXpPnaifNAIF", s[i]) != NULL;
+    if (ok) snprintf(buf, 48, "'%s'", s);
+    else snprintf(buf, 48, "of %zu bytes", n);
     return buf;
 }
 
@@ -130,8 +133,8 @@ static mlb_status read_numbers(parser* P, char** cur, const char* kw, float* val
     while ((tok = next_token(cur))) {
         if (k == max) return perr(P, MLB_ERR_FORMAT, "'%s' with more than %d numbers", kw, max);
         int r = parse_float(tok, P->loc, &vals[k]);
-        if (r == 1) return perr(P, MLB_ERR_FORMAT, "malformed number '%s' in '%s'", show(tok, b), kw);
-        if (r == 2) return perr(P, MLB_ERR_FORMAT, "number '%s' in '%s' is out of float range", show(tok, b), kw);
+        if (r == 1) return perr(P, MLB_ERR_FORMAT, "malformed number %s in '%s'", show(tok, b), kw);
+        if (r == 2) return perr(P, MLB_ERR_FORMAT, "number %s in '%s' is out of float range", show(tok, b), kw);
         k++;
     }
     *count = k;
@@ -195,12 +198,12 @@ static const char* parse_index(const char* p, long long* out) {
 static mlb_status resolve(parser* P, const char* tok, long long idx, size_t count, const char* what, int32_t* out) {
     char b[48];
     if (idx == 0)
-        return perr(P, MLB_ERR_FORMAT, "face corner '%s': %s index 0 is invalid (OBJ indices start at 1)", show(tok, b), what);
+        return perr(P, MLB_ERR_FORMAT, "face corner %s: %s index 0 is invalid (OBJ indices start at 1)", show(tok, b), what);
     unsigned long long mag = idx > 0 ? (unsigned long long)idx : (unsigned long long)(-idx);
     if (mag > count) {
         char num[32] = "";
         if (mag < ((unsigned long long)1 << 40)) snprintf(num, sizeof num, " %lld", idx);   // else saturated: the token tells
-        return perr(P, MLB_ERR_FORMAT, "face corner '%s': %s%s index%s out of range (%zu defined so far)", show(tok, b),
+        return perr(P, MLB_ERR_FORMAT, "face corner %s: %s%s index%s out of range (%zu defined so far)", show(tok, b),
                     idx < 0 ? "relative " : "", what, num, count);
     }
     *out = (int32_t)(idx > 0 ? idx - 1 : (long long)count + idx);
@@ -225,7 +228,7 @@ static mlb_status parse_corner(parser* P, const char* tok, corner* c) {
         }
     }
     if (!p || *p)
-        return perr(P, MLB_ERR_FORMAT, "malformed face corner '%s' (expected v, v/vt, v//vn or v/vt/vn)", show(tok, b));
+        return perr(P, MLB_ERR_FORMAT, "malformed face corner %s (expected v, v/vt, v//vn or v/vt/vn)", show(tok, b));
     c->t = c->n = -1;
     MLB_TRY(resolve(P, tok, iv, P->n_pos, "position", &c->v));
     if (has_t) MLB_TRY(resolve(P, tok, it, P->n_tex, "texture coordinate", &c->t));
@@ -279,8 +282,8 @@ static mlb_status statement(parser* P) {
     if (!strcmp(kw, "f") || !strcmp(kw, "fo")) return stmt_f(P, &cur);   // fo: the old spelling of f
     if (!strcmp(kw, "curv") || !strcmp(kw, "curv2") || !strcmp(kw, "surf"))
         return perr(P, MLB_ERR_UNSUPPORTED, "free-form geometry ('%s') is not supported; triangulate the mesh first", kw);
-    char b[48];
-    if (!is_identifier(kw)) return perr(P, MLB_ERR_FORMAT, "unrecognised statement '%s'", show(kw, b));
+    if (!is_identifier(kw))   // not shown: the first word of a line of some other file
+        return perr(P, MLB_ERR_FORMAT, "not an OBJ statement (a statement starts with a keyword of letters, digits and _)");
     if (!strcmp(kw, "mtllib") && !P->info.mtllib[0]) {
         while (is_space(*cur)) cur++;
         snprintf(P->info.mtllib, sizeof P->info.mtllib, "%s", cur);

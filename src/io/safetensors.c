@@ -6,6 +6,7 @@
 #include <cjson/cJSON.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -444,19 +445,11 @@ mlb_status mlb_st_open_memory(mlb_safetensors** out, const void* data, size_t n,
 mlb_status mlb_st_open(mlb_safetensors** out, const char* path) {
     if (!out || !path) return mlb_fail(MLB_ERR_ARG, "mlb_st_open needs an output pointer and a path");
     *out = NULL;
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0) {
-        int e = errno;
-        return mlb_fail(e == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: cannot open: %s", path, strerror(e));
-    }
-    struct stat sb;
-    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
-        close(fd);
-        return mlb_fail(MLB_ERR_IO, "%s: not a regular file", path);
-    }
+    int fd;
+    size_t size;
+    MLB_TRY(mlb_open_input(path, &fd, &size));   // regular files only (fileio.h)
     mlb_safetensors* st = new_handle(path);
     if (!st) { close(fd); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
-    size_t size = (size_t)sb.st_size;
     const unsigned char* p = (const unsigned char*)"";
     if (size > 0) {   // mmap of 0 bytes fails; the parser reports the short file itself
         void* m = mmap(NULL, size, PROT_READ, MAP_PRIVATE, fd, 0);
@@ -541,6 +534,34 @@ static void drop_pages(const mlb_safetensors* st, const mlb_st_tensor* t) {
     if (b > a) madvise((void*)a, b - a, MADV_DONTNEED);
 }
 
+// The first element of t whose bits say NaN or infinity (an all-ones exponent); SIZE_MAX when none.
+static size_t first_nonfinite(const mlb_st_tensor* t) {
+    const unsigned char* b = t->data;
+    for (size_t i = 0; i < t->nelem; i++) {
+        uint64_t v8;
+        uint32_t v4;
+        uint16_t v2;
+        switch (t->dtype) {
+        case MLB_DT_F64: memcpy(&v8, b + 8 * i, 8); if ((v8 >> 52 & 0x7FF) == 0x7FF) return i; break;
+        case MLB_DT_F32: memcpy(&v4, b + 4 * i, 4); if ((v4 >> 23 & 0xFF) == 0xFF) return i; break;
+        case MLB_DT_F16: memcpy(&v2, b + 2 * i, 2); if ((v2 >> 10 & 0x1F) == 0x1F) return i; break;
+        case MLB_DT_BF16: memcpy(&v2, b + 2 * i, 2); if ((v2 >> 7 & 0xFF) == 0xFF) return i; break;
+        case MLB_DT_F8_E5M2: if ((b[i] >> 2 & 0x1F) == 0x1F) return i; break;
+        case MLB_DT_F8_E4M3: if ((b[i] & 0x7F) == 0x7F) return i; break;   // no infinity; S.1111.111 is NaN
+        default: return SIZE_MAX;
+        }
+    }
+    return SIZE_MAX;
+}
+
+mlb_status mlb_st_check_finite(const mlb_safetensors* st, const mlb_st_tensor* t) {
+    if (!st || !t) return mlb_fail(MLB_ERR_ARG, "mlb_st_check_finite: NULL argument");
+    size_t i = first_nonfinite(t);
+    if (i == SIZE_MAX) return MLB_OK;
+    return mlb_fail(MLB_ERR_NUMERIC, "%s: tensor '%s' holds a NaN or an infinity (element %zu of %zu): the file is damaged, "
+                    "or was written by a run that diverged", st->path, t->name, i, t->nelem);
+}
+
 mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* out, size_t n_elems) {
     if (!st || !name) return mlb_fail(MLB_ERR_ARG, "mlb_st_read_f32: NULL handle or name");
     const mlb_st_tensor* t = mlb_st_find(st, name);
@@ -552,6 +573,7 @@ mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* o
                         st->path, name, t->nelem, sh, n_elems);
     }
     if (n_elems && !out) return mlb_fail(MLB_ERR_ARG, "%s: tensor '%s': NULL output buffer", st->path, name);
+    MLB_TRY(mlb_st_check_finite(st, t));
     switch (t->dtype) {
     case MLB_DT_F32: if (n_elems) memcpy(out, t->data, t->nbytes); break;
     case MLB_DT_F16: mlb_f16_to_f32_array(out, t->data, n_elems); break;
@@ -560,6 +582,8 @@ mlb_status mlb_st_read_f32(const mlb_safetensors* st, const char* name, float* o
         for (size_t i = 0; i < n_elems; i++) {
             double d;
             memcpy(&d, (const unsigned char*)t->data + 8 * i, 8);
+            if (!(fabs(d) <= FLT_MAX))
+                return mlb_fail(MLB_ERR_NUMERIC, "%s: tensor '%s': element %zu (%g) is beyond float range", st->path, name, i, d);
             out[i] = (float)d;
         }
         break;
@@ -578,6 +602,7 @@ mlb_status mlb_st_read_raw(const mlb_safetensors* st, const char* name, mlb_dtyp
     if (t->dtype != dtype || t->nbytes != nbytes)
         return mlb_fail(MLB_ERR_FORMAT, "%s: tensor '%s' is %s, %zu bytes; expected %s, %zu bytes", st->path, name,
                         mlb_dtype_name(t->dtype), t->nbytes, mlb_dtype_name(dtype), nbytes);
+    MLB_TRY(mlb_st_check_finite(st, t));
     if (nbytes) memcpy(out, t->data, nbytes);
     drop_pages(st, t);
     return MLB_OK;

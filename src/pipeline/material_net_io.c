@@ -19,16 +19,6 @@ mlb_material_config mlb_material_default(void) {
     return c;
 }
 
-const char* mlb_material_mode_name(mlb_material_mode m) {
-    return m == MLB_MATERIAL_LATENT ? "latent" : m == MLB_MATERIAL_DIRECT ? "direct" : "?";
-}
-
-mlb_status mlb_material_mode_parse(const char* text, mlb_material_mode* out) {
-    if (text && !strcmp(text, "latent")) { *out = MLB_MATERIAL_LATENT; return MLB_OK; }
-    if (text && !strcmp(text, "direct")) { *out = MLB_MATERIAL_DIRECT; return MLB_OK; }
-    return mlb_fail(MLB_ERR_ARG, "material mode '%s': expected 'latent' or 'direct'", text ? text : "(null)");
-}
-
 mlb_adam_config mlb_material_adam(double lr) {
     mlb_adam_config a = {.lr = lr, .beta1 = 0.9, .beta2 = 0.99, .eps = 1e-15, .weight_decay = 0, .decoupled = 1};
     return a;

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 #include "matlaber/brdf_ae.h"
 #include "matlaber/dist.h"
 #include "matlaber/dmtet.h"
@@ -101,12 +102,11 @@ static mlb_status pipeline_check_replicas(const mlb_field* f, long it) {
 }
 
 // ---- shared helpers ----------------------------------------------------------------------------
-// The appearance stage's lights: the views' own environments (image guidance) or the config's pool.
-static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views) {
+// The appearance stage's environments: the views' own (image guidance) or the config's pool, read
+// when the run starts (before its folder is made: a file that is not an environment map ends the
+// run with nothing written); their lights are built when the stage needs them.
+static mlb_status pipeline_scene_open(pipeline_scene* sc, const mlb_pipeline_config* c, const mlb_views* views) {
     memset(sc, 0, sizeof *sc);
-    mlb_envlight_options opt;
-    memset(&opt, 0, sizeof opt);   // zero fields take the defaults
-    opt.face_size = c->cube_size;
     int from_views = views && views->meta.n_envs > 0;
     int n = from_views ? views->meta.n_envs : c->n_envs;
     if (n > MLB_PIPELINE_MAX_ENVS)
@@ -115,12 +115,62 @@ static mlb_status pipeline_scene_init(pipeline_scene* sc, const mlb_pipeline_con
     for (int i = 0; !s && i < n; i++) {
         s = from_views ? mlb_views_open_env(views, i, &sc->maps[i], c->env_height)
                        : mlb_envmap_open(&sc->maps[i], c->envs[i], 1.0f, c->env_height, NULL);
-        if (!s) s = mlb_envlight_build(&sc->lights[i], &sc->maps[i], &opt);
         if (s) s = mlb_fail_context(s, "environment %d (%s)", i, from_views ? "of the views" : c->envs[i]);
         sc->n_envs = i + 1;
+    }
+    return s;
+}
+
+static mlb_status pipeline_scene_lights(pipeline_scene* sc, const mlb_pipeline_config* c) {
+    mlb_envlight_options opt;
+    memset(&opt, 0, sizeof opt);   // zero fields take the defaults
+    opt.face_size = c->cube_size;
+    mlb_status s = MLB_OK;
+    for (int i = 0; !s && i < sc->n_envs; i++) {
+        s = mlb_envlight_build(&sc->lights[i], &sc->maps[i], &opt);
+        if (s) s = mlb_fail_context(s, "environment %d (%s)", i, sc->maps[i].name);
         sc->light_ptrs[i] = &sc->lights[i];
     }
     return s;
+}
+
+// A resumed run's checkpoints, opened and checked (finite, as every load checks) before anything in
+// its folder changes: a damaged checkpoint ends the command with the run as it was.
+static mlb_status pipeline_check_checkpoints(const char* dir) {
+    static const char* const rel[2] = {"checkpoints/geometry.safetensors", "checkpoints/appearance.safetensors"};
+    for (int k = 0; k < 2; k++) {
+        char path[MLB_PIPELINE_PATH + 64];
+        pipeline_path(path, sizeof path, dir, rel[k]);
+        if (access(path, F_OK) != 0) continue;   // not there yet (anything there is read: a pipe is refused)
+        mlb_safetensors* st = NULL;
+        MLB_TRY(mlb_st_open(&st, path));
+        mlb_status s = MLB_OK;
+        for (size_t i = 0; !s && i < mlb_st_count(st); i++) s = mlb_st_check_finite(st, mlb_st_tensor_at(st, i));
+        mlb_st_close(st);
+        if (s) return s;
+    }
+    return MLB_OK;
+}
+
+// A fresh run's --init shapes that are files (one, or auto:A,B,..'s), read and checked before its
+// folder is made; the fit reads them again when the geometry stage starts.
+static mlb_status pipeline_check_init(const mlb_pipeline_config* c) {
+    char list[MLB_PIPELINE_PATH];
+    snprintf(list, sizeof list, "%s", mlb_pipeline_init_is_auto(c->init) ? (c->init[4] == ':' ? c->init + 5 : "") : c->init);
+    for (char *save = NULL, *tok = strtok_r(list, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        mlb_shape probe;
+        memset(&probe, 0, sizeof probe);
+        int builtin = !strcmp(tok, "ellipsoid") || mlb_shape_builtin(&probe, tok, 1.0f);
+        mlb_shape_free(&probe);
+        if (builtin) continue;
+        mlb_mesh m;
+        mlb_status s = mlb_obj_load(tok, &m);
+        if (!s) s = mlb_shape_from_mesh(&probe, &m, 0.8f);
+        mlb_shape_free(&probe);
+        mlb_mesh_free(&m);
+        if (s) return mlb_fail_context(s, "--init %s", tok);
+    }
+    return MLB_OK;
 }
 
 // Coarse-to-fine hash grid: the first COARSE_LEVELS levels from the start, one more level at a time
@@ -553,6 +603,25 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     }
     pipeline_run r;
     memset(&r, 0, sizeof r);
+    // every input the run reads is read before its folder is made or changed: the environments, the
+    // --init files, a resumed run's checkpoints, the BRDF prior (a failure here leaves nothing
+    // behind; docs/files.md)
+    mlb_brdf_ae prior;
+    memset(&prior, 0, sizeof prior);
+    s = pipeline_scene_open(&r.scene, c, views);
+    if (!s && !resume && !paint) s = pipeline_check_init(c);
+    if (!s && resume && mlb_dist_rank() == 0) s = pipeline_check_checkpoints(dir);
+    if (!s) {
+        char source[256];
+        s = mlb_brdf_ae_load_default(&prior, source, sizeof source);
+    }
+    s = pipeline_agree(s);
+    if (s) {
+        pipeline_scene_free(&r.scene);
+        brdf_ae_free(&prior);
+        mlb_mesh_free(&input);
+        return s;
+    }
     r.dir = dir;
     r.c = c;
     r.g = g;
@@ -622,22 +691,18 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     int geometry_done = !s && !r.stopped;
     // the fixed mesh of the appearance stage: the geometry network's surface, extracted (and
     // smoothed: surface_smooth), or the painted mesh in the generation frame
-    if (geometry_done) s = pipeline_scene_init(&r.scene, c, r.views);
+    if (geometry_done) s = pipeline_scene_lights(&r.scene, c);
     if (!s && geometry_done && paint) s = paint_scene_mesh(c, &input, &r.scene.mesh);
     if (!s && geometry_done && !paint) s = mlb_geometry_extract_on(r.be, &r.geo, &r.grid, &r.scene.mesh);
     if (!s && geometry_done && !paint) s = mlb_mesh_smooth_taubin(&r.scene.mesh, c->surface_smooth, 0.5f, -0.53f);
     if (!s && geometry_done && !paint) s = mlb_mesh_compute_normals(&r.scene.mesh);
-    mlb_brdf_ae prior;
-    memset(&prior, 0, sizeof prior);
     if (!s && geometry_done) {
-        char source[256];
-        s = mlb_brdf_ae_load_default(&prior, source, sizeof source);
         mlb_material_config mc = mlb_material_default();
         mc.mode = c->material;
         mc.seed = c->seed + 2;
         mc.scale = gc.scale;
         mc.enc.table_size = gc.enc.table_size;
-        if (!s) s = material_net_init(&r.mat, &mc, &prior);
+        s = material_net_init(&r.mat, &mc, &prior);
         r.prior = &prior;
         if (!s) s = appearance_stage(&r, NULL);
     }

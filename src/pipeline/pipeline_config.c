@@ -1,11 +1,14 @@
 // The pipeline's settings: defaults (paper §4, reference.md §7), validation and config.json.
 #include <cjson/cJSON.h>
+#include <ctype.h>
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/device.h"
 #include "matlaber/fileio.h"
+#include "matlaber/json_why.h"
 #include "matlaber/pipeline.h"
 
 mlb_pipeline_config mlb_pipeline_default(void) {
@@ -136,10 +139,18 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (c->view_batch < 0 || c->view_batch > 64) bad = "view_batch must be 0 (all of a step's views in one call) or 1..64";
     else if (c->res < 16 || c->res > 2048 || c->res % 8) bad = "--res must be a multiple of 8 in 16..2048";
     else if (c->ss < 1 || c->ss > 4 || c->res * c->ss > 4096) bad = "supersampling must be 1..4 (res x ss <= 4096)";
-    else if (c->geometry_iters < 0 || c->appearance_iters < 0) bad = "iteration counts must be >= 0";
+    else if (c->geometry_iters < 0 || c->appearance_iters < 0 || c->geometry_iters > MLB_PIPELINE_MAX_ITERS ||
+             c->appearance_iters > MLB_PIPELINE_MAX_ITERS)
+        bad = "iteration counts (geometry_iters, appearance_iters) must be in 0..10000000";
+    else if (c->latent_iters < -1 || c->latent_iters > MLB_PIPELINE_MAX_ITERS)
+        bad = "latent_iters must be in 0..10000000 (-1: a third of the geometry steps)";
+    else if (c->latent_size != 0 && (c->latent_size < 8 || c->latent_size > MLB_PIPELINE_MAX_LATENT || c->latent_size % 8))
+        bad = "latent_size must be 0 (64) or a multiple of 8 in 8..256";
     else if (c->grid < 8 || c->grid > 512) bad = "--grid must be in 8..512";
-    else if (!(c->geometry_lr > 0) || !(c->appearance_lr > 0)) bad = "learning rates must be > 0";
-    else if (c->init_iters < 0) bad = "init iterations must be >= 0";
+    else if (!(c->geometry_lr >= MLB_PIPELINE_LR_MIN && c->geometry_lr <= MLB_PIPELINE_LR_MAX) ||
+             !(c->appearance_lr >= MLB_PIPELINE_LR_MIN && c->appearance_lr <= MLB_PIPELINE_LR_MAX))
+        bad = "learning rates (geometry_lr, appearance_lr) must be in [1e-9, 10]";
+    else if (c->init_iters < 0 || c->init_iters > MLB_PIPELINE_MAX_INIT_ITERS) bad = "init_iters must be in 0..1000000";
     else if (c->hash_log2 != 0 && (c->hash_log2 < 10 || c->hash_log2 > 24)) bad = "hash_table_log2 must be 0 (19) or 10..24";
     else if (c->geometry_t_min < 0 || c->geometry_t_min > 500) bad = "geometry_t_min must be in 0..500 (0: the guidance's 20)";
     else if (c->geometry_t_max_end != 0 && (c->geometry_t_max_end < (c->geometry_t_min ? c->geometry_t_min : 20) || c->geometry_t_max_end > 999))
@@ -149,21 +160,25 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
     else if (c->surface_smooth < 0 || c->surface_smooth > 1000) bad = "surface_smooth: 0..1000 rounds";
     else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
-    else if (!(c->w_mat >= 0) || !(c->w_mat_spec >= 0) || !(c->mat_sigma > 0)) bad = "material smoothness: weights >= 0 and sigma > 0";
+    else if (!(c->reg_start <= 1e6) || !(c->reg_end <= 1e6) || !(c->reg_frac <= 1e6)) bad = "regulariser weights must be <= 1e6";
+    else if (!(c->w_mat >= 0 && c->w_mat <= MLB_PIPELINE_MAX_WEIGHT) || !(c->w_mat_spec >= 0 && c->w_mat_spec <= MLB_PIPELINE_MAX_WEIGHT) ||
+             !(c->mat_sigma > 0 && c->mat_sigma <= 1))
+        bad = "material smoothness: weights in [0, 100] and sigma in (0, 1]";
     else if (c->n_envs < 1 || c->n_envs > MLB_PIPELINE_MAX_ENVS) bad = "the environment pool needs 1..8 entries";
     else if (c->env_height < 16 || c->env_height > 4096) bad = "environment height must be in 16..4096";
     else if (c->cube_size < 64 || c->cube_size > 1024 || (c->cube_size & (c->cube_size - 1)))
         bad = "cube size must be a power of two in 64..1024";
-    else if (c->checkpoint_every < 1) bad = "checkpoint interval must be >= 1";
-    else if (c->preview_every < 0) bad = "preview interval must be >= 0";
+    else if (c->checkpoint_every < 1 || c->checkpoint_every > MLB_PIPELINE_MAX_ITERS) bad = "checkpoint_every must be in 1..10000000";
+    else if (c->preview_every < 0 || c->preview_every > MLB_PIPELINE_MAX_ITERS) bad = "preview_every must be in 0..10000000";
+    else if (c->fixed_env != 0 && c->fixed_env != 1) bad = "fixed_env must be 0 or 1";
     else if (c->view_prompts != 0 && c->view_prompts != 1) bad = "view_prompts must be 0 or 1";
     else if (c->material_start != 0 && c->material_start != 1)
         bad = "material_start must be 0 (the prior's centre) or 1 (the model picks among archetypes)";
     else if (!(c->metal_start_lr_scale > 0) || !(c->metal_start_lr_scale <= 1))
         bad = "metal_start_lr_scale must be in (0, 1]";
-    else if (!(c->guidance_scale >= 0) || !isfinite(c->guidance_scale)) bad = "guidance scale must be finite and >= 0";
-    else if (!(c->appearance_guidance_scale >= 0) || !isfinite(c->appearance_guidance_scale))
-        bad = "appearance guidance scale must be finite and >= 0 (0: the guidance scale's)";
+    else if (!(c->guidance_scale >= 0 && c->guidance_scale <= MLB_PIPELINE_MAX_SCALE)) bad = "guidance scale must be in [0, 10000]";
+    else if (!(c->appearance_guidance_scale >= 0 && c->appearance_guidance_scale <= MLB_PIPELINE_MAX_SCALE))
+        bad = "appearance guidance scale must be in [0, 10000] (0: the guidance scale's)";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, slab, cup, auto[:A,B,..] or an OBJ file";
     else if (mlb_pipeline_init_is_auto(c->init) && c->init[4] == ':' &&
              (!c->init[5] || strstr(c->init, ",,") || c->init[strlen(c->init) - 1] == ','))
@@ -175,6 +190,9 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "precision must be empty (the program's) or one of --precision's names";
     else if (c->paint_mesh[0] && c->geometry_iters != 0) bad = "a paint run has no geometry stage (geometry_iters 0)";
     else if (c->paint_keep_uv != 0 && c->paint_keep_uv != 1) bad = "paint_keep_uv must be 0 or 1";
+    else if (!c->paint_mesh[0] && (c->paint_keep_uv != 1 || c->paint_scale != 0 || c->paint_centre[0] != 0 ||
+                                   c->paint_centre[1] != 0 || c->paint_centre[2] != 0))
+        bad = "paint_keep_uv, paint_centre_* and paint_scale belong to paint runs (paint_mesh)";
     else if (!(c->paint_scale >= 0) || !isfinite(c->paint_scale) || !isfinite(c->paint_centre[0]) ||
              !isfinite(c->paint_centre[1]) || !isfinite(c->paint_centre[2]))
         bad = "the paint frame (paint_centre_*, paint_scale) must be finite, the scale >= 0";
@@ -239,9 +257,21 @@ static const field FIELDS[] = {
 #undef FLD_OPT
 #define N_FIELDS (sizeof FIELDS / sizeof *FIELDS)
 
-mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
+// A double as the shortest decimal that reads back as the same bits (cJSON prints 15 digits when
+// they come within an epsilon: 0.8888888888888888 was saved as 0.888888888888889, and a resumed run
+// read another number than the one it started with).
+static void add_double(cJSON* root, const char* key, double v) {
+    char buf[40];
+    for (int digits = 15; digits <= 17; digits++) {
+        snprintf(buf, sizeof buf, "%.*g", digits, v);
+        if (strtod(buf, NULL) == v) break;
+    }
+    cJSON_AddRawToObject(root, key, buf);
+}
+
+char* mlb_pipeline_config_text(const mlb_pipeline_config* c) {
     cJSON* root = cJSON_CreateObject();
-    if (!root) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    if (!root) return NULL;
     cJSON_AddStringToObject(root, "format", "matlaber-run");
     cJSON_AddNumberToObject(root, "version", 1);
     for (size_t i = 0; i < N_FIELDS; i++) {
@@ -257,7 +287,7 @@ mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* pa
             cJSON_AddStringToObject(root, f->key, buf);
             break;
         }
-        case F_DOUBLE: cJSON_AddNumberToObject(root, f->key, *(const double*)p); break;
+        case F_DOUBLE: add_double(root, f->key, *(const double*)p); break;
         case F_MATERIAL: cJSON_AddStringToObject(root, f->key, mlb_material_mode_name(*(const mlb_material_mode*)p)); break;
         }
     }
@@ -265,11 +295,22 @@ mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* pa
     for (int i = 0; envs && i < c->n_envs; i++) cJSON_AddItemToArray(envs, cJSON_CreateString(c->envs[i]));
     char* text = cJSON_Print(root);
     cJSON_Delete(root);
-    if (!text) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    if (!text) return NULL;
     size_t n = strlen(text);
-    text[n] = '\n';   // cJSON_Print's buffer ends in NUL: replace it, write n + 1 bytes
-    mlb_status s = mlb_write_file_atomic(path, text, n + 1);
+    char* out = malloc(n + 2);   // with a final newline, ours to free()
+    if (out) {
+        memcpy(out, text, n);
+        memcpy(out + n, "\n", 2);
+    }
     cJSON_free(text);
+    return out;
+}
+
+mlb_status mlb_pipeline_config_save(const mlb_pipeline_config* c, const char* path) {
+    char* text = mlb_pipeline_config_text(c);
+    if (!text) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
+    mlb_status s = mlb_write_file_atomic(path, text, strlen(text));
+    free(text);
     return s;
 }
 
@@ -284,15 +325,20 @@ static mlb_status parse_field(const field* f, const cJSON* it, char* p, const ch
         snprintf(p, f->size, "%s", it->valuestring);
         return MLB_OK;
     case F_INT:
-        if (!(fabs(it->valuedouble) < 2e9) || it->valuedouble != floor(it->valuedouble))
+        if (it->valuedouble != floor(it->valuedouble) || !isfinite(it->valuedouble))
             return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be an integer", where, f->key);
+        if (!(fabs(it->valuedouble) < 2e9))
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" = %.17g is out of range", where, f->key, it->valuedouble);
         *(int*)p = (int)it->valuedouble;
         return MLB_OK;
     case F_LONG_U64: {
         char* end = NULL;
+        errno = 0;
         unsigned long long v = strtoull(it->valuestring, &end, 10);
-        if (!it->valuestring[0] || *end || it->valuestring[0] == '-')
+        if (!isdigit((unsigned char)it->valuestring[0]) || *end)
             return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be a decimal integer string", where, f->key);
+        if (errno == ERANGE)   // strtoull would give 2^64 - 1 in its place
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" is more than 18446744073709551615", where, f->key);
         *(uint64_t*)p = (uint64_t)v;
         return MLB_OK;
     }
@@ -302,7 +348,7 @@ static mlb_status parse_field(const field* f, const cJSON* it, char* p, const ch
         return MLB_OK;
     case F_MATERIAL:
         if (mlb_material_mode_parse(it->valuestring, (mlb_material_mode*)p))
-            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\": unknown material mode \"%s\"", where, f->key, it->valuestring);
+            return mlb_fail(MLB_ERR_FORMAT, "%s: \"%s\" must be \"latent\" or \"direct\"", where, f->key);
         return MLB_OK;
     }
     return MLB_OK;
@@ -374,14 +420,22 @@ const char* mlb_pipeline_config_differs(const mlb_pipeline_config* a, const mlb_
 mlb_status mlb_pipeline_config_load(mlb_pipeline_config* out, const char* path) {
     char* text = NULL;
     size_t n = 0;
-    mlb_status s = mlb_read_file(path, &text, &n, 1 << 20);
+    mlb_status s = mlb_read_file(path, &text, &n, MLB_PIPELINE_CONFIG_MAX);
     if (s) return s;
-    cJSON* root = cJSON_ParseWithLength(text, n);
+    s = mlb_pipeline_config_parse(out, text, n, path);
     free(text);
+    return s;
+}
+
+mlb_status mlb_pipeline_config_parse(mlb_pipeline_config* out, const char* text, size_t n, const char* path) {
+    cJSON* root = cJSON_ParseWithLength(text, n);
     if (!root || !cJSON_IsObject(root)) {
+        char why[96];
+        if (!root) mlb_json_why(text, n, why, sizeof why);
         cJSON_Delete(root);
-        return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path);
+        return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object%s%s%s", path, root ? "" : " (", root ? "" : why, root ? "" : ")");
     }
+    mlb_status s = MLB_OK;
     mlb_pipeline_config c = mlb_pipeline_default();
     const cJSON* fmt = cJSON_GetObjectItemCaseSensitive(root, "format");
     if (!cJSON_IsString(fmt) || strcmp(fmt->valuestring, "matlaber-run") != 0)

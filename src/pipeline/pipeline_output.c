@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include "matlaber/fileio.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/image_write.h"
@@ -238,7 +239,7 @@ mlb_status mlb_run_asset_load(mlb_run_asset* a, const char* dir) {
     mlb_status s = MLB_OK;
     a->config = mlb_pipeline_default();
     pipeline_path(path, sizeof path, dir, "config.json");
-    int has_config = mlb_is_file(path);
+    int has_config = access(path, F_OK) == 0;   // anything there is read (a pipe or a folder is refused, naming it)
     if (has_config) s = mlb_pipeline_config_load(&a->config, path);   // optional: the asset is final/
     pipeline_path(path, sizeof path, dir, "final/mesh.obj");
     if (!s && !mlb_is_file(path))

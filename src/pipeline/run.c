@@ -285,9 +285,23 @@ static mlb_status check_spec(const char* path, const mlb_ckpt_tensor* t, int n) 
     return MLB_OK;
 }
 
+// Never a NaN on disk: a run that diverged stops at its checkpoint, naming it.
+static mlb_status check_finite(const char* path, const mlb_ckpt_tensor* t, int n) {
+    for (int i = 0; i < n; i++) {
+        size_t ne = 1;
+        for (int d = 0; d < t[i].ndim; d++) ne *= (size_t)t[i].shape[d];
+        for (size_t j = 0; j < ne; j++)
+            if (!isfinite(t[i].data[j]))
+                return mlb_fail(MLB_ERR_NUMERIC, "%s: not written: tensor '%s' holds a NaN or an infinity (element %zu of %zu): "
+                                "the run diverged", path, t[i].name, j, ne);
+    }
+    return MLB_OK;
+}
+
 mlb_status mlb_checkpoint_save(const char* path, const mlb_ckpt_tensor* t, int n, const mlb_ckpt_meta* meta) {
     MLB_TRY(check_spec(path, t, n));
-    mlb_st_entry* e = malloc(sizeof *e * (size_t)(n ? n : 1));
+    MLB_TRY(check_finite(path, t, n));
+    mlb_st_entry* e = malloc(sizeof *e * (n > 0 ? (size_t)n : 1));
     if (!e) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
     for (int i = 0; i < n; i++) e[i] = (mlb_st_entry){t[i].name, MLB_DT_F32, t[i].ndim, t[i].shape, t[i].data};
     mlb_status s = mlb_st_write(path, e, (size_t)n, meta ? meta->kv : NULL, meta ? meta->n : 0);
@@ -313,6 +327,7 @@ mlb_status mlb_checkpoint_load(const char* path, const mlb_ckpt_tensor* t, int n
             fmt_shape(b, sizeof b, t[i].ndim, t[i].shape);
             s = mlb_fail(MLB_ERR_FORMAT, "%s: tensor '%s' has shape %s, expected %s", path, t[i].name, a, b);
         }
+        if (!s) s = mlb_st_check_finite(st, x);   // a NaN resumed would be carried into every file after it
     }
     for (size_t k = 0; s == MLB_OK && k < mlb_st_count(st); k++) {
         const mlb_st_tensor* x = mlb_st_tensor_at(st, k);

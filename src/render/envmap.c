@@ -4,6 +4,7 @@
 // so the header and every scanline's run-length structure are walked here first; tinyexr parses
 // the EXR header before anything the size of the image is allocated.
 #include "matlaber/envmap.h"
+#include "matlaber/fileio.h"
 #include <errno.h>
 #include <float.h>
 #include <limits.h>
@@ -23,35 +24,11 @@ static double luminance(const float* p) { return 0.2126 * p[0] + 0.7152 * p[1] +
 // ---------------------------------------------------------------- files
 
 static mlb_status read_all(const char* path, unsigned char** out, size_t* n_out) {
-    *out = NULL;
-    *n_out = 0;
-    struct stat st;
-    if (stat(path, &st) != 0) {
-        int e = errno;
-        if (e == ENOENT) return mlb_fail(MLB_ERR_IO, "%s: no such file", path);
-        return mlb_fail(MLB_ERR_IO, "%s: cannot open: %s", path, strerror(e));
-    }
-    if (!S_ISREG(st.st_mode)) return mlb_fail(MLB_ERR_IO, "%s: not a regular file, cannot read an environment map", path);
-    if ((unsigned long long)st.st_size > (unsigned long long)INT_MAX)
-        return mlb_fail(MLB_ERR_ARG, "%s: file of %lld bytes is too large for an environment map", path, (long long)st.st_size);
-    FILE* f = fopen(path, "rb");
-    if (!f) return mlb_fail(MLB_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    size_t size = (size_t)st.st_size;
-    unsigned char* buf = malloc(size + 1);
-    if (!buf) {
-        fclose(f);
-        return mlb_fail(MLB_ERR_NOMEM, "%s: cannot allocate %zu bytes", path, size);
-    }
-    size_t got = fread(buf, 1, size, f);
-    int err = ferror(f);
-    fclose(f);
-    if (got != size || err) {
-        free(buf);
-        return mlb_fail(MLB_ERR_IO, "%s: read %zu of %zu bytes", path, got, size);
-    }
-    *out = buf;
-    *n_out = size;
-    return MLB_OK;
+    char* b = NULL;
+    mlb_status s = mlb_read_file(path, &b, n_out, INT_MAX);   // regular files only (fileio.h)
+    if (s == MLB_ERR_NOT_FOUND) s = MLB_ERR_IO;   // this reader's contract: missing is an I/O error
+    *out = (unsigned char*)b;
+    return s;
 }
 
 static mlb_status check_size(const char* path, long long w, long long h) {

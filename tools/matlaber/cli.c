@@ -2,6 +2,7 @@
 #include "cli.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
+#include <ctype.h>
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
@@ -12,15 +13,18 @@
 
 int cli_fail(mlb_status s, const char* what) {
     const char* msg = mlb_last_error();
-    fprintf(stderr, "matlaber: error: %s%s%s\n", what ? what : "", what && *msg ? ": " : "", *msg ? msg : mlb_status_name(s));
+    const char *a = what ? what : "", *sep = what && *msg ? ": " : "", *b = *msg ? msg : mlb_status_name(s);
+    fprintf(stderr, "matlaber: error: %s%s%s\n", a, sep, b);
     FILE* json = mlb_progress_json();
     if (json) {   // the same message for programs reading the progress stream
-        char line[4096];
-        snprintf(line, sizeof line, "%s%s%s", what ? what : "", what && *msg ? ": " : "", *msg ? msg : mlb_status_name(s));
+        size_t n = strlen(a) + strlen(sep) + strlen(b) + 1;
+        char* line = malloc(n);
+        if (line) snprintf(line, n, "%s%s%s", a, sep, b);
         fputs("{\"event\":\"error\",\"message\":", json);
-        mlb_json_write_string(json, line);
+        mlb_json_write_string(json, line ? line : b);
         fputs("}\n", json);
         fflush(json);
+        free(line);
     }
     return 1;
 }
@@ -34,16 +38,36 @@ int cli_usage_error(const char* command, const char* fmt, ...) {
     fprintf(stderr, "\n(see 'matlaber %s --help')\n", command);
     FILE* json = mlb_progress_json();
     if (json) {
-        char line[2048];
         va_start(ap, fmt);
-        vsnprintf(line, sizeof line, fmt, ap);
+        int n = vsnprintf(NULL, 0, fmt, ap);
         va_end(ap);
+        char* line = n >= 0 ? malloc((size_t)n + 1) : NULL;
+        if (line) {
+            va_start(ap, fmt);
+            vsnprintf(line, (size_t)n + 1, fmt, ap);
+            va_end(ap);
+        }
         fprintf(json, "{\"event\":\"error\",\"usage\":true,\"message\":");
-        mlb_json_write_string(json, line);
+        mlb_json_write_string(json, line ? line : "usage error");
         fputs("}\n", json);
         fflush(json);
+        free(line);
     }
     return EXIT_USAGE;
+}
+
+int cli_check_args(int argc, char** argv) {
+    for (int i = 1; i < argc; i++) {
+        size_t n = strlen(argv[i]);
+        if (n <= CLI_MAX_ARG) continue;
+        // the argument itself is not shown: it may be anything (a whole file pasted as a prompt)
+        if (i > 1 && argv[i - 1][0] == '-')
+            return cli_usage_error(argv[0], "the value of %.64s is %zu bytes: a path, a prompt or a name may have at most %d",
+                                   argv[i - 1], n, CLI_MAX_ARG);
+        return cli_usage_error(argv[0], "argument %d is %zu bytes: a path, a prompt or a name may have at most %d", i, n,
+                               CLI_MAX_ARG);
+    }
+    return 0;
 }
 
 int cli_parse_floats(const char* text, float* out, int n) {
@@ -67,6 +91,15 @@ int cli_parse_long(const char* text, long lo, long hi, long* out) {
     long v = strtol(text, &end, 10);
     if (end == text || *end || errno || v < lo || v > hi) return -1;
     *out = v;
+    return 0;
+}
+
+int cli_parse_u64(const char* text, uint64_t* out) {
+    char* end;
+    errno = 0;
+    unsigned long long v = strtoull(text, &end, 10);
+    if (!isdigit((unsigned char)text[0]) || *end || errno) return -1;   // no sign, no overflow to 2^64 - 1
+    *out = (uint64_t)v;
     return 0;
 }
 

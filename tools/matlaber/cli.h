@@ -12,9 +12,16 @@
 int cli_fail(mlb_status s, const char* what);
 // Usage errors: message + hint to --help; returns EXIT_USAGE.
 int cli_usage_error(const char* command, const char* fmt, ...) __attribute__((format(printf, 2, 3)));
+// Every argument of the command line (a path, a prompt, a name, --set KEY=VALUE) has at most this many
+// bytes (the run's config.json fields hold as much): a longer one is refused, never cut
+// (docs/files.md). Returns EXIT_USAGE naming the argument's place or option, 0 when all fit.
+#define CLI_MAX_ARG 1023
+int cli_check_args(int argc, char** argv);
 // Comma-separated numbers into out[n]; exactly n values, all finite. 0 on success.
 int cli_parse_floats(const char* text, float* out, int n);
 int cli_parse_long(const char* text, long lo, long hi, long* out);
+// A decimal integer in 0..2^64-1 (no sign; overflow refused, not clamped). 0 on success.
+int cli_parse_u64(const char* text, uint64_t* out);
 int cli_parse_double(const char* text, double lo, double hi, double* out);
 // ../shared/data beside the source tree, or $MLB_SHARED_DATA; NULL when absent.
 const char* cli_shared_data(void);

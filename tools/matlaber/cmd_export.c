@@ -57,10 +57,12 @@ int cmd_export(int argc, char** argv) {
     int glb = strcmp(format, "glb") == 0;
     if (!glb && strcmp(format, "obj") != 0) return cli_usage_error("export", "--format: expected glb or obj");
     if (!glb && !mlb_ends_with(out, ".obj")) return cli_usage_error("export", "-o %s: an OBJ export must end in .obj", out);
+    mlb_status s = mlb_check_writable(out);   // before the atlas and the bake, not after them
+    if (s) return cli_fail(s, "export");
     mlb_run_textured r;
     int rc = load_run(argv[optind], (int)size, &r);
     if (rc) return rc;
-    mlb_status s = glb ? mlb_export_glb(out, &r.asset) : mlb_export_obj(out, &r.asset);
+    s = glb ? mlb_export_glb(out, &r.asset) : mlb_export_obj(out, &r.asset);
     mlb_run_textured_free(&r);
     if (s != MLB_OK) return cli_fail(s, "export");
     printf("%s\n", out);

@@ -126,6 +126,8 @@ enum { MODE_GENERATE, MODE_FIT, MODE_PAINT };
 
 static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     const int is_fit = mode == MODE_FIT, is_paint = mode == MODE_PAINT;
+    int bad_arg = cli_check_args(argc, argv);   // (--prompts hands each line's options here)
+    if (bad_arg) return bad_arg;
     mlb_pipeline_config c = mlb_pipeline_default();
     if (is_fit) {
         snprintf(c.guidance, sizeof c.guidance, "images");
@@ -160,8 +162,11 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (!m) return cli_usage_error(command, "-m MODEL is required: no Stable Diffusion weights given and the project's own "
                                            "model is not there (train it: matlaber sd train -o models/%s; docs/sd_train.md)",
                                            MLB_DEFAULT_MODEL);
-            snprintf(c.model, sizeof c.model, "%s", m);
             const char* am = cli_default_appearance_model();   // --appearance-model, when given, replaces it
+            if (strlen(m) > CLI_MAX_ARG || (am && strlen(am) > CLI_MAX_ARG))   // ($MATLABER_MODEL: not an argument)
+                return cli_usage_error(command, "$MATLABER_MODEL or $MATLABER_APPEARANCE_MODEL: a path of more than %d bytes",
+                                       CLI_MAX_ARG);
+            snprintf(c.model, sizeof c.model, "%s", m);
             if (am) snprintf(c.appearance_model, sizeof c.appearance_model, "%s", am);
             if (!preset) preset = "tiny";
         }
@@ -202,20 +207,20 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         case 'v': if (cli_parse_long(optarg, 1, 64, &v)) return cli_usage_error(command, "--views-per-step: expected 1..64"); c.views = (int)v; break;
         case 'B': if (cli_parse_long(optarg, 0, 64, &v)) return cli_usage_error(command, "--view-batch: expected 0..64 (0: all views in one call)"); c.view_batch = (int)v; break;
         case 'I': snprintf(c.init, sizeof c.init, "%s", optarg); break;
-        case 'J': if (cli_parse_long(optarg, 0, 1000000, &v)) return cli_usage_error(command, "--init-iters: expected >= 0"); c.init_iters = (int)v; break;
+        case 'J': if (cli_parse_long(optarg, 0, MLB_PIPELINE_MAX_INIT_ITERS, &v)) return cli_usage_error(command, "--init-iters: expected 0..1000000"); c.init_iters = (int)v; break;
         case 'C':
             if (cli_parse_double(optarg, 0, 1, &c.coarse_to_fine)) return cli_usage_error(command, "--coarse-to-fine: expected a fraction in [0, 1]");
             break;
         case 'K':
-            if (cli_parse_double(optarg, 0, 100, &c.w_mat_spec)) return cli_usage_error(command, "--spec-smoothness: expected a weight in [0, 100]");
+            if (cli_parse_double(optarg, 0, MLB_PIPELINE_MAX_WEIGHT, &c.w_mat_spec)) return cli_usage_error(command, "--spec-smoothness: expected a weight in [0, 100]");
             break;
-        case 'G': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--geometry-iters: expected >= 0"); c.geometry_iters = (int)v; break;
-        case 'A': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--appearance-iters: expected >= 0"); c.appearance_iters = (int)v; break;
+        case 'G': if (cli_parse_long(optarg, 0, MLB_PIPELINE_MAX_ITERS, &v)) return cli_usage_error(command, "--geometry-iters: expected 0..10000000"); c.geometry_iters = (int)v; break;
+        case 'A': if (cli_parse_long(optarg, 0, MLB_PIPELINE_MAX_ITERS, &v)) return cli_usage_error(command, "--appearance-iters: expected 0..10000000"); c.appearance_iters = (int)v; break;
         case 'r': if (cli_parse_long(optarg, 16, 2048, &v) || v % 8) return cli_usage_error(command, "--res: expected a multiple of 8 in 16..2048"); c.res = (int)v; break;
         case 'g': if (cli_parse_long(optarg, 8, 512, &v)) return cli_usage_error(command, "--grid: expected 8..512"); c.grid = (int)v; break;
         case 'H': if (cli_parse_long(optarg, 10, 24, &v)) return cli_usage_error(command, "--hash-table-log2: expected 10..24"); c.hash_log2 = (int)v; break;
-        case 'L': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--geometry-lr: expected a positive number"); c.geometry_lr = x; break;
-        case 'l': if (cli_parse_double(optarg, 1e-9, 10, &x)) return cli_usage_error(command, "--appearance-lr: expected a positive number"); c.appearance_lr = x; break;
+        case 'L': if (cli_parse_double(optarg, MLB_PIPELINE_LR_MIN, MLB_PIPELINE_LR_MAX, &x)) return cli_usage_error(command, "--geometry-lr: expected a number in [1e-9, 10]"); c.geometry_lr = x; break;
+        case 'l': if (cli_parse_double(optarg, MLB_PIPELINE_LR_MIN, MLB_PIPELINE_LR_MAX, &x)) return cli_usage_error(command, "--appearance-lr: expected a number in [1e-9, 10]"); c.appearance_lr = x; break;
         case 'e': if (add_envs(&c, optarg, &env_reset)) return cli_usage_error(command, "--env: at most %d environments", MLB_PIPELINE_MAX_ENVS); break;
         case 'F': c.fixed_env = 1; break;
         case 'W': c.view_prompts = 0; break;
@@ -224,7 +229,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             break;
         case 'U': if (cli_parse_long(optarg, 0, 500, &v)) return cli_usage_error(command, "--geometry-t-min: expected 0..500"); c.geometry_t_min = (int)v; break;
         case 'S':
-            if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000");
+            if (cli_parse_double(optarg, 0, MLB_PIPELINE_MAX_SCALE, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000");
             c.guidance_scale = x;
             if (is_paint && !appearance_scale_given) c.appearance_guidance_scale = 0;   // paint's one stage: this scale, not the preset's
             break;
@@ -232,12 +237,12 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (strlen(optarg) >= sizeof c.tokenizer) return cli_usage_error(command, "--tokenizer: path too long");
             snprintf(c.tokenizer, sizeof c.tokenizer, "%s", optarg);
             break;
-        case 'E': if (cli_parse_double(optarg, 0, 1e4, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
+        case 'E': if (cli_parse_double(optarg, 0, MLB_PIPELINE_MAX_SCALE, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
         case 'D': if (mlb_pipeline_config_set(&c, optarg)) return cli_usage_error(command, "%s", mlb_last_error()); set = optarg; break;
-        case 's': if (cli_parse_long(optarg, 0, 0x7fffffffffffffffL, &v)) return cli_usage_error(command, "--seed: expected a non-negative integer"); c.seed = (uint64_t)v; break;
+        case 's': if (cli_parse_u64(optarg, &c.seed)) return cli_usage_error(command, "--seed: expected an integer in 0..18446744073709551615"); break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;
-        case 'c': if (cli_parse_long(optarg, 1, 10000000, &v)) return cli_usage_error(command, "--checkpoint-every: expected >= 1"); c.checkpoint_every = (int)v; break;
-        case 'P': if (cli_parse_long(optarg, 0, 10000000, &v)) return cli_usage_error(command, "--preview-every: expected >= 0"); c.preview_every = (int)v; break;
+        case 'c': if (cli_parse_long(optarg, 1, MLB_PIPELINE_MAX_ITERS, &v)) return cli_usage_error(command, "--checkpoint-every: expected 1..10000000"); c.checkpoint_every = (int)v; break;
+        case 'P': if (cli_parse_long(optarg, 0, MLB_PIPELINE_MAX_ITERS, &v)) return cli_usage_error(command, "--preview-every: expected 0..10000000"); c.preview_every = (int)v; break;
         case 'R': resume = optarg; break;
         case 'X': if (cli_parse_long(optarg, 1, 100000000, &v)) return cli_usage_error(command, "--stop-after: expected >= 1"); stop_after = v; break;
         case 'o': out = optarg; break;
@@ -294,6 +299,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     if (optind < argc) return cli_usage_error(command, "unexpected argument '%s'", argv[optind]);
     if (geometry_option) return cli_usage_error(command, "--%s: paint has no geometry stage (the mesh is given)", geometry_option);
     mlb_status s;
+    if (asset && (s = mlb_check_writable(asset))) return cli_fail(s, "--asset");   // before the run, not after it
     const char* dir = resume ? resume : out;
     if (resume) {
         if (out && strcmp(out, resume) != 0) return cli_usage_error(command, "--resume continues RUN_DIR in place: drop -o");

@@ -19,18 +19,13 @@
 #include "matlaber/log.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/progress.h"
+#include "matlaber/prompts.h"
 
-enum { MAX_TOKENS = 64, PATH_CAP = 4096 };
+enum { PATH_CAP = 4096 };
 enum { ST_NONE = 0, ST_DONE, ST_RESUMED, ST_SKIPPED, ST_STOPPED, ST_FAILED };
 static const char* const STATUS[] = {"-", "done", "resumed", "skipped", "stopped", "failed"};
 
-typedef struct {
-    char* prompt;                // the line's prompt text
-    char* opts[MAX_TOKENS];      // its options (tokens), --name taken out
-    int n_opts;
-    char name[128];              // the run folder's name in DIR
-    int line;
-} item;
+typedef mlb_prompt item;
 
 // What one process did with one prompt (gathered to rank 0 at the end).
 typedef struct {
@@ -38,87 +33,12 @@ typedef struct {
     double seconds;
 } record;
 
-static void slug(char* out, size_t cap, const char* text) {
-    size_t n = 0;
-    int dash = 0;
-    for (const char* p = text; *p && n + 2 < cap && n < 40; p++) {
-        char c = *p;
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if ((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9')) { out[n++] = c; dash = 0; }
-        else if (!dash && n > 0) { out[n++] = '-'; dash = 1; }
-    }
-    while (n > 0 && out[n - 1] == '-') n--;
-    out[n] = 0;
-    if (!n) snprintf(out, cap, "prompt");
-}
-
-static uint64_t fnv(uint64_t h, const char* s) {
-    for (; *s; s++) h = (h ^ (unsigned char)*s) * 1099511628211ull;
-    return (h ^ 0x1f) * 1099511628211ull;
-}
-
-// "[--opt [value] ...] prompt": options of generate first, the rest of the line is the prompt. The
-// folder is --name, else the prompt's slug and a hash of prompt and options (a line edited into
-// another prompt or other settings is another run; reordering lines changes nothing).
-static int parse_line(item* it, char* text, int line) {
-    memset(it, 0, sizeof *it);
-    it->line = line;
-    char* p = text;
-    const char* name = NULL;
-    for (;;) {
-        while (*p == ' ' || *p == '\t') p++;
-        if (strncmp(p, "--", 2) != 0) break;
-        char* tok = p;
-        while (*p && *p != ' ' && *p != '\t') p++;
-        if (*p) *p++ = 0;
-        char key[64];
-        snprintf(key, sizeof key, "%s", tok + 2);
-        char* eq = strchr(key, '=');
-        if (eq) *eq = 0;
-        if (!strcmp(key, "name")) {
-            if (!eq) {
-                while (*p == ' ' || *p == '\t') p++;
-                name = p;
-                while (*p && *p != ' ' && *p != '\t') p++;
-                if (*p) *p++ = 0;
-            } else name = strchr(tok, '=') + 1;
-            continue;
-        }
-        int arity = generate_option_arity(key);
-        if (arity < 0 || !strcmp(key, "out") || !strcmp(key, "resume") || !strcmp(key, "prompts") || !strcmp(key, "prompt") ||
-            !strcmp(key, "help") || !strcmp(key, "stop-after")) {
-            fprintf(stderr, "matlaber generate: --prompts line %d: %s is not an option a prompt line may set\n", line, tok);
-            return -1;
-        }
-        if (it->n_opts + 2 > MAX_TOKENS) { fprintf(stderr, "matlaber generate: --prompts line %d: too many options\n", line); return -1; }
-        it->opts[it->n_opts++] = tok;
-        if (arity == 1 && !eq) {
-            while (*p == ' ' || *p == '\t') p++;
-            char* val = p;
-            while (*p && *p != ' ' && *p != '\t') p++;
-            if (*p) *p++ = 0;
-            if (!*val) { fprintf(stderr, "matlaber generate: --prompts line %d: %s needs a value\n", line, tok); return -1; }
-            it->opts[it->n_opts++] = val;
-        }
-    }
-    size_t len = strlen(p);
-    while (len && (p[len - 1] == ' ' || p[len - 1] == '\t' || p[len - 1] == '\r')) p[--len] = 0;
-    if (!*p) { fprintf(stderr, "matlaber generate: --prompts line %d: options but no prompt\n", line); return -1; }
-    it->prompt = p;
-    if (name) {
-        if (!*name || strchr(name, '/') || name[0] == '.') {
-            fprintf(stderr, "matlaber generate: --prompts line %d: --name '%s' is not a folder name\n", line, name);
-            return -1;
-        }
-        snprintf(it->name, sizeof it->name, "%s", name);
-    } else {
-        uint64_t h = fnv(1469598103934665603ull, p);
-        for (int i = 0; i < it->n_opts; i++) h = fnv(h, it->opts[i]);
-        char s[64];
-        slug(s, sizeof s, p);
-        snprintf(it->name, sizeof it->name, "%s-%08x", s, (unsigned)(h ^ (h >> 32)));
-    }
-    return 0;
+// The options a prompt line may set: generate's, less those that name the job's own files and flow.
+static int line_option_arity(const char* name) {
+    static const char* const refused[] = {"out", "resume", "prompts", "prompt", "help", "stop-after", NULL};
+    for (const char* const* r = refused; *r; r++)
+        if (!strcmp(name, *r)) return -1;
+    return generate_option_arity(name);
 }
 
 // DIR/name/batch.json: {"status", "seconds", "prompt"}; the status of a run an earlier job finished.
@@ -278,32 +198,14 @@ int generate_prompts_main(int argc, char** argv) {
     size_t len = 0;
     mlb_status s = mlb_read_file(file, &text, &len, 64 << 20);
     if (s) return cli_fail(s, "--prompts");
-    int cap = 16, n = 0, bad = 0, line = 0;
-    item* items = malloc(sizeof(item) * (size_t)cap);
-    for (char *p = text, *next; !bad && p && *p; p = next) {
-        next = strchr(p, '\n');
-        if (next) *next++ = 0;
-        line++;
-        char* q = p;
-        while (*q == ' ' || *q == '\t') q++;
-        if (!*q || *q == '#' || *q == '\r') continue;
-        if (n == cap) items = realloc(items, sizeof(item) * (size_t)(cap *= 2));
-        if (!items) return cli_fail(mlb_fail(MLB_ERR_NOMEM, "out of memory"), "--prompts");
-        if (parse_line(&items[n], q, line)) bad = 1;
-        for (int j = 0; !bad && j < n; j++)
-            if (!strcmp(items[j].name, items[n].name)) {
-                fprintf(stderr, "matlaber generate: --prompts lines %d and %d both make the run %s (a repeated line? "
-                                "tell them apart with --name or --seed)\n", items[j].line, line, items[n].name);
-                bad = 1;
-            }
-        n++;
-    }
-    if (bad || n == 0) {
-        if (!bad) fprintf(stderr, "matlaber generate: %s has no prompt\n", file);
-        free(items);
-        free(text);
-        return EXIT_USAGE;
-    }
+    mlb_prompt_list list;
+    s = mlb_prompts_parse(text, len, file, line_option_arity, &list);
+    free(text);
+    text = NULL;
+    if (s == MLB_ERR_FORMAT) return cli_usage_error("generate", "--prompts %s", mlb_last_error());
+    if (s) return cli_fail(s, "--prompts");
+    item* items = list.items;
+    const int n = list.n;
     const int rank = mlb_dist_world_rank(), size = mlb_dist_world_size();
     // this job's claims folder: rank 0 names and makes it, the others learn its name
     char claims[PATH_CAP];
@@ -315,7 +217,7 @@ int generate_prompts_main(int argc, char** argv) {
     }
     mlb_dist_bcast(claims, sizeof claims, 0);
     mlb_dist_bcast(&made, sizeof made, 0);
-    if (!made) { free(items); free(text); return 1; }
+    if (!made) { mlb_prompts_free(&list); return 1; }
     if (rank == 0)
         mlb_log(MLB_LOG_INFO, "%d prompts from %s into %s, %d process%s", n, file, out, size, size > 1 ? "es" : "");
     record* rec = calloc((size_t)n, sizeof(record));
@@ -382,6 +284,7 @@ int generate_prompts_main(int argc, char** argv) {
     }
     mlb_dist_bcast(&failed, sizeof failed, 0);
     cli_rc_agreed = 1;   // every process returns the same status: no need to abort the others
-    free(counts); free(bytes); free(all); free(own); free(rec); free(mine); free(items); free(text);
+    free(counts); free(bytes); free(all); free(own); free(rec); free(mine);
+    mlb_prompts_free(&list);
     return failed ? 1 : 0;
 }

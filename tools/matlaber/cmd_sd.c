@@ -5,7 +5,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include "cli.h"
+#include "matlaber/fileio.h"
 #include "matlaber/image_write.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
@@ -118,13 +120,13 @@ static const cli_option txt2img_options[] = {
     {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint (default: the project's own model, models/matlaber-tiny or $MATLABER_MODEL)"},
     {"prompt", 1, 'p', "TEXT", "the prompt"},
     {"negative", 1, 'n', "TEXT", "negative prompt (replaces the empty unconditional prompt)"},
-    {"steps", 1, 'S', "N", "DDIM steps (default 30)"},
+    {"steps", 1, 'S', "N", "DDIM steps, 1..999 (default 30)"},
     {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5; 3 with the project's own model)"},
     {"seed", 1, 's', "N", "seed of the initial noise (default 0)"},
     {"size", 1, 'z', "N", "image width and height, a multiple of 64 (default 512; 128, what it was trained at, with the project's own model)"},
     {"tokenizer", 1, 't', "PATH", "CLIP tokenizer (default: the model folder's tokenizer/, else $MATLABER_TOKENIZER)"},
     {"v-prediction", 1, 'v', "auto|on|off", "the UNet predicts v (default auto: from the configs)"},
-    {"output", 1, 'o', "FILE", "output PNG"},
+    {"output", 1, 'o', "FILE.png", "output PNG (the name must end in .png)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
 
@@ -147,7 +149,8 @@ static int txt2img_main(int argc, char** argv) {
         case 'o': out_path = optarg; break;
         case 't': tok_path = optarg; break;
         case 'S':
-            if (cli_parse_long(optarg, 1, 1000, &steps)) return cli_usage_error("sd txt2img", "--steps: expected 1..1000");
+            if (cli_parse_long(optarg, 1, MLB_DDIM_MAX_STEPS, &steps))
+                return cli_usage_error("sd txt2img", "--steps: expected 1..%d", MLB_DDIM_MAX_STEPS);
             break;
         case 'c':
             if (cli_parse_double(optarg, -1000, 1000, &cfg)) return cli_usage_error("sd txt2img", "--cfg: expected a number in [-1000, 1000]");
@@ -192,6 +195,11 @@ static int txt2img_main(int argc, char** argv) {
     if (isnan(cfg)) cfg = 7.5;
     if (!prompt) return cli_usage_error("sd txt2img", "-p PROMPT is needed");
     if (!out_path) return cli_usage_error("sd txt2img", "-o out.png is needed");
+    size_t on = strlen(out_path);   // the bytes are PNG: a name that says otherwise is refused, not written
+    if (on < 5 || strcasecmp(out_path + on - 4, ".png"))
+        return cli_usage_error("sd txt2img", "-o %s: the image is written as PNG: give a name ending in .png", out_path);
+    mlb_status ws = mlb_check_writable(out_path);   // before the sampling, not after it
+    if (ws) return cli_fail(ws, "sd txt2img -o");
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     mo.tokenizer_path = tok_path;
     mo.v_prediction = vpred;

@@ -147,6 +147,8 @@ static int run_command(int argc, char** argv) {
     const char* cmd = argv[i];
     int sub_argc = argc - i;
     char** sub_argv = argv + i;
+    int rc = cli_check_args(sub_argc, sub_argv);   // no argument is cut: a longer one is refused here
+    if (rc) return rc;
     if (strcmp(cmd, "brdf") == 0) return cmd_brdf(sub_argc, sub_argv);
     if (strcmp(cmd, "catalogue") == 0) return cmd_catalogue(sub_argc, sub_argv);
     if (strcmp(cmd, "bench") == 0) return cmd_bench(sub_argc, sub_argv);

@@ -324,6 +324,9 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     c.stop_after = stop_after;
     s = mlb_pipeline_validate(&c);
     if (s) return cli_fail(s, command);
+    // the project's own models read only their catalogue's captions: a prompt is read into one
+    // before anything is loaded or made, or refused naming the words they never saw
+    if (!resume && mlb_pipeline_read_prompt(&c)) return cli_usage_error(command, "%s", mlb_last_error());
     if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);

@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "cli.h"
+#include "matlaber/caption.h"
 #include "matlaber/image_write.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
@@ -192,6 +193,15 @@ static int txt2img_main(int argc, char** argv) {
     if (isnan(cfg)) cfg = 7.5;
     if (!prompt) return cli_usage_error("sd txt2img", "-p PROMPT is needed");
     if (!out_path) return cli_usage_error("sd txt2img", "-o out.png is needed");
+    // the project's own models read only their catalogue's captions (caption.h): the prompt read
+    // into one (a view suffix kept), or refused naming the words they never saw
+    mlb_caption_reading reading;
+    if (mlb_sd_model_is_own(model_path)) {
+        if (mlb_caption_read(prompt, &reading)) return cli_usage_error("sd txt2img", "%s", mlb_last_error());
+        if (strcmp(reading.caption, prompt))
+            mlb_log(MLB_LOG_INFO, "the prompt '%s' read as '%s' (the project's own model)", prompt, reading.caption);
+        prompt = reading.caption;
+    }
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     mo.tokenizer_path = tok_path;
     mo.v_prediction = vpred;

@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "cli.h"
+#include "matlaber/caption.h"
 #include "matlaber/catalogue.h"
 #include "matlaber/dist.h"
 #include "matlaber/log.h"
@@ -15,6 +16,8 @@ static const cli_option options[] = {
     {"classes", 1, 'c', "A,B,..", "the classes to prompt (default all)"},
     {"materials", 1, 'M', "X,Y,..", "the materials to prompt (default all)"},
     {"pairs", 1, 'p', "C:M,..", "these class:material prompts instead (e.g. vase:gold,table:red)"},
+    {"phrasing", 1, 'P', "K|mixed", "each caption written in held-out form K (1..5: \"A golden goblet.\", \"a goblet made of\n"
+                                    "                           gold\", ...) or a form per pair (mixed); default 0, the catalogue's"},
     {"preset", 1, 'Q', "NAME", "the generation preset (default tiny)"},
     {"model", 1, 'm', "PATH", "Stable Diffusion folder or file (default the project's own model, as generate)"},
     {"appearance-model", 1, 'y', "PATH", "another model for the appearance stage (generate's --appearance-model)"},
@@ -84,6 +87,12 @@ static int bench_text3d(int argc, char** argv) {
             break;
         case 'p':
             if (parse_pairs(optarg, &bc)) return cli_usage_error(cmd, "--pairs: expected class:material,... (%s)", mlb_last_error());
+            break;
+        case 'P':
+            if (!strcmp(optarg, "mixed")) mlb_caption_set_bench_phrasing(MLB_CAPTION_PHRASING_MIXED);
+            else if (cli_parse_long(optarg, 0, MLB_CAPTION_N_PHRASINGS, &v))
+                return cli_usage_error(cmd, "--phrasing: expected 0..%d or mixed", MLB_CAPTION_N_PHRASINGS);
+            else mlb_caption_set_bench_phrasing((int)v);
             break;
         case 'Q': preset = optarg; break;
         case 'm': model = optarg; break;

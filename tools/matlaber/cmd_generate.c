@@ -20,7 +20,8 @@ static const cli_option options[] = {
                                "                           (1 view at 256², a short schedule, bf16: with SD 1.5 within an hour\n"
                                "                           on 2 cores with AVX-512 BF16, about 1.5 h on 2 AVX2 cores); options\n"
                                "                           after it override it (docs/pipeline.md)"},
-    {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
+    {"prompt", 1, 'p', "TEXT", "generate, paint: the text prompt (the project's own models read only the catalogue's\n"
+                               "                           captions, written in any of their usual ways: docs/catalogue.md)"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"
                               "                           project's own model (models/matlaber-tiny or $MATLABER_MODEL) with --preset tiny"},
     {"appearance-model", 1, 'y', "PATH", "generate, paint: another checkpoint for the appearance stage (default: the --model's;\n"

@@ -117,7 +117,8 @@ static int tokenize_main(int argc, char** argv) {
 // ---- txt2img ------------------------------------------------------------------------------------
 static const cli_option txt2img_options[] = {
     {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint (default: the project's own model, models/matlaber-tiny or $MATLABER_MODEL)"},
-    {"prompt", 1, 'p', "TEXT", "the prompt"},
+    {"prompt", 1, 'p', "TEXT", "the prompt (the project's own model reads only the catalogue's captions, written in any of\n"
+                               "                           their usual ways, and a view suffix: docs/catalogue.md)"},
     {"negative", 1, 'n', "TEXT", "negative prompt (replaces the empty unconditional prompt)"},
     {"steps", 1, 'S', "N", "DDIM steps (default 30)"},
     {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5; 3 with the project's own model)"},

@@ -28,7 +28,7 @@ printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf' > "$T/rep.obj"
 for i in $(seq 400); do printf ' 1 2 3'; done >> "$T/rep.obj"
 echo >> "$T/rep.obj"
 small="--res 32 --views 2 --appearance-iters 1 --preview-every 0 --set material_start=0 --export-texture 256"
-expect 0 "paint: one triangle given 400 times" -- timeout 900 $Q paint --mesh "$T/rep.obj" -p "a red cube" $small -o "$T/rep"
+expect 0 "paint: one triangle given 400 times" -- timeout 900 $Q paint --mesh "$T/rep.obj" -p "a red bowl" $small -o "$T/rep"
 [ -s "$T/rep/final/asset.glb" ] && ok "its asset written" || bad "no final/asset.glb"
 expect 0 "export of that run" -- timeout 300 $M export "$T/rep" --texture-size 256 -o "$T/rep.glb"
 err_has "two charts: the triangle and its slivers" "UV atlas: 2 charts"
@@ -45,8 +45,8 @@ pipe_refused() {   # NAME RUN_DIR_OR_- command...
   err_has "$name: the pipe named" "not a regular file (a named pipe)"
   [ "$dir" = - ] || { [ -e "$dir" ] && bad "$name: $dir left behind" || ok "$name: nothing written"; }
 }
-pipe_refused "paint --mesh a pipe" "$T/p1" $Q paint --mesh "$T/pipe.obj" -p "a red cube" -o "$T/p1"
-pipe_refused "a .gltf whose buffer is a pipe" "$T/p2" $Q paint --mesh "$T/piped.gltf" -p "a red cube" -o "$T/p2"
+pipe_refused "paint --mesh a pipe" "$T/p1" $Q paint --mesh "$T/pipe.obj" -p "a red bowl" -o "$T/p1"
+pipe_refused "a .gltf whose buffer is a pipe" "$T/p2" $Q paint --mesh "$T/piped.gltf" -p "a red bowl" -o "$T/p2"
 pipe_refused "generate --prompts a pipe" "$T/p3" $Q generate --prompts "$T/pipe.txt" -o "$T/p3"
 pipe_refused "a run whose config.json is a pipe: generate --resume" - $Q generate --resume "$T/piperun"
 pipe_refused "a run whose config.json is a pipe: export" - $Q export "$T/piperun" -o "$T/p5.glb"
@@ -64,7 +64,7 @@ refused_early() {   # NAME CODE TEXT generate-or-paint options...
   err_has "$name: the problem named" "$text"
   [ -e "$T/early" ] && bad "$name: a run folder was made" || ok "$name: no run folder"
 }
-G="generate -p a-red-cube --init-iters 1 --geometry-iters 1 --appearance-iters 1"
+G="generate -p a-red-bowl --init-iters 1 --geometry-iters 1 --appearance-iters 1"
 refused_early "--env a text file" 1 "$T/shadow: not a Radiance .hdr or OpenEXR file" $G --env "$T/shadow"
 refused_early "--set envs=a text file" 1 "environment 1 ($T/shadow)" $G --set "envs=sky,$T/shadow"
 refused_early "--init a text file" 1 "--init $T/shadow" $G --init "$T/shadow"
@@ -74,12 +74,12 @@ refused_early "--set geometry_lr=1e308" 1 "learning rates" $G --set geometry_lr=
 refused_early "--set appearance_lr=1e308" 1 "learning rates" $G --set appearance_lr=1e308
 refused_early "--set res=12" 1 "multiple of 8 in 16..2048" $G --set res=12
 refused_early "--set latent_size=7" 1 "latent_size must be 0 (64) or a multiple of 8" $G --set latent_size=7
-refused_early "--set geometry_iters=20000000" 1 "iteration counts" generate -p a-red-cube --set geometry_iters=20000000
-refused_early "--set init_iters=2000000" 1 "init_iters" generate -p a-red-cube --set init_iters=2000000
+refused_early "--set geometry_iters=20000000" 1 "iteration counts" generate -p a-red-bowl --set geometry_iters=20000000
+refused_early "--set init_iters=2000000" 1 "init_iters" generate -p a-red-bowl --set init_iters=2000000
 refused_early "--set seed=2^64" 2 "more than 18446744073709551615" $G --set seed=18446744073709551616
 refused_early "--seed 2^64" 2 "--seed: expected an integer in 0..18446744073709551615" $G --seed 18446744073709551616
 refused_early "paint --asset in a missing folder" 1 "/nonexistent/dir/x.glb: cannot create a temporary file beside it" \
-  paint --mesh "$T/rep.obj" -p "a red cube" --asset /nonexistent/dir/x.glb
+  paint --mesh "$T/rep.obj" -p "a red bowl" --asset /nonexistent/dir/x.glb
 expect 1 "export -o in a missing folder: refused before the atlas" -- $Q export "$T/rep" -o /nonexistent/dir/x.glb
 err_has "export names the output" "/nonexistent/dir/x.glb"
 
@@ -92,9 +92,9 @@ fill=$((1023 - ${#deep} - 5)); name=$(head -c "$fill" /dev/zero | tr '\0' m)
 prefix="$deep/$name.obj"
 cp "$T/rep.obj" "$prefix"
 [ ${#prefix} = 1023 ] && ok "a mesh path of 1023 bytes" || bad "prefix is ${#prefix} bytes"
-refused_early "paint --mesh of 1037 bytes" 2 "the value of --mesh is 1037 bytes" paint --mesh "$prefix.NOT_THERE.obj" -p "a red cube"
+refused_early "paint --mesh of 1037 bytes" 2 "the value of --mesh is 1037 bytes" paint --mesh "$prefix.NOT_THERE.obj" -p "a red bowl"
 refused_early "paint --mesh of 5000 bytes" 2 "the value of --mesh is 5000 bytes: a path, a prompt or a name may have at most 1023" \
-  paint --mesh "$(head -c 5000 /dev/zero | tr '\0' p)" -p "a red cube"
+  paint --mesh "$(head -c 5000 /dev/zero | tr '\0' p)" -p "a red bowl"
 # a prompt of 1024 bytes whose 1023rd byte starts a UTF-8 character: refused whole, not cut into invalid UTF-8
 long_prompt="$(head -c 1022 /dev/zero | tr '\0' a)é"
 refused_early "a prompt of 1024 bytes" 2 "the value of -p is 1024 bytes" $G -p "$long_prompt"
@@ -108,7 +108,7 @@ expect 2 "--prompts with CR line ends: two lines" -- $Q generate --prompts "$T/c
 err_has "the two CR-ended lines seen apart" "lines 1 and 2 both make the run a-gold-goblet-2d3c54a6"
 
 # ---- 5. messages name the file and the problem, never another file's contents ----
-for opt in "generate -p a-red-cube --init-iters 1 --init" "paint -p a-red-cube --mesh"; do
+for opt in "generate -p a-red-bowl --init-iters 1 --init" "paint -p a-red-bowl --mesh"; do
   rm -rf "$T/m5"
   expect 1 "${opt##* }: a password file's look-alike refused" -- timeout 120 $Q $opt "$T/shadow" -o "$T/m5"
   err_has "${opt##* }: the file and the line named" "$T/shadow: line 1: not an OBJ statement"
@@ -116,7 +116,7 @@ for opt in "generate -p a-red-cube --init-iters 1 --init" "paint -p a-red-cube -
 done
 # a .gltf nested 200000 deep: cJSON stops at 1000 levels, and the message says so
 { head -c 200000 /dev/zero | tr '\0' '['; head -c 200000 /dev/zero | tr '\0' ']'; } > "$T/deep.gltf"
-expect 1 "a .gltf nested 200000 deep" -- $Q paint --mesh "$T/deep.gltf" -p "a red cube" -o "$T/m6"
+expect 1 "a .gltf nested 200000 deep" -- $Q paint --mesh "$T/deep.gltf" -p "a red bowl" -o "$T/m6"
 err_has "nesting named" "deep.gltf: not glTF: neither a .glb nor JSON text (JSON nested more than 1000 levels deep"
 
 # ---- 6. no NaN read in ----
@@ -124,7 +124,7 @@ nan_tail() { printf "$2" | dd of="$1" bs=1 seek=$(( $(stat -c %s "$1") - 4 )) co
 # a paint run stopped after a checkpoint, its checkpoint's last number made NaN: --resume refuses it
 # naming the file, and the run is left as it was (once it resumed and wrote 1000 NaNs into
 # final/material.safetensors, exit 0)
-expect 0 "paint stopped after its first checkpoint" -- $Q paint --mesh "$T/rep.obj" -p "a red cube" $small \
+expect 0 "paint stopped after its first checkpoint" -- $Q paint --mesh "$T/rep.obj" -p "a red bowl" $small \
   --appearance-iters 2 --checkpoint-every 1 --stop-after 1 -o "$T/nanrun"
 ck="$T/nanrun/checkpoints/appearance.safetensors"
 nan_tail "$ck" '\x00\x00\xc0\x7f'
@@ -137,7 +137,7 @@ cmp -s "$T/loss_before.csv" "$T/nanrun/loss.csv" && ok "the run left as it was (
 # loss of 0 without a word)
 cp -r "$(dirname "$0")/../models/matlaber-tiny-appearance" "$T/nanmodel"
 nan_tail "$T/nanmodel/unet/diffusion_pytorch_model.safetensors" '\x00\xfe\xff\x7f'   # NaN as F32, F16 or BF16
-expect 1 "sd txt2img with a NaN in the UNet" -- $Q sd txt2img -m "$T/nanmodel" -p "a red cube" -o "$T/nan.png"
+expect 1 "sd txt2img with a NaN in the UNet" -- $Q sd txt2img -m "$T/nanmodel" -p "a red bowl" -o "$T/nan.png"
 err_has "the weights file named" "diffusion_pytorch_model.safetensors: tensor '.*' holds a NaN or an infinity"
 [ -e "$T/nan.png" ] && bad "an image written" || ok "no image written"
 refused_early "generate with a NaN in the UNet" 1 "holds a NaN or an infinity" $G -m "$T/nanmodel" --preset tiny
@@ -145,14 +145,14 @@ refused_early "generate with a NaN in the UNet" 1 "holds a NaN or an infinity" $
 # ---- 7. sd txt2img says what it takes ----
 expect 0 "sd txt2img --help" -- $M sd txt2img --help
 grep -q -- "--steps N .*1\.\.999" "$T/out" && ok "help gives the steps' range" || bad "help: $(grep -- --steps "$T/out")"
-expect 2 "sd txt2img --steps 1000 (a 1000th step would be timestep 1000 of 0..999)" -- $Q sd txt2img -p "a red cube" --steps 1000 -o "$T/s.png"
+expect 2 "sd txt2img --steps 1000 (a 1000th step would be timestep 1000 of 0..999)" -- $Q sd txt2img -p "a red bowl" --steps 1000 -o "$T/s.png"
 err_has "the range named" "--steps: expected 1..999"
-expect 2 "sd txt2img -o x.jpg (the bytes are PNG)" -- $Q sd txt2img -p "a red cube" --steps 1 -o "$T/x.jpg"
+expect 2 "sd txt2img -o x.jpg (the bytes are PNG)" -- $Q sd txt2img -p "a red bowl" --steps 1 -o "$T/x.jpg"
 err_has "the name refused" "-o $T/x.jpg: the image is written as PNG: give a name ending in .png"
 [ -e "$T/x.jpg" ] && bad "x.jpg written" || ok "no x.jpg"
-expect 1 "sd txt2img -o in a missing folder: before sampling" -- $Q sd txt2img -p "a red cube" --steps 1 -o /nonexistent/dir/x.png
+expect 1 "sd txt2img -o in a missing folder: before sampling" -- $Q sd txt2img -p "a red bowl" --steps 1 -o /nonexistent/dir/x.png
 err_has "the output named" "/nonexistent/dir/x.png: cannot create a temporary file beside it"
-expect 0 "sd txt2img -o X.PNG" -- $Q sd txt2img -p "a red cube" --steps 1 -o "$T/x.PNG"
+expect 0 "sd txt2img -o X.PNG" -- $Q sd txt2img -p "a red bowl" --steps 1 -o "$T/x.PNG"
 [ "$(head -c 4 "$T/x.PNG" | od -An -c | tr -d ' ')" = "211PNG" ] && ok "a PNG" || bad "not a PNG"
 
 finish

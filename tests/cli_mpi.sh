@@ -158,9 +158,9 @@ fi
 # writes the run folder (input/mesh.obj included): the same bytes as 1 process, and a resume on 2
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n' > "$T/tet.obj"
 psmall="--res 32 --views 2 --view-batch 1 --appearance-iters 4 --checkpoint-every 2 --preview-every 2 --export-texture 32"
-expect 0 "paint, 1 process" -- $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall -o "$T/p1"
-expect 0 "paint, 2 processes" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall -o "$T/p2"
-expect 0 "paint, 2 processes, stopped after 2 steps" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red box" $psmall \
+expect 0 "paint, 1 process" -- $Q paint --mesh "$T/tet.obj" -p "a red bowl" $psmall -o "$T/p1"
+expect 0 "paint, 2 processes" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red bowl" $psmall -o "$T/p2"
+expect 0 "paint, 2 processes, stopped after 2 steps" -- $MPI -n 2 $Q paint --mesh "$T/tet.obj" -p "a red bowl" $psmall \
   --stop-after 2 -o "$T/p3"
 expect 0 "paint resumed on 2 processes" -- $MPI -n 2 $Q paint --resume "$T/p3"
 for r in p2 p3; do

@@ -77,7 +77,7 @@ cube > "$T/cube.obj"
 { cube; printf 'v 100 50 -20\nv 137 50 -20\nv 110 40 -40\nvt 0.5 0.9\nvt 0.6 0.9\nvt 0.5 0.95\nf 1/1 2/2 9/25\nf 1/1 1/1 2/2\n'; } > "$T/nonmanifold.obj"
 
 small="--res 32 --views 2 --appearance-iters 4 --checkpoint-every 2 --preview-every 2 --export-texture 64"
-expect 0 "paint the cube (project's model, tiny settings)" -- $Q paint --mesh "$T/cube.obj" -p "a red cube" $small \
+expect 0 "paint the cube (project's model, tiny settings)" -- $Q paint --mesh "$T/cube.obj" -p "a red bowl" $small \
   --asset "$T/cube_out.obj" -o "$T/a"
 for f in config.json loss.csv loss.png input/mesh.obj final/mesh.obj final/material.safetensors final/asset.glb \
          final/views.png previews/appearance_000004.png; do
@@ -126,7 +126,7 @@ fi
 grep -q '"appearance_guidance_scale":[[:space:]]*100,' "$T/a/config.json" && ok "the tiny preset paints at guidance 100" \
   || bad "config: appearance_guidance_scale not the preset's 100"
 # paint has one stage: --guidance-scale alone is its scale, not overridden by the preset's appearance one
-expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red cube" $small --stop-after 1 \
+expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red bowl" $small --stop-after 1 \
   --guidance-scale 30 -o "$T/g"
 grep -q '"guidance_scale":[[:space:]]*30,' "$T/g/config.json" && grep -q '"appearance_guidance_scale":[[:space:]]*0,' "$T/g/config.json" \
   && ok "paint --guidance-scale sets its one stage" || bad "paint --guidance-scale: $(grep guidance_scale "$T/g/config.json")"
@@ -146,13 +146,13 @@ expect 0 "export the paint run" -- $Q export "$T/a" --texture-size 64 -o "$T/exp
 cmp -s "$T/exported.glb" "$T/a/final/asset.glb" && ok "export = final/asset.glb" || bad "export differs from final/asset.glb"
 
 # --uv atlas: the project's atlas instead (more vertices: seams), faces kept
-expect 0 "paint --uv atlas" -- $Q paint --mesh "$T/cube.obj" -p "a red cube" $small --uv atlas --asset "$T/atlas.obj" -o "$T/c"
+expect 0 "paint --uv atlas" -- $Q paint --mesh "$T/cube.obj" -p "a red bowl" $small --uv atlas --asset "$T/atlas.obj" -o "$T/c"
 [ "$(n f "$T/atlas.obj")" = 12 ] && ok "atlas: 12 faces" || bad "atlas faces: $(n f "$T/atlas.obj")"
-expect 0 "paint a non-manifold mesh with a zero-area face" -- $Q paint --mesh "$T/nonmanifold.obj" -p "a red cube" $small -o "$T/nm"
+expect 0 "paint a non-manifold mesh with a zero-area face" -- $Q paint --mesh "$T/nonmanifold.obj" -p "a red bowl" $small -o "$T/nm"
 err_has "zero-area face reported" "zero area"
 
 # resume: stopped after 3 steps (checkpoint at 2), resumed, the same bytes as the uninterrupted run
-expect 0 "paint stopped after 3 steps" -- $Q paint --mesh "$T/cube.obj" -p "a red cube" $small -o "$T/b" --stop-after 3
+expect 0 "paint stopped after 3 steps" -- $Q paint --mesh "$T/cube.obj" -p "a red bowl" $small -o "$T/b" --stop-after 3
 [ -e "$T/b/final/asset.glb" ] && bad "stopped run has an asset" || ok "stopped run has no asset"
 mv "$T/cube.obj" "$T/cube_moved.obj"   # the run keeps its own copy of the mesh
 expect 0 "paint --resume (input file gone)" -- $Q --progress json paint --resume "$T/b"
@@ -165,6 +165,6 @@ grep -q '^{"event":"progress","label":"paint","done":4,"total":4,' "$T/err" && o
 grep -q '^{"event":"result","command":"paint","finished":true,' "$T/err" && ok "json result line" || bad "no json result line"
 expect 2 "generate --resume of a paint run" -- $Q generate --resume "$T/b"
 err_has "names paint" "matlaber paint"
-expect 1 "json error line" -- $M --progress json paint --mesh "$H/empty.obj" -p x -o "$T/e"
+expect 1 "json error line" -- $M --progress json paint --mesh "$H/empty.obj" -p "a gold goblet" -o "$T/e"
 grep -q '^{"event":"error","message":".*empty.obj' "$T/err" && ok "json error names the file" || bad "no json error line"
 finish

@@ -35,7 +35,9 @@
 
 typedef struct {
     char guidance[16];            // "sds" or "images"
-    char prompt[MLB_PIPELINE_PATH];     // sds
+    char prompt[MLB_PIPELINE_PATH];     // sds, as typed
+    char caption[128];            // sds: what the project's own models read it as ("a gold goblet";
+                                  // mlb_pipeline_read_prompt), encoded in its place; "": the prompt
     char negative[MLB_PIPELINE_PATH];   // sds: replaces both stages' default negative prompts when set
     char model[MLB_PIPELINE_PATH];      // sds: the Stable Diffusion checkpoint (file or folder)
     char appearance_model[MLB_PIPELINE_PATH];   // sds: another one for the appearance stage ("": model)
@@ -156,6 +158,12 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_g
 // 0 (the default) keeps none and frees what is kept. Not thread-safe: call it between runs.
 void mlb_pipeline_keep_shape_fits(size_t bytes);
 #define MLB_PIPELINE_KEEP_FITS_BYTES ((size_t)256 << 20)
+// Reads c->prompt for the project's own models (caption.h): when c->model or c->appearance_model
+// is one of them (sd_model.h, mlb_sd_model_is_own) c->caption becomes the prompt's canonical
+// caption, or MLB_ERR_ARG names the words they never saw; otherwise c->caption is "" and the prompt
+// goes as typed. A caption naming a view is refused: the guidance adds the views' own. Called for
+// a new run before anything is made; a resumed run keeps its config's caption.
+mlb_status mlb_pipeline_read_prompt(mlb_pipeline_config* c);
 // Creates the guidance a config asks for: SDS (loads the model; the guidance owns it) or images
 // (loads the views folder at c->res into *views_out, which the caller frees with
 // mlb_pipeline_free_views after the guidance).

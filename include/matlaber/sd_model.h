@@ -50,6 +50,11 @@ typedef struct {
     char geometry_suffix[MLB_SD_SUFFIX_MAX];
 } mlb_sd_model;
 
+// 1 when path is a model folder of the project's own (matlaber sd train: model_index.json has the
+// key "_matlaber", sd_folder.h), trained on the catalogue's captions alone (caption.h); 0 for any
+// other folder or file, or one that cannot be read.
+int mlb_sd_model_is_own(const char* path);
+
 mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1, current device and precision
 // *out is NULL on failure; the message names the file and the tensor or key.
 mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt, mlb_sd_model** out);

@@ -66,6 +66,20 @@ int mlb_sd_geometry_suffix_ok(const char* s) {
     return 1;
 }
 
+int mlb_sd_model_is_own(const char* path) {
+    char p[4200];
+    if (!path || strlen(path) > 4000 || !mlb_is_dir(path)) return 0;
+    snprintf(p, sizeof p, "%s/model_index.json", path);
+    char* text = NULL;
+    size_t n = 0;
+    if (!mlb_is_file(p) || mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) return 0;
+    cJSON* root = cJSON_ParseWithLength(text, n);
+    int own = root && cJSON_GetObjectItemCaseSensitive(root, "_matlaber") != NULL;
+    cJSON_Delete(root);
+    free(text);
+    return own;
+}
+
 // model_index.json's "_matlaber_geometry_suffix" into out (sd_folder.h); "" when the file or the
 // key is absent or the file is not JSON (a user's folder need not have a readable index); a key
 // that is there but not a short printable string is an error naming the file.

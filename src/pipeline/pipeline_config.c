@@ -245,6 +245,7 @@ static const field FIELDS[] = {
     FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // added 2026-11-29; before: the same rate
     FLD_OPT("appearance_model", F_STR, appearance_model, 0),          // added 2026-11-30; before: the model's
     FLD_OPT("surface_smooth", F_INT, surface_smooth, 0),              // before: the surface as extracted
+    FLD_OPT("caption", F_STR, caption, 0),                            // written when set; before: the prompt as typed
     // paint runs only (written when paint_mesh is set; added 2026-11-27)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),
@@ -278,6 +279,7 @@ char* mlb_pipeline_config_text(const mlb_pipeline_config* c) {
         const field* f = &FIELDS[i];
         const char* p = (const char*)c + f->offset;
         if (!c->paint_mesh[0] && !strncmp(f->key, "paint_", 6)) continue;   // generate and fit runs: as before
+        if (!c->caption[0] && !strcmp(f->key, "caption")) continue;          // the prompt as typed: as before
         switch (f->kind) {
         case F_STR: cJSON_AddStringToObject(root, f->key, p); break;
         case F_INT: cJSON_AddNumberToObject(root, f->key, *(const int*)p); break;

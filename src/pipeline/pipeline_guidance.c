@@ -3,11 +3,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/caption.h"
 #include "matlaber/guidance_image.h"
 #include "matlaber/guidance_sds.h"
 #include "matlaber/log.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/sd_model.h"
+#include "matlaber/sds.h"
 
 // SDS keeps the models alive beside the guidance: wrap the guidance's destroy.
 typedef struct {
@@ -65,7 +67,7 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
         if (s) { mlb_sd_model_free(model); return mlb_fail_context(s, "the appearance stage's model"); }
     }
     mlb_guidance_sds_config gc = mlb_guidance_sds_default();
-    gc.prompt = c->prompt;
+    gc.prompt = c->caption[0] ? c->caption : c->prompt;   // the view suffixes follow it
     if (c->negative[0]) gc.negative_geometry = gc.negative_appearance = c->negative;
     gc.views = c->views;
     gc.latent_iters = c->latent_iters >= 0 ? c->latent_iters : c->geometry_iters / 3;
@@ -110,6 +112,22 @@ static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
     g->destroy = owner_destroy;
     g->impl = o;
     *out = g;
+    return MLB_OK;
+}
+
+mlb_status mlb_pipeline_read_prompt(mlb_pipeline_config* c) {
+    c->caption[0] = 0;
+    if (strcmp(c->guidance, "sds") || !c->prompt[0]) return MLB_OK;
+    if (!mlb_sd_model_is_own(c->model) && !(c->appearance_model[0] && mlb_sd_model_is_own(c->appearance_model)))
+        return MLB_OK;   // Stable Diffusion reads any prompt
+    mlb_caption_reading r;
+    MLB_TRY(mlb_caption_read(c->prompt, &r));
+    if (r.view != MLB_SDS_VIEW_NONE)
+        return mlb_fail(MLB_ERR_ARG, "'%s' names a view ('%s'): the run adds each view's own to the caption; drop it "
+                                     "from the prompt", c->prompt, mlb_sds_view_suffix(r.view) + 2);
+    snprintf(c->caption, sizeof c->caption, "%s", r.caption);
+    if (strcmp(c->caption, c->prompt))
+        mlb_log(MLB_LOG_INFO, "the prompt '%s' read as '%s' (the project's own model)", c->prompt, c->caption);
     return MLB_OK;
 }
 

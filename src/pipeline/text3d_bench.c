@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/caption.h"
 #include "matlaber/catalogue.h"
 #include "matlaber/device.h"
 #include "matlaber/dist.h"
@@ -82,7 +83,7 @@ static mlb_status check_same(const char* dir, const mlb_pipeline_config* want, c
         what = "guidance scale (a run from before the preset's appearance guidance scale: regenerate it)";
     // then any other setting of the generation (--set's keys among them); not the model's path (its
     // spelling may differ) nor what only the run's bookkeeping uses
-    static const char* const bookkeeping[] = {"model", "checkpoint_every", "preview_every", "export_texture", NULL};
+    static const char* const bookkeeping[] = {"model", "checkpoint_every", "preview_every", "export_texture", "caption", NULL};
     if (!what) what = mlb_pipeline_config_differs(want, have, bookkeeping);
     if (!what) return MLB_OK;
     return mlb_fail(MLB_ERR_ARG, "%s holds a run made with another %s: remove it or give the benchmark another -o", dir, what);
@@ -177,7 +178,8 @@ static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipe
     }
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
-    s = mlb_pipeline_make_guidance(&c, &g, &views);
+    if (!resume) s = mlb_pipeline_read_prompt(&c);   // what the project's own models read it as
+    if (!s) s = mlb_pipeline_make_guidance(&c, &g, &views);
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
@@ -270,7 +272,9 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
         int cls = PROMPT_CLASS(i), mat = PROMPT_MAT(i);
         mlb_text3d_row* row = &rows[i];
         memset(row, 0, sizeof *row);
-        mlb_catalogue_caption(cls, mat, 0, row->prompt, sizeof row->prompt);   // view 0: no suffix
+        // the catalogue's caption (no view suffix), or a held-out phrasing of it (bench --phrasing)
+        mlb_caption_phrase(cls, mat, mlb_caption_phrasing_form(mlb_caption_bench_phrasing(), cls, mat), row->prompt,
+                           sizeof row->prompt);
         snprintf(row->run_dir, sizeof row->run_dir, "%s/%s_%s", c->out_dir, mlb_catalogue_class_name(cls),
                  mlb_catalogue_material_name(mat));
         if (mlb_run_exists(row->run_dir)) {

@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "cli.h"
+#include "matlaber/caption.h"
 #include "matlaber/catalogue.h"
 #include "matlaber/dist.h"
 #include "matlaber/log.h"
@@ -15,6 +16,8 @@ static const cli_option options[] = {
     {"classes", 1, 'c', "A,B,..", "the classes to prompt (default all)"},
     {"materials", 1, 'M', "X,Y,..", "the materials to prompt (default all)"},
     {"pairs", 1, 'p', "C:M,..", "these class:material prompts instead (e.g. vase:gold,table:red)"},
+    {"phrasing", 1, 'P', "K|mixed", "each caption written in held-out form K (1..5: \"A golden goblet.\", \"a goblet made of\n"
+                                    "                           gold\", ...) or a form per pair (mixed); default 0, the catalogue's"},
     {"preset", 1, 'Q', "NAME", "the generation preset (default tiny)"},
     {"model", 1, 'm', "PATH", "Stable Diffusion folder or file (default the project's own model, as generate)"},
     {"appearance-model", 1, 'y', "PATH", "another model for the appearance stage (generate's --appearance-model)"},
@@ -30,7 +33,7 @@ static const cli_option options[] = {
     {"relight-env", 1, 'e', "NAME|FILE", "the unseen relighting light (default white)"},
     {"out", 1, 'o', "DIR", "the run folders, DIR/<class>_<material> (default bench-text3d); a rerun resumes"},
     {"json", 1, 'j', "FILE", "the table and summary as JSON"},
-    {"sheet", 1, 'P', "FILE.png", "a contact sheet: each prompt's truth beside its asset (docs/images/text3d.png)"},
+    {"sheet", 1, 'G', "FILE.png", "a contact sheet: each prompt's truth beside its asset (docs/images/text3d.png)"},
     {"sheet-env", 1, 'E', "NAME|FILE", "the contact sheet's light (default studio)"},
     {"help", 0, 'h', NULL, "this help"},
     {0, 0, 0, 0, 0}};
@@ -88,6 +91,12 @@ static int bench_text3d(int argc, char** argv) {
         case 'p':
             if (parse_pairs(optarg, &bc)) return cli_usage_error(cmd, "--pairs: expected class:material,... (%s)", mlb_last_error());
             break;
+        case 'P':
+            if (!strcmp(optarg, "mixed")) mlb_caption_set_bench_phrasing(MLB_CAPTION_PHRASING_MIXED);
+            else if (cli_parse_long(optarg, 0, MLB_CAPTION_N_PHRASINGS, &v))
+                return cli_usage_error(cmd, "--phrasing: expected 0..%d or mixed", MLB_CAPTION_N_PHRASINGS);
+            else mlb_caption_set_bench_phrasing((int)v);
+            break;
         case 'Q': preset = optarg; break;
         case 'm': model = optarg; break;
         case 'y': appearance_model = optarg; break;
@@ -106,7 +115,7 @@ static int bench_text3d(int argc, char** argv) {
         case 'e': bc.relight_env = optarg; break;
         case 'o': bc.out_dir = optarg; break;
         case 'j': json = optarg; break;
-        case 'P': sheet = optarg; break;
+        case 'G': sheet = optarg; break;
         case 'E': sheet_env = optarg; break;
         case 'h':
             printf("usage: matlaber bench text3d [--classes A,B] [--materials X,Y] | [--pairs C:M,..] [-o DIR] [--json FILE] [options]\n\n"

@@ -20,7 +20,8 @@ static const cli_option options[] = {
                                "                           (1 view at 256², a short schedule, bf16: with SD 1.5 within an hour\n"
                                "                           on 2 cores with AVX-512 BF16, about 1.5 h on 2 AVX2 cores); options\n"
                                "                           after it override it (docs/pipeline.md)"},
-    {"prompt", 1, 'p', "TEXT", "generate: the text prompt"},
+    {"prompt", 1, 'p', "TEXT", "generate, paint: the text prompt (the project's own models read only the catalogue's\n"
+                               "                           captions, written in any of their usual ways: docs/catalogue.md)"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"
                               "                           project's own model (models/matlaber-tiny or $MATLABER_MODEL) with --preset tiny"},
     {"appearance-model", 1, 'y', "PATH", "generate, paint: another checkpoint for the appearance stage (default: the --model's;\n"
@@ -330,6 +331,9 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     c.stop_after = stop_after;
     s = mlb_pipeline_validate(&c);
     if (s) return cli_fail(s, command);
+    // the project's own models read only their catalogue's captions: a prompt is read into one
+    // before anything is loaded or made, or refused naming the words they never saw
+    if (!resume && mlb_pipeline_read_prompt(&c)) return cli_usage_error(command, "%s", mlb_last_error());
     if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);

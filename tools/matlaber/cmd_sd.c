@@ -7,6 +7,7 @@
 #include <string.h>
 #include <strings.h>
 #include "cli.h"
+#include "matlaber/caption.h"
 #include "matlaber/fileio.h"
 #include "matlaber/image_write.h"
 #include "matlaber/log.h"
@@ -118,7 +119,8 @@ static int tokenize_main(int argc, char** argv) {
 // ---- txt2img ------------------------------------------------------------------------------------
 static const cli_option txt2img_options[] = {
     {"model", 1, 'm', "PATH", "diffusers model folder or single-file .safetensors checkpoint (default: the project's own model, models/matlaber-tiny or $MATLABER_MODEL)"},
-    {"prompt", 1, 'p', "TEXT", "the prompt"},
+    {"prompt", 1, 'p', "TEXT", "the prompt (the project's own model reads only the catalogue's captions, written in any of\n"
+                               "                           their usual ways, and a view suffix: docs/catalogue.md)"},
     {"negative", 1, 'n', "TEXT", "negative prompt (replaces the empty unconditional prompt)"},
     {"steps", 1, 'S', "N", "DDIM steps, 1..999 (default 30)"},
     {"cfg", 1, 'c', "S", "classifier-free guidance scale (default 7.5; 3 with the project's own model)"},
@@ -200,6 +202,15 @@ static int txt2img_main(int argc, char** argv) {
         return cli_usage_error("sd txt2img", "-o %s: the image is written as PNG: give a name ending in .png", out_path);
     mlb_status ws = mlb_check_writable(out_path);   // before the sampling, not after it
     if (ws) return cli_fail(ws, "sd txt2img -o");
+    // the project's own models read only their catalogue's captions (caption.h): the prompt read
+    // into one (a view suffix kept), or refused naming the words they never saw
+    mlb_caption_reading reading;
+    if (mlb_sd_model_is_own(model_path)) {
+        if (mlb_caption_read(prompt, &reading)) return cli_usage_error("sd txt2img", "%s", mlb_last_error());
+        if (strcmp(reading.caption, prompt))
+            mlb_log(MLB_LOG_INFO, "the prompt '%s' read as '%s' (the project's own model)", prompt, reading.caption);
+        prompt = reading.caption;
+    }
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     mo.tokenizer_path = tok_path;
     mo.v_prediction = vpred;

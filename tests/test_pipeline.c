@@ -211,11 +211,13 @@ TEST(config_set) {
     const char* out_of_range[] = {"geometry_lr=1e308", "appearance_lr=0", "geometry_iters=10000001", "appearance_iters=-1",
                                   "init_iters=1000001", "latent_size=7", "latent_size=264", "latent_size=-8",
                                   "guidance_scale=1e300", "appearance_guidance_scale=10001", "checkpoint_every=0",
-                                  "preview_every=10000001", "material_smoothness=1000", "res=2056", "latent_iters=-2"};
+                                  "preview_every=10000001", "material_smoothness=1000", "res=2056", "latent_iters=-2",
+                                  "paint_centre_z=-0"};   // not written without paint_mesh: -0 would read back as 0
     const char* named[] = {"learning rates", "learning rates", "iteration counts", "iteration counts", "init_iters",
                            "latent_size", "latent_size", "latent_size", "guidance scale", "appearance guidance scale",
-                           "checkpoint_every", "preview_every", "material smoothness", "--res", "latent_iters"};
-    for (int i = 0; i < 15; i++) {
+                           "checkpoint_every", "preview_every", "material smoothness", "--res", "latent_iters",
+                           "belong to paint runs"};
+    for (int i = 0; i < 16; i++) {
         mlb_pipeline_config t = c;
         REQUIRE(mlb_pipeline_config_set(&t, out_of_range[i]) == MLB_OK);
         CHECK_MSG(mlb_pipeline_validate(&t) == MLB_ERR_ARG && strstr(mlb_last_error(), named[i]), "%s: %s", out_of_range[i],

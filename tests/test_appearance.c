@@ -247,6 +247,66 @@ static void fit(mlb_material_mode mode, const float* k_target, int iters, double
     scene_free(&sc);
 }
 
+static mlb_status net_material(void* user, const float* pos, size_t n, float* k) {
+    return mlb_material_eval(user, pos, n, k);
+}
+
+// A varying material (a random net) rendered by mlb_render_shaded with the field evaluated at every
+// pixel (render.h's material callback) is the appearance renderer's image where no silhouette blends;
+// the same net evaluated at the vertices and interpolated is not (the blur a baked asset does not have).
+TEST(pixel_material_matches_appearance) {
+    scene sc;
+    REQUIRE(scene_init(&sc, 12, 6));   // coarse: a vertex-interpolated field differs visibly from the field
+    mlb_material_config c = small_config(MLB_MATERIAL_DIRECT);
+    c.enc.base_res = 8;
+    mlb_material_net net;
+    REQUIRE(material_net_init(&net, &c, NULL) == MLB_OK);
+    for (size_t i = 0; i < net.n_enc; i++) net.params[i] = 0.5f * mlb_rng_normal(5, 1, i);   // a field that varies
+    enum { n = 2, res = 48 };
+    mlb_view views[n];
+    make_views(views, n);
+    size_t p = (size_t)res * res, V = (size_t)sc.mesh.n_verts;
+    float* img = malloc(sizeof(float) * p * 4 * n);
+    float* ref = malloc(sizeof(float) * p * 4);
+    float* kv = malloc(sizeof(float) * 7 * V);
+    REQUIRE(mlb_material_eval(&net, sc.mesh.pos, V, kv) == MLB_OK);
+    mlb_appearance app;
+    memset(&app, 0, sizeof app);
+    REQUIRE(mlb_appearance_render(&app, &net, &sc.mesh, sc.ptr, views, n, res, 1, img, 0) == MLB_OK);
+    double worst[2] = {0, 0};   // per pixel, per vertex
+    int interior = 0;
+    for (int per_vertex = 0; per_vertex < 2; per_vertex++)
+        for (int v = 0; v < n; v++) {
+            mlb_envlight light = sc.light[views[v].env];
+            mlb_envlight_set_rotation(&light, (float)(views[v].env_rotation_deg * M_PI / 180));
+            mlb_render_params rp = {.mesh = &sc.mesh, .light = &light, .background = MLB_BG_COLOR, .camera = views[v].cam,
+                                    .width = res, .height = res, .supersample = 1, .fresnel = MLB_FRESNEL_PAPER};
+            if (per_vertex) rp.k = kv;
+            else rp.material = net_material, rp.material_user = &net;
+            REQUIRE(mlb_render_shaded(&rp, ref) == MLB_OK);
+            const float* o = img + p * 4 * v;
+            for (size_t i = 0; i < p; i++) {
+                if (!(ref[4 * i + 3] == 1 && o[4 * i + 3] == 1)) continue;
+                interior += !per_vertex;
+                for (int ch = 0; ch < 3; ch++) {
+                    double d = fabs(o[4 * i + ch] - srgb1(ref[4 * i + ch]));
+                    if (d > worst[per_vertex]) worst[per_vertex] = d;
+                }
+            }
+        }
+    printf("  %d interior pixels: max |sRGB difference| %.3g with the field per pixel, %.3g per vertex\n", interior,
+           worst[0], worst[1]);
+    CHECK(interior > 1000);
+    CHECK(worst[0] < 2e-5);
+    CHECK(worst[1] > 1e-2);
+    free(img);
+    free(ref);
+    free(kv);
+    mlb_appearance_free(&app);
+    material_net_free(&net);
+    scene_free(&sc);
+}
+
 TEST(fit_constant_material) {
     // direct mode: any material; latent mode: a material the trained prior decodes (an encoded one)
     const float target[7] = {0.7f, 0.3f, 0.15f, 0.04f, 0.04f, 0.04f, 0.5f};
@@ -460,6 +520,7 @@ TEST(render_stays_on_its_table) {
 int main(void) {
     RUN(fd_whole_chain_f64);
     RUN(matches_render_shaded);
+    RUN(pixel_material_matches_appearance);
     RUN(fit_constant_material);
     RUN(thread_count_independent);
     RUN(smoothness);

@@ -17,11 +17,9 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "matlaber/error.h"
+#include "matlaber/render.h"   // mlb_material_fn
 #include "matlaber/uv_atlas.h"
 
-// The material at n points: pos [n,3] → k [n,7] = (kd rgb, ks rgb, roughness). E.g. a wrapper of
-// mlb_material_eval(net, pos, n, k) with user = the net.
-typedef mlb_status (*mlb_material_fn)(void* user, const float* pos, size_t n, float* k);
 
 #define MLB_BAKE_DEFAULT_DILATE 16
 

@@ -9,6 +9,7 @@
 #include "matlaber/error.h"
 #include "matlaber/material_net.h"
 #include "matlaber/mesh.h"
+#include "matlaber/render.h"   // mlb_material_fn
 
 // 10 log10(1 / MSE) of a against b (values meant in [0, 1]); +inf when equal.
 double mlb_psnr(const float* a, const float* b, size_t n);
@@ -30,13 +31,14 @@ mlb_status mlb_eval_albedo(const mlb_mesh* fit, const mlb_material_net* net, mlb
 mlb_status mlb_eval_normals(const mlb_mesh* truth, const mlb_mesh* fit, int n_views, int res, double* mean_deg,
                             size_t* covered);
 
-// Renders truth (mesh + per-vertex BRDF [V,7]) and fit (the same for the fit) under `light` from
+// Renders truth (mesh + per-vertex BRDF [V,7]) and fit (the same for the fit, or, when fit_material is
+// set, its material field at every pixel's surface point, as the baked asset shows it) under `light` from
 // n_views orbit views (azimuths spread evenly from azimuth0_deg, elevations −15°, 20°, 50° in turn,
 // radius 3, fovy 45°,
 // 2× supersampling), sRGB composited over black. *psnr over every pixel of every view. images (may
 // be NULL) receives [2 · n_views, res, res, 3]: the truth's views, then the fit's.
 mlb_status mlb_eval_relight(const mlb_mesh* truth, const float* truth_k, const mlb_mesh* fit, const float* fit_k,
-                            const mlb_envlight* light, int n_views, double azimuth0_deg, int res, double* psnr,
+                            mlb_material_fn fit_material, void* fit_user, const mlb_envlight* light, int n_views, double azimuth0_deg, int res, double* psnr,
                             float* images);
 
 #endif

@@ -180,5 +180,8 @@ mlb_status mlb_run_asset_load(mlb_run_asset* a, const char* dir);
 void mlb_run_asset_free(mlb_run_asset* a);
 // Per-vertex BRDF [V,7] of the asset's mesh (the material field at the vertices).
 mlb_status mlb_run_asset_vertex_brdf(const mlb_run_asset* a, float* k);
+// The material field as an mlb_material_fn (user = the const mlb_run_asset*), at points of final/mesh.obj's
+// frame: for renders that show each pixel's own material, as the baked asset does.
+mlb_status mlb_run_asset_material(void* user, const float* pos, size_t n, float* k);
 
 #endif

@@ -148,7 +148,7 @@ static void to_srgb_rgb(float* rgb, const float* rgba, size_t pixels) {
 }
 
 mlb_status mlb_eval_relight(const mlb_mesh* truth, const float* truth_k, const mlb_mesh* fit, const float* fit_k,
-                            const mlb_envlight* light, int n_views, double azimuth0_deg, int res, double* psnr,
+                            mlb_material_fn fit_material, void* fit_user, const mlb_envlight* light, int n_views, double azimuth0_deg, int res, double* psnr,
                             float* images) {
     if (n_views < 1 || res < 8) return mlb_fail(MLB_ERR_ARG, "relight evaluation: %d views at %d px", n_views, res);
     size_t p = (size_t)res * res;
@@ -161,6 +161,8 @@ mlb_status mlb_eval_relight(const mlb_mesh* truth, const float* truth_k, const m
             memset(&rp, 0, sizeof rp);
             rp.mesh = which ? fit : truth;
             rp.k = which ? fit_k : truth_k;
+            rp.material = which ? fit_material : NULL;
+            rp.material_user = which ? fit_user : NULL;
             rp.light = light;
             rp.background = MLB_BG_COLOR;
             rp.width = rp.height = res;

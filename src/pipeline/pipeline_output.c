@@ -262,3 +262,8 @@ void mlb_run_asset_free(mlb_run_asset* a) {
 mlb_status mlb_run_asset_vertex_brdf(const mlb_run_asset* a, float* k) {
     return mlb_material_eval(&a->material, a->mesh.pos, (size_t)a->mesh.n_verts, k);
 }
+
+mlb_status mlb_run_asset_material(void* user, const float* pos, size_t n, float* k) {
+    const mlb_run_asset* a = user;
+    return mlb_material_eval(&a->material, pos, n, k);
+}

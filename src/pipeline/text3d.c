@@ -307,7 +307,7 @@ mlb_status mlb_text3d_measure(const mlb_text3d_truth* t, const mlb_mesh* mesh, c
     if (!s && !(tk = malloc(sizeof(float) * 7 * (size_t)tm.n_verts))) s = mlb_fail(MLB_ERR_NOMEM, "text3d measure: out of memory");
     if (!s) {
         for (int i = 0; i < tm.n_verts; i++) memcpy(tk + 7 * (size_t)i, truth_brdf, sizeof(float) * 7);
-        s = mlb_eval_relight(&tm, tk, mesh, k, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
+        s = mlb_eval_relight(&tm, tk, mesh, k, NULL, NULL, light, mc->relight_views, 30.0, mc->relight_res, &out->relight_psnr, NULL);
         if (s) s = mlb_fail_context(s, "text3d measure: relighting");
     }
     free(tk);

@@ -19,12 +19,15 @@
 #define SHEET_FOVY 40.0
 
 // mesh with per-vertex BRDF k into rgb [res, res, 3]: sRGB over a white background.
-static mlb_status render_cell(const mlb_mesh* mesh, const float* k, const mlb_envlight* light, int res, float* rgba,
-                              float* rgb) {
+// k: per-vertex BRDF, or NULL for the run's material field at every pixel (as its baked asset shows it).
+static mlb_status render_cell(const mlb_mesh* mesh, const float* k, mlb_run_asset* run, const mlb_envlight* light, int res,
+                              float* rgba, float* rgb) {
     mlb_render_params rp;
     memset(&rp, 0, sizeof rp);
     rp.mesh = mesh;
     rp.k = k;
+    rp.material = k ? NULL : mlb_run_asset_material;
+    rp.material_user = run;
     rp.light = light;
     rp.background = MLB_BG_COLOR;
     rp.width = rp.height = res;
@@ -44,25 +47,22 @@ static mlb_status row_cells(const mlb_text3d_row* row, const mlb_envlight* light
     mlb_mesh truth = {0};
     mlb_run_asset a;
     memset(&a, 0, sizeof a);
-    float *tk = NULL, *ak = NULL;
+    float* tk = NULL;
     float u[MLB_CATALOGUE_MAX_PARAMS];
     if (row->error[0]) mlb_catalogue_seed_params(sc->cls, 0, u);   // no fit without an asset: the canonical member
     else memcpy(u, sc->shape_u[sc->cls], sizeof u);
     mlb_status s = mlb_catalogue_mesh_params(sc->cls, u, &truth);
     if (!s && !(tk = malloc(sizeof(float) * 7 * (size_t)truth.n_verts))) s = mlb_fail(MLB_ERR_NOMEM, "contact sheet: out of memory");
     for (int i = 0; !s && i < truth.n_verts; i++) memcpy(tk + 7 * (size_t)i, mlb_catalogue_material_brdf(sc->mat), sizeof(float) * 7);
-    if (!s) s = render_cell(&truth, tk, light, res, rgba, truth_rgb);
+    if (!s) s = render_cell(&truth, tk, NULL, light, res, rgba, truth_rgb);
     if (!s && row->error[0]) {
         for (size_t i = 0; i < 3 * (size_t)res * res; i++) asset_rgb[i] = 0.8f;
     } else if (!s) {
         s = mlb_run_asset_load(&a, row->run_dir);
-        if (!s && !(ak = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts))) s = mlb_fail(MLB_ERR_NOMEM, "contact sheet: out of memory");
-        if (!s) s = mlb_run_asset_vertex_brdf(&a, ak);
-        if (!s) s = render_cell(&a.mesh, ak, light, res, rgba, asset_rgb);
+        if (!s) s = render_cell(&a.mesh, NULL, &a, light, res, rgba, asset_rgb);
         mlb_run_asset_free(&a);
     }
     free(tk);
-    free(ak);
     mlb_mesh_free(&truth);
     return s ? mlb_fail_context(s, "contact sheet: %s", row->run_dir) : MLB_OK;
 }

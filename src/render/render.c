@@ -23,6 +23,25 @@ static void camera_ray(const mlb_camera* c, int W, int H, double px, double py, 
     for (int i = 0; i < 3; i++) d[i] /= n;
 }
 
+// The material field at the n covered pixels' surface points (pix rows, packed by where) into
+// kd [n,3], ks [n,3], kr [n].
+static mlb_status pixel_material(const mlb_render_params* p, const float* pix, const int32_t* where, int n, float* kd,
+                                 float* ks, float* kr) {
+    float* pos = malloc(sizeof(float) * 3 * (size_t)(n ? n : 1));
+    float* k = malloc(sizeof(float) * 7 * (size_t)(n ? n : 1));
+    mlb_status st = (pos && k) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "render: out of memory for %d pixels' material", n);
+    for (int i = 0; !st && i < n; i++) memcpy(pos + 3 * (size_t)i, pix + ATTR_C * (size_t)where[i], sizeof(float) * 3);
+    if (!st && n) st = p->material(p->material_user, pos, (size_t)n, k);
+    for (int i = 0; !st && i < n; i++) {
+        memcpy(kd + 3 * (size_t)i, k + 7 * (size_t)i, sizeof(float) * 3);
+        memcpy(ks + 3 * (size_t)i, k + 7 * (size_t)i + 3, sizeof(float) * 3);
+        kr[i] = k[7 * (size_t)i + 6];
+    }
+    free(pos);
+    free(k);
+    return st;
+}
+
 mlb_status mlb_render_shaded(const mlb_render_params* p, float* out) {
     const mlb_mesh* mesh = p->mesh;
     if (!mesh || !p->light || p->width < 1 || p->height < 1)
@@ -68,7 +87,7 @@ mlb_status mlb_render_shaded(const mlb_render_params* p, float* out) {
         float* a = attr + (size_t)ATTR_C * i;
         memcpy(a, mesh->pos + 3 * (size_t)i, sizeof(float) * 3);
         memcpy(a + 3, vn + 3 * (size_t)i, sizeof(float) * 3);
-        memcpy(a + 6, p->k ? p->k + 7 * (size_t)i : p->k_const, sizeof(float) * 7);
+        memcpy(a + 6, p->k && !p->material ? p->k + 7 * (size_t)i : p->k_const, sizeof(float) * 7);
     }
     mlb_transform_points(clip, mesh->pos, V, &p->camera.view_proj);
     if ((st = mlb_rasterize(ctx, tri, bary, depth, back, clip, V, mesh->faces, F, H, W))) goto done;
@@ -99,6 +118,7 @@ mlb_status mlb_render_shaded(const mlb_render_params* p, float* out) {
         kr[n] = a[12];
         where[n++] = (int32_t)i;
     }
+    if (p->material && (st = pixel_material(p, pix, where, n, kd, ks, kr))) goto done;
     if ((st = mlb_shade_forward(rgb, kd, ks, kr, nn, vv, n, p->light, p->fresnel))) goto done;
     // background, then the shaded pixels, alpha = coverage; antialias blends across silhouettes
 #pragma omp parallel for schedule(static)

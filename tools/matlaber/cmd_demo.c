@@ -64,6 +64,17 @@ static void framed_goblet_material(const float* pos, float k[7]) {
     mlb_goblet_material(p, k);
 }
 
+// The fit's material at points of the goblet's coordinates (where the comparison renders its mesh),
+// looked up in the run's own frame. user: the const mlb_run_asset*.
+static mlb_status goblet_frame_fit_material(void* user, const float* pos, size_t n, float* k) {
+    float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
+    if (!p) return mlb_fail(MLB_ERR_NOMEM, "demo: out of memory for %zu points", n);
+    mlb_paint_to_frame(frame_c, frame_s, pos, p, n);
+    mlb_status s = mlb_run_asset_material(user, p, n, k);
+    free(p);
+    return s;
+}
+
 static mlb_status render_targets(demo* d, const char* dir, int fixed_env) {
     mlb_views_render_config rc = mlb_views_render_default();
     rc.mesh = &d->goblet;
@@ -124,12 +135,11 @@ static mlb_status run_case(demo* d, demo_case* k, const char* run_dir, const mlb
     mlb_run_asset a;
     s = mlb_run_asset_load(&a, run_dir);
     if (s) return s;
-    float* fit_k = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts);
     int res_px = d->quick ? 96 : 192, n_views = 4;
     size_t tile = (size_t)res_px * res_px * 3;
     float* images = malloc(sizeof(float) * tile * 2 * n_views);
     mlb_chamfer_result cr;
-    if (!fit_k || !images) s = mlb_fail(MLB_ERR_NOMEM, "demo: out of memory");
+    if (!images) s = mlb_fail(MLB_ERR_NOMEM, "demo: out of memory");
     // a paint run's mesh and material live in its frame: albedo is measured there against the truth
     // moved with it, then the mesh goes back to the goblet's coordinates for the other measures
     frame_c[0] = frame_c[1] = frame_c[2] = 0;
@@ -139,7 +149,6 @@ static mlb_status run_case(demo* d, demo_case* k, const char* run_dir, const mlb
         frame_s = a.config.paint_scale;
     }
     if (!s) s = mlb_eval_albedo(&a.mesh, &a.material, framed_goblet_material, 12, res_px, &k->albedo_psnr, NULL);
-    if (!s) s = mlb_run_asset_vertex_brdf(&a, fit_k);
     for (size_t i = 0; k->paint_mesh && i < 3 * (size_t)a.mesh.n_verts; i++)
         a.mesh.pos[i] = (float)(a.mesh.pos[i] / frame_s + frame_c[i % 3]);
     if (!s) s = mlb_chamfer(&a.mesh, &d->goblet, 20000, 7, &cr);
@@ -148,14 +157,14 @@ static mlb_status run_case(demo* d, demo_case* k, const char* run_dir, const mlb
     char path[4200];
     const char* labels[8];
     for (int i = 0; i < 8; i++) labels[i] = i < n_views ? "truth" : "fit";
-    // side by side: under a training environment, and relit under the unseen one
-    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, fit_k, train, n_views, 30.0, res_px, &k->train_psnr, images);
+    // side by side: under a training environment, and relit under the unseen one; the fit's material
+    // at every pixel, as its baked asset shows it
+    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, goblet_frame_fit_material, &a, train, n_views, 30.0, res_px, &k->train_psnr, images);
     snprintf(path, sizeof path, "%s/compare_%s_train.png", d->out, k->name);
     if (!s) s = mlb_image_grid_write(path, images, 2 * n_views, res_px, res_px, 3, n_views, labels);
-    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, fit_k, relight, n_views, 30.0, res_px, &k->relight_psnr, images);
+    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, goblet_frame_fit_material, &a, relight, n_views, 30.0, res_px, &k->relight_psnr, images);
     snprintf(path, sizeof path, "%s/compare_%s_relit.png", d->out, k->name);
     if (!s) s = mlb_image_grid_write(path, images, 2 * n_views, res_px, res_px, 3, n_views, labels);
-    free(fit_k);
     free(images);
     mlb_run_asset_free(&a);
     return s;

@@ -24,24 +24,21 @@ static mlb_status side_by_side(const char* out, const mlb_text3d_row* row, const
     mlb_mesh truth = {0};
     mlb_run_asset a;
     memset(&a, 0, sizeof a);
-    float *tk = NULL, *fk = NULL, *img = NULL;
+    float *tk = NULL, *img = NULL;
     mlb_status s = mlb_catalogue_mesh_params(sc->cls, sc->shape_u[sc->cls], &truth);
     if (!s) s = mlb_run_asset_load(&a, row->run_dir);
     if (!s) {
         tk = malloc(sizeof(float) * 7 * (size_t)truth.n_verts);
-        fk = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts);
         img = malloc(sizeof(float) * 3 * 2 * DEMO_VIEWS * DEMO_RES * DEMO_RES);
-        if (!tk || !fk || !img) s = mlb_fail(MLB_ERR_NOMEM, "demo: out of memory");
+        if (!tk || !img) s = mlb_fail(MLB_ERR_NOMEM, "demo: out of memory");
     }
     for (int i = 0; !s && i < truth.n_verts; i++) memcpy(tk + 7 * (size_t)i, mlb_catalogue_material_brdf(sc->mat), 7 * sizeof(float));
-    if (!s) s = mlb_run_asset_vertex_brdf(&a, fk);
-    if (!s) s = mlb_eval_relight(&truth, tk, &a.mesh, fk, light, DEMO_VIEWS, 30.0, DEMO_RES, psnr, img);
+    if (!s) s = mlb_eval_relight(&truth, tk, &a.mesh, NULL, mlb_run_asset_material, &a, light, DEMO_VIEWS, 30.0, DEMO_RES, psnr, img);
     char path[4200];
     snprintf(path, sizeof path, "%s/compare.png", out);
     static const char* const labels[2 * DEMO_VIEWS] = {"truth", "", "", "", "generated", "", "", ""};
     if (!s) s = mlb_image_grid_write(path, img, 2 * DEMO_VIEWS, DEMO_RES, DEMO_RES, 3, DEMO_VIEWS, labels);
     free(tk);
-    free(fk);
     free(img);
     mlb_run_asset_free(&a);
     mlb_mesh_free(&truth);

@@ -37,12 +37,14 @@ static void light_rotate(run_light* l, double deg) {
     mlb_envlight_set_rotation(&l->light, rad);
 }
 
-static mlb_status render_asset(const mlb_mesh* m, const float* k, run_light* l, int env_background, double az,
-                               double el, int res, float* rgba) {
+// The mesh with its material at every pixel (material(user, ...)), as the baked asset shows it.
+static mlb_status render_asset(const mlb_mesh* m, mlb_material_fn material, void* user, run_light* l, int env_background,
+                               double az, double el, int res, float* rgba) {
     mlb_render_params p;
     memset(&p, 0, sizeof p);
     p.mesh = m;
-    p.k = k;
+    p.material = material;
+    p.material_user = user;
     p.light = &l->light;
     p.env = &l->env;
     p.background = env_background ? MLB_BG_ENV : MLB_BG_COLOR;
@@ -86,7 +88,7 @@ int cmd_relight_run(int argc, char** argv) {
         case 'o': out = optarg; break;
         case 'h':
             printf("usage: matlaber relight RUN_DIR [--env NAME|FILE] [--frames N] [-o DIR]\n\n"
-                   "The finished run's asset (final/mesh.obj with its material field at the vertices) while the\n"
+                   "The finished run's asset (final/mesh.obj with its material field at every pixel) while the\n"
                    "environment turns once about the vertical axis: DIR/frame_0000.png ..., and DIR/relight.mp4 when\n"
                    "ffmpeg is installed. (For a plain mesh: matlaber relight --mesh FILE.obj ...)\n\n");
             cli_print_options(stdout, relight_options);
@@ -105,19 +107,17 @@ int cmd_relight_run(int argc, char** argv) {
     mlb_run_asset a;
     mlb_status s = mlb_run_asset_load(&a, dir);
     if (s) return cli_fail(s, "relight");
-    float* k = malloc(sizeof(float) * 7 * (size_t)a.mesh.n_verts);
     float* rgba = malloc(sizeof(float) * 4 * (size_t)res * res);
     run_light l;
     memset(&l, 0, sizeof l);
-    if (!k || !rgba) s = mlb_fail(MLB_ERR_NOMEM, "relight: out of memory");
-    if (!s) s = mlb_run_asset_vertex_brdf(&a, k);
+    if (!rgba) s = mlb_fail(MLB_ERR_NOMEM, "relight: out of memory");
     if (!s) s = light_open(&l, env);
     if (!s) s = mlb_mkdir_p(out);
     mlb_progress progress;
     mlb_progress_begin(&progress, mlb_log_get_level() <= MLB_LOG_INFO ? stderr : NULL, "relight", frames, "frame");
     for (long f = 0; !s && f < frames; f++) {
         light_rotate(&l, 360.0 * (double)f / (double)frames);
-        s = render_asset(&a.mesh, k, &l, strcmp(background, "env") == 0, az, el, (int)res, rgba);
+        s = render_asset(&a.mesh, mlb_run_asset_material, &a, &l, strcmp(background, "env") == 0, az, el, (int)res, rgba);
         char path[4200];
         snprintf(path, sizeof path, "%s/frame_%04ld.png", out, f);
         mlb_png_options po = {8, MLB_PNG_SRGB};
@@ -125,7 +125,6 @@ int cmd_relight_run(int argc, char** argv) {
         mlb_progress_update(&progress, f + 1, NULL);
     }
     light_free(&l);
-    free(k);
     free(rgba);
     mlb_run_asset_free(&a);
     if (s) return cli_fail(s, "relight");
@@ -147,6 +146,24 @@ static const cli_option interp_options[] = {
 
 // matlaber interp RUN_A RUN_B: on A's geometry, z(t) = (1 − t) z_A(x) + t z_B(x) at every vertex x,
 // decoded by the frozen BRDF decoder (the paper's golden → silver goblet).
+// Two runs' material fields mixed in the prior's latent space, (1 - t) z_a + t z_b, decoded by A's
+// decoder: an mlb_material_fn, so that every pixel shows its own point's mix.
+typedef struct { const mlb_run_asset *a, *b; double t; } latent_mix;
+
+static mlb_status latent_mix_material(void* user, const float* pos, size_t n, float* k) {
+    const latent_mix* m = user;
+    float* za = malloc(sizeof(float) * 4 * (n ? n : 1));
+    float* zb = malloc(sizeof(float) * 4 * (n ? n : 1));
+    mlb_status s = (za && zb) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "interp: out of memory for %zu points", n);
+    if (!s) s = mlb_material_eval_latent(&m->a->material, pos, n, za);
+    if (!s) s = mlb_material_eval_latent(&m->b->material, pos, n, zb);   // B's field on A's surface
+    for (size_t j = 0; !s && j < 4 * n; j++) za[j] = (float)((1 - m->t) * za[j] + m->t * zb[j]);
+    if (!s) s = mlb_material_decode(&m->a->material, za, n, k);
+    free(za);
+    free(zb);
+    return s;
+}
+
 int cmd_interp(int argc, char** argv) {
     const char *env = "studio", *out = NULL;
     long steps = 5, res = 384;
@@ -187,27 +204,20 @@ int cmd_interp(int argc, char** argv) {
     if (a.material.cfg.mode != MLB_MATERIAL_LATENT || b.material.cfg.mode != MLB_MATERIAL_LATENT)
         s = mlb_fail(MLB_ERR_UNSUPPORTED, "%s: made with --material direct: latent interpolation needs two latent runs",
                      a.material.cfg.mode != MLB_MATERIAL_LATENT ? dir_a : dir_b);
-    size_t V = (size_t)a.mesh.n_verts, p = (size_t)res * res;
-    float* za = malloc(sizeof(float) * 4 * V);
-    float* zb = malloc(sizeof(float) * 4 * V);
-    float* z = malloc(sizeof(float) * 4 * V);
-    float* k = malloc(sizeof(float) * 7 * V);
+    size_t p = (size_t)res * res;
     float* rgba = malloc(sizeof(float) * 4 * p);
     float* strip = malloc(sizeof(float) * 3 * p * (size_t)steps);
     run_light l;
     memset(&l, 0, sizeof l);
-    if (!s && (!za || !zb || !z || !k || !rgba || !strip)) s = mlb_fail(MLB_ERR_NOMEM, "interp: out of memory");
-    if (!s) s = mlb_material_eval_latent(&a.material, a.mesh.pos, V, za);
-    if (!s) s = mlb_material_eval_latent(&b.material, a.mesh.pos, V, zb);   // B's field on A's surface
+    if (!s && (!rgba || !strip)) s = mlb_fail(MLB_ERR_NOMEM, "interp: out of memory");
     if (!s) s = light_open(&l, env);
     if (!s) s = mlb_mkdir_p(out);
     char labels[64][16];
     const char* label_ptrs[64];
     for (long i = 0; !s && i < steps; i++) {
         double t = (double)i / (double)(steps - 1);
-        for (size_t j = 0; j < 4 * V; j++) z[j] = (float)((1 - t) * za[j] + t * zb[j]);
-        s = mlb_material_decode(&a.material, z, V, k);
-        if (!s) s = render_asset(&a.mesh, k, &l, 1, az, el, (int)res, rgba);
+        latent_mix mix = {&a, &b, t};
+        s = render_asset(&a.mesh, latent_mix_material, &mix, &l, 1, az, el, (int)res, rgba);
         char path[4200];
         snprintf(path, sizeof path, "%s/step_%02ld.png", out, i);
         mlb_png_options po = {8, MLB_PNG_SRGB};
@@ -223,7 +233,8 @@ int cmd_interp(int argc, char** argv) {
         s = mlb_image_grid_write(path, strip, (int)steps, (int)res, (int)res, 3, (int)steps, label_ptrs);
     }
     light_free(&l);
-    free(za); free(zb); free(z); free(k); free(rgba); free(strip);
+    free(rgba);
+    free(strip);
     mlb_run_asset_free(&a);
     mlb_run_asset_free(&b);
     if (s) return cli_fail(s, "interp");

@@ -1,4 +1,4 @@
-// The SD 1.5 UNet forward on the GPU (issue 12): a full-size UNet (859.5 M parameters, random
+// The SD 1.5 UNet forward on the GPU: a full-size UNet (859.5 M parameters, random
 // weights: the time does not depend on them) at a 64^2 latent (512^2 images), context 77 x 768,
 // batch 2 (one CFG step) and 18 (9 views x CFG), at each GEMM precision. Median of `reps` forwards
 // after 2 warm-ups, device events. Then one profiled forward per batch (bf16): every op timed on

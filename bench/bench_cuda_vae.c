@@ -1,4 +1,4 @@
-// The SD VAE on the GPU (issue 12): the full-size SD 1.x VAE (random weights: the time does not
+// The SD VAE on the GPU: the full-size SD 1.x VAE (random weights: the time does not
 // depend on them) moved with mlb_vae_use_device, timed through its host-buffer API as the SDS
 // guidance calls it (the image, the latents and the gradient cross each call; the encoder's cache
 // stays on the GPU): encoder forward with the cache + encoder backward for 9 images at 512^2 (one

@@ -1,4 +1,4 @@
-// The geometry stage's surface and renderer ops through the op tables (issue 24, item 3), the CPU's
+// The geometry stage's surface and renderer ops through the op tables (docs/cuda.md), the CPU's
 // against CUDA's in the same run: marching tets as the stage calls it (mlb_mt_device_forward and
 // _backward: host SDF in, host surface out, so the GPU's figure includes its uploads and
 // downloads) on the paper's grid, then the six rasterizer ops on that surface for 9 views at 512²

@@ -159,7 +159,7 @@ matlaber_fields() {
             tp = $1; s = $2; sub(/.* took /, "", s); sub(/,.*/, "", s); smp = dur(s)
         }
         $2 ~ /^wrote / { tw = $1 }
-        # since 2026-11-26 it logs both stages: "prompts encoded (X s)", "latent decoded (X s)"
+        # newer builds log both stages: "prompts encoded (X s)", "latent decoded (X s)"
         $2 ~ /^prompts encoded \([0-9.]+s\)$/ { s = $2; gsub(/^.*\(|s\)$/, "", s); txt = s + 0 }
         $2 ~ /^latent decoded \([0-9.]+s\)$/ { s = $2; gsub(/^.*\(|s\)$/, "", s); dec = s + 0 }
         END {

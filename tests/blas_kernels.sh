@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The thread-count independence of the results must not rest on the BLAS kernels this machine
-# happens to pick (issue 14: Haswell kernels on an AMD EPYC broke it). This runs the test programs
+# happens to pick (Haswell kernels on an AMD EPYC once broke it). This runs the test programs
 # that compare 1, 2 (and 3) threads bitwise again under every OpenBLAS kernel family this CPU can
 # execute, forced through $OPENBLAS_CORETYPE. Usage: blas_kernels.sh TESTS_DIR [quick]
 # (quick: only the GEMM-level programs, for the sanitizer build, which runs every program anyway).

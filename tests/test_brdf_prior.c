@@ -1,6 +1,6 @@
 // The shipped BRDF prior (models/brdf_prior.safetensors, built into the program) on real SVBRDF
 // material sets that its training never reads (it trains on the procedural distribution only):
-// the goal of issue 13, on each set and on the pool: RMSE over the 7 channels <= 0.010 for both
+// the prior's goal, on each set and on the pool: RMSE over the 7 channels <= 0.010 for both
 // the one-pass encode-decode D(mu(k)) and the refined latent D(z*), both below the linear 4-d code
 // of the same training data (its PCA-4, stored in the prior), and every decoded BRDF along random
 // latent paths valid. docs/brdf_prior.md has the full table. Skips when ../shared/data is absent.

@@ -1,4 +1,4 @@
-// The stages' rasterizer calls go through the op table they are handed (issue 24; docs/cuda.md "The
+// The stages' rasterizer calls go through the op table they are handed (docs/cuda.md "The
 // stages on the table"): a copy of the CPU table that counts its raster ops is given to the geometry
 // fit's state, the appearance renderer and the final renders' _on functions. Each op must be called
 // through it, and the results must be the bits of the same call with NULL (the CPU table).

@@ -1,4 +1,4 @@
-// Writers for textured assets (MATLABER's outputs, issue 8): Wavefront OBJ + MTL with PNG
+// Writers for textured assets (MATLABER's outputs): Wavefront OBJ + MTL with PNG
 // textures, glTF 2.0 binary (.glb) with a PBR material, and a static three.js viewer folder.
 // The kd / ks / roughness -> MTL and glTF mappings, their caveats and the viewer's files are in
 // docs/export.md.

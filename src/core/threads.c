@@ -46,7 +46,7 @@ void mlb_runtime_restart(char** argv) {
     const char* core = mlb_blas_better_coretype();
     // Idle OpenMP threads sleep at once (passive) only where processes share the node's cores; alone,
     // libgomp's default short spin before sleeping is faster: a goblet on 2 threads 45 s against 54 s,
-    // a UNet training step 0.89x (docs/benchmarks.md, "Idle threads spin again when alone").
+    // a UNet training step 0.89x (alternating pairs on a 2-core Xeon; docs/vae.md).
     int set_wait = !getenv("OMP_WAIT_POLICY") && !getenv("GOMP_SPINCOUNT") && local_processes() > 1;
     if (!core && !set_wait) return;
     if (core) setenv("OPENBLAS_CORETYPE", core, 1), setenv("MATLABER_BLAS_CHOSEN", "1", 1);
@@ -59,8 +59,8 @@ void mlb_runtime_restart(char** argv) {
 // MB). glibc serves those above its mmap threshold (dynamic, at most 32 MB) from fresh mappings and
 // gives the top of the heap back beyond 128 KB, so every step pays page faults and zeroing in the
 // kernel for memory it had a moment ago. Kept in the heap instead: 0.98x the time of a `tiny`
-// goblet on one thread (docs/benchmarks.md, "Four cuts to a generation"). The user's own
-// MALLOC_* / GLIBC_TUNABLES settings are kept.
+// goblet on one thread (side by side on a 2-core Xeon). The user's own MALLOC_* / GLIBC_TUNABLES
+// settings are kept.
 void mlb_runtime_tune_malloc(void) {
     if (getenv("MALLOC_MMAP_THRESHOLD_") || getenv("MALLOC_TRIM_THRESHOLD_") || getenv("GLIBC_TUNABLES")) return;
     mallopt(M_MMAP_THRESHOLD, 256 << 20);

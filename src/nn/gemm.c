@@ -2,7 +2,7 @@
 // depend on the thread count, on any CPU and any BLAS build, by construction.
 //
 // Why: OpenBLAS splits a GEMM over its threads, and on some kernel families (Haswell, Zen) the
-// pieces round differently from the whole, so 1 and 2 threads gave different bits (issue 14). Here
+// pieces round differently from the whole, so 1 and 2 threads gave different bits. Here
 // the output is cut into shards whose boundaries depend on (M, N, K) only; each shard is one BLAS
 // call on one thread (OpenBLAS is kept single-threaded), and OpenMP threads take whole shards. The
 // threads change who computes a shard, never what it computes. A shard cut along K (the outputs are

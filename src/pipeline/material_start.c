@@ -6,8 +6,7 @@
 // distillation finds a dielectric's colour by itself, but it seldom crosses to a metal, which needs
 // kd down and ks up together: with the tiny model, silver missed the metal call on 10 of 11
 // prompts (white, or a bluish diffuse over the specular) although the model's score prefers a
-// metal's renders for "a silver ..." (docs/benchmarks.md, "The model picks the starting
-// material"). So the surface is rendered in a few
+// metal's renders for "a silver ..." (docs/pipeline.md, "Material start"). So the surface is rendered in a few
 // uniform archetypes, metals and dielectrics of the primary tints (generic: no catalogue material),
 // each scored by the guidance (guidance.h, score) on the first appearance steps' views; when a metal
 // scores best, the network starts from it (its last layer's bias set to that material), else from
@@ -17,7 +16,7 @@
 // dielectric are within CLOSE_Z standard errors, those two are scored again on CLOSE_VIEWS views.
 // Where they still tie (within TIE_Z standard errors), more views do not help: on a gold table the
 // warm metal and the warm glaze stay level on 128 views, as the grey metal and the white glaze on a
-// white bowl (docs/benchmarks.md, "Ties of the material start"). What the archetypes cannot tell
+// white bowl (docs/pipeline.md, "Material start"). What the archetypes cannot tell
 // apart, the stage's own results can: the first TRIAL_STEPS steps are run from each of the two
 // starts, and the start whose result the guidance scores higher is taken.
 #include <math.h>
@@ -63,8 +62,7 @@ enum {
 // same tint (per timestep, over the benchmark's 88 prompts: at 620 and 860 the picks are near
 // chance, at 380 the warm metal wins 8 of 11 copper prompts and the grey metal 10 of 11 silver ones);
 // at small t the metals read as glazes again (at 200, with the appearance model, 16 of 27 metal
-// prompts' best archetype is a metal, at 400 26: docs/benchmarks.md, "Scoring the material start
-// at 375..525").
+// prompts' best archetype is a metal, at 400 26; docs/pipeline.md, "Material start").
 static const int SCORE_T[2] = {350, 550};
 
 // The last layer's bias that makes the network output archetype k everywhere once the layer's

@@ -43,7 +43,7 @@ static mlb_status pipeline_state_save(const char* path, const mlb_field* f, long
 }
 
 // Into f (params, moments and its step counter); *lr left as it is when the checkpoint has none
-// (written before 2026-11-29, when the rate was always the config's).
+// (a checkpoint written by a build that did not store the rate: its rate was always the config's).
 static mlb_status pipeline_state_load(const char* path, mlb_field* f, double* lr, const char* stage) {
     size_t n = f->n_params;
     mlb_ckpt_tensor t[3] = {{"params", f->params, 1, {(int64_t)n}},
@@ -212,7 +212,7 @@ mlb_status pipeline_agree(mlb_status s) {
 }
 
 // A stage's steps per second and what the processes spent in collectives (docs/benchmarks.md,
-// "Several processes"): a log line at the stage's end.
+// "Several processes on one asset"): a log line at the stage's end.
 typedef struct { double t0, cpu0; mlb_dist_stats d0; mlb_cuda_transfers x0; } stage_clock;
 static double cpu_seconds(void) { return (double)clock() / CLOCKS_PER_SEC; }   // this process, every thread
 static stage_clock stage_clock_start(void) {

@@ -65,7 +65,7 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         // Measured on "a gold goblet" (docs/sd_train.md): grid 64 and t from 20 shred the surface
         // into spikes; grid 32 (16 cells per axis for a 128² render) and t >= 150 give a goblet
         // 120 + 60 steps: on gold goblet / mug the same class, Chamfer (0.0215 / 0.025) and metal calls
-        // as 240 + 120, in half the time (docs/benchmarks.md, "Text to 3D")
+        // as 240 + 120, in half the time (docs/sd_train.md, "Text to 3D with it")
         c->geometry_iters = 120;
         c->appearance_iters = 60;
         c->grid = 32;
@@ -74,24 +74,24 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
         c->init_iters = 100;
         // The model picks the start (docs/pipeline.md, Init): a ring from the torus (a hole cannot
         // open from the ellipsoid), everything else from the ellipsoid as before. A fixed torus won
-        // both rings but turned the green teapot into a vase (docs/benchmarks.md "Tables and rings",
-        // "Choosing the starting shape"). Grid 32: 48 and 64 keep a table's surface alive but shredded.
+        // both rings but turned the green teapot into a vase (docs/pipeline.md, "Init"). Grid 32:
+        // 48 and 64 keep a table's surface alive but shredded.
         snprintf(c->init, sizeof c->init, "auto");
         // 10 in the geometry stage: the shapes nearer their class (on 22 prompts, every class in gold
-        // and red: Chamfer lower on 17, mean -0.0013; docs/benchmarks.md "The geometry stage's guidance
-        // scale 20 -> 10"). It washed gold out only while both stages shared one scale.
+        // and red: Chamfer lower on 17, mean -0.0013; docs/sd_train.md, "Text to 3D with it"). It
+        // washed gold out only while both stages shared one scale.
         c->guidance_scale = 10.0;
         // The appearance stage at 20 paints gold as a saturated yellow diffuse on most shapes (a mug,
         // vase, teapot: kd 0.8, ks 0.02); at 100 (the paper's) they come out metal and every material's
-        // RMSE drops, dielectrics stay dielectric (docs/benchmarks.md, "Appearance guidance scale")
+        // RMSE drops, dielectrics stay dielectric (metal calls 0.57 -> 0.75 on 28 prompts)
         c->appearance_guidance_scale = 100.0;
         // From the prior's centre (a dielectric) score distillation finds a dielectric's colour but
         // seldom crosses to a metal: silver missed the metal call on 10 of 11 prompts. The
-        // model's own score picks the start (docs/pipeline.md, "Material start"; docs/benchmarks.md)
+        // model's own score picks the start (docs/pipeline.md, "Material start")
         c->material_start = 1;
         // and refines it at a tenth of the rate: at 0.01 the metal starts' kd grew in noisy tinted
         // spots on 6 of 13 and 2 went back to a diffuse (metal kept on 5); at 0.001 on all 13, with
-        // material RMSE 0.248 -> 0.071 (docs/benchmarks.md, "Refining a metal start"). Every run
+        // material RMSE 0.248 -> 0.071 (docs/pipeline.md, "Material start"). Every run
         // that does not start from a metal keeps 0.01: gold crosses to a metal only at that rate.
         c->metal_start_lr_scale = 0.1;
         c->env_height = 128;
@@ -210,8 +210,8 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
 // ---- config.json -------------------------------------------------------------------------------
 // One table drives both directions so that a field cannot be saved and forgotten on load.
 typedef enum { F_STR, F_INT, F_LONG_U64, F_DOUBLE, F_MATERIAL } field_kind;
-// optional: a key added after runs were already written; missing, it keeps the default, which is
-// what the program did before the key existed (so an old run resumes as it started).
+// optional: a key that older run folders lack; missing, it keeps the default, which is what those
+// runs ran with (so an old run resumes as it started). Each optional key's comment says that value.
 typedef struct { const char* key; field_kind kind; size_t offset; size_t size; int optional; double legacy; } field;
 #define FLD(k, kind, member) {k, kind, offsetof(mlb_pipeline_config, member), sizeof(((mlb_pipeline_config*)0)->member), 0, 0}
 // legacy: the value a run written before the key existed ran with (numbers only)
@@ -233,25 +233,25 @@ static const field FIELDS[] = {
     FLD("fixed_env", F_INT, fixed_env),         FLD("env_height", F_INT, env_height),
     FLD("cube_size", F_INT, cube_size),         FLD("checkpoint_every", F_INT, checkpoint_every),
     FLD("preview_every", F_INT, preview_every),
-    FLD_OPT("view_prompts", F_INT, view_prompts, 1),                  // added 2026-11-25; before: always on
-    FLD_OPT("coarse_to_fine", F_DOUBLE, coarse_to_fine, 0),           // added 2026-11-26; before: off
-    FLD_OPT("material_smoothness_specular", F_DOUBLE, w_mat_spec, 0), // added 2026-11-26; before: kd only
-    FLD_OPT("export_texture", F_INT, export_texture, 0),              // added 2026-11-26; before: no .glb
-    FLD_OPT("latent_size", F_INT, latent_size, 0),                    // added 2026-11-27; before: 64
-    FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // added 2026-11-27; before: 20
-    FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // added 2026-11-27; before: 2^19
-    FLD_OPT("view_batch", F_INT, view_batch, 0),                      // added 2026-11-27; before: one call a step
-    FLD_OPT("precision", F_STR, precision, 0),                        // added 2026-11-26; before: the program's
-    FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // added 2026-11-27; before: guidance_scale
-    FLD_OPT("tokenizer", F_STR, tokenizer, 0),                        // added 2026-11-27; before: none (folders only)
-    FLD_OPT("geometry_t_max_end", F_INT, geometry_t_max_end, 0),      // added 2026-11-29; before: no annealing
-    FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // added 2026-11-29; before: no annealing
-    FLD_OPT("material_start", F_INT, material_start, 0),              // added 2026-11-29; before: the prior's centre
-    FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // added 2026-11-29; before: the same rate
-    FLD_OPT("appearance_model", F_STR, appearance_model, 0),          // added 2026-11-30; before: the model's
-    FLD_OPT("surface_smooth", F_INT, surface_smooth, 0),              // before: the surface as extracted
-    FLD_OPT("caption", F_STR, caption, 0),                            // written when set; before: the prompt as typed
-    // paint runs only (written when paint_mesh is set; added 2026-11-27)
+    FLD_OPT("view_prompts", F_INT, view_prompts, 1),                  // missing: always on
+    FLD_OPT("coarse_to_fine", F_DOUBLE, coarse_to_fine, 0),           // missing: off
+    FLD_OPT("material_smoothness_specular", F_DOUBLE, w_mat_spec, 0), // missing: kd only
+    FLD_OPT("export_texture", F_INT, export_texture, 0),              // missing: no .glb
+    FLD_OPT("latent_size", F_INT, latent_size, 0),                    // missing: 64
+    FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // missing: 20
+    FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // missing: 2^19
+    FLD_OPT("view_batch", F_INT, view_batch, 0),                      // missing: one call a step
+    FLD_OPT("precision", F_STR, precision, 0),                        // missing: the program's
+    FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // missing: guidance_scale
+    FLD_OPT("tokenizer", F_STR, tokenizer, 0),                        // missing: none (folders only)
+    FLD_OPT("geometry_t_max_end", F_INT, geometry_t_max_end, 0),      // missing: no annealing
+    FLD_OPT("appearance_t_max_end", F_INT, appearance_t_max_end, 0),  // missing: no annealing
+    FLD_OPT("material_start", F_INT, material_start, 0),              // missing: the prior's centre
+    FLD_OPT("metal_start_lr_scale", F_DOUBLE, metal_start_lr_scale, 1),  // missing: the same rate
+    FLD_OPT("appearance_model", F_STR, appearance_model, 0),          // missing: the model's
+    FLD_OPT("surface_smooth", F_INT, surface_smooth, 0),              // missing: the surface as extracted
+    FLD_OPT("caption", F_STR, caption, 0),                            // written when set; missing: the prompt as typed
+    // paint runs only (written when paint_mesh is set)
     FLD_OPT("paint_mesh", F_STR, paint_mesh, 0),
     FLD_OPT("paint_keep_uv", F_INT, paint_keep_uv, 1),
     FLD_OPT("paint_centre_x", F_DOUBLE, paint_centre[0], 0),

@@ -73,7 +73,7 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // best of several candidates is taken, and a shape only partly like the object wins by a few: over
 // the 88 catalogue prompts the cup beats the ellipsoid for goblets (a bowl on a stem) by 3.0-4.7
 // and a goblet grown from it ends worse, while the clear wins are 5.6-7.6 (slab, tables), 7.6-8.2
-// (torus, rings) and 8.2-11.5 (cup, bowls) (docs/benchmarks.md, "A cup for bowls, by default").
+// (torus, rings) and 8.2-11.5 (cup, bowls) (docs/pipeline.md, "Init").
 //
 // A look at the start cannot tell which start will grow: at some seeds the model likes a high
 // slab for mugs and stools as well as tables, and a mug from it loses its surface. So when a
@@ -85,7 +85,7 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
 // kept 3.9). Each fit starts from the network's state as it came, and the chosen candidate's fit
 // (not its look-ahead) is what the stage starts from, so the start is the same bits as --init NAME.
 // No cylinder by default: the model prefers it for bottles, mugs and bowls, and a bottle from it
-// ended a vase (docs/benchmarks.md, "Choosing the starting shape").
+// ended a vase (docs/pipeline.md, "Look-ahead").
 #define AUTO_VIEWS 16
 #define AUTO_Z_START 5.0
 #define AUTO_Z 3.0

@@ -130,7 +130,8 @@ static int bench_text3d(int argc, char** argv) {
                    "error (degrees), completeness and accuracy (95th percentiles of the distances), each thin part's\n"
                    "completeness (legs, handles, stems, spout, shade, the ring's hole); and the colour (which material\n"
                    "it reads as). --sheet draws every prompt's truth beside its asset.\n"
-                   "Writes DIR/report.md. A full run is 88 generations: 46-50 min on 2 cores as mpirun -n 2 matlaber --threads 1 bench text3d.\n\n",
+                   "Writes DIR/report.md. On several processes (mpirun -n 2 matlaber --threads 1 bench text3d) each\n"
+                   "process takes every other prompt, with the same numbers; times: docs/benchmarks.md.\n\n",
                    MLB_TEXT3D_METAL_KS, MLB_TEXT3D_METAL_KD);
             cli_print_options(stdout, options);
             return 0;

@@ -233,7 +233,7 @@ int cmd_demo(int argc, char** argv) {
                    "Chamfer distance, the mean angle between normals, albedo PSNR on the surface, and relighting PSNR\n"
                    "under the overcast sky, which the fit never saw. Writes DIR/report.md, side-by-side images and the\n"
                    "run (DIR/fit_latent).\n"
-                   "About 2 minutes on 2 cores; --ablation (5 minutes) adds a --material direct fit and a fixed-environment fit.\n"
+                   "--ablation adds a --material direct fit and a fixed-environment fit (times: docs/pipeline.md).\n"
                    "--fit --paint paints the goblet's own mesh instead (`matlaber paint --views`: no geometry stage) from\n"
                    "the same views and from views under one fixed environment, and measures both the same way.\n\n");
             cli_print_options(stdout, options);

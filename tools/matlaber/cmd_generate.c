@@ -17,9 +17,9 @@
 static const cli_option options[] = {
     {"preset", 1, 'Q', "NAME", "generate: paper (default: the paper's schedule, 9 views at 512², for a GPU), tiny (the\n"
                                "                           project's own model: 4 views at 128², 16² latents) or cpu\n"
-                               "                           (1 view at 256², a short schedule, bf16: with SD 1.5 within an hour\n"
-                               "                           on 2 cores with AVX-512 BF16, about 1.5 h on 2 AVX2 cores); options\n"
-                               "                           after it override it (docs/pipeline.md)"},
+                               "                           (1 view at 256², a short schedule, bf16 GEMMs where the CPU has them:\n"
+                               "                           sized for SD 1.5 on 2 CPU cores); options after it override it\n"
+                               "                           (docs/pipeline.md)"},
     {"prompt", 1, 'p', "TEXT", "generate, paint: the text prompt (the project's own models read only the catalogue's\n"
                                "                           captions, written in any of their usual ways: docs/catalogue.md)"},
     {"model", 1, 'm', "PATH", "generate: Stable Diffusion 1.x/2.x checkpoint (file or diffusers folder); default: the\n"

@@ -6,14 +6,17 @@
 set -euo pipefail
 cd "${1:-$(dirname "$0")/..}"
 
-# Lowest first. cuda is the top: its kernels implement the op list (cuda_ops.h) that nn declares.
-order="core mesh io render nn brdf field geometry export diffusion pipeline cuda"
+# Lowest first. views: the cameras and image sets the guidance sees and the catalogue renders;
+# catalogue: the procedural truth (shapes, materials, captions) the pipeline reads prompts against;
+# training (the project's own diffusion model) and benchmark (text-to-3D) run on the pipeline.
+# cuda is the top: its kernels implement the op list (cuda_ops.h) that nn declares.
+order="core mesh io render nn brdf field geometry export diffusion views catalogue pipeline training benchmark cuda"
 
 # The owner of a public header include/matlaber/X.h is the folder of src/*/X.c; headers without a
 # same-named source say here which folder they belong to (an interface belongs to the lowest folder
 # that consumes it; its implementations may sit above). A header missing from both fails the check.
 declare -A owner=(
-  [brdf.h]=brdf [cameras.h]=pipeline [cuda_ops.h]=nn [backend_ops.def]=nn [dmtet.h]=geometry
+  [brdf.h]=brdf [cameras.h]=views [cuda_ops.h]=nn [backend_ops.def]=nn [dmtet.h]=geometry
   [export.h]=export [geometry.h]=geometry [guidance.h]=geometry [gltf.h]=io [nn.h]=nn [paint.h]=pipeline
   [raster.h]=render [unet_train.h]=diffusion
   [brdf_ae_api.inc]=brdf [hashgrid_api.inc]=nn [nn_api.inc]=nn [raster_api.inc]=render [vae_api.inc]=diffusion

@@ -1,4 +1,4 @@
-// Shared by the catalogue's files (src/pipeline/catalogue*.c); not part of the API.
+// Shared by the catalogue's files (src/catalogue/catalogue*.c); not part of the API.
 #ifndef MATLABER_CATALOGUE_INTERNAL_H
 #define MATLABER_CATALOGUE_INTERNAL_H
 

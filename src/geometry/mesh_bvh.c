@@ -1,5 +1,6 @@
-// A static bounding-volume hierarchy over a mesh's triangles for the exact unsigned point-to-mesh
-// distance (include/matlaber/geometry.h, docs/geometry_init.md). Build: the triangle centroids
+// The exact unsigned point-to-mesh distance (include/matlaber/geometry.h, docs/geometry_init.md):
+// the point-triangle distance (mlb_point_triangle_dist2), mlb_mesh_distance, and the static
+// bounding-volume hierarchy over a mesh's triangles that prunes it. Build: the triangle centroids
 // binned on their longest axis, split where the surface-area heuristic is lowest (the median when
 // the bins cannot tell), leaves of at most BVH_LEAF triangles, one flat node array (children side by
 // side) and the triangles' corners copied in leaf order. Query: nearest child first, a subtree
@@ -24,6 +25,80 @@ enum { BVH_LEAF = 4, BVH_BINS = 16, BVH_SAH_DEPTH = 48, BVH_STACK = 96 };
 // (far above the few ulps any FMA contraction of either sum could move them) keeps it so under
 // -march flags too, at no measurable cost.
 #define BOX_SLACK (1.0 - 0x1p-40)
+
+// ---- the point-triangle distance --------------------------------------------------------
+
+static double dot3(const double* a, const double* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+// Closest point to p on the segment a + t·(b − a), t ∈ [0, 1], into q; its squared distance.
+static double segment_closest(const double* p, const double* a, const double* b, double* q) {
+    double ab[3], ap[3];
+    for (int k = 0; k < 3; k++) { ab[k] = b[k] - a[k]; ap[k] = p[k] - a[k]; }
+    double l2 = dot3(ab, ab), t = l2 > 0 ? dot3(ap, ab) / l2 : 0;
+    t = t > 0 ? (t < 1 ? t : 1) : 0;   // NaN -> 0
+    for (int k = 0; k < 3; k++) q[k] = a[k] + t * ab[k];
+    double d[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
+    return dot3(d, d);
+}
+
+double mlb_point_triangle_dist2(const double p[3], const float* fa, const float* fb, const float* fc) {
+    // Closest point by Voronoi regions (vertex, edge, face), as in Ericson, Real-Time Collision
+    // Detection §5.1.5; distances in double.
+    double a[3] = {fa[0], fa[1], fa[2]}, b[3] = {fb[0], fb[1], fb[2]}, c[3] = {fc[0], fc[1], fc[2]};
+    double ab[3], ac[3], ap[3], q[3];
+    for (int k = 0; k < 3; k++) { ab[k] = b[k] - a[k]; ac[k] = c[k] - a[k]; ap[k] = p[k] - a[k]; }
+    double d1 = dot3(ab, ap), d2 = dot3(ac, ap);
+    if (d1 <= 0 && d2 <= 0) { for (int k = 0; k < 3; k++) q[k] = a[k]; goto done; }
+    double bp[3];
+    for (int k = 0; k < 3; k++) bp[k] = p[k] - b[k];
+    double d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+    if (d3 >= 0 && d4 <= d3) { for (int k = 0; k < 3; k++) q[k] = b[k]; goto done; }
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double v = d1 - d3 > 0 ? d1 / (d1 - d3) : 0;   // 0/0 when a = b: the edge is a point
+        for (int k = 0; k < 3; k++) q[k] = a[k] + v * ab[k];
+        goto done;
+    }
+    double cp[3];
+    for (int k = 0; k < 3; k++) cp[k] = p[k] - c[k];
+    double d5 = dot3(ab, cp), d6 = dot3(ac, cp);
+    if (d6 >= 0 && d5 <= d6) { for (int k = 0; k < 3; k++) q[k] = c[k]; goto done; }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double w = d2 - d6 > 0 ? d2 / (d2 - d6) : 0;
+        for (int k = 0; k < 3; k++) q[k] = a[k] + w * ac[k];
+        goto done;
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double den = (d4 - d3) + (d5 - d6), w = den > 0 ? (d4 - d3) / den : 0;
+        for (int k = 0; k < 3; k++) q[k] = b[k] + w * (c[k] - b[k]);
+        goto done;
+    }
+    {
+        double den = va + vb + vc, v = vb / den, w = vc / den;
+        if (v >= 0 && w >= 0 && v + w <= 1) {
+            for (int k = 0; k < 3; k++) q[k] = a[k] + ab[k] * v + ac[k] * w;
+            goto done;
+        }
+        // Numerically degenerate (zero area, a sliver): va, vb, vc are rounding noise and the
+        // barycentrics can be anything; the nearest point of the three edges is the distance.
+        double qe[3], best = segment_closest(p, a, b, q), e;
+        if ((e = segment_closest(p, b, c, qe)) < best) { best = e; memcpy(q, qe, sizeof qe); }
+        if ((e = segment_closest(p, c, a, qe)) < best) memcpy(q, qe, sizeof qe);
+    }
+done:;
+    // Rounding can put q an ulp outside the triangle's bounding box; inside it, the distance is
+    // never below the box's (mesh_bvh.c prunes by boxes and stays exact). NaN stays NaN.
+    for (int k = 0; k < 3; k++) {   // (comparisons, not fmin/fmax: those are libm calls here)
+        double lo = a[k] < b[k] ? a[k] : b[k], hi = a[k] < b[k] ? b[k] : a[k];
+        lo = c[k] < lo ? c[k] : lo;
+        hi = c[k] > hi ? c[k] : hi;
+        q[k] = q[k] < lo ? lo : (q[k] > hi ? hi : q[k]);
+    }
+    double d[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
+    return dot3(d, d);
+}
 
 static int tri_finite(const float* v) {
     for (int k = 0; k < 9; k++) if (!isfinite(v[k])) return 0;
@@ -348,4 +423,35 @@ void mlb_mesh_bvh_nearest_faces(const mlb_mesh_bvh* b, const float* p, float* ou
 
 void mlb_mesh_bvh_distance(const mlb_mesh_bvh* b, const float* p, float* out, int n) {
     mlb_mesh_bvh_nearest_faces(b, p, out, NULL, n);
+}
+
+// ---- the distance without and with a BVH ---------------------------------------------------
+
+// The minimum over every triangle, no pruning: when the BVH cannot be built (out of memory), the
+// same answer slower.
+static void mesh_distance_all(const mlb_mesh* m, const float* p, float* out, int n) {
+#pragma omp parallel for schedule(dynamic, 64)
+    for (int i = 0; i < n; i++) {
+        double q[3] = {p[3 * (size_t)i], p[3 * (size_t)i + 1], p[3 * (size_t)i + 2]};
+        double best = INFINITY;
+        int any = 0;
+        for (int f = 0; f < m->n_faces; f++) {
+            const int32_t* t = m->faces + 3 * (size_t)f;
+            const float *a = m->pos + 3 * (size_t)t[0], *b = m->pos + 3 * (size_t)t[1], *c = m->pos + 3 * (size_t)t[2];
+            int finite = 1;
+            for (int k = 0; k < 3; k++) finite &= isfinite(a[k]) && isfinite(b[k]) && isfinite(c[k]);
+            if (!finite) continue;
+            any = 1;
+            double d2 = mlb_point_triangle_dist2(q, a, b, c);
+            if (d2 < best) best = d2;
+        }
+        out[i] = any && (isnan(q[0]) || isnan(q[1]) || isnan(q[2])) ? NAN : (float)sqrt(best);
+    }
+}
+
+void mlb_mesh_distance(const mlb_mesh* m, const float* p, float* out, int n) {
+    mlb_mesh_bvh b;
+    if (mlb_mesh_bvh_build(&b, m)) { mesh_distance_all(m, p, out, n); return; }
+    mlb_mesh_bvh_distance(&b, p, out, n);
+    mlb_mesh_bvh_free(&b);
 }

@@ -1,7 +1,8 @@
 // The stand-ins used when the CUDA part is not built: every CUDA function exists in both builds,
 // failing with "built without CUDA" here, so callers need no #ifdef. With the CUDA part the real
 // ones are in src/cuda/*.cu. Here in nn rather than core because the op list (backend_ops.def)
-// they are generated from names types of nn and render (docs/architecture.md "Layers").
+// they are generated from names types of nn and render (docs/architecture.md "Layers"); the
+// device functions that core's device.h declares have theirs in src/core/no_cuda_device.c.
 #include <string.h>
 #include "matlaber/cuda_ops.h"
 #include "matlaber/device.h"
@@ -17,16 +18,6 @@ static mlb_status no_cuda(const char* fn) {
 #define MLB_GEMM_OP(name, cuda_fn, params, args) \
     mlb_status cuda_fn(MLB_ARGS params, mlb_gemm_precision prec) { NO_CUDA; }
 #include "matlaber/backend_ops.def"
-int mlb_cuda_compiled(void) { return 0; }
-int mlb_cuda_device_count(void) { return 0; }
-mlb_status mlb_cuda_probe(int* count) { *count = 0; NO_CUDA; }
-mlb_status mlb_cuda_describe(int index, char* buf, size_t n) { if (n) buf[0] = 0; NO_CUDA; }
-mlb_status mlb_cuda_malloc(void** ptr, size_t bytes) { *ptr = NULL; NO_CUDA; }
-mlb_status mlb_cuda_free(void* ptr) { if (!ptr) return MLB_OK; NO_CUDA; }
-mlb_status mlb_cuda_copy_to_device(void* dst, const void* src, size_t bytes) { NO_CUDA; }
-mlb_status mlb_cuda_copy_to_host(void* dst, const void* src, size_t bytes) { NO_CUDA; }
-mlb_cuda_transfers mlb_cuda_transfers_get(void) { return (mlb_cuda_transfers){0, 0, 0}; }
-mlb_status mlb_cuda_init(int index) { NO_CUDA; }
 mlb_status mlb_cuda_sync(void) { NO_CUDA; }
 mlb_status mlb_cuda_memset(void* dst, int value, size_t bytes) { NO_CUDA; }
 mlb_status mlb_cuda_copy_d2d(void* dst, const void* src, size_t bytes) { NO_CUDA; }
@@ -34,7 +25,6 @@ mlb_status mlb_cuda_fill_uniform(float* dst, size_t n, uint64_t seed, float lo, 
 mlb_status mlb_cuda_timer_begin(void) { NO_CUDA; }
 mlb_status mlb_cuda_timer_end(double* ms) { *ms = 0; NO_CUDA; }
 mlb_status mlb_cuda_mem_info(size_t* free_bytes, size_t* total_bytes) { *free_bytes = *total_bytes = 0; NO_CUDA; }
-mlb_status mlb_cuda_trim(void) { NO_CUDA; }
 mlb_status mlb_cuda_gemm(int trans_a, int trans_b, int M, int N, int K, float alpha, const void* A, int lda,
                          const void* B, int ldb, float beta, float* C, int ldc, mlb_cuda_dtype ab_type,
                          mlb_gemm_precision prec) { NO_CUDA; }

@@ -235,15 +235,6 @@ static void FN(mask_levels)(const FN(mlb_field)* f, real* feat, int n) {
     for (int i = 0; i < n; i++) memset(feat + (size_t)i * L * F + (size_t)a * F, 0, sizeof(real) * (size_t)(L - a) * F);
 }
 
-// The encoding as far as the active levels reach: a copy whose level count stops there (the output
-// stride, out_dim, stays L·F), so that the masked levels cost nothing; with all levels, the encoding.
-// The device path (field_device.c) hands the same copy to its table's hash-grid ops.
-FN(mlb_hashgrid) FN(field_active_enc)(const FN(mlb_field)* f) {
-    FN(mlb_hashgrid) g = f->enc;
-    if (f->active_levels > 0 && f->active_levels < g.cfg.n_levels) g.cfg.n_levels = f->active_levels;
-    return g;
-}
-
 // The field at n points with the given buffers: x [n,3], feat [n,L·F] → the MLP's output
 // (returned: the MLP cache's output) and y [n, out_dim] (may be NULL). Shared by forward (the
 // field's own cache) and eval (private buffers).

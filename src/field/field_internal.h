@@ -9,9 +9,20 @@ void field_map_to_ranges(float* k, const float* s, int n);
 void field_map_to_ranges_f64(double* k, const double* s, int n);
 
 // The hash grid of the active levels only (coarse to fine: f->active_levels; the output stride
-// stays L·F): what the forward encodes and the backward differentiates
-mlb_hashgrid field_active_enc(const mlb_field* f);
-mlb_hashgrid_f64 field_active_enc_f64(const mlb_field_f64* f);
+// stays L·F): what the forward encodes and the backward differentiates. A copy whose level count
+// stops there, so that the masked levels cost nothing; with all levels, the encoding. Both the host
+// path (field.c) and the device twin (field_device.c, its table's hash-grid ops) take it, so it is
+// here rather than in either file.
+static inline mlb_hashgrid field_active_enc(const mlb_field* f) {
+    mlb_hashgrid g = f->enc;
+    if (f->active_levels > 0 && f->active_levels < g.cfg.n_levels) g.cfg.n_levels = f->active_levels;
+    return g;
+}
+static inline mlb_hashgrid_f64 field_active_enc_f64(const mlb_field_f64* f) {
+    mlb_hashgrid_f64 g = f->enc;
+    if (f->active_levels > 0 && f->active_levels < g.cfg.n_levels) g.cfg.n_levels = f->active_levels;
+    return g;
+}
 
 void field_device_free(struct mlb_field_device* d);
 mlb_status field_device_forward(mlb_field* f, float* y, float* z, const float* pos, int n);

@@ -1,6 +1,6 @@
-// Shared by sd_train.c (text side, UNet loop, the whole run) and sd_train_vae.c (the VAE's loop):
-// a model's parameters as one flat vector on the backend's device with its gradient and Adam
-// moments, saved to and resumed from a state file.
+// Shared by sd_train.c (text side, UNet loop), sd_train_vae.c (the VAE's loop) and sd_train_run.c
+// (the whole run): a model's parameters as one flat vector on the backend's device with its
+// gradient and Adam moments, saved to and resumed from a state file (sd_train_params.c).
 #ifndef MATLABER_SD_TRAIN_INTERNAL_H
 #define MATLABER_SD_TRAIN_INTERNAL_H
 #include "matlaber/backend.h"

@@ -46,16 +46,6 @@ mlb_status mlb_text3d_base_config(mlb_pipeline_config* c, const char* preset, co
     return MLB_OK;
 }
 
-const char* mlb_text3d_ablation_name(const mlb_pipeline_config* c, char* buf, size_t cap) {
-    buf[0] = 0;
-    const char* parts[3] = {c->material == MLB_MATERIAL_DIRECT ? "direct" : NULL, c->fixed_env ? "fixed-env" : NULL,
-                            c->view_prompts ? NULL : "no-view-prompts"};
-    for (int i = 0; i < 3; i++)
-        if (parts[i]) snprintf(buf + strlen(buf), cap - strlen(buf), "%s%s", buf[0] ? "+" : "", parts[i]);
-    if (!buf[0]) snprintf(buf, cap, "latent");
-    return buf;
-}
-
 mlb_text3d_bench_config mlb_text3d_bench_default(void) {
     mlb_text3d_bench_config c;
     memset(&c, 0, sizeof c);

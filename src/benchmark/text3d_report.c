@@ -1,5 +1,5 @@
 // The text-to-3D benchmark's report (include/matlaber/text3d.h): the summary over the rows, the
-// Markdown table beside the runs and the JSON a program reads.
+// ablation's name, the Markdown table beside the runs and the JSON a program reads.
 #include <cjson/cJSON.h>
 #include <math.h>
 #include <stdio.h>
@@ -75,6 +75,16 @@ void mlb_text3d_summarise(const mlb_text3d_row* rows, int n, double seconds, mlb
         o->median_accuracy = median_of(v + 3 * n, n);
     }
     free(v);
+}
+
+const char* mlb_text3d_ablation_name(const mlb_pipeline_config* c, char* buf, size_t cap) {
+    buf[0] = 0;
+    const char* parts[3] = {c->material == MLB_MATERIAL_DIRECT ? "direct" : NULL, c->fixed_env ? "fixed-env" : NULL,
+                            c->view_prompts ? NULL : "no-view-prompts"};
+    for (int i = 0; i < 3; i++)
+        if (parts[i]) snprintf(buf + strlen(buf), cap - strlen(buf), "%s%s", buf[0] ? "+" : "", parts[i]);
+    if (!buf[0]) snprintf(buf, cap, "latent");
+    return buf;
 }
 
 static const char* num_or_dash(char buf[16], double v, int digits) {

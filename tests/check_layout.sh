@@ -2,8 +2,12 @@
 # The folders of src/ are layers (docs/architecture.md "Layers"): a file may include headers of its
 # own folder and of the folders below it, never of one above, so there is no upward include and no
 # include circle between folders. This walks every #include "..." of src/ and include/matlaber/ and
-# fails naming each include that goes up. Usage: tests/check_layout.sh [repository root]
+# fails naming each include that goes up. With a build folder it also reads the library's object
+# files (tests/check_calls.sh): no files of src/ that call each other in a loop, no function declared
+# in a folder below the one that defines it. Usage: tests/check_layout.sh [repository root [build folder]]
 set -euo pipefail
+build_dir=""
+if [ -n "${2:-}" ]; then build_dir=$(cd "$2" && pwd); fi
 cd "${1:-$(dirname "$0")/..}"
 
 # Lowest first. views: the cameras and image sets the guidance sees and the catalogue renders;
@@ -68,3 +72,9 @@ done < <(find src include/matlaber -type f \( -name '*.c' -o -name '*.h' -o -nam
 
 if [ $bad -ne 0 ]; then exit 1; fi
 echo "check_layout: no upward include among src/ folders ($order)"
+if [ -n "$build_dir" ]; then
+  source tests/check_calls.sh
+  check_calls "$build_dir"
+else
+  echo "check_layout: no build folder given: the call check (tests/check_calls.sh) did not run"
+fi

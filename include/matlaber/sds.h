@@ -45,6 +45,10 @@ typedef struct {
 } mlb_sds_options;
 
 mlb_sds_options mlb_sds_default_options(void);   // 100, 20, 980, DreamFusion, 0, seed 0
+// The options' rules, checked once here for every SDS that takes them (mlb_sds_create, and the
+// guidance that sets them on its SDS objects): timesteps within 0..999 and ordered, the annealing's
+// end within [t_min, 999], a finite guidance scale, a known weighting. MLB_ERR_ARG naming the bad one.
+mlb_status mlb_sds_options_check(const mlb_sds_options* o);
 const char* mlb_sds_weighting_name(mlb_sds_weighting w);   // "dreamfusion", "fantasia0", ...
 mlb_status mlb_sds_weighting_parse(const char* name, mlb_sds_weighting* out);
 // The largest timestep drawn at `step`: t_max, or annealed towards t_max_end (options above).

@@ -81,11 +81,9 @@ const char* mlb_sds_view_suffix(int view) {
     return view >= 0 && view < MLB_SDS_N_VIEWS ? suffix[view] : "";
 }
 
-mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scaling_factor, const float* ac, int v_prediction,
-                          const mlb_sds_options* opt, mlb_sds** out) {
-    if (!out || !unet || !ac) return mlb_fail(MLB_ERR_ARG, "mlb_sds_create: NULL argument");
-    *out = NULL;
-    mlb_sds_options o = opt ? *opt : mlb_sds_default_options();
+mlb_status mlb_sds_options_check(const mlb_sds_options* op) {
+    if (!op) return mlb_fail(MLB_ERR_ARG, "mlb_sds_options_check: NULL options");
+    const mlb_sds_options o = *op;
     if (o.t_min < 0 || o.t_max > 999 || o.t_min > o.t_max)
         return mlb_fail(MLB_ERR_ARG, "SDS timestep range [%d, %d] must lie within [0, 999] and be ordered", o.t_min, o.t_max);
     if (o.anneal_steps < 0 || (o.anneal_steps > 0 && (o.t_max_end < o.t_min || o.t_max_end > 999)))
@@ -93,6 +91,15 @@ mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scalin
                         o.t_max_end, o.t_min, o.anneal_steps);
     if (!isfinite(o.guidance_scale)) return mlb_fail(MLB_ERR_ARG, "SDS guidance scale is not finite");
     if ((unsigned)o.weighting > MLB_SDS_W_FANTASIA2) return mlb_fail(MLB_ERR_ARG, "unknown SDS weighting %d", (int)o.weighting);
+    return MLB_OK;
+}
+
+mlb_status mlb_sds_create(const mlb_unet* unet, const mlb_vae* vae, float scaling_factor, const float* ac, int v_prediction,
+                          const mlb_sds_options* opt, mlb_sds** out) {
+    if (!out || !unet || !ac) return mlb_fail(MLB_ERR_ARG, "mlb_sds_create: NULL argument");
+    *out = NULL;
+    mlb_sds_options o = opt ? *opt : mlb_sds_default_options();
+    MLB_TRY(mlb_sds_options_check(&o));
     if (vae && !(scaling_factor > 0)) return mlb_fail(MLB_ERR_ARG, "SDS scaling factor must be positive");
     mlb_sds* s = calloc(1, sizeof *s);
     if (!s) return mlb_fail(MLB_ERR_NOMEM, "out of memory");

@@ -202,11 +202,8 @@ static mlb_status check_config(const mlb_guidance_sds_config* c) {
     if (c->n_envs < 0) return mlb_fail(MLB_ERR_ARG, "SDS guidance: n_envs %d < 0", c->n_envs);
     const mlb_sds_options* o2[2] = {&c->geometry_opt, &c->appearance_opt};
     for (int k = 0; k < 2; k++) {
-        const mlb_sds_options* q = o2[k];
-        if (q->t_min < 0 || q->t_max > 999 || q->t_min > q->t_max || !isfinite(q->guidance_scale) ||
-            (unsigned)q->weighting > MLB_SDS_W_FANTASIA2)
-            return mlb_fail(MLB_ERR_ARG, "SDS guidance: %s options: t range [%d, %d] (within 0..999), scale %g, weighting %d",
-                            k ? "appearance" : "geometry", q->t_min, q->t_max, (double)q->guidance_scale, (int)q->weighting);
+        mlb_status st = mlb_sds_options_check(o2[k]);
+        if (st) return mlb_fail_context(st, "SDS guidance: %s options", k ? "appearance" : "geometry");
     }
     mlb_orbit_config o = c->orbit;
     if (c->n_envs > 0) o.n_envs = c->n_envs;

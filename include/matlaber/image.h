@@ -31,6 +31,11 @@ mlb_status mlb_image_load_limit(mlb_image* img, const char* path, int channels, 
 // Reads only the header: size and stored channel count / bit depth. Same checks as loading,
 // except that the pixel data is not decoded (a truncated body may go unnoticed).
 mlb_status mlb_image_info(const char* path, int* w, int* h, int* file_channels, int* bits);
+// A whole image file in memory, for the loaders that decode it (this file's and envmap.h's):
+// mlb_read_file (regular files only) of at most INT_MAX bytes, since stb_image takes an int length
+// (no image comes near 2 GiB compressed); a missing file is MLB_ERR_IO, as every image loader says.
+// *out is malloc'd.
+mlb_status mlb_image_file_read(const char* path, unsigned char** out, size_t* n);
 void mlb_image_free(mlb_image* img);   // safe on a zeroed or already freed image
 
 // Sample (x, y, ch) of a loaded image; no bounds checks.

@@ -17,9 +17,7 @@
 
 enum { FMT_PNG = 1, FMT_JPEG = 2 };
 
-// Whole file into memory. stb_image takes an int length, so files over INT_MAX are refused
-// (no material map comes near 2 GiB compressed).
-static mlb_status read_all(const char* path, unsigned char** out, size_t* n_out) {
+mlb_status mlb_image_file_read(const char* path, unsigned char** out, size_t* n_out) {
     char* b = NULL;
     mlb_status s = mlb_read_file(path, &b, n_out, INT_MAX);   // regular files only (fileio.h)
     if (s == MLB_ERR_NOT_FOUND) s = MLB_ERR_IO;   // this reader's contract: missing is an I/O error
@@ -159,7 +157,7 @@ mlb_status mlb_image_info(const char* path, int* w, int* h, int* file_channels, 
     if (!path) return mlb_fail(MLB_ERR_ARG, "image path is NULL");
     unsigned char* b;
     size_t n;
-    MLB_TRY(read_all(path, &b, &n));
+    MLB_TRY(mlb_image_file_read(path, &b, &n));
     int fmt = 0, ww = 0, hh = 0, fc = 0, bt = 8;
     mlb_status s = probe(path, b, n, 0, &fmt, &ww, &hh, &fc, &bt);
     free(b);
@@ -180,7 +178,7 @@ mlb_status mlb_image_load_limit(mlb_image* img, const char* path, int channels, 
 
     unsigned char* b;
     size_t n;
-    MLB_TRY(read_all(path, &b, &n));
+    MLB_TRY(mlb_image_file_read(path, &b, &n));
     int fmt = 0, w = 0, h = 0, fc = 0, bits = 8;
     mlb_status s = probe(path, b, n, max_pixels, &fmt, &w, &h, &fc, &bits);
     if (s != MLB_OK) {

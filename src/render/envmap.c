@@ -5,6 +5,7 @@
 // the EXR header before anything the size of the image is allocated.
 #include "matlaber/envmap.h"
 #include "matlaber/fileio.h"
+#include "matlaber/image.h"
 #include <errno.h>
 #include <float.h>
 #include <limits.h>
@@ -22,14 +23,6 @@
 static double luminance(const float* p) { return 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]; }
 
 // ---------------------------------------------------------------- files
-
-static mlb_status read_all(const char* path, unsigned char** out, size_t* n_out) {
-    char* b = NULL;
-    mlb_status s = mlb_read_file(path, &b, n_out, INT_MAX);   // regular files only (fileio.h)
-    if (s == MLB_ERR_NOT_FOUND) s = MLB_ERR_IO;   // this reader's contract: missing is an I/O error
-    *out = (unsigned char*)b;
-    return s;
-}
 
 static mlb_status check_size(const char* path, long long w, long long h) {
     if (w <= 0 || h <= 0) return mlb_fail(MLB_ERR_FORMAT, "%s: image size %lldx%lld is empty", path, w, h);
@@ -259,7 +252,7 @@ mlb_status mlb_envmap_load(mlb_envmap* env, const char* path, float scale, mlb_e
     MLB_TRY(check_scale(path, scale));
     unsigned char* b;
     size_t n;
-    MLB_TRY(read_all(path, &b, &n));
+    MLB_TRY(mlb_image_file_read(path, &b, &n));
     float* rgb = NULL;
     int w = 0, h = 0;
     mlb_status s;

@@ -43,6 +43,16 @@ typedef struct {
 mlb_status mlb_camera_orbit(mlb_camera* cam, double azimuth_deg, double elevation_deg, double radius,
                             const double target[3], double fovy_deg, double aspect, double near_z,
                             double far_z);
+// The project's orbit, written once: every camera sits MLB_ORBIT_RADIUS from the object's centre
+// (objects are scaled into the generation frame, the unit ball); the optimisation's random views
+// (cameras.h: mlb_orbit_default; geometry_fit.h: mlb_geofit_default) keep their elevation within
+// [MLB_ORBIT_EL_MIN, MLB_ORBIT_EL_MAX] degrees and their vertical field of view within
+// [MLB_ORBIT_FOVY_MIN, MLB_ORBIT_FOVY_MAX] (the geometry fit's fixed one: the widest).
+#define MLB_ORBIT_RADIUS 3.0
+#define MLB_ORBIT_EL_MIN (-10.0)
+#define MLB_ORBIT_EL_MAX 45.0
+#define MLB_ORBIT_FOVY_MIN 25.7
+#define MLB_ORBIT_FOVY_MAX 45.0
 
 // ---- scratch memory -------------------------------------------------------------------------------
 // Buffers the rasterizer, the backwards and antialias reuse from call to call (grown as needed,

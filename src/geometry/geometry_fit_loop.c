@@ -27,10 +27,10 @@ mlb_geofit_config mlb_geofit_default(void) {
     c.reg_start = 0.2;
     c.reg_end = 0.01;
     c.reg_frac = 0.25;
-    c.radius = 3.0;
-    c.fovy_deg = 45.0;
-    c.el_min = -10.0;
-    c.el_max = 45.0;
+    c.radius = MLB_ORBIT_RADIUS;
+    c.fovy_deg = MLB_ORBIT_FOVY_MAX;
+    c.el_min = MLB_ORBIT_EL_MIN;
+    c.el_max = MLB_ORBIT_EL_MAX;
     c.seed = 1;
     return c;
 }

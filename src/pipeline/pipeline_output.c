@@ -142,9 +142,10 @@ static mlb_status write_final_renders(pipeline_run* r) {
     for (int v = 0; !s && v < FINAL_VIEWS; v++) {
         views[v].azimuth_deg = 90.0 * v;
         views[v].elevation_deg = 15;
-        views[v].radius = 3;
+        views[v].radius = MLB_ORBIT_RADIUS;
         views[v].target = -1;
-        s = mlb_camera_orbit(&views[v].cam, views[v].azimuth_deg, views[v].elevation_deg, 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
+        s = mlb_camera_orbit(&views[v].cam, views[v].azimuth_deg, views[v].elevation_deg, MLB_ORBIT_RADIUS, NULL, 45.0, 1.0,
+                             0.1, 100.0);
     }
     float* shaded = malloc(sizeof(float) * p * 4 * FINAL_VIEWS);
     float* normal = malloc(sizeof(float) * p * 4);

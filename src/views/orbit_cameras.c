@@ -9,11 +9,11 @@
 mlb_orbit_config mlb_orbit_default(void) {
     mlb_orbit_config c;
     memset(&c, 0, sizeof c);
-    c.radius = 3.0;
-    c.fovy_min = 25.7;
-    c.fovy_max = 45.0;
-    c.el_min = -10.0;
-    c.el_max = 45.0;
+    c.radius = MLB_ORBIT_RADIUS;
+    c.fovy_min = MLB_ORBIT_FOVY_MIN;
+    c.fovy_max = MLB_ORBIT_FOVY_MAX;
+    c.el_min = MLB_ORBIT_EL_MIN;
+    c.el_max = MLB_ORBIT_EL_MAX;
     c.az_min = -180.0;
     c.az_max = 180.0;
     c.jitter = 0.05;

@@ -633,7 +633,7 @@ mlb_views_render_config mlb_views_render_default(void) {
     c.supersample = 2;
     c.cube = 512;
     c.env_scale = 1;
-    c.radius = 3;
+    c.radius = MLB_ORBIT_RADIUS;
     c.fovy_deg = 40;
     c.el_min = -30;
     c.el_max = 75;

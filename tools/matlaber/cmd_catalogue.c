@@ -246,8 +246,8 @@ static int catalogue_render(int argc, char** argv) {
         else {
             double az = fmod(360.0 * (double)i / (double)views + 180.0, 360.0) - 180.0;
             memset(&smp.view, 0, sizeof smp.view);
-            s = mlb_camera_orbit(&smp.view.cam, az, 15, 3, NULL, 35, 1, oc.near_z, oc.far_z);
-            smp.view.azimuth_deg = az, smp.view.elevation_deg = 15, smp.view.radius = 3;
+            s = mlb_camera_orbit(&smp.view.cam, az, 15, MLB_ORBIT_RADIUS, NULL, 35, 1, oc.near_z, oc.far_z);
+            smp.view.azimuth_deg = az, smp.view.elevation_deg = 15, smp.view.radius = MLB_ORBIT_RADIUS;
             smp.view.env = env_index, smp.view.target = -1;
         }
         if (!s) s = mlb_catalogue_render(r, &smp, rgb, nrm);

@@ -55,9 +55,10 @@ static const cli_option render_options[] = {
     {0, 0, 0, 0, 0}};
 
 static int parse_render_options(int argc, char** argv, const char* cmd, render_opts* o) {
-    *o = (render_opts){.env = "studio", .az = 30, .el = 20, .radius = 3, .fov = 40, .env_scale = 1, .size = 512,
-                       .ss = 2, .frames = 36, .cube = 512, .background = "env", .views = 24,
-                       .seed = 1, .el_min = -30, .el_max = 75};
+    const mlb_views_render_config v = mlb_views_render_default();   // --views-out's defaults, and the camera's
+    *o = (render_opts){.env = "studio", .az = 30, .el = 20, .radius = v.radius, .fov = v.fovy_deg, .env_scale = 1,
+                       .size = 512, .ss = 2, .frames = 36, .cube = 512, .background = "env", .views = v.n_views,
+                       .seed = (long)v.seed, .el_min = v.el_min, .el_max = v.el_max};
     const struct option* table = cli_getopt_table(render_options);
     optind = 1;
     int c;

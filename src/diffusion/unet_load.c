@@ -13,6 +13,7 @@
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/sd_files.h"
+#include "unet_schema.h"
 
 #define UNET_PATH_MAX 4096
 #define UNET_CONFIG_MAX (1 << 20)
@@ -228,118 +229,14 @@ static mlb_status reg(loader* L, float** dst, const char* d, int ndim, int64_t a
     return MLB_OK;
 }
 
-static mlb_status reg_resnet(loader* L, mlb_unet_resnet* r, const char* pre, int cin, int cout) {
-    char d[256];
-    int TE = L->u->cfg.time_embed_dim;
-    r->cin = cin;
-    r->cout = cout;
-#define R(field, suffix, nd, a, b, c, e) \
-    snprintf(d, sizeof d, "%s.%s", pre, suffix); MLB_TRY(reg(L, &r->field, d, nd, a, b, c, e))
-    R(norm1_w, "norm1.weight", 1, cin, 0, 0, 0); R(norm1_b, "norm1.bias", 1, cin, 0, 0, 0);
-    R(conv1_w, "conv1.weight", 4, cout, cin, 3, 3); R(conv1_b, "conv1.bias", 1, cout, 0, 0, 0);
-    R(temb_w, "time_emb_proj.weight", 2, cout, TE, 0, 0); R(temb_b, "time_emb_proj.bias", 1, cout, 0, 0, 0);
-    R(norm2_w, "norm2.weight", 1, cout, 0, 0, 0); R(norm2_b, "norm2.bias", 1, cout, 0, 0, 0);
-    R(conv2_w, "conv2.weight", 4, cout, cout, 3, 3); R(conv2_b, "conv2.bias", 1, cout, 0, 0, 0);
-    if (cin != cout) {
-        R(skip_w, "conv_shortcut.weight", 4, cout, cin, 1, 1); R(skip_b, "conv_shortcut.bias", 1, cout, 0, 0, 0);
-    } else {
-        r->skip_w = r->skip_b = NULL;
-    }
-#undef R
-    return MLB_OK;
+// The schema's walk (unet_schema.c) registers every tensor in the buffer's order.
+static mlb_status visit(void* ctx, const unet_schema_tensor* t) {
+    loader* L = ctx;
+    L->as_linear = t->as_linear;
+    return reg(L, t->slot, t->name, t->ndim, t->shape[0], t->shape[1], t->shape[2], t->shape[3]);
 }
 
-static mlb_status reg_attn(loader* L, mlb_unet_transformer* a, const char* pre, int C, int heads) {
-    char d[256];
-    int D = L->u->cfg.context_dim, lin = L->u->cfg.linear_projection;
-    a->C = C;
-    a->heads = heads;
-#define R(field, suffix, nd, x, y, z, w) \
-    snprintf(d, sizeof d, "%s.%s", pre, suffix); MLB_TRY(reg(L, &a->field, d, nd, x, y, z, w))
-    R(norm_w, "norm.weight", 1, C, 0, 0, 0); R(norm_b, "norm.bias", 1, C, 0, 0, 0);
-    L->as_linear = 1;   // SD 1.x's 1x1 conv projections run as linear layers over the tokens
-    R(proj_in_w, "proj_in.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_in_b, "proj_in.bias", 1, C, 0, 0, 0);
-    R(proj_out_w, "proj_out.weight", lin ? 2 : 4, C, C, 1, 1); R(proj_out_b, "proj_out.bias", 1, C, 0, 0, 0);
-    L->as_linear = 0;
-    const char* tb = "transformer_blocks.0.";
-    char s[160];
-#define T(field, suffix, nd, x, y) snprintf(s, sizeof s, "%s%s", tb, suffix); R(field, s, nd, x, y, 0, 0)
-    T(ln1_w, "norm1.weight", 1, C, 0); T(ln1_b, "norm1.bias", 1, C, 0);
-    T(q1, "attn1.to_q.weight", 2, C, C); T(k1, "attn1.to_k.weight", 2, C, C); T(v1, "attn1.to_v.weight", 2, C, C);
-    T(o1_w, "attn1.to_out.0.weight", 2, C, C); T(o1_b, "attn1.to_out.0.bias", 1, C, 0);
-    T(ln2_w, "norm2.weight", 1, C, 0); T(ln2_b, "norm2.bias", 1, C, 0);
-    T(q2, "attn2.to_q.weight", 2, C, C); T(k2, "attn2.to_k.weight", 2, C, D); T(v2, "attn2.to_v.weight", 2, C, D);
-    T(o2_w, "attn2.to_out.0.weight", 2, C, C); T(o2_b, "attn2.to_out.0.bias", 1, C, 0);
-    T(ln3_w, "norm3.weight", 1, C, 0); T(ln3_b, "norm3.bias", 1, C, 0);
-    T(ff1_w, "ff.net.0.proj.weight", 2, 8 * C, C); T(ff1_b, "ff.net.0.proj.bias", 1, 8 * C, 0);
-    T(ff2_w, "ff.net.2.weight", 2, C, 4 * C); T(ff2_b, "ff.net.2.bias", 1, C, 0);
-#undef T
-#undef R
-    return MLB_OK;
-}
-
-static mlb_status walk(loader* L) {
-    mlb_unet* u = L->u;
-    const mlb_unet_config* c = &u->cfg;
-    int n = c->n_levels, NL = c->layers_per_block, C0 = c->block_out[0], TE = c->time_embed_dim;
-    char d[256];
-    MLB_TRY(reg(L, &u->time1_w, "time_embedding.linear_1.weight", 2, TE, C0, 0, 0));
-    MLB_TRY(reg(L, &u->time1_b, "time_embedding.linear_1.bias", 1, TE, 0, 0, 0));
-    MLB_TRY(reg(L, &u->time2_w, "time_embedding.linear_2.weight", 2, TE, TE, 0, 0));
-    MLB_TRY(reg(L, &u->time2_b, "time_embedding.linear_2.bias", 1, TE, 0, 0, 0));
-    MLB_TRY(reg(L, &u->conv_in_w, "conv_in.weight", 4, C0, c->in_channels, 3, 3));
-    MLB_TRY(reg(L, &u->conv_in_b, "conv_in.bias", 1, C0, 0, 0, 0));
-    int skip_ch[1 + MLB_UNET_MAX_LEVELS * (MLB_UNET_MAX_LAYERS + 1)], ns = 0;
-    skip_ch[ns++] = C0;
-    int ch = C0;
-    for (int i = 0; i < n; i++) {
-        int co = c->block_out[i];
-        for (int j = 0; j < NL; j++) {
-            snprintf(d, sizeof d, "down_blocks.%d.resnets.%d", i, j);
-            MLB_TRY(reg_resnet(L, &u->down_res[i][j], d, ch, co));
-            ch = co;
-            if (c->attn[i]) {
-                snprintf(d, sizeof d, "down_blocks.%d.attentions.%d", i, j);
-                MLB_TRY(reg_attn(L, &u->down_attn[i][j], d, co, c->heads[i]));
-            }
-            skip_ch[ns++] = co;
-        }
-        if (i < n - 1) {
-            snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv.weight", i);
-            MLB_TRY(reg(L, &u->down_conv[i].w, d, 4, co, co, 3, 3));
-            snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv.bias", i);
-            MLB_TRY(reg(L, &u->down_conv[i].b, d, 1, co, 0, 0, 0));
-            skip_ch[ns++] = co;
-        }
-    }
-    MLB_TRY(reg_resnet(L, &u->mid_res[0], "mid_block.resnets.0", ch, ch));
-    MLB_TRY(reg_attn(L, &u->mid_attn, "mid_block.attentions.0", ch, c->mid_heads));
-    MLB_TRY(reg_resnet(L, &u->mid_res[1], "mid_block.resnets.1", ch, ch));
-    for (int i = 0; i < n; i++) {
-        int lvl = n - 1 - i, co = c->block_out[lvl];
-        for (int j = 0; j <= NL; j++) {
-            int cin = ch + skip_ch[--ns];
-            snprintf(d, sizeof d, "up_blocks.%d.resnets.%d", i, j);
-            MLB_TRY(reg_resnet(L, &u->up_res[i][j], d, cin, co));
-            ch = co;
-            if (c->attn[lvl]) {
-                snprintf(d, sizeof d, "up_blocks.%d.attentions.%d", i, j);
-                MLB_TRY(reg_attn(L, &u->up_attn[i][j], d, co, c->heads[lvl]));
-            }
-        }
-        if (i < n - 1) {
-            snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv.weight", i);
-            MLB_TRY(reg(L, &u->up_conv[i].w, d, 4, co, co, 3, 3));
-            snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv.bias", i);
-            MLB_TRY(reg(L, &u->up_conv[i].b, d, 1, co, 0, 0, 0));
-        }
-    }
-    MLB_TRY(reg(L, &u->norm_out_w, "conv_norm_out.weight", 1, ch, 0, 0, 0));
-    MLB_TRY(reg(L, &u->norm_out_b, "conv_norm_out.bias", 1, ch, 0, 0, 0));
-    MLB_TRY(reg(L, &u->conv_out_w, "conv_out.weight", 4, c->out_channels, ch, 3, 3));
-    MLB_TRY(reg(L, &u->conv_out_b, "conv_out.bias", 1, c->out_channels, 0, 0, 0));
-    return MLB_OK;
-}
+static mlb_status walk(loader* L) { return unet_schema_walk(&L->u->cfg, L->u, visit, L); }
 
 static mlb_status heads_for(const mlb_unet_config* c, const unet_cfg_file* f, int level, int C, int* out,
                             const char* path) {

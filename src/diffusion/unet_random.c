@@ -1,6 +1,7 @@
 // Random-weight UNets in the diffusers and original single-file layouts (unet_random.h).
-// The tensor walk mirrors unet_load.c's walk() (same order, same shapes) and the name translation
-// mirrors its tensor_name(); tests/test_sd_tiny.c loads both layouts and checks they agree bit for bit.
+// The tensors are the schema's walk (unet_schema.c), the loader's too; the name translation
+// mirrors unet_load.c's tensor_name(); tests/test_sd_tiny.c loads both layouts and checks they agree
+// bit for bit.
 #include "matlaber/unet_random.h"
 #include <math.h>
 #include <stdio.h>
@@ -9,6 +10,7 @@
 #include "matlaber/fileio.h"
 #include "matlaber/half.h"
 #include "matlaber/rng.h"
+#include "unet_schema.h"
 
 #define LDM_PREFIX "model.diffusion_model."
 #define UNET_RANDOM_STREAM 0x0E7000000000ull
@@ -94,124 +96,33 @@ mlb_status mlb_unet_config_check(const mlb_unet_config* c) {
     return MLB_OK;
 }
 
-// ---- the tensor list (unet_load.c walk()) -----------------------------------------------------------
+// ---- the tensor list (the schema's walk, unet_schema.c) ---------------------------------------------
 typedef struct {
     mlb_unet_tensor_spec* out;
     size_t cap, n;
 } spec_list;
 
-static void add(spec_list* L, const char* name, int ndim, int64_t a, int64_t b, int64_t c, int64_t d) {
+static mlb_status add(void* ctx, const unet_schema_tensor* t) {
+    spec_list* L = ctx;
     if (L->out && L->n < L->cap) {
         mlb_unet_tensor_spec* s = &L->out[L->n];
         memset(s, 0, sizeof *s);
-        size_t k = strlen(name);
+        size_t k = strlen(t->name);
         if (k >= sizeof s->name) k = sizeof s->name - 1;
-        memcpy(s->name, name, k);
+        memcpy(s->name, t->name, k);
         s->name[k] = 0;
-        s->ndim = ndim;
-        int64_t sh[4] = {a, b, c, d};
+        s->ndim = t->ndim;
         s->n = 1;
-        for (int i = 0; i < ndim; i++) { s->shape[i] = sh[i]; s->n *= (size_t)sh[i]; }
+        for (int i = 0; i < t->ndim; i++) { s->shape[i] = t->shape[i]; s->n *= (size_t)t->shape[i]; }
     }
     L->n++;
-}
-
-static void add_p(spec_list* L, const char* pre, const char* suf, int ndim, int64_t a, int64_t b, int64_t c, int64_t d) {
-    char name[200];
-    snprintf(name, sizeof name, "%s.%s", pre, suf);
-    add(L, name, ndim, a, b, c, d);
-}
-
-static void add_resnet(spec_list* L, const mlb_unet_config* c, const char* pre, int cin, int cout) {
-    int TE = c->time_embed_dim;
-    add_p(L, pre, "norm1.weight", 1, cin, 0, 0, 0); add_p(L, pre, "norm1.bias", 1, cin, 0, 0, 0);
-    add_p(L, pre, "conv1.weight", 4, cout, cin, 3, 3); add_p(L, pre, "conv1.bias", 1, cout, 0, 0, 0);
-    add_p(L, pre, "time_emb_proj.weight", 2, cout, TE, 0, 0); add_p(L, pre, "time_emb_proj.bias", 1, cout, 0, 0, 0);
-    add_p(L, pre, "norm2.weight", 1, cout, 0, 0, 0); add_p(L, pre, "norm2.bias", 1, cout, 0, 0, 0);
-    add_p(L, pre, "conv2.weight", 4, cout, cout, 3, 3); add_p(L, pre, "conv2.bias", 1, cout, 0, 0, 0);
-    if (cin != cout) {
-        add_p(L, pre, "conv_shortcut.weight", 4, cout, cin, 1, 1); add_p(L, pre, "conv_shortcut.bias", 1, cout, 0, 0, 0);
-    }
-}
-
-static void add_attn(spec_list* L, const mlb_unet_config* c, const char* pre, int C) {
-    int D = c->context_dim, lin = c->linear_projection;
-    add_p(L, pre, "norm.weight", 1, C, 0, 0, 0); add_p(L, pre, "norm.bias", 1, C, 0, 0, 0);
-    add_p(L, pre, "proj_in.weight", lin ? 2 : 4, C, C, 1, 1); add_p(L, pre, "proj_in.bias", 1, C, 0, 0, 0);
-    add_p(L, pre, "proj_out.weight", lin ? 2 : 4, C, C, 1, 1); add_p(L, pre, "proj_out.bias", 1, C, 0, 0, 0);
-    char p[200];
-    snprintf(p, sizeof p, "%s.transformer_blocks.0", pre);
-    add_p(L, p, "norm1.weight", 1, C, 0, 0, 0); add_p(L, p, "norm1.bias", 1, C, 0, 0, 0);
-    add_p(L, p, "attn1.to_q.weight", 2, C, C, 0, 0); add_p(L, p, "attn1.to_k.weight", 2, C, C, 0, 0);
-    add_p(L, p, "attn1.to_v.weight", 2, C, C, 0, 0);
-    add_p(L, p, "attn1.to_out.0.weight", 2, C, C, 0, 0); add_p(L, p, "attn1.to_out.0.bias", 1, C, 0, 0, 0);
-    add_p(L, p, "norm2.weight", 1, C, 0, 0, 0); add_p(L, p, "norm2.bias", 1, C, 0, 0, 0);
-    add_p(L, p, "attn2.to_q.weight", 2, C, C, 0, 0); add_p(L, p, "attn2.to_k.weight", 2, C, D, 0, 0);
-    add_p(L, p, "attn2.to_v.weight", 2, C, D, 0, 0);
-    add_p(L, p, "attn2.to_out.0.weight", 2, C, C, 0, 0); add_p(L, p, "attn2.to_out.0.bias", 1, C, 0, 0, 0);
-    add_p(L, p, "norm3.weight", 1, C, 0, 0, 0); add_p(L, p, "norm3.bias", 1, C, 0, 0, 0);
-    add_p(L, p, "ff.net.0.proj.weight", 2, 8 * C, C, 0, 0); add_p(L, p, "ff.net.0.proj.bias", 1, 8 * C, 0, 0, 0);
-    add_p(L, p, "ff.net.2.weight", 2, C, 4 * C, 0, 0); add_p(L, p, "ff.net.2.bias", 1, C, 0, 0, 0);
+    return MLB_OK;
 }
 
 mlb_status mlb_unet_tensor_specs(const mlb_unet_config* c, mlb_unet_tensor_spec* out, size_t cap, size_t* count) {
     MLB_TRY(mlb_unet_config_check(c));
     spec_list L = {out, cap, 0};
-    int n = c->n_levels, NL = c->layers_per_block, C0 = c->block_out[0], TE = c->time_embed_dim;
-    char d[160];
-    add(&L, "time_embedding.linear_1.weight", 2, TE, C0, 0, 0);
-    add(&L, "time_embedding.linear_1.bias", 1, TE, 0, 0, 0);
-    add(&L, "time_embedding.linear_2.weight", 2, TE, TE, 0, 0);
-    add(&L, "time_embedding.linear_2.bias", 1, TE, 0, 0, 0);
-    add(&L, "conv_in.weight", 4, C0, c->in_channels, 3, 3);
-    add(&L, "conv_in.bias", 1, C0, 0, 0, 0);
-    int skip_ch[1 + MLB_UNET_MAX_LEVELS * (MLB_UNET_MAX_LAYERS + 1)], ns = 0;
-    skip_ch[ns++] = C0;
-    int ch = C0;
-    for (int i = 0; i < n; i++) {
-        int co = c->block_out[i];
-        for (int j = 0; j < NL; j++) {
-            snprintf(d, sizeof d, "down_blocks.%d.resnets.%d", i, j);
-            add_resnet(&L, c, d, ch, co);
-            ch = co;
-            if (c->attn[i]) {
-                snprintf(d, sizeof d, "down_blocks.%d.attentions.%d", i, j);
-                add_attn(&L, c, d, co);
-            }
-            skip_ch[ns++] = co;
-        }
-        if (i < n - 1) {
-            snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv", i);
-            add_p(&L, d, "weight", 4, co, co, 3, 3);
-            add_p(&L, d, "bias", 1, co, 0, 0, 0);
-            skip_ch[ns++] = co;
-        }
-    }
-    add_resnet(&L, c, "mid_block.resnets.0", ch, ch);
-    add_attn(&L, c, "mid_block.attentions.0", ch);
-    add_resnet(&L, c, "mid_block.resnets.1", ch, ch);
-    for (int i = 0; i < n; i++) {
-        int lvl = n - 1 - i, co = c->block_out[lvl];
-        for (int j = 0; j <= NL; j++) {
-            int cin = ch + skip_ch[--ns];
-            snprintf(d, sizeof d, "up_blocks.%d.resnets.%d", i, j);
-            add_resnet(&L, c, d, cin, co);
-            ch = co;
-            if (c->attn[lvl]) {
-                snprintf(d, sizeof d, "up_blocks.%d.attentions.%d", i, j);
-                add_attn(&L, c, d, co);
-            }
-        }
-        if (i < n - 1) {
-            snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv", i);
-            add_p(&L, d, "weight", 4, co, co, 3, 3);
-            add_p(&L, d, "bias", 1, co, 0, 0, 0);
-        }
-    }
-    add(&L, "conv_norm_out.weight", 1, ch, 0, 0, 0);
-    add(&L, "conv_norm_out.bias", 1, ch, 0, 0, 0);
-    add(&L, "conv_out.weight", 4, c->out_channels, ch, 3, 3);
-    add(&L, "conv_out.bias", 1, c->out_channels, 0, 0, 0);
+    MLB_TRY(unet_schema_walk(c, NULL, add, &L));
     if (count) *count = L.n;
     return MLB_OK;
 }

@@ -73,6 +73,12 @@ static mlb_status walk_attn(const walker* w, const mlb_unet_config* c, mlb_unet_
     return MLB_OK;
 }
 
+// A down- or upsampler's 3x3 conv C -> C.
+static mlb_status walk_conv(const walker* w, mlb_unet_conv* cv, const char* pre, int C) {
+    MLB_TRY(emit_p(w, SLOT(cv, w), pre, "weight", 4, C, C, 3, 3, 0));
+    return emit_p(w, SLOT(cv, b), pre, "bias", 1, C, 0, 0, 0, 0);
+}
+
 mlb_status unet_schema_walk(const mlb_unet_config* c, mlb_unet* u, unet_schema_visit visit, void* ctx) {
     const walker W = {visit, ctx}, *w = &W;
     int n = c->n_levels, NL = c->layers_per_block, C0 = c->block_out[0], TE = c->time_embed_dim;
@@ -99,10 +105,8 @@ mlb_status unet_schema_walk(const mlb_unet_config* c, mlb_unet* u, unet_schema_v
             skip_ch[ns++] = co;
         }
         if (i < n - 1) {
-            mlb_unet_conv* cv = u ? &u->down_conv[i] : NULL;
             snprintf(d, sizeof d, "down_blocks.%d.downsamplers.0.conv", i);
-            MLB_TRY(emit_p(w, SLOT(cv, w), d, "weight", 4, co, co, 3, 3, 0));
-            MLB_TRY(emit_p(w, SLOT(cv, b), d, "bias", 1, co, 0, 0, 0, 0));
+            MLB_TRY(walk_conv(w, u ? &u->down_conv[i] : NULL, d, co));
             skip_ch[ns++] = co;
         }
     }
@@ -122,10 +126,8 @@ mlb_status unet_schema_walk(const mlb_unet_config* c, mlb_unet* u, unet_schema_v
             }
         }
         if (i < n - 1) {
-            mlb_unet_conv* cv = u ? &u->up_conv[i] : NULL;
             snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv", i);
-            MLB_TRY(emit_p(w, SLOT(cv, w), d, "weight", 4, co, co, 3, 3, 0));
-            MLB_TRY(emit_p(w, SLOT(cv, b), d, "bias", 1, co, 0, 0, 0, 0));
+            MLB_TRY(walk_conv(w, u ? &u->up_conv[i] : NULL, d, co));
         }
     }
     MLB_TRY(emit(w, SLOT(u, norm_out_w), "conv_norm_out.weight", 1, ch, 0, 0, 0, 0));

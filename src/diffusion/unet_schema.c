@@ -73,6 +73,18 @@ static mlb_status walk_attn(const walker* w, const mlb_unet_config* c, mlb_unet_
     return MLB_OK;
 }
 
+// Layer j of down or up block i (BLOCK "down_blocks" / "up_blocks"): its ResNet cin -> co, then,
+// where level lvl has attention, its transformer.
+static mlb_status walk_layer(const walker* w, const mlb_unet_config* c, mlb_unet_resnet* r, mlb_unet_transformer* a,
+                             const char* block, int i, int j, int cin, int co, int lvl) {
+    char d[160];
+    snprintf(d, sizeof d, "%s.%d.resnets.%d", block, i, j);
+    MLB_TRY(walk_resnet(w, c, r, d, cin, co));
+    if (!c->attn[lvl]) return MLB_OK;
+    snprintf(d, sizeof d, "%s.%d.attentions.%d", block, i, j);
+    return walk_attn(w, c, a, d, co, c->heads[lvl]);
+}
+
 // A down- or upsampler's 3x3 conv C -> C.
 static mlb_status walk_conv(const walker* w, mlb_unet_conv* cv, const char* pre, int C) {
     MLB_TRY(emit_p(w, SLOT(cv, w), pre, "weight", 4, C, C, 3, 3, 0));
@@ -95,13 +107,9 @@ mlb_status unet_schema_walk(const mlb_unet_config* c, mlb_unet* u, unet_schema_v
     for (int i = 0; i < n; i++) {
         int co = c->block_out[i];
         for (int j = 0; j < NL; j++) {
-            snprintf(d, sizeof d, "down_blocks.%d.resnets.%d", i, j);
-            MLB_TRY(walk_resnet(w, c, u ? &u->down_res[i][j] : NULL, d, ch, co));
+            MLB_TRY(walk_layer(w, c, u ? &u->down_res[i][j] : NULL, u ? &u->down_attn[i][j] : NULL, "down_blocks", i, j,
+                               ch, co, i));
             ch = co;
-            if (c->attn[i]) {
-                snprintf(d, sizeof d, "down_blocks.%d.attentions.%d", i, j);
-                MLB_TRY(walk_attn(w, c, u ? &u->down_attn[i][j] : NULL, d, co, c->heads[i]));
-            }
             skip_ch[ns++] = co;
         }
         if (i < n - 1) {
@@ -117,13 +125,9 @@ mlb_status unet_schema_walk(const mlb_unet_config* c, mlb_unet* u, unet_schema_v
         int lvl = n - 1 - i, co = c->block_out[lvl];
         for (int j = 0; j <= NL; j++) {
             int cin = ch + skip_ch[--ns];
-            snprintf(d, sizeof d, "up_blocks.%d.resnets.%d", i, j);
-            MLB_TRY(walk_resnet(w, c, u ? &u->up_res[i][j] : NULL, d, cin, co));
+            MLB_TRY(walk_layer(w, c, u ? &u->up_res[i][j] : NULL, u ? &u->up_attn[i][j] : NULL, "up_blocks", i, j, cin,
+                               co, lvl));
             ch = co;
-            if (c->attn[lvl]) {
-                snprintf(d, sizeof d, "up_blocks.%d.attentions.%d", i, j);
-                MLB_TRY(walk_attn(w, c, u ? &u->up_attn[i][j] : NULL, d, co, c->heads[lvl]));
-            }
         }
         if (i < n - 1) {
             snprintf(d, sizeof d, "up_blocks.%d.upsamplers.0.conv", i);

@@ -104,6 +104,9 @@ static mlb_pipeline_config fit_config(const demo* d, const char* views, mlb_mate
     c.init_iters = d->quick ? 150 : 400;
     c.geometry_lr = 1e-2;
     c.appearance_lr = 1e-2;
+    // the extracted surface carries facets a few edges long (marching tets on a learned SDF) that
+    // read as fur under light: Taubin's filter removes them (docs/pipeline.md, "The fur on the relit fit")
+    c.surface_smooth = 3;
     c.cube_size = 128;
     c.checkpoint_every = 100;
     c.preview_every = 100;

@@ -103,7 +103,7 @@ void pipeline_progress(pipeline_run* r, long done, double loss, int faces) {
 // appearance step 1.9-2.8 geometry steps, an archetype's score 2-3 per view.
 #define COST_APPEARANCE 2.2     // shading, the material network and its smoothness term besides
 #define COST_SCORE_VIEW 2.5     // an archetype's score, per view, against a guided step's view
-#define COST_EXPORT 2.0
+#define COST_EXPORT 2.0         // the final renders and a small bake; a 1024² bake 3 more (per step)
 
 void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint) {
     const mlb_pipeline_config* c = r->c;
@@ -111,7 +111,8 @@ void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint) {
     int views = r->g->n_views > 0 ? r->g->n_views : 1, scored = pipeline_material_start_views(r);
     long steps[PIPELINE_STAGES] = {paint ? 0 : pipeline_shape_start_steps(c), paint ? 0 : c->geometry_iters,
                                    pipeline_material_start_steps(r), c->appearance_iters, 1 + (c->export_texture > 0)};
-    double cost[PIPELINE_STAGES] = {0, 1.0, COST_SCORE_VIEW * scored / views, COST_APPEARANCE, COST_EXPORT};
+    double tex = c->export_texture / 1024.0;
+    double cost[PIPELINE_STAGES] = {0, 1.0, COST_SCORE_VIEW * scored / views, COST_APPEARANCE, COST_EXPORT + 3.0 * tex * tex};
     long total = 0;
     for (int i = 0; i < PIPELINE_STAGES; i++) total += steps[i];
     mlb_progress_begin(p, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit", total, "step");

@@ -92,6 +92,7 @@ class Job:
 
     def __init__(self, args):
         self.args = args
+        self.t_start = time.time()
         self.lines = queue.Queue()
         self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True, bufsize=1)
@@ -103,6 +104,7 @@ class Job:
         self.result = None      # the "result" event
         self.errors = []        # "error" events' messages
         self.tail = []          # the last plain lines (shown when the program fails without a message)
+        self.first_eta = None   # (wall clock, seconds): the first ETA the program gave (tests compare it)
 
     def _read(self, stream, name):
         for line in stream:
@@ -135,11 +137,16 @@ def _format_eta(s):
 
 
 def _redraw():
+    """Redraws the 3D views' sidebars: the buttons' enabled state follows the job only when the
+    region is drawn again (without this a greyed Generate stayed so until the mouse moved)."""
     wm = bpy.context.window_manager
     for win in (wm.windows if wm else []):
         for area in win.screen.areas:
             if area.type == "VIEW_3D":
                 area.tag_redraw()
+                for region in area.regions:
+                    if region.type == "UI":
+                        region.tag_redraw()
 
 
 def _report(level, message):
@@ -150,6 +157,16 @@ def _report(level, message):
         print("matlaber: %s: %s" % (level, message))
 
 
+def _stage_text(ev):
+    """'geometry 12/120, 0.9 steps/s' from a progress event (stage by name, its own step, its rate)."""
+    text = "%s %d/%d" % (ev.get("stage", ev.get("label", "")), ev.get("stage_done", ev.get("done", 0)),
+                         ev.get("stage_steps", ev.get("total", 0)))
+    rate = ev.get("rate") or 0
+    if rate > 0:
+        text += ", %.2g steps/s" % rate if rate < 10 else ", %d steps/s" % rate
+    return text
+
+
 def _handle_line(st, j, name, line):
     if name == "err" and line.startswith("{"):
         try:
@@ -158,17 +175,19 @@ def _handle_line(st, j, name, line):
             ev = None
         if isinstance(ev, dict):
             kind = ev.get("event")
-            if kind in ("begin", "progress", "end"):
-                total = max(1, int(ev.get("total", 1)))
-                st.progress = 100.0 * min(total, int(ev.get("done", 0))) / total
-                label = ev.get("label", "")
-                if kind == "begin":
-                    st.status = "%s: started" % label
-                elif kind == "progress":
-                    st.eta = _format_eta(ev.get("eta_s"))
-                    st.status = "%s %d/%d (%s)" % (label, ev.get("done", 0), total, ev.get("status", ""))
-                else:
-                    st.status = "%s: %s" % (label, ev.get("status", "done"))
+            if kind in ("begin", "plan"):
+                st.status = "Loading the model"
+            elif kind == "stage":
+                st.status = "%s (stage %d of %d)" % (ev.get("stage", ""), int(ev.get("index", 0)) + 1, ev.get("stages", 1))
+            elif kind == "progress":
+                st.progress = 100.0 * min(1.0, max(0.0, float(ev.get("fraction", 0.0))))
+                eta = ev.get("eta_s")
+                st.eta = _format_eta(eta) if isinstance(eta, (int, float)) and eta >= 0 else ""
+                if st.eta and j.first_eta is None:
+                    j.first_eta = (time.time(), float(eta))
+                st.status = _stage_text(ev)
+            elif kind == "end":
+                st.status = "%s: %s" % (ev.get("label", ""), ev.get("status", "done"))
             elif kind == "error":
                 j.errors.append(ev.get("message", "error"))
             elif kind == "result":
@@ -252,14 +271,38 @@ def poll(context=None):
         st.error = msg
         st.status = "Failed"
         st.eta = ""
+        _discard_unstarted(st)
         _report("ERROR", "matlaber: " + msg)
     _redraw()
     return False
 
 
+def _discard_unstarted(st):
+    """A run that failed before the program made its folder leaves nothing behind (the add-on's own
+    folder and the painted mesh's copy go) and offers no Resume: there is nothing to continue."""
+    if not st.run_dir or os.path.exists(st.run_dir):
+        return
+    folder = os.path.dirname(st.run_dir)
+    try:
+        if os.path.isfile(os.path.join(folder, "input.obj")):
+            os.remove(os.path.join(folder, "input.obj"))
+        os.rmdir(folder)
+    except OSError:   # something else was put there: left as it is
+        pass
+    st.run_dir = ""
+
+
+def _redraw_once():
+    _redraw()
+    return None
+
+
 def _timer():
     try:
-        return 0.25 if poll() else None
+        if poll():
+            return 0.25
+        bpy.app.timers.register(_redraw_once, first_interval=0.3)   # once more, after the reports
+        return None
     except Exception as e:   # never let the timer die silently
         print("matlaber: poll failed: %s" % e)
         return None
@@ -300,15 +343,55 @@ def new_run_dir(context, name):
     return d
 
 
+# Options the add-on gives the program itself, and where a person sets them instead
+OWN_OPTIONS = {
+    "-p": "the Prompt field", "--prompt": "the Prompt field", "-n": "the Negative field",
+    "--negative": "the Negative field", "--preset": "the Preset field", "--seed": "the Seed field",
+    "-m": "the Model field", "--model": "the Model field", "-o": "the add-on (a new run folder each time)",
+    "--out": "the add-on (a new run folder each time)", "--mesh": "the add-on (the selected object)",
+    "--progress": "the add-on", "--resume": "the Resume button", "--prompts": "the add-on (one prompt per run)",
+    "--asset": "the add-on (it imports the run's asset)",
+}
+
+
+def extra_options(text):
+    """The Extra options as arguments; ValueError naming the first one the add-on sets itself."""
+    try:
+        words = shlex.split(text)
+    except ValueError as e:
+        raise ValueError("Extra options: %s" % e)
+    for w in words:
+        key = w.split("=", 1)[0]
+        if key in OWN_OPTIONS:
+            raise ValueError("Extra options: %s is set by %s; remove it" % (key, OWN_OPTIONS[key]))
+    return words
+
+
+def check_prompt(st):
+    """Before anything is started or made: the program would refuse an empty prompt anyway."""
+    if not st.prompt.strip():
+        raise ValueError("A prompt is required: type what to make into Prompt")
+
+
 def common_args(context, command):
     st = context.scene.matlaber
+    check_prompt(st)
+    extra = extra_options(st.extra)
     a = [binary(context), "--progress", "json", command, "-p", st.prompt, "--preset", st.preset, "--seed", str(st.seed)]
     if st.negative:
         a += ["-n", st.negative]
     model = prefs(context).model
     if model:
         a += ["-m", bpy.path.abspath(model)]
-    return a + shlex.split(st.extra)
+    return a + extra
+
+
+def refuse(op, st, message):
+    """A run that cannot start: said in the panel and the report area; no folder, no Resume."""
+    st.status, st.error, st.eta, st.progress, st.run_dir = "Not started", message, "", 0.0, ""
+    op.report({"ERROR"}, message)
+    _redraw()
+    return {"CANCELLED"}
 
 
 def _matrix_text(m):
@@ -322,7 +405,7 @@ def import_result(st, glb):
         import numpy
     except ImportError:
         raise RuntimeError("Blender's glTF importer needs numpy (Debian: apt-get install python3-numpy)")
-    if not hasattr(numpy, "bool"):
+    if "bool" not in vars(numpy):   # (hasattr itself raises NumPy 1.24's FutureWarning about np.bool)
         # Blender 3.4's importer (Debian 12's Blender) still uses np.bool, which NumPy 1.24 removed:
         # the alias it stood for, so that the import runs
         numpy.bool = bool
@@ -344,8 +427,9 @@ def import_result(st, glb):
         notes = rebuild_metals(glb, mats)
     except Exception as e:   # a malformed file or an importer we do not know: the import itself stands
         notes = [("", "metals not rebuilt: %s" % e)]
-    for name, note in notes:
-        _report("WARNING" if "not rebuilt" in note else "INFO", "matlaber: %s%s" % (name + ": " if name else "", note))
+    for name, note in notes:   # (the material is often named "matlaber" too: named last, in quotes)
+        _report("WARNING" if "not rebuilt" in note else "INFO",
+                "matlaber: %s%s" % (note, " (material '%s')" % name if name else ""))
     return obj
 
 
@@ -618,14 +702,21 @@ class MATLABER_OT_generate(_Idle, bpy.types.Operator):
     bl_idname = "matlaber.generate"
     bl_label = "Generate object"
 
+    @classmethod
+    def poll(cls, context):
+        if _job is not None:
+            cls.poll_message_set("A run is in progress: wait for it or cancel it")
+            return False
+        return True
+
     def execute(self, context):
         st = context.scene.matlaber
         try:
+            args = common_args(context, "generate")
             run = os.path.join(new_run_dir(context, st.prompt), "run")
-            args = common_args(context, "generate") + ["-o", run]
+            args += ["-o", run]
         except Exception as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+            return refuse(self, st, str(e))
         st.source = ""
         st.source_matrix = _matrix_text(Matrix.Translation(context.scene.cursor.location))
         start(context, args, "generate", run)
@@ -640,21 +731,37 @@ class MATLABER_OT_paint(_Idle, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
+        if _job is not None:
+            cls.poll_message_set("A run is in progress: wait for it or cancel it")
+            return False
         o = context.active_object
-        return _job is None and o is not None and o.type == "MESH"
+        if o is None or o.type != "MESH":
+            cls.poll_message_set("Select a mesh object to paint (click it in the 3D view)")
+            return False
+        return True
+
+    @classmethod
+    def description(cls, context, properties):
+        o = context.active_object
+        if o is None or o.type != "MESH":
+            return "Select a mesh object first: this paints the selected mesh"
+        return "Paints %s: runs matlaber paint in the background and imports the textured result where it is" % o.name
 
     def execute(self, context):
         st = context.scene.matlaber
         obj = context.active_object
+        folder = None
         try:
+            args = common_args(context, "paint")
             folder = new_run_dir(context, obj.name)
             mesh_path = os.path.join(folder, "input.obj")
             export_local_obj(context, obj, mesh_path)
             run = os.path.join(folder, "run")
-            args = common_args(context, "paint") + ["--mesh", mesh_path, "-o", run]
+            args += ["--mesh", mesh_path, "-o", run]
         except Exception as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+            if folder:   # nothing of a run that never started is kept
+                shutil.rmtree(folder, ignore_errors=True)
+            return refuse(self, st, str(e))
         st.source = obj.name
         st.source_matrix = _matrix_text(obj.matrix_world)
         start(context, args, "paint", run)
@@ -710,7 +817,10 @@ class MATLABER_OT_resume(_Idle, bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         st = context.scene.matlaber
-        return _job is None and bool(st.run_dir) and not st.status.startswith("Done")
+        if _job is not None or not st.run_dir or st.status.startswith("Done"):
+            cls.poll_message_set("Nothing to resume: no run was stopped")
+            return False
+        return True
 
     def execute(self, context):
         st = context.scene.matlaber
@@ -738,13 +848,15 @@ class MATLABER_PT_panel(bpy.types.Panel):
         st = context.scene.matlaber
         p = prefs(context)
         col = self.layout.column()
-        col.prop(st, "prompt")
-        col.prop(st, "negative")
-        col.prop(p, "model")
+        # labels above their fields: beside them the sidebar cut them to "Nega..." and "Extra..."
+        for owner, key, label in ((st, "prompt", "Prompt"), (st, "negative", "Negative prompt"), (p, "model", "Model")):
+            col.label(text=label)
+            col.prop(owner, key, text="")
         row = col.row()
-        row.prop(st, "preset")
+        row.prop(st, "preset", text="")
         row.prop(st, "seed")
-        col.prop(st, "extra")
+        col.label(text="Extra options")
+        col.prop(st, "extra", text="")
         col.separator()
         col.operator(MATLABER_OT_generate.bl_idname, icon="MESH_MONKEY")
         col.operator(MATLABER_OT_paint.bl_idname, icon="BRUSH_DATA")

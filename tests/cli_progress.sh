@@ -2,8 +2,9 @@
 # What a person meets first: an empty or blank prompt refused at once with a sentence ("a prompt is
 # required") and no run folder, and --progress json's stages (shape start, geometry, material start,
 # appearance, export) of a small generate with the project's own model: in order, each step counted
-# in its stage, no losses in the status at the default log level, and the first ETA within a factor
-# of 2 of the time the run then took (docs/usage.md, "Progress").
+# in its stage, no losses in the status at the default log level, and the run's duration as its
+# first ETA foretold it (the time until then plus the ETA) within a factor of 2 of the real one
+# (docs/usage.md, "Progress").
 set -u
 M=${1:?usage: cli_progress.sh path/to/matlaber}
 . "$(dirname "$0")/lib_cli.sh"
@@ -55,11 +56,12 @@ first = next((e for e in prog if e["eta_s"] >= 0), None)
 if not end or first is None:
     bad.append("no end, or never an ETA")
 else:
-    real = end[0]["elapsed_s"] - first["elapsed_s"]
-    ratio = first["eta_s"] / real if real > 0 else 0
-    print("first ETA %.1f s at %.1f s (%s step %d); the run took %.1f s more: ratio %.2f"
-          % (first["eta_s"], first["elapsed_s"], first["stage"], first["stage_done"], real, ratio))
-    if not 0.5 <= ratio <= 2:
+    real, left = end[0]["elapsed_s"], end[0]["elapsed_s"] - first["elapsed_s"]
+    foretold = first["elapsed_s"] + first["eta_s"]
+    print("first ETA %.1f s at %.1f s (%s step %d): the run foretold %.1f s, took %.1f s (ratio %.2f); "
+          "%.1f s were left (ratio %.2f)" % (first["eta_s"], first["elapsed_s"], first["stage"], first["stage_done"],
+                                             foretold, real, foretold / real, left, first["eta_s"] / left))
+    if not 0.5 <= foretold / real <= 2:
         bad.append("the first ETA is off by more than a factor of 2")
 for b in bad:
     print(b)

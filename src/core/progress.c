@@ -268,8 +268,9 @@ static void print_line(mlb_progress* p, const char* status, int final) {
                 rate_s, eta_s, status ? "  " : "", status ? status : "");
         if (final) fputc('\n', p->out);
     } else {
-        fprintf(p->out, "%s:%s %ld/%ld (%.0f%%)%s%s%s%s, elapsed %s%s%s\n", p->label, stage, done, total, 100 * frac,
-                rate_s[0] ? " " : "", rate_s, eta_s[0] ? ", " : "", eta_s, el_s, status ? ", " : "", status ? status : "");
+        fprintf(p->out, "%s:%s %ld/%ld (%.0f%%%s)%s%s%s%s%s%s%s%s\n", p->label, stage, done, total, 100 * frac,
+                stage[0] ? " of the run" : "", rate_s[0] ? " " : "", rate_s, eta_s[0] ? ", " : "", eta_s,
+                final ? "" : ", elapsed ", final ? "" : el_s, status ? ", " : "", status ? status : "");
     }
     fflush(p->out);
     p->t_last = t;

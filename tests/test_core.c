@@ -187,11 +187,17 @@ TEST(progress_stages_eta) {
     CHECK(mlb_progress_eta(&p) < 0);
     p.st[1].t_mark -= 4.0;   // steps 2..3: 2 s each
     mlb_progress_update(&p, 3, NULL);
-    // 7 of a at 2 s measured, 20 of b at 2 x 2 s and end at 3 x 2 s predicted: more predicted than
-    // measured, no ETA; the stage's own end is known
+    // 7 of a at 2 s measured, 20 of b at 2 x 2 s and end at 3 x 2 s predicted: more than twice as
+    // much predicted as measured, no ETA; the stage's own end is known
     CHECK(mlb_progress_eta(&p) < 0);
     CHECK_CLOSE(mlb_progress_stage_eta(&p), 7 * 2.0, 1e-3, 0);
-    mlb_progress_stage_steps(&p, 100);   // now 97 steps of a measured
+    mlb_progress_stage_steps(&p, 50);   // 47 steps of a measured (94 s), 86 s predicted: shown
+    mlb_progress_update(&p, 3, NULL);
+    CHECK(p.total == 121);
+    CHECK_CLOSE(mlb_progress_eta(&p), 47 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 10);   // 14 s measured, 86 s predicted: shown from then on all the same
+    CHECK_CLOSE(mlb_progress_eta(&p), 7 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 100);
     CHECK(p.total == 171);
     CHECK_CLOSE(mlb_progress_eta(&p), 97 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
     mlb_progress_enter(&p, 2, 5);   // b resumed at its step 5

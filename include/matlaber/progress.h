@@ -8,8 +8,9 @@
 // steps once two have been taken after its first (the first carries one-time set-up), else the
 // stage's weight times the seconds per unit of weight of the latest measured stage. There is no ETA
 // (eta_s -1, none printed) until a stage with a weight has been measured, while a stage ahead has no
-// weight to predict it by, and while the predicted part of what is left exceeds the measured part
-// (a guess from the set-up's time was off by 20x); the running stage's own end is known sooner.
+// weight to predict it by, and until the predicted part of what is left is at most twice the
+// measured part (a guess from the set-up's time was off by 20x); the running stage's own end is
+// known sooner.
 #ifndef MATLABER_PROGRESS_H
 #define MATLABER_PROGRESS_H
 #include <stdio.h>
@@ -43,6 +44,7 @@ typedef struct {
     int n_stages, cur;    // the plan (begin: one stage named by the label); cur: the running one
     long step_offset;     // added to the `done` of updates (a stage made of several counted parts)
     int show_status;      // 1 (begin's default): the updates' status texts are printed; 0: left out
+    int eta_shown;        // the ETA passed its first test (progress.c, eta_gate) and is shown from then on
     mlb_progress_stage st[MLB_PROGRESS_MAX_STAGES];
 } mlb_progress;
 

@@ -82,22 +82,38 @@ static double step_cost(const mlb_progress_stage* s, double unit) {
     return s->weight > 0 && unit > 0 ? s->weight * unit : -1;
 }
 
-double mlb_progress_eta(const mlb_progress* p) {
-    if (!p || p->cur < 0) return -1;
+// The seconds left, split into what the stages' own steps measured and what their weights predict;
+// 0 when something ahead is not known.
+static int seconds_left(const mlb_progress* p, double* measured_out, double* predicted_out) {
+    if (!p || p->cur < 0) return 0;
     double unit = seconds_per_weight(p), measured = 0, predicted = 0;
     for (int i = p->cur; i < p->n_stages; i++) {
         const mlb_progress_stage* s = &p->st[i];
         long n = s->steps - (i == p->cur ? s->done : 0);
         if (n <= 0) continue;
         double c = step_cost(s, unit);
-        if (c < 0) return -1;   // a stage ahead nothing predicts yet
+        if (c < 0) return 0;   // a stage ahead nothing predicts yet
         if (s->per_step > 0) measured += (double)n * c;
         else predicted += (double)n * c;
     }
-    // The weights are one machine's and one setting's ratios: off by 2-4x elsewhere (or under another
-    // load). Shown once the measured part is at least the predicted one, the ETA is within a factor
-    // of 2 for weights off by 2x, and better as the run goes on.
-    return predicted <= measured ? measured + predicted : -1;
+    *measured_out = measured;
+    *predicted_out = predicted;
+    return 1;
+}
+
+// The weights are one machine's and one setting's ratios, off by 2x or more elsewhere. The ETA shows
+// first when the measured part of what is left is at least half the predicted part: a weight off by
+// r then errs by at most (1 + 2r) / 3 (2x for r = 2.5) instead of r. Once shown it stays (the
+// measured part shrinks as the stage runs; an ETA that came and went would say less).
+static void eta_gate(mlb_progress* p) {
+    double m, q;
+    if (!p->eta_shown && seconds_left(p, &m, &q) && q <= 2 * m) p->eta_shown = 1;
+}
+
+double mlb_progress_eta(const mlb_progress* p) {
+    double m, q;
+    if (!seconds_left(p, &m, &q)) return -1;
+    return p->eta_shown || q <= 2 * m ? m + q : -1;
 }
 
 double mlb_progress_stage_eta(const mlb_progress* p) {
@@ -290,6 +306,7 @@ void mlb_progress_update(mlb_progress* p, long done, const char* status) {
     p->done = steps_before(p, p->cur) + s->done;
     double t = mlb_now_seconds();
     measure(s, t, 0);
+    eta_gate(p);
     const int last = s->done >= s->steps;
     if (p->json) {
         if (t - p->t_last >= 0.2 || last) progress_json(p, "progress", status);

@@ -9,6 +9,7 @@
 # time until the ETA showed plus the ETA, against the time the run took). Exit status 0 when every
 # check passes.
 import os
+import re
 import sys
 import time
 import warnings
@@ -209,7 +210,12 @@ src.select_set(True)
 bpy.context.view_layer.objects.active = src
 st.extra = "--appearance-iters 40 --res 32 --views 1 --export-texture 64 --preview-every 5 --checkpoint-every 1"
 check(bpy.ops.matlaber.paint_selected() == {"FINISHED"}, "second paint started")
-reached = wait(addon, 300, until=lambda j: st.eta != "" and st.status.startswith("appearance"))
+def appearance_steps():
+    m = re.match(r"appearance (\d+)/", st.status)
+    return int(m.group(1)) if m else 0
+
+
+reached = wait(addon, 300, until=lambda j: st.eta != "" and appearance_steps() >= 2)   # checkpoints every step
 check(reached and addon.job() is not None, "running at %.0f%% (%s, ETA %s)" % (st.progress, st.status, st.eta))
 check(st.eta not in ("", "?"), "an ETA is shown (%s)" % st.eta)
 check(bpy.ops.matlaber.cancel() == {"FINISHED"}, "Cancel")

@@ -242,6 +242,7 @@ void mlb_progress_enter(mlb_progress* p, int i, long done) {
     s->mark = -1;
     p->step_offset = 0;
     p->done = steps_before(p, i) + s->done;
+    if (s->steps == 0) return;   // a stage this run skips (fit's material start): nothing to announce
     if (p->json) progress_json(p, "stage", NULL);
     else if (p->out && !p->is_tty) {   // a line per stage in logs
         fprintf(p->out, "%s: %s (stage %d of %d, %ld step%s)\n", p->label, s->name, i + 1, p->n_stages, s->steps,

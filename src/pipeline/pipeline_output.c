@@ -99,8 +99,9 @@ void pipeline_progress(pipeline_run* r, long done, double loss, int faces) {
 // dominates; a material start's step scores one archetype on its views at two timesteps with no
 // backward pass; the export renders and bakes once. The shape start's fit steps cost what the
 // grid does, not what the model does: nothing predicts them (no ETA while it runs).
-// Measured with the project's own model at its preset (128², 4 views) and at 32², 1 view: an
-// appearance step 1.9-2.8 geometry steps, an archetype's score 2-3 per view.
+// Rough, from the project's own model at its preset (128², 4 views) and at 32², 1 view on a busy
+// 2-core machine: an appearance step 1.1-2.8 geometry steps' wall time (0.5-1.7 their CPU time),
+// an archetype's score 2-3 per view (docs/usage.md, "Progress").
 #define COST_APPEARANCE 2.2     // shading, the material network and its smoothness term besides
 #define COST_SCORE_VIEW 2.5     // an archetype's score, per view, against a guided step's view
 #define COST_EXPORT 2.0         // the final renders and a small bake; a 1024² bake 3 more (per step)

@@ -160,8 +160,11 @@ mv "$T/cube_moved.obj" "$T/cube.obj"
 for f in final/material.safetensors loss.csv final/asset.glb; do
   cmp -s "$T/a/$f" "$T/b/$f" && ok "resumed $f identical" || bad "resumed $f differs"
 done
-grep -q '^{"event":"begin","label":"paint","total":4,' "$T/err" && ok "json begin line" || bad "no json begin line"
-grep -q '^{"event":"progress","label":"paint","done":4,"total":4,' "$T/err" && ok "json progress line" || bad "no json progress line"
+grep -q '^{"event":"begin","label":"paint","total":' "$T/err" && ok "json begin line" || bad "no json begin line"
+grep -q '^{"event":"stage","label":"paint","stage":"appearance","index":3,"stages":5,"steps":4,"done":2}' "$T/err" \
+  && ok "json stage line: the appearance stage resumed at its checkpoint, step 2" || bad "no json stage line of the resumed appearance stage"
+grep -q '^{"event":"progress","label":"paint","stage":"appearance",.*"stage_done":4,"stage_steps":4,' "$T/err" \
+  && ok "json progress line" || bad "no json progress line"
 grep -q '^{"event":"result","command":"paint","finished":true,' "$T/err" && ok "json result line" || bad "no json result line"
 expect 2 "generate --resume of a paint run" -- $Q generate --resume "$T/b"
 err_has "names paint" "matlaber paint"

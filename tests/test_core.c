@@ -144,20 +144,71 @@ TEST(progress_plain_lines) {
     mlb_progress_begin(&p, f, "work", 10, "step");
     CHECK(!p.is_tty);
     p.plain_every = 0;   // every update prints
+    mlb_progress_update(&p, 1, NULL);   // the first step: its set-up is not measured
+    CHECK(mlb_progress_eta(&p) < 0);
+    p.st[0].t_mark -= 4.0;   // as if steps 2..5 took 1 s each
     mlb_progress_update(&p, 5, "loss 1.5");
+    CHECK_CLOSE(mlb_progress_rate(&p), 1.0, 1e-3, 0);
+    CHECK_CLOSE(mlb_progress_eta(&p), 5.0, 1e-3, 0);
     mlb_progress_end(&p, NULL);
     fclose(f);
     char* text; size_t n;
     REQUIRE(mlb_read_file(path, &text, &n, 1 << 20) == MLB_OK);
-    CHECK(strstr(text, "work: 5/10 (50%)") != NULL);
-    CHECK(strstr(text, "step/s, ETA") != NULL);
+    CHECK(strstr(text, "work: 1/10 (10%), elapsed") != NULL);   // no rate, no ETA yet
+    CHECK(strstr(text, "work: 5/10 (50%) 1 step/s, ETA 5.0s") != NULL);
     CHECK(strstr(text, "loss 1.5") != NULL);
-    CHECK(strstr(text, "work: 10/10 (100%)") != NULL && strstr(text, "took") != NULL);
+    CHECK(strstr(text, "work: 10/10 (100%), took") != NULL);
     free(text);
     char buf[32];
     CHECK(strcmp(mlb_format_duration(3725, buf, sizeof buf), "1h02m") == 0);
     CHECK(strcmp(mlb_format_duration(65, buf, sizeof buf), "1m05s") == 0);
     mlb_progress_update(NULL, 1, NULL);   // NULL progress is silent
+}
+
+// Stages (progress.h): no ETA until a stage with a cost has been measured on two steps after its
+// first; then the stages ahead by their costs, each measured stage by its own seconds per step.
+TEST(progress_stages_eta) {
+    mlb_progress p;
+    mlb_progress_begin(&p, NULL, "gen", 1, "step");
+    const char* names[4] = {"start", "a", "b", "end"};
+    const long steps[4] = {50, 10, 20, 1};
+    const double cost[4] = {0, 1.0, 2.0, 3.0};
+    mlb_progress_plan(&p, 4, names, steps, cost);
+    CHECK(p.total == 81);
+    mlb_progress_enter(&p, 0, 0);
+    mlb_progress_update(&p, 1, NULL);
+    p.st[0].t_mark -= 0.3;
+    mlb_progress_update(&p, 4, NULL);
+    CHECK_CLOSE(mlb_progress_rate(&p), 10.0, 1e-2, 0);   // measured, but nothing predicts "a" from it
+    CHECK(mlb_progress_eta(&p) < 0);
+    mlb_progress_enter(&p, 1, 0);
+    CHECK(p.done == 50);
+    mlb_progress_update(&p, 1, NULL);
+    CHECK(mlb_progress_eta(&p) < 0);
+    p.st[1].t_mark -= 4.0;   // steps 2..3: 2 s each
+    mlb_progress_update(&p, 3, NULL);
+    // 7 of a at 2 s measured, 20 of b at 2 x 2 s and end at 3 x 2 s predicted: more than twice as
+    // much predicted as measured, no ETA; the stage's own end is known
+    CHECK(mlb_progress_eta(&p) < 0);
+    CHECK_CLOSE(mlb_progress_stage_eta(&p), 7 * 2.0, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 50);   // 47 steps of a measured (94 s), 86 s predicted: shown
+    mlb_progress_update(&p, 3, NULL);
+    CHECK(p.total == 121);
+    CHECK_CLOSE(mlb_progress_eta(&p), 47 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 10);   // 14 s measured, 86 s predicted: shown from then on all the same
+    CHECK_CLOSE(mlb_progress_eta(&p), 7 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 100);
+    CHECK(p.total == 171);
+    CHECK_CLOSE(mlb_progress_eta(&p), 97 * 2.0 + 20 * 4.0 + 6.0, 1e-3, 0);
+    mlb_progress_enter(&p, 2, 5);   // b resumed at its step 5
+    CHECK(p.done == 155);
+    mlb_progress_update(&p, 6, NULL);
+    p.st[2].t_mark -= 2.0;   // b measured at 1 s per step: half its estimate, and so is end's
+    mlb_progress_update(&p, 8, NULL);
+    CHECK_CLOSE(mlb_progress_eta(&p), 12 * 1.0 + 1.5, 1e-3, 0);
+    mlb_progress_stage_steps(&p, 30);
+    CHECK(p.total == 181);
+    CHECK_CLOSE(mlb_progress_eta(&p), 22 * 1.0 + 1.5, 1e-3, 0);
 }
 
 TEST(atomic_files) {
@@ -373,6 +424,7 @@ int main(int argc, char** argv) {
     RUN(error_messages_and_context);
     RUN(log_levels_and_sink);
     RUN(progress_plain_lines);
+    RUN(progress_stages_eta);
     RUN(atomic_files);
     RUN(input_files_regular_only);
     RUN(runtime_restart_wait_policy);

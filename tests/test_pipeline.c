@@ -720,13 +720,13 @@ TEST(shape_fits_kept) {
     REQUIRE(!geometry_net_init(&net, &gc) && !geometry_net_init(&ref, &gc));
     float* fit1 = malloc(sizeof(float) * net.n_params);
     REQUIRE(fit1);
-    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0));
+    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0, NULL));
     memcpy(fit1, net.params, sizeof(float) * net.n_params);
     net.params[7] += 1e-3f;   // another start: not the kept fit's
     memcpy(ref.params, net.params, sizeof(float) * net.n_params);
-    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0));
+    REQUIRE(!pipeline_init_shape(&net, &c, "torus", 0, NULL));
     mlb_pipeline_keep_shape_fits(0);   // the reference: nothing kept
-    REQUIRE(!pipeline_init_shape(&ref, &c, "torus", 0));
+    REQUIRE(!pipeline_init_shape(&ref, &c, "torus", 0, NULL));
     CHECK_MSG(!memcmp(net.params, ref.params, sizeof(float) * net.n_params), "a fit from another start was not fitted");
     CHECK(memcmp(net.params, fit1, sizeof(float) * net.n_params) != 0);
     geometry_net_free(&net);

@@ -119,6 +119,8 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
+// 1 when the prompt is empty or only white space (refused where it is read: "a prompt is required")
+int mlb_prompt_is_blank(const char* prompt);
 // 1 when init is "auto" or "auto:A,B,..": the model picks the start among candidates.
 int mlb_pipeline_init_is_auto(const char* init);
 // config.json of a run (every field but stop_after); reading checks types and ranges.

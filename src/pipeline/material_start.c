@@ -106,8 +106,10 @@ static mlb_status score_shared(pipeline_run* r, mlb_appearance* app, float (*cod
     mlb_dist_share(count, &first, &mine);
     int was = mlb_dist_solo(1);
     mlb_status s = MLB_OK;
-    for (int i = first; !s && i < first + mine; i++)
+    for (int i = first; !s && i < first + mine; i++) {
         s = score_archetype(r, app, code ? code[items[i]] : NULL, views, n, images, pv + (size_t)i * n);
+        mlb_progress_update(r->progress, ++r->stage_counted, NULL);   // (rank 0's share: the others have none)
+    }
     mlb_dist_solo(was);
     s = pipeline_agree(s);
     return s ? s : mlb_dist_allgather_items(pv + (size_t)first * n, pv, count, sizeof(double) * (size_t)n);
@@ -148,6 +150,13 @@ static mlb_status trial_starts(pipeline_run* r, mlb_appearance* app, float (*cod
     return MLB_OK;
 }
 
+int pipeline_material_start_steps(const pipeline_run* r) { return r->c->material_start && r->g->score ? N_ARCH : 0; }
+
+int pipeline_material_start_views(const pipeline_run* r) {
+    int per = r->g->n_views > 0 ? r->g->n_views : 1;
+    return (START_VIEWS + per - 1) / per * per;
+}
+
 mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
@@ -156,6 +165,7 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
     if (!c->material_start || !g->score) return MLB_OK;   // image guidance has no score: the centre
     mlb_mlp* mlp = &net->mlp;
     const int L = mlp->n_layers - 1, O = mlp->dims[L + 1], I = mlp->dims[L];
+    r->stage_counted = 0;
     if (!mlp->bias[L] || O > 7)
         return mlb_fail(MLB_ERR_ARG, "material start: the network's last layer is not 4 or 7 outputs with a bias");
     mlb_view* views = NULL;
@@ -205,6 +215,7 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
         double m, se;
         pipeline_paired_difference(pv + (size_t)pair[0] * n, pv + (size_t)pair[1] * n, n, &m, &se);
         if (fabs(m) < CLOSE_Z * se) {
+            mlb_progress_stage_steps(r->progress, N_ARCH + 2);
             s = score_shared(r, &app, code, pair, 2, views, n_all, images, pv2);
             if (!s) {
                 double m0 = row_mean(pv2, n_all), m1 = row_mean(pv2 + n_all, n_all);
@@ -222,6 +233,7 @@ mlb_status pipeline_material_start(pipeline_run* r, int* metal) {
         memcpy(mlp->weight[L], weight, sizeof(float) * nw);
         memcpy(mlp->bias[L], bias, sizeof(float) * (size_t)O);
     }
+    if (!s && tie) mlb_progress_stage_steps(r->progress, N_ARCH + 4);   // the trials' scores
     if (!s && tie) s = trial_starts(r, &app, code, pair, views, n_all, images, pv2, &best);
     mlb_appearance_free(&app);
     if (!s) {

@@ -255,16 +255,15 @@ typedef struct {
     mlb_field* field;            // the stage's network: parameters, Adam moments, step counter
     double lr;                   // its learning rate: the config's, or (appearance) lowered by a metal start
     long iters;                  // the stage's length
-    long progress_offset;        // steps of the stages before this one
     char ckpt[MLB_PIPELINE_PATH + 64];
 } stage_state;
 
 static stage_state stage_of(pipeline_run* r, mlb_stage stage) {
     stage_state ss;
     if (stage == MLB_STAGE_GEOMETRY) {
-        ss = (stage_state){stage, "geometry", &r->geo, r->c->geometry_lr, r->c->geometry_iters, 0, {0}};
+        ss = (stage_state){stage, "geometry", &r->geo, r->c->geometry_lr, r->c->geometry_iters, {0}};
     } else {
-        ss = (stage_state){stage, "appearance", &r->mat, r->c->appearance_lr, r->c->appearance_iters, r->c->geometry_iters, {0}};
+        ss = (stage_state){stage, "appearance", &r->mat, r->c->appearance_lr, r->c->appearance_iters, {0}};
     }
     char rel[64];
     snprintf(rel, sizeof rel, "checkpoints/%s.safetensors", ss.name);
@@ -287,8 +286,6 @@ static mlb_status stage_resume(pipeline_run* r, stage_state* ss, long* start, in
     if (!s) s = mlb_dist_bcast(&ss->lr, sizeof ss->lr, 0);
     if (s) return s;
     *start = ss->field->step;
-    // the progress rate (and so the ETA) counts only the steps this invocation takes
-    if (r->progress && r->result.geometry_steps + r->result.appearance_steps == 0) r->progress->base = ss->progress_offset + *start;
     mlb_log(MLB_LOG_INFO, "resuming the %s stage at step %ld", ss->name, *start);
     return MLB_OK;
 }
@@ -314,7 +311,7 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
         if (!s) s = hs ? hs : rs;
         if (!s && writer) s = pipeline_state_save(ss->ckpt, ss->field, it + 1, ss->lr, ss->name);
     }
-    if (writer) pipeline_progress(r, ss->progress_offset + it + 1, row[0], (int)row[2]);
+    if (writer) pipeline_progress(r, it + 1, row[0], (int)row[2]);
     s = pipeline_agree(s);
     *stop = !s && pipeline_should_stop(r);
     return s;
@@ -344,7 +341,9 @@ static mlb_status geometry_stage(pipeline_run* r) {
     if (s) return s;
     if (!found) {
         int levels = active_levels_at(c, net, 0);
-        s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels) : pipeline_init_shape(net, c, c->init, levels);
+        mlb_progress_enter(r->progress, PIPELINE_SHAPE_START, 0);
+        s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels)
+                                                  : pipeline_init_shape(net, c, c->init, levels, r->progress);
         if (s) return s;
         // the optimiser starts fresh after the initialisation, which is checkpointed as step 0
         memset(net->adam_m, 0, sizeof(float) * net->n_params);
@@ -356,6 +355,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     }
     r->geometry_start = start;
     if (start >= c->geometry_iters) return MLB_OK;
+    mlb_progress_enter(r->progress, PIPELINE_GEOMETRY, start);
 
     mlb_adam_config adam = mlb_geometry_adam(ss.lr);
     int n = r->g->n_views;
@@ -411,7 +411,6 @@ static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* tria
     if (s) return s;
     if (trial && trial->steps < end) end = trial->steps;
     if (start >= end) return MLB_OK;
-    if (!trial && r->progress && r->result.geometry_steps == 0) r->progress->base = ss.progress_offset + start;   // geometry done before
 
     const int paint_images = c->paint_mesh[0] && !strcmp(c->guidance, "images");
     int n = r->g->n_views;
@@ -431,7 +430,11 @@ static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* tria
     const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
     if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     int metal = trial ? trial->metal : 0;
-    if (!s && !trial && start == 0) s = pipeline_material_start(r, &metal);   // before the network goes to a device
+    if (!s && !trial && start == 0) {   // before the network goes to a device
+        mlb_progress_enter(r->progress, PIPELINE_MATERIAL_START, 0);
+        s = pipeline_material_start(r, &metal);
+    }
+    if (!s && !trial) mlb_progress_enter(r->progress, PIPELINE_APPEARANCE, start);
     if (metal) {
         ss.lr *= c->metal_start_lr_scale;
         if (!trial) mlb_log(MLB_LOG_INFO, "appearance stage: refining the metal start at learning rate %g", ss.lr);
@@ -683,9 +686,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // AdamW and the shading run there, in fp32 whatever --precision says (the MLPs are small)
     r.field_be = mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
-    if (!s && progress)
-        mlb_progress_begin(progress, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit",
-                           (long)c->geometry_iters + c->appearance_iters, "it");
+    if (!s && progress) pipeline_progress_plan(&r, progress, paint);
 
     if (!s && !paint) s = geometry_stage(&r);
     int geometry_done = !s && !r.stopped;
@@ -707,7 +708,9 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
         if (!s) s = appearance_stage(&r, NULL);
     }
     if (!s && geometry_done && !r.stopped) {
+        mlb_progress_enter(progress, PIPELINE_EXPORT, 0);
         s = writer ? pipeline_write_final(&r) : MLB_OK;
+        mlb_progress_update(progress, 1, NULL);
         if (!s && writer && c->export_texture > 0) {   // the same as `matlaber export RUN_DIR -o final/asset.glb`
             mlb_log(MLB_LOG_INFO, "writing %s/final/asset.glb (%d² textures)", dir, c->export_texture);
             pipeline_path(path, sizeof path, dir, "final/asset.glb");
@@ -716,6 +719,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
                 s = mlb_fail_context(s, "writing %s (the run is complete; `matlaber export %s --texture-size N -o "
                                         "FILE.glb` retries with another size)", path, dir);
         }
+        if (!s && writer && c->export_texture > 0) mlb_progress_update(progress, 2, NULL);
         s = pipeline_agree(s);   // the others wait for rank 0's final/
         if (!s) r.result.finished = 1;
     }

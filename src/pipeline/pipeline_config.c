@@ -130,12 +130,18 @@ int mlb_pipeline_init_is_auto(const char* init) { return !strncmp(init, "auto", 
 // -0 there would not read back (found by fuzz_config).
 static int plus_zero(double x) { return x == 0 && !signbit(x); }
 
+int mlb_prompt_is_blank(const char* p) {
+    for (; p && *p; p++)
+        if (!isspace((unsigned char)*p)) return 0;
+    return 1;
+}
+
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     const char* bad = NULL;
     mlb_gemm_precision prec;
     if (strcmp(c->guidance, "sds") && strcmp(c->guidance, "images")) bad = "guidance must be \"sds\" or \"images\"";
     else if (!strcmp(c->guidance, "sds") && !c->model[0]) bad = "score distillation needs a model (-m)";
-    else if (!strcmp(c->guidance, "sds") && !c->prompt[0]) bad = "score distillation needs a prompt (-p)";
+    else if (!strcmp(c->guidance, "sds") && mlb_prompt_is_blank(c->prompt)) bad = "a prompt is required (score distillation reads one)";
     else if (!strcmp(c->guidance, "images") && !c->views_dir[0]) bad = "image guidance needs a views folder (--views)";
     else if (strcmp(c->guidance, "sds") && c->appearance_model[0])
         bad = "appearance_model is a model for score distillation: image guidance (--views) has none";

@@ -14,7 +14,7 @@
 
 // Fits net to the shape, from the network's state as it is.
 static mlb_status fit_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels,
-                            double* final_loss) {
+                            mlb_progress* progress, double* final_loss) {
     mlb_shape shape;
     memset(&shape, 0, sizeof shape);
     mlb_status s = MLB_OK;
@@ -35,13 +35,14 @@ static mlb_status fit_shape(mlb_geometry_net* net, const mlb_pipeline_config* c,
     fc.iters = c->init_iters;
     fc.seed = c->seed + 1;
     net->active_levels = active_levels;   // the initial shape in the levels step 0 sees
-    s = mlb_geometry_fit_shape(net, &shape, &fc, NULL, final_loss);
+    s = mlb_geometry_fit_shape(net, &shape, &fc, progress, final_loss);
     net->active_levels = 0;
     mlb_shape_free(&shape);
     return s;
 }
 
-mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels) {
+mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels,
+                               mlb_progress* progress) {
     mlb_shape probe;
     memset(&probe, 0, sizeof probe);
     const int builtin = mlb_shape_builtin(&probe, init, 1.0f);   // an OBJ file could change between two runs
@@ -50,8 +51,9 @@ mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config*
     uint64_t key[2];
     if (builtin) pipeline_shape_fit_key(net, c, init, active_levels, key);
     const int kept = builtin && pipeline_shape_fit_recall(key, net, &final_loss);   // a fit this process made before
+    if (kept) mlb_progress_update(progress, c->init_iters, NULL);
     if (!kept) {
-        MLB_TRY(fit_shape(net, c, init, active_levels, &final_loss));
+        MLB_TRY(fit_shape(net, c, init, active_levels, progress, &final_loss));
         if (builtin) pipeline_shape_fit_keep(key, net, final_loss);
     }
     // the optimiser starts fresh after the fit (a kept fit has no moments to give)
@@ -116,6 +118,7 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
 // The geometry stage's first `steps` steps from the network's state, Adam fresh; *vanished = 1
 // (and MLB_OK) when the surface is gone on the way (after the last step: score_shape says so).
 static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
+    const long offset = r->progress ? r->progress->step_offset : 0;
     mlb_geometry_net* net = &r->geo;
     memset(net->adam_m, 0, sizeof(float) * net->n_params);
     memset(net->adam_v, 0, sizeof(float) * net->n_params);
@@ -132,6 +135,10 @@ static mlb_status look_ahead(pipeline_run* r, int steps, int* vanished) {
         mlb_geofit_stats stats;
         s = pipeline_geometry_step(r, &st, &adam, it, views, &stats, NULL);
         if (s && st.surf.n_faces == 0) { *vanished = 1; s = MLB_OK; break; }   // marching tets found no surface
+        if (r->progress) {
+            r->progress->step_offset = offset;
+            mlb_progress_update(r->progress, it + 1, NULL);
+        }
     }
     net->active_levels = 0;
     mlb_geofit_state_free(&st);
@@ -213,6 +220,23 @@ mlb_status pipeline_first_views(pipeline_run* r, mlb_stage stage, int want, mlb_
     return MLB_OK;
 }
 
+// The candidates of "auto" or "auto:A,B,..": their number (names[] not touched when NULL).
+static int auto_candidates(const char* init, char* list, size_t cap, const char** names) {
+    snprintf(list, cap, "%s", init[4] == ':' ? init + 5 : AUTO_DEFAULT);
+    int N = 0;
+    for (char *save = NULL, *tok = strtok_r(list, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        if (names && N < AUTO_MAX) names[N] = tok;
+        N++;
+    }
+    return N;
+}
+
+long pipeline_shape_start_steps(const mlb_pipeline_config* c) {
+    char list[MLB_PIPELINE_PATH];
+    long n = mlb_pipeline_init_is_auto(c->init) ? auto_candidates(c->init, list, sizeof list, NULL) : 1;
+    return n * c->init_iters;   // the look-ahead's steps are added when it runs
+}
+
 mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     const mlb_pipeline_config* c = r->c;
     mlb_guidance* g = r->g;
@@ -221,12 +245,8 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     // the candidates: "auto" or "auto:A,B,.." (names or OBJ files)
     char list[MLB_PIPELINE_PATH];
     const char* names[AUTO_MAX];
-    int N = 0;
-    snprintf(list, sizeof list, "%s", c->init[4] == ':' ? c->init + 5 : AUTO_DEFAULT);
-    for (char *save = NULL, *tok = strtok_r(list, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
-        if (N == AUTO_MAX) return mlb_fail(MLB_ERR_ARG, "--init %s: more than %d candidates", c->init, AUTO_MAX);
-        names[N++] = tok;
-    }
+    int N = auto_candidates(c->init, list, sizeof list, names);
+    if (N > AUTO_MAX) return mlb_fail(MLB_ERR_ARG, "--init %s: more than %d candidates", c->init, AUTO_MAX);
     if (N < 1) return mlb_fail(MLB_ERR_ARG, "--init %s: no candidates", c->init);
     const size_t np = net->n_params;
     mlb_view* views = NULL;
@@ -248,7 +268,8 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
     int was = mlb_dist_solo(1);
     for (int i = first; !s && i < first + count; i++) {
         pipeline_field_restore(net, start, step0);
-        s = pipeline_init_shape(net, c, names[i], active_levels);
+        if (r->progress) r->progress->step_offset = (long)i * c->init_iters;
+        s = pipeline_init_shape(net, c, names[i], active_levels, r->progress);
         if (!s) memcpy(fit + (size_t)i * np, net->params, sizeof(float) * np);
         net->active_levels = active_levels;
         if (!s) s = score_shape(r, views, n, sc + (size_t)i * n, &vanished[i]);   // (a fit with no surface: out)
@@ -277,9 +298,11 @@ mlb_status pipeline_choose_init(pipeline_run* r, int active_levels) {
         int cvan[AUTO_MAX] = {0};
         if (!csc) s = mlb_fail(MLB_ERR_NOMEM, "--init auto: out of memory");
         mlb_dist_share(nc, &first, &count);
+        mlb_progress_stage_steps(r->progress, (long)N * c->init_iters + (long)nc * AUTO_AHEAD);
         was = mlb_dist_solo(1);
         for (int k = first; !s && k < first + count; k++) {
             memcpy(net->params, fit + (size_t)contender[k] * np, sizeof(float) * np);
+            if (r->progress) r->progress->step_offset = (long)N * c->init_iters + (long)k * AUTO_AHEAD;
             s = look_ahead(r, AUTO_AHEAD, &cvan[k]);
             if (!s && !cvan[k]) s = score_shape(r, views, n, csc + (size_t)k * n, &cvan[k]);
         }

@@ -40,6 +40,7 @@ typedef struct {
     pipeline_scene scene;
     long geometry_start;
     long steps_this_run;   // for stop_after
+    long stage_counted;    // steps of a stage that counts them itself (the material start's scores)
     int stopped;           // stop_after reached
     mlb_pipeline_result result;
 } pipeline_run;
@@ -47,6 +48,16 @@ typedef struct {
 // The table the stages render on: the GPU's on a GPU run (the per-pixel buffers and marching tets
 // there, docs/cuda.md "The stages on the table"), else the CPU's
 static inline const mlb_backend* pipeline_stage_table(const pipeline_run* r) { return r->field_be ? r->field_be : r->be; }
+
+// The run's progress in stages (progress.h), in this order
+enum { PIPELINE_SHAPE_START, PIPELINE_GEOMETRY, PIPELINE_MATERIAL_START, PIPELINE_APPEARANCE, PIPELINE_EXPORT, PIPELINE_STAGES };
+// pipeline_output.c: begins p with the run's stages, their steps and their estimated costs
+void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint);
+// pipeline_init.c: the shape start's steps (the fits' steps of every candidate); material_start.c:
+// the material start's (an archetype scored is a step) and the views each is scored on
+long pipeline_shape_start_steps(const mlb_pipeline_config* c);
+int pipeline_material_start_steps(const pipeline_run* r);
+int pipeline_material_start_views(const pipeline_run* r);
 
 // pipeline.c
 // Several processes (dist.h): a step fails on every rank when it failed on one, so that none is
@@ -62,7 +73,9 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
 // pipeline_init.c
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab", "cup" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all). Adam's moments and step are zero after it.
-mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels);
+// progress (NULL: none): the fit's steps, after its step_offset.
+mlb_status pipeline_init_shape(mlb_geometry_net* net, const mlb_pipeline_config* c, const char* init, int active_levels,
+                               mlb_progress* progress);
 
 // shape_fits.c: the built-in shapes' fits kept for the process's next run (mlb_pipeline_keep_shape_fits).
 // key: a 128-bit hash of all a fit depends on (the network's state before it, the config's fields

@@ -12,6 +12,7 @@
 #include "matlaber/plot.h"
 #include "matlaber/safetensors.h"
 #include "matlaber/shade.h"
+#include "matlaber/log.h"
 #include "pipeline/pipeline_internal.h"
 
 void pipeline_path(char* out, size_t cap, const char* dir, const char* rel) { snprintf(out, cap, "%s/%s", dir, rel); }
@@ -91,6 +92,34 @@ void pipeline_progress(pipeline_run* r, long done, double loss, int faces) {
     char buf[64];
     snprintf(buf, sizeof buf, "loss %.4g, %d faces", loss, faces);
     mlb_progress_update(r->progress, done, buf);
+}
+
+// The cost of a step of each stage relative to a geometry step's, for the ETA before a stage has
+// run (progress.h). Both guided stages are one guidance call per view per step, and that call
+// dominates; a material start's step scores one archetype on its views at two timesteps with no
+// backward pass; the export renders and bakes once. The shape start's fit steps cost what the
+// grid does, not what the model does: nothing predicts them (no ETA while it runs).
+// Rough, from the project's own model at its preset (128², 4 views) and at 32², 1 view on a busy
+// 2-core machine: an appearance step 1.1-2.8 geometry steps' wall time (0.5-1.7 their CPU time),
+// an archetype's score 2-3 per view (docs/usage.md, "Progress").
+#define COST_APPEARANCE 2.2     // shading, the material network and its smoothness term besides
+#define COST_SCORE_VIEW 2.5     // an archetype's score, per view, against a guided step's view
+#define COST_EXPORT 2.0         // the final renders and a small bake; a 1024² bake 3 more (per step)
+
+void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint) {
+    const mlb_pipeline_config* c = r->c;
+    const char* names[PIPELINE_STAGES] = {"shape start", "geometry", "material start", "appearance", "export"};
+    int views = r->g->n_views > 0 ? r->g->n_views : 1, scored = pipeline_material_start_views(r);
+    long steps[PIPELINE_STAGES] = {paint ? 0 : pipeline_shape_start_steps(c), paint ? 0 : c->geometry_iters,
+                                   pipeline_material_start_steps(r), c->appearance_iters, 1 + (c->export_texture > 0)};
+    double tex = c->export_texture / 1024.0;
+    double cost[PIPELINE_STAGES] = {0, 1.0, COST_SCORE_VIEW * scored / views, COST_APPEARANCE, COST_EXPORT + 3.0 * tex * tex};
+    long total = 0;
+    for (int i = 0; i < PIPELINE_STAGES; i++) total += steps[i];
+    mlb_progress_begin(p, stderr, paint ? "paint" : strcmp(c->guidance, "images") ? "generate" : "fit", total, "step");
+    // the losses are numbers for whoever tunes a run: shown where asked for (--log-level debug)
+    p->show_status = mlb_log_get_level() <= MLB_LOG_DEBUG;
+    mlb_progress_plan(p, PIPELINE_STAGES, names, steps, cost);
 }
 
 int pipeline_should_stop(pipeline_run* r) {

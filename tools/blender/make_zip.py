@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 # The Blender add-on as the zip Blender's preferences install (Edit > Preferences > Add-ons >
-# Install...): matlaber_blender.zip holding matlaber_blender/__init__.py. Usage: make_zip.py [OUT.zip]
+# Install...): matlaber_blender.zip holding matlaber_blender/*.py. Usage: make_zip.py [OUT.zip]
 import os
 import sys
 import zipfile

@@ -191,7 +191,11 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
                 if (o->val == opt) geometry_option = o->name;
         switch (opt) {
         case 'Q': break;   // applied above
-        case 'p': snprintf(c.prompt, sizeof c.prompt, "%s", optarg); break;
+        case 'p':   // checked here, where it is read: a blank prompt would run and fail much later
+            if (mlb_prompt_is_blank(optarg))
+                return cli_usage_error(command, "a prompt is required: the one given is %s", optarg[0] ? "only spaces" : "empty");
+            snprintf(c.prompt, sizeof c.prompt, "%s", optarg);
+            break;
         case 'm': snprintf(c.model, sizeof c.model, "%s", optarg); break;
         case 'y':
             if (strlen(optarg) >= sizeof c.appearance_model) return cli_usage_error(command, "--appearance-model: a path of at most %zu bytes", sizeof c.appearance_model - 1);
@@ -319,7 +323,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         if (is_fit && !c.views_dir[0]) return cli_usage_error(command, "--views DIR is required");
         if (is_paint && !c.paint_mesh[0]) return cli_usage_error(command, "--mesh FILE (.obj, .glb or .gltf) is required");
         int sds = strcmp(c.guidance, "sds") == 0;
-        if (!is_fit && sds && !c.prompt[0]) return cli_usage_error(command, "-p PROMPT is required");
+        if (!is_fit && sds && !c.prompt[0]) return cli_usage_error(command, "a prompt is required: what to make, as -p TEXT");
         if (!is_fit && sds && !c.model[0]) return cli_usage_error(command, "-m MODEL is required (Stable Diffusion weights you supply)");
         if (is_paint) c.geometry_iters = 0;
         if (!sds) {

@@ -43,6 +43,8 @@ static void usage(FILE* out) {
             "  brdf encode     BRDF (kd, ks, kr) -> latent code\n"
             "  brdf decode     latent code -> BRDF\n"
             "  brdf interp     decoded BRDFs along a latent path\n"
+            "  sd txt2img      text -> image with a Stable Diffusion checkpoint or the project's own model\n"
+            "  sd train        train the project's own small text-to-image model on the catalogue (docs/sd_train.md)\n"
             "  sd tokenize     text -> the 77 CLIP token ids of the SD text encoders\n"
             "  geometry        init the DMTet geometry network from a shape; extract its surface\n"
             "  render          a mesh with one material under an environment light\n"

@@ -13,14 +13,8 @@ check_calls() {
 local build
 build=$(cd "$1" && pwd)
 
-# Loops in files that are being rewritten elsewhere; each entry is one loop, its files sorted and
-# joined by spaces. To be removed: the pipeline's loop is to be broken (issue 60), and then this
-# list is empty.
-known_loops=(
-  "src/pipeline/material_start.c src/pipeline/pipeline.c src/pipeline/pipeline_init.c"
-)
 
-local objs=() o d src syms decls h owners known
+local objs=() o d src syms decls h owners
 for d in "$build"/CMakeFiles/matlaber_lib.dir/src "$build"/CMakeFiles/mlb_f64.dir/src; do
   [ -d "$d" ] && while IFS= read -r o; do objs+=("$o"); done < <(find "$d" -name '*.c.o' | sort)
 done
@@ -49,13 +43,10 @@ done)
 
 owners=$(echo "$decls" | awk '{ print $1 }' | sort -u | while IFS= read -r h; do echo "$h $(owner_of "$h")"; done)
 
-known=$(printf '%s\n' "${known_loops[@]}")
-
-awk -v order="$order" -v owners="$owners" -v known="$known" '
+awk -v order="$order" -v owners="$owners" '
   BEGIN {
     n = split(order, o, " "); for (i = 1; i <= n; i++) rank[o[i]] = i
     m = split(owners, ol, "\n"); for (i = 1; i <= m; i++) { split(ol[i], p, " "); owner[p[1]] = p[2] }
-    k = split(known, kl, "\n"); for (i = 1; i <= k; i++) if (kl[i] != "") isknown[kl[i]] = 1
     bad = 0
   }
   function folder(path,   p) { split(path, p, "/"); return p[2] }
@@ -104,7 +95,6 @@ awk -v order="$order" -v owners="$owners" -v known="$known" '
       for (b in node) if (b == a || (((a, b) in reach) && ((b, a) in reach))) { grp[++cnt] = b; done[b] = 1 }
       for (i = 2; i <= cnt; i++) { t = grp[i]; for (j = i - 1; j >= 1 && grp[j] > t; j--) grp[j + 1] = grp[j]; grp[j + 1] = t }
       line = grp[1]; for (i = 2; i <= cnt; i++) line = line " " grp[i]
-      if (line in isknown) { printf "check_calls: known loop (to be removed): %s\n", line; continue }
       printf "check_calls: these files call each other in a loop: %s\n", line
       for (i = 1; i <= cnt; i++) for (j = 1; j <= cnt; j++)
         if ((grp[i], grp[j]) in edge) printf "  %s -> %s (%s)\n", grp[i], grp[j], via[grp[i], grp[j]]

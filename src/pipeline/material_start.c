@@ -137,7 +137,7 @@ static mlb_status trial_starts(pipeline_run* r, mlb_appearance* app, float (*cod
     mlb_status s = MLB_OK;
     for (int k = 0; !s && k < 2; k++) {
         if (k == 0) memcpy(mlp->bias[L], code[pair[0]], sizeof(float) * (size_t)O);
-        s = pipeline_appearance_trial(r, k == 0, TRIAL_STEPS);
+        s = r->appearance_trial(r, k == 0, TRIAL_STEPS);
         if (!s) s = score_shared(r, app, NULL, NULL, 1, views, n, images, pv);
         if (!s) mean[k] = row_mean(pv, n);
         pipeline_field_restore(net, keep, step);

@@ -173,17 +173,6 @@ static mlb_status pipeline_check_init(const mlb_pipeline_config* c) {
     return MLB_OK;
 }
 
-// Coarse-to-fine hash grid: the first COARSE_LEVELS levels from the start, one more level at a time
-// until all are active at coarse_to_fine × geometry_iters (0: all levels from the start). 0 = all.
-#define COARSE_LEVELS 4
-static int active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it) {
-    const int L = net->enc.cfg.n_levels;
-    const double span = c->coarse_to_fine * c->geometry_iters;
-    if (!(span > 0) || L <= COARSE_LEVELS) return 0;
-    long a = COARSE_LEVELS + (long)((double)(L - COARSE_LEVELS) * it / span);
-    return a >= L ? 0 : (int)a;
-}
-
 static void pipeline_scene_free(pipeline_scene* sc) {
     for (int i = 0; i < sc->n_envs; i++) {
         mlb_envlight_free(&sc->lights[i]);
@@ -193,23 +182,9 @@ static void pipeline_scene_free(pipeline_scene* sc) {
     memset(sc, 0, sizeof *sc);
 }
 
-static double reg_weight(const mlb_pipeline_config* c, long it) {
-    double span = c->reg_frac * c->geometry_iters;
-    double t = span > 0 ? it / span : 1.0;
-    if (t > 1) t = 1;
-    return c->reg_start + (c->reg_end - c->reg_start) * t;
-}
-
 static const char* const LOG_COLUMNS[] = {"guidance", "regulariser", "faces"};
 
 static int preview_at(const mlb_pipeline_config* c, long it) { return c->preview_every > 0 && (it + 1) % c->preview_every == 0; }
-
-mlb_status pipeline_agree(mlb_status s) {
-    if (mlb_dist_size() < 2) return s;
-    int any = mlb_dist_max_int(s != MLB_OK);
-    if (!s && any) s = mlb_fail(MLB_ERR_IO, "another process of this run failed (its message is above)");
-    return s;
-}
 
 // A stage's steps per second and what the processes spent in collectives (docs/benchmarks.md,
 // "Several processes on one asset"): a log line at the stage's end.
@@ -318,19 +293,6 @@ static mlb_status stage_end_of_step(pipeline_run* r, stage_state* ss, long it, c
 }
 
 // ---- geometry stage ----------------------------------------------------------------------------
-mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const mlb_adam_config* adam, long it,
-                                  mlb_view* views, mlb_geofit_stats* stats, float* images) {
-    const mlb_pipeline_config* c = r->c;
-    mlb_geometry_net* net = &r->geo;
-    net->active_levels = active_levels_at(c, net, it);
-    mlb_status s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
-    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it), stats,
-                                         images);
-    s = pipeline_agree(s);   // every rank fails together, or none does
-    if (!s) geometry_net_update(net, adam);
-    return s;
-}
-
 static mlb_status geometry_stage(pipeline_run* r) {
     const mlb_pipeline_config* c = r->c;
     mlb_geometry_net* net = &r->geo;
@@ -340,7 +302,7 @@ static mlb_status geometry_stage(pipeline_run* r) {
     mlb_status s = stage_resume(r, &ss, &start, &found);
     if (s) return s;
     if (!found) {
-        int levels = active_levels_at(c, net, 0);
+        int levels = pipeline_active_levels_at(c, net, 0);
         mlb_progress_enter(r->progress, PIPELINE_SHAPE_START, 0);
         s = mlb_pipeline_init_is_auto(c->init) ? pipeline_choose_init(r, levels)
                                                   : pipeline_init_shape(net, c, c->init, levels, r->progress);
@@ -538,7 +500,7 @@ static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* tria
     return s;
 }
 
-mlb_status pipeline_appearance_trial(pipeline_run* r, int metal, long steps) {
+static mlb_status appearance_trial_run(pipeline_run* r, int metal, long steps) {
     appearance_trial t = {steps, metal};
     return appearance_stage(r, &t);
 }
@@ -628,6 +590,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     r.dir = dir;
     r.c = c;
     r.g = g;
+    r.appearance_trial = appearance_trial_run;
     g->view_batch = c->view_batch;   // the guidance's calls: micro-batches of the config's size
     r.views = views;
     r.resume = resume;
@@ -686,7 +649,11 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // AdamW and the shading run there, in fp32 whatever --precision says (the MLPs are small)
     r.field_be = mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
-    if (!s && progress) pipeline_progress_plan(&r, progress, paint);
+    if (!s && progress) {
+        pipeline_start_sizes starts = {pipeline_shape_start_steps(r.c), pipeline_material_start_steps(&r),
+                                       pipeline_material_start_views(&r)};
+        pipeline_progress_plan(&r, progress, paint, &starts);
+    }
 
     if (!s && !paint) s = geometry_stage(&r);
     int geometry_done = !s && !r.stopped;

@@ -22,7 +22,7 @@ typedef struct {
     const mlb_envlight* light_ptrs[MLB_PIPELINE_MAX_ENVS];
 } pipeline_scene;
 
-typedef struct {
+typedef struct pipeline_run {
     const char* dir;
     const mlb_pipeline_config* c;
     mlb_guidance* g;
@@ -43,6 +43,10 @@ typedef struct {
     long stage_counted;    // steps of a stage that counts them itself (the material start's scores)
     int stopped;           // stop_after reached
     mlb_pipeline_result result;
+    // The appearance stage's first `steps` steps from mat as it is (metal: at the metal start's rate),
+    // with no checkpoint, preview, loss row or progress: the material start's tie-break. A callback
+    // set by pipeline.c, so that the material start (below it) runs the stage without calling up.
+    mlb_status (*appearance_trial)(struct pipeline_run* r, int metal, long steps);
 } pipeline_run;
 
 // The table the stages render on: the GPU's on a GPU run (the per-pixel buffers and marching tets
@@ -51,18 +55,25 @@ static inline const mlb_backend* pipeline_stage_table(const pipeline_run* r) { r
 
 // The run's progress in stages (progress.h), in this order
 enum { PIPELINE_SHAPE_START, PIPELINE_GEOMETRY, PIPELINE_MATERIAL_START, PIPELINE_APPEARANCE, PIPELINE_EXPORT, PIPELINE_STAGES };
+// The two start stages' sizes, which their own files know (pipeline_init.c, material_start.c):
+// the caller passes them in, so that the outputs never call up into the stages.
+typedef struct { long shape_steps; int material_steps, material_views; } pipeline_start_sizes;
 // pipeline_output.c: begins p with the run's stages, their steps and their estimated costs
-void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint);
+void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint, const pipeline_start_sizes* starts);
 // pipeline_init.c: the shape start's steps (the fits' steps of every candidate); material_start.c:
 // the material start's (an archetype scored is a step) and the views each is scored on
 long pipeline_shape_start_steps(const mlb_pipeline_config* c);
 int pipeline_material_start_steps(const pipeline_run* r);
 int pipeline_material_start_views(const pipeline_run* r);
 
-// pipeline.c
+// pipeline_output.c
 // Several processes (dist.h): a step fails on every rank when it failed on one, so that none is
 // left waiting in a collective the others never reach. s as it was where every rank got MLB_OK.
 mlb_status pipeline_agree(mlb_status s);
+
+// geometry_step.c
+// The hash grid's active levels at geometry step it (coarse-to-fine; 0 = all).
+int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_net* net, long it);
 // Geometry step `it` of the run's schedule (the hash grid's active levels, the step's views, the
 // regulariser's weight, every rank agreeing on the outcome), then the Adam update when it worked.
 // images: the step's renders for a preview, or NULL. The stage and --init auto's look-ahead both
@@ -113,9 +124,6 @@ mlb_status pipeline_fix_env(pipeline_run* r, mlb_view* views, int n);
 // (docs/pipeline.md, "Material start"). Before the network goes to a device. *metal: 1 when it
 // started from a metal (the stage then refines it at metal_start_lr_scale times the rate).
 mlb_status pipeline_material_start(pipeline_run* r, int* metal);
-// pipeline.c: the appearance stage's first `steps` steps from r->mat as it is (metal: at the metal
-// start's rate), with no checkpoint, preview, loss row or progress (a tie of the material start).
-mlb_status pipeline_appearance_trial(pipeline_run* r, int metal, long steps);
 // previews/<stage>_<step>.png: the step's renders side by side.
 mlb_status pipeline_preview(pipeline_run* r, mlb_stage stage, long step, const float* images, int n);
 void pipeline_progress(pipeline_run* r, long done, double loss, int faces);

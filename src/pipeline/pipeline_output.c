@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/geometry_fit.h"
 #include "matlaber/image_write.h"
@@ -106,12 +107,12 @@ void pipeline_progress(pipeline_run* r, long done, double loss, int faces) {
 #define COST_SCORE_VIEW 2.5     // an archetype's score, per view, against a guided step's view
 #define COST_EXPORT 2.0         // the final renders and a small bake; a 1024² bake 3 more (per step)
 
-void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint) {
+void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint, const pipeline_start_sizes* starts) {
     const mlb_pipeline_config* c = r->c;
     const char* names[PIPELINE_STAGES] = {"shape start", "geometry", "material start", "appearance", "export"};
-    int views = r->g->n_views > 0 ? r->g->n_views : 1, scored = pipeline_material_start_views(r);
-    long steps[PIPELINE_STAGES] = {paint ? 0 : pipeline_shape_start_steps(c), paint ? 0 : c->geometry_iters,
-                                   pipeline_material_start_steps(r), c->appearance_iters, 1 + (c->export_texture > 0)};
+    int views = r->g->n_views > 0 ? r->g->n_views : 1, scored = starts->material_views;
+    long steps[PIPELINE_STAGES] = {paint ? 0 : starts->shape_steps, paint ? 0 : c->geometry_iters,
+                                   starts->material_steps, c->appearance_iters, 1 + (c->export_texture > 0)};
     double tex = c->export_texture / 1024.0;
     double cost[PIPELINE_STAGES] = {0, 1.0, COST_SCORE_VIEW * scored / views, COST_APPEARANCE, COST_EXPORT + 3.0 * tex * tex};
     long total = 0;
@@ -120,6 +121,13 @@ void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint) {
     // the losses are numbers for whoever tunes a run: shown where asked for (--log-level debug)
     p->show_status = mlb_log_get_level() <= MLB_LOG_DEBUG;
     mlb_progress_plan(p, PIPELINE_STAGES, names, steps, cost);
+}
+
+mlb_status pipeline_agree(mlb_status s) {
+    if (mlb_dist_size() < 2) return s;
+    int any = mlb_dist_max_int(s != MLB_OK);
+    if (!s && any) s = mlb_fail(MLB_ERR_IO, "another process of this run failed (its message is above)");
+    return s;
 }
 
 int pipeline_should_stop(pipeline_run* r) {

@@ -300,9 +300,10 @@ static int edge_adjacency(charting* w) {
     return 1;
 }
 
-// Breadth-first from seed over the faces with no chart yet, not degenerate, within the cone of
-// `axis`: their number, the faces in w->queue, marked with a new stamp.
-static int grow_region(charting* w, int seed, const double axis[3]) {
+// Breadth-first from seed over the faces of chart `chart` (-1: the faces with no chart yet that
+// are not degenerate and lie within the cone of `axis`), marked with a new stamp: their number,
+// the faces in w->queue in the order reached.
+static int walk(charting* w, int seed, int chart, const double* axis) {
     const uint8_t* degen = w->L->degen;
     w->stamp++;
     int qn = 0;
@@ -312,8 +313,8 @@ static int grow_region(charting* w, int seed, const double axis[3]) {
         int f = w->queue[qi];
         for (int k = 0; k < 3; k++) {
             int g = w->adj[3 * (size_t)f + k];
-            if (g < 0 || w->fchart[g] >= 0 || degen[g] || w->mark[g] == w->stamp) continue;
-            if (mlb_uv_dot3(w->fn + 3 * g, axis) < w->cos_max) continue;
+            if (g < 0 || w->fchart[g] != chart || w->mark[g] == w->stamp) continue;
+            if (axis && (degen[g] || mlb_uv_dot3(w->fn + 3 * g, axis) < w->cos_max)) continue;
             w->mark[g] = w->stamp;
             w->queue[qn++] = g;
         }
@@ -333,7 +334,7 @@ static int grow_charts(charting* w) {
         double axis[3] = {fs[0], fs[1], fs[2]};
         int qn = 0;
         for (int round = 0; round < 3; round++) {
-            qn = grow_region(w, seed, axis);
+            qn = walk(w, seed, -1, axis);
             if (round == 2) break;
             double m[3] = {0, 0, 0};
             for (int qi = 0; qi < qn; qi++)
@@ -452,19 +453,7 @@ static int mark_kept_half(charting* w, int ci) {
     const mlb_uv_chart* c = &w->L->v[ci];
     int seed = c->faces[0], whole = 1;
     for (int pass = 0; pass < 2 && whole; pass++) {
-        w->stamp++;
-        int qn = 0;
-        w->queue[qn++] = seed;
-        w->mark[seed] = w->stamp;
-        for (int qi = 0; qi < qn; qi++) {
-            int f = w->queue[qi];
-            for (int k = 0; k < 3; k++) {
-                int g = w->adj[3 * (size_t)f + k];
-                if (g < 0 || w->fchart[g] != ci || w->mark[g] == w->stamp) continue;
-                w->mark[g] = w->stamp;
-                w->queue[qn++] = g;
-            }
-        }
+        int qn = walk(w, seed, ci, NULL);
         if (qn < c->n) whole = 0;   // disconnected: the part reached stays
         else if (pass == 0) seed = w->queue[qn - 1];
         else {                      // keep the first half

@@ -69,8 +69,7 @@ static int uv_key_cmp(const void* x, const void* y) {
 #define BAKE_WORK_PER_TEXEL 64
 #define BAKE_WORK_PER_FACE 64
 
-mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out) {
-    if (out) memset(out, 0, sizeof *out);
+static mlb_status check_bake_args(const mlb_uv_mesh* m, int size, mlb_material_fn fn, const mlb_baked* out) {
     if (!m || !out || !fn) return mlb_fail(MLB_ERR_ARG, "mlb_bake: NULL mesh, output or material function");
     const mlb_mesh* M = &m->mesh;
     if (!M->pos || !M->uv || !M->faces || M->n_verts <= 0 || M->n_faces <= 0)
@@ -82,25 +81,13 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
             return mlb_fail(MLB_ERR_ARG, "mlb_bake: face %zu uses vertex %d, mesh has %d", i / 3, (int)M->faces[i], M->n_verts);
     for (size_t i = 0; i < 2 * (size_t)M->n_verts; i++)
         if (!isfinite(M->uv[i])) return mlb_fail(MLB_ERR_ARG, "mlb_bake: vertex %zu has a non-finite uv", i / 2);
+    return MLB_OK;
+}
 
-    const size_t N = (size_t)size * size;
-    mlb_status st = MLB_OK;
-    float* best = malloc(sizeof *best * N);      // [N] distance (texels) of the texel's face, 0 = centre inside
-    float* bary = malloc(sizeof *bary * 3 * N);  // [N,3]
-    int32_t* cov = NULL;
-    float *pos = NULL, *k = NULL;
+// same[f] = 1 when an earlier face has f's uv triangle (uv_key). 0 when out of memory.
+static int mark_repeated_uvs(const mlb_mesh* M, uint8_t* same) {
     uv_key* keys = malloc(sizeof *keys * (size_t)M->n_faces);
-    uint8_t* same = calloc((size_t)M->n_faces, 1);   // [F] 1: an earlier face has this uv triangle
-    int32_t* queue = NULL;
-    int32_t* dist = NULL;
-    out->size = size;
-    out->kd = malloc(sizeof(float) * 3 * N);
-    out->ks = malloc(sizeof(float) * 3 * N);
-    out->roughness = malloc(sizeof(float) * N);
-    out->mask = calloc(N, 1);
-    out->face = malloc(sizeof(int32_t) * N);
-    if (!best || !bary || !out->kd || !out->ks || !out->roughness || !out->mask || !out->face || !keys || !same) goto nomem;
-    for (size_t i = 0; i < N; i++) { best[i] = INFINITY; out->face[i] = -1; }
+    if (!keys) return 0;
     for (int f = 0; f < M->n_faces; f++) {
         const int32_t* t = M->faces + 3 * (size_t)f;
         float c[3][2];
@@ -114,116 +101,121 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
     qsort(keys, (size_t)M->n_faces, sizeof *keys, uv_key_cmp);
     for (int i = 1; i < M->n_faces; i++) same[keys[i].face] = !memcmp(keys[i].uv, keys[i - 1].uv, sizeof keys[i].uv);
     free(keys);
-    keys = NULL;
-    const size_t budget = BAKE_WORK_PER_TEXEL * N + BAKE_WORK_PER_FACE * (size_t)M->n_faces;
-    size_t work = 0;
+    return 1;
+}
 
-    // rasterise in texel coordinates: x = u·size, y = (1 − v)·size; each row over the face's own
-    // extent in it (a sliver across the texture is a few texels a row, not its bounding box)
-    for (int f = 0; f < M->n_faces; f++) {
-        if (same[f]) continue;
-        double P[3][2];
+// The texture being rasterised: per texel the distance (texels) to the face that holds it (0: its
+// centre is inside), that face and the barycentrics of the texel's point on it.
+typedef struct {
+    int size;
+    float* best;     // [N]
+    float* bary;     // [N,3]
+    int32_t* face;   // [N], -1 none
+} raster;
+
+// Texel (x, y) against face f's texel-space triangle P (twice its signed area area2): inside, it
+// goes to the first face that covers its centre; outside but within CONSERVATIVE_R of the
+// boundary, to the nearest face, at the closest boundary point.
+static void cover_texel(raster* R, const double P[3][2], double area2, int f, int x, int y) {
+    double c[2] = {x + 0.5, y + 0.5};
+    size_t t = (size_t)y * R->size + x;
+    double b[3];
+    int inside = 0;
+    if (area2 != 0) {
         for (int i = 0; i < 3; i++) {
-            int v = M->faces[3 * (size_t)f + i];
-            P[i][0] = (double)M->uv[2 * (size_t)v] * size;
-            P[i][1] = (1.0 - (double)M->uv[2 * (size_t)v + 1]) * size;
+            const double *p = P[(i + 1) % 3], *q = P[(i + 2) % 3];
+            b[i] = ((q[0] - p[0]) * (c[1] - p[1]) - (q[1] - p[1]) * (c[0] - p[0])) / area2;
         }
-        double area2 = (P[1][0] - P[0][0]) * (P[2][1] - P[0][1]) - (P[2][0] - P[0][0]) * (P[1][1] - P[0][1]);
-        double x0 = MIN2(P[0][0], MIN2(P[1][0], P[2][0])) - CONSERVATIVE_R, x1 = MAX2(P[0][0], MAX2(P[1][0], P[2][0])) + CONSERVATIVE_R;
-        double y0 = MIN2(P[0][1], MIN2(P[1][1], P[2][1])) - CONSERVATIVE_R, y1 = MAX2(P[0][1], MAX2(P[1][1], P[2][1])) + CONSERVATIVE_R;
-        int ix0 = (int)floor(x0 - 0.5), ix1 = (int)ceil(x1 - 0.5), iy0 = (int)floor(y0 - 0.5), iy1 = (int)ceil(y1 - 0.5);
-        if (ix0 < 0) ix0 = 0;
-        if (iy0 < 0) iy0 = 0;
-        if (ix1 > size - 1) ix1 = size - 1;
-        if (iy1 > size - 1) iy1 = size - 1;
-        for (int y = iy0; y <= iy1; y++) {
-            double xlo, xhi;
-            work++;
-            if (!band_extent(P, y + 0.5 - CONSERVATIVE_R, y + 0.5 + CONSERVATIVE_R, &xlo, &xhi)) continue;
-            int rx0 = (int)floor(xlo - CONSERVATIVE_R - 0.5), rx1 = (int)ceil(xhi + CONSERVATIVE_R - 0.5);
-            rx0 = MAX2(rx0, ix0);
-            rx1 = MIN2(rx1, ix1);
-            work += rx1 >= rx0 ? (size_t)(rx1 - rx0 + 1) : 0;
-            if (work > budget) {
-                st = mlb_fail(MLB_ERR_UNSUPPORTED, "mlb_bake: the faces' UVs lie on one another more than %d layers deep "
-                              "in the %d² texture (a texel holds one point of the surface): give the mesh an atlas "
-                              "(paint --uv atlas)", BAKE_WORK_PER_TEXEL, size);
-                goto done;
-            }
-            for (int x = rx0; x <= rx1; x++) {
-                double c[2] = {x + 0.5, y + 0.5};
-                size_t t = (size_t)y * size + x;
-                double b[3];
-                int inside = 0;
-                if (area2 != 0) {
-                    for (int i = 0; i < 3; i++) {
-                        const double *p = P[(i + 1) % 3], *q = P[(i + 2) % 3];
-                        b[i] = ((q[0] - p[0]) * (c[1] - p[1]) - (q[1] - p[1]) * (c[0] - p[0])) / area2;
-                    }
-                    inside = b[0] >= 0 && b[1] >= 0 && b[2] >= 0;
-                }
-                if (inside) {
-                    if (best[t] > 0) {
-                        best[t] = 0;
-                        out->face[t] = f;
-                        for (int i = 0; i < 3; i++) bary[3 * t + i] = (float)b[i];
-                    }
-                    continue;
-                }
-                // outside: the closest point on the boundary
-                double dmin = INFINITY, bb[3] = {0, 0, 0};
-                for (int i = 0; i < 3; i++) {
-                    double s;
-                    double d = seg_closest(P[i], P[(i + 1) % 3], c, &s);
-                    if (d < dmin) {
-                        dmin = d;
-                        bb[0] = bb[1] = bb[2] = 0;
-                        bb[i] = 1 - s;
-                        bb[(i + 1) % 3] = s;
-                    }
-                }
-                double d = sqrt(dmin);
-                if (d <= CONSERVATIVE_R && d < best[t]) {
-                    best[t] = (float)d;
-                    out->face[t] = f;
-                    for (int i = 0; i < 3; i++) bary[3 * t + i] = (float)bb[i];
-                }
-            }
+        inside = b[0] >= 0 && b[1] >= 0 && b[2] >= 0;
+    }
+    if (inside) {
+        if (R->best[t] > 0) {
+            R->best[t] = 0;
+            R->face[t] = f;
+            for (int i = 0; i < 3; i++) R->bary[3 * t + i] = (float)b[i];
+        }
+        return;
+    }
+    // outside: the closest point on the boundary
+    double dmin = INFINITY, bb[3] = {0, 0, 0};
+    for (int i = 0; i < 3; i++) {
+        double s;
+        double d = seg_closest(P[i], P[(i + 1) % 3], c, &s);
+        if (d < dmin) {
+            dmin = d;
+            bb[0] = bb[1] = bb[2] = 0;
+            bb[i] = 1 - s;
+            bb[(i + 1) % 3] = s;
         }
     }
+    double d = sqrt(dmin);
+    if (d <= CONSERVATIVE_R && d < R->best[t]) {
+        R->best[t] = (float)d;
+        R->face[t] = f;
+        for (int i = 0; i < 3; i++) R->bary[3 * t + i] = (float)bb[i];
+    }
+}
 
-    // gather the covered texels (row-major order), evaluate the material once
+// Face f rasterised in texel coordinates: x = u·size, y = (1 − v)·size; each row over the face's
+// own extent in it (a sliver across the texture is a few texels a row, not its bounding box).
+// *work counts rows and texels visited; 0 when it passes budget.
+static int rasterise_face(raster* R, const mlb_mesh* M, int f, size_t* work, size_t budget) {
+    const int size = R->size;
+    double P[3][2];
+    for (int i = 0; i < 3; i++) {
+        int v = M->faces[3 * (size_t)f + i];
+        P[i][0] = (double)M->uv[2 * (size_t)v] * size;
+        P[i][1] = (1.0 - (double)M->uv[2 * (size_t)v + 1]) * size;
+    }
+    double area2 = (P[1][0] - P[0][0]) * (P[2][1] - P[0][1]) - (P[2][0] - P[0][0]) * (P[1][1] - P[0][1]);
+    double x0 = MIN2(P[0][0], MIN2(P[1][0], P[2][0])) - CONSERVATIVE_R, x1 = MAX2(P[0][0], MAX2(P[1][0], P[2][0])) + CONSERVATIVE_R;
+    double y0 = MIN2(P[0][1], MIN2(P[1][1], P[2][1])) - CONSERVATIVE_R, y1 = MAX2(P[0][1], MAX2(P[1][1], P[2][1])) + CONSERVATIVE_R;
+    int ix0 = (int)floor(x0 - 0.5), ix1 = (int)ceil(x1 - 0.5), iy0 = (int)floor(y0 - 0.5), iy1 = (int)ceil(y1 - 0.5);
+    if (ix0 < 0) ix0 = 0;
+    if (iy0 < 0) iy0 = 0;
+    if (ix1 > size - 1) ix1 = size - 1;
+    if (iy1 > size - 1) iy1 = size - 1;
+    for (int y = iy0; y <= iy1; y++) {
+        double xlo, xhi;
+        (*work)++;
+        if (!band_extent(P, y + 0.5 - CONSERVATIVE_R, y + 0.5 + CONSERVATIVE_R, &xlo, &xhi)) continue;
+        int rx0 = (int)floor(xlo - CONSERVATIVE_R - 0.5), rx1 = (int)ceil(xhi + CONSERVATIVE_R - 0.5);
+        rx0 = MAX2(rx0, ix0);
+        rx1 = MIN2(rx1, ix1);
+        *work += rx1 >= rx0 ? (size_t)(rx1 - rx0 + 1) : 0;
+        if (*work > budget) return 0;
+        for (int x = rx0; x <= rx1; x++) cover_texel(R, P, area2, f, x, y);
+    }
+    return 1;
+}
+
+// The covered texels in row-major order (cov [n]) and their surface points (pos [n,3]); sets mask.
+static size_t gather_covered(const mlb_mesh* M, const raster* R, mlb_baked* out, int32_t* cov, float* pos) {
+    const size_t N = (size_t)R->size * R->size;
     size_t n = 0;
-    for (size_t t = 0; t < N; t++) n += out->face[t] >= 0;
-    cov = malloc(sizeof *cov * (n ? n : 1));
-    pos = malloc(sizeof *pos * 3 * (n ? n : 1));
-    k = malloc(sizeof *k * 7 * (n ? n : 1));
-    if (!cov || !pos || !k) goto nomem;
-    n = 0;
     for (size_t t = 0; t < N; t++) {
         if (out->face[t] < 0) continue;
         const int32_t* fc = M->faces + 3 * (size_t)out->face[t];
         for (int c = 0; c < 3; c++) {
             double p = 0;
-            for (int i = 0; i < 3; i++) p += (double)bary[3 * t + i] * M->pos[3 * (size_t)fc[i] + c];
+            for (int i = 0; i < 3; i++) p += (double)R->bary[3 * t + i] * M->pos[3 * (size_t)fc[i] + c];
             pos[3 * n + c] = (float)p;
         }
         out->mask[t] = 1;
         cov[n++] = (int32_t)t;
     }
-    out->n_covered = (int)n;
-    if (n) {
-        st = fn(user, pos, n, k);
-        if (st != MLB_OK) { mlb_fail_context(st, "baking"); goto fail; }
-    }
-    double mean[7] = {0};
+    return n;
+}
+
+// The material k [n,7] (kd, ks, roughness) into the covered texels; mean [7] its average, which
+// the texels no dilation reaches take. Fails on a value that is not finite.
+static mlb_status store_material(const float* k, const int32_t* cov, const float* pos, size_t n, mlb_baked* out, double mean[7]) {
+    for (int c = 0; c < 7; c++) mean[c] = 0;
     for (size_t i = 0; i < n; i++) {
         for (int c = 0; c < 7; c++) {
-            if (!isfinite(k[7 * i + c])) {
-                st = mlb_fail(MLB_ERR_NUMERIC, "mlb_bake: the material is not finite at texel %d (position %g %g %g)",
-                              (int)cov[i], (double)pos[3 * i], (double)pos[3 * i + 1], (double)pos[3 * i + 2]);
-                goto fail;
-            }
+            if (!isfinite(k[7 * i + c]))
+                return mlb_fail(MLB_ERR_NUMERIC, "mlb_bake: the material is not finite at texel %d (position %g %g %g)",
+                                (int)cov[i], (double)pos[3 * i], (double)pos[3 * i + 1], (double)pos[3 * i + 2]);
             mean[c] += k[7 * i + c];
         }
         size_t t = (size_t)cov[i];
@@ -231,11 +223,15 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
         out->roughness[t] = k[7 * i + 6];
     }
     for (int c = 0; c < 7; c++) mean[c] = n ? mean[c] / n : 0;
+    return MLB_OK;
+}
 
-    // breadth-first dilation from the covered texels
-    queue = malloc(sizeof *queue * N);
-    dist = malloc(sizeof *dist * N);
-    if (!queue || !dist) goto nomem;
+// Breadth-first dilation from the n covered texels cov (up to `dilate` texels away; all the way
+// when negative, none when 0): a texel takes its first reached neighbour's values. The texels
+// left unreached take the mean. queue, dist: scratch [size²].
+static void dilate_texels(mlb_baked* out, int size, const int32_t* cov, size_t n, int dilate, const double mean[7],
+                          int32_t* queue, int32_t* dist) {
+    const size_t N = (size_t)size * size;
     size_t qn = 0;
     for (size_t t = 0; t < N; t++) dist[t] = out->mask[t] ? 0 : -1;
     for (size_t i = 0; i < n; i++) queue[qn++] = cov[i];
@@ -264,13 +260,68 @@ mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* us
         for (int c = 0; c < 3; c++) { out->kd[3 * t + c] = (float)mean[c]; out->ks[3 * t + c] = (float)mean[3 + c]; }
         out->roughness[t] = (float)mean[6];
     }
+}
+
+mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out) {
+    if (out) memset(out, 0, sizeof *out);
+    MLB_TRY(check_bake_args(m, size, fn, out));
+    const mlb_mesh* M = &m->mesh;
+    const size_t N = (size_t)size * size;
+    mlb_status st = MLB_OK;
+    raster R = {size, malloc(sizeof(float) * N), malloc(sizeof(float) * 3 * N), NULL};
+    int32_t* cov = NULL;
+    float *pos = NULL, *k = NULL;
+    uint8_t* same = calloc((size_t)M->n_faces, 1);   // [F] 1: an earlier face has this uv triangle
+    int32_t* queue = NULL;
+    int32_t* dist = NULL;
+    out->size = size;
+    out->kd = malloc(sizeof(float) * 3 * N);
+    out->ks = malloc(sizeof(float) * 3 * N);
+    out->roughness = malloc(sizeof(float) * N);
+    out->mask = calloc(N, 1);
+    out->face = malloc(sizeof(int32_t) * N);
+    R.face = out->face;
+    if (!R.best || !R.bary || !out->kd || !out->ks || !out->roughness || !out->mask || !out->face || !same) goto nomem;
+    for (size_t i = 0; i < N; i++) { R.best[i] = INFINITY; out->face[i] = -1; }
+    if (!mark_repeated_uvs(M, same)) goto nomem;
+
+    // rasterise every face but those whose uv triangle an earlier face has
+    const size_t budget = BAKE_WORK_PER_TEXEL * N + BAKE_WORK_PER_FACE * (size_t)M->n_faces;
+    size_t work = 0;
+    for (int f = 0; f < M->n_faces; f++)
+        if (!same[f] && !rasterise_face(&R, M, f, &work, budget)) {
+            st = mlb_fail(MLB_ERR_UNSUPPORTED, "mlb_bake: the faces' UVs lie on one another more than %d layers deep "
+                          "in the %d² texture (a texel holds one point of the surface): give the mesh an atlas "
+                          "(paint --uv atlas)", BAKE_WORK_PER_TEXEL, size);
+            goto done;
+        }
+
+    // gather the covered texels, evaluate the material once
+    size_t n = 0;
+    for (size_t t = 0; t < N; t++) n += out->face[t] >= 0;
+    cov = malloc(sizeof *cov * (n ? n : 1));
+    pos = malloc(sizeof *pos * 3 * (n ? n : 1));
+    k = malloc(sizeof *k * 7 * (n ? n : 1));
+    if (!cov || !pos || !k) goto nomem;
+    n = gather_covered(M, &R, out, cov, pos);
+    out->n_covered = (int)n;
+    if (n) {
+        st = fn(user, pos, n, k);
+        if (st != MLB_OK) { mlb_fail_context(st, "baking"); goto done; }
+    }
+    double mean[7];
+    if ((st = store_material(k, cov, pos, n, out, mean)) != MLB_OK) goto done;
+
+    queue = malloc(sizeof *queue * N);
+    dist = malloc(sizeof *dist * N);
+    if (!queue || !dist) goto nomem;
+    dilate_texels(out, size, cov, n, dilate, mean, queue, dist);
     goto done;
 
 nomem:
     st = mlb_fail(MLB_ERR_NOMEM, "mlb_bake: out of memory for a %d² texture", size);
-fail:
 done:
     if (st != MLB_OK) mlb_baked_free(out);
-    free(best); free(bary); free(cov); free(pos); free(k); free(queue); free(dist); free(keys); free(same);
+    free(R.best); free(R.bary); free(cov); free(pos); free(k); free(queue); free(dist); free(same);
     return st;
 }

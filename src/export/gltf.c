@@ -225,54 +225,54 @@ static void put32(unsigned char* p, uint32_t v) {
     p[0] = (unsigned char)v; p[1] = (unsigned char)(v >> 8); p[2] = (unsigned char)(v >> 16); p[3] = (unsigned char)(v >> 24);
 }
 
-mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_t* n_out) {
-    if (!data || !n_out) return mlb_fail(MLB_ERR_ARG, "glTF: NULL output");
-    *data = NULL;
-    *n_out = 0;
-    MLB_TRY(mlb_asset_check(a));
-    size_t V = (size_t)a->n_verts, F = (size_t)a->n_faces, S = (size_t)a->tex_size, S2 = S * S;
-    mlb_status st = MLB_OK;
-    bin_t bin = {0};
-    float *nrm = malloc(sizeof(float) * 3 * V), *uv = malloc(sizeof(float) * 2 * V), *mr = malloc(sizeof(float) * 3 * S2);
-    unsigned char* png[3] = {NULL, NULL, NULL};
-    size_t png_n[3] = {0, 0, 0};
-    cJSON* root = NULL;
-    char* json = NULL;
-    if (!nrm || !uv || !mr) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for %zu vertices", V); goto done; }
+// The seven pieces of the BIN chunk, in order: positions, normals, uvs, indices, then the three
+// PNG images (bufferViews 0..6; accessors 0..3 read the first four).
+enum { GLB_PIECES = 7 };
+
+// The vertex attributes as glTF reads them (unit normals; v flipped: glTF's uv origin is the top
+// left) and the three images encoded as PNG: 0 base colour (kd, sRGB), 1 metallic-roughness
+// (linear), 2 specular colour (ks, sRGB). nrm [V,3], uv [V,2], mr [S²,3] are the caller's scratch.
+static mlb_status encode_pieces(const mlb_asset* a, float* nrm, float* uv, float* mr, unsigned char* png[3], size_t png_n[3]) {
+    size_t V = (size_t)a->n_verts, S = (size_t)a->tex_size, S2 = S * S;
     unit_normals(a, nrm);
     for (size_t i = 0; i < V; i++) { uv[2 * i] = a->uv[2 * i]; uv[2 * i + 1] = 1.0f - a->uv[2 * i + 1]; }
     for (size_t i = 0; i < S2; i++) { mr[3 * i] = 1.0f; mr[3 * i + 1] = a->kr[i]; mr[3 * i + 2] = 0.0f; }
-    // images: 0 base colour (kd, sRGB), 1 metallic-roughness (linear), 2 specular colour (ks, sRGB)
+    mlb_status st;
     if ((st = mlb_png_encode_memory(a->kd, (int)S, (int)S, 3, 1, &png[0], &png_n[0])) != MLB_OK ||
         (st = mlb_png_encode_memory(mr, (int)S, (int)S, 3, 0, &png[1], &png_n[1])) != MLB_OK ||
-        (st = mlb_png_encode_memory(a->ks, (int)S, (int)S, 3, 1, &png[2], &png_n[2])) != MLB_OK) {
-        mlb_fail_context(st, "glTF textures");
-        goto done;
-    }
-    long off[7];
-    size_t len[7] = {12 * V, 12 * V, 8 * V, 12 * F, png_n[0], png_n[1], png_n[2]};
-    const void* src[7] = {a->pos, nrm, uv, a->faces, png[0], png[1], png[2]};
-    for (int i = 0; i < 7; i++)
-        if ((off[i] = bin_append(&bin, src[i], len[i])) < 0) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory"); goto done; }
-    if (bin_append(&bin, NULL, 0) < 0) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory"); goto done; }   // pad to 4
-    if (bin.n > 0xFFFFFFF0u - 4096) { st = mlb_fail(MLB_ERR_UNSUPPORTED, "glTF: %zu bytes of data (.glb holds < 4 GiB)", bin.n); goto done; }
+        (st = mlb_png_encode_memory(a->ks, (int)S, (int)S, 3, 1, &png[2], &png_n[2])) != MLB_OK)
+        return mlb_fail_context(st, "glTF textures");
+    return MLB_OK;
+}
 
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < V; i++)
+// The pieces laid one after the other, each at a 4-byte boundary: off[i], len[i] of each.
+static mlb_status pack_bin(bin_t* bin, const void* const src[GLB_PIECES], const size_t len[GLB_PIECES], long off[GLB_PIECES]) {
+    for (int i = 0; i < GLB_PIECES; i++)
+        if ((off[i] = bin_append(bin, src[i], len[i])) < 0) return mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory");
+    if (bin_append(bin, NULL, 0) < 0) return mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory");   // pad to 4
+    if (bin->n > 0xFFFFFFF0u - 4096) return mlb_fail(MLB_ERR_UNSUPPORTED, "glTF: %zu bytes of data (.glb holds < 4 GiB)", bin->n);
+    return MLB_OK;
+}
+
+// The positions' bounding box (the POSITION accessor must carry min and max).
+static void position_bounds(const mlb_asset* a, double lo[3], double hi[3]) {
+    for (int j = 0; j < 3; j++) lo[j] = INFINITY, hi[j] = -INFINITY;
+    for (size_t i = 0; i < (size_t)a->n_verts; i++)
         for (int j = 0; j < 3; j++) {
             double x = a->pos[3 * i + j];
             if (x < lo[j]) lo[j] = x;
             if (x > hi[j]) hi[j] = x;
         }
+}
 
-    root = cJSON_CreateObject();
+// asset, extensionsUsed, scene, scenes, nodes: one scene of one node that holds mesh 0.
+static void json_scene(cJSON* root, const char* name) {
     cJSON* asset = cJSON_AddObjectToObject(root, "asset");
     cJSON_AddStringToObject(asset, "version", "2.0");
     cJSON_AddStringToObject(asset, "generator", "matlaber");
     cJSON* used = cJSON_AddArrayToObject(root, "extensionsUsed");
     cJSON_AddItemToArray(used, cJSON_CreateString("KHR_materials_specular"));
     cJSON_AddNumberToObject(root, "scene", 0);
-    const char* name = a->name ? a->name : "matlaber";
     cJSON* scene = cJSON_CreateObject();
     cJSON_AddItemToArray(cJSON_AddArrayToObject(scene, "nodes"), cJSON_CreateNumber(0));
     cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "scenes"), scene);
@@ -280,7 +280,10 @@ mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_
     cJSON_AddNumberToObject(node, "mesh", 0);
     cJSON_AddStringToObject(node, "name", name);
     cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "nodes"), node);
+}
 
+// meshes: one triangle primitive over accessors 0..3 with material 0.
+static void json_mesh(cJSON* root, const char* name) {
     cJSON* prim = cJSON_CreateObject();
     cJSON* attr = cJSON_AddObjectToObject(prim, "attributes");
     cJSON_AddNumberToObject(attr, "POSITION", 0);
@@ -293,7 +296,10 @@ mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_
     cJSON_AddStringToObject(mesh, "name", name);
     cJSON_AddItemToArray(cJSON_AddArrayToObject(mesh, "primitives"), prim);
     cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "meshes"), mesh);
+}
 
+// materials: metallic-roughness from textures 0 and 1, KHR_materials_specular from texture 2.
+static void json_material(cJSON* root, const char* name) {
     cJSON* mat = cJSON_CreateObject();
     cJSON_AddStringToObject(mat, "name", name);
     cJSON* pbr = cJSON_AddObjectToObject(mat, "pbrMetallicRoughness");
@@ -307,7 +313,10 @@ mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_
     cJSON_AddItemToObject(spec, "specularColorFactor", num_array(scf, 3));
     cJSON_AddItemToObject(spec, "specularColorTexture", tex_ref(2));
     cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "materials"), mat);
+}
 
+// samplers, textures, images: texture i shows image i, the PNG in bufferView 4 + i.
+static void json_textures(cJSON* root) {
     cJSON* samplers = cJSON_AddArrayToObject(root, "samplers");
     cJSON* smp = cJSON_CreateObject();
     cJSON_AddNumberToObject(smp, "magFilter", 9729);    // LINEAR
@@ -329,27 +338,34 @@ mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_
         cJSON_AddStringToObject(im, "mimeType", "image/png");
         cJSON_AddItemToArray(images, im);
     }
+}
 
+// bufferViews, accessors, buffers: where each piece lies in the BIN chunk and how it is read.
+static void json_buffers(cJSON* root, const mlb_asset* a, const long off[GLB_PIECES], const size_t len[GLB_PIECES], size_t bin_n) {
+    int V = a->n_verts;
+    double lo[3], hi[3];
+    position_bounds(a, lo, hi);
     cJSON* views = cJSON_AddArrayToObject(root, "bufferViews");
-    for (int i = 0; i < 7; i++) add_view(views, off[i], len[i], i < 3 ? GL_ARRAY_BUFFER : i == 3 ? GL_ELEMENT_ARRAY_BUFFER : 0);
+    for (int i = 0; i < GLB_PIECES; i++) add_view(views, off[i], len[i], i < 3 ? GL_ARRAY_BUFFER : i == 3 ? GL_ELEMENT_ARRAY_BUFFER : 0);
     cJSON* accs = cJSON_AddArrayToObject(root, "accessors");
-    cJSON* pa = add_accessor(accs, 0, GL_FLOAT, (int)V, "VEC3");
+    cJSON* pa = add_accessor(accs, 0, GL_FLOAT, V, "VEC3");
     cJSON_AddItemToObject(pa, "min", num_array(lo, 3));
     cJSON_AddItemToObject(pa, "max", num_array(hi, 3));
-    add_accessor(accs, 1, GL_FLOAT, (int)V, "VEC3");
-    add_accessor(accs, 2, GL_FLOAT, (int)V, "VEC2");
-    add_accessor(accs, 3, GL_UNSIGNED_INT, (int)(3 * F), "SCALAR");
+    add_accessor(accs, 1, GL_FLOAT, V, "VEC3");
+    add_accessor(accs, 2, GL_FLOAT, V, "VEC2");
+    add_accessor(accs, 3, GL_UNSIGNED_INT, (int)(3 * (size_t)a->n_faces), "SCALAR");
     cJSON* buf = cJSON_CreateObject();
-    cJSON_AddNumberToObject(buf, "byteLength", (double)bin.n);
+    cJSON_AddNumberToObject(buf, "byteLength", (double)bin_n);
     cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "buffers"), buf);
+}
 
-    json = cJSON_PrintUnformatted(root);
-    if (!json) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for the JSON"); goto done; }
+// The .glb container: a 12-byte header, the JSON chunk (padded with spaces to 4 bytes), the BIN chunk.
+static mlb_status glb_container(const char* json, const bin_t* bin, unsigned char** data, size_t* n_out) {
     size_t jn = strlen(json), jpad = (jn + 3) & ~(size_t)3;
-    size_t total = 12 + 8 + jpad + 8 + bin.n;
-    if (total > 0xFFFFFFFFu) { st = mlb_fail(MLB_ERR_UNSUPPORTED, "glTF: %zu bytes (a .glb holds < 4 GiB)", total); goto done; }
+    size_t total = 12 + 8 + jpad + 8 + bin->n;
+    if (total > 0xFFFFFFFFu) return mlb_fail(MLB_ERR_UNSUPPORTED, "glTF: %zu bytes (a .glb holds < 4 GiB)", total);
     unsigned char* out = malloc(total);
-    if (!out) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for %zu bytes", total); goto done; }
+    if (!out) return mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for %zu bytes", total);
     put32(out, GLB_MAGIC);
     put32(out + 4, 2);
     put32(out + 8, (uint32_t)total);
@@ -357,11 +373,44 @@ mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_
     put32(out + 16, GLB_JSON);
     memcpy(out + 20, json, jn);
     memset(out + 20 + jn, ' ', jpad - jn);
-    put32(out + 20 + jpad, (uint32_t)bin.n);
+    put32(out + 20 + jpad, (uint32_t)bin->n);
     put32(out + 24 + jpad, GLB_BIN);
-    memcpy(out + 28 + jpad, bin.p, bin.n);
+    memcpy(out + 28 + jpad, bin->p, bin->n);
     *data = out;
     *n_out = total;
+    return MLB_OK;
+}
+
+mlb_status mlb_export_glb_memory(const mlb_asset* a, unsigned char** data, size_t* n_out) {
+    if (!data || !n_out) return mlb_fail(MLB_ERR_ARG, "glTF: NULL output");
+    *data = NULL;
+    *n_out = 0;
+    MLB_TRY(mlb_asset_check(a));
+    size_t V = (size_t)a->n_verts, F = (size_t)a->n_faces, S2 = (size_t)a->tex_size * (size_t)a->tex_size;
+    mlb_status st = MLB_OK;
+    bin_t bin = {0};
+    float *nrm = malloc(sizeof(float) * 3 * V), *uv = malloc(sizeof(float) * 2 * V), *mr = malloc(sizeof(float) * 3 * S2);
+    unsigned char* png[3] = {NULL, NULL, NULL};
+    size_t png_n[3] = {0, 0, 0};
+    cJSON* root = NULL;
+    char* json = NULL;
+    if (!nrm || !uv || !mr) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for %zu vertices", V); goto done; }
+    if ((st = encode_pieces(a, nrm, uv, mr, png, png_n)) != MLB_OK) goto done;
+    long off[GLB_PIECES];
+    const size_t len[GLB_PIECES] = {12 * V, 12 * V, 8 * V, 12 * F, png_n[0], png_n[1], png_n[2]};
+    const void* const src[GLB_PIECES] = {a->pos, nrm, uv, a->faces, png[0], png[1], png[2]};
+    if ((st = pack_bin(&bin, src, len, off)) != MLB_OK) goto done;
+
+    const char* name = a->name ? a->name : "matlaber";
+    root = cJSON_CreateObject();
+    json_scene(root, name);
+    json_mesh(root, name);
+    json_material(root, name);
+    json_textures(root);
+    json_buffers(root, a, off, len, bin.n);
+    json = cJSON_PrintUnformatted(root);
+    if (!json) { st = mlb_fail(MLB_ERR_NOMEM, "glTF: out of memory for the JSON"); goto done; }
+    st = glb_container(json, &bin, data, n_out);
 done:
     free(json);
     cJSON_Delete(root);

@@ -247,187 +247,230 @@ __attribute__((optimize("no-trapping-math"), target_clones("avx2", "default"))) 
     acc[0] = sw, acc[1] = sr, acc[2] = sg, acc[3] = sb;
 }
 
+// The quadtree of one specular level: level 0 holds the n x n texels, each level above halves the
+// side, up to an odd side, a side of 1 or MAXJ levels. G[j] [s][s] the geometry of level j (shared
+// by the faces), T[j] [6][s][s] the light of levels j >= 1.
+enum { MAXJ = 16, TILE = 8 };
+typedef struct {
+    geo* G[MAXJ];
+    lnode* T[MAXJ];
+    int size[MAXJ], J;
+} qtree;
+
+static void tree_free(qtree* q) {
+    for (int j = 0; j < q->J; j++) free(q->G[j]), free(q->T[j]);
+}
+
+static mlb_status tree_alloc(qtree* q, int n) {
+    for (int s = n;; s /= 2) {
+        int J = q->J;
+        q->size[J] = s;
+        q->G[J] = malloc((size_t)s * s * sizeof(geo));
+        if (J > 0) q->T[J] = malloc((size_t)6 * s * s * sizeof(lnode));
+        q->J++;
+        if (!q->G[J] || (J > 0 && !q->T[J])) return mlb_fail(MLB_ERR_NOMEM, "cube prefilter: cannot allocate a %dx%d tree level", s, s);
+        if (s % 2 || s == 1 || q->J == MAXJ) break;
+    }
+    return MLB_OK;
+}
+
+// Level j's geometry: the centres, and the summed texel weight and weight centroid of the texels
+// below (level 0: each texel's own).
+static void tree_geometry(qtree* q, int j, int exact_sa) {
+    int s = q->size[j];
+    for (int y = 0; y < s; y++)
+        for (int x = 0; x < s; x++) {
+            geo* g = q->G[j] + (size_t)y * s + x;
+            double fx = 2 * (x + 0.5) / s - 1, fy = 2 * (y + 0.5) / s - 1, len = sqrt(fx * fx + fy * fy + 1);
+            g->a = fx / len, g->b = fy / len, g->c = 1 / len;
+            if (j == 0) {
+                g->om = texel_weight(x, y, s, exact_sa);
+                g->wa = g->a, g->wb = g->b, g->wc = g->c;
+            } else {
+                const geo* ch = q->G[j - 1] + (size_t)2 * y * 2 * s + 2 * x;
+                const geo* k4[4] = {ch, ch + 1, ch + 2 * s, ch + 2 * s + 1};
+                double w[3] = {0, 0, 0};
+                g->om = 0;
+                for (int c = 0; c < 4; c++) {
+                    g->om += k4[c]->om;
+                    w[0] += k4[c]->om * k4[c]->wa, w[1] += k4[c]->om * k4[c]->wb, w[2] += k4[c]->om * k4[c]->wc;
+                }
+                normalize3(w);
+                g->wa = w[0], g->wb = w[1], g->wc = w[2];
+            }
+        }
+}
+
+// Level j's light (j >= 1), per face, from its four children: the summed om x radiance and the
+// luminance centroid (the node's centre when it holds no light).
+static void tree_light(qtree* q, int j, const float* src) {
+    int s = q->size[j];
+#pragma omp parallel for schedule(static)
+    for (int row = 0; row < 6 * s; row++) {
+        int f = row / s, y = row % s;
+        for (int x = 0; x < s; x++) {
+            double ol[3] = {0, 0, 0}, cen[3] = {0, 0, 0}, wsum = 0;
+            for (int c = 0; c < 4; c++) {
+                int cx = 2 * x + (c & 1), cy = 2 * y + (c >> 1), cs = 2 * s;
+                double dl[3], o[3];
+                if (j == 1) {
+                    const geo* g = q->G[0] + (size_t)cy * cs + cx;
+                    const float* l = sm_texel(src, cs, f, cx, cy);
+                    geo_dir(g, f, dl);
+                    for (int k = 0; k < 3; k++) o[k] = g->om * l[k];
+                } else {
+                    const lnode* ch = q->T[j - 1] + ((size_t)f * cs + cy) * cs + cx;
+                    for (int k = 0; k < 3; k++) dl[k] = ch->dl[k], o[k] = ch->ol[k];
+                }
+                double w = 0.2126 * o[0] + 0.7152 * o[1] + 0.0722 * o[2];
+                wsum += w;
+                for (int k = 0; k < 3; k++) ol[k] += o[k], cen[k] += w * dl[k];
+            }
+            if (!(wsum > 0)) geo_dir(q->G[j] + (size_t)y * s + x, f, cen);
+            normalize3(cen);
+            lnode* o = q->T[j] + ((size_t)f * s + y) * s + x;
+            for (int k = 0; k < 3; k++) o->dl[k] = (float)cen[k], o->ol[k] = (float)ol[k];
+        }
+    }
+}
+
+// The centre cen of the tile of `tile` x `tile` output texels at (x0, y0) of face f of an n x n
+// level, and its angular radius (to its farthest corner).
+static double tile_bounds(int f, int x0, int y0, int tile, int n, double cen[3]) {
+    double rt = 0;
+    face_point(f, (2.0 * x0 + tile) / n - 1, (2.0 * y0 + tile) / n - 1, cen);
+    normalize3(cen);
+    for (int c = 0; c < 4; c++) {
+        double cr[3];
+        face_point(f, 2.0 * (x0 + (c & 1) * tile) / n - 1, 2.0 * (y0 + (c >> 1) * tile) / n - 1, cr);
+        normalize3(cr);
+        double a = acos(fmin(1, cen[0] * cr[0] + cen[1] * cr[1] + cen[2] * cr[2]));
+        if (a > rt) rt = a;
+    }
+    return rt;
+}
+
+// The tile's interaction list: the cut of every face's tree around the tile centre cen, a node
+// pruned when its centre's cosine to cen is below cos_prune of its level, opened when above
+// cos_open, taken whole otherwise. 0 when the list could not grow (the walk goes on without it).
+static int tile_list(ilist* il, const qtree* q, const float* src, const double cen[3], const double* cos_prune,
+                     const double* cos_open) {
+    int stack[4 * MAXJ + 64][4];
+    int top = q->J - 1, ts = q->size[top], ok = 1;
+    il->nf = il->nc = 0;
+    for (int g = 0; g < 6; g++) {
+        double rf[3] = {SU[g] * cen[IU[g]], SV[g] * cen[IV[g]], SG[g] * cen[MA[g]]};
+        for (int root = 0; root < ts * ts; root++) {
+            int sp = 0;
+            stack[sp][0] = top, stack[sp][1] = root % ts, stack[sp][2] = root / ts, sp++;
+            while (sp) {
+                sp--;
+                int j = stack[sp][0], nx = stack[sp][1], ny = stack[sp][2], s = q->size[j];
+                const geo* ge = q->G[j] + (size_t)ny * s + nx;
+                double c = ge->a * rf[0] + ge->b * rf[1] + ge->c * rf[2];
+                if (c < cos_prune[j]) continue;
+                if (c > cos_open[j]) {
+                    for (int ch = 3; ch >= 0; ch--) {
+                        stack[sp][0] = j - 1, stack[sp][1] = 2 * nx + (ch & 1), stack[sp][2] = 2 * ny + (ch >> 1);
+                        sp++;
+                    }
+                    continue;
+                }
+                double d[3];
+                geo_dir(ge, g, d);
+                if (j == 0) {
+                    if (!ilist_grow(il->f, F_N, &il->capf, il->nf + 1)) { ok = 0; continue; }
+                    const float* l = sm_texel(src, s, g, nx, ny);
+                    int k = il->nf++;
+                    il->f[F_X][k] = (float)d[0], il->f[F_Y][k] = (float)d[1], il->f[F_Z][k] = (float)d[2];
+                    il->f[F_OM][k] = (float)ge->om;
+                    il->f[F_R][k] = (float)(ge->om * l[0]), il->f[F_G][k] = (float)(ge->om * l[1]);
+                    il->f[F_B][k] = (float)(ge->om * l[2]);
+                } else {
+                    geo_wdir(ge, g, d);   // the weight at the texels' weight centroid
+                    if (!ilist_grow(il->c, C_N, &il->capc, il->nc + 1)) { ok = 0; continue; }
+                    const lnode* nd = q->T[j] + ((size_t)g * s + ny) * s + nx;
+                    int k = il->nc++;
+                    il->c[C_X][k] = (float)d[0], il->c[C_Y][k] = (float)d[1], il->c[C_Z][k] = (float)d[2];
+                    il->c[C_OM][k] = (float)ge->om;
+                    il->c[C_LX][k] = nd->dl[0], il->c[C_LY][k] = nd->dl[1], il->c[C_LZ][k] = nd->dl[2];
+                    il->c[C_R][k] = nd->ol[0], il->c[C_G][k] = nd->ol[1], il->c[C_B][k] = nd->ol[2];
+                }
+            }
+        }
+    }
+    return ok;
+}
+
+// Each output texel of the tile: its weighted mean radiance over the tile's list.
+static void tile_shade(float* out, const ilist* il, const qtree* q, int f, int x0, int y0, int tile, float fa2, float cos_cut) {
+    int n = q->size[0];
+    for (int y = y0; y < y0 + tile; y++)
+        for (int x = x0; x < x0 + tile; x++) {
+            double rd[3];
+            geo_dir(q->G[0] + (size_t)y * n + x, f, rd);
+            double acc[4];
+            tile_sums(il, (float)rd[0], (float)rd[1], (float)rd[2], fa2, cos_cut, acc);
+            double aw = acc[0], ar = acc[1], ag = acc[2], ab = acc[3];
+            float* o = out + (((size_t)f * n + y) * n + x) * 3;
+            o[0] = aw > 0 ? (float)(ar / aw) : 0, o[1] = aw > 0 ? (float)(ag / aw) : 0, o[2] = aw > 0 ? (float)(ab / aw) : 0;
+        }
+}
+
 // One specular level: src and out are [6][n][n][3].
 static mlb_status prefilter(float* out, const float* src, int n, double rough, double cutoff, double accuracy, int exact,
                             int exact_sa) {
-    enum { MAXJ = 16, TILE = 8 };
-    geo* G[MAXJ] = {0};
-    lnode* T[MAXJ] = {0};
-    int size[MAXJ], J = 0;
-    mlb_status st = MLB_OK;
-    for (int s = n;; s /= 2) {
-        size[J] = s;
-        G[J] = malloc((size_t)s * s * sizeof(geo));
-        if (J > 0) T[J] = malloc((size_t)6 * s * s * sizeof(lnode));
-        if (!G[J] || (J > 0 && !T[J])) {
-            J++;
-            st = mlb_fail(MLB_ERR_NOMEM, "cube prefilter: cannot allocate a %dx%d tree level", s, s);
-            goto done;
-        }
-        J++;
-        if (s % 2 || s == 1 || J == MAXJ) break;
-    }
-    for (int j = 0; j < J; j++) {
-        int s = size[j];
-        for (int y = 0; y < s; y++)
-            for (int x = 0; x < s; x++) {
-                geo* g = G[j] + (size_t)y * s + x;
-                double fx = 2 * (x + 0.5) / s - 1, fy = 2 * (y + 0.5) / s - 1, len = sqrt(fx * fx + fy * fy + 1);
-                g->a = fx / len, g->b = fy / len, g->c = 1 / len;
-                if (j == 0) {
-                    g->om = texel_weight(x, y, s, exact_sa);
-                    g->wa = g->a, g->wb = g->b, g->wc = g->c;
-                } else {
-                    const geo* ch = G[j - 1] + (size_t)2 * y * 2 * s + 2 * x;
-                    const geo* k4[4] = {ch, ch + 1, ch + 2 * s, ch + 2 * s + 1};
-                    double w[3] = {0, 0, 0};
-                    g->om = 0;
-                    for (int q = 0; q < 4; q++) {
-                        g->om += k4[q]->om;
-                        w[0] += k4[q]->om * k4[q]->wa, w[1] += k4[q]->om * k4[q]->wb, w[2] += k4[q]->om * k4[q]->wc;
-                    }
-                    normalize3(w);
-                    g->wa = w[0], g->wb = w[1], g->wc = w[2];
-                }
-            }
-        if (j == 0) continue;
-#pragma omp parallel for schedule(static)
-        for (int row = 0; row < 6 * s; row++) {
-            int f = row / s, y = row % s;
-            for (int x = 0; x < s; x++) {
-                double ol[3] = {0, 0, 0}, cen[3] = {0, 0, 0}, wsum = 0;
-                for (int q = 0; q < 4; q++) {
-                    int cx = 2 * x + (q & 1), cy = 2 * y + (q >> 1), cs = 2 * s;
-                    double dl[3], o[3];
-                    if (j == 1) {
-                        const geo* g = G[0] + (size_t)cy * cs + cx;
-                        const float* l = sm_texel(src, cs, f, cx, cy);
-                        geo_dir(g, f, dl);
-                        for (int k = 0; k < 3; k++) o[k] = g->om * l[k];
-                    } else {
-                        const lnode* c = T[j - 1] + ((size_t)f * cs + cy) * cs + cx;
-                        for (int k = 0; k < 3; k++) dl[k] = c->dl[k], o[k] = c->ol[k];
-                    }
-                    double w = 0.2126 * o[0] + 0.7152 * o[1] + 0.0722 * o[2];
-                    wsum += w;
-                    for (int k = 0; k < 3; k++) ol[k] += o[k], cen[k] += w * dl[k];
-                }
-                if (!(wsum > 0)) geo_dir(G[j] + (size_t)y * s + x, f, cen);
-                normalize3(cen);
-                lnode* o = T[j] + ((size_t)f * s + y) * s + x;
-                for (int k = 0; k < 3; k++) o->dl[k] = (float)cen[k], o->ol[k] = (float)ol[k];
-            }
-        }
+    qtree q = {0};
+    mlb_status st = tree_alloc(&q, n);
+    if (st != MLB_OK) goto done;
+    for (int j = 0; j < q.J; j++) {
+        tree_geometry(&q, j, exact_sa);
+        if (j > 0) tree_light(&q, j, src);
     }
     double alpha = rough * rough, a2 = alpha * alpha;
     double cone = cone_angle(a2, cutoff);
     float cos_cut = (float)cos(cone), fa2 = (float)a2;
     double rho[MAXJ];
     int whole[MAXJ];   // 1: nodes of this level are taken whole wherever they are
-    for (int j = 0; j < J; j++) {
-        rho[j] = sqrt(2.0) / size[j];   // bound on a node's angular radius
+    for (int j = 0; j < q.J; j++) {
+        rho[j] = sqrt(2.0) / q.size[j];   // bound on a node's angular radius
         whole[j] = j == 0 || (!exact && rho[j] <= CORE * alpha);
     }
-    int top = J - 1, ts = size[top], tile = n < TILE ? n : TILE, nt = n / tile;
+    int tile = n < TILE ? n : TILE, nt = n / tile;
     int fail = 0;
 #pragma omp parallel
     {
         ilist il = {0};
-        int stack[4 * MAXJ + 64][4];
 #pragma omp for schedule(dynamic, 1)
         for (int tid = 0; tid < 6 * nt * nt; tid++) {
             int f = tid / (nt * nt), ty = tid / nt % nt, tx = tid % nt;
             int x0 = tx * tile, y0 = ty * tile;
-            // tile centre and angular radius (to its farthest corner)
-            double cen[3], rt = 0;
-            face_point(f, (2.0 * x0 + tile) / n - 1, (2.0 * y0 + tile) / n - 1, cen);
-            normalize3(cen);
-            for (int q = 0; q < 4; q++) {
-                double cr[3];
-                face_point(f, 2.0 * (x0 + (q & 1) * tile) / n - 1, 2.0 * (y0 + (q >> 1) * tile) / n - 1, cr);
-                normalize3(cr);
-                double a = acos(fmin(1, cen[0] * cr[0] + cen[1] * cr[1] + cen[2] * cr[2]));
-                if (a > rt) rt = a;
-            }
+            double cen[3];
+            double rt = tile_bounds(f, x0, y0, tile, n, cen);
             // per level: prune when the node lies outside the cone for every texel of the tile
             // (angle > cone + rho + rt); open when it is not far enough for some texel
             // (angle - rt < accuracy rho) unless its level is taken whole
             double cos_prune[MAXJ], cos_open[MAXJ];
-            for (int j = 0; j < J; j++) {
+            for (int j = 0; j < q.J; j++) {
                 double ap = cone + rho[j] + rt, ao = accuracy * rho[j] + rt;
                 cos_prune[j] = ap >= PI ? -2 : cos(ap);
                 cos_open[j] = whole[j] ? 2 : exact || ao >= PI ? -2 : cos(ao);
             }
-            il.nf = il.nc = 0;
-            for (int g = 0; g < 6; g++) {
-                double rf[3] = {SU[g] * cen[IU[g]], SV[g] * cen[IV[g]], SG[g] * cen[MA[g]]};
-                for (int root = 0; root < ts * ts; root++) {
-                    int sp = 0;
-                    stack[sp][0] = top, stack[sp][1] = root % ts, stack[sp][2] = root / ts, sp++;
-                    while (sp) {
-                        sp--;
-                        int j = stack[sp][0], nx = stack[sp][1], ny = stack[sp][2], s = size[j];
-                        const geo* ge = G[j] + (size_t)ny * s + nx;
-                        double c = ge->a * rf[0] + ge->b * rf[1] + ge->c * rf[2];
-                        if (c < cos_prune[j]) continue;
-                        if (c > cos_open[j]) {
-                            for (int q = 3; q >= 0; q--) {
-                                stack[sp][0] = j - 1, stack[sp][1] = 2 * nx + (q & 1), stack[sp][2] = 2 * ny + (q >> 1);
-                                sp++;
-                            }
-                            continue;
-                        }
-                        double d[3];
-                        geo_dir(ge, g, d);
-                        if (j == 0) {
-                            if (!ilist_grow(il.f, F_N, &il.capf, il.nf + 1)) {
+            if (!tile_list(&il, &q, src, cen, cos_prune, cos_open)) {
 #pragma omp atomic write
-                                fail = 1;
-                                continue;
-                            }
-                            const float* l = sm_texel(src, s, g, nx, ny);
-                            int k = il.nf++;
-                            il.f[F_X][k] = (float)d[0], il.f[F_Y][k] = (float)d[1], il.f[F_Z][k] = (float)d[2];
-                            il.f[F_OM][k] = (float)ge->om;
-                            il.f[F_R][k] = (float)(ge->om * l[0]), il.f[F_G][k] = (float)(ge->om * l[1]);
-                            il.f[F_B][k] = (float)(ge->om * l[2]);
-                        } else {
-                            geo_wdir(ge, g, d);   // the weight at the texels' weight centroid
-                            if (!ilist_grow(il.c, C_N, &il.capc, il.nc + 1)) {
-#pragma omp atomic write
-                                fail = 1;
-                                continue;
-                            }
-                            const lnode* nd = T[j] + ((size_t)g * s + ny) * s + nx;
-                            int k = il.nc++;
-                            il.c[C_X][k] = (float)d[0], il.c[C_Y][k] = (float)d[1], il.c[C_Z][k] = (float)d[2];
-                            il.c[C_OM][k] = (float)ge->om;
-                            il.c[C_LX][k] = nd->dl[0], il.c[C_LY][k] = nd->dl[1], il.c[C_LZ][k] = nd->dl[2];
-                            il.c[C_R][k] = nd->ol[0], il.c[C_G][k] = nd->ol[1], il.c[C_B][k] = nd->ol[2];
-                        }
-                    }
-                }
+                fail = 1;
             }
             int failed;
 #pragma omp atomic read
             failed = fail;
             if (failed) continue;
-            for (int y = y0; y < y0 + tile; y++)
-                for (int x = x0; x < x0 + tile; x++) {
-                    double rd[3];
-                    geo_dir(G[0] + (size_t)y * n + x, f, rd);
-                    double acc[4];
-                    tile_sums(&il, (float)rd[0], (float)rd[1], (float)rd[2], fa2, cos_cut, acc);
-                    double aw = acc[0], ar = acc[1], ag = acc[2], ab = acc[3];
-                    float* o = out + (((size_t)f * n + y) * n + x) * 3;
-                    o[0] = aw > 0 ? (float)(ar / aw) : 0, o[1] = aw > 0 ? (float)(ag / aw) : 0, o[2] = aw > 0 ? (float)(ab / aw) : 0;
-                }
+            tile_shade(out, &il, &q, f, x0, y0, tile, fa2, cos_cut);
         }
         ilist_free(&il);
     }
     if (fail) st = mlb_fail(MLB_ERR_NOMEM, "cube prefilter: cannot allocate an interaction list");
 done:
-    for (int j = 0; j < J; j++) free(G[j]), free(T[j]);
+    tree_free(&q);
     return st;
 }
 

@@ -104,6 +104,8 @@ static int envs_from_views(mlb_pipeline_config* c) {
 // --prompts (cmd_prompts.c) runs prompts through run_pipeline without progress bars or the closing
 // message (several processes would interleave them)
 static int g_batch;
+// generate_check_args: the run_pipeline's checks, then return before anything is loaded
+static int g_check_only;
 
 int generate_option_arity(const char* name) {
     for (const cli_option* o = options; o->name; o++)
@@ -334,6 +336,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     // the project's own models read only their catalogue's captions: a prompt is read into one
     // before anything is loaded or made, or refused naming the words they never saw
     if (!resume && mlb_pipeline_read_prompt(&c)) return cli_usage_error(command, "%s", mlb_last_error());
+    if (g_check_only) return 0;
     if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
@@ -401,6 +404,13 @@ int generate_run_quiet(int argc, char** argv) {
     g_batch = 1;
     int rc = run_pipeline("generate", argc, argv, MODE_GENERATE);
     g_batch = 0;
+    return rc;
+}
+
+int generate_check_args(int argc, char** argv) {
+    g_check_only = 1;
+    int rc = run_pipeline("generate", argc, argv, MODE_GENERATE);
+    g_check_only = 0;
     return rc;
 }
 

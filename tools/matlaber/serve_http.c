@@ -190,22 +190,21 @@ typedef struct {
     int too_big;
 } request;
 
-// "/api/jobs/ID/files/NAME" -> up to 5 segments of at most 63 bytes; -1 when longer or more
+// "/api/jobs/ID/files/NAME" -> up to 5 segments of 1 to 63 bytes; -1 when longer, more, or one is
+// empty ("//", a trailing "/"); "/" -> 0
 static int split(const char* url, char seg[5][64]) {
+    if (url[0] != '/') return -1;
+    if (!url[1]) return 0;
     int n = 0;
-    const char* p = url;
-    if (*p != '/') return -1;
-    while (*p == '/') {
-        p++;
+    for (const char* p = url + 1;; p++) {
         const char* e = strchr(p, '/');
         size_t len = e ? (size_t)(e - p) : strlen(p);
-        if (len == 0 && !e) break;   // a trailing slash
         if (n == 5 || len == 0 || len > 63) return -1;
         memcpy(seg[n], p, len);
         seg[n++][len] = 0;
-        p += len;
+        if (!e) return n;
+        p = e;
     }
-    return n;
 }
 
 static enum MHD_Result submit(struct MHD_Connection* c, request* q) {

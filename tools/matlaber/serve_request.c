@@ -123,6 +123,9 @@ int serve_request_parse(const char* body, size_t n, const serve_options* o, cJSO
     *out = NULL;
     if (n > o->max_body) return fail(err, cap, 413, "%s", "the request body is over the server's limit");
     if (memchr(body, 0, n)) return fail(err, cap, 400, "%s", "the request body holds a NUL byte");
+    // cJSON decodes \u0000 into a NUL that would cut the string short: refused as the byte is
+    for (const char* p = body; (p = strstr(p, "\\u")) != NULL; p += 2)
+        if (!strncmp(p + 2, "0000", 4)) return fail(err, cap, 400, "%s", "a string holds \\u0000 (a NUL)");
     const char* end = NULL;
     // body[n] is a NUL, counted in: cJSON's "nothing may follow the value" wants it inside the length
     cJSON* req = cJSON_ParseWithLengthOpts(body, n + 1, &end, 1);

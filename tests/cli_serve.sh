@@ -104,6 +104,36 @@ grep -qi '^content-type: model/gltf-binary' "$T/headers" && ok ".glb content typ
 req "GET preview.png (the newest sheet)" 200 "$U/api/jobs/$ID/files/preview.png"
 [ "$(head -c 4 "$T/body" | tail -c 3)" = PNG ] && ok "preview is a PNG" || bad "preview not a PNG"
 
+# ---- the page: the app, and the viewer of `matlaber view` with the job's asset beside it ----
+if [ -f "$HERE/../viewer/node_modules/three/package.json" ]; then
+  req "GET / (the page)" 200 "$U/"
+  body_has "the page follows events" "serve.js"
+  req "GET /serve.js" 200 "$U/serve.js"
+  body_has "with an EventSource" "new EventSource"
+  req "the viewer of the job" 200 "$U/view/$ID/"
+  body_has "the viewer's page" "viewer.js"
+  req "the viewer's config" 200 "$U/view/$ID/viewer.json"
+  body_has "names asset.glb" '"asset":[[:space:]]*"asset.glb"'
+  req "the job's asset beside it" 200 "$U/view/$ID/asset.glb"
+  cmp -s "$T/body" "$T/a.glb" && ok "the same .glb" || bad "/view/ID/asset.glb differs"
+  req "three.js" 200 "$U/view/$ID/lib/three/build/three.module.js"
+  req "an environment" 200 "$U/view/$ID/env/studio.hdr"
+  for r in "/view/$ID/../../config.json" "/view/$ID/lib/../viewer.json" "/view/nope/" "/view/$ID/config.json" \
+           "/view/$ID/loss.csv" "/view/$ID" "/view/../$ID/"; do
+    code=$(curl -s --path-as-is -o "$T/body" -w '%{http_code}' "$U$r")
+    case $code in 4??) ok "GET $r: $code" ;; *) bad "GET $r: $code" ;; esac
+  done
+  req "POST /" 405 -X POST "$U/"
+  # the page in a browser: type, submit, watch, look, switch the light, download
+  if command -v node > /dev/null; then
+    node "$HERE/serve_check.mjs" "$U/" "{${TINY},\"geometry_iters\":4,\"appearance_iters\":2}" ${MLB_SERVE_SHOTS:-} > "$T/out" 2>&1; rc=$?
+    cat "$T/out"
+    if [ $rc = 0 ]; then ok "the page in headless Chromium"; elif [ $rc = 77 ]; then echo "($(tail -1 "$T/out"))"; else bad "the page in headless Chromium"; fi
+  fi
+else
+  echo "(no viewer/node_modules: the page is not served; scripts/build.sh installs it)"
+fi
+
 # ---- the hostile set ----
 echo "[${SECONDS} s] the hostile set"
 for b in '{"prompt":' 'not json' '{"prompt":"a gold goblet"} x' '' '[1]' '"a gold goblet"' '{"prompt":"a","prompt":"b"}'; do

@@ -95,6 +95,7 @@ int cmd_serve(int argc, char** argv) {
     sigaddset(&stop, SIGTERM);
     pthread_sigmask(SIG_BLOCK, &stop, NULL);
     signal(SIGPIPE, SIG_IGN);   // a client that went away is a failed write, not the end of the server
+    serve_static_open(&o);
     if (serve_jobs_open(&o)) return 1;
     int port = serve_http_start(&o);
     if (port < 0) { serve_jobs_close(); return 1; }

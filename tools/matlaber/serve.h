@@ -1,7 +1,7 @@
 // matlaber serve (docs/server.md): a local HTTP server over a queue of generate jobs. Split in
 // cmd_serve.c (options, start), serve_http.c (routes, limits, server-sent events), serve_jobs.c
-// (the job table, child processes, run folders) and serve_request.c (a job request's JSON checked
-// and turned into generate's arguments).
+// (the job table, child processes, run folders), serve_request.c (a job request's JSON checked
+// and turned into generate's arguments) and serve_static.c (the page and the viewer's files).
 #ifndef MATLABER_SERVE_H
 #define MATLABER_SERVE_H
 #include <stddef.h>
@@ -58,6 +58,15 @@ int serve_jobs_ended(const char* id);
 void serve_jobs_wait(double seconds);
 // 1 once serve_jobs_close began (streams end).
 int serve_jobs_stopping(void);
+
+// ---- serve_static.c ----
+// Writes the viewer's page folder to RUNS/.serve/viewer when the viewer source is there (else the
+// API alone, said on stderr); 0.
+int serve_static_open(const serve_options* o);
+// The app page's files ("serve.html", "serve.js") and the viewer's (a name relative to its
+// folder, e.g. "lib/three/build/three.module.js"): 0 with the path and type, 404 when not there.
+int serve_static_app(const char* name, char* path, size_t cap, const char** type);
+int serve_static_viewer(const char* rel, char* path, size_t cap, const char** type);
 
 // ---- serve_http.c ----
 // Starts the HTTP daemon; returns the port it listens on, or -1 with a message on stderr.

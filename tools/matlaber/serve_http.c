@@ -62,13 +62,16 @@ static int same_secret(const char* given, const char* token) {
     return d == 0;
 }
 
-// "Authorization: Bearer T", or ?token=T (an EventSource and a link cannot set headers)
+// "Authorization: Bearer T"; or ?token=T, or the cookie matlaber_token=T that the page sets from
+// it (an EventSource, a link and the viewer's own requests cannot send a header)
 static int authorised(struct MHD_Connection* c) {
     if (!O.token) return 1;
     const char* h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
     if (h && !strncmp(h, "Bearer ", 7) && same_secret(h + 7, O.token)) return 1;
     const char* q = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "token");
-    return q && same_secret(q, O.token);
+    if (q && same_secret(q, O.token)) return 1;
+    const char* k = MHD_lookup_connection_value(c, MHD_COOKIE_KIND, "matlaber_token");
+    return k && same_secret(k, O.token);
 }
 
 // ---- server-sent events: the job's events file from an offset, a line an event ----
@@ -161,12 +164,8 @@ static enum MHD_Result send_events(struct MHD_Connection* c, const char* id) {
     return ret;
 }
 
-// ---- a job's file ----
-static enum MHD_Result send_file(struct MHD_Connection* c, const char* id, const char* name) {
-    char path[4200];
-    const char* type = NULL;
-    int rc = serve_jobs_file(id, name, path, sizeof path, &type);
-    if (rc) return send_error(c, rc, rc == 404 ? "no such job or file (GET /api/jobs/ID lists its files)" : "server error");
+// ---- files: a job's, the page's ----
+static enum MHD_Result send_path(struct MHD_Connection* c, const char* path, const char* type) {
     int fd = open(path, O_RDONLY | O_NOFOLLOW | O_CLOEXEC);
     struct stat st;
     if (fd < 0 || fstat(fd, &st) || !S_ISREG(st.st_mode)) {
@@ -181,6 +180,34 @@ static enum MHD_Result send_file(struct MHD_Connection* c, const char* id, const
     enum MHD_Result ret = MHD_queue_response(c, 200, r);
     MHD_destroy_response(r);
     return ret;
+}
+
+static enum MHD_Result send_file(struct MHD_Connection* c, const char* id, const char* name) {
+    char path[4200];
+    const char* type = NULL;
+    int rc = serve_jobs_file(id, name, path, sizeof path, &type);
+    if (rc) return send_error(c, rc, rc == 404 ? "no such job or file (GET /api/jobs/ID lists its files)" : "server error");
+    return send_path(c, path, type);
+}
+
+static enum MHD_Result send_static(struct MHD_Connection* c, int rc, const char* path, const char* type) {
+    return rc ? send_error(c, 404, "no such file (the page needs viewer/ with its npm packages: scripts/build.sh)")
+              : send_path(c, path, type);
+}
+
+// /view/ID/REST: the viewer's folder with the job's asset.glb beside it
+static enum MHD_Result send_view(struct MHD_Connection* c, const char* url) {
+    const char* p = url + strlen("/view/");
+    const char* slash = strchr(p, '/');
+    char id[64], path[4200];
+    const char* type = NULL;
+    if (!slash || slash == p || slash - p > 63) return send_error(c, 404, "no such route (/view/ID/)");
+    snprintf(id, sizeof id, "%.*s", (int)(slash - p), p);
+    const char* rest = slash + 1;
+    if (serve_jobs_events_path(id, path, sizeof path)) return send_error(c, 404, "no such job");
+    if (!strcmp(rest, "asset.glb")) return send_file(c, id, "asset.glb");
+    int rc = serve_static_viewer(rest[0] ? rest : "index.html", path, sizeof path, &type);
+    return send_static(c, rc, path, type);
 }
 
 // ---- requests ----
@@ -245,11 +272,17 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
         return r;
     }
     if (strchr(url, '%')) return send_error(c, 400, "percent-encoded URLs are refused (ids and file names need none)");
-    char seg[5][64];
-    int n = split(url, seg);
+    char seg[5][64], path[4200];
+    const char* type = NULL;
     int get = !strcmp(method, "GET") || !strcmp(method, "HEAD");
+    if (!strncmp(url, "/view/", 6)) return get ? send_view(c, url) : send_error(c, 405, "method not allowed: GET");
+    int n = split(url, seg);
     if (n < 0) return send_error(c, 404, "no such route");
-    if (n == 0) return get ? send_error(c, 404, "the page is not built yet: see docs/server.md for the API") : send_error(c, 405, "method not allowed");
+    if (n == 0 || (n == 1 && !strcmp(seg[0], "serve.js"))) {
+        if (!get) return send_error(c, 405, "method not allowed: GET");
+        int rc = serve_static_app(n ? "serve.js" : "serve.html", path, sizeof path, &type);
+        return send_static(c, rc, path, type);
+    }
     if (n < 2 || strcmp(seg[0], "api") || strcmp(seg[1], "jobs")) return send_error(c, 404, "no such route");
     if (n == 2) {
         if (get) return send_text(c, 200, "application/json", serve_jobs_list_json());

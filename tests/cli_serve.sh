@@ -65,7 +65,9 @@ echo "[${SECONDS} s] start"
 expect 2 "--host 0.0.0.0 without --token" -- "$M" serve --host 0.0.0.0 --port 0 --runs "$R"
 err_has "the refusal names --token" "give --token"
 expect 2 "a short token" -- "$M" serve --host 0.0.0.0 --port 0 --token abc --runs "$R"
-start_server s1 --runs "$R" --timeout 2 --max-body 2048 --max-prompt 64 --max-queue 2 --max-connections 6
+# (the default --timeout here: a browser under load may not read for 2 s, and a connection that
+# reads nothing for --timeout seconds is closed too; the short timeout is the next server's)
+start_server s1 --runs "$R" --max-body 2048 --max-prompt 64 --max-queue 2
 [[ "$U" =~ ^http://127\.0\.0\.1:[0-9]+/$ ]] && ok "first line: the address ($U)" || bad "first line '$U'"
 U=${U%/}
 req "GET /api/jobs, none yet" 200 "$U/api/jobs"
@@ -177,29 +179,12 @@ req "DELETE an unknown id" 404 -X DELETE "$U/api/jobs/job-999999"
 req "DELETE a finished job" 409 -X DELETE "$U/api/jobs/$ID"
 req "PUT /api/jobs" 405 -X PUT "$U/api/jobs"
 json_error "wrong method"
+curl -s -D "$T/headers" -o /dev/null -X PUT "$U/api/jobs"
+grep -qi '^allow: GET, HEAD, POST' "$T/headers" && ok "405 names the route's methods" || bad "Allow header"
 req "DELETE /api/jobs" 405 -X DELETE "$U/api/jobs"
 req "POST /api/jobs/ID" 405 -X POST -d '{}' "$U/api/jobs/$ID"
 req "POST .../events" 405 -X POST "$U/api/jobs/$ID/events"
 req "DELETE .../files/asset.glb" 405 -X DELETE "$U/api/jobs/$ID/files/asset.glb"
-
-# a half-sent request: closed after --timeout (2 s), and the server answers others meanwhile
-PORT=${U##*:}
-t0=$(date +%s%N)
-exec 3<> "/dev/tcp/127.0.0.1/$PORT"
-printf 'POST /api/jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n{"prompt":' >&3
-req "answers while a request hangs" 200 "$U/api/jobs"
-timeout 15 cat <&3 > "$T/half"
-exec 3<&-
-ms=$((($(date +%s%N) - t0) / 1000000))
-if [ "$ms" -ge 1500 ] && [ "$ms" -lt 8000 ]; then ok "half-sent request closed after $ms ms"; else bad "half-sent request: $ms ms"; fi
-grep -q '^HTTP/1.1 201' "$T/half" && bad "the half request made a job" || ok "the half request made no job"
-# too many connections: 6 allowed, 6 idle ones open, the 7th gets a 429
-for fd in 3 4 5 6 7 8; do eval "exec $fd<> /dev/tcp/127.0.0.1/$PORT"; done
-req "a connection over --max-connections" 429 "$U/api/jobs"
-json_error "too many connections"
-for fd in 3 4 5 6 7 8; do eval "exec $fd<&-"; done
-sleep 0.3
-req "the server after the idle connections" 200 "$U/api/jobs"
 
 # ---- cancel: a running and a queued job; the queue's limit ----
 echo "[${SECONDS} s] cancel"
@@ -232,8 +217,29 @@ K=$(field 'd["id"]')
 wait_progress "$K" 4 && ok "it got past a checkpoint" || bad "no progress"
 kill -9 "$PID"; wait "$PID" 2> /dev/null
 sleep 0.5
-start_server s2 --runs "$R" --timeout 2
+# the job went with the server (its parent-death signal): no second writer when it resumes
+pgrep -f -- "-o $R/$K\$" > /dev/null && bad "the job outlived the server" || ok "the job died with the server"
+start_server s2 --runs "$R" --timeout 2 --max-connections 6
 U=${U%/}
+# a half-sent request: closed after --timeout (2 s), and the server answers others meanwhile
+PORT=${U##*:}
+t0=$(date +%s%N)
+exec 3<> "/dev/tcp/127.0.0.1/$PORT"
+printf 'POST /api/jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n{"prompt":' >&3
+req "answers while a request hangs" 200 "$U/api/jobs"
+timeout 15 cat <&3 > "$T/half"
+exec 3<&-
+ms=$((($(date +%s%N) - t0) / 1000000))
+if [ "$ms" -ge 1500 ] && [ "$ms" -lt 8000 ]; then ok "half-sent request closed after $ms ms"; else bad "half-sent request: $ms ms"; fi
+grep -q '^HTTP/1.1 201' "$T/half" && bad "the half request made a job" || ok "the half request made no job"
+# too many connections: 6 allowed, 6 idle ones open, the 7th gets a 429
+for fd in 3 4 5 6 7 8; do eval "exec $fd<> /dev/tcp/127.0.0.1/$PORT"; done
+req "a connection over --max-connections" 429 "$U/api/jobs"
+json_error "too many connections"
+for fd in 3 4 5 6 7 8; do eval "exec $fd<&-"; done
+sleep 0.3
+req "the server after the idle connections" 200 "$U/api/jobs"
+
 wait_state "$K" done && ok "after the restart the job resumed and finished" || { bad "K: $(state "$K")"; cat "$R/.serve/$K.log" | tail -5; }
 grep -q -- "--resume\|resum" "$R/.serve/$K.log" && ok "its log shows a resume" || echo "(note: no resume line in the log)"
 req "GET /api/jobs after the restart" 200 "$U/api/jobs"

@@ -59,13 +59,13 @@ try {
   const id = await page.evaluate(() => window.serveApp.selected);
   ok(/^job-\d+$/.test(id), `submitted: ${id}`);
   // watch: the bar moves with the events
-  await page.waitForFunction(() => window.serveApp.last && ['progress', 'end', 'job'].includes(window.serveApp.last.event), null, { timeout: 120000 });
+  await page.waitForFunction(() => window.serveApp.last && ['progress', 'end', 'job'].includes(window.serveApp.last.event), null, { timeout: Number(process.env.MLB_SERVE_WAIT_MS || 120000) });
   const bar = await page.evaluate(() => parseFloat(document.getElementById('job-bar').style.width));
   ok(bar > 0, `the progress bar moved (${bar}%) with ${await page.evaluate(() => window.serveApp.events)} events`);
   await shot('2_watch');
   // look: the viewer in its frame draws the asset
   await page.waitForFunction(() => { const f = document.getElementById('view'); return !f.hidden && f.contentWindow.viewer && f.contentWindow.viewer.ready && f.contentWindow.viewer.frames > 0; },
-    null, { timeout: 180000 });
+    null, { timeout: Number(process.env.MLB_SERVE_WAIT_MS || 180000) });   // (a full-size job for the docs' pictures: longer)
   ok(true, 'the viewer shows the finished asset');
   const frame = page.frames().find((f) => f.url().includes(`/view/${id}/`));
   ok(!!frame, 'the viewer frame is /view/ID/');

@@ -26,17 +26,21 @@ static serve_options O;
 static atomic_int open_connections;
 
 // ---- replies ----
-static enum MHD_Result send_text(struct MHD_Connection* c, unsigned code, const char* type, char* text) {
+static enum MHD_Result send_text_allow(struct MHD_Connection* c, unsigned code, const char* type, char* text, const char* allow) {
     if (!text) return MHD_NO;
     struct MHD_Response* r = MHD_create_response_from_buffer(strlen(text), text, MHD_RESPMEM_MUST_FREE);
     if (!r) { free(text); return MHD_NO; }
     MHD_add_response_header(r, "Content-Type", type);
     MHD_add_response_header(r, "Cache-Control", "no-store");
     MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
-    if (code == 405) MHD_add_response_header(r, "Allow", "GET, POST, DELETE");
+    if (allow) MHD_add_response_header(r, "Allow", allow);
     enum MHD_Result ret = MHD_queue_response(c, code, r);
     MHD_destroy_response(r);
     return ret;
+}
+
+static enum MHD_Result send_text(struct MHD_Connection* c, unsigned code, const char* type, char* text) {
+    return send_text_allow(c, code, type, text, NULL);
 }
 
 static enum MHD_Result send_json(struct MHD_Connection* c, unsigned code, cJSON* o) {
@@ -51,6 +55,18 @@ static enum MHD_Result send_error(struct MHD_Connection* c, unsigned code, const
     cJSON_AddStringToObject(o, "error", msg);
     cJSON_AddNumberToObject(o, "status", code);
     return send_json(c, code, o);
+}
+
+// 405 with the methods the route takes
+static enum MHD_Result send_405(struct MHD_Connection* c, const char* allow) {
+    char msg[96];
+    snprintf(msg, sizeof msg, "method not allowed: %s", allow);
+    cJSON* o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "error", msg);
+    cJSON_AddNumberToObject(o, "status", 405);
+    char* text = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return send_text_allow(c, 405, "application/json", text, allow);
 }
 
 // ---- the bearer token ----
@@ -275,18 +291,18 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
     char seg[5][64], path[4200];
     const char* type = NULL;
     int get = !strcmp(method, "GET") || !strcmp(method, "HEAD");
-    if (!strncmp(url, "/view/", 6)) return get ? send_view(c, url) : send_error(c, 405, "method not allowed: GET");
+    if (!strncmp(url, "/view/", 6)) return get ? send_view(c, url) : send_405(c, "GET, HEAD");
     int n = split(url, seg);
     if (n < 0) return send_error(c, 404, "no such route");
     if (n == 0 || (n == 1 && !strcmp(seg[0], "serve.js"))) {
-        if (!get) return send_error(c, 405, "method not allowed: GET");
+        if (!get) return send_405(c, "GET, HEAD");
         int rc = serve_static_app(n ? "serve.js" : "serve.html", path, sizeof path, &type);
         return send_static(c, rc, path, type);
     }
     if (n < 2 || strcmp(seg[0], "api") || strcmp(seg[1], "jobs")) return send_error(c, 404, "no such route");
     if (n == 2) {
         if (get) return send_text(c, 200, "application/json", serve_jobs_list_json());
-        if (strcmp(method, "POST")) return send_error(c, 405, "method not allowed: GET or POST /api/jobs");
+        if (strcmp(method, "POST")) return send_405(c, "GET, HEAD, POST");
         const char* len = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Length");
         if (len && strtoull(len, NULL, 10) > O.max_body)
             return send_error(c, 413, "the request body is over the server's limit (--max-body)");
@@ -301,14 +317,14 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
             char* text = serve_jobs_get_json(id);
             return text ? send_text(c, 200, "application/json", text) : send_error(c, 404, "no such job");
         }
-        if (strcmp(method, "DELETE")) return send_error(c, 405, "method not allowed: GET or DELETE /api/jobs/ID");
+        if (strcmp(method, "DELETE")) return send_405(c, "GET, HEAD, DELETE");
         int rc = serve_jobs_cancel(id);
         if (rc == 404) return send_error(c, 404, "no such job");
         if (rc == 409) return send_error(c, 409, "the job has already ended");
         return send_text(c, 200, "application/json", serve_jobs_get_json(id));
     }
-    if (n == 4 && !strcmp(seg[3], "events")) return get ? send_events(c, id) : send_error(c, 405, "method not allowed: GET");
-    if (n == 5 && !strcmp(seg[3], "files")) return get ? send_file(c, id, seg[4]) : send_error(c, 405, "method not allowed: GET");
+    if (n == 4 && !strcmp(seg[3], "events")) return get ? send_events(c, id) : send_405(c, "GET, HEAD");
+    if (n == 5 && !strcmp(seg[3], "files")) return get ? send_file(c, id, seg[4]) : send_405(c, "GET, HEAD");
     return send_error(c, 404, "no such route");
 }
 

@@ -160,7 +160,14 @@ P65=$(printf 'a%.0s' $(seq 65))
 head -c 3000 /dev/zero | tr '\0' ' ' > "$T/big.json"
 req "a body over --max-body (Content-Length)" 413 -X POST --data-binary @"$T/big.json" "$U/api/jobs"
 json_error "oversized body"
-req "a body over --max-body (chunked)" 413 -X POST -H 'Transfer-Encoding: chunked' --data-binary @"$T/big.json" "$U/api/jobs"
+req "a body over --max-body (chunked)" 413 -X POST -H 'Content-Type: application/json' -H 'Transfer-Encoding: chunked' \
+  --data-binary @"$T/big.json" "$U/api/jobs"
+# what a page of another site can send without asking first (a form, text/plain), and DNS rebinding
+req "a form's POST (not JSON): 415" 415 -X POST --data-binary "$SMALL" "$U/api/jobs"
+req "text/plain: 415" 415 -X POST -H 'Content-Type: text/plain' --data-binary "$SMALL" "$U/api/jobs"
+req "a Host that is not this machine: 403" 403 -H 'Host: evil.example:80' "$U/api/jobs"
+json_error "foreign Host"
+req "Host: localhost" 200 -H "Host: localhost:${U##*:}" "$U/api/jobs"
 for p in "../config.json" "..%2fconfig.json" "%2e%2e%2fconfig.json" "%2fetc%2fpasswd" "/etc/passwd" "final/asset.glb" \
          "asset.glb%00" "checkpoints" "../../../../etc/passwd" "." ".." "config.json/" "Asset.glb"; do
   code=$(curl -s --path-as-is -o "$T/body" -w '%{http_code}' "$U/api/jobs/$ID/files/$p")
@@ -225,7 +232,7 @@ U=${U%/}
 PORT=${U##*:}
 t0=$(date +%s%N)
 exec 3<> "/dev/tcp/127.0.0.1/$PORT"
-printf 'POST /api/jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n{"prompt":' >&3
+printf 'POST /api/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{"prompt":' >&3
 req "answers while a request hangs" 200 "$U/api/jobs"
 timeout 15 cat <&3 > "$T/half"
 exec 3<&-

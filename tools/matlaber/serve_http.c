@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <time.h>
@@ -88,6 +89,19 @@ static int authorised(struct MHD_Connection* c) {
     if (q && same_secret(q, O.token)) return 1;
     const char* k = MHD_lookup_connection_value(c, MHD_COOKIE_KIND, "matlaber_token");
     return k && same_secret(k, O.token);
+}
+
+// Without a token the server trusts the machine, so it answers only requests addressed to the machine:
+// a page elsewhere that points a name of its own at 127.0.0.1 (DNS rebinding) sends its own Host.
+static int host_is_loopback(struct MHD_Connection* c) {
+    const char* h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host");
+    if (!h) return 0;
+    static const char* const names[] = {"127.0.0.1", "localhost", "[::1]", NULL};
+    for (int i = 0; names[i]; i++) {
+        size_t n = strlen(names[i]);
+        if (!strncasecmp(h, names[i], n) && (h[n] == 0 || h[n] == ':')) return 1;
+    }
+    return 0;
 }
 
 // ---- server-sent events: the job's events file from an offset, a line an event ----
@@ -287,6 +301,8 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
         enum MHD_Result r = send_error(c, 401, "a bearer token is required (Authorization: Bearer TOKEN)");
         return r;
     }
+    if (!O.token && !host_is_loopback(c))
+        return send_error(c, 403, "the Host header does not name this machine (127.0.0.1, localhost, [::1])");
     if (strchr(url, '%')) return send_error(c, 400, "percent-encoded URLs are refused (ids and file names need none)");
     char seg[5][64], path[4200];
     const char* type = NULL;
@@ -306,6 +322,10 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
         const char* len = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Length");
         if (len && strtoull(len, NULL, 10) > O.max_body)
             return send_error(c, 413, "the request body is over the server's limit (--max-body)");
+        // JSON only: a form another site's page posts (no preflight for text/plain or a form) is refused
+        const char* ct = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Type");
+        if (!ct || strncasecmp(ct, "application/json", 16) || (ct[16] && ct[16] != ';' && ct[16] != ' '))
+            return send_error(c, 415, "the body must be sent as Content-Type: application/json");
         q = calloc(1, sizeof *q);
         if (!q) return MHD_NO;
         *ctx = q;

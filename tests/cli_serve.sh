@@ -6,7 +6,8 @@
 # JSON, wrong types, unknown keys, generate's own refusals, oversized bodies (Content-Length and
 # chunked), long prompts, '..' / absolute / percent-encoded file routes, unknown ids, wrong methods,
 # a full queue, too many connections, a half-sent request that times out without holding the
-# server, and a non-loopback bind without, with a wrong and with the right token.
+# server, and a non-loopback bind without, with a wrong and with the right token. A light load with
+# two jobs at once (--jobs 2): every answer 200, memory flat.
 # Skips (77) in a build without libmicrohttpd, without curl or without the model.
 set -u
 M=${1:?usage: cli_serve.sh path/to/matlaber}
@@ -221,6 +222,8 @@ echo "[${SECONDS} s] kill -9 mid-job, start again"
 RESUME='{"prompt":"a gold goblet","seed":3,"geometry_iters":16,"appearance_iters":2,"checkpoint_every":2,'"$TINY"'}'
 [ "$(post "$RESUME")" = 201 ] && ok "submit the job to interrupt" || bad "resume job"
 K=$(field 'd["id"]')
+[ "$(post "$SMALL")" = 201 ] && ok "and one queued behind it" || bad "queued job"
+Q=$(field 'd["id"]')
 wait_progress "$K" 4 && ok "it got past a checkpoint" || bad "no progress"
 kill -9 "$PID"; wait "$PID" 2> /dev/null
 sleep 0.5
@@ -250,7 +253,10 @@ req "the server after the idle connections" 200 "$U/api/jobs"
 wait_state "$K" done && ok "after the restart the job resumed and finished" || { bad "K: $(state "$K")"; cat "$R/.serve/$K.log" | tail -5; }
 grep -q -- "--resume\|resum" "$R/.serve/$K.log" && ok "its log shows a resume" || echo "(note: no resume line in the log)"
 req "GET /api/jobs after the restart" 200 "$U/api/jobs"
-for j in "$ID" "$L1" "$L2" "$L3" "$K"; do body_has "$j still listed" "\"id\":\"$j\""; done
+for j in "$ID" "$L1" "$L2" "$L3" "$K" "$Q"; do body_has "$j still listed" "\"id\":\"$j\""; done
+wait_state "$Q" done && ok "the job queued before the kill ran after the restart" || bad "Q: $(state "$Q")"
+cmp -s "$R/$Q/final/asset.glb" "$R/$ID/final/asset.glb" && ok "its asset: bitwise the first job's (the same request)" \
+  || bad "the queued job's asset differs from the same request's"
 [ "$(post "$RESUME")" = 201 ] && ok "the same job, uninterrupted" || bad "reference job"
 K2=$(field 'd["id"]')
 wait_state "$K2" done || bad "reference job: $(state "$K2")"
@@ -262,7 +268,7 @@ kill "$PID"; wait "$PID" 2> /dev/null
 # ---- a non-loopback bind needs the token ----
 echo "[${SECONDS} s] a non-loopback bind needs the token"
 TOK=0123456789abcdef0123
-start_server s3 --host 0.0.0.0 --token "$TOK" --runs "$R" --timeout 2
+start_server s3 --host 0.0.0.0 --token "$TOK" --runs "$R" --timeout 2 --jobs 2
 U="http://127.0.0.1:${U##*:}"; U=${U%/}
 req "no token: 401" 401 "$U/api/jobs"
 json_error "missing token"
@@ -272,5 +278,36 @@ req "the token in another scheme: 401" 401 -H "Authorization: Basic $TOK" "$U/ap
 req "POST without the token: 401" 401 -X POST --data-binary "$SMALL" "$U/api/jobs"
 req "the right token" 200 -H "Authorization: Bearer $TOK" "$U/api/jobs"
 req "the token as ?token= (EventSource, links)" 200 "$U/api/jobs/$ID/files/asset.glb?token=$TOK"
+req "the token as the page's cookie" 200 -b "matlaber_token=$TOK" "$U/api/jobs/$ID"
+req "a wrong cookie" 401 -b "matlaber_token=x$TOK" "$U/api/jobs/$ID"
+req "a foreign Host is fine with a token" 200 -H 'Host: my-server.example' -H "Authorization: Bearer $TOK" "$U/api/jobs"
+
+# ---- load: many clients reading while jobs run two at a time (--jobs 2); memory flat ----
+echo "[${SECONDS} s] load"
+A=(-H "Authorization: Bearer $TOK")
+for i in 1 2 3; do
+  curl -s -o /dev/null "${A[@]}" -X POST -H 'Content-Type: application/json' --data-binary "$LONG" "$U/api/jobs"
+done
+sleep 1
+n_running=$(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"state":"running"' | wc -l)
+[ "$n_running" = 2 ] && ok "--jobs 2: two jobs run at once" || bad "--jobs 2: $n_running running"
+rss() { awk '/^VmRSS/ {print $2}' "/proc/$PID/status"; }
+load_round() {   # 400 requests from 50 clients at a time: lists, one job, a finished job's events and .glb
+  for i in $(seq 100); do
+    echo "$U/api/jobs"; echo "$U/api/jobs/$ID"; echo "$U/api/jobs/$ID/events"; echo "$U/api/jobs/$ID/files/asset.glb"
+  done | xargs -P 50 -n 1 curl -s -o /dev/null -w '%{http_code}\n' --max-time 30 "${A[@]}" > "$T/codes"
+}
+load_round
+r1=$(rss)
+load_round; load_round
+r2=$(rss)
+n200=$(grep -c '^200$' "$T/codes")
+[ "$n200" = 400 ] && ok "400 concurrent requests, all 200" || bad "load: $(sort "$T/codes" | uniq -c | tr '\n' ' ')"
+[ $((r2 - r1)) -lt 8192 ] && ok "memory flat under load (RSS $r1 -> $r2 kB)" || bad "RSS grew $r1 -> $r2 kB"
+ids=$(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*"' | sort)
+[ -z "$(echo "$ids" | uniq -d)" ] && ok "no job listed twice" || bad "a job listed twice"
+for j in $(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*","state":"\(running\|queued\)"' | cut -d'"' -f4); do
+  curl -s -o /dev/null "${A[@]}" -X DELETE "$U/api/jobs/$j"
+done
 kill "$PID"; wait "$PID" 2> /dev/null
 finish

@@ -262,6 +262,35 @@ K2=$(field 'd["id"]')
 wait_state "$K2" done || bad "reference job: $(state "$K2")"
 cmp -s "$R/$K/final/asset.glb" "$R/$K2/final/asset.glb" && ok "resumed asset: bitwise the uninterrupted one" \
   || bad "the resumed job's asset differs from the uninterrupted one"
+
+# ---- a mesh uploaded to paint (base64 in the JSON), and paint's own checks on it ----
+echo "[${SECONDS} s] paint an uploaded mesh"
+printf 'v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n' > "$T/cube.obj"
+printf 'f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n' >> "$T/cube.obj"
+printf 'v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\nf 1 1 2\n' > "$T/flat.obj"
+CUBE=$(base64 -w0 "$T/cube.obj")
+PAINT='"res":32,"views":2,"appearance_iters":4,"checkpoint_every":2,"preview_every":2,"export_texture":64,"material_start":0'
+[ "$(post '{"prompt":"a red bowl","mesh":{"format":"obj","data":"'"$CUBE"'"},'"$PAINT"'}')" = 201 ] && ok "POST a mesh: 201" \
+  || bad "POST a mesh: $(cat "$T/body")"
+P=$(field 'd["id"]')
+body_has "the record keeps the mesh's format and size, not its bytes" '"mesh":{"format":"obj","bytes":'"$(stat -c %s "$T/cube.obj")"'}'
+wait_state "$P" done && ok "the paint job finished" || { bad "paint job: $(state "$P")"; tail -5 "$R/.serve/$P.log"; }
+grep -q '"paint_mesh"' "$R/$P/config.json" && ok "it is a paint run" || bad "not a paint run"
+req "its .glb" 200 "$U/api/jobs/$P/files/asset.glb"
+[ "$(head -c 4 "$T/body")" = glTF ] && ok "a .glb" || bad "no .glb"
+[ "$(post '{"prompt":"a red bowl","mesh":{"format":"obj","data":"'"$(base64 -w0 "$T/flat.obj")"'"}}')" = 400 ] \
+  && ok "a mesh paint refuses: 400" || bad "flat mesh: $(cat "$T/body")"
+body_has "paint's own message" "zero area"
+grep -q "uploads" "$T/body" && bad "the message shows the server's upload path" || ok "the message says 'the mesh', not a path"
+[ "$(post '{"prompt":"a red bowl","mesh":{"format":"glb","data":"Z2xURg=="}}')" = 400 ] && ok "a truncated .glb: 400" || bad "glb"
+for m in '{"format":"gltf","data":"'"$CUBE"'"}' '{"format":"obj","data":"not base64!"}' '{"format":"obj","data":"QQ="}' \
+         '{"format":"obj"}' '{"format":"obj","data":"'"$CUBE"'","path":"/etc/passwd"}' '"'"$CUBE"'"'; do
+  [ "$(post '{"prompt":"a red bowl","mesh":'"$m"'}')" = 400 ] && ok "mesh ${m:0:40}...: 400" || bad "mesh $m: $(cat "$T/body")"
+done
+[ "$(post '{"prompt":"a red bowl","grid":16,"mesh":{"format":"obj","data":"'"$CUBE"'"}}')" = 400 ] \
+  && ok "a geometry option with a mesh: 400" || bad "grid with a mesh"
+body_has "paint's reason" "no geometry stage"
+[ -z "$(ls "$R/.serve/uploads" | grep -v '^job-')" ] && ok "refused uploads leave nothing" || bad "uploads left: $(ls "$R/.serve/uploads")"
 kill "$PID"; wait "$PID" 2> /dev/null
 [ $? = 0 ] && ok "Ctrl-C/SIGTERM: a clean exit" || bad "exit status on SIGTERM"
 

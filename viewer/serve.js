@@ -136,12 +136,22 @@ async function select(id) {
 }
 
 // ---- make ----
+// a file as base64, in slices (String.fromCharCode takes a bounded number of arguments)
+async function base64Of(file) {
+  const bytes = new Uint8Array(await file.arrayBuffer());
+  let text = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(text);
+}
+
 $('make').addEventListener('submit', async (ev) => {
   ev.preventDefault();
   $('error').textContent = '';
   const request = { prompt: $('prompt').value.trim(), seed: Number($('seed').value || 0) };
   if ($('preset').value) request.preset = $('preset').value;
   try {
+    const file = $('mesh').files[0];   // a mesh: the job paints it (paint) instead of making one
+    if (file) request.mesh = { format: file.name.toLowerCase().endsWith('.glb') ? 'glb' : 'obj', data: await base64Of(file) };
     const extra = $('extra').value.trim();
     if (extra) Object.assign(request, JSON.parse(extra));
     const job = await api('/api/jobs', { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(request) });

@@ -68,8 +68,9 @@ int generate_option_arity(const char* name);
 // stopped at --stop-after
 #define GENERATE_STOPPED 3
 int generate_run_quiet(int argc, char** argv);
-// generate's checks alone, nothing loaded or written: 0 when `generate argv...` would start, else
-// the exit status it would end with (the reason in cli_last_message). Not reentrant (getopt).
+// generate's checks alone, nothing but a paint mesh loaded, nothing written: 0 when `generate
+// argv...` (or paint, when argv[0] is "paint") would start, else the exit status it would end with
+// (the reason in cli_last_message). Not reentrant (getopt).
 int generate_check_args(int argc, char** argv);
 int cmd_serve(int argc, char** argv);
 // matlaber generate --prompts FILE -o DIR (cmd_prompts.c)

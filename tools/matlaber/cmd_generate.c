@@ -336,7 +336,6 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     // the project's own models read only their catalogue's captions: a prompt is read into one
     // before anything is loaded or made, or refused naming the words they never saw
     if (!resume && mlb_pipeline_read_prompt(&c)) return cli_usage_error(command, "%s", mlb_last_error());
-    if (g_check_only) return 0;
     if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
         mlb_gemm_precision p;
         if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
@@ -347,6 +346,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         mlb_mesh_free(&m);
         if (s) return cli_fail(s, command);
     }
+    if (g_check_only) return 0;   // (paint: after the mesh's checks)
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     s = mlb_pipeline_make_guidance(&c, &g, &views);
@@ -409,7 +409,8 @@ int generate_run_quiet(int argc, char** argv) {
 
 int generate_check_args(int argc, char** argv) {
     g_check_only = 1;
-    int rc = run_pipeline("generate", argc, argv, MODE_GENERATE);
+    int paint = !strcmp(argv[0], "paint");
+    int rc = run_pipeline(argv[0], argc, argv, paint ? MODE_PAINT : MODE_GENERATE);
     g_check_only = 0;
     return rc;
 }

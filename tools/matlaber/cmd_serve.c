@@ -21,7 +21,7 @@ static const cli_option options[] = {
     {"jobs", 1, 'j', "N", "jobs running at once (default 1)"},
     {"max-queue", 1, 'q', "N", "jobs waiting at most (default 16; more: 429)"},
     {"max-connections", 1, 'c', "N", "open connections at most (default 64; more: 429)"},
-    {"max-body", 1, 'b', "BYTES", "request body at most (default 65536; more: 413)"},
+    {"max-body", 1, 'b', "BYTES", "request body at most, an uploaded mesh's base64 included (default 8388608; more: 413)"},
     {"max-prompt", 1, 'P', "BYTES", "prompt length at most (default 512; more: 400)"},
     {"timeout", 1, 'T', "S", "seconds before an idle or half-sent connection is closed (default 10)"},
     {"help", 0, 'h', NULL, "this help"},
@@ -41,7 +41,7 @@ static int loopback(const char* host) {
 
 int cmd_serve(int argc, char** argv) {
     serve_options o = {.host = "127.0.0.1", .port = 7860, .runs = "runs", .exe = "/proc/self/exe", .jobs = 1,
-                       .max_queue = 16, .max_conns = 64, .max_body = 65536, .max_prompt = 512, .timeout = 10};
+                       .max_queue = 16, .max_conns = 64, .max_body = 8 << 20, .max_prompt = 512, .timeout = 10};
     long v;
     const struct option* table = cli_getopt_table(options);
     optind = 1;

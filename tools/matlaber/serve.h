@@ -28,10 +28,15 @@ typedef struct {
 // types, then generate's own option checks on the arguments it becomes. body[n] must be a NUL. On success *out is the
 // request as it will be kept (cJSON, the caller's) and 0 is returned; else the HTTP status (400,
 // 413) with the reason in err.
-int serve_request_parse(const char* body, size_t n, const serve_options* o, cJSON** out, char* err, size_t cap);
-// The request's generate options (after "generate", before -o), NULL-terminated, malloc'd strings;
-// NULL when out of memory. serve_args_free releases them.
-char** serve_request_args(const cJSON* req, const serve_options* o);
+// With "mesh" (a paint job) the decoded mesh is kept in a folder of its own, named in upload (else
+// upload is ""), for serve_jobs_submit to take; a refused request leaves nothing.
+int serve_request_parse(const char* body, size_t n, const serve_options* o, cJSON** out, char* upload, size_t ucap,
+                        char* err, size_t cap);
+void serve_upload_discard(const char* dir);
+// The request's generate (paint) options (after the command, before -o), NULL-terminated, malloc'd
+// strings; mesh_path: the mesh file of a paint job. NULL when out of memory. serve_args_free
+// releases them.
+char** serve_request_args(const cJSON* req, const serve_options* o, const char* mesh_path);
 void serve_args_free(char** args);
 
 // ---- serve_jobs.c ----
@@ -40,8 +45,9 @@ typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED, JOB
 // resume) and starts the scheduler. 0 on success, else a message on stderr.
 int serve_jobs_open(const serve_options* o);
 void serve_jobs_close(void);
-// Queues a checked request (takes it); 0 with the new id in id, 429 when the queue is full.
-int serve_jobs_submit(cJSON* req, char* id, size_t cap, char* err, size_t errcap);
+// Queues a checked request (takes it, and its upload folder when not ""); 0 with the new id in id,
+// 429 when the queue is full.
+int serve_jobs_submit(cJSON* req, const char* upload, char* id, size_t cap, char* err, size_t errcap);
 // JSON text (malloc'd) of all jobs, or of one (NULL when there is no such id).
 char* serve_jobs_list_json(void);
 char* serve_jobs_get_json(const char* id);

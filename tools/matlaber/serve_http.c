@@ -267,10 +267,10 @@ static int split(const char* url, char seg[5][64]) {
 static enum MHD_Result submit(struct MHD_Connection* c, request* q) {
     if (q->too_big) return send_error(c, 413, "the request body is over the server's limit (--max-body)");
     cJSON* req = NULL;
-    char err[1200], id[64];
-    int rc = serve_request_parse(q->body ? q->body : "", q->len, &O, &req, err, sizeof err);
+    char err[1200], id[64], upload[4200];
+    int rc = serve_request_parse(q->body ? q->body : "", q->len, &O, &req, upload, sizeof upload, err, sizeof err);
     if (rc) return send_error(c, (unsigned)rc, err);
-    rc = serve_jobs_submit(req, id, sizeof id, err, sizeof err);   // takes req
+    rc = serve_jobs_submit(req, upload, id, sizeof id, err, sizeof err);   // takes req and the upload
     if (rc) return send_error(c, (unsigned)rc, err);
     char* text = serve_jobs_get_json(id);
     return send_text(c, 201, "application/json", text);

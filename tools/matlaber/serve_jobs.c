@@ -76,6 +76,13 @@ static void run_path(char* out, size_t cap, const job* j, const char* rel) {
 
 static void meta_path(char* out, size_t cap, const char* id, const char* ext) { snprintf(out, cap, "%s/%s%s", J.meta, id, ext); }
 
+// A paint job's mesh: RUNS/.serve/uploads/ID/mesh.FMT; "" for a generate job
+static const char* mesh_format(const cJSON* req) {
+    const cJSON* m = req ? cJSON_GetObjectItemCaseSensitive(req, "mesh") : NULL;
+    const cJSON* f = m ? cJSON_GetObjectItemCaseSensitive(m, "format") : NULL;
+    return cJSON_IsString(f) ? f->valuestring : NULL;
+}
+
 static job* find(const char* id) {
     for (int i = 0; i < J.n; i++)
         if (!strcmp(J.v[i]->id, id)) return J.v[i];
@@ -196,7 +203,10 @@ static int start_job(job* j) {
     char dir[4200], log_path[4200];
     run_path(dir, sizeof dir, j, NULL);
     meta_path(log_path, sizeof log_path, j->id, ".log");
-    char** args = j->resume ? NULL : serve_request_args(j->request, &J.o);
+    const char* fmt = mesh_format(j->request);
+    char mesh[4300] = "";
+    if (fmt) snprintf(mesh, sizeof mesh, "%s/uploads/%s/mesh.%s", J.meta, j->id, fmt);
+    char** args = j->resume ? NULL : serve_request_args(j->request, &J.o, mesh);
     int n = 0;
     while (args && args[n]) n++;
     char** argv = calloc((size_t)n + 10, sizeof *argv);
@@ -216,7 +226,7 @@ static int start_job(job* j) {
     argv[a++] = (char*)J.o.exe;
     argv[a++] = "--progress";
     argv[a++] = "json";
-    argv[a++] = "generate";
+    argv[a++] = fmt ? "paint" : "generate";
     if (j->resume) {
         argv[a++] = "--resume";
         argv[a++] = dir;
@@ -421,13 +431,14 @@ void serve_jobs_wait(double seconds) {
     pthread_mutex_unlock(&J.lock);
 }
 
-int serve_jobs_submit(cJSON* req, char* id, size_t cap, char* err, size_t errcap) {
+int serve_jobs_submit(cJSON* req, const char* upload, char* id, size_t cap, char* err, size_t errcap) {
     pthread_mutex_lock(&J.lock);
     int queued = 0;
     for (int i = 0; i < J.n; i++) queued += J.v[i]->state == JOB_QUEUED;
     if (queued >= J.o.max_queue) {
         pthread_mutex_unlock(&J.lock);
         cJSON_Delete(req);
+        serve_upload_discard(upload);
         snprintf(err, errcap, "the queue is full (%d jobs wait; --max-queue)", queued);
         return 429;
     }
@@ -438,11 +449,14 @@ int serve_jobs_submit(cJSON* req, char* id, size_t cap, char* err, size_t errcap
         struct stat st;
         if (!find(name) && lstat(path, &st) != 0) break;
     }
-    job* j = add_job(name);
+    char kept[4200];
+    snprintf(kept, sizeof kept, "%s/uploads/%s", J.meta, name);
+    job* j = upload[0] && rename(upload, kept) != 0 ? NULL : add_job(name);   // the upload becomes the job's
     if (!j) {
         pthread_mutex_unlock(&J.lock);
         cJSON_Delete(req);
-        snprintf(err, errcap, "out of memory");
+        serve_upload_discard(upload);
+        snprintf(err, errcap, "could not keep the job: %s", strerror(errno));
         return 500;
     }
     j->request = req;

@@ -62,9 +62,9 @@ int cmd_serve(int argc, char** argv) {
         case 'h':
             printf("usage: matlaber serve [--host 127.0.0.1] [--port 7860] [--runs DIR] [-m MODEL] [--token T]\n\n"
                    "A local server: a page to make assets in the browser and the API under it (docs/server.md).\n"
-                   "Each job is `matlaber generate` as a child process with its run folder in --runs DIR; a\n"
-                   "restarted server lists the finished runs there and resumes the unfinished jobs. The first\n"
-                   "line printed is the address to open.\n\n");
+                   "Each job is `matlaber generate` (`paint` for an uploaded mesh) as a child process with its\n"
+                   "run folder in --runs DIR; a restarted server lists the finished runs there and resumes the\n"
+                   "unfinished jobs. The first line printed is the address to open.\n\n");
             cli_print_options(stdout, options);
             return 0;
         default: return cli_usage_error("serve", "unknown option");

@@ -105,6 +105,21 @@ try {
   const d = await diff('env0', 'env1');
   ok(d > 1, `switching ${envs[0]} -> ${envs[1]} changes the pixels (${d.toFixed(2)})`);
   await shot('4_environment');
+  await frame.evaluate(() => window.viewer.setChannel('normals'));
+  await grab('normals');
+  const dn = await diff('env1', 'normals');
+  ok(dn > 1, `the normals view differs from the shaded one (${dn.toFixed(2)})`);
+  await frame.evaluate(() => window.viewer.setChannel('shaded'));
+  // compare with another finished job, side by side (when the server has one)
+  const other = await page.evaluate((me) => [...document.getElementById('compare').options].map((o) => o.value).find((v) => v && v !== me), id);
+  if (other) {
+    await page.selectOption('#compare', other);
+    await page.waitForFunction(() => { const f = document.getElementById('view2'); return !f.hidden && f.contentWindow.viewer && f.contentWindow.viewer.ready && f.contentWindow.viewer.frames > 0; },
+      null, { timeout: 120000 });
+    const both = await page.evaluate(() => [...document.querySelectorAll('#look iframe')].filter((f) => !f.hidden).map((f) => Math.round(f.getBoundingClientRect().width)));
+    ok(both.length === 2 && both[0] > 100 && both[1] > 100, `${other} beside it: two viewers (${both.join(' + ')} px wide)`);
+    await shot('5_compare');
+  } else console.log('(no other finished job to compare with)');
   // download the .glb through its link
   const link = page.locator('#downloads a', { hasText: 'asset.glb' });
   ok(await link.count() === 1, 'a download link for asset.glb');

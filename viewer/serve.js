@@ -52,7 +52,18 @@ async function refreshJobs() {
     tr.addEventListener('click', () => select(job.id));
   }
   app.jobs = list.jobs;
+  // the finished jobs another may be compared with, side by side
+  const compare = $('compare'), keep = compare.value;
+  compare.length = 1;
+  for (const job of list.jobs) if (job.state === 'done') compare.add(new Option(`${job.id}: ${job.prompt || '(run folder)'}`, job.id));
+  compare.value = [...compare.options].some((o) => o.value === keep) ? keep : '';
 }
+
+$('compare').addEventListener('change', () => {
+  const id = $('compare').value, view2 = $('view2');
+  view2.hidden = !id;
+  if (id) view2.src = `/view/${id}/`;
+});
 
 // ---- one job: its events, its files, its asset ----
 function showProgress(ev) {

@@ -50,9 +50,9 @@ field() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(eva
 post() { curl -s -o "$T/body" -w '%{http_code}' --max-time 20 -X POST -H 'Content-Type: application/json' --data-binary "$1" "$U/api/jobs"; }
 # state ID: the job's state
 state() { curl -s --max-time 10 "$U/api/jobs/$1" | sed -n 's/.*"state":"\([a-z]*\)".*/\1/p'; }
-wait_state() { for _ in $(seq 600); do [ "$(state "$1")" = "$2" ] && return 0; sleep 0.2; done; return 1; }
+wait_state() { for _ in $(seq 1500); do [ "$(state "$1")" = "$2" ] && return 0; sleep 0.2; done; return 1; }
 wait_progress() {   # ID N: the job's events show at least N steps done
-  for _ in $(seq 600); do
+  for _ in $(seq 1500); do
     local d; d=$(curl -s --max-time 10 "$U/api/jobs/$1" | sed -n 's/.*"done":\([0-9]*\).*/\1/p')
     [ -n "$d" ] && [ "$d" -ge "$2" ] && return 0; sleep 0.2; done; return 1; }
 

@@ -109,6 +109,7 @@ int cmd_serve(int argc, char** argv) {
     fprintf(stderr, "matlaber serve: stopping\n");
     serve_jobs_close();   // first: the event streams end, then the daemon's threads can be joined
     serve_http_stop();
+    serve_jobs_free();
     return 0;
 #endif
 }

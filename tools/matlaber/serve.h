@@ -44,7 +44,10 @@ typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED, JOB
 // Reads the runs folder (finished runs listed, the server's unfinished jobs queued again to
 // resume) and starts the scheduler. 0 on success, else a message on stderr.
 int serve_jobs_open(const serve_options* o);
+// Stops: event streams end, the scheduler ends, its running children die (they resume at the next
+// start); then, once no connection can ask (serve_http_stop), serve_jobs_free releases the table.
 void serve_jobs_close(void);
+void serve_jobs_free(void);
 // Queues a checked request (takes it, and its upload folder when not ""); 0 with the new id in id,
 // 429 when the queue is full.
 int serve_jobs_submit(cJSON* req, const char* upload, char* id, size_t cap, char* err, size_t errcap);

@@ -411,6 +411,27 @@ void serve_jobs_close(void) {
     pthread_cond_broadcast(&J.changed);
     pthread_mutex_unlock(&J.lock);
     pthread_join(J.scheduler, NULL);   // its children get SIGKILL as it ends (their parent-death signal)
+    // their readers see the end and let go of their jobs (a few seconds at most; then left as they are)
+    struct timespec t;
+    clock_gettime(CLOCK_REALTIME, &t);
+    t.tv_sec += 10;
+    pthread_mutex_lock(&J.lock);
+    while (J.running > 0 && pthread_cond_timedwait(&J.changed, &J.lock, &t) == 0) {}
+    pthread_mutex_unlock(&J.lock);
+}
+
+void serve_jobs_free(void) {
+    pthread_mutex_lock(&J.lock);
+    if (J.running > 0) { pthread_mutex_unlock(&J.lock); return; }   // a reader still holds its job
+    for (int i = 0; i < J.n; i++) {
+        cJSON_Delete(J.v[i]->request);
+        free(J.v[i]->progress);
+        free(J.v[i]);
+    }
+    free(J.v);
+    J.v = NULL;
+    J.n = J.cap = 0;
+    pthread_mutex_unlock(&J.lock);
 }
 
 int serve_jobs_stopping(void) {

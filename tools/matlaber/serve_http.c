@@ -297,10 +297,7 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
     }
     // the first call: everything but a job's body is answered here, before any body is read
     if (atomic_load(&open_connections) > O.max_conns) return send_error(c, 429, "too many connections (--max-connections)");
-    if (!authorised(c)) {
-        enum MHD_Result r = send_error(c, 401, "a bearer token is required (Authorization: Bearer TOKEN)");
-        return r;
-    }
+    if (!authorised(c)) return send_error(c, 401, "a bearer token is required (Authorization: Bearer TOKEN)");
     if (!O.token && !host_is_loopback(c))
         return send_error(c, 403, "the Host header does not name this machine (127.0.0.1, localhost, [::1])");
     if (strchr(url, '%')) return send_error(c, 400, "percent-encoded URLs are refused (ids and file names need none)");

@@ -15,6 +15,7 @@ M=${1:?usage: cli_serve.sh path/to/matlaber}
 HERE=$(cd "$(dirname "$0")" && pwd)
 MODEL="$HERE/../models/matlaber-tiny"
 command -v curl > /dev/null || { echo "skip: no curl (scripts/install-deps.sh)"; exit 77; }
+command -v python3 > /dev/null || { echo "skip: no python3 (the test reads JSON with it)"; exit 77; }
 [ -f "$MODEL/model_index.json" ] || { echo "skip: no $MODEL"; exit 77; }
 expect 0 "serve --help" -- "$M" serve --help
 # a build without libmicrohttpd says so (exit 1) before it looks at the address

@@ -400,7 +400,7 @@ int serve_jobs_open(const serve_options* o) {
     d = opendir(o->runs);
     for (struct dirent* e; d && (e = readdir(d));) add_external(e->d_name);
     if (d) closedir(d);
-    qsort(J.v, (size_t)J.n, sizeof *J.v, by_created);
+    if (J.n > 1) qsort(J.v, (size_t)J.n, sizeof *J.v, by_created);   // (J.v is NULL while empty)
     if (pthread_create(&J.scheduler, NULL, scheduler, NULL)) { fprintf(stderr, "matlaber serve: no thread\n"); return -1; }
     return 0;
 }

@@ -335,11 +335,16 @@ load_round; load_round
 r2=$(rss)
 n200=$(grep -c '^200$' "$T/codes")
 [ "$n200" = 400 ] && ok "400 concurrent requests, all 200" || bad "load: $(sort "$T/codes" | uniq -c | tr '\n' ' ')"
-[ $((r2 - r1)) -lt 8192 ] && ok "memory flat under load (RSS $r1 -> $r2 kB)" || bad "RSS grew $r1 -> $r2 kB"
+if [ "${MLB_TEST_SANITIZED:-0}" = 1 ]; then   # ASan keeps freed memory in quarantine: RSS says nothing there
+  echo "(sanitized: RSS $r1 -> $r2 kB, not judged; the leak check at the server's exit is)"
+else
+  [ $((r2 - r1)) -lt 8192 ] && ok "memory flat under load (RSS $r1 -> $r2 kB)" || bad "RSS grew $r1 -> $r2 kB"
+fi
 ids=$(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*"' | sort)
 [ -z "$(echo "$ids" | uniq -d)" ] && ok "no job listed twice" || bad "a job listed twice"
 for j in $(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*","state":"\(running\|queued\)"' | cut -d'"' -f4); do
   curl -s -o /dev/null "${A[@]}" -X DELETE "$U/api/jobs/$j"
 done
 kill "$PID"; wait "$PID" 2> /dev/null
+[ $? = 0 ] && ok "a clean exit after the load (under ASan: no leak)" || bad "exit status after the load"
 finish

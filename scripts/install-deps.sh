@@ -14,6 +14,8 @@ PACKAGES=(
   clang libclang-rt-14-dev           # libFuzzer target for the safetensors reader (scripts/fuzz.sh)
   chromium                           # headless browser for the viewer test (tests/cli_viewer.sh)
   blender python3-numpy              # the Blender add-on's test (tests/cli_blender.sh); its glTF importer needs numpy
+  libmicrohttpd-dev                  # HTTP server of `matlaber serve` (docs/server.md); without it only serve is missing
+  curl                               # the server's test (tests/cli_serve.sh) talks to it with curl
   libopenmpi-dev openmpi-bin         # MPI: several processes on one asset or many (mpirun; tests/cli_mpi.sh)
 )
 # node and npm (three.js for `matlaber view`, the glTF-Validator and playwright-core for the tests;

@@ -1,6 +1,7 @@
 // The matlaber asset viewer (docs/export.md): asset.glb lit by the environments listed in
 // viewer.json, a slider that turns the environment (the light) about +y, and unlit views of the
-// kd / ks / roughness textures. Everything is loaded from this folder; nothing from the network.
+// kd / ks / roughness textures and of the normals. Everything is loaded from this folder; nothing
+// from the network.
 // window.viewer exposes the state for tests (ready, frames, renderNow, setRotation, setChannel,
 // setEnvironment, setBackground).
 import * as THREE from 'three';
@@ -112,6 +113,7 @@ async function main() {
   materials.kd = new THREE.MeshBasicMaterial({ map: pbr.map });
   materials.ks = new THREE.MeshBasicMaterial({ map: pbr.specularColorMap || null, color: pbr.specularColorMap ? 0xffffff : 0x000000 });
   materials.roughness = roughnessView(pbr.roughnessMap);
+  materials.normals = new THREE.MeshNormalMaterial();   // the surface's view-space normals as colours
   frameObject(gltf.scene);
 
   await setEnvironment(config.environments[0]);

@@ -90,5 +90,8 @@ mlb_status mlb_viewer_find_source(const char* hint, char* out, size_t n);
 mlb_status mlb_viewer_write(const char* dir, const char* glb_path, const mlb_viewer_options* opt);
 // ... or from an asset (written as dir/asset.glb).
 mlb_status mlb_viewer_write_asset(const char* dir, const mlb_asset* a, const mlb_viewer_options* opt);
+// The same folder without dir/asset.glb: the page, three.js and the environments, for a server that
+// puts each asset beside them (matlaber serve, docs/server.md).
+mlb_status mlb_viewer_write_page(const char* dir, const mlb_viewer_options* opt);
 
 #endif

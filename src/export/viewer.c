@@ -157,7 +157,8 @@ static mlb_status write_config(const char* dir, const char* const* envs, const c
     return st;
 }
 
-// Everything except the asset; `write_glb` puts dir/asset.glb in place between the data and the page.
+// Everything except the asset; `write_glb` puts dir/asset.glb in place between the data and the page
+// (NULL: no asset, the folder of mlb_viewer_write_page).
 static mlb_status write_folder(const char* dir, const mlb_viewer_options* opt,
                                mlb_status (*write_glb)(const char* path, const void* ctx), const void* ctx) {
     if (!dir || !dir[0]) return mlb_fail(MLB_ERR_ARG, "viewer: NULL or empty output folder");
@@ -182,7 +183,7 @@ static mlb_status write_folder(const char* dir, const mlb_viewer_options* opt,
     for (int i = 0; envs[i]; i++) MLB_TRY(write_env(dir, envs[i], height));
     MLB_TRY(write_config(dir, envs, title));
     snprintf(to, sizeof to, "%s/asset.glb", dir);
-    MLB_TRY(write_glb(to, ctx));
+    if (write_glb) MLB_TRY(write_glb(to, ctx));
     for (int i = 0; PAGE_FILES[i]; i++) {
         snprintf(from, sizeof from, "%s/%s", src, PAGE_FILES[i]);
         snprintf(to, sizeof to, "%s/%s", dir, PAGE_FILES[i]);
@@ -210,6 +211,8 @@ mlb_status mlb_viewer_write(const char* dir, const char* glb_path, const mlb_vie
     if (!mlb_is_file(glb_path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such file", glb_path);
     return write_folder(dir, opt, glb_from_file, glb_path);
 }
+
+mlb_status mlb_viewer_write_page(const char* dir, const mlb_viewer_options* opt) { return write_folder(dir, opt, NULL, NULL); }
 
 mlb_status mlb_viewer_write_asset(const char* dir, const mlb_asset* a, const mlb_viewer_options* opt) {
     MLB_TRY(mlb_asset_check(a));

@@ -11,9 +11,17 @@
 #include <string.h>
 #include <sys/stat.h>
 
+// serve checks a job's options in its own threads: the message is kept for the reply, not printed
+static _Thread_local int quiet;
+static _Thread_local char last_message[1024];
+void cli_set_quiet(int on) { quiet = on; }
+const char* cli_last_message(void) { return last_message; }
+
 int cli_fail(mlb_status s, const char* what) {
     const char* msg = mlb_last_error();
     const char *a = what ? what : "", *sep = what && *msg ? ": " : "", *b = *msg ? msg : mlb_status_name(s);
+    snprintf(last_message, sizeof last_message, "%s%s%s", a, sep, b);
+    if (quiet) return 1;
     fprintf(stderr, "matlaber: error: %s%s%s\n", a, sep, b);
     FILE* json = mlb_progress_json();
     if (json) {   // the same message for programs reading the progress stream
@@ -31,6 +39,10 @@ int cli_fail(mlb_status s, const char* what) {
 
 int cli_usage_error(const char* command, const char* fmt, ...) {
     va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(last_message, sizeof last_message, fmt, ap);
+    va_end(ap);
+    if (quiet) return EXIT_USAGE;
     fprintf(stderr, "matlaber %s: ", command);
     va_start(ap, fmt);
     vfprintf(stderr, fmt, ap);

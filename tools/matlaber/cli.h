@@ -10,6 +10,10 @@
 
 // "matlaber: error: <what>: <library message>"; returns 1 (the exit code for failures).
 int cli_fail(mlb_status s, const char* what);
+// The message of this thread's last cli_fail or cli_usage_error; with quiet on they print nothing
+// (matlaber serve checks a job's options and answers with the message).
+const char* cli_last_message(void);
+void cli_set_quiet(int on);
 // Usage errors: message + hint to --help; returns EXIT_USAGE.
 int cli_usage_error(const char* command, const char* fmt, ...) __attribute__((format(printf, 2, 3)));
 // Every argument of the command line (a path, a prompt, a name, --set KEY=VALUE) has at most this many
@@ -64,6 +68,11 @@ int generate_option_arity(const char* name);
 // stopped at --stop-after
 #define GENERATE_STOPPED 3
 int generate_run_quiet(int argc, char** argv);
+// generate's checks alone, nothing but a paint mesh loaded, nothing written: 0 when `generate
+// argv...` (or paint, when argv[0] is "paint") would start, else the exit status it would end with
+// (the reason in cli_last_message). Not reentrant (getopt).
+int generate_check_args(int argc, char** argv);
+int cmd_serve(int argc, char** argv);
 // matlaber generate --prompts FILE -o DIR (cmd_prompts.c)
 int generate_prompts_main(int argc, char** argv);
 int cmd_fit(int argc, char** argv);

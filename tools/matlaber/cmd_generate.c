@@ -104,6 +104,8 @@ static int envs_from_views(mlb_pipeline_config* c) {
 // --prompts (cmd_prompts.c) runs prompts through run_pipeline without progress bars or the closing
 // message (several processes would interleave them)
 static int g_batch;
+// generate_check_args: the run_pipeline's checks, then return before anything is loaded
+static int g_check_only;
 
 int generate_option_arity(const char* name) {
     for (const cli_option* o = options; o->name; o++)
@@ -348,6 +350,7 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
         mlb_mesh_free(&m);
         if (s) return cli_fail(s, command);
     }
+    if (g_check_only) return 0;   // (paint: after the mesh's checks)
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     s = mlb_pipeline_make_guidance(&c, &g, &views);
@@ -405,6 +408,14 @@ int generate_run_quiet(int argc, char** argv) {
     g_batch = 1;
     int rc = run_pipeline("generate", argc, argv, MODE_GENERATE);
     g_batch = 0;
+    return rc;
+}
+
+int generate_check_args(int argc, char** argv) {
+    g_check_only = 1;
+    int paint = !strcmp(argv[0], "paint");
+    int rc = run_pipeline(argv[0], argc, argv, paint ? MODE_PAINT : MODE_GENERATE);
+    g_check_only = 0;
     return rc;
 }
 

@@ -54,6 +54,7 @@ static void usage(FILE* out) {
             "  interp          on run A's geometry, A's material field to B's in latent space\n"
             "  export          a finished run as glTF (.glb) or OBJ + MTL with baked PBR textures\n"
             "  view            a static three.js page of a run (environments, light rotation, map toggles)\n"
+            "  serve           a local web app and API: prompts in, live progress, assets out (docs/server.md)\n"
             "  device          list compute devices\n"
             "  version         print the version\n\n"
             "global options:\n"
@@ -165,6 +166,7 @@ static int run_command(int argc, char** argv) {
     if (strcmp(cmd, "interp") == 0) return cmd_interp(sub_argc, sub_argv);
     if (strcmp(cmd, "export") == 0) return cmd_export(sub_argc, sub_argv);
     if (strcmp(cmd, "view") == 0) return cmd_view(sub_argc, sub_argv);
+    if (strcmp(cmd, "serve") == 0) return cmd_serve(sub_argc, sub_argv);
     if (strcmp(cmd, "device") == 0) return cmd_device(sub_argc, sub_argv);
     if (strcmp(cmd, "sd") == 0) return cmd_sd(sub_argc, sub_argv);
     if (strcmp(cmd, "version") == 0) { printf("matlaber %s\n", MATLABER_VERSION); return 0; }

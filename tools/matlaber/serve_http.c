@@ -27,17 +27,23 @@ static serve_options O;
 static atomic_int open_connections;
 
 // ---- replies ----
+// Every reply's common headers (never cached, never sniffed into another type), then queued; the
+// response is released here (libmicrohttpd keeps its own reference until it is sent).
+static enum MHD_Result queue_reply(struct MHD_Connection* c, unsigned code, struct MHD_Response* r, const char* type) {
+    MHD_add_response_header(r, "Content-Type", type);
+    MHD_add_response_header(r, "Cache-Control", "no-store");
+    MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
+    enum MHD_Result ret = MHD_queue_response(c, code, r);
+    MHD_destroy_response(r);
+    return ret;
+}
+
 static enum MHD_Result send_text_allow(struct MHD_Connection* c, unsigned code, const char* type, char* text, const char* allow) {
     if (!text) return MHD_NO;
     struct MHD_Response* r = MHD_create_response_from_buffer(strlen(text), text, MHD_RESPMEM_MUST_FREE);
     if (!r) { free(text); return MHD_NO; }
-    MHD_add_response_header(r, "Content-Type", type);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
     if (allow) MHD_add_response_header(r, "Allow", allow);
-    enum MHD_Result ret = MHD_queue_response(c, code, r);
-    MHD_destroy_response(r);
-    return ret;
+    return queue_reply(c, code, r, type);
 }
 
 static enum MHD_Result send_text(struct MHD_Connection* c, unsigned code, const char* type, char* text) {
@@ -187,11 +193,7 @@ static enum MHD_Result send_events(struct MHD_Connection* c, const char* id) {
     s->last_sent = now();
     struct MHD_Response* r = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 64 * 1024, stream_read, s, free);
     if (!r) { free(s); return MHD_NO; }
-    MHD_add_response_header(r, "Content-Type", "text/event-stream");
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    enum MHD_Result ret = MHD_queue_response(c, 200, r);
-    MHD_destroy_response(r);
-    return ret;
+    return queue_reply(c, 200, r, "text/event-stream");
 }
 
 // ---- files: a job's, the page's ----
@@ -204,12 +206,7 @@ static enum MHD_Result send_path(struct MHD_Connection* c, const char* path, con
     }
     struct MHD_Response* r = MHD_create_response_from_fd((uint64_t)st.st_size, fd);   // closes fd
     if (!r) { close(fd); return MHD_NO; }
-    MHD_add_response_header(r, "Content-Type", type);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
-    enum MHD_Result ret = MHD_queue_response(c, 200, r);
-    MHD_destroy_response(r);
-    return ret;
+    return queue_reply(c, 200, r, type);
 }
 
 static enum MHD_Result send_file(struct MHD_Connection* c, const char* id, const char* name) {

@@ -3,7 +3,12 @@
 # import. Driven from outside (docs/blender.md "Screenshots"): Blender's 3.4 Python cannot pick a
 # sidebar tab, so the driver clicks the "matlaber" tab once this script writes OUT/ready, and writes
 # OUT/clicked to start the run.
-#   blender --factory-startup --python panel_screenshot.py -- MATLABER ADDON_ZIP OUT
+#   blender --factory-startup --python panel_screenshot.py -- MATLABER ADDON_ZIP OUT [checks]
+# With "checks" nothing starts by itself: the driver clicks the panel's buttons, and asks through files
+# in OUT: set.json ({"prompt": "", "extra": "..."}: the fields set), shot_NAME (NAME.png taken and
+# NAME.json written: the status, the error, whether a run is going, the run folders, and whether
+# Generate, Paint and Resume are enabled), quit.
+import json
 import os
 import sys
 import time
@@ -12,6 +17,7 @@ import bpy
 
 argv = sys.argv[sys.argv.index("--") + 1:]
 binary, zip_path, out = argv[0], argv[1], argv[2]
+checks = argv[3:4] == ["checks"]
 bpy.ops.preferences.addon_install(filepath=zip_path)
 bpy.ops.preferences.addon_enable(module="matlaber_blender")
 prefs = bpy.context.preferences.addons["matlaber_blender"].preferences
@@ -31,6 +37,41 @@ state = {"t0": time.time(), "started": None, "mid": False}
 def shot(name):
     with bpy.context.temp_override(window=window, area=area):
         bpy.ops.screen.screenshot(filepath=os.path.join(out, name))
+
+
+def operator_enabled(op):
+    region = next(r for r in area.regions if r.type == "UI")
+    with bpy.context.temp_override(window=window, area=area, region=region):
+        return op.poll()
+
+
+def check_tick():
+    addon = sys.modules["matlaber_blender"]
+    if time.time() - state["t0"] > 3:
+        open(os.path.join(out, "ready"), "w").close()
+    path = os.path.join(out, "set.json")
+    if os.path.exists(path):
+        with open(path) as f:
+            for key, value in json.load(f).items():
+                setattr(settings, key, value)
+        os.remove(path)
+    for name in sorted(os.listdir(out)):
+        if name.startswith("shot_"):
+            shot(name[5:] + ".png")
+            runs = prefs.runs_dir
+            state_now = {"prompt": settings.prompt, "status": settings.status, "error": settings.error,
+                         "running": addon.job() is not None,
+                         "runs": sorted(os.listdir(runs)) if os.path.isdir(runs) else [],
+                         "generate_enabled": operator_enabled(bpy.ops.matlaber.generate),
+                         "paint_enabled": operator_enabled(bpy.ops.matlaber.paint_selected),
+                         "resume_enabled": operator_enabled(bpy.ops.matlaber.resume)}
+            with open(os.path.join(out, name[5:] + ".json"), "w") as f:
+                json.dump(state_now, f, indent=1)
+            os.remove(os.path.join(out, name))
+    if os.path.exists(os.path.join(out, "quit")) or time.time() - state["t0"] > 900:
+        bpy.ops.wm.quit_blender()
+        return None
+    return 0.25
 
 
 def tick():
@@ -56,4 +97,4 @@ def tick():
     return 1.0
 
 
-bpy.app.timers.register(tick, first_interval=1.0)
+bpy.app.timers.register(check_tick if checks else tick, first_interval=1.0)

@@ -478,6 +478,21 @@ class MATLABER_OT_generate(_Idle, bpy.types.Operator):
         return {"FINISHED"}
 
 
+class MATLABER_OT_busy(bpy.types.Operator):
+    """A run is in progress"""
+    bl_idname = "matlaber.busy"
+    bl_label = "A run is in progress"
+    bl_options = {"INTERNAL"}
+
+    @classmethod
+    def poll(cls, context):
+        cls.poll_message_set("A run is in progress: wait for it or cancel it")
+        return False
+
+    def execute(self, context):
+        return {"CANCELLED"}
+
+
 class MATLABER_OT_paint(_Idle, bpy.types.Operator):
     """Paints the selected mesh: exports it as OBJ, runs matlaber paint in the background, imports the
     textured result where the mesh is"""
@@ -592,6 +607,38 @@ class MATLABER_OT_resume(_Idle, bpy.types.Operator):
 
 
 # ---- the panel -------------------------------------------------------------------------------------
+def _wrap(text, width_px, scale):
+    """Words into lines no wider than width_px in the interface's font (blf measures them)."""
+    try:
+        import blf
+        style = bpy.context.preferences.ui_styles[0].widget_label
+        blf.size(0, style.points * scale)   # (3.4's dpi argument defaults to 72: points as pixels)
+
+        def width(t):
+            return blf.dimensions(0, t)[0]
+    except Exception:   # no font: about 7 pixels a character
+        def width(t):
+            return 7.0 * scale * len(t)
+    lines = []
+    for word in text.split():
+        if lines and width(lines[-1] + " " + word) <= width_px:
+            lines[-1] += " " + word
+        else:
+            lines.append(word)
+    return lines or [""]
+
+
+def wrapped_label(layout, context, text, icon="NONE"):
+    """text over as many lines as the sidebar's width needs: one label is cut short in the middle
+    ("A prompt is...into Prompt")."""
+    scale = context.preferences.system.ui_scale
+    # the sidebar's margins and the box's (about 60 pixels), and the icon's column (40 more)
+    width_px = (context.region.width if context.region else 300) - (60 if icon == "NONE" else 100) * scale
+    col = layout.column(align=True)
+    for i, line in enumerate(_wrap(text, max(width_px, 80 * scale), scale)):
+        col.label(text=line, icon=icon if i == 0 else ("BLANK1" if icon != "NONE" else "NONE"))
+
+
 class MATLABER_PT_panel(bpy.types.Panel):
     bl_label = "matlaber"
     bl_idname = "MATLABER_PT_panel"
@@ -613,11 +660,15 @@ class MATLABER_PT_panel(bpy.types.Panel):
         col.label(text="Extra options")
         col.prop(st, "extra", text="")
         col.separator()
-        col.operator(MATLABER_OT_generate.bl_idname, icon="MESH_MONKEY")
-        col.operator(MATLABER_OT_paint.bl_idname, icon="BRUSH_DATA")
+        # While a run goes, greyed stand-ins of another operator: Blender keeps the button under the
+        # mouse as it was (greyed) through redraws until the mouse leaves it, so the same Generate
+        # button, clicked and left under a still mouse, stayed greyed and refused clicks after the
+        # run ended. A button of another operator is not carried over: the new Generate is drawn anew.
+        for op, icon in ((MATLABER_OT_generate, "MESH_MONKEY"), (MATLABER_OT_paint, "BRUSH_DATA")):
+            col.operator(op.bl_idname if _job is None else MATLABER_OT_busy.bl_idname, text=op.bl_label, icon=icon)
         if _job is not None or st.status:
             box = col.box()
-            box.label(text=st.status or "Running")
+            wrapped_label(box, context, st.status or "Running")
             row = box.row()
             row.enabled = False
             row.prop(st, "progress", text="ETA " + st.eta if st.eta else "Progress", slider=True)
@@ -625,14 +676,15 @@ class MATLABER_PT_panel(bpy.types.Panel):
             row.operator(MATLABER_OT_cancel.bl_idname, icon="CANCEL")
             row.operator(MATLABER_OT_resume.bl_idname, icon="PLAY")
             if st.error:
-                box.label(text=st.error, icon="ERROR")
+                wrapped_label(box, context, st.error, icon="ERROR")
             if st.preview and _previews is not None and "run" in _previews:
                 box.template_icon(icon_value=_previews["run"].icon_id, scale=9.0)
                 stage, _, step = os.path.splitext(os.path.basename(preview_path(st)))[0].partition("_")
                 box.label(text="%s, step %s" % (stage, step.lstrip("0") or "0"))
 
 
-CLASSES = (MatlaberPreferences, MatlaberSettings, MATLABER_OT_report, MATLABER_OT_generate, MATLABER_OT_paint,
+CLASSES = (MatlaberPreferences, MatlaberSettings, MATLABER_OT_report, MATLABER_OT_generate, MATLABER_OT_busy,
+           MATLABER_OT_paint,
            MATLABER_OT_cancel, MATLABER_OT_resume, MATLABER_PT_panel)
 
 

@@ -111,16 +111,22 @@ def first_eta(j, t_end):
     if j is None or j.first_eta is None:
         return None
     t, eta = j.first_eta
+    t_end = j.t_program_end or t_end   # the program's own end: the ETA does not cover Blender's import
     return {"foretold": t - j.t_start + eta, "real": t_end - j.t_start, "eta": eta, "left": t_end - t}
 
 
+# Under the sanitizers the program's stages slow down by different factors (the export's memory work
+# most), so the ETA's cost model, which is the optimised build's, is not checked there.
+SANITIZED = os.environ.get("MLB_TEST_SANITIZED") == "1"
+
+
 def eta_sound(e):
-    return 0.5 <= e["foretold"] / e["real"] <= 2
+    return SANITIZED or 0.5 <= e["foretold"] / e["real"] <= 2
 
 
 def eta_text(e):
-    return "none" if e is None else "%.1f s foretold, %.1f s real; ETA %.1f s with %.1f s left" % (
-        e["foretold"], e["real"], e["eta"], e["left"])
+    return "none" if e is None else "%.1f s foretold, %.1f s real; ETA %.1f s with %.1f s left%s" % (
+        e["foretold"], e["real"], e["eta"], e["left"], "; the ratio is not checked under the sanitizers" if SANITIZED else "")
 
 
 # ---- refused before anything starts: an empty prompt, no mesh selected, the add-on's own options ------

@@ -104,6 +104,7 @@ class Job:
         self.errors = []        # "error" events' messages
         self.tail = []          # the last plain lines (shown when the program fails without a message)
         self.first_eta = None   # (wall clock, seconds): the first ETA the program gave (tests compare it)
+        self.t_program_end = None   # when the program said it ended (before the import, which no ETA covers)
 
     def _read(self, stream, name):
         for line in stream:
@@ -186,6 +187,7 @@ def _handle_line(st, j, name, line):
                     j.first_eta = (time.time(), float(eta))
                 st.status = _stage_text(ev)
             elif kind == "end":
+                j.t_program_end = time.time()
                 st.status = "%s: %s" % (ev.get("label", ""), ev.get("status", "done"))
             elif kind == "error":
                 j.errors.append(ev.get("message", "error"))

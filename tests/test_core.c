@@ -211,6 +211,42 @@ TEST(progress_stages_eta) {
     CHECK_CLOSE(mlb_progress_eta(&p), 22 * 1.0 + 1.5, 1e-3, 0);
 }
 
+// A stage that may grow by dearer steps (the material start's close call) gives no first ETA while
+// it runs, however well measured; the next stage, measured, does; an ETA shown before stays.
+TEST(progress_growing_stage) {
+    mlb_progress p;
+    mlb_progress_begin(&p, NULL, "paint", 1, "step");
+    const char* names[2] = {"material start", "appearance"};
+    const long steps[2] = {8, 10};
+    const double cost[2] = {1.0, 1.0};
+    mlb_progress_plan(&p, 2, names, steps, cost);
+    mlb_progress_stage_may_grow(&p, 0);
+    mlb_progress_enter(&p, 0, 0);
+    mlb_progress_update(&p, 1, NULL);
+    p.st[0].t_mark -= 2.0;   // steps 2..3: 1 s each; everything ahead measured or predicted
+    mlb_progress_update(&p, 3, NULL);
+    CHECK(mlb_progress_eta(&p) < 0);
+    CHECK_CLOSE(mlb_progress_stage_eta(&p), 5.0, 1e-3, 0);   // the stage's own end is still told
+    mlb_progress_enter(&p, 1, 0);
+    mlb_progress_update(&p, 1, NULL);
+    p.st[1].t_mark -= 4.0;   // 2 s a step
+    mlb_progress_update(&p, 3, NULL);
+    CHECK_CLOSE(mlb_progress_eta(&p), 7 * 2.0, 1e-3, 0);
+    // shown before a growing stage: it stays
+    mlb_progress q;
+    mlb_progress_begin(&q, NULL, "gen", 1, "step");
+    const char* qn[2] = {"geometry", "material start"};
+    mlb_progress_plan(&q, 2, qn, (const long[2]){10, 8}, (const double[2]){1.0, 1.0});
+    mlb_progress_stage_may_grow(&q, 1);
+    mlb_progress_enter(&q, 0, 0);
+    mlb_progress_update(&q, 1, NULL);
+    q.st[0].t_mark -= 2.0;
+    mlb_progress_update(&q, 3, NULL);
+    CHECK_CLOSE(mlb_progress_eta(&q), 7 * 1.0 + 8 * 1.0, 1e-3, 0);
+    mlb_progress_enter(&q, 1, 0);
+    CHECK(mlb_progress_eta(&q) >= 0);
+}
+
 TEST(atomic_files) {
     const char* dir = test_tmpdir("core_atomic");
     REQUIRE(dir);
@@ -425,6 +461,7 @@ int main(int argc, char** argv) {
     RUN(log_levels_and_sink);
     RUN(progress_plain_lines);
     RUN(progress_stages_eta);
+    RUN(progress_growing_stage);
     RUN(atomic_files);
     RUN(input_files_regular_only);
     RUN(runtime_restart_wait_policy);

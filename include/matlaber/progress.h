@@ -27,6 +27,7 @@ typedef struct {
     long mark;          // steps done at t_mark (the end of the first step this process took), -1: none yet
     double t_mark;
     double per_step;    // measured seconds per step, 0 until measured
+    int may_grow;       // may add steps dearer than its measured ones (mlb_progress_stage_may_grow)
 } mlb_progress_stage;
 
 typedef struct {
@@ -74,6 +75,9 @@ void mlb_progress_plan(mlb_progress* p, int n, const char* const* names, const l
 void mlb_progress_enter(mlb_progress* p, int i, long done);
 // The running stage's planned steps change (a choice that looks further ahead than planned).
 void mlb_progress_stage_steps(mlb_progress* p, long steps);
+// Stage i may add steps that cost more than the ones it measures (the material start's close call
+// scores on 4x the views): no first ETA while it runs (one shown before stays).
+void mlb_progress_stage_may_grow(mlb_progress* p, int i);
 // `done`: steps of the running stage (plus step_offset); `status` an optional short text appended
 // to the line ("loss 0.0123").
 void mlb_progress_update(mlb_progress* p, long done, const char* status);

@@ -105,15 +105,17 @@ static int seconds_left(const mlb_progress* p, double* measured_out, double* pre
 // first when the measured part of what is left is at least half the predicted part: a weight off by
 // r then errs by at most (1 + 2r) / 3 (2x for r = 2.5) instead of r. Once shown it stays (the
 // measured part shrinks as the stage runs; an ETA that came and went would say less).
+static int growing(const mlb_progress* p) { return p->cur >= 0 && p->cur < p->n_stages && p->st[p->cur].may_grow; }
+
 static void eta_gate(mlb_progress* p) {
     double m, q;
-    if (!p->eta_shown && seconds_left(p, &m, &q) && q <= 2 * m) p->eta_shown = 1;
+    if (!p->eta_shown && !growing(p) && seconds_left(p, &m, &q) && q <= 2 * m) p->eta_shown = 1;
 }
 
 double mlb_progress_eta(const mlb_progress* p) {
     double m, q;
     if (!seconds_left(p, &m, &q)) return -1;
-    return p->eta_shown || q <= 2 * m ? m + q : -1;
+    return p->eta_shown || (q <= 2 * m && !growing(p)) ? m + q : -1;
 }
 
 double mlb_progress_stage_eta(const mlb_progress* p) {
@@ -256,6 +258,10 @@ void mlb_progress_stage_steps(mlb_progress* p, long steps) {
     if (!s || steps < s->done) return;
     p->total += steps - s->steps;
     s->steps = steps;
+}
+
+void mlb_progress_stage_may_grow(mlb_progress* p, int i) {
+    if (p && i >= 0 && i < p->n_stages) p->st[i].may_grow = 1;
 }
 
 static void print_line(mlb_progress* p, const char* status, int final) {

@@ -121,6 +121,7 @@ void pipeline_progress_plan(pipeline_run* r, mlb_progress* p, int paint, const p
     // the losses are numbers for whoever tunes a run: shown where asked for (--log-level debug)
     p->show_status = mlb_log_get_level() <= MLB_LOG_DEBUG;
     mlb_progress_plan(p, PIPELINE_STAGES, names, steps, cost);
+    mlb_progress_stage_may_grow(p, PIPELINE_MATERIAL_START);   // a close call rescores on 32 views
 }
 
 mlb_status pipeline_agree(mlb_status s) {

@@ -7,6 +7,7 @@
 #define MATLABER_PAINT_H
 #include <stddef.h>
 #include "matlaber/error.h"
+#include "matlaber/material_net.h"
 #include "matlaber/mesh.h"
 #include "matlaber/raster.h"
 
@@ -38,6 +39,10 @@ mlb_status mlb_paint_load_mesh(const char* path, int keep_uv, mlb_mesh* out, mlb
 mlb_status mlb_paint_frame(const mlb_mesh* m, double centre[3], double* scale);
 // n points [n,3] into the frame (out may equal in).
 void mlb_paint_to_frame(const double centre[3], double scale, const float* in, float* out, size_t n);
+// A paint run's material field, which lives in the frame, at points of the mesh's own coordinates:
+// an mlb_material_fn (render.h) with user = an mlb_framed_material (baking, comparison renders).
+typedef struct { const mlb_material_net* net; const double* centre; double scale; } mlb_framed_material;
+mlb_status mlb_framed_material_eval(void* user, const float* pos, size_t n, float* k);
 // A camera of the mesh's own coordinates (image guidance: the views were taken of the mesh as given)
 // moved into the frame with it: eye and target to (p − centre) · scale, near and far times scale, the
 // same orientation and field of view, so the image of the moved mesh is the image of the original.

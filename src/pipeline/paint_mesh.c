@@ -62,6 +62,16 @@ void mlb_paint_to_frame(const double centre[3], double scale, const float* in, f
         for (int k = 0; k < 3; k++) out[3 * i + k] = (float)(((double)in[3 * i + k] - centre[k]) * scale);
 }
 
+mlb_status mlb_framed_material_eval(void* user, const float* pos, size_t n, float* k) {
+    const mlb_framed_material* fm = user;
+    float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
+    if (!p) return mlb_fail(MLB_ERR_NOMEM, "out of memory for %zu points' material", n);
+    mlb_paint_to_frame(fm->centre, fm->scale, pos, p, n);
+    mlb_status s = mlb_material_eval(fm->net, p, n, k);
+    free(p);
+    return s;
+}
+
 static int is_gltf(const char* path) {
     static const char* const ext[4] = {".glb", ".gltf", ".GLB", ".GLTF"};
     for (int i = 0; i < 4; i++)

@@ -19,19 +19,6 @@ void mlb_run_textured_free(mlb_run_textured* r) {
     memset(r, 0, sizeof *r);
 }
 
-// A paint run's material field lives in the generation frame; its asset keeps the input's positions.
-typedef struct { const mlb_material_net* net; const double* centre; double scale; } framed_material;
-
-static mlb_status eval_framed(void* user, const float* pos, size_t n, float* k) {
-    const framed_material* fm = user;
-    float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
-    if (!p) return mlb_fail(MLB_ERR_NOMEM, "baking: out of memory for %zu points", n);
-    mlb_paint_to_frame(fm->centre, fm->scale, pos, p, n);
-    mlb_status s = mlb_material_eval(fm->net, p, n, k);
-    free(p);
-    return s;
-}
-
 // The paint input's own UVs as a one-chart "atlas" (the mesh is moved into it, not copied).
 static mlb_status own_uv_atlas(mlb_mesh* in, int size, mlb_uv_mesh* out, mlb_uv_stats* st) {
     memset(out, 0, sizeof *out);
@@ -84,8 +71,8 @@ mlb_status mlb_run_textured_load(mlb_run_textured* r, const char* dir, int size)
         if (s) s = mlb_fail_context(s, "%s: UV atlas", dir);
     }
     mlb_mesh_free(&input);
-    framed_material fm = {&r->run.material, c->paint_centre, c->paint_scale};
-    if (!s && paint) s = mlb_bake(&r->uv, size, eval_framed, &fm, MLB_BAKE_DEFAULT_DILATE, &r->baked);
+    mlb_framed_material fm = {&r->run.material, c->paint_centre, c->paint_scale};
+    if (!s && paint) s = mlb_bake(&r->uv, size, mlb_framed_material_eval, &fm, MLB_BAKE_DEFAULT_DILATE, &r->baked);
     if (!s && !paint) s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked);
     if (s) {
         mlb_run_textured_free(r);

@@ -64,17 +64,6 @@ static void framed_goblet_material(const float* pos, float k[7]) {
     mlb_goblet_material(p, k);
 }
 
-// The fit's material at points of the goblet's coordinates (where the comparison renders its mesh),
-// looked up in the run's own frame. user: the const mlb_run_asset*.
-static mlb_status goblet_frame_fit_material(void* user, const float* pos, size_t n, float* k) {
-    float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
-    if (!p) return mlb_fail(MLB_ERR_NOMEM, "demo: out of memory for %zu points", n);
-    mlb_paint_to_frame(frame_c, frame_s, pos, p, n);
-    mlb_status s = mlb_run_asset_material(user, p, n, k);
-    free(p);
-    return s;
-}
-
 static mlb_status render_targets(demo* d, const char* dir, int fixed_env) {
     mlb_views_render_config rc = mlb_views_render_default();
     rc.mesh = &d->goblet;
@@ -161,11 +150,12 @@ static mlb_status run_case(demo* d, demo_case* k, const char* run_dir, const mlb
     const char* labels[8];
     for (int i = 0; i < 8; i++) labels[i] = i < n_views ? "truth" : "fit";
     // side by side: under a training environment, and relit under the unseen one; the fit's material
-    // at every pixel, as its baked asset shows it
-    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, goblet_frame_fit_material, &a, train, n_views, 30.0, res_px, &k->train_psnr, images);
+    // at every pixel, as its baked asset shows it (looked up in the run's frame)
+    mlb_framed_material fm = {&a.material, frame_c, frame_s};
+    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, mlb_framed_material_eval, &fm, train, n_views, 30.0, res_px, &k->train_psnr, images);
     snprintf(path, sizeof path, "%s/compare_%s_train.png", d->out, k->name);
     if (!s) s = mlb_image_grid_write(path, images, 2 * n_views, res_px, res_px, 3, n_views, labels);
-    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, goblet_frame_fit_material, &a, relight, n_views, 30.0, res_px, &k->relight_psnr, images);
+    if (!s) s = mlb_eval_relight(&d->goblet, d->goblet_k, &a.mesh, NULL, mlb_framed_material_eval, &fm, relight, n_views, 30.0, res_px, &k->relight_psnr, images);
     snprintf(path, sizeof path, "%s/compare_%s_relit.png", d->out, k->name);
     if (!s) s = mlb_image_grid_write(path, images, 2 * n_views, res_px, res_px, 3, n_views, labels);
     free(images);

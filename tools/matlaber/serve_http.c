@@ -116,6 +116,7 @@ typedef struct {
     char path[4200];
     long offset;        // the next byte of the file to send (each event's id: a reconnection resumes there)
     double last_sent;
+    int fd;             // the connection's socket, -1 when unknown
 } stream;
 
 static double now(void) {
@@ -154,11 +155,24 @@ static size_t read_events(stream* s, char* buf, size_t max) {
     return out;
 }
 
+// A client that closed its side: readable with nothing to read. An event stream's client sends
+// nothing after its request, so this finds it gone while the job is quiet; a write alone finds it
+// out only at the second write after the close, and until then its connection and thread count
+// against --max-connections (200 clients that each leave a stream reached 300 and more). (A client
+// that half-closes after its request, which no browser does, has its stream ended too.)
+static int client_gone(int fd) {
+    if (fd < 0) return 0;
+    char b;
+    ssize_t n = recv(fd, &b, 1, MSG_PEEK | MSG_DONTWAIT);
+    return n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
+}
+
 static ssize_t stream_read(void* cls, uint64_t pos, char* buf, size_t max) {
     (void)pos;
     stream* s = cls;
     for (;;) {
         if (serve_jobs_stopping()) return MHD_CONTENT_READER_END_OF_STREAM;
+        if (client_gone(s->fd)) return MHD_CONTENT_READER_END_WITH_ERROR;
         int ended = serve_jobs_ended(s->id);   // before the read: an ended job's last line is written
         size_t n = read_events(s, buf, max);
         if (n > 0) { s->last_sent = now(); return (ssize_t)n; }
@@ -191,6 +205,8 @@ static enum MHD_Result send_events(struct MHD_Connection* c, const char* id) {
         if (fd >= 0) close(fd);
     }
     s->last_sent = now();
+    const union MHD_ConnectionInfo* info = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+    s->fd = info ? (int)info->connect_fd : -1;
     struct MHD_Response* r = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 64 * 1024, stream_read, s, free);
     if (!r) { free(s); return MHD_NO; }
     return queue_reply(c, 200, r, "text/event-stream");

@@ -6,8 +6,10 @@
 # JSON, wrong types, unknown keys, generate's own refusals, oversized bodies (Content-Length and
 # chunked), long prompts, '..' / absolute / percent-encoded file routes, unknown ids, wrong methods,
 # a full queue, too many connections, a half-sent request that times out without holding the
-# server, and a non-loopback bind without, with a wrong and with the right token. A light load with
-# two jobs at once (--jobs 2): every answer 200, memory flat.
+# server, and a non-loopback bind without, with a wrong and with the right token. The load (with
+# tests/serve_load.py): 200 clients reading the list, jobs and events while two jobs run (--jobs 2)
+# and 20 more are submitted: every answer 2xx, every event stream well-formed, no job lost or listed
+# twice (while queued, once ended, after a restart), memory flat.
 # Skips (77) in a build without libmicrohttpd, without curl or without the model.
 set -u
 M=${1:?usage: cli_serve.sh path/to/matlaber}
@@ -50,13 +52,14 @@ body_has() { if grep -q -- "$2" "$T/body"; then ok "$1"; else bad "$1: body lack
 # the JSON error every refusal carries
 json_error() { body_has "$1: a JSON error" '^{"error":"'; }
 field() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))' "$T/body" "$1" 2> /dev/null; }
-post() { curl -s -o "$T/body" -w '%{http_code}' --max-time 20 -X POST -H 'Content-Type: application/json' --data-binary "$1" "$U/api/jobs"; }
+AUTH=()   # the token's header, once a server needs one
+post() { curl -s -o "$T/body" -w '%{http_code}' --max-time 20 "${AUTH[@]}" -X POST -H 'Content-Type: application/json' --data-binary "$1" "$U/api/jobs"; }
 # state ID: the job's state
-state() { curl -s --max-time 10 "$U/api/jobs/$1" | sed -n 's/.*"state":"\([a-z]*\)".*/\1/p'; }
+state() { curl -s --max-time 10 "${AUTH[@]}" "$U/api/jobs/$1" | sed -n 's/.*"state":"\([a-z]*\)".*/\1/p'; }
 wait_state() { for _ in $(seq 1500); do [ "$(state "$1")" = "$2" ] && return 0; sleep 0.2; done; return 1; }
 wait_progress() {   # ID N: the job's events show at least N steps done
   for _ in $(seq 1500); do
-    local d; d=$(curl -s --max-time 10 "$U/api/jobs/$1" | sed -n 's/.*"done":\([0-9]*\).*/\1/p')
+    local d; d=$(curl -s --max-time 10 "${AUTH[@]}" "$U/api/jobs/$1" | sed -n 's/.*"done":\([0-9]*\).*/\1/p')
     [ -n "$d" ] && [ "$d" -ge "$2" ] && return 0; sleep 0.2; done; return 1; }
 
 R="$T/runs"
@@ -300,7 +303,7 @@ kill "$PID"; wait "$PID" 2> /dev/null
 # ---- a non-loopback bind needs the token ----
 echo "[${SECONDS} s] a non-loopback bind needs the token"
 TOK=0123456789abcdef0123
-start_server s3 --host 0.0.0.0 --token "$TOK" --runs "$R" --timeout 2 --jobs 2
+start_server s3 --host 0.0.0.0 --token "$TOK" --runs "$R" --timeout 2 --jobs 2 --max-connections 400 --max-queue 20
 U="http://127.0.0.1:${U##*:}"; U=${U%/}
 req "no token: 401" 401 "$U/api/jobs"
 json_error "missing token"
@@ -314,37 +317,74 @@ req "the token as the page's cookie" 200 -b "matlaber_token=$TOK" "$U/api/jobs/$
 req "a wrong cookie" 401 -b "matlaber_token=x$TOK" "$U/api/jobs/$ID"
 req "a foreign Host is fine with a token" 200 -H 'Host: my-server.example' -H "Authorization: Bearer $TOK" "$U/api/jobs"
 
-# ---- load: many clients reading while jobs run two at a time (--jobs 2); memory flat ----
+# ---- load: 200 clients reading while two jobs run (--jobs 2) and 20 more are submitted ----
+# (tests/serve_load.py: each request on a connection of its own; limits above 200 clients: a closed
+# connection counts until its thread has seen the close, and 20 jobs wait)
 echo "[${SECONDS} s] load"
-A=(-H "Authorization: Bearer $TOK")
-for i in 1 2 3; do
-  curl -s -o /dev/null "${A[@]}" -X POST -H 'Content-Type: application/json' --data-binary "$LONG" "$U/api/jobs"
-done
-sleep 1
-n_running=$(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"state":"running"' | wc -l)
-[ "$n_running" = 2 ] && ok "--jobs 2: two jobs run at once" || bad "--jobs 2: $n_running running"
+AUTH=(-H "Authorization: Bearer $TOK")
+# two jobs that run for minutes, an event a step (4 geometry steps, then appearance ones: LONG's
+# geometry may end in "no surface" after a few seconds); cancelled at the end
+BUSY='{"prompt":"a gold goblet","seed":5,"geometry_iters":4,"appearance_iters":5000,"checkpoint_every":1000,'"$TINY"'}'
+[ "$(post "$BUSY")" = 201 ] && B1=$(field 'd["id"]') || bad "busy job: $(cat "$T/body")"
+[ "$(post "$BUSY")" = 201 ] && B2=$(field 'd["id"]') || bad "busy job: $(cat "$T/body")"
+wait_progress "$B1" 1 && wait_progress "$B2" 1 && ok "--jobs 2: two jobs run at once" \
+  || bad "--jobs 2: $B1 $(state "$B1"), $B2 $(state "$B2")"
+echo "$SMALL" > "$T/small.json"
 rss() { awk '/^VmRSS/ {print $2}' "/proc/$PID/status"; }
-load_round() {   # 400 requests from 50 clients at a time: lists, one job, a finished job's events and .glb
-  for i in $(seq 100); do
-    echo "$U/api/jobs"; echo "$U/api/jobs/$ID"; echo "$U/api/jobs/$ID/events"; echo "$U/api/jobs/$ID/files/asset.glb"
-  done | xargs -P 50 -n 1 curl -s -o /dev/null -w '%{http_code}\n' --max-time 30 "${A[@]}" > "$T/codes"
+load_round() {   # N ARGS...: 200 clients, 5 requests each, then a second for the last closes to land
+  python3 "$HERE/serve_load.py" "$U" --token "$TOK" --clients 200 --requests 5 --finished "$ID" --running "$B1,$B2" \
+    "${@:2}" > "$T/load" 2>&1 && ok "load round $1: $(head -1 "$T/load")" || { bad "load round $1"; cat "$T/load"; }
+  sleep 1
 }
-load_round
+# (the allocator's arenas and the threads' stacks grow over the first rounds, to settle by the third)
+load_round 1 --submit "$T/small.json" --count 20 --ids "$T/ids"
+load_round 2; load_round 3
 r1=$(rss)
-load_round; load_round
+load_round 4; load_round 5; load_round 6
 r2=$(rss)
-n200=$(grep -c '^200$' "$T/codes")
-[ "$n200" = 400 ] && ok "400 concurrent requests, all 200" || bad "load: $(sort "$T/codes" | uniq -c | tr '\n' ' ')"
 if [ "${MLB_TEST_SANITIZED:-0}" = 1 ]; then   # ASan keeps freed memory in quarantine: RSS says nothing there
   echo "(sanitized: RSS $r1 -> $r2 kB, not judged; the leak check at the server's exit is)"
 else
-  [ $((r2 - r1)) -lt 8192 ] && ok "memory flat under load (RSS $r1 -> $r2 kB)" || bad "RSS grew $r1 -> $r2 kB"
+  [ $((r2 - r1)) -lt 8192 ] && ok "memory flat over 3 more rounds (RSS $r1 -> $r2 kB)" || bad "RSS grew $r1 -> $r2 kB"
 fi
-ids=$(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*"' | sort)
-[ -z "$(echo "$ids" | uniq -d)" ] && ok "no job listed twice" || bad "a job listed twice"
-for j in $(curl -s "${A[@]}" "$U/api/jobs" | grep -o '"id":"job-[0-9]*","state":"\(running\|queued\)"' | cut -d'"' -f4); do
-  curl -s -o /dev/null "${A[@]}" -X DELETE "$U/api/jobs/$j"
+# no job lost or listed twice, while they wait and once they ended (18 cancelled while queued, the
+# busy two cancelled, then the first two of the 20 run to their end)
+S20=$(sort -u "$T/ids")
+[ "$(echo "$S20" | grep -c '^job-')" = 20 ] && ok "20 jobs submitted under the load, 20 ids" || bad "ids: $(cat "$T/ids")"
+[ "$(post "$SMALL")" = 429 ] && ok "the queue's limit still holds (--max-queue 20): 429" || bad "a 21st queued job: $(cat "$T/body")"
+# list_has WHAT STATE...: B1, B2 and the 20 (in id order) each listed exactly once, in these states
+list_has() { local what=$1; shift
+  curl -s --max-time 20 "${AUTH[@]}" "$U/api/jobs" > "$T/list"
+  python3 -c '
+import json, sys
+jobs = json.load(open(sys.argv[1]))["jobs"]
+want = dict(zip(sys.argv[3:], sys.argv[2].split()))
+ids = [j["id"] for j in jobs]
+bad = [f"{i} listed {ids.count(i)} times" for i in want if ids.count(i) != 1]
+for j in jobs:
+    if want.get(j["id"], j["state"]) != j["state"]:
+        bad.append(j["id"] + " " + j["state"] + ", not " + want[j["id"]])
+bad += [f"{len(want)} jobs to look for, not 22"] if len(want) != 22 else []
+print("\n".join(bad))
+sys.exit(1 if bad else 0)' "$T/list" "$*" "$B1" "$B2" $S20 > "$T/out" && ok "$what" || { bad "$what"; cat "$T/out"; }
+}
+list_has "each of the 22 jobs listed once: two running, 20 queued" running running $(printf 'queued %.0s' $(seq 20))
+n=0; for j in $(echo "$S20" | tail -18); do [ "$(curl -s -o /dev/null -w '%{http_code}' "${AUTH[@]}" -X DELETE "$U/api/jobs/$j")" = 200 ] && n=$((n + 1)); done
+[ "$n" = 18 ] && ok "18 queued jobs cancelled" || bad "$n of 18 queued jobs cancelled"
+for j in "$B1" "$B2"; do req "DELETE the busy $j" 200 "${AUTH[@]}" -X DELETE "$U/api/jobs/$j"; done
+for j in $(echo "$S20" | head -2); do wait_state "$j" done && ok "$j, queued under the load, ran to its end" || bad "$j: $(state "$j")"; done
+ENDED="cancelled cancelled done done $(printf 'cancelled %.0s' $(seq 18))"
+list_has "once they ended: each listed once, none lost" $ENDED
+n=0; for j in "$B1" "$B2" $S20; do   # each job's events: the child's, then the server's closing event once
+  curl -sN --max-time 20 "${AUTH[@]}" "$U/api/jobs/$j/events" > "$T/ev"
+  [ "$(grep -c '^data: {"event":"job"' "$T/ev")" = 1 ] && tail -2 "$T/ev" | grep -q "^data: {\"event\":\"job\",\"id\":\"$j\"" && n=$((n + 1))
 done
+[ "$n" = 22 ] && ok "the 22 jobs' events each end with their own job event" || bad "$((22 - n)) jobs' events do not end with their job event"
 kill "$PID"; wait "$PID" 2> /dev/null
 [ $? = 0 ] && ok "a clean exit after the load (under ASan: no leak)" || bad "exit status after the load"
+start_server s4 --runs "$R"
+U=${U%/}; AUTH=()
+list_has "after a restart the 22 are listed as they ended" $ENDED
+kill "$PID"; wait "$PID" 2> /dev/null
+echo "[${SECONDS} s] end"
 finish

@@ -14,7 +14,10 @@ typedef struct {
     const char* runs;      // folder of the run folders, one per job
     const char* model;     // -m for every job, NULL: the project's own model
     const char* token;     // bearer token, NULL: none (loopback only)
-    const char* exe;       // the program the jobs run (/proc/self/exe)
+    const char* exe;       // the program the jobs run (/proc/self/exe; its real path with mpi)
+    int mpi;               // processes per job under mpirun (0: a job is one process)
+    const char* mpirun;    // the launcher's path, with mpi
+    int job_threads;       // --threads of each of a job's processes under mpirun (0: the program's own)
     int jobs;              // jobs running at once
     int max_queue;         // jobs waiting at most
     int max_conns;         // open connections at most

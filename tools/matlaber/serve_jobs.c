@@ -209,7 +209,10 @@ static int start_job(job* j) {
     char** args = j->resume ? NULL : serve_request_args(j->request, &J.o, mesh);
     int n = 0;
     while (args && args[n]) n++;
-    char** argv = calloc((size_t)n + 10, sizeof *argv);
+    char** argv = calloc((size_t)n + 16, sizeof *argv);
+    char procs[16], threads[16];
+    snprintf(procs, sizeof procs, "%d", J.o.mpi);
+    snprintf(threads, sizeof threads, "%d", J.o.job_threads);
     int fds[2] = {-1, -1};
     int logfd = open(log_path, O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
     int nullfd = open("/dev/null", O_RDONLY | O_CLOEXEC);
@@ -223,7 +226,16 @@ static int start_job(job* j) {
         return -1;
     }
     int a = 0;
+    if (J.o.mpi) {   // the same command under the launcher: its processes share the run (bitwise one's)
+        argv[a++] = (char*)J.o.mpirun;
+        argv[a++] = "-n";
+        argv[a++] = procs;
+    }
     argv[a++] = (char*)J.o.exe;
+    if (J.o.mpi && J.o.job_threads) {
+        argv[a++] = "--threads";
+        argv[a++] = threads;
+    }
     argv[a++] = "--progress";
     argv[a++] = "json";
     argv[a++] = fmt ? "paint" : "generate";
@@ -232,6 +244,12 @@ static int start_job(job* j) {
         argv[a++] = dir;
     } else {
         for (int i = 0; i < n; i++) argv[a++] = args[i];
+        // under mpirun the processes share a step's views by whole batches: one view a batch, unless
+        // the request chose, so that every process has views to guide
+        if (J.o.mpi && !cJSON_GetObjectItemCaseSensitive(j->request, "view_batch")) {
+            argv[a++] = "--view-batch";
+            argv[a++] = "1";
+        }
         argv[a++] = "-o";
         argv[a++] = dir;
     }
@@ -249,7 +267,7 @@ static int start_job(job* j) {
         dup2(nullfd, 0);
         dup2(logfd, 1);
         dup2(fds[1], 2);
-        execv(J.o.exe, argv);
+        execv(argv[0], argv);
         _exit(127);
     }
     int err = errno;

@@ -24,6 +24,7 @@ static const request_key KEYS[] = {
     {"negative", "--negative", K_STRING},
     {"init", "--init", K_WORD},
     {"views", "--views", K_INT},
+    {"view_batch", "--view-batch", K_INT},
     {"res", "--res", K_INT},
     {"grid", "--grid", K_INT},
     {"geometry_iters", "--geometry-iters", K_INT},

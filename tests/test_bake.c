@@ -2,7 +2,8 @@
 // bilinearly at the uv of random surface points, reproduce it within a bound set by the texel
 // size; dilation fills exactly the texels within the radius, each with a value of its chart; a
 // 2×-downsampled mip sampled at chart-border points stays close to the field; thin triangles are
-// covered; errors of the material function reach the caller.
+// covered; errors of the material function reach the caller; codes baked with mlb_bake_codes
+// land on the texels mlb_bake gives the material.
 #include <stdint.h>
 #include "matlaber/bake.h"
 #include "matlaber/dmtet.h"
@@ -301,6 +302,43 @@ TEST(thin_triangle_covered) {
     mlb_baked_free(&b);
 }
 
+// 4-channel codes: the field's first four channels, so mlb_bake_codes must give mlb_bake's texels.
+static mlb_status codes_fn(void* user, const float* pos, size_t n, float* z) {
+    (void)user;
+    for (size_t i = 0; i < n; i++) {
+        float k[7];
+        field(pos + 3 * i, k);
+        memcpy(z + 4 * i, k, sizeof(float) * 4);
+    }
+    return MLB_OK;
+}
+
+TEST(codes_on_the_same_texels) {
+    mlb_mesh m;
+    REQUIRE(make_mt_blob(&m, 12));
+    const int S = 128;
+    mlb_uv_options o = mlb_uv_default();
+    o.texture_size = S;
+    mlb_uv_mesh u;
+    REQUIRE(mlb_uv_unwrap(&m, &o, &u, NULL) == MLB_OK);
+    mlb_baked b;
+    REQUIRE(mlb_bake(&u, S, field_fn, NULL, MLB_BAKE_DEFAULT_DILATE, &b) == MLB_OK);
+    float* z = malloc(sizeof(float) * 4 * S * S);
+    REQUIRE(z);
+    REQUIRE(mlb_bake_codes(&u, S, codes_fn, NULL, MLB_BAKE_DEFAULT_DILATE, z) == MLB_OK);
+    int differ = 0;
+    for (int t = 0; t < S * S; t++)
+        differ += z[4 * t] != b.kd[3 * t] || z[4 * t + 1] != b.kd[3 * t + 1] || z[4 * t + 2] != b.kd[3 * t + 2] ||
+                  z[4 * t + 3] != b.ks[3 * t];
+    CHECK_MSG(differ == 0, "%d of %d texels hold another point's code", differ, S * S);
+    CHECK(mlb_bake_codes(&u, S, failing_fn, NULL, 0, z) == MLB_ERR_IO);
+    CHECK(mlb_bake_codes(&u, S, NULL, NULL, 0, z) == MLB_ERR_ARG);
+    free(z);
+    mlb_baked_free(&b);
+    mlb_uv_mesh_free(&u);
+    mlb_mesh_free(&m);
+}
+
 // One uv triangle given n times (copies: the same corners; else each shifted by i/4096 in u),
 // positions on the plane z = 0 with x = u, y = v.
 static void stack_mesh(mlb_uv_mesh* u, int n, int copies, const float tri[6]) {
@@ -393,5 +431,6 @@ int main(void) {
     RUN(thin_triangle_covered);
     RUN(stacked_and_needle_uvs);
     RUN(errors);
+    RUN(codes_on_the_same_texels);
     return test_summary();
 }

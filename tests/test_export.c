@@ -6,14 +6,18 @@
 //   test_export --write-glb FILE | --write-obj FILE.obj | --write-viewer DIR
 //   test_export --write-run DIR   (DIR/final/mesh.obj and a small untrained direct-mode
 //                                  DIR/final/material.safetensors, for 'matlaber export / view')
+//   test_export --write-latent-viewer DIR   (the viewer folder of such a run in latent mode, with
+//                                  its latent codes and decoder, for tests/cli_viewer.sh)
 #include <cjson/cJSON.h>
 #include <unistd.h>
 #include "matlaber/export.h"
 #include "matlaber/fileio.h"
 #include "matlaber/image.h"
+#include "matlaber/latent_export.h"
 #include "matlaber/material_net.h"
 #include "matlaber/mesh.h"
 #include "matlaber/obj.h"
+#include "matlaber/run_textured.h"
 #include "test.h"
 
 // ---- the test asset: a uv sphere with procedural maps ----
@@ -339,24 +343,161 @@ TEST(viewer_folder) {
 }
 
 // A run folder as the pipeline leaves it: final/mesh.obj and final/material.safetensors.
-static mlb_status write_run(const char* dir, const mlb_asset* a) {
+static mlb_status write_run(const char* dir, const mlb_asset* a, mlb_material_mode mode) {
     char path[4200];
     snprintf(path, sizeof path, "%s/final", dir);
     MLB_TRY(mlb_mkdir_p(path));
     snprintf(path, sizeof path, "%s/final/mesh.obj", dir);
     MLB_TRY(mlb_export_obj(path, a));
     mlb_material_config cfg = mlb_material_default();
-    cfg.mode = MLB_MATERIAL_DIRECT;
+    cfg.mode = mode;
     cfg.enc.n_levels = 4;
     cfg.enc.table_size = 1u << 12;
     cfg.enc.base_res = 4;
     cfg.hidden = 16;
     mlb_material_net net = {0};
-    MLB_TRY(material_net_init(&net, &cfg, NULL));
+    mlb_brdf_ae prior = {0};
+    char source[256];
+    mlb_status s = mode == MLB_MATERIAL_LATENT ? mlb_brdf_ae_load_default(&prior, source, sizeof source) : MLB_OK;
+    if (!s) s = material_net_init(&net, &cfg, mode == MLB_MATERIAL_LATENT ? &prior : NULL);
+    // an untrained net's codes barely vary (a hash table of ±1e-4): scale the table and the last
+    // layer so the codes, and the materials, change across the surface (a flipped or shifted
+    // latent texture then shows in the viewer's test)
+    if (!s && mode == MLB_MATERIAL_LATENT) {
+        for (size_t i = 0; i < net.n_enc; i++) net.params[i] *= 5000.0f;
+        mlb_mlp* m = &net.mlp;
+        int l = m->n_layers - 1;
+        for (int i = 0; i < m->dims[l] * m->dims[l + 1]; i++) m->weight[l][i] *= 4.0f;
+    }
     snprintf(path, sizeof path, "%s/final/material.safetensors", dir);
-    mlb_status s = mlb_material_save(&net, path, 0);
+    if (!s) s = mlb_material_save(&net, path, 0);
     material_net_free(&net);
+    brdf_ae_free(&prior);
     return s;
+}
+
+// A latent-mode run's viewer folder, as `matlaber view RUN_DIR` writes it.
+static mlb_status write_run_glb(const char* path, const void* ctx) { return mlb_run_textured_write_glb(ctx, path); }
+static mlb_status write_latent_viewer(const char* dir, const mlb_asset* a) {
+    char run[4200];
+    snprintf(run, sizeof run, "%s.run", dir);
+    MLB_TRY(write_run(run, a, MLB_MATERIAL_LATENT));
+    mlb_run_textured r;
+    MLB_TRY(mlb_run_textured_load(&r, run, 64));
+    mlb_viewer_options opt = {NULL, NULL, 32, "latent test"};
+    mlb_status s = mlb_viewer_write_with(dir, &opt, write_run_glb, &r);
+    mlb_run_textured_free(&r);
+    return s;
+}
+
+// The decoder as the JSON describes it, in double: z [4] -> k [7].
+static int json_decode(const cJSON* dec, const float* z, double* k) {
+    double a[256], b[256];
+    for (int i = 0; i < 4; i++) a[i] = z[i];
+    const cJSON* layers = cJSON_GetObjectItem(dec, "layers");
+    const char* hidden = cJSON_GetStringValue(cJSON_GetObjectItem(dec, "hidden_activation"));
+    int n_layers = cJSON_GetArraySize(layers), out = 0;
+    if (!hidden || n_layers < 1) return 0;
+    for (int l = 0; l < n_layers; l++) {
+        const cJSON* L = cJSON_GetArrayItem(layers, l);
+        int in = json_int(L, "in");
+        out = json_int(L, "out");
+        const cJSON *w = cJSON_GetObjectItem(L, "weight"), *bias = cJSON_GetObjectItem(L, "bias");
+        if (in > 256 || out > 256 || cJSON_GetArraySize(w) != in * out || cJSON_GetArraySize(bias) != out) return 0;
+        const cJSON* wi = w->child;
+        for (int o = 0; o < out; o++) {
+            double x = cJSON_GetArrayItem(bias, o)->valuedouble;
+            for (int i = 0; i < in; i++, wi = wi->next) x += wi->valuedouble * a[i];
+            if (l == n_layers - 1) x = 1 / (1 + exp(-x));   // output_activation: sigmoid (checked below)
+            else if (!strcmp(hidden, "silu")) x = x / (1 + exp(-x));
+            else if (!strcmp(hidden, "relu")) x = x > 0 ? x : 0;
+            else if (!strcmp(hidden, "tanh")) x = tanh(x);
+            else return 0;
+            b[o] = x;
+        }
+        memcpy(a, b, sizeof(double) * (size_t)out);
+    }
+    if (out != 7) return 0;
+    const cJSON *lo = cJSON_GetObjectItem(dec, "range_lo"), *hi = cJSON_GetObjectItem(dec, "range_hi");
+    for (int c = 0; c < 7; c++) {
+        double l0 = cJSON_GetArrayItem(lo, c)->valuedouble, h0 = cJSON_GetArrayItem(hi, c)->valuedouble;
+        k[c] = l0 + (h0 - l0) * a[c];
+    }
+    return 1;
+}
+
+// The exported decoder JSON and latent texture give back, at every covered texel, the BRDF the
+// .glb's textures were baked from (and mlb_material_decode's), to float rounding.
+TEST(latent_sidecars) {
+    test_asset* t = malloc(sizeof *t);
+    REQUIRE(t && make_asset(t));
+    const char* dir = test_tmpdir("export_latent");
+    REQUIRE(dir);
+    char run[4200], glb[4300], json[4400], bin[4400];
+    snprintf(run, sizeof run, "%s/run", dir);
+    REQUIRE(write_run(run, &t->a, MLB_MATERIAL_LATENT) == MLB_OK);
+    const int S = 32;
+    mlb_run_textured r;
+    REQUIRE(mlb_run_textured_load(&r, run, S) == MLB_OK);
+    REQUIRE(r.latent != NULL);
+    snprintf(glb, sizeof glb, "%s/a.glb", dir);
+    REQUIRE(mlb_run_textured_write_glb(&r, glb) == MLB_OK);
+    REQUIRE(mlb_latent_export_paths(glb, json, bin, sizeof json) == 0);
+    char *jtext = NULL, *bdata = NULL;
+    size_t jn = 0, bn = 0;
+    REQUIRE(mlb_read_file(json, &jtext, &jn, 1 << 24) == MLB_OK);
+    REQUIRE(mlb_read_file(bin, &bdata, &bn, 1 << 24) == MLB_OK);
+    cJSON* dec = cJSON_ParseWithLength(jtext, jn);
+    REQUIRE(dec != NULL);
+    const cJSON* lat = cJSON_GetObjectItem(dec, "latent");
+    CHECK(json_int(lat, "size") == S && json_int(lat, "channels") == 4);
+    CHECK(!strcmp(cJSON_GetStringValue(cJSON_GetObjectItem(lat, "file")), "a.latent.bin"));
+    CHECK(!strcmp(cJSON_GetStringValue(cJSON_GetObjectItem(dec, "output_activation")), "sigmoid"));
+    CHECK(bn == (size_t)S * S * 16);
+    float* z = malloc(sizeof(float) * 4 * (size_t)S * S);
+    float* kc = malloc(sizeof(float) * 7 * (size_t)S * S);
+    REQUIRE(z && kc);
+    const unsigned char* u = (const unsigned char*)bdata;
+    for (size_t i = 0; i < 4 * (size_t)S * S && bn == (size_t)S * S * 16; i++) {
+        uint32_t v = rd32(u + 4 * i);
+        memcpy(z + i, &v, 4);
+    }
+    CHECK(memcmp(z, r.latent, bn < 4 * sizeof(float) * (size_t)S * S ? bn : 4 * sizeof(float) * (size_t)S * S) == 0);
+    REQUIRE(mlb_material_decode(&r.run.material, z, (size_t)S * S, kc) == MLB_OK);
+    double worst_baked = 0, worst_decode = 0;
+    int covered = 0;
+    for (int i = 0; i < S * S; i++) {
+        double k[7];
+        REQUIRE(json_decode(dec, z + 4 * i, k));
+        const double baked[7] = {r.baked.kd[3 * i], r.baked.kd[3 * i + 1], r.baked.kd[3 * i + 2], r.baked.ks[3 * i],
+                                 r.baked.ks[3 * i + 1], r.baked.ks[3 * i + 2], r.baked.roughness[i]};
+        for (int c = 0; c < 7; c++) {
+            worst_decode = fmax(worst_decode, fabs(k[c] - kc[7 * i + c]));
+            // every texel, dilated ones too: the codes were dilated as the maps were
+            worst_baked = fmax(worst_baked, fabs(k[c] - baked[c]));
+        }
+        covered += r.baked.mask[i];
+    }
+    float zlo = INFINITY, zhi = -INFINITY;
+    for (int i = 0; i < 4 * S * S; i++) { zlo = fminf(zlo, z[i]); zhi = fmaxf(zhi, z[i]); }
+    printf("  latent sidecars: %d covered texels of %d, codes in [%.2f, %.2f]; |json decode - baked| <= %.2g, "
+           "|json - mlb_material_decode| <= %.2g\n", covered, S * S, zlo, zhi, worst_baked, worst_decode);
+    CHECK(zhi - zlo > 0.5);   // the codes vary: the comparison is not of one constant
+    CHECK(covered > S * S / 10);
+    CHECK_MSG(worst_baked < 1e-5, "the JSON decoder misses the baked BRDF by %g", worst_baked);
+    CHECK_MSG(worst_decode < 1e-5, "the JSON decoder misses mlb_material_decode by %g", worst_decode);
+    // a direct-mode export over the same name removes the editor's files
+    mlb_run_textured_free(&r);
+    REQUIRE(write_run(run, &t->a, MLB_MATERIAL_DIRECT) == MLB_OK);
+    REQUIRE(mlb_run_textured_load(&r, run, S) == MLB_OK);
+    CHECK(r.latent == NULL);
+    REQUIRE(mlb_run_textured_write_glb(&r, glb) == MLB_OK);
+    CHECK(!exists(dir, "a.decoder.json") && !exists(dir, "a.latent.bin") && exists(dir, "a.glb"));
+    mlb_run_textured_free(&r);
+    cJSON_Delete(dec);
+    free(jtext); free(bdata); free(z); free(kc);
+    mlb_mesh_free(&t->m);
+    free(t);
 }
 
 int main(int argc, char** argv) {
@@ -367,7 +508,8 @@ int main(int argc, char** argv) {
         if (strcmp(argv[1], "--write-glb") == 0) s = mlb_export_glb(argv[2], &t->a);
         else if (strcmp(argv[1], "--write-obj") == 0) s = mlb_export_obj(argv[2], &t->a);
         else if (strcmp(argv[1], "--write-viewer") == 0) s = mlb_viewer_write_asset(argv[2], &t->a, NULL);
-        else if (strcmp(argv[1], "--write-run") == 0) s = write_run(argv[2], &t->a);
+        else if (strcmp(argv[1], "--write-run") == 0) s = write_run(argv[2], &t->a, MLB_MATERIAL_DIRECT);
+        else if (strcmp(argv[1], "--write-latent-viewer") == 0) s = write_latent_viewer(argv[2], &t->a);
         else { fprintf(stderr, "usage: test_export [--write-glb FILE | --write-obj FILE | --write-viewer DIR]\n"); return 2; }
         if (s != MLB_OK) fprintf(stderr, "test_export: %s\n", mlb_last_error());
         mlb_mesh_free(&t->m);
@@ -379,5 +521,6 @@ int main(int argc, char** argv) {
     RUN(obj_round_trip);
     RUN(errors_leave_nothing);
     RUN(viewer_folder);
+    RUN(latent_sidecars);
     return test_summary();
 }

@@ -3,7 +3,9 @@
 // refuses every request that leaves that server, and checks that
 //   - the page loads without console errors, page errors or failed requests,
 //   - the asset is drawn (pixels that differ from the flat background),
-//   - the picture changes when the light slider turns the environment, and with the map toggles.
+//   - the picture changes when the light slider turns the environment, and with the map toggles,
+//   - with a latent-mode asset: the decoder in the shader at zero offset draws what the baked maps
+//     draw (shaded and each map), the latent sliders change the picture, and zero restores it.
 // Usage: node tests/viewer_check.mjs DIR [SCREENSHOT_DIR]. Exit 0 pass, 1 fail, 77 skip
 // (no Chromium or no playwright-core in viewer/node_modules).
 import { createRequire } from 'node:module';
@@ -126,6 +128,37 @@ try {
     const second = await grab(`${envs[1]}_background`);
     const d4 = await diff(first, second);
     ok(d4 > 5, `switching from ${envs[0]} to ${envs[1]} changes the picture (${f2(d4)})`);
+  }
+  // The latent editor (viewer/latent.js), where the folder has one (MLB_EXPECT_LATENT=1: it must)
+  const latent = await page.evaluate(() => window.viewer.latent.available);
+  if (process.env.MLB_EXPECT_LATENT === '1') ok(latent, 'the latent editor is offered');
+  if (!latent) ok(await page.evaluate(() => document.getElementById('latent').hidden), 'no latent editor without its files');
+  if (latent) {
+    const maxdiff = (x, y) => page.evaluate(([x, y]) => {
+      const p = window.__px[x], q = window.__px[y]; let m = 0;
+      for (let i = 0; i < p.length; i++) if ((i & 3) !== 3) m = Math.max(m, Math.abs(p[i] - q[i]));
+      return m;
+    }, [x, y]);
+    await page.evaluate(() => { window.viewer.setBackground(false); window.viewer.setRotation(0); });
+    for (const ch of ['shaded', 'kd', 'ks', 'roughness']) {
+      await page.evaluate((c) => { window.viewer.setChannel(c); window.viewer.latent.setDecoded(false); }, ch);
+      const baked = await grab(`latent_${ch}_baked`);
+      await page.evaluate(() => window.viewer.latent.setDecoded(true));
+      const dec = await grab(`latent_${ch}_decoded`);
+      const d = await diff(baked, dec), m = await maxdiff(baked, dec);
+      ok(d < 1, `${ch}: at zero offset the decoder in the shader draws the baked maps' picture (mean |difference| ${f2(d)} of 255, largest ${m})`);
+    }
+    await page.evaluate(() => window.viewer.setChannel('shaded'));
+    const zero = await grab('latent_zero');
+    await page.evaluate(() => window.viewer.latent.setOffset([1, -1, 1, -1]));
+    const moved = await grab('latent_moved');
+    const dm = await diff(zero, moved);
+    ok(dm > 2, `moving the latent sliders changes the picture (${f2(dm)})`);
+    ok(Math.abs((await fg(moved)) - (await fg(zero))) < 0.01, 'the silhouette stays where it was');
+    await page.evaluate(() => window.viewer.latent.setOffset([0, 0, 0, 0]));
+    const back = await grab('latent_back');
+    const db = await diff(zero, back);
+    ok(db < 0.5, `the sliders back at zero restore it (${f2(db)})`);
   }
 } finally {
   await browser.close();

@@ -2,12 +2,15 @@
 // viewer.json, a slider that turns the environment (the light) about +y, and unlit views of the
 // kd / ks / roughness textures and of the normals. Everything is loaded from this folder; nothing
 // from the network.
+// A latent-mode asset (viewer.json names its decoder) gets the latent editor of latent.js: four
+// sliders that offset every texel's code, decoded on the GPU into the maps the shading uses.
 // window.viewer exposes the state for tests (ready, frames, renderNow, setRotation, setChannel,
-// setEnvironment, setBackground).
+// setEnvironment, setBackground, latent: { available, setOffset, setDecoded }).
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { HDRLoader } from 'three/addons/loaders/HDRLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { loadLatent, makeEditor } from './latent.js';
 
 const statusEl = document.getElementById('status');
 const setStatus = (text) => { statusEl.textContent = text; };
@@ -115,6 +118,7 @@ async function main() {
   materials.roughness = roughnessView(pbr.roughnessMap);
   materials.normals = new THREE.MeshNormalMaterial();   // the surface's view-space normals as colours
   frameObject(gltf.scene);
+  if (config.decoder) await setupLatent(config.decoder, pbr);
 
   await setEnvironment(config.environments[0]);
   envSelect.addEventListener('change', () => setEnvironment(byName(envSelect.value)).catch(fail));
@@ -138,6 +142,60 @@ async function main() {
   setStatus(`${config.asset}: ${mesh.geometry.attributes.position.count} vertices — drag to orbit, wheel to zoom`);
 }
 
+// ---- the latent editor ----
+async function setupLatent(url, pbr) {
+  const data = await loadLatent(url);
+  if (!data) return;   // a direct-mode asset: no editor
+  const editor = makeEditor(renderer, data, pbr.map);
+  const baked = { kd: pbr.map, ks: pbr.specularColorMap, mr: pbr.roughnessMap, metal: pbr.metalnessMap };
+  const offset = [0, 0, 0, 0];
+  const decodedBox = document.getElementById('decoded');
+  const useMaps = (decoded) => {
+    const m = decoded ? editor.maps : baked;
+    pbr.map = m.kd;
+    pbr.specularColorMap = m.ks;
+    pbr.roughnessMap = m.mr;
+    if (baked.metal) pbr.metalnessMap = m.mr;   // glTF's metallicRoughness texture (B: metalness 0)
+    pbr.needsUpdate = true;
+    materials.kd.map = m.kd;
+    materials.ks.map = m.ks;
+    materials.roughness.uniforms.map.value = m.mr;
+    requestRender();
+  };
+  const setDecoded = (on) => {
+    decodedBox.checked = on;
+    if (on) editor.decode(offset);
+    useMaps(on);
+  };
+  const box = document.getElementById('latent-sliders');
+  const sliders = offset.map((_, c) => {
+    const span = Math.max(editor.max[c] - editor.min[c], 1);   // as far again as the asset's own codes spread
+    const label = document.createElement('label');
+    label.textContent = `z${c} `;
+    const s = Object.assign(document.createElement('input'), { type: 'range', min: -span, max: span, step: span / 200, value: 0 });
+    const v = document.createElement('span');
+    v.textContent = '0.00';
+    s.addEventListener('input', () => {
+      offset[c] = Number(s.value);
+      v.textContent = offset[c].toFixed(2);
+      setDecoded(true);
+    });
+    label.append(s, ' ', v);
+    box.append(label);
+    return s;
+  });
+  decodedBox.addEventListener('change', () => setDecoded(decodedBox.checked));
+  document.getElementById('latent-reset').addEventListener('click', () => {
+    sliders.forEach((s) => { s.value = 0; s.dispatchEvent(new Event('input')); });
+  });
+  document.getElementById('latent').hidden = false;
+  window.viewer.latent = {
+    available: true,
+    setOffset: (values) => values.forEach((x, c) => { sliders[c].value = x; sliders[c].dispatchEvent(new Event('input')); }),
+    setDecoded,
+  };
+}
+
 function renderNow() {
   dirty = false;
   renderer.render(scene, camera);
@@ -150,6 +208,7 @@ window.viewer = {
   frames: 0,
   renderNow,
   internals: () => ({ THREE, scene, camera, controls, mesh }),   // for tests and the console
+  latent: { available: false },
   setRotation: (deg) => { const s = document.getElementById('rotation'); s.value = deg; s.dispatchEvent(new Event('input')); },
   setChannel: (name) => { const c = document.getElementById('channel'); c.value = name; c.dispatchEvent(new Event('change')); },
   setBackground: (on) => { const b = document.getElementById('background'); b.checked = on; b.dispatchEvent(new Event('change')); },

@@ -41,4 +41,9 @@ typedef struct {
 mlb_status mlb_bake(const mlb_uv_mesh* m, int size, mlb_material_fn fn, void* user, int dilate, mlb_baked* out);
 void mlb_baked_free(mlb_baked* b);   // safe on a zeroed struct
 
+// A 4-channel field (a latent material's codes: zfn(user, pos, n, z) fills z [n,4]) baked exactly
+// as mlb_bake bakes the material: the same texels, faces, points and dilation, so texel t of z
+// [size, size, 4] is the code whose decoding mlb_bake stores at t. Errors as mlb_bake.
+mlb_status mlb_bake_codes(const mlb_uv_mesh* m, int size, mlb_material_fn zfn, void* user, int dilate, float* z);
+
 #endif

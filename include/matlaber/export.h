@@ -69,7 +69,11 @@ mlb_status mlb_png_encode_memory(const float* data, int w, int h, int c, int srg
 //   dir/asset.glb                        the asset
 //   dir/env/<name>.hdr                   the environments (built-in maps, Radiance RGBE, turned so
 //                                        that three.js sees the same world directions as our renderer)
-//   dir/viewer.json                      the list of environments and the asset's name
+//   dir/viewer.json                      the list of environments and the asset's name, and
+//                                        "decoder" when the folder has the latent editor's files:
+//   dir/asset.decoder.json, asset.latent.bin  a latent-mode asset's codes and decoder
+//                                        (latent_export.h), copied from beside the .glb or written
+//                                        by the caller's write_glb
 // The page uses ES modules and fetch(), which browsers refuse from file:// URLs: serve the folder,
 // e.g. `python3 -m http.server -d DIR 8000`, and open http://localhost:8000/. Nothing is loaded
 // from the network.
@@ -90,6 +94,9 @@ mlb_status mlb_viewer_find_source(const char* hint, char* out, size_t n);
 mlb_status mlb_viewer_write(const char* dir, const char* glb_path, const mlb_viewer_options* opt);
 // ... or from an asset (written as dir/asset.glb).
 mlb_status mlb_viewer_write_asset(const char* dir, const mlb_asset* a, const mlb_viewer_options* opt);
+// ... or with dir/asset.glb (and, for a latent-mode asset, its sidecars) written by write_glb(path, ctx).
+mlb_status mlb_viewer_write_with(const char* dir, const mlb_viewer_options* opt,
+                                 mlb_status (*write_glb)(const char* path, const void* ctx), const void* ctx);
 // The same folder without dir/asset.glb: the page, three.js and the environments, for a server that
 // puts each asset beside them (matlaber serve, docs/server.md).
 mlb_status mlb_viewer_write_page(const char* dir, const mlb_viewer_options* opt);

@@ -43,6 +43,8 @@ void mlb_paint_to_frame(const double centre[3], double scale, const float* in, f
 // an mlb_material_fn (render.h) with user = an mlb_framed_material (baking, comparison renders).
 typedef struct { const mlb_material_net* net; const double* centre; double scale; } mlb_framed_material;
 mlb_status mlb_framed_material_eval(void* user, const float* pos, size_t n, float* k);
+// The same for the latent codes [n,4] of a latent-mode field (the viewer's editor).
+mlb_status mlb_framed_material_eval_latent(void* user, const float* pos, size_t n, float* z);
 // A camera of the mesh's own coordinates (image guidance: the views were taken of the mesh as given)
 // moved into the frame with it: eye and target to (p − centre) · scale, near and far times scale, the
 // same orientation and field of view, so the image of the moved mesh is the image of the original.

@@ -15,12 +15,17 @@ typedef struct {
     mlb_baked baked;
     mlb_uv_stats uv_stats;
     mlb_asset asset;      // points into uv and baked
+    float* latent;        // latent-mode runs: [size, size, 4] the codes baked as `baked` (mlb_bake_codes); else NULL
 } mlb_run_textured;
 
 // dir: a finished run folder; size: the texture size (the atlas's gutter scales with it).
 mlb_status mlb_run_textured_load(mlb_run_textured* r, const char* dir, int size);
 void mlb_run_textured_free(mlb_run_textured* r);
-// dir's asset, baked at size², written as the .glb at path (atomically: a complete file or none).
+// dir's asset, baked at size², written as the .glb at path (atomically: a complete file or none);
+// a latent-mode run also gets its codes and decoder beside it (latent_export.h), a direct-mode run
+// none (stale ones removed).
 mlb_status mlb_run_export_glb(const char* dir, int size, const char* path);
+// r's asset as the .glb at path, and the latent sidecars as mlb_run_export_glb writes them.
+mlb_status mlb_run_textured_write_glb(const mlb_run_textured* r, const char* path);
 
 #endif

@@ -325,3 +325,34 @@ done:
     free(R.best); free(R.bary); free(cov); free(pos); free(k); free(queue); free(dist); free(same);
     return st;
 }
+
+// mlb_bake_codes rides on mlb_bake: the 4 channels travel in kd (3) and ks's first, so coverage,
+// points and dilation are mlb_bake's own, not a second copy of them.
+typedef struct { mlb_material_fn zfn; void* user; } codes_fn;
+
+static mlb_status codes_as_material(void* user, const float* pos, size_t n, float* k) {
+    const codes_fn* c = user;
+    float* z = malloc(sizeof(float) * 4 * (n ? n : 1));
+    if (!z) return mlb_fail(MLB_ERR_NOMEM, "out of memory for %zu codes", n);
+    mlb_status st = c->zfn(c->user, pos, n, z);
+    if (st == MLB_OK)
+        for (size_t i = 0; i < n; i++) {
+            for (int j = 0; j < 4; j++) k[7 * i + j] = z[4 * i + j];
+            for (int j = 4; j < 7; j++) k[7 * i + j] = 0;
+        }
+    free(z);
+    return st;
+}
+
+mlb_status mlb_bake_codes(const mlb_uv_mesh* m, int size, mlb_material_fn zfn, void* user, int dilate, float* z) {
+    if (!zfn || !z) return mlb_fail(MLB_ERR_ARG, "mlb_bake_codes: NULL function or output");
+    codes_fn c = {zfn, user};
+    mlb_baked b;
+    MLB_TRY(mlb_bake(m, size, codes_as_material, &c, dilate, &b));
+    for (size_t t = 0; t < (size_t)size * size; t++) {
+        for (int j = 0; j < 3; j++) z[4 * t + j] = b.kd[3 * t + j];
+        z[4 * t + 3] = b.ks[3 * t];
+    }
+    mlb_baked_free(&b);
+    return MLB_OK;
+}

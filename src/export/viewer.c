@@ -11,6 +11,7 @@
 #include "matlaber/export.h"
 #include "matlaber/fileio.h"
 #include "matlaber/image_write.h"
+#include "matlaber/latent_export.h"
 
 // Files of the three npm package the page needs (the imports of GLTFLoader, HDRLoader and
 // OrbitControls, followed by hand); paths relative to node_modules/three, copied to lib/three/.
@@ -25,7 +26,7 @@ static const char* const THREE_FILES[] = {
     "LICENSE",
     NULL,
 };
-static const char* const PAGE_FILES[] = {"viewer.js", "index.html", NULL};   // index.html last
+static const char* const PAGE_FILES[] = {"viewer.js", "latent.js", "index.html", NULL};   // index.html last
 static const char* const DEFAULT_ENVS[] = {"sky", "studio", "overcast", NULL};
 #define MAX_COPY_BYTES ((size_t)1 << 30)
 
@@ -134,10 +135,13 @@ static mlb_status write_env(const char* dir, const char* name, int height) {
     return st;
 }
 
-static mlb_status write_config(const char* dir, const char* const* envs, const char* title) {
+// decoder: name the latent editor's file (latent_export.h): when the folder has one, and always in
+// the page-only folder of `serve`, whose server answers 204 for a job without one.
+static mlb_status write_config(const char* dir, const char* const* envs, const char* title, int decoder) {
     cJSON* root = cJSON_CreateObject();
     cJSON_AddStringToObject(root, "title", title);
     cJSON_AddStringToObject(root, "asset", "asset.glb");
+    if (decoder) cJSON_AddStringToObject(root, "decoder", "asset.decoder.json");
     cJSON* list = cJSON_AddArrayToObject(root, "environments");
     for (int i = 0; envs[i]; i++) {
         cJSON* e = cJSON_CreateObject();
@@ -181,9 +185,14 @@ static mlb_status write_folder(const char* dir, const mlb_viewer_options* opt,
         if (st != MLB_OK) return mlb_fail_context(st, "viewer: copying three.js");
     }
     for (int i = 0; envs[i]; i++) MLB_TRY(write_env(dir, envs[i], height));
-    MLB_TRY(write_config(dir, envs, title));
     snprintf(to, sizeof to, "%s/asset.glb", dir);
-    if (write_glb) MLB_TRY(write_glb(to, ctx));
+    if (write_glb) {
+        mlb_latent_export_remove(to);   // an earlier asset's editor must not outlive it
+        MLB_TRY(write_glb(to, ctx));
+    }
+    char json[PATH_MAX], bin[PATH_MAX];
+    int decoder = !write_glb || (!mlb_latent_export_paths(to, json, bin, sizeof json) && mlb_is_file(json) && mlb_is_file(bin));
+    MLB_TRY(write_config(dir, envs, title, decoder));
     for (int i = 0; PAGE_FILES[i]; i++) {
         snprintf(from, sizeof from, "%s/%s", src, PAGE_FILES[i]);
         snprintf(to, sizeof to, "%s/%s", dir, PAGE_FILES[i]);
@@ -201,6 +210,13 @@ static mlb_status glb_from_file(const char* path, const void* ctx) {
     if (n < 12 || memcmp(data, "glTF", 4) != 0) st = mlb_fail(MLB_ERR_FORMAT, "%s: not a binary glTF file (no glTF magic)", glb);
     else st = mlb_write_file_atomic(path, data, n);
     free(data);
+    // a latent-mode export's codes and decoder beside it come along, renamed after asset.glb
+    char js[PATH_MAX], bs[PATH_MAX], jd[PATH_MAX], bd[PATH_MAX];
+    if (!st && !mlb_latent_export_paths(glb, js, bs, sizeof js) && mlb_is_file(js) && mlb_is_file(bs) &&
+        !mlb_latent_export_paths(path, jd, bd, sizeof jd)) {
+        st = copy_file(bs, bd);
+        if (!st) st = copy_file(js, jd);
+    }
     return st;
 }
 
@@ -210,6 +226,12 @@ mlb_status mlb_viewer_write(const char* dir, const char* glb_path, const mlb_vie
     if (!glb_path) return mlb_fail(MLB_ERR_ARG, "viewer: NULL .glb path");
     if (!mlb_is_file(glb_path)) return mlb_fail(MLB_ERR_NOT_FOUND, "%s: no such file", glb_path);
     return write_folder(dir, opt, glb_from_file, glb_path);
+}
+
+mlb_status mlb_viewer_write_with(const char* dir, const mlb_viewer_options* opt,
+                                 mlb_status (*write_glb)(const char* path, const void* ctx), const void* ctx) {
+    if (!write_glb) return mlb_fail(MLB_ERR_ARG, "viewer: NULL asset writer");
+    return write_folder(dir, opt, write_glb, ctx);
 }
 
 mlb_status mlb_viewer_write_page(const char* dir, const mlb_viewer_options* opt) { return write_folder(dir, opt, NULL, NULL); }

@@ -62,15 +62,20 @@ void mlb_paint_to_frame(const double centre[3], double scale, const float* in, f
         for (int k = 0; k < 3; k++) out[3 * i + k] = (float)(((double)in[3 * i + k] - centre[k]) * scale);
 }
 
-mlb_status mlb_framed_material_eval(void* user, const float* pos, size_t n, float* k) {
-    const mlb_framed_material* fm = user;
+// Moves the points into the frame and evaluates the field there: the material (7 numbers a point)
+// or, with latent set, the codes (4).
+static mlb_status framed_eval(const mlb_framed_material* fm, const float* pos, size_t n, float* out, int latent) {
     float* p = malloc(sizeof(float) * 3 * (n ? n : 1));
     if (!p) return mlb_fail(MLB_ERR_NOMEM, "out of memory for %zu points' material", n);
     mlb_paint_to_frame(fm->centre, fm->scale, pos, p, n);
-    mlb_status s = mlb_material_eval(fm->net, p, n, k);
+    mlb_status s = latent ? mlb_material_eval_latent(fm->net, p, n, out) : mlb_material_eval(fm->net, p, n, out);
     free(p);
     return s;
 }
+
+mlb_status mlb_framed_material_eval(void* user, const float* pos, size_t n, float* k) { return framed_eval(user, pos, n, k, 0); }
+
+mlb_status mlb_framed_material_eval_latent(void* user, const float* pos, size_t n, float* z) { return framed_eval(user, pos, n, z, 1); }
 
 static int is_gltf(const char* path) {
     static const char* const ext[4] = {".glb", ".gltf", ".GLB", ".GLTF"};

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/fileio.h"
+#include "matlaber/latent_export.h"
 #include "matlaber/material_net.h"
 #include "matlaber/obj.h"
 #include "matlaber/paint.h"
@@ -12,7 +13,12 @@ static mlb_status eval_material(void* user, const float* pos, size_t n, float* k
     return mlb_material_eval(user, pos, n, k);
 }
 
+static mlb_status eval_latent(void* user, const float* pos, size_t n, float* z) {
+    return mlb_material_eval_latent(user, pos, n, z);
+}
+
 void mlb_run_textured_free(mlb_run_textured* r) {
+    free(r->latent);
     mlb_baked_free(&r->baked);
     mlb_uv_mesh_free(&r->uv);
     mlb_run_asset_free(&r->run);
@@ -74,6 +80,12 @@ mlb_status mlb_run_textured_load(mlb_run_textured* r, const char* dir, int size)
     mlb_framed_material fm = {&r->run.material, c->paint_centre, c->paint_scale};
     if (!s && paint) s = mlb_bake(&r->uv, size, mlb_framed_material_eval, &fm, MLB_BAKE_DEFAULT_DILATE, &r->baked);
     if (!s && !paint) s = mlb_bake(&r->uv, size, eval_material, &r->run.material, MLB_BAKE_DEFAULT_DILATE, &r->baked);
+    if (!s && r->run.material.cfg.mode == MLB_MATERIAL_LATENT) {   // the codes over the same texels, for the viewer's editor
+        r->latent = malloc(sizeof(float) * 4 * (size_t)size * (size_t)size);
+        if (!r->latent) s = mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for the latent texture", dir);
+        else if (paint) s = mlb_bake_codes(&r->uv, size, mlb_framed_material_eval_latent, &fm, MLB_BAKE_DEFAULT_DILATE, r->latent);
+        else s = mlb_bake_codes(&r->uv, size, eval_latent, &r->run.material, MLB_BAKE_DEFAULT_DILATE, r->latent);
+    }
     if (s) {
         mlb_run_textured_free(r);
         return s;
@@ -84,11 +96,21 @@ mlb_status mlb_run_textured_load(mlb_run_textured* r, const char* dir, int size)
     return MLB_OK;
 }
 
+mlb_status mlb_run_textured_write_glb(const mlb_run_textured* r, const char* path) {
+    MLB_TRY(mlb_export_glb(path, &r->asset));
+    if (!mlb_ends_with(path, ".glb")) return MLB_OK;   // the sidecars are named after NAME.glb
+    if (!r->latent) {
+        mlb_latent_export_remove(path);
+        return MLB_OK;
+    }
+    return mlb_latent_export(path, &r->run.material.dec, r->latent, r->asset.tex_size);
+}
+
 mlb_status mlb_run_export_glb(const char* dir, int size, const char* path) {
     mlb_run_textured r;
     mlb_status s = mlb_run_textured_load(&r, dir, size);
     if (s) return s;
-    s = mlb_export_glb(path, &r.asset);
+    s = mlb_run_textured_write_glb(&r, path);
     mlb_run_textured_free(&r);
     return s;
 }

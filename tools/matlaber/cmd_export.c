@@ -62,12 +62,14 @@ int cmd_export(int argc, char** argv) {
     mlb_run_textured r;
     int rc = load_run(argv[optind], (int)size, &r);
     if (rc) return rc;
-    s = glb ? mlb_export_glb(out, &r.asset) : mlb_export_obj(out, &r.asset);
+    s = glb ? mlb_run_textured_write_glb(&r, out) : mlb_export_obj(out, &r.asset);
     mlb_run_textured_free(&r);
     if (s != MLB_OK) return cli_fail(s, "export");
     printf("%s\n", out);
     return 0;
 }
+
+static mlb_status write_run_glb(const char* path, const void* ctx) { return mlb_run_textured_write_glb(ctx, path); }
 
 static const cli_option view_options[] = {
     {"texture-size", 1, 't', "N", "size of the baked textures (default 1024)"},
@@ -134,7 +136,7 @@ int cmd_view(int argc, char** argv) {
         mlb_run_textured r;
         int rc = load_run(in, (int)size, &r);
         if (rc) return rc;
-        s = mlb_viewer_write_asset(out, &r.asset, &opt);
+        s = mlb_viewer_write_with(out, &opt, write_run_glb, &r);   // with the latent editor's files
         mlb_run_textured_free(&r);
     }
     if (s != MLB_OK) return cli_fail(s, "view");

@@ -119,7 +119,7 @@ int generate_option_arity(const char* name) {
 static int write_asset(const char* dir, int size, const char* asset) {
     mlb_run_textured t;
     mlb_status s = mlb_run_textured_load(&t, dir, size);
-    if (!s) s = mlb_ends_with(asset, ".obj") ? mlb_export_obj(asset, &t.asset) : mlb_export_glb(asset, &t.asset);
+    if (!s) s = mlb_ends_with(asset, ".obj") ? mlb_export_obj(asset, &t.asset) : mlb_run_textured_write_glb(&t, asset);
     if (!s) mlb_log(MLB_LOG_INFO, "wrote %s (%d vertices, %d faces, %d² textures)", asset, t.asset.n_verts, t.asset.n_faces, size);
     mlb_run_textured_free(&t);
     return s ? cli_fail(s, "--asset") : 0;

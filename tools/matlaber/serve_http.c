@@ -238,7 +238,7 @@ static enum MHD_Result send_static(struct MHD_Connection* c, int rc, const char*
               : send_path(c, path, type);
 }
 
-// /view/ID/REST: the viewer's folder with the job's asset.glb beside it
+// /view/ID/REST: the viewer's folder with the job's asset.glb (and latent sidecars) beside it
 static enum MHD_Result send_view(struct MHD_Connection* c, const char* url) {
     const char* p = url + strlen("/view/");
     const char* slash = strchr(p, '/');
@@ -249,6 +249,12 @@ static enum MHD_Result send_view(struct MHD_Connection* c, const char* url) {
     const char* rest = slash + 1;
     if (serve_jobs_events_path(id, path, sizeof path)) return send_error(c, 404, "no such job");
     if (!strcmp(rest, "asset.glb")) return send_file(c, id, "asset.glb");
+    if (!strcmp(rest, "asset.decoder.json") || !strcmp(rest, "asset.latent.bin")) {
+        // the viewer asks every job for its latent editor; a direct-mode (or unfinished) job has
+        // none, which is no error: 204, so the page logs nothing
+        if (serve_jobs_file(id, rest, path, sizeof path, &type) == 404) return send_text(c, 204, "application/json", calloc(1, 1));
+        return send_file(c, id, rest);
+    }
     int rc = serve_static_viewer(rest[0] ? rest : "index.html", path, sizeof path, &type);
     return send_static(c, rc, path, type);
 }

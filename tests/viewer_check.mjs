@@ -45,7 +45,7 @@ const browser = await chromium.launch({
   args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'],
 });
 try {
-  const page = await browser.newPage({ viewport: { width: 320, height: 240 } });
+  const page = await browser.newPage({ viewport: { width: 320, height: 240 }, acceptDownloads: true });
   page.on('console', (m) => {
     if (m.type() === 'error') problems.push(`console error: ${m.text()}`);
     else if (m.type() === 'warning') console.log(`note: console warning: ${m.text()}`);
@@ -159,6 +159,20 @@ try {
     const back = await grab('latent_back');
     const db = await diff(zero, back);
     ok(db < 0.5, `the sliders back at zero restore it (${f2(db)})`);
+    // save: the edited maps as three PNG downloads, of the latent texture's size
+    await page.evaluate(() => window.viewer.latent.setOffset([1, -1, 1, -1]));
+    const got = [];
+    page.on('download', (d) => got.push(d));
+    await page.evaluate(() => document.getElementById('latent-save').click());   // (the panel may pass the small view)
+    for (let i = 0; i < 50 && got.length < 3; i++) await page.waitForTimeout(100);
+    const names = got.map((d) => d.suggestedFilename()).sort();
+    ok(names.join() === 'asset_kd.png,asset_ks.png,asset_roughness.png', `save downloads the edited maps (${names.join(', ')})`);
+    const size = await page.evaluate(async () => (await (await fetch('asset.decoder.json')).json()).latent.size);
+    for (const d of got) {
+      const b = readFileSync(await d.path());
+      const w = b.readUInt32BE(16), h = b.readUInt32BE(20);
+      ok(b.subarray(1, 4).toString() === 'PNG' && w === size && h === size, `${d.suggestedFilename()}: a ${w}x${h} PNG`);
+    }
   }
 } finally {
   await browser.close();

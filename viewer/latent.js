@@ -127,6 +127,28 @@ export function makeEditor(renderer, { dec, codes, size }, like) {
     }
     renderer.setRenderTarget(saved);
   };
-  return { decode, maps: { kd: targets[0].texture, ks: targets[1].texture, mr: targets[2].texture },
+  // The decoded maps as 8-bit PNG blobs in the OBJ export's encodings (kd, ks sRGB; roughness
+  // linear grey), rows top first as the .glb's images: what "save" downloads.
+  const srgb = (v) => (v <= 0.0031308 ? 12.92 * v : 1.055 * Math.pow(v, 1 / 2.4) - 0.055);
+  const toPng = async () => {
+    const half = new Uint16Array(size * size * 4), out = {};
+    for (const [w, name] of [[0, 'kd'], [1, 'ks'], [2, 'roughness']]) {
+      renderer.readRenderTargetPixels(targets[w], 0, 0, size, size, half);
+      const canvas = Object.assign(document.createElement('canvas'), { width: size, height: size });
+      const g = canvas.getContext('2d'), img = g.createImageData(size, size);
+      for (let t = 0; t < size * size; t++) {
+        for (let c = 0; c < 3; c++) {
+          const v = THREE.DataUtils.fromHalfFloat(half[4 * t + (w === 2 ? 1 : c)]);
+          const e = w === 2 ? v : srgb(Math.min(Math.max(v, 0), 1));
+          img.data[4 * t + c] = Math.round(Math.min(Math.max(e, 0), 1) * 255);
+        }
+        img.data[4 * t + 3] = 255;
+      }
+      g.putImageData(img, 0, 0);
+      out[name] = await new Promise((res) => canvas.toBlob(res, 'image/png'));
+    }
+    return out;
+  };
+  return { decode, toPng, maps: { kd: targets[0].texture, ks: targets[1].texture, mr: targets[2].texture },
            min: dec.latent.min, max: dec.latent.max };
 }

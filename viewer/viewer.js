@@ -188,6 +188,16 @@ async function setupLatent(url, pbr) {
   document.getElementById('latent-reset').addEventListener('click', () => {
     sliders.forEach((s) => { s.value = 0; s.dispatchEvent(new Event('input')); });
   });
+  // save: the edited maps downloaded as PNGs (asset_kd.png, ... as `matlaber export --format obj` names them)
+  document.getElementById('latent-save').addEventListener('click', async () => {
+    if (!decodedBox.checked) setDecoded(true);
+    const pngs = await editor.toPng();
+    for (const [name, blob] of Object.entries(pngs)) {
+      const a = Object.assign(document.createElement('a'), { href: URL.createObjectURL(blob), download: `asset_${name}.png` });
+      a.click();
+      setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+    }
+  });
   document.getElementById('latent').hidden = false;
   window.viewer.latent = {
     available: true,

@@ -125,6 +125,15 @@ if [ -f "$HERE/../viewer/node_modules/three/package.json" ]; then
   body_has "names asset.glb" '"asset":[[:space:]]*"asset.glb"'
   req "the job's asset beside it" 200 "$U/view/$ID/asset.glb"
   cmp -s "$T/body" "$T/a.glb" && ok "the same .glb" || bad "/view/ID/asset.glb differs"
+  # a latent-mode job (the default): the editor's codes and decoder beside it (docs/export.md)
+  req "the viewer's config names the decoder" 200 "$U/view/$ID/viewer.json"
+  body_has "decoder named" '"decoder":[[:space:]]*"asset.decoder.json"'
+  req "the job's decoder" 200 "$U/view/$ID/asset.decoder.json"
+  body_has "a decoder of the prior" '"format":"matlaber-latent-decoder-1"'
+  req "the job's latent codes" 200 "$U/view/$ID/asset.latent.bin"
+  [ "$(wc -c < "$T/body")" = $((64 * 64 * 16)) ] && ok "64² codes of 4 float32" || bad "latent.bin: $(wc -c < "$T/body") bytes"
+  cmp -s "$T/body" "$R/$ID/final/asset.latent.bin" && ok "the run's own codes" || bad "/view/ID/asset.latent.bin differs"
+  req "the viewer's script for them" 200 "$U/view/$ID/latent.js"
   req "three.js" 200 "$U/view/$ID/lib/three/build/three.module.js"
   req "an environment" 200 "$U/view/$ID/env/studio.hdr"
   for r in "/view/$ID/../../config.json" "/view/$ID/lib/../viewer.json" "/view/nope/" "/view/$ID/config.json" \
@@ -213,6 +222,7 @@ wait_state "$L1" running && ok "the first runs" || bad "the first never ran"
 [ "$(state "$L2")" = queued ] && ok "one job at a time: the second waits" || bad "second: $(state "$L2")"
 req "DELETE a queued job" 200 -X DELETE "$U/api/jobs/$L3"
 [ "$(state "$L3")" = cancelled ] && ok "the queued job is cancelled" || bad "L3: $(state "$L3")"
+[ -f "$HERE/../viewer/node_modules/three/package.json" ] && req "a job without codes: no editor (204)" 204 "$U/view/$L3/asset.decoder.json"
 wait_progress "$L1" 2 || bad "the long job shows no progress"
 req "DELETE a running job" 200 -X DELETE "$U/api/jobs/$L1"
 wait_state "$L1" cancelled && ok "the running job is cancelled" || bad "L1: $(state "$L1")"

@@ -1,7 +1,8 @@
 // The page of `matlaber serve` in headless Chromium (tests/cli_serve.sh starts the server): a
 // prompt typed and submitted with tiny settings, the progress bar moving with the job's events,
 // the finished asset drawn by the viewer (pixels that are not background), the environment
-// switched (the pixels change), the .glb downloaded through its link; no console errors, page
+// switched (the pixels change), a latent slider moved (the pixels change; at zero offset the
+// decoded maps draw the baked maps' picture), the .glb downloaded through its link; no console errors, page
 // errors, failed requests, HTTP errors, or requests leaving the server.
 // Usage: node tests/serve_check.mjs URL SETTINGS_JSON [SCREENSHOT_DIR]. Exit 0 pass, 1 fail, 77
 // skip (no Chromium, no playwright-core, no WebGL 2).
@@ -110,6 +111,28 @@ try {
   const dn = await diff('env1', 'normals');
   ok(dn > 1, `the normals view differs from the shaded one (${dn.toFixed(2)})`);
   await frame.evaluate(() => window.viewer.setChannel('shaded'));
+  // edit the material in the prior's latent space (a latent-mode job: the default)
+  const latent = await frame.evaluate(() => window.viewer.latent.available);
+  ok(latent, 'the latent editor is offered');
+  if (latent) {
+    await frame.evaluate(() => { window.viewer.setBackground(false); window.viewer.latent.setDecoded(false); });
+    await grab('baked');
+    await frame.evaluate(() => window.viewer.latent.setDecoded(true));
+    await grab('decoded');
+    const dz = await diff('baked', 'decoded');
+    ok(dz < 1, `at zero offset the decoder in the shader draws the baked maps' picture (mean |difference| ${dz.toFixed(2)} of 255)`);
+    // the first slider moved by hand, as a person would
+    const slider = frame.locator('#latent-sliders input').first();
+    const box = await slider.boundingBox();
+    if (box) await page.mouse.click(box.x + box.width - 2, box.y + box.height / 2);
+    else await frame.evaluate(() => window.viewer.latent.setOffset([1, 0, 0, 0]));   // (the panel out of view)
+    await grab('moved');
+    const dm = await diff('decoded', 'moved');
+    // (the asset covers a few % of the frame: 0.3 is 15 times the zero-offset difference)
+    ok(dm > 0.3, `moving a latent slider changes the pixels (${dm.toFixed(2)})`);
+    await shot('6_latent');
+    await frame.evaluate(() => { window.viewer.latent.setOffset([0, 0, 0, 0]); window.viewer.setBackground(true); });
+  }
   // compare with another finished job, side by side (when the server has one)
   const other = await page.evaluate((me) => [...document.getElementById('compare').options].map((o) => o.value).find((v) => v && v !== me), id);
   if (other) {

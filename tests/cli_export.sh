@@ -39,6 +39,19 @@ if "$M" export --help > /dev/null 2>&1; then
   expect 0 "view a .glb" -- "$M" view "$T/run.glb" --env studio -o "$T/view"
   [ -s "$T/view/index.html" ] && [ -s "$T/view/env/studio.hdr" ] && [ ! -e "$T/view/env/sky.hdr" ] \
     && ok "the viewer folder with the chosen environment" || bad "viewer folder: $(ls -R "$T/view" | head)"
+  [ ! -e "$T/run.decoder.json" ] && [ ! -e "$T/run.latent.bin" ] && ok "a direct-mode run: no latent files" || bad "direct run wrote latent files"
+  grep -q '"decoder"' "$T/view/viewer.json" && bad "a direct asset's viewer names a decoder" || ok "its viewer names no decoder"
+  # a latent-mode run: its codes and decoder beside the .glb, carried into the viewer (docs/export.md)
+  expect 0 "a latent-mode run folder" -- "$W" --write-latent-run "$T/lrun"
+  expect 0 "export it as .glb" -- "$M" export "$T/lrun" --texture-size 32 -o "$T/lrun.glb"
+  [ "$(wc -c < "$T/lrun.latent.bin")" = $((32 * 32 * 16)) ] && ok "lrun.latent.bin: 32² codes of 4 float32" || bad "lrun.latent.bin missing or sized otherwise"
+  grep -q '"file":"lrun.latent.bin"' "$T/lrun.decoder.json" && ok "lrun.decoder.json names it" || bad "lrun.decoder.json"
+  expect 0 "view the .glb" -- "$M" view "$T/lrun.glb" --env studio -o "$T/lview"
+  cmp -s "$T/lrun.latent.bin" "$T/lview/asset.latent.bin" && cmp -s "$T/lrun.decoder.json" "$T/lview/asset.decoder.json" \
+    && ok "view copies the codes and decoder beside asset.glb" || bad "view: $(ls "$T/lview")"
+  grep -q '"decoder":[[:space:]]*"asset.decoder.json"' "$T/lview/viewer.json" && ok "and names the decoder" || bad "lview/viewer.json"
+  expect 0 "view the run folder" -- "$M" view "$T/lrun" --texture-size 32 --env studio -o "$T/lview2"
+  cmp -s "$T/lrun.latent.bin" "$T/lview2/asset.latent.bin" && ok "view RUN_DIR writes the same codes" || bad "lview2: $(ls "$T/lview2")"
   expect 2 "export needs -o" -- "$M" export "$T/run"
   expect 2 "export: unknown format" -- "$M" export "$T/run" --format fbx -o "$T/x.fbx"
   expect 2 "export: an OBJ name must end in .obj" -- "$M" export "$T/run" --format obj -o "$T/x.glb"

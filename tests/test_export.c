@@ -8,6 +8,7 @@
 //                                  DIR/final/material.safetensors, for 'matlaber export / view')
 //   test_export --write-latent-viewer DIR   (the viewer folder of such a run in latent mode, with
 //                                  its latent codes and decoder, for tests/cli_viewer.sh)
+//   test_export --write-latent-run DIR      (that latent-mode run folder, for tests/cli_export.sh)
 #include <cjson/cJSON.h>
 #include <unistd.h>
 #include "matlaber/export.h"
@@ -510,6 +511,7 @@ int main(int argc, char** argv) {
         else if (strcmp(argv[1], "--write-viewer") == 0) s = mlb_viewer_write_asset(argv[2], &t->a, NULL);
         else if (strcmp(argv[1], "--write-run") == 0) s = write_run(argv[2], &t->a, MLB_MATERIAL_DIRECT);
         else if (strcmp(argv[1], "--write-latent-viewer") == 0) s = write_latent_viewer(argv[2], &t->a);
+        else if (strcmp(argv[1], "--write-latent-run") == 0) s = write_run(argv[2], &t->a, MLB_MATERIAL_LATENT);
         else { fprintf(stderr, "usage: test_export [--write-glb FILE | --write-obj FILE | --write-viewer DIR]\n"); return 2; }
         if (s != MLB_OK) fprintf(stderr, "test_export: %s\n", mlb_last_error());
         mlb_mesh_free(&t->m);

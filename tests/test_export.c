@@ -13,7 +13,9 @@
 #include <unistd.h>
 #include "matlaber/export.h"
 #include "matlaber/fileio.h"
+#include "matlaber/gltf.h"
 #include "matlaber/image.h"
+#include "matlaber/latent_edit.h"
 #include "matlaber/latent_export.h"
 #include "matlaber/material_net.h"
 #include "matlaber/mesh.h"
@@ -501,6 +503,105 @@ TEST(latent_sidecars) {
     free(t);
 }
 
+// The sidecars read back (latent_edit.h) are the codes and decoder written; an edit changes exactly
+// the texels of its region, to the formula; the edited asset's sidecars hold the edited codes.
+TEST(latent_edit) {
+    test_asset* t = malloc(sizeof *t);
+    REQUIRE(t && make_asset(t));
+    const char* dir = test_tmpdir("export_latent_edit");
+    REQUIRE(dir);
+    char run[4200], glb[4300], out[4300], obj[4300], path[4400];
+    snprintf(run, sizeof run, "%s/run", dir);
+    REQUIRE(write_run(run, &t->a, MLB_MATERIAL_LATENT) == MLB_OK);
+    const int S = 32;
+    const size_t N = (size_t)S * S;
+    mlb_run_textured r;
+    REQUIRE(mlb_run_textured_load(&r, run, S) == MLB_OK);
+    snprintf(glb, sizeof glb, "%s/a.glb", dir);
+    REQUIRE(mlb_run_textured_write_glb(&r, glb) == MLB_OK);
+    mlb_latent_asset a;
+    REQUIRE(mlb_latent_asset_read(glb, &a) == MLB_OK);
+    CHECK(a.size == S);
+    CHECK(memcmp(a.z, r.latent, sizeof(float) * 4 * N) == 0);
+    float* k = malloc(sizeof(float) * 7 * N);
+    float* z = malloc(sizeof(float) * 4 * N);
+    REQUIRE(k && z);
+    REQUIRE(mlb_latent_decode(&a, a.z, N, k, k + 3 * N, k + 6 * N) == MLB_OK);
+    double worst = 0;
+    for (size_t i = 0; i < N; i++) {
+        for (int c = 0; c < 3; c++) worst = fmax(worst, fabs(k[3 * i + c] - r.baked.kd[3 * i + c]));
+        for (int c = 0; c < 3; c++) worst = fmax(worst, fabs(k[3 * N + 3 * i + c] - r.baked.ks[3 * i + c]));
+        worst = fmax(worst, fabs(k[6 * N + i] - r.baked.roughness[i]));
+    }
+    CHECK_MSG(worst < 1e-5, "the decoder read back misses the baked maps by %g", worst);
+    // a region: the material at the first covered texel, within a quarter of the codes' spread
+    int pick = 0;
+    while (pick < S * S && !r.baked.mask[pick]) pick++;
+    REQUIRE(pick < S * S);
+    float lo = INFINITY, hi = -INFINITY;
+    for (size_t i = 0; i < 4 * N; i++) { lo = fminf(lo, a.z[i]); hi = fmaxf(hi, a.z[i]); }
+    mlb_latent_edit e = {.offset = {0.5f, 0, -0.25f, 0}, .radius = (hi - lo) / 4, .t = 0.3f};
+    memcpy(e.pick, a.z + 4 * pick, sizeof e.pick);
+    mlb_latent_mean(a.z, N, e.target);
+    memcpy(z, a.z, sizeof(float) * 4 * N);
+    size_t in = mlb_latent_edit_apply(&e, z, N);
+    size_t seen = 0, wrong = 0;
+    for (size_t i = 0; i < N; i++) {
+        const float* v = a.z + 4 * i;
+        double d2 = 0;
+        for (int c = 0; c < 4; c++) d2 += ((double)v[c] - e.pick[c]) * ((double)v[c] - e.pick[c]);
+        int inside = sqrt(d2) <= e.radius;
+        seen += inside;
+        for (int c = 0; c < 4; c++) {
+            double want = inside ? (1 - 0.3) * v[c] + 0.3 * e.target[c] + e.offset[c] : v[c];
+            wrong += inside ? fabs(z[4 * i + c] - want) > 1e-5 : z[4 * i + c] != v[c];
+        }
+    }
+    printf("  latent edit: %zu of %zu texels within %.3f of texel %d's code\n", in, N, e.radius, pick);
+    CHECK(in == seen && in > 0 && in < N);   // a region, neither empty nor everything
+    CHECK_MSG(wrong == 0, "%zu channels off the edit's formula", wrong);
+    // the whole asset: every texel
+    mlb_latent_edit whole = {.offset = {0, 0, 0, 0}, .radius = -1};
+    memcpy(z, a.z, sizeof(float) * 4 * N);
+    CHECK(mlb_latent_edit_apply(&whole, z, N) == N && memcmp(z, a.z, sizeof(float) * 4 * N) == 0);
+    // written as a new asset: its sidecars hold the edited codes, its mesh is the source's
+    snprintf(out, sizeof out, "%s/b.glb", dir);
+    snprintf(obj, sizeof obj, "%s/b.obj", dir);
+    size_t in2 = 0;
+    REQUIRE(mlb_latent_edit_export(glb, &e, out, obj, &in2) == MLB_OK);
+    CHECK(in2 == in);
+    mlb_latent_asset b;
+    REQUIRE(mlb_latent_asset_read(out, &b) == MLB_OK);
+    memcpy(z, a.z, sizeof(float) * 4 * N);
+    mlb_latent_edit_apply(&e, z, N);
+    CHECK(b.size == S && memcmp(b.z, z, sizeof(float) * 4 * N) == 0);
+    mlb_mesh ma, mb;
+    REQUIRE(mlb_gltf_load(glb, &ma, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_gltf_load(out, &mb, NULL, NULL) == MLB_OK);
+    CHECK(ma.n_verts == mb.n_verts && ma.n_faces == mb.n_faces &&
+          !memcmp(ma.pos, mb.pos, sizeof(float) * 3 * (size_t)ma.n_verts) &&
+          !memcmp(ma.faces, mb.faces, sizeof(int32_t) * 3 * (size_t)ma.n_faces));
+    CHECK(exists(dir, "b.obj") && exists(dir, "b.mtl") && exists(dir, "b_kd.png") && exists(dir, "b_roughness.png"));
+    // hostile sidecars: a .bin one byte short, a layer of the wrong width
+    mlb_latent_asset bad;
+    snprintf(path, sizeof path, "%s/b.latent.bin", dir);
+    REQUIRE(mlb_write_file_atomic(path, b.z, 16 * N - 1) == MLB_OK);
+    CHECK(mlb_latent_asset_read(out, &bad) == MLB_ERR_FORMAT && strstr(mlb_last_error(), "b.latent.bin") && bad.z == NULL);
+    snprintf(path, sizeof path, "%s/b.decoder.json", dir);
+    const char* narrow = "{\"format\":\"matlaber-latent-decoder-1\",\"hidden_activation\":\"relu\","
+                         "\"output_activation\":\"sigmoid\",\"layers\":[{\"in\":4,\"out\":7,\"weight\":[1],\"bias\":[]}]}";
+    REQUIRE(mlb_write_file_atomic(path, narrow, strlen(narrow)) == MLB_OK);
+    CHECK(mlb_latent_asset_read(out, &bad) == MLB_ERR_FORMAT && strstr(mlb_last_error(), "layers[0].weight"));
+    mlb_mesh_free(&ma);
+    mlb_mesh_free(&mb);
+    mlb_latent_asset_free(&a);
+    mlb_latent_asset_free(&b);
+    mlb_run_textured_free(&r);
+    free(k); free(z);
+    mlb_mesh_free(&t->m);
+    free(t);
+}
+
 int main(int argc, char** argv) {
     if (argc == 3) {   // writer mode for tests/cli_export.sh and tests/cli_viewer.sh
         test_asset* t = malloc(sizeof *t);
@@ -524,5 +625,6 @@ int main(int argc, char** argv) {
     RUN(errors_leave_nothing);
     RUN(viewer_folder);
     RUN(latent_sidecars);
+    RUN(latent_edit);
     return test_summary();
 }

@@ -152,6 +152,78 @@ else
   echo "(no viewer/node_modules: the page is not served; scripts/build.sh installs it)"
 fi
 
+# ---- latent edits saved as new jobs (POST /api/jobs/ID/edits) ----
+echo "[${SECONDS} s] latent edits saved as new jobs"
+edit() { curl -s -o "$T/body" -w '%{http_code}' --max-time 60 -X POST -H 'Content-Type: application/json' --data-binary "$2" "$U/api/jobs/$1/edits"; }
+# codes A B: texels whose 4 codes differ, of all; "mean A B": B's every texel is A's mean code (to 1e-5)
+codes() { python3 - "$@" << 'PY'
+import sys, struct
+a = struct.unpack('<%df' % (len(open(sys.argv[2], 'rb').read()) // 4), open(sys.argv[2], 'rb').read())
+b = struct.unpack('<%df' % (len(open(sys.argv[3], 'rb').read()) // 4), open(sys.argv[3], 'rb').read())
+n = len(a) // 4
+if sys.argv[1] == 'diff':
+    print(sum(1 for i in range(n) if a[4*i:4*i+4] != b[4*i:4*i+4]), n)
+else:
+    m = [sum(a[c::4]) / n for c in range(4)]
+    print(max(abs(b[4*i+c] - m[c]) for i in range(n) for c in range(4)) < 1e-5)
+PY
+}
+n_before=$(curl -s "$U/api/jobs" | grep -o '"edit_of"' | wc -l)
+[ "$(edit "$ID" '{"offset":[0,0,0,0]}')" = 201 ] && ok "a zero edit of the whole asset: 201" || bad "zero edit: $(cat "$T/body")"
+E0=$(field 'd["id"]')
+body_has "done at once" '"state":"done"'
+body_has "the edit's request kept" '"edit_of":"'"$ID"'"'
+cmp -s "$R/$E0/final/asset.latent.bin" "$R/$ID/final/asset.latent.bin" && ok "a zero edit keeps the codes bitwise" || bad "zero edit changed the codes"
+[ "$(edit "$ID" '{"offset":[0.5,0,-0.5,0]}')" = 201 ] && ok "an offset on the whole asset" || bad "whole edit: $(cat "$T/body")"
+E1=$(field 'd["id"]')
+[ "$(codes diff "$R/$ID/final/asset.latent.bin" "$R/$E1/final/asset.latent.bin")" = "4096 4096" ] && ok "every texel's code moved" \
+  || bad "whole edit: $(codes diff "$R/$ID/final/asset.latent.bin" "$R/$E1/final/asset.latent.bin")"
+req "the edit's job" 200 "$U/api/jobs/$E1"
+for f in asset.glb asset.obj asset.mtl asset_kd.png asset_ks.png asset_roughness.png asset.latent.bin asset.decoder.json edit.json; do
+  body_has "lists $f" "\"$f\""
+done
+req "its .glb" 200 "$U/api/jobs/$E1/files/asset.glb"
+cp "$T/body" "$T/e.glb"
+[ "$(head -c 4 "$T/e.glb")" = glTF ] && ok "a .glb" || bad "the edit's .glb"
+if command -v node > /dev/null; then
+  node "$HERE/gltf_validate.mjs" "$T/e.glb" > "$T/out" 2>&1; rc=$?
+  if [ $rc = 0 ]; then ok "the edit's .glb: glTF-Validator, no errors"; elif [ $rc != 77 ]; then bad "the edit's .glb: glTF-Validator"; cat "$T/out"; fi
+fi
+cmp -s "$T/e.glb" "$T/a.glb" && bad "the edited .glb is the source's" || ok "its .glb differs from the source's"
+req "listed in GET /api/jobs" 200 "$U/api/jobs"
+body_has "the new job listed" "\"id\":\"$E1\",\"state\":\"done\""
+grep -q '"state":[[:space:]]*"done"' "$R/.serve/$E1.json" && ok "its record (a restart lists it)" || bad "no record for $E1"
+# a region: the material picked at a texel, within a radius of its code (a quarter of the codes'
+# widest spread, as the page starts): some texels, not all
+RAD=$(python3 -c 'import json,sys; l=json.load(open(sys.argv[1]))["latent"]; print(max(h - g for h, g in zip(l["max"], l["min"])) / 4)' "$R/$ID/final/asset.decoder.json")
+[ "$(edit "$ID" '{"offset":[1,0,0,0],"region":{"texel":[20,20],"radius":'"$RAD"'}}')" = 201 ] && ok "an edit of a region (radius $RAD)" || bad "region edit: $(cat "$T/body")"
+E2=$(field 'd["id"]')
+read -r nd nt <<< "$(codes diff "$R/$ID/final/asset.latent.bin" "$R/$E2/final/asset.latent.bin")"
+ne=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["texels_edited"])' "$R/$E2/final/edit.json")
+[ "$nd" = "$ne" ] && [ "$nd" -gt 0 ] && [ "$nd" -lt "$nt" ] && ok "the region's $nd texels of $nt moved, the others kept" \
+  || bad "region: $nd of $nt changed, edit.json says $ne"
+# toward another asset's material, all the way (t 1, the whole asset): every code its mean
+[ "$(edit "$ID" '{"offset":[0,0,0,0],"toward":{"job":"'"$E1"'","t":1}}')" = 201 ] && ok "toward another job's material" || bad "toward: $(cat "$T/body")"
+E3=$(field 'd["id"]')
+[ "$(codes mean "$R/$E1/final/asset.latent.bin" "$R/$E3/final/asset.latent.bin")" = True ] && ok "t 1: every code the other's mean" || bad "toward t 1"
+# the hostile set of the route
+for b in '{"offset":[0,0,0]}' '{"offset":[0,0,0,"a"]}' '{"offset":[1e9,0,0,0]}' '{"offset":[0,0,0,0],"x":1}' \
+         '{"offset":[0,0,0,0],"offset":[0,0,0,0]}' '{"offset":[0,0,0,0],"region":{"texel":[64,0],"radius":1}}' \
+         '{"offset":[0,0,0,0],"region":{"texel":[1.5,0],"radius":1}}' '{"offset":[0,0,0,0],"region":{"texel":[0,0],"radius":-1}}' \
+         '{"offset":[0,0,0,0],"toward":{"job":"'"$ID"'","t":2}}' '{"offset":[0,0,0,0]} x' '[1,2]' '{"offset":'; do
+  [ "$(edit "$ID" "$b")" = 400 ] && ok "400: $b" || bad "not 400: $b: $(cat "$T/body")"
+  json_error "$b"
+done
+[ "$(edit nope '{"offset":[0,0,0,0]}')" = 404 ] && ok "an unknown job: 404" || bad "unknown job"
+[ "$(edit "$ID" '{"offset":[0,0,0,0],"toward":{"job":"nope","t":0.5}}')" = 404 ] && ok "toward an unknown job: 404" || bad "toward unknown"
+req "GET .../edits: 405" 405 "$U/api/jobs/$ID/edits"
+req "an edit not sent as JSON: 415" 415 -X POST --data-binary '{"offset":[0,0,0,0]}' "$U/api/jobs/$ID/edits"
+head -c 5000 /dev/zero | tr '\0' ' ' > "$T/big"
+req "an edit over 4096 bytes: 413" 413 -X POST -H 'Content-Type: application/json' --data-binary @"$T/big" "$U/api/jobs/$ID/edits"
+n_edits=$(curl -s "$U/api/jobs" | grep -o '"edit_of"' | wc -l)
+[ "$n_edits" = $((n_before + 4)) ] && ok "a refused edit makes no job (4 more edits listed)" || bad "$n_edits edits listed, $n_before before"
+kill -0 "$PID" && ok "the server took them all" || bad "the server died"
+
 # ---- the hostile set ----
 echo "[${SECONDS} s] the hostile set"
 for b in '{"prompt":' 'not json' '{"prompt":"a gold goblet"} x' '' '[1]' '"a gold goblet"' '{"prompt":"a","prompt":"b"}'; do

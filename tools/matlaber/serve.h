@@ -71,6 +71,18 @@ void serve_jobs_wait(double seconds);
 // 1 once serve_jobs_close began (streams end).
 int serve_jobs_stopping(void);
 
+// An edit saved as a new job (serve_edit.c): reserves a new id for an edit of the finished job src
+// (404 unknown, 409 not done) and lists it as running, with req as its request (taken: it gets
+// src's prompt); dir is its run folder, not yet made. serve_jobs_edit_end records it done or failed.
+int serve_jobs_edit_begin(const char* src, cJSON* req, char* id, size_t cap, char* dir, size_t dcap);
+void serve_jobs_edit_end(const char* id, int ok, const char* message);
+
+// ---- serve_edit.c ----
+#define SERVE_EDIT_MAX_BODY 4096   // an edit's request is a few numbers
+// POST /api/jobs/{src}/edits: the body (body[n] a NUL) checked, the edit written as a new job's run
+// folder. 0 with the new id; else the HTTP status with the reason in err.
+int serve_edit_save(const char* src, const char* body, size_t n, char* id, size_t cap, char* err, size_t errcap);
+
 // ---- serve_static.c ----
 // Writes the viewer's page folder to RUNS/.serve/viewer when the viewer source is there (else the
 // API alone, said on stderr); 0.

@@ -264,6 +264,7 @@ typedef struct {
     char* body;
     size_t len, cap;
     int too_big;
+    char edit_of[64];   // POST /api/jobs/ID/edits: ID ("" for POST /api/jobs)
 } request;
 
 // "/api/jobs/ID/files/NAME" -> up to 5 segments of 1 to 63 bytes; -1 when longer, more, or one is
@@ -295,6 +296,30 @@ static enum MHD_Result submit(struct MHD_Connection* c, request* q) {
     return send_text(c, 201, "application/json", text);
 }
 
+// POST /api/jobs/ID/edits: the edit saved as a new job (serve_edit.c)
+static enum MHD_Result save_edit(struct MHD_Connection* c, request* q) {
+    if (q->too_big) return send_error(c, 413, "an edit's body is over 4096 bytes");
+    char err[1400], id[64];
+    int rc = serve_edit_save(q->edit_of, q->body ? q->body : "", q->len, id, sizeof id, err, sizeof err);
+    if (rc) return send_error(c, (unsigned)rc, err);
+    return send_text(c, 201, "application/json", serve_jobs_get_json(id));
+}
+
+// POST /api/jobs/ID/edits, first call: refused at once when too big or not JSON (as POST /api/jobs),
+// else its body is read
+static enum MHD_Result accept_edit(struct MHD_Connection* c, const char* edit_of, void** ctx) {
+    const char* len = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Length");
+    if (len && strtoull(len, NULL, 10) > SERVE_EDIT_MAX_BODY) return send_error(c, 413, "an edit's body is over 4096 bytes");
+    const char* ct = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Type");
+    if (!ct || strncasecmp(ct, "application/json", 16) || (ct[16] && ct[16] != ';' && ct[16] != ' '))
+        return send_error(c, 415, "the body must be sent as Content-Type: application/json");
+    request* q = calloc(1, sizeof *q);
+    if (!q) return MHD_NO;
+    snprintf(q->edit_of, sizeof q->edit_of, "%s", edit_of);
+    *ctx = q;
+    return MHD_YES;
+}
+
 static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* url, const char* method,
                                const char* version, const char* upload, size_t* upload_size, void** ctx) {
     (void)cls;
@@ -302,7 +327,8 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
     request* q = *ctx;
     if (q) {   // a later call: the body of POST /api/jobs, then its answer
         if (*upload_size) {
-            if (q->len + *upload_size > O.max_body) q->too_big = 1;   // read on, kept no more
+            size_t limit = q->edit_of[0] ? SERVE_EDIT_MAX_BODY : O.max_body;
+            if (q->len + *upload_size > limit) q->too_big = 1;   // read on, kept no more
             else if (!mlb_reserve((void**)&q->body, &q->cap, q->len + *upload_size + 1, 1)) q->too_big = 1;
             else {
                 memcpy(q->body + q->len, upload, *upload_size);
@@ -312,7 +338,7 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
             *upload_size = 0;
             return MHD_YES;
         }
-        return submit(c, q);
+        return q->edit_of[0] ? save_edit(c, q) : submit(c, q);
     }
     // the first call: everything but a job's body is answered here, before any body is read
     if (atomic_load(&open_connections) > O.max_conns) return send_error(c, 429, "too many connections (--max-connections)");
@@ -360,6 +386,10 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
         return send_text(c, 200, "application/json", serve_jobs_get_json(id));
     }
     if (n == 4 && !strcmp(seg[3], "events")) return get ? send_events(c, id) : send_405(c, "GET, HEAD");
+    if (n == 4 && !strcmp(seg[3], "edits")) {
+        if (strcmp(method, "POST")) return send_405(c, "POST");
+        return accept_edit(c, id, ctx);
+    }
     if (n == 5 && !strcmp(seg[3], "files")) return get ? send_file(c, id, seg[4]) : send_405(c, "GET, HEAD");
     return send_error(c, 404, "no such route");
 }

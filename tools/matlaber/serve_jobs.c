@@ -83,6 +83,8 @@ static const char* mesh_format(const cJSON* req) {
     return cJSON_IsString(f) ? f->valuestring : NULL;
 }
 
+static const char* request_string(const job* j, const char* key);
+
 static job* find(const char* id) {
     for (int i = 0; i < J.n; i++)
         if (!strcmp(J.v[i]->id, id)) return J.v[i];
@@ -517,6 +519,8 @@ int serve_jobs_cancel(const char* id) {
         j->ended = now();
         append_closing_event(j);
         save_record(j);
+    } else if (!rc && j->state == JOB_RUNNING && j->pid <= 0) {
+        rc = 409;   // an edit being saved (no child): it ends by itself in a moment
     } else if (!rc && j->state == JOB_RUNNING && !j->cancel) {
         j->cancel = 1;   // the reader records it when the child is gone
         kill(-j->pid, SIGKILL);
@@ -525,6 +529,51 @@ int serve_jobs_cancel(const char* id) {
     pthread_cond_broadcast(&J.changed);
     pthread_mutex_unlock(&J.lock);
     return rc;
+}
+
+// ---- an edit saved as a new job (serve_edit.c): no child; listed as running while it is written ----
+int serve_jobs_edit_begin(const char* src, cJSON* req, char* id, size_t cap, char* dir, size_t dcap) {
+    pthread_mutex_lock(&J.lock);
+    job* s = find(src);
+    int rc = !s ? 404 : s->state != JOB_DONE ? 409 : 0;
+    char name[64], path[4200];
+    for (; !rc; J.next_id++) {   // a name no job, record or folder has
+        snprintf(name, sizeof name, "job-%06ld", J.next_id);
+        snprintf(path, sizeof path, "%s/%s", J.o.runs, name);
+        struct stat st;
+        if (!find(name) && lstat(path, &st) != 0) break;
+    }
+    job* j = rc ? NULL : add_job(name);
+    if (!rc && !j) rc = 500;
+    if (j) {
+        const char* prompt = request_string(s, "prompt");
+        if (prompt) cJSON_AddStringToObject(req, "prompt", prompt);   // the list shows what it was made from
+        j->request = req;
+        j->state = JOB_RUNNING;   // (its record is written when it ends: a restart meanwhile forgets it)
+        j->created = j->started = now();
+        snprintf(id, cap, "%s", j->id);
+        snprintf(dir, dcap, "%s", path);
+        pthread_cond_broadcast(&J.changed);
+    } else {
+        cJSON_Delete(req);
+    }
+    pthread_mutex_unlock(&J.lock);
+    return rc;
+}
+
+void serve_jobs_edit_end(const char* id, int ok, const char* message) {
+    pthread_mutex_lock(&J.lock);
+    job* j = find(id);
+    if (j) {
+        j->state = ok ? JOB_DONE : JOB_FAILED;
+        j->exit_code = ok ? 0 : 1;
+        j->ended = now();
+        if (message) snprintf(j->message, sizeof j->message, "%s", message);
+        append_closing_event(j);
+        save_record(j);
+    }
+    pthread_cond_broadcast(&J.changed);
+    pthread_mutex_unlock(&J.lock);
 }
 
 // ---- a job's files: the names a request may ask for, each mapped to its place in the run ----

@@ -159,6 +159,46 @@ try {
     const back = await grab('latent_back');
     const db = await diff(zero, back);
     ok(db < 0.5, `the sliders back at zero restore it (${f2(db)})`);
+    // a region: a click on the asset picks the material under it; in the kd view its highlight
+    // marks some of the asset's pixels, and an offset there changes those and no others
+    await page.evaluate(() => window.viewer.setChannel('kd'));
+    const kd0 = await grab('region_kd');
+    let pickedAt = null;   // a point of the asset that the panel does not cover, clicked with the mouse
+    await page.evaluate(() => { document.getElementById('panel').style.visibility = 'hidden'; });   // (it covers most of this small view)
+    for (const fy of [0.5, 0.45, 0.55, 0.4, 0.6]) for (const fx of [0.5, 0.55, 0.6, 0.65, 0.7, 0.45]) {
+      if (pickedAt) break;
+      const hit = await page.evaluate(([u, v]) => {
+        const x = u * innerWidth, y = v * innerHeight;
+        return document.elementFromPoint(x, y)?.tagName === 'CANVAS' && window.viewer.latent.texelAt(x, y) ? [x, y] : null;
+      }, [fx, fy]);
+      if (!hit) continue;
+      await page.mouse.click(hit[0], hit[1]);
+      pickedAt = await page.evaluate(() => window.viewer.latent.edit.region?.texel);
+    }
+    await page.evaluate(() => { document.getElementById('panel').style.visibility = ''; });
+    ok(!!pickedAt, `a click on the asset picks a region (texel ${pickedAt})`);
+    if (pickedAt) {
+      await page.evaluate(() => window.viewer.latent.setHighlight(true));
+      const hl = await grab('region_highlight');
+      await page.evaluate(() => { window.viewer.latent.setHighlight(false); window.viewer.latent.setOffset([1, -1, 1, -1]); });
+      const rm = await grab('region_moved');
+      await page.evaluate(() => window.viewer.latent.whole());
+      const wm = await grab('whole_moved');
+      const counts = await page.evaluate(([k, h, r, w]) => {
+        const [p, q, m, v] = [k, h, r, w].map((n) => window.__px[n]);
+        const d = (a, i) => Math.abs(p[i] - a[i]) + Math.abs(p[i + 1] - a[i + 1]) + Math.abs(p[i + 2] - a[i + 2]) > 6;
+        const c = { marked: 0, region: 0, outside: 0, whole: 0 };
+        for (let i = 0; i < p.length; i += 4) {
+          c.marked += d(q, i); c.region += d(m, i); c.outside += d(m, i) && !d(q, i); c.whole += d(v, i);
+        }
+        return c;
+      }, [kd0, hl, rm, wm]);
+      ok(counts.marked > 0 && counts.region > 0 && counts.region < counts.whole,
+         `the region's offset changes ${counts.region} pixels (${counts.marked} highlighted), the whole asset's ${counts.whole}`);
+      ok(counts.outside <= 0.05 * counts.region + 10, `and none outside the highlight but at its edge (${counts.outside})`);
+      ok(await page.evaluate(() => document.getElementById('latent-served').hidden), 'no "toward" or "save as new" without the server');
+    }
+    await page.evaluate(() => { window.viewer.setChannel('shaded'); window.viewer.latent.setOffset([0, 0, 0, 0]); });
     // save: the edited maps as three PNG downloads, of the latent texture's size
     await page.evaluate(() => window.viewer.latent.setOffset([1, -1, 1, -1]));
     const got = [];

@@ -4,6 +4,10 @@
 // runs the decoder on (z + offset) at every texel, on the GPU, into half-float textures that then
 // replace the .glb's kd / ks / roughness maps, so the viewer's own shading and relighting apply.
 // Decoding per texel, not per pixel, keeps the MLP's cost to one pass per edit.
+// An edit (the same as `matlaber serve` re-applies when it is saved, src/export/latent_edit.c): a
+// texel is in the region when radius < 0 (the whole asset) or when its code is within radius of the
+// picked code; there z becomes (1 - t) z + t target + offset, elsewhere it is kept. The region is
+// decided per texel from its own code in the decode pass (the mask), and "highlight" tints it.
 import * as THREE from 'three';
 
 // GLSL of the activations the decoder may use (the names of mlb_activation_name)
@@ -59,17 +63,25 @@ precision highp int;
 uniform sampler2D latent;
 uniform sampler2D weights;
 uniform vec4 offset;
+uniform vec4 pick;
+uniform float radius;
+uniform vec4 target;
+uniform float t;
+uniform int highlight;
 uniform int which;
 const float LO[7] = float[7](${lo});
 const float HI[7] = float[7](${hi});
 void main() {
   float a[${maxDim}], b[${maxDim}];
-  vec4 z = texelFetch(latent, ivec2(gl_FragCoord.xy), 0) + offset;
+  vec4 z = texelFetch(latent, ivec2(gl_FragCoord.xy), 0);
+  bool inside = radius < 0.0 || distance(z, pick) <= radius;
+  if (inside) z = mix(z, target, t) + offset;
   for (int i = 0; i < ${maxDim}; i++) { a[i] = 0.0; b[i] = 0.0; }
   a[0] = z.x; a[1] = z.y; a[2] = z.z; a[3] = z.w;
 ${body}  float k[7];
   for (int c = 0; c < 7; c++) k[c] = LO[c] + (HI[c] - LO[c]) * a[c];
-  if (which == 0) gl_FragColor = vec4(k[0], k[1], k[2], 1.0);
+  if (which == 0 && inside && highlight != 0) gl_FragColor = vec4(mix(vec3(k[0], k[1], k[2]), vec3(1.0, 0.35, 0.0), 0.6), 1.0);
+  else if (which == 0) gl_FragColor = vec4(k[0], k[1], k[2], 1.0);
   else if (which == 1) gl_FragColor = vec4(k[3], k[4], k[5], 1.0);
   else gl_FragColor = vec4(1.0, k[6], 0.0, 1.0);
 }
@@ -96,7 +108,9 @@ export function makeEditor(renderer, { dec, codes, size }, like) {
   latent.needsUpdate = true;
   const { tex: weights, rowOf } = weightTexture(dec);
   const material = new THREE.ShaderMaterial({
-    uniforms: { latent: { value: latent }, weights: { value: weights }, offset: { value: new THREE.Vector4() }, which: { value: 0 } },
+    uniforms: { latent: { value: latent }, weights: { value: weights }, offset: { value: new THREE.Vector4() },
+                pick: { value: new THREE.Vector4() }, radius: { value: -1 }, target: { value: new THREE.Vector4() },
+                t: { value: 0 }, highlight: { value: 0 }, which: { value: 0 } },
     vertexShader: 'void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }',
     fragmentShader: decoderShader(dec, rowOf),
     depthTest: false,
@@ -117,8 +131,15 @@ export function makeEditor(renderer, { dec, codes, size }, like) {
     return rt;
   };
   const targets = [target(), target(), target()];
-  const decode = (offset) => {
-    material.uniforms.offset.value.set(...offset);
+  // edit: { offset [4], radius (< 0: whole asset), pick [4], target [4], t, highlight }
+  const decode = (edit) => {
+    const u = material.uniforms;
+    u.offset.value.set(...edit.offset);
+    u.radius.value = edit.radius ?? -1;
+    u.pick.value.set(...(edit.pick || [0, 0, 0, 0]));
+    u.target.value.set(...(edit.target || [0, 0, 0, 0]));
+    u.t.value = edit.t || 0;
+    u.highlight.value = edit.highlight ? 1 : 0;
     const saved = renderer.getRenderTarget();
     for (let w = 0; w < 3; w++) {
       material.uniforms.which.value = w;
@@ -149,6 +170,15 @@ export function makeEditor(renderer, { dec, codes, size }, like) {
     }
     return out;
   };
-  return { decode, toPng, maps: { kd: targets[0].texture, ks: targets[1].texture, mr: targets[2].texture },
+  // the code of texel (x, y), y counted from the top row as the .bin's rows and glTF's v
+  const codeAt = (x, y) => Array.from(codes.subarray(4 * (y * size + x), 4 * (y * size + x) + 4));
+  return { decode, toPng, codeAt, size, maps: { kd: targets[0].texture, ks: targets[1].texture, mr: targets[2].texture },
            min: dec.latent.min, max: dec.latent.max };
+}
+
+// The mean code of a loaded asset (in double): what "toward another asset" moves a region to.
+export function meanCode({ codes }) {
+  const m = [0, 0, 0, 0], n = codes.length / 4;
+  for (let i = 0; i < codes.length; i++) m[i % 4] += codes[i];
+  return m.map((v) => v / n);
 }

@@ -28,6 +28,9 @@ function fmtSeconds(s) {
   return s < 90 ? `${Math.round(s)} s` : `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`;
 }
 
+// a job in the list: its prompt, and for a saved latent edit the job it was made from
+const describe = (job) => `${job.prompt || '(run folder)'}${job.request?.edit_of ? ` (edit of ${job.request.edit_of})` : ''}`;
+
 // ---- the queue ----
 async function refreshJobs() {
   let list;
@@ -41,7 +44,7 @@ async function refreshJobs() {
     const p = job.progress;
     const frac = p && p.total ? p.done / p.total : job.state === 'done' ? 1 : 0;
     tr.insertCell().textContent = job.id;
-    tr.insertCell().textContent = job.prompt || '(run folder)';
+    tr.insertCell().textContent = describe(job);
     const cell = tr.insertCell();
     cell.textContent = job.state;
     const bar = document.createElement('div');
@@ -55,7 +58,7 @@ async function refreshJobs() {
   // the finished jobs another may be compared with, side by side
   const compare = $('compare'), keep = compare.value;
   compare.length = 1;
-  for (const job of list.jobs) if (job.state === 'done') compare.add(new Option(`${job.id}: ${job.prompt || '(run folder)'}`, job.id));
+  for (const job of list.jobs) if (job.state === 'done') compare.add(new Option(`${job.id}: ${describe(job)}`, job.id));
   compare.value = [...compare.options].some((o) => o.value === keep) ? keep : '';
 }
 
@@ -87,7 +90,7 @@ function refreshPreview(id) {
 async function showJob(id) {
   const job = await api(`/api/jobs/${id}`);
   if (app.selected !== id) return;
-  $('job-title').textContent = `${job.id}: ${job.prompt || '(run folder)'} (${STAGES[job.state] || job.state})`;
+  $('job-title').textContent = `${job.id}: ${describe(job)} (${STAGES[job.state] || job.state})`;
   $('cancel').hidden = !(job.state === 'queued' || job.state === 'running');
   if (job.progress) showProgress(job.progress);
   if (job.message) $('job-status').textContent = job.message;
@@ -184,5 +187,7 @@ const MATERIALS = ['gold', 'silver', 'copper', 'red', 'blue', 'white', 'stone', 
 const CLASSES = ['goblet', 'vase', 'bowl', 'mug', 'bottle', 'mushroom', 'table', 'stool', 'lamp', 'ring', 'teapot'];
 for (const m of MATERIALS) for (const c of CLASSES) $('words').appendChild(new Option(`a ${m} ${c}`));
 
+app.refresh = refreshJobs;   // the viewer's "save as a new job" lists its job at once
+app.select = select;
 refreshJobs();
 setInterval(refreshJobs, 3000);

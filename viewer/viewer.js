@@ -3,14 +3,16 @@
 // kd / ks / roughness textures and of the normals. Everything is loaded from this folder; nothing
 // from the network.
 // A latent-mode asset (viewer.json names its decoder) gets the latent editor of latent.js: four
-// sliders that offset every texel's code, decoded on the GPU into the maps the shading uses.
+// sliders that offset the codes of a region (the whole asset, or the material picked by a click),
+// decoded on the GPU into the maps the shading uses; served, also a move toward another job's
+// material and "save as a new job".
 // window.viewer exposes the state for tests (ready, frames, renderNow, setRotation, setChannel,
-// setEnvironment, setBackground, latent: { available, setOffset, setDecoded }).
+// setEnvironment, setBackground, latent: { available, setOffset, setDecoded, pickTexel, setRadius, setToward, ... }).
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { HDRLoader } from 'three/addons/loaders/HDRLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
-import { loadLatent, makeEditor } from './latent.js';
+import { loadLatent, makeEditor, meanCode } from './latent.js';
 
 const statusEl = document.getElementById('status');
 const setStatus = (text) => { statusEl.textContent = text; };
@@ -143,12 +145,18 @@ async function main() {
 }
 
 // ---- the latent editor ----
+// Served by `matlaber serve` (/view/ID/): the job's id, for "toward another job" and "save as new"
+const servedId = (location.pathname.match(/^\/view\/([A-Za-z0-9._-]+)\/$/) || [])[1] || null;
+
 async function setupLatent(url, pbr) {
   const data = await loadLatent(url);
   if (!data) return;   // a direct-mode asset: no editor
   const editor = makeEditor(renderer, data, pbr.map);
   const baked = { kd: pbr.map, ks: pbr.specularColorMap, mr: pbr.roughnessMap, metal: pbr.metalnessMap };
   const offset = [0, 0, 0, 0];
+  // the edit: region (null: the whole asset; else the picked texel and its code), toward (another
+  // asset's mean code and t), highlight
+  const edit = { region: null, radius: 0, toward: null, t: 0, highlight: false };
   const decodedBox = document.getElementById('decoded');
   const useMaps = (decoded) => {
     const m = decoded ? editor.maps : baked;
@@ -162,9 +170,13 @@ async function setupLatent(url, pbr) {
     materials.roughness.uniforms.map.value = m.mr;
     requestRender();
   };
+  const decodeNow = () => editor.decode({
+    offset, radius: edit.region ? edit.radius : -1, pick: edit.region?.code,
+    target: edit.toward?.code, t: edit.toward ? edit.t : 0, highlight: edit.highlight,
+  });
   const setDecoded = (on) => {
     decodedBox.checked = on;
-    if (on) editor.decode(offset);
+    if (on) decodeNow();
     useMaps(on);
   };
   const box = document.getElementById('latent-sliders');
@@ -188,6 +200,77 @@ async function setupLatent(url, pbr) {
   document.getElementById('latent-reset').addEventListener('click', () => {
     sliders.forEach((s) => { s.value = 0; s.dispatchEvent(new Event('input')); });
   });
+
+  // the region: a click (not a drag) on the asset picks the texel under it
+  const regionEl = document.getElementById('latent-region');
+  const showRegion = () => {
+    regionEl.textContent = edit.region ? `the material at texel (${edit.region.texel.join(', ')}), within ${edit.radius.toFixed(2)} of its code` : 'the whole asset';
+  };
+  const pickTexel = (x, y) => {
+    edit.region = { texel: [x, y], code: editor.codeAt(x, y) };
+    showRegion();
+    setDecoded(true);
+  };
+  // the texel under a point of the canvas (client coordinates), or null off the asset
+  const texelAt = (clientX, clientY) => {
+    const r = renderer.domElement.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+    const ray = new THREE.Raycaster();
+    ray.setFromCamera(ndc, camera);
+    const hit = ray.intersectObject(mesh, false)[0];
+    if (!hit || !hit.uv) return null;
+    // glTF's uv as three.js keeps it (v down, textures not flipped): row y of the codes is v
+    const S = editor.size, clamp = (v) => Math.min(Math.max(Math.floor(v * S), 0), S - 1);
+    return [clamp(hit.uv.x - Math.floor(hit.uv.x)), clamp(hit.uv.y - Math.floor(hit.uv.y))];
+  };
+  let down = null;
+  renderer.domElement.addEventListener('pointerdown', (ev) => { down = [ev.clientX, ev.clientY]; });
+  renderer.domElement.addEventListener('pointerup', (ev) => {
+    if (!down || Math.hypot(ev.clientX - down[0], ev.clientY - down[1]) > 4) return;   // a drag orbits
+    const t = texelAt(ev.clientX, ev.clientY);
+    if (t) pickTexel(...t);
+  });
+  const radius = document.getElementById('latent-radius');
+  // the radius's scale: the asset's own codes' spread; it starts at a quarter of it
+  const spread = Math.max(...editor.max.map((hi, c) => hi - editor.min[c]), 0.01);
+  Object.assign(radius, { max: spread, step: spread / 200, value: spread / 4 });
+  edit.radius = spread / 4;
+  document.getElementById('latent-radius-value').textContent = edit.radius.toFixed(2);
+  radius.addEventListener('input', () => {
+    edit.radius = Number(radius.value);
+    document.getElementById('latent-radius-value').textContent = edit.radius.toFixed(2);
+    showRegion();
+    if (edit.region) setDecoded(true);
+  });
+  document.getElementById('latent-whole').addEventListener('click', () => { edit.region = null; showRegion(); setDecoded(true); });
+  document.getElementById('latent-highlight').addEventListener('change', (ev) => { edit.highlight = ev.target.checked; setDecoded(true); });
+
+  // toward another finished job's material (served only: the jobs come from the API)
+  const towardSel = document.getElementById('latent-toward'), towardT = document.getElementById('latent-t');
+  const setToward = async (id) => {
+    if (id && ![...towardSel.options].some((o) => o.value === id)) towardSel.add(new Option(id, id));   // (a job newer than the list)
+    towardSel.value = id || '';
+    edit.toward = null;
+    if (id) {
+      const other = await loadLatent(`/view/${id}/asset.decoder.json`);
+      if (!other) { setStatus(`${id} has no latent codes (a direct-mode material)`); return false; }
+      edit.toward = { job: id, code: meanCode(other) };
+    }
+    setDecoded(true);
+    return true;
+  };
+  towardSel.addEventListener('change', () => setToward(towardSel.value).catch(fail));
+  towardT.addEventListener('input', () => {
+    edit.t = Number(towardT.value);
+    document.getElementById('latent-t-value').textContent = edit.t.toFixed(2);
+    setDecoded(true);
+  });
+  if (servedId) {
+    const list = await fetch('/api/jobs').then((r) => (r.ok ? r.json() : { jobs: [] })).catch(() => ({ jobs: [] }));
+    for (const j of list.jobs) if (j.state === 'done' && j.id !== servedId) towardSel.add(new Option(`${j.id}: ${j.prompt || '(run folder)'}`, j.id));
+    document.getElementById('latent-served').hidden = false;
+  }
+
   // save: the edited maps downloaded as PNGs (asset_kd.png, ... as `matlaber export --format obj` names them)
   document.getElementById('latent-save').addEventListener('click', async () => {
     if (!decodedBox.checked) setDecoded(true);
@@ -198,11 +281,37 @@ async function setupLatent(url, pbr) {
       setTimeout(() => URL.revokeObjectURL(a.href), 10000);
     }
   });
+  // save as a new job: the edit's parameters sent to the server, which re-applies them to the
+  // job's own codes and writes a new run (docs/server.md, POST /api/jobs/ID/edits)
+  const saveAsNew = async () => {
+    const body = {
+      offset,
+      region: edit.region ? { texel: edit.region.texel, radius: edit.radius } : null,
+      toward: edit.toward ? { job: edit.toward.job, t: edit.t } : null,
+    };
+    const r = await fetch(`/api/jobs/${servedId}/edits`, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) });
+    const job = await r.json();
+    if (!r.ok) throw new Error(job.error || `HTTP ${r.status}`);
+    document.getElementById('latent-saved').textContent = `saved as ${job.id}`;
+    window.parent?.serveApp?.refresh?.();   // the page's list shows it at once
+    return job;
+  };
+  document.getElementById('latent-save-new').addEventListener('click', () => saveAsNew().catch(fail));
+  showRegion();
   document.getElementById('latent').hidden = false;
   window.viewer.latent = {
     available: true,
     setOffset: (values) => values.forEach((x, c) => { sliders[c].value = x; sliders[c].dispatchEvent(new Event('input')); }),
     setDecoded,
+    texelAt,
+    pickTexel,
+    whole: () => document.getElementById('latent-whole').click(),
+    setRadius: (r) => { radius.value = r; radius.dispatchEvent(new Event('input')); },
+    setHighlight: (on) => { const h = document.getElementById('latent-highlight'); h.checked = on; h.dispatchEvent(new Event('change')); },
+    setToward,
+    setT: (t) => { towardT.value = t; towardT.dispatchEvent(new Event('input')); },
+    saveAsNew,
+    edit,
   };
 }
 

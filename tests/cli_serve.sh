@@ -379,6 +379,21 @@ done
   && ok "a geometry option with a mesh: 400" || bad "grid with a mesh"
 body_has "paint's reason" "no geometry stage"
 [ -z "$(ls "$R/.serve/uploads" | grep -v '^job-')" ] && ok "refused uploads leave nothing" || bad "uploads left: $(ls "$R/.serve/uploads")"
+# a paint job killed with the server mid-way resumes to the uninterrupted paint job's bytes
+PRES='{"prompt":"a red bowl","mesh":{"format":"obj","data":"'"$CUBE"'"},"res":32,"views":2,"appearance_iters":24,"checkpoint_every":2,"preview_every":2,"export_texture":64,"material_start":0}'
+[ "$(post "$PRES")" = 201 ] && ok "a paint job to interrupt" || bad "paint resume job: $(cat "$T/body")"
+PK=$(field 'd["id"]')
+wait_progress "$PK" 4 && ok "it got past a checkpoint" || bad "paint job: no progress"
+kill -9 "$PID"; wait "$PID" 2> /dev/null
+sleep 0.5
+start_server s2b --runs "$R"
+U=${U%/}
+wait_state "$PK" done && ok "after the restart the paint job resumed and finished" || { bad "PK: $(state "$PK")"; tail -5 "$R/.serve/$PK.log"; }
+[ "$(post "$PRES")" = 201 ] && ok "the same paint job, uninterrupted" || bad "paint reference: $(cat "$T/body")"
+PK2=$(field 'd["id"]')
+wait_state "$PK2" done || bad "paint reference: $(state "$PK2")"
+cmp -s "$R/$PK/final/asset.glb" "$R/$PK2/final/asset.glb" && ok "resumed paint asset: bitwise the uninterrupted one" \
+  || bad "the resumed paint job's asset differs from the uninterrupted one"
 kill "$PID"; wait "$PID" 2> /dev/null
 [ $? = 0 ] && ok "Ctrl-C/SIGTERM: a clean exit" || bad "exit status on SIGTERM"
 

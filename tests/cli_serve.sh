@@ -317,8 +317,12 @@ kill -9 "$PID"; wait "$PID" 2> /dev/null
 sleep 0.5
 # the job went with the server (its parent-death signal): no second writer when it resumes
 pgrep -f -- "-o $R/$K\$" > /dev/null && bad "the job outlived the server" || ok "the job died with the server"
+# an edit the server was writing when it died (RUNS/job-N.part) is removed at the start; others' folders stay
+mkdir -p "$R/job-999999.part/final" "$R/mine.part" && echo x > "$R/job-999999.part/final/asset.glb"
 start_server s2 --runs "$R" --timeout 2 --max-connections 6
 U=${U%/}
+[ ! -e "$R/job-999999.part" ] && ok "a half-written edit removed at the start" || bad "job-999999.part left"
+[ -d "$R/mine.part" ] && ok "a folder of someone else's named .part kept" || bad "mine.part removed"
 # a half-sent request: closed after --timeout (2 s), and the server answers others meanwhile
 PORT=${U##*:}
 t0=$(date +%s%N)

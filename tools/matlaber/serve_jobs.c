@@ -7,6 +7,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <ftw.h>
 #include <pthread.h>
 #include <signal.h>
 #include <stdio.h>
@@ -403,6 +404,22 @@ static void add_external(const char* name) {
     j->state = mlb_is_file(path) ? JOB_DONE : JOB_STOPPED;
 }
 
+static int remove_entry(const char* path, const struct stat* st, int flag, struct FTW* f) {
+    (void)st; (void)f;
+    return flag == FTW_DP ? rmdir(path) : unlink(path);
+}
+
+// RUNS/job-N.part: a latent edit the server was writing when it stopped (serve_edit.c renames it
+// to RUNS/job-N once whole), never listed: removed at start so that the id's next edit starts clean.
+static void remove_partial_edit(const char* name) {
+    size_t n = strlen(name);
+    if (!safe_name(name) || strncmp(name, "job-", 4) || n < 9 || strcmp(name + n - 5, ".part")) return;
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%s", J.o.runs, name);
+    if (nftw(path, remove_entry, 8, FTW_DEPTH | FTW_PHYS) != 0)
+        fprintf(stderr, "matlaber serve: could not remove the unfinished edit %s\n", path);
+}
+
 static int by_created(const void* a, const void* b) {
     const job *x = *(job* const*)a, *y = *(job* const*)b;
     if (x->created != y->created) return x->created < y->created ? -1 : 1;
@@ -418,7 +435,10 @@ int serve_jobs_open(const serve_options* o) {
     for (struct dirent* e; d && (e = readdir(d));) load_record(e->d_name);
     if (d) closedir(d);
     d = opendir(o->runs);
-    for (struct dirent* e; d && (e = readdir(d));) add_external(e->d_name);
+    for (struct dirent* e; d && (e = readdir(d));) {
+        remove_partial_edit(e->d_name);
+        add_external(e->d_name);
+    }
     if (d) closedir(d);
     if (J.n > 1) qsort(J.v, (size_t)J.n, sizeof *J.v, by_created);   // (J.v is NULL while empty)
     if (pthread_create(&J.scheduler, NULL, scheduler, NULL)) { fprintf(stderr, "matlaber serve: no thread\n"); return -1; }

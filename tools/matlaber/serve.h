@@ -57,8 +57,9 @@ int serve_jobs_submit(cJSON* req, const char* upload, char* id, size_t cap, char
 // JSON text (malloc'd) of all jobs, or of one (NULL when there is no such id).
 char* serve_jobs_list_json(void);
 char* serve_jobs_get_json(const char* id);
-// 0 cancelled (a queued job at once, a running one killed), 404 no such id, 409 already ended.
-int serve_jobs_cancel(const char* id);
+// 0 cancelled (a queued job at once, a running one killed), 404 no such id, 409 already ended or an
+// edit being saved (which ends by itself).
+int serve_jobs_cancel(const char* id, const char** why);   // 0, or 404 / 409 with *why the reason
 // The file of the job's own list named name: 0 with its path and content type, else 404.
 int serve_jobs_file(const char* id, const char* name, char* path, size_t cap, const char** type);
 // Events (the child's --progress json lines, then the server's closing {"event":"job",...}):

@@ -380,9 +380,9 @@ static enum MHD_Result handler(void* cls, struct MHD_Connection* c, const char* 
             return text ? send_text(c, 200, "application/json", text) : send_error(c, 404, "no such job");
         }
         if (strcmp(method, "DELETE")) return send_405(c, "GET, HEAD, DELETE");
-        int rc = serve_jobs_cancel(id);
-        if (rc == 404) return send_error(c, 404, "no such job");
-        if (rc == 409) return send_error(c, 409, "the job has already ended");
+        const char* why = NULL;
+        int rc = serve_jobs_cancel(id, &why);
+        if (rc) return send_error(c, rc, why);
         return send_text(c, 200, "application/json", serve_jobs_get_json(id));
     }
     if (n == 4 && !strcmp(seg[3], "events")) return get ? send_events(c, id) : send_405(c, "GET, HEAD");

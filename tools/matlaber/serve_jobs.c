@@ -530,17 +530,19 @@ int serve_jobs_submit(cJSON* req, const char* upload, char* id, size_t cap, char
     return 0;
 }
 
-int serve_jobs_cancel(const char* id) {
+int serve_jobs_cancel(const char* id, const char** why) {
     pthread_mutex_lock(&J.lock);
     job* j = find(id);
     int rc = !j ? 404 : ended(j) ? 409 : 0;
+    *why = !j ? "no such job" : "the job has already ended";
     if (!rc && j->state == JOB_QUEUED) {
         j->state = JOB_CANCELLED;
         j->ended = now();
         append_closing_event(j);
         save_record(j);
     } else if (!rc && j->state == JOB_RUNNING && j->pid <= 0) {
-        rc = 409;   // an edit being saved (no child): it ends by itself in a moment
+        rc = 409;   // an edit being saved (no child)
+        *why = "an edit being saved cannot be cancelled: it ends by itself in a moment";
     } else if (!rc && j->state == JOB_RUNNING && !j->cancel) {
         j->cancel = 1;   // the reader records it when the child is gone
         kill(-j->pid, SIGKILL);

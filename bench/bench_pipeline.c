@@ -214,7 +214,7 @@ static void reset_mat(scene* sc) {
     n->step = 0;
 }
 
-// The stages' table: the GPU's fp32 one on a GPU (the pipeline's pipeline_stage_table), else NULL (the CPU's)
+// The stages' table: the GPU's fp32 one on a GPU (what mlb_pipeline_run makes of a GPU's table), else NULL (the CPU's)
 static const mlb_backend* stage_table(void) {
     return mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
 }
@@ -482,7 +482,7 @@ static int generate_run(const char* preset, double geometry_lr, double scale, co
     mlb_progress progress;
     mlb_pipeline_result result;
     mlb_status s = make_sds_guide(&gd, "sds SD 1.5", u, vae, ac, 77, c.views, c.latent_iters);
-    if (!s) s = mlb_pipeline_run(run, &c, gd.g, NULL, 0, &progress, &result);
+    if (!s) s = mlb_pipeline_run(run, &c, gd.g, NULL, stage_table(), 0, &progress, &result);
     double total = mlb_now_seconds() - t0;
     guide_free(&gd);
     int rc = 0;

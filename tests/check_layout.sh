@@ -2,7 +2,8 @@
 # The folders of src/ are layers (docs/architecture.md "Layers"): a file may include headers of its
 # own folder and of the folders below it, never of one above, so there is no upward include and no
 # include circle between folders. This walks every #include "..." of src/ and include/matlaber/ and
-# fails naming each include that goes up. With a build folder it also reads the library's object
+# fails naming each include that goes up, and each call below the program to the global device or
+# precision (which the program passes down instead). With a build folder it also reads the library's object
 # files (tests/check_calls.sh): no files of src/ that call each other in a loop, no function declared
 # in a folder below the one that defines it. Usage: tests/check_layout.sh [repository root [build folder]]
 set -euo pipefail
@@ -70,8 +71,21 @@ while IFS= read -r file; do
   done < <(grep -n '^[[:space:]]*#[[:space:]]*include[[:space:]]*"' "$file" | sed 's/^\([0-9]*\):.*"\([^"]*\)".*/\1:\2/')
 done < <(find src include/matlaber -type f \( -name '*.c' -o -name '*.h' -o -name '*.cu' -o -name '*.cuh' -o -name '*.inc' -o -name '*.def' \) | sort)
 
+# One device passed down: the program (tools/matlaber) alone reads --device and --precision and
+# hands the choice to what it runs (mlb_pipeline_run's and mlb_pipeline_make_guidance's table,
+# mlb_sd_model_options). Below it nothing reads or sets the program's global device or precision:
+# src/core/device.c and precision.c, which hold them, are the only files of src/ that name them.
+globals='mlb_device_current|mlb_device_select|mlb_device_option|mlb_gemm_precision_current|mlb_gemm_precision_chosen|mlb_set_gemm_precision'
+while IFS= read -r hit; do
+  code=${hit#*:*:}; code=${code%%//*}   # a comment may name them
+  if [[ $code =~ ($globals)[[:space:]]*\( ]]; then
+    echo "check_layout: ${hit%%:*}: calls ${BASH_REMATCH[1]}: a stage is given its device (a backend or options field set by the program), it never reads the program's"
+    bad=1
+  fi
+done < <(grep -rnE "($globals)[[:space:]]*\(" src | grep -vE '^src/core/(device|precision)\.c:' || true)
+
 if [ $bad -ne 0 ]; then exit 1; fi
-echo "check_layout: no upward include among src/ folders ($order)"
+echo "check_layout: no upward include among src/ folders ($order); no global device read below the program"
 if [ -n "$build_dir" ]; then
   source tests/check_calls.sh
   check_calls "$build_dir"

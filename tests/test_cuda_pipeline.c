@@ -24,7 +24,7 @@ static mlb_status run_on(const char* device, const char* model, const char* dir,
                          mlb_pipeline_result* r) {
     mlb_device d;
     MLB_TRY(mlb_device_select(device, &d));
-    mlb_set_gemm_precision(MLB_GEMM_FP32);
+    const mlb_backend* be = mlb_backend_for(d, MLB_GEMM_FP32);   // the program's --device D --precision fp32
     mlb_pipeline_config c = mlb_pipeline_default();
     snprintf(c.guidance, sizeof c.guidance, "sds");
     snprintf(c.prompt, sizeof c.prompt, "a golden goblet");
@@ -46,8 +46,8 @@ static mlb_status run_on(const char* device, const char* model, const char* dir,
     c.w_mat_spec = 0;
     mlb_guidance* g = NULL;
     mlb_views* v = NULL;
-    mlb_status s = mlb_pipeline_make_guidance(&c, &g, &v);
-    if (!s) s = mlb_pipeline_run(dir, &c, g, v, 0, NULL, r);
+    mlb_status s = mlb_pipeline_make_guidance(&c, be, &g, &v);
+    if (!s) s = mlb_pipeline_run(dir, &c, g, v, be, 0, NULL, r);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(v);
     return s;

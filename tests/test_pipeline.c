@@ -349,8 +349,8 @@ static mlb_pipeline_config small_fit(const char* views, int geometry_iters, int 
 static mlb_status run_fit(const char* run, const mlb_pipeline_config* c, int resume, mlb_pipeline_result* r) {
     mlb_guidance* g = NULL;
     mlb_views* v = NULL;
-    mlb_status s = mlb_pipeline_make_guidance(c, &g, &v);
-    if (!s) s = mlb_pipeline_run(run, c, g, v, resume, NULL, r);
+    mlb_status s = mlb_pipeline_make_guidance(c, NULL, &g, &v);
+    if (!s) s = mlb_pipeline_run(run, c, g, v, NULL, resume, NULL, r);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(v);
     return s;
@@ -533,7 +533,7 @@ TEST(sds_generate_two_steps_per_stage) {
     mlb_guidance* g = NULL;
     REQUIRE(mlb_guidance_sds_create_from(tiny_sds(u, vae, ac, 1), tiny_sds(u, vae, ac, 2), &gc, &g) == MLB_OK);
     mlb_pipeline_result r;
-    mlb_status s = mlb_pipeline_run(run, &c, g, NULL, 0, NULL, &r);
+    mlb_status s = mlb_pipeline_run(run, &c, g, NULL, NULL, 0, NULL, &r);
     CHECK_MSG(s == MLB_OK, "%s", mlb_last_error());
     CHECK(r.finished && r.geometry_steps == 2 && r.appearance_steps == 2);
     CHECK(isfinite(r.geometry_loss) && r.geometry_loss > 0);
@@ -608,7 +608,7 @@ static char* start_of(const char* run, const char* init, double lr, long* size) 
     c.stop_after = 1;   // stopped as if killed after a step: the checkpoint holds the start
     c.preview_every = 0;
     mlb_pipeline_result r;
-    if (mlb_pipeline_run(run, &c, &g, NULL, 0, NULL, &r)) { printf("  %s: %s\n", init, mlb_last_error()); return NULL; }
+    if (mlb_pipeline_run(run, &c, &g, NULL, NULL, 0, NULL, &r)) { printf("  %s: %s\n", init, mlb_last_error()); return NULL; }
     char path[700];
     snprintf(path, sizeof path, "%s/checkpoints/geometry.safetensors", run);
     char* bytes = NULL;
@@ -849,7 +849,7 @@ static char* material_start_run(const char* run, int material_start, int want, m
     c.material_start = material_start;
     c.metal_start_lr_scale = o->lr_scale > 0 ? o->lr_scale : 1;
     mlb_pipeline_result r;
-    if (mlb_pipeline_run(run, &c, &g, NULL, o->resume, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return NULL; }
+    if (mlb_pipeline_run(run, &c, &g, NULL, NULL, o->resume, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return NULL; }
     if (!r.finished) return calloc(1, 1);   // stopped: nothing final to read
     char path[700];
     snprintf(path, sizeof path, "%s/final/material.safetensors", run);

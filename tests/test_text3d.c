@@ -5,6 +5,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include "matlaber/backend.h"
 #include "matlaber/catalogue.h"
 #include "matlaber/fileio.h"
 #include "matlaber/text3d.h"
@@ -374,6 +375,7 @@ TEST(bench_smoke_tiny_sd) {
     bc.n_seeds = 1;
     bc.measure = small_measure();
     bc.measure.chamfer_samples = 200;
+    bc.be = mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16);   // the tiny preset's precision, as `bench text3d` runs it
     mlb_text3d_row row;
     mlb_text3d_summary sum;
     int n = 0;

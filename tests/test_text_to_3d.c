@@ -65,9 +65,9 @@ static int run(const char* model, const char* prompt, const char* dir, double* d
     c.seed = 3;
     if (mlb_pipeline_validate(&c)) { printf("  config: %s\n", mlb_last_error()); return 0; }
     mlb_guidance* g = NULL;
-    if (mlb_pipeline_make_guidance(&c, &g, NULL)) { printf("  guidance: %s\n", mlb_last_error()); return 0; }
+    if (mlb_pipeline_make_guidance(&c, NULL, &g, NULL)) { printf("  guidance: %s\n", mlb_last_error()); return 0; }
     mlb_pipeline_result res;
-    mlb_status s = mlb_pipeline_run(dir, &c, g, NULL, 0, NULL, &res);
+    mlb_status s = mlb_pipeline_run(dir, &c, g, NULL, NULL, 0, NULL, &res);
     mlb_guidance_free(g);
     if (s) { printf("  run: %s\n", mlb_last_error()); return 0; }
     mlb_run_asset a;
@@ -115,9 +115,9 @@ static int init_checkpoint(const char* model, const char* prompt, const char* in
     c.stop_after = 1;   // stopped as if killed after a step: the checkpoint holds the initial shape
     c.seed = 5;
     mlb_guidance* g = NULL;
-    if (mlb_pipeline_validate(&c) || mlb_pipeline_make_guidance(&c, &g, NULL)) { printf("  %s\n", mlb_last_error()); return 0; }
+    if (mlb_pipeline_validate(&c) || mlb_pipeline_make_guidance(&c, NULL, &g, NULL)) { printf("  %s\n", mlb_last_error()); return 0; }
     mlb_pipeline_result res;
-    mlb_status s = mlb_pipeline_run(dir, &c, g, NULL, 0, NULL, &res);
+    mlb_status s = mlb_pipeline_run(dir, &c, g, NULL, NULL, 0, NULL, &res);
     mlb_guidance_free(g);
     if (s) { printf("  run: %s\n", mlb_last_error()); return 0; }
     char path[400];

@@ -21,8 +21,9 @@ typedef enum {
 const char* mlb_gemm_precision_name(mlb_gemm_precision p);   // "fp32", "tf32", "fp16", "bf16"
 // "fp32" | "tf32" | "fp16" | "bf16" -> *out; MLB_ERR_ARG naming the accepted values otherwise.
 mlb_status mlb_gemm_precision_parse(const char* name, mlb_gemm_precision* out);
-// The precision the program's SD models run their GPU GEMMs at: --precision, default fp16 (as
-// Stable Diffusion is usually run on GPUs; fp32 accumulation throughout).
+// The program's --precision, default fp16 (as Stable Diffusion is usually run on GPUs; fp32
+// accumulation throughout). Read by the program alone, which passes it down (a table's precision,
+// mlb_sd_model_options.precision); nothing in the library reads it.
 void mlb_set_gemm_precision(mlb_gemm_precision p);
 mlb_gemm_precision mlb_gemm_precision_current(void);
 // 1 once mlb_set_gemm_precision was called (the program's --precision): a run's own setting
@@ -48,7 +49,8 @@ mlb_status mlb_device_parse(const char* name, mlb_device* out);
 // "--device cuda: this build has no CUDA part (built without CUDA) ..." or "--device cuda: <CUDA's
 // error string>" when the driver or GPU is missing. "auto" falls back to the CPU silently.
 mlb_status mlb_device_select(const char* name, mlb_device* out);
-// The device the last successful mlb_device_select chose (MLB_DEVICE_CPU before any).
+// The device the last successful mlb_device_select chose (MLB_DEVICE_CPU before any). Read by the
+// program alone, which passes it down; nothing in the library reads it (check_layout).
 mlb_device mlb_device_current(void);
 const char* mlb_device_name(mlb_device d);   // "cpu" / "cuda"
 // For the program's --device option: arg is the option's value, or NULL when the option was not

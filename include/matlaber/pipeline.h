@@ -19,6 +19,8 @@
 #include "matlaber/progress.h"
 #include "matlaber/views.h"
 
+struct mlb_backend;   // backend.h: the op table a run's models and stages are given
+
 #define MLB_PIPELINE_MAX_ENVS 8
 // Every text field (prompts, paths, names) holds at most MLB_PIPELINE_PATH - 1 bytes: longer text is
 // refused naming the option or key, never cut (docs/files.md, "What each input may be").
@@ -149,10 +151,14 @@ typedef struct {
 
 // Runs (or, resume != 0, continues) the run in dir. The guidance is created by the caller from the
 // config (or by mlb_pipeline_make_guidance) and borrowed. views: image guidance's data set (its
-// environments are the appearance stage's lights), NULL for SDS (the config's pool). progress may
-// be NULL.
+// environments are the appearance stage's lights), NULL for SDS (the config's pool). be: where the
+// stages run, the caller's choice (the program's --device): a GPU's table puts the material
+// network, its AdamW, the shading and the per-pixel buffers on that GPU, in fp32 whatever its
+// precision (the networks are small); NULL or a CPU table keeps them on the CPU. The final renders
+// and the extraction run on the CPU either way. progress may be NULL.
 mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c, mlb_guidance* g, const mlb_views* views,
-                            int resume, mlb_progress* progress, mlb_pipeline_result* result);
+                            const struct mlb_backend* be, int resume, mlb_progress* progress,
+                            mlb_pipeline_result* result);
 // A process that runs several generations (bench text3d, generate --prompts) fits the same
 // starting shapes for each one with a seed (--init auto: four, ~7% of a `tiny` generation). With
 // bytes > 0 the fits of the built-in shapes are kept (their parameters, at most `bytes`, the oldest
@@ -168,8 +174,10 @@ void mlb_pipeline_keep_shape_fits(size_t bytes);
 mlb_status mlb_pipeline_read_prompt(mlb_pipeline_config* c);
 // Creates the guidance a config asks for: SDS (loads the model; the guidance owns it) or images
 // (loads the views folder at c->res into *views_out, which the caller frees with
-// mlb_pipeline_free_views after the guidance).
-mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, mlb_guidance** out, mlb_views** views_out);
+// mlb_pipeline_free_views after the guidance). be: the device and GEMM precision the SDS models run
+// at (be->device, be->precision), the caller's choice; NULL: the CPU in fp32.
+mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, const struct mlb_backend* be, mlb_guidance** out,
+                                      mlb_views** views_out);
 void mlb_pipeline_free_views(mlb_views* v);
 
 // ---- a finished run (final/) -----------------------------------------------------------------

@@ -25,8 +25,8 @@ typedef struct {
     int v_prediction;             // -1: from the configs (default), 0: epsilon, 1: v-prediction
     int load_text_encoder;        // 1 (default); 0 to skip it (and the tokenizer)
     int load_vae;                 // 1 (default)
-    mlb_device device;            // where the UNet and the VAE run (default: mlb_device_current(), --device)
-    mlb_gemm_precision precision; // their GPU GEMMs (default: mlb_gemm_precision_current(), --precision)
+    mlb_device device;            // where the UNet and the VAE run (default: the CPU; the program passes --device)
+    mlb_gemm_precision precision; // their GEMMs' operands (default fp32; the program passes --precision)
 } mlb_sd_model_options;
 
 #define MLB_SD_SUFFIX_MAX 64
@@ -55,7 +55,7 @@ typedef struct {
 // other folder or file, or one that cannot be read.
 int mlb_sd_model_is_own(const char* path);
 
-mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1, current device and precision
+mlb_sd_model_options mlb_sd_model_default_options(void);   // NULL, -1, 1, 1, the CPU, fp32
 // *out is NULL on failure; the message names the file and the tensor or key.
 mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt, mlb_sd_model** out);
 void mlb_sd_model_free(mlb_sd_model* m);   // NULL is fine

@@ -132,6 +132,8 @@ typedef struct {
     const char* set[MLB_TEXT3D_MAX_SET];
     int n_set;
     int progress;                     // 1: each run's progress bar and a line per prompt with the ETA
+    const struct mlb_backend* be;     // where the runs' models and stages run, at which GEMM precision
+                                      //   (mlb_pipeline_make_guidance, mlb_pipeline_run): NULL, the CPU in fp32
 } mlb_text3d_bench_config;
 mlb_text3d_bench_config mlb_text3d_bench_default(void);
 

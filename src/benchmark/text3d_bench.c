@@ -8,7 +8,6 @@
 #include <string.h>
 #include "matlaber/caption.h"
 #include "matlaber/catalogue.h"
-#include "matlaber/device.h"
 #include "matlaber/dist.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
@@ -169,12 +168,12 @@ static mlb_status generate_one(const mlb_text3d_bench_config* bc, const mlb_pipe
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
     if (!resume) s = mlb_pipeline_read_prompt(&c);   // what the project's own models read it as
-    if (!s) s = mlb_pipeline_make_guidance(&c, &g, &views);
+    if (!s) s = mlb_pipeline_make_guidance(&c, bc->be, &g, &views);
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
     int ran = !s;   // a failure from here on is the generation's own, not the set-up's
-    if (!s) s = mlb_pipeline_run(dir, &c, g, views, resume, bc->progress ? &progress : NULL, &result);
+    if (!s) s = mlb_pipeline_run(dir, &c, g, views, bc->be, resume, bc->progress ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);
     if (!s && !result.finished) s = mlb_fail(MLB_ERR_ARG, "%s: the run stopped before its end", dir);
@@ -252,10 +251,6 @@ mlb_status mlb_text3d_bench_run(const mlb_text3d_bench_config* c, mlb_text3d_row
     snprintf(probe.prompt, sizeof probe.prompt, "a probe");
     mlb_status s = mlb_pipeline_validate(&probe);
     if (s) return mlb_fail_context(s, "text3d");
-    if (c->base.precision[0] && !mlb_gemm_precision_chosen()) {   // as generate: the preset's own precision
-        mlb_gemm_precision p;
-        if (mlb_gemm_precision_parse(c->base.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
-    }
     // every prompt and its run folder first: a folder made with other settings fails before any work
     int total = c->n_pairs ? c->n_pairs : nc * nm, n_gen = 0;
     for (int i = 0; !s && i < total; i++) {

@@ -14,7 +14,7 @@
 
 
 mlb_sd_model_options mlb_sd_model_default_options(void) {
-    mlb_sd_model_options o = {NULL, -1, 1, 1, mlb_device_current(), mlb_gemm_precision_current()};
+    mlb_sd_model_options o = {NULL, -1, 1, 1, MLB_DEVICE_CPU, MLB_GEMM_FP32};
     return o;
 }
 

@@ -549,7 +549,7 @@ static mlb_status paint_scene_mesh(const mlb_pipeline_config* c, const mlb_mesh*
 }
 
 mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, mlb_guidance* g, const mlb_views* views,
-                            int resume, mlb_progress* progress, mlb_pipeline_result* result) {
+                            const mlb_backend* be, int resume, mlb_progress* progress, mlb_pipeline_result* result) {
     mlb_status s = mlb_pipeline_validate(c_in);
     if (s) return s;
     mlb_pipeline_config pc = *c_in;   // a fresh paint run fills in its frame
@@ -645,9 +645,9 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // The final renders and the extraction run on the CPU's table (host meshes in, host images out);
     // the stages on field_be's when there is one (pipeline_stage_table)
     r.be = mlb_backend_cpu();
-    // The run's one reading of the program's device (--device): on a GPU the material network, its
-    // AdamW and the shading run there, in fp32 whatever --precision says (the MLPs are small)
-    r.field_be = mlb_device_current() == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
+    // The caller's device: on a GPU the material network, its AdamW and the shading run there, in
+    // fp32 whatever the table's precision (the MLPs are small)
+    r.field_be = be && be->device == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
     if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
     if (!s && progress) {
         pipeline_start_sizes starts = {pipeline_shape_start_steps(r.c), pipeline_material_start_steps(&r),

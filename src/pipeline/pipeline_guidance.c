@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend.h"
 #include "matlaber/caption.h"
 #include "matlaber/guidance_image.h"
 #include "matlaber/guidance_sds.h"
@@ -53,9 +54,13 @@ static void owner_destroy(mlb_guidance* g) {
     free(g);
 }
 
-static mlb_status make_sds(const mlb_pipeline_config* c, mlb_guidance** out) {
+static mlb_status make_sds(const mlb_pipeline_config* c, const mlb_backend* be, mlb_guidance** out) {
     mlb_sd_model *model = NULL, *app_model = NULL;
     mlb_sd_model_options mo = mlb_sd_model_default_options();
+    if (be) {
+        mo.device = be->device;
+        mo.precision = be->precision;
+    }
     if (c->tokenizer[0]) mo.tokenizer_path = c->tokenizer;
     mlb_log(MLB_LOG_INFO, "loading %s", c->model);
     mlb_status s = mlb_sd_model_load(c->model, &mo, &model);
@@ -131,10 +136,11 @@ mlb_status mlb_pipeline_read_prompt(mlb_pipeline_config* c) {
     return MLB_OK;
 }
 
-mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, mlb_guidance** out, mlb_views** views_out) {
+mlb_status mlb_pipeline_make_guidance(const mlb_pipeline_config* c, const mlb_backend* be, mlb_guidance** out,
+                                      mlb_views** views_out) {
     *out = NULL;
     if (views_out) *views_out = NULL;
-    if (!strcmp(c->guidance, "sds")) return make_sds(c, out);
+    if (!strcmp(c->guidance, "sds")) return make_sds(c, be, out);
     if (!views_out) return mlb_fail(MLB_ERR_ARG, "image guidance: the caller must keep the views");
     mlb_views* v = calloc(1, sizeof *v);
     if (!v) return mlb_fail(MLB_ERR_NOMEM, "guidance: out of memory");

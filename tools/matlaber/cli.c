@@ -1,5 +1,7 @@
 // Shared helpers of the command-line program.
 #include "cli.h"
+#include "matlaber/backend.h"
+#include "matlaber/device.h"
 #include "matlaber/log.h"
 #include "matlaber/progress.h"
 #include <ctype.h>
@@ -16,6 +18,13 @@ static _Thread_local int quiet;
 static _Thread_local char last_message[1024];
 void cli_set_quiet(int on) { quiet = on; }
 const char* cli_last_message(void) { return last_message; }
+
+const mlb_backend* cli_run_backend(const char* run_precision) {
+    mlb_gemm_precision p = mlb_gemm_precision_current();
+    // (a name that does not parse leaves p: mlb_pipeline_validate has refused it before)
+    if (run_precision && run_precision[0] && !mlb_gemm_precision_chosen()) mlb_gemm_precision_parse(run_precision, &p);
+    return mlb_backend_for(mlb_device_current(), p);
+}
 
 int cli_fail(mlb_status s, const char* what) {
     const char* msg = mlb_last_error();

@@ -39,6 +39,12 @@ const char* cli_default_model(void);
 // stages).
 #define MLB_DEFAULT_APPEARANCE_MODEL "matlaber-tiny-appearance"
 const char* cli_default_appearance_model(void);
+// The op table a run's models and stages use (mlb_pipeline_make_guidance, mlb_pipeline_run): the
+// program's --device, with its GEMMs at the program's --precision when one was given, else at the
+// run's own (config.json "precision", e.g. the cpu preset's bf16) when it names one, else at the
+// program's default. The one place the program's device and precision reach a run.
+struct mlb_backend;
+const struct mlb_backend* cli_run_backend(const char* run_precision);
 // Shown in --help: the getopt option table as "  --name ARG  help".
 typedef struct { const char* name; int has_arg; int val; const char* arg; const char* help; } cli_option;
 void cli_print_options(FILE* out, const cli_option* opts);

@@ -162,6 +162,7 @@ static int bench_text3d(int argc, char** argv) {
     }
     if (s) return cli_usage_error(cmd, "%s", mlb_last_error());
     bc.progress = mlb_log_get_level() <= MLB_LOG_INFO;
+    bc.be = cli_run_backend(bc.base.precision);   // --device, and the preset's own precision as generate takes it
     if (bc.n_pairs && (bc.n_classes || bc.n_materials)) return cli_usage_error(cmd, "--pairs replaces --classes and --materials");
     int cap = bc.n_pairs ? bc.n_pairs
                          : (bc.n_classes ? bc.n_classes : mlb_catalogue_n_classes()) *

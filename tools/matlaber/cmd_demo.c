@@ -114,11 +114,12 @@ static mlb_status run_case(demo* d, demo_case* k, const char* run_dir, const mlb
     }
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
-    mlb_status s = mlb_pipeline_make_guidance(&c, &g, &views);
+    const struct mlb_backend* be = cli_run_backend(c.precision);
+    mlb_status s = mlb_pipeline_make_guidance(&c, be, &g, &views);
     mlb_progress progress;
     mlb_pipeline_result res;
     double t0 = mlb_now_seconds();
-    if (!s) s = mlb_pipeline_run(run_dir, &c, g, views, 0, mlb_log_get_level() <= MLB_LOG_INFO ? &progress : NULL, &res);
+    if (!s) s = mlb_pipeline_run(run_dir, &c, g, views, be, 0, mlb_log_get_level() <= MLB_LOG_INFO ? &progress : NULL, &res);
     k->seconds = mlb_now_seconds() - t0;
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);

@@ -95,6 +95,7 @@ int demo_text_main(const char* out, uint64_t seed, int quick, const char* cls_na
     bc.materials[0] = mat;
     bc.n_materials = 1;
     bc.progress = 1;
+    bc.be = cli_run_backend(bc.base.precision);   // --device, and the tiny preset's precision as generate takes it
     mlb_text3d_row row;
     int n = 0;
     mlb_text3d_summary sum;

@@ -340,10 +340,6 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     // the project's own models read only their catalogue's captions: a prompt is read into one
     // before anything is loaded or made, or refused naming the words they never saw
     if (!resume && mlb_pipeline_read_prompt(&c)) return cli_usage_error(command, "%s", mlb_last_error());
-    if (c.precision[0] && !mlb_gemm_precision_chosen()) {   // the run's own (the cpu preset's bf16)
-        mlb_gemm_precision p;
-        if (mlb_gemm_precision_parse(c.precision, &p) == MLB_OK) mlb_set_gemm_precision(p);
-    }
     if (is_paint && !resume) {   // the mesh is checked before the model loads (seconds to minutes)
         mlb_mesh m;
         s = mlb_paint_load_mesh(c.paint_mesh, c.paint_keep_uv, &m, NULL);
@@ -353,12 +349,13 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
     if (g_check_only) return 0;   // (paint: after the mesh's checks)
     mlb_guidance* g = NULL;
     mlb_views* views = NULL;
-    s = mlb_pipeline_make_guidance(&c, &g, &views);
+    const struct mlb_backend* be = cli_run_backend(c.precision);   // --device, and the run's own precision
+    s = mlb_pipeline_make_guidance(&c, be, &g, &views);
     if (s) return cli_fail(s, command);
     mlb_progress progress;
     mlb_pipeline_result result;
     double t0 = mlb_now_seconds();
-    s = mlb_pipeline_run(dir, &c, g, views, resume != NULL,
+    s = mlb_pipeline_run(dir, &c, g, views, be, resume != NULL,
                          !g_batch && (mlb_log_get_level() <= MLB_LOG_INFO || mlb_progress_json()) ? &progress : NULL, &result);
     mlb_guidance_free(g);
     mlb_pipeline_free_views(views);

@@ -214,6 +214,8 @@ static int txt2img_main(int argc, char** argv) {
     mlb_sd_model_options mo = mlb_sd_model_default_options();
     mo.tokenizer_path = tok_path;
     mo.v_prediction = vpred;
+    mo.device = mlb_device_current();   // the program's --device and --precision
+    mo.precision = mlb_gemm_precision_current();
     double t0 = mlb_now_seconds();
     mlb_sd_model* m;
     mlb_status s = mlb_sd_model_load(model_path, &mo, &m);

@@ -15,6 +15,14 @@ err_has "the missing model named" "no-model"
 expect 2 "fit without --views" -- $M fit -o "$T/r"
 expect 2 "fit bad --res" -- $M fit --views "$T/v" -o "$T/r" --res 100
 expect 2 "fit bad --material" -- $M fit --views "$T/v" -o "$T/r" --material shiny
+# the guidance scales are numbers to the options; their range is the config's check, which names them
+expect 2 "generate --guidance-scale not a number" -- $M generate -p x -m /x --guidance-scale lots -o "$T/r"
+err_has "not a number: the option named" "--guidance-scale: expected a number"
+expect 1 "generate --guidance-scale out of range" -- $M generate -p x -m /x --guidance-scale 20000 -o "$T/r"
+err_has "out of range: the option, its key and the range named" \
+  "the guidance scale (--guidance-scale, guidance_scale) must be in \[0, 10000\]"
+expect 1 "generate --appearance-guidance-scale out of range" -- $M generate -p x -m /x --appearance-guidance-scale -1 -o "$T/r"
+err_has "out of range: the appearance stage's option named" "(--appearance-guidance-scale, appearance_guidance_scale)"
 expect 1 "fit on a missing folder" -- $M fit --views "$T/nothing" -o "$T/r"
 err_has "missing folder named" "nothing"
 [ -e "$T/r" ] && bad "no run folder after errors" || ok "no run folder after errors"

@@ -186,9 +186,11 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "material_start must be 0 (the prior's centre) or 1 (the model picks among archetypes)";
     else if (!(c->metal_start_lr_scale > 0) || !(c->metal_start_lr_scale <= 1))
         bad = "metal_start_lr_scale must be in (0, 1]";
-    else if (!(c->guidance_scale >= 0 && c->guidance_scale <= MLB_PIPELINE_MAX_SCALE)) bad = "guidance scale must be in [0, 10000]";
+    else if (!(c->guidance_scale >= 0 && c->guidance_scale <= MLB_PIPELINE_MAX_SCALE))
+        bad = "the guidance scale (--guidance-scale, guidance_scale) must be in [0, 10000]";
     else if (!(c->appearance_guidance_scale >= 0 && c->appearance_guidance_scale <= MLB_PIPELINE_MAX_SCALE))
-        bad = "appearance guidance scale must be in [0, 10000] (0: the guidance scale's)";
+        bad = "the appearance guidance scale (--appearance-guidance-scale, appearance_guidance_scale) must be in [0, 10000] "
+              "(0: the guidance scale's)";
     else if (!strcmp(c->init, "")) bad = "--init must be ellipsoid, cylinder, torus, slab, cup, auto[:A,B,..] or an OBJ file";
     else if (mlb_pipeline_init_is_auto(c->init) && c->init[4] == ':' &&
              (!c->init[5] || strstr(c->init, ",,") || c->init[strlen(c->init) - 1] == ','))

@@ -1,6 +1,7 @@
 // matlaber generate | fit | paint: the two-stage pipeline (docs/pipeline.md) with score distillation
 // from a Stable Diffusion checkpoint, or with image guidance from a views folder (no weights); paint
 // runs the appearance stage alone on a given mesh (docs/paint.md).
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -236,7 +237,8 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             break;
         case 'U': if (cli_parse_long(optarg, 0, 500, &v)) return cli_usage_error(command, "--geometry-t-min: expected 0..500"); c.geometry_t_min = (int)v; break;
         case 'S':
-            if (cli_parse_double(optarg, 0, MLB_PIPELINE_MAX_SCALE, &x)) return cli_usage_error(command, "--guidance-scale: expected 0..10000");
+            // a number here; its range is the config's to check (mlb_pipeline_validate, below)
+            if (cli_parse_double(optarg, -HUGE_VAL, HUGE_VAL, &x)) return cli_usage_error(command, "--guidance-scale: expected a number");
             c.guidance_scale = x;
             if (is_paint && !appearance_scale_given) c.appearance_guidance_scale = 0;   // paint's one stage: this scale, not the preset's
             break;
@@ -244,7 +246,11 @@ static int run_pipeline(const char* command, int argc, char** argv, int mode) {
             if (strlen(optarg) >= sizeof c.tokenizer) return cli_usage_error(command, "--tokenizer: path too long");
             snprintf(c.tokenizer, sizeof c.tokenizer, "%s", optarg);
             break;
-        case 'E': if (cli_parse_double(optarg, 0, MLB_PIPELINE_MAX_SCALE, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected 0..10000"); c.appearance_guidance_scale = x; appearance_scale_given = 1; break;
+        case 'E':   // (its range: as --guidance-scale's)
+            if (cli_parse_double(optarg, -HUGE_VAL, HUGE_VAL, &x)) return cli_usage_error(command, "--appearance-guidance-scale: expected a number");
+            c.appearance_guidance_scale = x;
+            appearance_scale_given = 1;
+            break;
         case 'D': if (mlb_pipeline_config_set(&c, optarg)) return cli_usage_error(command, "%s", mlb_last_error()); set = optarg; break;
         case 's': if (cli_parse_u64(optarg, &c.seed)) return cli_usage_error(command, "--seed: expected an integer in 0..18446744073709551615"); break;
         case 'T': if (cli_parse_long(optarg, 0, 16384, &v)) return cli_usage_error(command, "--export-texture: expected 0..16384"); c.export_texture = (int)v; break;

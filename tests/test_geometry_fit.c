@@ -190,10 +190,10 @@ TEST(target_mesh) {
 TEST(schedule_and_cameras) {
     mlb_geofit_config c = mlb_geofit_default();
     c.iters = 400;
-    CHECK_CLOSE(mlb_geofit_reg_weight(&c, 0), 0.2, 0, 1e-12);
-    CHECK_CLOSE(mlb_geofit_reg_weight(&c, 50), 0.105, 0, 1e-12);
-    CHECK_CLOSE(mlb_geofit_reg_weight(&c, 100), 0.01, 0, 1e-12);
-    CHECK_CLOSE(mlb_geofit_reg_weight(&c, 399), 0.01, 0, 1e-12);
+    CHECK_CLOSE(mlb_sdf_reg_weight(&c.sdf_reg, 0, c.iters), 0.2, 0, 1e-12);
+    CHECK_CLOSE(mlb_sdf_reg_weight(&c.sdf_reg, 50, c.iters), 0.105, 0, 1e-12);
+    CHECK_CLOSE(mlb_sdf_reg_weight(&c.sdf_reg, 100, c.iters), 0.01, 0, 1e-12);
+    CHECK_CLOSE(mlb_sdf_reg_weight(&c.sdf_reg, 399, c.iters), 0.01, 0, 1e-12);
     double el_lo = 90, el_hi = -90, az_lo = 360, az_hi = -360;
     for (int it = 0; it < 200; it++)
         for (int v = 0; v < 2; v++) {

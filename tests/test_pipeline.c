@@ -98,7 +98,7 @@ TEST(config_round_trip_and_errors) {
     c.seed = 0xFFFFFFFFFFFFFFF1ull;   // beyond a double's integers: stored as a decimal string
     c.material = MLB_MATERIAL_DIRECT;
     c.geometry_lr = 3.3e-4;
-    c.reg_end = 8.0 / 9;          // no 15-digit decimal reads back as this double: saved with 16
+    c.sdf_reg.end = 8.0 / 9;        // no 15-digit decimal reads back as this double: saved with 16
     c.guidance_scale = 0.1 + 0.2;   // (0.30000000000000004: 17 digits)
     c.n_envs = 2;
     snprintf(c.envs[1], sizeof c.envs[1], "/maps/a b.hdr");
@@ -108,7 +108,7 @@ TEST(config_round_trip_and_errors) {
     REQUIRE(mlb_pipeline_config_load(&back, path) == MLB_OK);
     CHECK(back.seed == c.seed);
     CHECK(back.material == MLB_MATERIAL_DIRECT);
-    CHECK(back.geometry_lr == c.geometry_lr && back.reg_end == c.reg_end && back.guidance_scale == c.guidance_scale);
+    CHECK(back.geometry_lr == c.geometry_lr && back.sdf_reg.end == c.sdf_reg.end && back.guidance_scale == c.guidance_scale);
     CHECK(!strcmp(back.prompt, c.prompt) && !strcmp(back.envs[1], c.envs[1]) && back.n_envs == 2);
     back.stop_after = c.stop_after;
     back.overwrite = c.overwrite;

@@ -28,6 +28,18 @@
 #include "matlaber/progress.h"
 #include "matlaber/raster.h"
 
+// The SDF sign regulariser's weight over a fit of `iters` steps (reference.md §3): `start` at step
+// 0, falling linearly to `end` at frac·iters and kept there. The one definition the image fit
+// (mlb_geofit_config) and the pipeline's geometry stage (mlb_pipeline_config) both embed.
+typedef struct {
+    double start;         // the weight at step 0, default 0.2
+    double end;           // ... reached at frac·iters and kept, default 0.01
+    double frac;          // default 0.25
+} mlb_sdf_reg_schedule;
+mlb_sdf_reg_schedule mlb_sdf_reg_default(void);
+// λ(it) = start + (end − start)·min(1, it / (frac·iters)); `end` throughout when frac·iters is 0.
+double mlb_sdf_reg_weight(const mlb_sdf_reg_schedule* r, long it, long iters);
+
 typedef struct {
     int iters;            // Adam steps, default 300
     int views;            // cameras per step, default 2
@@ -37,9 +49,7 @@ typedef struct {
     double lr;            // Adam learning rate (mlb_geometry_adam), default 1e-2
     double w_normal;      // weight of the normal channels, default 1
     double w_mask;        // weight of the mask channel, default 1
-    double reg_start;     // SDF regulariser weight at step 0, default 0.2
-    double reg_end;       // ... reached at reg_frac·iters and kept, default 0.01
-    double reg_frac;      // default 0.25
+    mlb_sdf_reg_schedule sdf_reg;   // the SDF regulariser's weight over the iters (mlb_sdf_reg_default)
     double radius;        // camera distance, default 3
     double fovy_deg;      // default 45
     double el_min, el_max;   // elevation range in degrees, default −10, 45
@@ -47,8 +57,6 @@ typedef struct {
 } mlb_geofit_config;
 
 mlb_geofit_config mlb_geofit_default(void);
-// λ(it) = reg_start + (reg_end − reg_start)·min(1, it / (reg_frac·iters)).
-double mlb_geofit_reg_weight(const mlb_geofit_config* c, int it);
 // The camera of view v at step it (aspect 1, near 0.1, far 100).
 mlb_status mlb_geofit_camera(mlb_camera* cam, const mlb_geofit_config* c, int it, int view);
 

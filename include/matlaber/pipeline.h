@@ -13,6 +13,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "matlaber/error.h"
+#include "matlaber/geometry_fit.h"
 #include "matlaber/guidance.h"
 #include "matlaber/material_net.h"
 #include "matlaber/mesh.h"
@@ -72,7 +73,7 @@ typedef struct {
     int appearance_t_max_end;     // the same for the appearance stage, from 980 (0: 980 throughout)
     double coarse_to_fine;        // hash-grid levels unlocked from 4 to all over this fraction of the
                                   // geometry steps (0: all levels from the start)
-    double reg_start, reg_end, reg_frac;   // SDF regulariser 0.2 → 0.01 by 25%
+    mlb_sdf_reg_schedule sdf_reg; // the SDF regulariser's weight over the stage (geometry_fit.h: 0.2 → 0.01 by 25%)
     int surface_smooth;           // rounds of Taubin smoothing (0.5, -0.53) of the extracted surface, the
                                   // appearance stage's and the outputs' mesh (0: as extracted)
     // appearance stage

@@ -24,9 +24,7 @@ mlb_geofit_config mlb_geofit_default(void) {
     c.lr = 1e-2;
     c.w_normal = 1.0;
     c.w_mask = 1.0;
-    c.reg_start = 0.2;
-    c.reg_end = 0.01;
-    c.reg_frac = 0.25;
+    c.sdf_reg = mlb_sdf_reg_default();
     c.radius = MLB_ORBIT_RADIUS;
     c.fovy_deg = MLB_ORBIT_FOVY_MAX;
     c.el_min = MLB_ORBIT_EL_MIN;
@@ -35,11 +33,16 @@ mlb_geofit_config mlb_geofit_default(void) {
     return c;
 }
 
-double mlb_geofit_reg_weight(const mlb_geofit_config* c, int it) {
-    double span = c->reg_frac * c->iters;
+mlb_sdf_reg_schedule mlb_sdf_reg_default(void) {
+    mlb_sdf_reg_schedule r = {0.2, 0.01, 0.25};
+    return r;
+}
+
+double mlb_sdf_reg_weight(const mlb_sdf_reg_schedule* r, long it, long iters) {
+    double span = r->frac * iters;
     double t = span > 0 ? it / span : 1.0;
     if (t > 1) t = 1;
-    return c->reg_start + (c->reg_end - c->reg_start) * t;
+    return r->start + (r->end - r->start) * t;
 }
 
 mlb_status mlb_geofit_camera(mlb_camera* cam, const mlb_geofit_config* c, int it, int view) {
@@ -52,7 +55,7 @@ mlb_status mlb_geofit_camera(mlb_camera* cam, const mlb_geofit_config* c, int it
 static mlb_status check_config(const mlb_geofit_config* c) {
     if (c->iters < 0 || c->views < 1 || c->views > 64 || c->res < 4 || c->ss < 1 || c->ss > 8 ||
         c->res * c->ss > MLB_RASTER_MAX_SIZE || c->cells < 1 || c->cells > 512 || !(c->lr > 0) ||
-        !(c->reg_frac >= 0) || !(c->radius > 0))
+        !(c->sdf_reg.frac >= 0) || !(c->radius > 0))
         return mlb_fail(MLB_ERR_ARG, "geometry fit: bad config (iters %d, views %d, res %d, ss %d, cells %d, lr %g)",
                         c->iters, c->views, c->res, c->ss, c->cells, c->lr);
     return MLB_OK;
@@ -82,7 +85,7 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
         if (s) break;
         geometry_net_zero_grad(net);
         s = mlb_geofit_loss(net, &g, ctx, cams, c->views, targets, c->res, c->ss, c->w_normal, c->w_mask,
-                            mlb_geofit_reg_weight(c, it), 1, &st);
+                            mlb_sdf_reg_weight(&c->sdf_reg, it, c->iters), 1, &st);
         if (s) { s = mlb_fail_context(s, "geometry fit, step %d", it); break; }
         geometry_net_update(net, &adam);
         if (progress) {

@@ -15,20 +15,14 @@ int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_n
     return a >= L ? 0 : (int)a;
 }
 
-static double reg_weight(const mlb_pipeline_config* c, long it) {
-    double span = c->reg_frac * c->geometry_iters;
-    double t = span > 0 ? it / span : 1.0;
-    if (t > 1) t = 1;
-    return c->reg_start + (c->reg_end - c->reg_start) * t;
-}
-
 mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const mlb_adam_config* adam, long it,
                                   mlb_view* views, mlb_geofit_stats* stats, float* images) {
     const mlb_pipeline_config* c = r->c;
     mlb_geometry_net* net = &r->geo;
     net->active_levels = pipeline_active_levels_at(c, net, it);
     mlb_status s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
-    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight(c, it), stats,
+    const double reg_weight = mlb_sdf_reg_weight(&c->sdf_reg, it, c->geometry_iters);
+    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight, stats,
                                          images);
     s = pipeline_agree(s);   // every rank fails together, or none does
     if (!s) geometry_net_update(net, adam);

@@ -27,9 +27,7 @@ mlb_pipeline_config mlb_pipeline_default(void) {
     c.grid = 128;
     snprintf(c.init, sizeof c.init, "ellipsoid");
     c.init_iters = 400;
-    c.reg_start = 0.2;
-    c.reg_end = 0.01;
-    c.reg_frac = 0.25;
+    c.sdf_reg = mlb_sdf_reg_default();
     c.appearance_iters = 2000;
     c.appearance_lr = 1e-2;
     c.metal_start_lr_scale = 1;
@@ -169,8 +167,9 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "appearance_t_max_end must be 0 (no annealing) or in 20..999";
     else if (!(c->coarse_to_fine >= 0 && c->coarse_to_fine <= 1)) bad = "coarse-to-fine: a fraction of the geometry steps in [0, 1]";
     else if (c->surface_smooth < 0 || c->surface_smooth > 1000) bad = "surface_smooth: 0..1000 rounds";
-    else if (!(c->reg_start >= 0) || !(c->reg_end >= 0) || !(c->reg_frac >= 0)) bad = "regulariser weights must be >= 0";
-    else if (!(c->reg_start <= 1e6) || !(c->reg_end <= 1e6) || !(c->reg_frac <= 1e6)) bad = "regulariser weights must be <= 1e6";
+    else if (!(c->sdf_reg.start >= 0) || !(c->sdf_reg.end >= 0) || !(c->sdf_reg.frac >= 0)) bad = "regulariser weights must be >= 0";
+    else if (!(c->sdf_reg.start <= 1e6) || !(c->sdf_reg.end <= 1e6) || !(c->sdf_reg.frac <= 1e6))
+        bad = "regulariser weights must be <= 1e6";
     else if (!(c->w_mat >= 0 && c->w_mat <= MLB_PIPELINE_MAX_WEIGHT) || !(c->w_mat_spec >= 0 && c->w_mat_spec <= MLB_PIPELINE_MAX_WEIGHT) ||
              !(c->mat_sigma > 0 && c->mat_sigma <= 1))
         bad = "material smoothness: weights in [0, 100] and sigma in (0, 1]";
@@ -234,8 +233,8 @@ static const field FIELDS[] = {
     FLD("supersample", F_INT, ss),              FLD("geometry_iters", F_INT, geometry_iters),
     FLD("geometry_lr", F_DOUBLE, geometry_lr),  FLD("grid", F_INT, grid),
     FLD("init", F_STR, init),                   FLD("init_iters", F_INT, init_iters),
-    FLD("sdf_reg_start", F_DOUBLE, reg_start),  FLD("sdf_reg_end", F_DOUBLE, reg_end),
-    FLD("sdf_reg_frac", F_DOUBLE, reg_frac),    FLD("appearance_iters", F_INT, appearance_iters),
+    FLD("sdf_reg_start", F_DOUBLE, sdf_reg.start), FLD("sdf_reg_end", F_DOUBLE, sdf_reg.end),
+    FLD("sdf_reg_frac", F_DOUBLE, sdf_reg.frac), FLD("appearance_iters", F_INT, appearance_iters),
     FLD("appearance_lr", F_DOUBLE, appearance_lr), FLD("material", F_MATERIAL, material),
     FLD("material_smoothness", F_DOUBLE, w_mat), FLD("material_smoothness_sigma", F_DOUBLE, mat_sigma),
     FLD("fixed_env", F_INT, fixed_env),         FLD("env_height", F_INT, env_height),

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The call side of the layers (docs/architecture.md "Layers"), read from the library's object files
 # with nm: which file defines each global symbol and which files use it. Fails naming
-#   - every group of src/ files that call each other in a loop (a file-level strongly connected
-#     component of more than one file), and
+#   - every group of files of src/ and of the program (tools/matlaber) that call each other in a
+#     loop (a file-level strongly connected component of more than one file), and
 #   - every function declared in a header of one folder (include/matlaber/X.h: its owner, as
 #     check_layout.sh says; src/F/*.h: F) and defined in a folder above it.
 # Only the C objects are read (matlaber_lib, mlb_f64): with the CUDA part built, src/nn/no_cuda.c is
@@ -15,7 +15,7 @@ build=$(cd "$1" && pwd)
 
 
 local objs=() o d src syms decls h owners
-for d in "$build"/CMakeFiles/matlaber_lib.dir/src "$build"/CMakeFiles/mlb_f64.dir/src; do
+for d in "$build"/CMakeFiles/matlaber_lib.dir/src "$build"/CMakeFiles/mlb_f64.dir/src "$build"/CMakeFiles/matlaber.dir/tools; do
   [ -d "$d" ] && while IFS= read -r o; do objs+=("$o"); done < <(find "$d" -name '*.c.o' | sort)
 done
 if [ ${#objs[@]} -eq 0 ]; then
@@ -25,7 +25,7 @@ fi
 
 # "src/x/y.c SYMBOL TYPE" for each global symbol, defined (T D B R W V C) or used (U)
 syms=$(for o in "${objs[@]}"; do
-  src=src/${o#*.dir/src/}; src=${src%.o}
+  src=${o#*.dir/}; src=${src%.o}
   [ -f "$src" ] || continue   # an object left from a file since moved or removed
   nm -P "$o" | awk -v f="$src" '$2 ~ /^[TDBRWVCU]$/ { print f, $1, $2 }'
 done)
@@ -103,5 +103,5 @@ awk -v order="$order" -v owners="$owners" '
     exit bad
   }
 ' <(echo "$syms") <(echo "$decls") || return 1
-echo "check_calls: no call loop among the files of src/ and no function declared below its definition"
+echo "check_calls: no call loop among the files of src/ and tools/matlaber, and no function declared below its definition"
 }

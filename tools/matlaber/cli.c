@@ -14,6 +14,7 @@
 #include <sys/stat.h>
 
 // serve checks a job's options in its own threads: the message is kept for the reply, not printed
+int cli_rc_agreed;
 static _Thread_local int quiet;
 static _Thread_local char last_message[1024];
 void cli_set_quiet(int on) { quiet = on; }

@@ -472,10 +472,6 @@ int generate_check_args(int argc, char** argv) {
     return rc;
 }
 
-int cmd_generate(int argc, char** argv) {
-    for (int i = 1; i < argc; i++)
-        if (!strcmp(argv[i], "--prompts") || !strncmp(argv[i], "--prompts=", 10)) return generate_prompts_main(argc, argv);
-    return run_pipeline("generate", argc, argv, MODE_GENERATE);
-}
+int cmd_generate(int argc, char** argv) { return run_pipeline("generate", argc, argv, MODE_GENERATE); }
 int cmd_fit(int argc, char** argv) { return run_pipeline("fit", argc, argv, MODE_FIT); }
 int cmd_paint(int argc, char** argv) { return run_pipeline("paint", argc, argv, MODE_PAINT); }

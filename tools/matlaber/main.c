@@ -17,6 +17,13 @@
 
 #define MATLABER_VERSION "0.1.0"
 
+// generate --prompts FILE: the batch of prompts (cmd_prompts.c), which runs generate per prompt
+static int names_prompts(int argc, char** argv) {
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--prompts") || !strncmp(argv[i], "--prompts=", 10)) return 1;
+    return 0;
+}
+
 // relight takes a mesh (--mesh FILE.obj) or a finished run (RUN_DIR, a folder with config.json).
 static int names_run_dir(int argc, char** argv) {
     for (int i = 1; i < argc; i++) {
@@ -76,7 +83,6 @@ static void usage(FILE* out) {
 // had threads of its own, which that spin starved (the VAE ran 8-35x slower on 2 cores;
 // docs/vae.md); GEMMs now run on OpenMP threads (mlb_gemm), and the spin saves the wake-ups.
 static int run_command(int argc, char** argv);
-int cli_rc_agreed;
 
 // Under mpirun / srun every process runs the same command (docs/pipeline.md, "Many processes"):
 // MPI starts before the command and ends after it; a failure on one rank ends them all.
@@ -160,7 +166,8 @@ static int run_command(int argc, char** argv) {
     if (strcmp(cmd, "render") == 0) return cmd_render(sub_argc, sub_argv);
     if (strcmp(cmd, "relight") == 0)
         return names_run_dir(sub_argc, sub_argv) ? cmd_relight_run(sub_argc, sub_argv) : cmd_relight(sub_argc, sub_argv);
-    if (strcmp(cmd, "generate") == 0) return cmd_generate(sub_argc, sub_argv);
+    if (strcmp(cmd, "generate") == 0)
+        return names_prompts(sub_argc, sub_argv) ? generate_prompts_main(sub_argc, sub_argv) : cmd_generate(sub_argc, sub_argv);
     if (strcmp(cmd, "fit") == 0) return cmd_fit(sub_argc, sub_argv);
     if (strcmp(cmd, "paint") == 0) return cmd_paint(sub_argc, sub_argv);
     if (strcmp(cmd, "interp") == 0) return cmd_interp(sub_argc, sub_argv);

@@ -42,6 +42,8 @@
 //       backward gathered in the CPU's order): counts, scans, vertex edges and faces bit for bit
 //       (B_BITS), vertices, weights and both gradients 0. Not yet run on a GPU.
 #include "backend_op_cases.h"
+#include <string.h>
+#include "matlaber/backend_f64.h"
 #include "backend_op_cases_glue.h"
 #include "backend_op_cases_raster.h"
 #include "backend_op_cases_mt.h"
@@ -345,6 +347,40 @@ TEST(cuda_attention_vs_double) {
     }
 }
 
+// The CPU's double table (backend_f64.h): every field set, its attention against the naive one in
+// double (the same sums in another order: within 1e-12 for O(1) scores), and an op of the list
+// without a double implementation failing as unsupported, not crashing.
+TEST(cpu_f64_table) {
+    const mlb_backend_f64* be = mlb_backend_cpu_f64();
+    CHECK(be->device == MLB_DEVICE_CPU && mlb_backend_for_f64(MLB_DEVICE_CPU, MLB_GEMM_BF16) == be);
+    CHECK(mlb_backend_for_f64(MLB_DEVICE_CUDA, MLB_GEMM_FP32) == NULL);
+#define MLB_OP(name, cuda_fn, params) CHECK_MSG(be->name != NULL, "f64: %s is NULL", #name);
+#define MLB_GEMM_OP(name, cuda_fn, params, args) CHECK_MSG(be->name != NULL, "f64: %s is NULL", #name);
+#define MLB_DEVICE_OP(ret, name, params) CHECK_MSG(be->name != NULL, "f64: %s is NULL", #name);
+#include "matlaber/backend_ops.def"
+    enum { B = 2, T = 13, NH = 3, C = 15, LD = 3 * C + 1 };
+    size_t nin = (size_t)B * T * LD, nout = (size_t)B * T * C;
+    float* hq = host_alloc(nin);
+    double *q = NULL, *out = NULL, *ref = malloc(nout * sizeof(double));
+    REQUIRE(hq && ref && be->alloc(&q, nin) == MLB_OK && be->alloc(&out, nout) == MLB_OK);
+    fill_uniform(hq, nin, test_seed(), 600, -1.5f, 1.5f);
+    for (size_t i = 0; i < nin; i++) q[i] = hq[i];
+    naive_attention(ref, hq, hq + C, hq + 2 * C, LD, B, T, C, NH, 1);
+    CHECK(be->attention(out, q, q + C, q + 2 * C, LD, B, T, C, NH, 1) == MLB_OK);
+    double e = 0;
+    for (size_t i = 0; i < nout; i++) {
+        double d = fabs(out[i] - ref[i]);
+        if (!(d <= e)) e = d;
+    }
+    CHECK_MSG(e <= 1e-12, "f64 attention: max abs error %.3e vs the naive double one", e);
+    printf("  f64 table: %d ops, attention max abs vs naive double %.2e\n", (int)N_OPS, e);
+    CHECK(be->fill_normal(out, 4, 1, 2, 3) == MLB_ERR_UNSUPPORTED);
+    CHECK_MSG(strstr(mlb_last_error(), "fill_normal") != NULL, "f64: the stub's message: %s", mlb_last_error());
+    mlb_clear_error();
+    be->release(q), be->release(out);
+    free(hq), free(ref);
+}
+
 TEST(cuda_tables) {
     REQUIRE_GPU();
     for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++) {
@@ -361,6 +397,7 @@ int main(void) {
     RUN(cpu_bf16_stored_table);
     RUN(cpu_attention_vs_double);
     RUN(cuda_attention_vs_double);
+    RUN(cpu_f64_table);
     RUN(cuda_tables);
     free_test_light();
     return test_summary();

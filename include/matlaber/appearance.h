@@ -22,7 +22,7 @@
 #ifndef MATLABER_APPEARANCE_H
 #define MATLABER_APPEARANCE_H
 #include <stdint.h>
-#include "matlaber/backend.h"
+#include "matlaber/backend_f64.h"
 #include "matlaber/envmap.h"
 #include "matlaber/error.h"
 #include "matlaber/guidance.h"
@@ -41,11 +41,11 @@
            are. No collectives: the pipeline sums the parts' parameter gradients (docs/pipeline.md). \
            part_count 0: every view, -1: none. */                                                    \
         int part_first, part_count;                                                                  \
-        /* The op table the whole render runs on, its buffers allocated there (float; NULL: the    \
-           CPU's; the double build calls the CPU's _f64 functions): rasterize, the samples' gather,  \
+        /* The op table the whole render runs on, its buffers allocated there (NULL: the CPU's;   \
+           the double build's is backend_f64.h's, the CPU's only): rasterize, the samples' gather,  \
            the material network (a net on a device must be on this table's; a net on the host needs \
            the CPU's), the shading, the composite and their backwards (docs/appearance.md). */       \
-        const mlb_backend* be;                                                                       \
+        const N(mlb_backend)* be;                                                                    \
         /* Set by the caller before the render: the renders stay on the table, t_images [n, res,    \
            res, 4] (images may be NULL then), for a guidance that reads them there (guidance.h      \
            loss_on) and adds its gradient into t_dimages (the part's views zeroed by the render)    \

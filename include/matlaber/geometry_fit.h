@@ -20,6 +20,7 @@
 #ifndef MATLABER_GEOMETRY_FIT_H
 #define MATLABER_GEOMETRY_FIT_H
 #include <stdint.h>
+#include "matlaber/backend_f64.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/error.h"
 #include "matlaber/geometry.h"
@@ -110,10 +111,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            mlb_backend_cpu), with every per-pixel buffer there, and the surface's normals, clip     \
            coordinates, the edge topology and the gradients: the surface stays there (st->surf      \
            has its sizes), the images come down and the dimages go up unless images_on_table; the   \
-           views' gradient pieces cross only between processes. mt its buffers there (the state's own). The double build             \
-           calls the CPU's _f64 functions directly. stats->coverage is measured on tables whose     \
+           views' gradient pieces cross only between processes. mt its buffers there (the state's own). The double build's     \
+           table is backend_f64.h's (the CPU's only); its grid part (network, deformation, marching   \
+           tets) runs on the host. stats->coverage is measured on tables whose     \
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
-        const mlb_backend* be;                                                                      \
+        const N(mlb_backend)* be;                                                                   \
         mlb_mt_device* mt;                                                                          \
         /* Set by the caller before the forward: the renders stay on the table (t_images; st->images \
            is filled only when the forward is asked for images) for a guidance that reads them     \
@@ -142,9 +144,9 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
        seen by cam: rasterize at res·ss, interpolate, antialias, downsample. ctx may be NULL. */   \
     mlb_status N(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, R* out, const mlb_mesh* m,            \
                                          const mlb_camera* cam, int res, int ss);                   \
-    /* The same with the raster ops of table be (NULL: the CPU's; the double build ignores it):     \
+    /* The same with the raster ops of table be (NULL: the CPU's):                                 \
        the mesh, its normals and out stay host buffers, so be is the CPU's for now (docs/cuda.md). */ \
-    mlb_status N(mlb_geofit_render_mesh_on)(const mlb_backend* be, mlb_raster_ctx* ctx, R* out,      \
+    mlb_status N(mlb_geofit_render_mesh_on)(const N(mlb_backend)* be, mlb_raster_ctx* ctx, R* out,   \
                                             const mlb_mesh* m, const mlb_camera* cam, int res, int ss); \
     /* The L2 loss of the network's surface against targets[v·res·res·4] seen by cams[v],          \
        v < n_views, with regulariser weight reg_weight (forward + loss + backward above).          \

@@ -428,7 +428,6 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
                               FN(mlb_vae_cache)* cache) {
     MLB_TRY(FN(vae_check_size)(v, "encoder", N, H, W));
     if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
-#ifndef MLB_F64
     if (v->mirror) {   // mlb_vae_use_device: the image crosses once, the cache stays on the device
         vae_ops be = v->mirror_ops;
         size_t n = (size_t)N * v->cfg.in_channels * H * W;
@@ -439,7 +438,6 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
         op_release(be, d);
         return s;
     }
-#endif
     return FN(encode_core)(MODEL_OPS(v), v, image, N, H, W, mean, logvar, cache);
 }
 
@@ -482,15 +480,10 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     real *mtmp = NULL, *d = NULL;
     const real* mh = NULL;
     mlb_status s = MLB_OK;
-#ifndef MLB_F64
     if (dmean_dev) {
         s = op_zero(be, T1, nm);
         if (!s) s = be->copy_rows(T1, 2 * zn, dmean_dev, zn, zn, (size_t)N);
-    } else
-#else
-    (void)dmean_dev;
-#endif
-    {
+    } else {
         d = ops_device(be) == MLB_DEVICE_CPU ? T1 : malloc(nm * sizeof(real));
         s = d ? FN(vae_host_view)(be, rec.moments, nm, &mtmp, &mh) : mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory");
         if (!s) {
@@ -570,7 +563,6 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
     if (cache->N < 1 || !cache->buf)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward (run mlb_vae_encode with this "
                         "cache first)");
-#ifndef MLB_F64
     if (v->mirror) {
         vae_ops be = v->mirror_ops;
         size_t n = dimage ? (size_t)cache->N * v->cfg.in_channels * cache->H * cache->W : 0;
@@ -582,12 +574,11 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
         if (!s && n) s = op_upload(be, d, dimage, n);
         if (!s) s = FN(encode_backward_core)(be, v->mirror, cache, dmean, dlogvar, d, gd, NULL);
         if (!s && n) s = op_download(be, dimage, d, n);
-        if (!s && gd) s = vae_grads_add_from_device(be, grads, gd);
+        if (!s && gd) s = FN(vae_grads_add_from_device)(be, grads, gd);
         if (d) op_release(be, d);
-        mlb_vae_free(gd);
+        FN(mlb_vae_free)(gd);
         return s;
     }
-#endif
     MLB_TRY(FN(vae_check_grads)(MODEL_OPS(v), v, grads, "encoder backward"));
     return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage, grads, NULL);
 }
@@ -638,9 +629,8 @@ mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec)
 }
 #endif
 
-#ifndef MLB_F64
-mlb_status vae_grads_add_from_device(vae_ops be, vae_t* grads, const vae_t* gd) {
-    float* h = malloc(gd->n_params * sizeof(float));
+mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* gd) {
+    real* h = malloc(gd->n_params * sizeof(real));
     if (!h) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for the weight gradients' host copy");
     mlb_status s = op_download(be, h, gd->params, gd->n_params);
     if (!s)
@@ -648,6 +638,8 @@ mlb_status vae_grads_add_from_device(vae_ops be, vae_t* grads, const vae_t* gd) 
     free(h);
     return s;
 }
+
+#ifndef MLB_F64
 
 mlb_status mlb_vae_create_on(const mlb_backend* be, const mlb_vae_config* cfg, mlb_vae** out) {
     if (!be) return mlb_fail(MLB_ERR_ARG, "mlb_vae_create_on: NULL backend");

@@ -211,7 +211,6 @@ static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h,
                                   dec_cache_t* cache) {
     MLB_TRY(FN(check_latent)(v, N, h, w));
     if (!zin || !image) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL latent or image");
-#ifndef MLB_F64
     if (v->mirror) {   // the latent and the image cross; a cache stays on the device
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
@@ -225,7 +224,6 @@ static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h,
         op_release(be, d);
         return s;
     }
-#endif
     return FN(decode_core)(MODEL_OPS(v), v, zin, N, h, w, image, cache);
 }
 
@@ -332,7 +330,6 @@ mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache,
     if (cache->N < 1 || !cache->buf)
         return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward (run mlb_vae_decode_train "
                         "with this cache first)");
-#ifndef MLB_F64
     if (v->mirror) {   // dimage crosses in, dz (+=) both ways; the weight gradients are added once
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
@@ -344,17 +341,16 @@ mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache,
         MLB_TRY(FN(vae_check_grads)(CPU_OPS, v, grads, "decoder backward"));
         if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
         mlb_status s = op_alloc(be, &d, ni + nz);
-        if (s) { mlb_vae_free(gd); return s; }
+        if (s) { FN(mlb_vae_free)(gd); return s; }
         s = op_upload(be, d, dimage, ni);
         if (!s && nz) s = op_upload(be, d + ni, dz, nz);
         if (!s) s = FN(decode_backward_core)(be, v->mirror, cache, d, nz ? d + ni : NULL, gd);
         if (!s && nz) s = op_download(be, dz, d + ni, nz);
-        if (!s && gd) s = vae_grads_add_from_device(be, grads, gd);
+        if (!s && gd) s = FN(vae_grads_add_from_device)(be, grads, gd);
         op_release(be, d);
-        mlb_vae_free(gd);
+        FN(mlb_vae_free)(gd);
         return s;
     }
-#endif
     MLB_TRY(FN(vae_check_grads)(MODEL_OPS(v), v, grads, "decoder backward"));
     return FN(decode_backward_core)(MODEL_OPS(v), v, cache, dimage, dz, grads);
 }

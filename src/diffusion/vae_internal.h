@@ -6,7 +6,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
-#include "matlaber/backend.h"
+#include "matlaber/backend_f64.h"
 #include "matlaber/conv_ops.h"
 #include "matlaber/nn.h"
 #include "matlaber/vae.h"
@@ -21,93 +21,14 @@ typedef FN(mlb_vae_resnet) resnet_t;
 typedef FN(mlb_vae_attn) attn_t;
 
 // ---- the ops ---------------------------------------------------------------------------------------
-// The float build runs every op through a backend table (backend.h): the CPU's, or CUDA's for a
+// Every op runs through an op table: the float pass's backend.h table (the CPU's, or CUDA's for a
 // model moved with mlb_vae_use_device, whose buffers (weights, scratch, cache) then all live on the
-// GPU. The double build (finite-difference references) calls the CPU ops directly. Either way the
-// code below is written once.
-#ifdef MLB_F64
-typedef const void* vae_ops;
-#define CPU_OPS NULL
-#define MODEL_OPS(v) NULL
-static inline mlb_device ops_device(vae_ops be) { (void)be; return MLB_DEVICE_CPU; }
-static inline mlb_status op_alloc(vae_ops be, real** p, size_t n) {
-    (void)be;
-    *p = malloc((n ? n : 1) * sizeof(real));
-    return *p ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "out of memory for %.1f MB", n * (double)sizeof(real) / 1e6);
-}
-static inline void op_release(vae_ops be, void* p) { (void)be; free(p); }
-static inline mlb_status op_zero(vae_ops be, real* y, size_t n) { (void)be; memset(y, 0, n * sizeof(real)); return MLB_OK; }
-static inline mlb_status op_copy(vae_ops be, real* y, const real* x, size_t n) { (void)be; memcpy(y, x, n * sizeof(real)); return MLB_OK; }
-static inline mlb_status op_upload(vae_ops be, real* dev, const real* host, size_t n) { return op_copy(be, dev, host, n); }
-static inline mlb_status op_download(vae_ops be, real* host, const real* dev, size_t n) { return op_copy(be, host, dev, n); }
-static inline vae_ops ops_of(mlb_device d) { (void)d; return NULL; }
-static inline mlb_status op_add(vae_ops be, real* y, const real* x, size_t n) {
-    (void)be;
-#pragma omp parallel for schedule(static) if (n >= VAE_PARALLEL_MIN)
-    for (size_t i = 0; i < n; i++) y[i] += x[i];
-    return MLB_OK;
-}
-static inline mlb_status op_conv(vae_ops be, real* out, const real* in, const real* w, const real* b, mlb_conv2d cv) {
-    (void)be;
-    return conv2d_forward_f64(out, in, w, b, &cv, NULL);
-}
-static inline mlb_status op_conv_bwd(vae_ops be, real* din, real* dw, real* db, const real* dout, const real* in,
-                                      const real* w, mlb_conv2d cv) {
-    (void)be;
-    return conv2d_backward_f64(din, dw, db, dout, in, w, &cv, NULL);
-}
-static inline mlb_status op_gn(vae_ops be, real* out, real* mean, real* rstd, const real* in, const real* w, const real* b,
-                        int N, int C, int HW, int G, real eps, mlb_activation act) {
-    (void)be;
-    return groupnorm_forward_f64(out, mean, rstd, in, w, b, N, C, HW, G, eps, act);
-}
-static inline mlb_status op_gn_bwd(vae_ops be, real* din, real* dw, real* db, const real* dout, const real* in,
-                                    const real* w, const real* b, const real* mean, const real* rstd, int N, int C,
-                                    int HW, int G, mlb_activation act) {
-    (void)be;
-    return groupnorm_backward_f64(din, dw, db, dout, in, w, b, mean, rstd, N, C, HW, G, act);
-}
-static inline mlb_status op_linear(vae_ops be, real* out, const real* in, const real* w, const real* b, int B, int C, int OC) {
-    (void)be;
-    linear_forward_f64(out, in, w, b, B, C, OC);
-    return MLB_OK;
-}
-static inline mlb_status op_linear_bwd(vae_ops be, real* din, real* dw, real* db, const real* dout, const real* in,
-                                        const real* w, int B, int C, int OC) {
-    (void)be;
-    linear_backward_f64(din, dw, db, dout, in, w, B, C, OC);
-    return MLB_OK;
-}
-static inline mlb_status op_sdpa(vae_ops be, real* out, real* lse, const real* qkv, int N, int T, int C) {
-    (void)be;
-    return sdpa_forward_f64(out, lse, qkv, qkv + C, qkv + 2 * C, N, T, T, C, 1, 3 * C, 3 * C, NULL);
-}
-static inline mlb_status op_sdpa_bwd(vae_ops be, real* dqkv, const real* dout, const real* out, const real* lse,
-                              const real* qkv, int N, int T, int C) {
-    (void)be;
-    return sdpa_backward_f64(dqkv, dqkv + C, dqkv + 2 * C, dout, out, lse, qkv, qkv + C, qkv + 2 * C, N, T, T, C, 1,
-                             3 * C, 3 * C, NULL);
-}
-static inline mlb_status op_transpose(vae_ops be, real* out, const real* in, int N, int R, int S, int acc) {
-    (void)be;
-    transpose_last2_f64(out, in, N, R, S, acc);
-    return MLB_OK;
-}
-static inline mlb_status op_upsample(vae_ops be, real* out, const real* in, int N, int C, int H, int W) {
-    (void)be;
-    upsample_nearest2x_forward_f64(out, in, N, C, H, W);
-    return MLB_OK;
-}
-static inline mlb_status op_upsample_bwd_acc(vae_ops be, real* din, const real* dout, int N, int C, int H, int W) {
-    (void)be;
-    upsample_nearest2x_backward_f64(din, dout, N, C, H, W);
-    return MLB_OK;
-}
-#else
-typedef const mlb_backend* vae_ops;
-#define CPU_OPS mlb_backend_cpu()
+// GPU), the double pass's backend_f64.h one (the finite-difference references). The code below is
+// written once over both.
+typedef const FN(mlb_backend)* vae_ops;
+#define CPU_OPS FN(mlb_backend_cpu)()
 // the CPU ops a model without a mirror runs: fp32, or bf16 after mlb_vae_use_device(v, CPU, BF16)
-#define MODEL_OPS(v) ((v)->mirror_ops ? (v)->mirror_ops : mlb_backend_cpu())
+#define MODEL_OPS(v) ((v)->mirror_ops ? (v)->mirror_ops : FN(mlb_backend_cpu)())
 static inline mlb_device ops_device(vae_ops be) { return be->device; }
 static inline mlb_status op_alloc(vae_ops be, real** p, size_t n) { return be->alloc(p, n); }
 static inline void op_release(vae_ops be, void* p) { be->release(p); }
@@ -115,7 +36,7 @@ static inline mlb_status op_zero(vae_ops be, real* y, size_t n) { return be->zer
 static inline mlb_status op_copy(vae_ops be, real* y, const real* x, size_t n) { return be->copy(y, x, n); }
 static inline mlb_status op_upload(vae_ops be, real* dev, const real* host, size_t n) { return be->upload(dev, host, n); }
 static inline mlb_status op_download(vae_ops be, real* host, const real* dev, size_t n) { return be->download(host, dev, n); }
-static inline vae_ops ops_of(mlb_device d) { return mlb_backend_for(d, MLB_GEMM_FP32); }
+static inline vae_ops ops_of(mlb_device d) { return FN(mlb_backend_for)(d, MLB_GEMM_FP32); }
 static inline mlb_status op_add(vae_ops be, real* y, const real* x, size_t n) { return be->add(y, x, n); }
 static inline mlb_status op_conv(vae_ops be, real* out, const real* in, const real* w, const real* b, mlb_conv2d cv) {
     return be->conv2d(be, out, in, w, b, &cv);
@@ -157,7 +78,6 @@ static inline mlb_status op_upsample(vae_ops be, real* out, const real* in, int 
 static inline mlb_status op_upsample_bwd_acc(vae_ops be, real* din, const real* dout, int N, int C, int H, int W) {
     return be->upsample_nearest2x_backward(din, dout, N, C, H, W);
 }
-#endif
 
 // Carving a buffer into tensors: p NULL counts only.
 typedef struct { real* p; size_t n; } carver;
@@ -238,10 +158,8 @@ mlb_status FN(vae_host_view)(vae_ops be, const real* x, size_t n, real** tmp, co
 mlb_status FN(vae_check_size)(const vae_t* v, const char* what, int N, int H, int W);
 // MLB_OK when grads (may be NULL) can receive v's weight gradients on be's device.
 mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, const char* what);
-#ifndef MLB_F64
 // host grads += the device model gd's values (the host API on a mirror sums the weight gradients
 // on the device, then adds them here once).
-mlb_status vae_grads_add_from_device(vae_ops be, vae_t* grads, const vae_t* gd);
-#endif
+mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* gd);
 
 #endif

@@ -14,7 +14,6 @@
 #include "matlaber/geometry_fit.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
-#include "nn/raster_table.h"
 #include "nn/table_ops.h"
 
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
@@ -24,7 +23,7 @@ enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T
        T_ATTR, T_CLIP, T_ADJ, T_DATTR, T_DCLIP, T_NRM, T_NSUM, T_VOFF, T_VF, T_ONES, T_PIECES, T_DSURF,
        T_GV, T_Y, T_SDF, T_DEFORM, T_GPOS, T_DGPOS, T_DSDF, T_DDEFORM, T_REG, T_COUNT };
 struct FN(geofit_table) {
-    const mlb_backend* tb;
+    const FN(mlb_backend)* tb;
     int gv_cells;         // the grid whose vertices T_GV holds (a grid's vertices are its cells and scale)
     float gv_scale;
     FN(tbuf) d[T_COUNT];
@@ -73,13 +72,13 @@ static mlb_status FN(geofit_view_alloc)(FN(geofit_view)* v, int res, int ss, int
 }
 
 // Forward of one view: attr [V,4] = [normal, 1] at clip [V,4] → v->out [res,res,4].
-static mlb_status FN(geofit_view_forward)(const mlb_backend* be, mlb_raster_ctx* ctx, FN(geofit_view)* v,
+static mlb_status FN(geofit_view_forward)(const FN(mlb_backend)* be, FN(geofit_view)* v,
                                          const real* attr, const real* clip, int nv, const int32_t* faces,
                                          const int32_t* adj, int nf, int res, int ss) {
     int S = res * ss;
-    mlb_status s = FN(rt_rasterize)(be, ctx, v->tri, v->bary, v->depth, clip, nv, faces, nf, S, S);
-    if (!s) s = FN(rt_interpolate)(be, v->img, attr, nv, 4, v->tri, v->bary, faces, nf, S, S);
-    if (!s) s = FN(rt_antialias)(be, ctx, v->aa, v->weights, v->img, 4, v->tri, v->depth, clip, nv, faces, adj, nf, S, S);
+    mlb_status s = be->rasterize(v->tri, v->bary, v->depth, clip, nv, faces, nf, S, S);
+    if (!s) s = be->interpolate(v->img, attr, nv, 4, v->tri, v->bary, faces, nf, S, S);
+    if (!s) s = be->antialias(v->aa, v->weights, v->img, 4, v->tri, v->depth, clip, nv, faces, adj, nf, S, S);
     if (!s && ss > 1) FN(mlb_downsample_box)(v->out, v->aa, res, res, 4, ss);
     return s;
 }
@@ -94,8 +93,10 @@ mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_
     return FN(mlb_geofit_render_mesh_on)(NULL, ctx, out, m, cam, res, ss);
 }
 
-mlb_status FN(mlb_geofit_render_mesh_on)(const mlb_backend* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
+mlb_status FN(mlb_geofit_render_mesh_on)(const FN(mlb_backend)* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
                                         const mlb_camera* cam, int res, int ss) {
+    (void)ctx;   // each raster op keeps a scratch of its own
+    if (!be) be = FN(mlb_backend_cpu)();
     size_t V = (size_t)m->n_verts;
     real* pos = malloc(sizeof(real) * V * 3);
     real* nrm = malloc(sizeof(real) * V * 3);
@@ -114,7 +115,7 @@ mlb_status FN(mlb_geofit_render_mesh_on)(const mlb_backend* be, mlb_raster_ctx* 
         }
         FN(mlb_transform_points)(clip, pos, m->n_verts, &cam->view_proj);
         s = mlb_edge_topology(adj, m->faces, m->n_faces, m->n_verts);
-        if (!s) s = FN(geofit_view_forward)(be, ctx, &v, attr, clip, m->n_verts, m->faces, adj, m->n_faces, res, ss);
+        if (!s) s = FN(geofit_view_forward)(be, &v, attr, clip, m->n_verts, m->faces, adj, m->n_faces, res, ss);
         if (!s) memcpy(out, v.out, sizeof(real) * (size_t)res * res * 4);
         FN(geofit_view_free)(&v);
     }
@@ -149,11 +150,7 @@ static int FN(grow)(void** p, size_t n, size_t sz) {
 // table copies grow only).
 static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, int F, int n, int res, int ss) {
     int ok = 1;
-#ifdef MLB_F64
-    const mlb_backend* tb = mlb_backend_cpu();
-#else
-    const mlb_backend* tb = st->be ? st->be : mlb_backend_cpu();
-#endif
+    const FN(mlb_backend)* tb = st->be ? st->be : FN(mlb_backend_cpu)();
     if (st->tab && st->tab->tb != tb) {   // buffers of another device
         FN(geofit_table_free)(st->tab);
         st->tab = NULL;
@@ -336,25 +333,25 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     stats->n_faces = F;
     // 2. on the table: the faces at each vertex, the normals, the attribute [normal, 1] and the
     //    edge topology for antialias
-    const mlb_backend* tb = st->tab->tb;
-    const int host_memory = tb->alloc == mlb_backend_cpu()->alloc;   // the table's buffers are the host's
+    const FN(mlb_backend)* tb = st->tab->tb;
+    const int host_memory = tb->alloc == FN(mlb_backend_cpu)()->alloc;   // the table's buffers are the host's
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
     MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
     real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_nrm = d[T_NRM].p;
     int32_t *t_adj = (int32_t*)d[T_ADJ].p, *t_off = (int32_t*)d[T_VOFF].p, *t_vf = (int32_t*)d[T_VF].p;
-    MLB_TRY(T_VERTEX_FACES(tb, t_off, t_vf, t_faces, F, M));
-    MLB_TRY(T_VERTEX_NORMALS(tb, t_nrm, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
+    MLB_TRY(tb->vertex_faces(t_off, t_vf, t_faces, F, M));
+    MLB_TRY(tb->vertex_normals(t_nrm, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
     MLB_TRY(FN(t_ones)(tb, d[T_ONES].p, (size_t)M));
-    MLB_TRY(FN(t_copy_rows)(tb, t_attr, 4, t_nrm, 3, 3, (size_t)M));
-    MLB_TRY(FN(t_copy_rows)(tb, t_attr + 3, 4, d[T_ONES].p, 1, 1, (size_t)M));
-    MLB_TRY(T_EDGE_TOPOLOGY(tb, t_adj, t_faces, F, t_off, t_vf));
+    MLB_TRY(tb->copy_rows(t_attr, 4, t_nrm, 3, 3, (size_t)M));
+    MLB_TRY(tb->copy_rows(t_attr + 3, 4, d[T_ONES].p, 1, 1, (size_t)M));
+    MLB_TRY(tb->edge_topology(t_adj, t_faces, F, t_off, t_vf));
     // 3. every view (of this process's part), buffers kept: the images come down unless they stay
     //    on the table for the guidance (then their gradient starts at 0 there)
     size_t p = (size_t)res * res, S = (size_t)st->S, P = S * S;
     const int download = !st->images_on_table || images;
-    if (st->images_on_table) MLB_TRY(FN(t_zero)(tb, st->t_dimages, p * 4 * (size_t)n));
+    if (st->images_on_table) MLB_TRY(tb->zero(st->t_dimages, p * 4 * (size_t)n));
     uint64_t hash = 1469598103934665603ull;
     int v0, v1;
     FN(part_range)(st, n, &v0, &v1);
@@ -362,18 +359,18 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     for (int v = 0; v < n; v++) st->vp[v] = cams[v].view_proj;
     for (int v = v0; v < v1; v++) {
         real* clip = t_clip + (size_t)v * M * 4;
-        MLB_TRY(T_TRANSFORM(tb, clip, t_pos, M, &st->vp[v]));
+        MLB_TRY(tb->transform_points(clip, t_pos, M, st->vp[v].m));
         int32_t* tri = st->tri + (size_t)v * P;
         real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         real* weights = st->weights + (size_t)v * P * 2;
         real* t_out = st->t_images + (size_t)v * p * 4;
         real* aa = ss == 1 ? t_out : st->aa;
         int Si = st->S;
-        s = FN(rt_rasterize)(tb, ctx, tri, bary, depth, clip, M, t_faces, F, Si, Si);
-        if (!s) s = FN(rt_interpolate)(tb, img, t_attr, M, 4, tri, bary, t_faces, F, Si, Si);
-        if (!s) s = FN(rt_antialias)(tb, ctx, aa, weights, img, 4, tri, depth, clip, M, t_faces, t_adj, F, Si, Si);
-        if (!s && ss > 1) s = T_DOWNSAMPLE(tb, t_out, aa, res, res, 4, ss);
-        if (!s && download) s = FN(t_download)(tb, st->images + (size_t)v * p * 4, t_out, 4 * p);
+        s = tb->rasterize(tri, bary, depth, clip, M, t_faces, F, Si, Si);
+        if (!s) s = tb->interpolate(img, t_attr, M, 4, tri, bary, t_faces, F, Si, Si);
+        if (!s) s = tb->antialias(aa, weights, img, 4, tri, depth, clip, M, t_faces, t_adj, F, Si, Si);
+        if (!s && ss > 1) s = tb->downsample_box(t_out, aa, res, res, 4, ss);
+        if (!s && download) s = tb->download(st->images + (size_t)v * p * 4, t_out, 4 * p);
         if (s) return s;
         if (host_memory) hash = FN(geofit_hash)(hash, tri, P);   // the coverage's hash, where tri can be read
     }
@@ -429,7 +426,7 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
             return mlb_fail(MLB_ERR_NOMEM, "geometry step: out of memory (%d views of %d surface vertices)", n, M);
         st->cap_pieces = piece * (size_t)n;
     }
-    const mlb_backend* tb = st->tab->tb;
+    const FN(mlb_backend)* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
@@ -440,11 +437,11 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
     const int32_t* t_vf = (const int32_t*)d[T_VF].p;
     for (int v = v0; grads && v < v1; v++) {
         const real* t_dout = t_dimages ? t_dimages + (size_t)v * p * 4 : d[T_DOUT].p + (size_t)v * p * 4;
-        if (!t_dimages) s = FN(t_upload)(tb, d[T_DOUT].p + (size_t)v * p * 4, dimages + (size_t)v * p * 4, 4 * p);
+        if (!t_dimages) s = tb->upload(d[T_DOUT].p + (size_t)v * p * 4, dimages + (size_t)v * p * 4, 4 * p);
         const real* daa = t_dout;
         if (!s && ss > 1) {
-            s = FN(t_zero)(tb, st->daa, P * 4);
-            if (!s) s = T_DOWNSAMPLE_BACKWARD(tb, st->daa, t_dout, res, res, 4, ss);
+            s = tb->zero(st->daa, P * 4);
+            if (!s) s = tb->downsample_box_backward(st->daa, t_dout, res, res, 4, ss);
             daa = st->daa;
         }
         const real* clip = t_clip + (size_t)v * M * 4;
@@ -452,32 +449,32 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
         const real *bary = st->bary + (size_t)v * P * 2, *depth = st->depth + (size_t)v * P, *img = st->img + (size_t)v * P * 4;
         const real* weights = st->weights + (size_t)v * P * 2;
         real* pc = t_pieces + piece * (size_t)v;
-        if (!s) s = FN(t_zero)(tb, st->dimg, P * 4);
-        if (!s) s = FN(t_zero)(tb, st->dbary, P * 2);
-        if (!s) s = FN(t_zero)(tb, t_dclip, (size_t)M * 4);
-        if (!s) s = FN(t_zero)(tb, t_dattr, (size_t)M * 4);
-        if (!s) s = FN(rt_antialias_backward)(tb, st->ctx, st->dimg, t_dclip, daa, weights, img, 4, tri, depth, clip, M,
+        if (!s) s = tb->zero(st->dimg, P * 4);
+        if (!s) s = tb->zero(st->dbary, P * 2);
+        if (!s) s = tb->zero(t_dclip, (size_t)M * 4);
+        if (!s) s = tb->zero(t_dattr, (size_t)M * 4);
+        if (!s) s = tb->antialias_backward(st->dimg, t_dclip, daa, weights, img, 4, tri, depth, clip, M,
                                              t_faces, t_adj, F, Si, Si);
-        if (!s) s = FN(rt_interpolate_backward)(tb, st->ctx, t_dattr, st->dbary, st->dimg, t_attr, M, 4, tri, bary,
+        if (!s) s = tb->interpolate_backward(t_dattr, st->dbary, st->dimg, t_attr, M, 4, tri, bary,
                                                t_faces, F, Si, Si);
-        if (!s) s = FN(rt_rasterize_backward)(tb, st->ctx, t_dclip, st->dbary, NULL, tri, clip, M, t_faces, F, Si, Si);
-        if (!s) s = FN(t_zero)(tb, pc, (size_t)M * 3);
-        if (!s) s = T_TRANSFORM_BACKWARD(tb, pc, t_dclip, M, &st->vp[v]);
-        if (!s) s = FN(t_copy_rows)(tb, pc + 3 * (size_t)M, 3, t_dattr, 4, 3, (size_t)M);
+        if (!s) s = tb->rasterize_backward(t_dclip, st->dbary, NULL, tri, clip, M, t_faces, F, Si, Si);
+        if (!s) s = tb->zero(pc, (size_t)M * 3);
+        if (!s) s = tb->transform_points_backward(pc, t_dclip, M, st->vp[v].m);
+        if (!s) s = tb->copy_rows(pc + 3 * (size_t)M, 3, t_dattr, 4, 3, (size_t)M);
         if (s) break;   // (still joins the gather below: the other ranks wait in it)
     }
     if (grads && st->part_count != 0) {   // this process's pieces down, every view's up
-        if (!s && v1 > v0) s = FN(t_download)(tb, st->pieces + piece * (size_t)v0, t_pieces + piece * (size_t)v0,
+        if (!s && v1 > v0) s = tb->download(st->pieces + piece * (size_t)v0, t_pieces + piece * (size_t)v0,
                                               piece * (size_t)(v1 - v0));
         mlb_status g = mlb_dist_allgather_batches(st->pieces + piece * (size_t)v0, st->pieces, n, st->part_batch,
                                                   piece * sizeof(real));
         if (!s) s = g;
-        if (!s) s = FN(t_upload)(tb, t_pieces, st->pieces, piece * (size_t)n);
+        if (!s) s = tb->upload(t_pieces, st->pieces, piece * (size_t)n);
     }
     if (s) return s;
-    MLB_TRY(FN(t_zero)(tb, t_dsurf, piece));   // [dverts 3M | dnrm 3M]
-    for (int v = 0; grads && v < n; v++) MLB_TRY(FN(t_add)(tb, t_dsurf, t_pieces + piece * (size_t)v, piece));
-    MLB_TRY(T_VERTEX_NORMALS_BACKWARD(tb, t_dsurf, t_dsurf + 3 * (size_t)M, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
+    MLB_TRY(tb->zero(t_dsurf, piece));   // [dverts 3M | dnrm 3M]
+    for (int v = 0; grads && v < n; v++) MLB_TRY(tb->add(t_dsurf, t_pieces + piece * (size_t)v, piece));
+    MLB_TRY(tb->vertex_normals_backward(t_dsurf, t_dsurf + 3 * (size_t)M, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
 #ifdef MLB_F64
     size_t G = (size_t)st->n_grid;
     memset(st->dgpos, 0, sizeof(real) * G * 3);

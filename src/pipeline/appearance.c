@@ -5,19 +5,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/appearance.h"
+#include "matlaber/mt_ops.h"
 #include "matlaber/raster.h"
 #include "matlaber/rng.h"
 #include "core/real.h"
-#include "nn/raster_table.h"
 #include "nn/table_ops.h"
-
-#ifdef MLB_F64
-#define SHADE_FORWARD mlb_shade_forward_f64
-#define SHADE_BACKWARD mlb_shade_backward_f64
-#else
-#define SHADE_FORWARD mlb_shade_forward
-#define SHADE_BACKWARD mlb_shade_backward
-#endif
 
 #define STREAM_SMOOTH 0x5A17
 enum { ATTR_C = 6, MAX_LIGHTS = 64 };   // per vertex: position 3, normal 3
@@ -44,8 +36,7 @@ enum {
 struct FN(mlb_appearance_state) {
     abuf h[H_COUNT];
     FN(tbuf) d[D_COUNT];
-    const mlb_backend* tb;                // the table d[] was allocated on (float)
-    mlb_raster_ctx* ctx;                  // the double pass's raster scratch (the float one goes through the table)
+    const FN(mlb_backend)* tb;            // the table d[] was allocated on
     // the last render
     int kept, n_views, res, ss, V, F, n_points;
     int v0, v1;                           // the views rendered: [v0, v1) (a part, or all)
@@ -59,19 +50,14 @@ struct FN(mlb_appearance_state) {
     real *pts, *nrm, *vdir, *kd, *ks, *kr, *rgb;
     mlb_envlight* lights;                 // [n_views] (host): copies with the view's rotation
     const mlb_envlight** light_keys;      // [n_views] (host): the lights they are copies of
-    int n_handles;                        // the lights made usable on the table (float), keyed by address
+    int n_handles;                        // the lights made usable on the table, keyed by address
     const mlb_envlight* handle_key[MAX_LIGHTS];
     void* handle[MAX_LIGHTS];
 };
 
-// The table of the float pass (NULL: the CPU's); the double pass has none
-static const mlb_backend* FN(render_table)(const FN(mlb_appearance)* a) {
-#ifdef MLB_F64
-    (void)a;
-    return mlb_backend_cpu();
-#else
-    return a->be ? a->be : mlb_backend_cpu();
-#endif
+// The render's table (NULL: the CPU's)
+static const FN(mlb_backend)* FN(render_table)(const FN(mlb_appearance)* a) {
+    return a->be ? a->be : FN(mlb_backend_cpu)();
 }
 
 static void FN(release_table)(struct FN(mlb_appearance_state)* s) {
@@ -88,7 +74,6 @@ void FN(mlb_appearance_free)(FN(mlb_appearance)* a) {
     if (s) {
         FN(release_table)(s);
         for (int i = 0; i < H_COUNT; i++) free(s->h[i].p);
-        mlb_raster_ctx_free(s->ctx);
         free(s);
     }
     a->state = NULL;
@@ -133,7 +118,7 @@ static int FN(mesh_is_on_table)(const struct FN(mlb_appearance_state)* s, const 
 // The mesh's positions, attributes [V,6], faces and edge topology on the table, and the host copies
 // that recognise it next time.
 static mlb_status FN(mesh_to_table)(struct FN(mlb_appearance_state)* s, const mlb_mesh* mesh) {
-    const mlb_backend* tb = s->tb;
+    const FN(mlb_backend)* tb = s->tb;
     int V = mesh->n_verts, F = mesh->n_faces;
     s->mesh_on_table = 0;
     real* attr_h = abuf_get(&s->h[H_ATTR], sizeof(real) * ATTR_C * (size_t)V);
@@ -154,8 +139,8 @@ static mlb_status FN(mesh_to_table)(struct FN(mlb_appearance_state)* s, const ml
     if (!attr || !s->pos || !s->faces || !s->adj)
         return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory on the %s (a mesh of %d vertices)",
                         mlb_device_name(tb->device), V);
-    MLB_TRY(FN(t_upload)(tb, attr, attr_h, ATTR_C * (size_t)V));
-    MLB_TRY(FN(t_upload)(tb, s->pos, pos_h, 3 * (size_t)V));
+    MLB_TRY(tb->upload(attr, attr_h, ATTR_C * (size_t)V));
+    MLB_TRY(tb->upload(s->pos, pos_h, 3 * (size_t)V));
     MLB_TRY(FN(t_upload_i32)(tb, s->faces, mesh->faces, 3 * (size_t)F));
     MLB_TRY(FN(t_upload_i32)(tb, s->adj, adj_h, 3 * (size_t)F));
     memcpy(key_pos, mesh->pos, sizeof(float) * 3 * (size_t)V);
@@ -177,9 +162,8 @@ static mlb_status FN(check_mesh)(const mlb_mesh* mesh, int res, int ss, const ch
     return MLB_OK;
 }
 
-#ifndef MLB_F64
 // The handle of `light` on the render's table, made on first use (kept for the state's life).
-static mlb_status light_handle(struct mlb_appearance_state* s, const mlb_envlight* light, void** handle) {
+static mlb_status FN(light_handle)(struct FN(mlb_appearance_state)* s, const mlb_envlight* light, void** handle) {
     for (int i = 0; i < s->n_handles; i++)
         if (s->handle_key[i] == light) { *handle = s->handle[i]; return MLB_OK; }
     if (s->n_handles == MAX_LIGHTS) return mlb_fail(MLB_ERR_ARG, "appearance: more than %d environment lights", MAX_LIGHTS);
@@ -188,10 +172,9 @@ static mlb_status light_handle(struct mlb_appearance_state* s, const mlb_envligh
     *handle = s->handle[s->n_handles++];
     return MLB_OK;
 }
-#endif
 
 // The split-sum shading of views [s->v0, s->v1): the table's shade under each view's light turned
-// by its rotation (float), the CPU's double shading of the turned copies (double).
+// by its rotation.
 static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const mlb_envlight* const* lights,
                                   const mlb_view* views, mlb_fresnel fresnel) {
     for (int v = s->v0; v < s->v1; v++) {
@@ -200,15 +183,10 @@ static mlb_status FN(shade_views)(struct FN(mlb_appearance_state)* s, const mlb_
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
         if (m == 0) continue;
-#ifdef MLB_F64
-        MLB_TRY(SHADE_FORWARD(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
-                              &s->lights[v], fresnel));
-#else
         void* h;
-        MLB_TRY(light_handle(s, s->light_keys[v], &h));
+        MLB_TRY(FN(light_handle)(s, s->light_keys[v], &h));
         MLB_TRY(s->tb->shade(s->rgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m,
                              h, s->lights[v].rotation, fresnel));
-#endif
     }
     return MLB_OK;
 }
@@ -220,16 +198,11 @@ static mlb_status FN(shade_views_backward)(struct FN(mlb_appearance_state)* s, r
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         size_t o = (size_t)j0;
         if (m == 0) continue;
-#ifdef MLB_F64
-        MLB_TRY(SHADE_BACKWARD(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o, s->ks + 3 * o,
-                               s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, &s->lights[v], fresnel));
-#else
         void* h;
-        MLB_TRY(light_handle(s, s->light_keys[v], &h));
+        MLB_TRY(FN(light_handle)(s, s->light_keys[v], &h));
         MLB_TRY(s->tb->shade_backward(dkd + 3 * o, dks + 3 * o, dkr + o, NULL, NULL, drgb + 3 * o, s->kd + 3 * o,
                                       s->ks + 3 * o, s->kr + o, s->nrm + 3 * o, s->vdir + 3 * o, m, h,
                                       s->lights[v].rotation, fresnel));
-#endif
     }
     return MLB_OK;
 }
@@ -282,12 +255,11 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
         if (!a->state) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
     }
     struct FN(mlb_appearance_state)* s = a->state;
-    const mlb_backend* tb = FN(render_table)(a);
+    const FN(mlb_backend)* tb = FN(render_table)(a);
     if (s->tb != tb) FN(release_table)(s);   // buffers of another device
     s->tb = tb;
     s->kept = 0;
     s->n_points = 0;
-    if (!s->ctx && !(s->ctx = mlb_raster_ctx_create())) return mlb_fail(MLB_ERR_NOMEM, "appearance render: out of memory");
     int S = res * ss, V = mesh->n_verts, F = mesh->n_faces;
     size_t P = (size_t)S * S, nv = (size_t)n, p = (size_t)res * res;
     FN(part_range)(a, n, &s->v0, &s->v1);
@@ -325,24 +297,18 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // coverage over the part's views (view-major, pixel order); the other views have no samples
     for (int v = s->v0; v < s->v1; v++) {
         s->light_keys[v] = lights[views[v].env];
-        MLB_TRY(T_TRANSFORM(tb, s->clip + 4 * (size_t)V * v, s->pos, V, &views[v].cam.view_proj));
-        MLB_TRY(FN(rt_rasterize)(tb, s->ctx, s->tri + P * v, bary + 2 * P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v,
+        MLB_TRY(tb->transform_points(s->clip + 4 * (size_t)V * v, s->pos, V, views[v].cam.view_proj.m));
+        MLB_TRY(tb->rasterize(s->tri + P * v, bary + 2 * P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v,
                                  V, s->faces, F, S, S));
     }
-    MLB_TRY(T_COVERED(tb, index, s->tri + P * s->v0, P * nr));
-    MLB_TRY(T_SCAN(tb, index, index, (int)(P * nr)));
+    MLB_TRY(tb->covered_flags(index, s->tri + P * s->v0, P * nr));
+    MLB_TRY(tb->scan_i32(index, index, (int)(P * nr)));
     // the views' first samples: 0 up to the part's first view, the scan at each later view's first
     // pixel (one value read per rendered view), the total after the part
     for (int v = 0; v <= n; v++) {
         if (v <= s->v0) { s->start[v] = 0; continue; }
         if (v > s->v1) { s->start[v] = s->start[s->v1]; continue; }
-#ifdef MLB_F64
-        s->start[v] = index[P * (size_t)(v - s->v0)];
-#else
-        float got;   // int32 bits
-        MLB_TRY(tb->download(&got, (const float*)(index + P * (size_t)(v - s->v0)), 1));
-        memcpy(&s->start[v], &got, sizeof(int32_t));
-#endif
+        MLB_TRY(FN(t_download_i32)(tb, &s->start[v], index + P * (size_t)(v - s->v0)));
     }
     int N = s->start[n];
     if ((size_t)N > (size_t)INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%d)", N);
@@ -363,8 +329,8 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     for (int v = s->v0; v < s->v1; v++) {
         const int32_t* tri = s->tri + P * v;
         const double* eye = views[v].cam.eye;
-        MLB_TRY(FN(rt_interpolate)(tb, pix, attr, V, ATTR_C, tri, bary + 2 * P * v, s->faces, F, S, S));
-        MLB_TRY(T_GATHER(tb, s->pts, s->nrm, s->vdir, s->where, pix, tri, index + P * (size_t)(v - s->v0), (int)P,
+        MLB_TRY(tb->interpolate(pix, attr, V, ATTR_C, tri, bary + 2 * P * v, s->faces, F, S, S));
+        MLB_TRY(tb->gather_samples(s->pts, s->nrm, s->vdir, s->where, pix, tri, index + P * (size_t)(v - s->v0), (int)P,
                          eye[0], eye[1], eye[2]));
     }
     s->n_points = N;
@@ -372,9 +338,9 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     // the material of every sample of the part in one batch, split into kd, ks, kr
     if (N > 0) {
         MLB_TRY(FN(material_of_samples)(s, net, k, N, keep_for_backward));
-        MLB_TRY(FN(t_copy_rows)(tb, s->kd, 3, k, 7, 3, NN));
-        MLB_TRY(FN(t_copy_rows)(tb, s->ks, 3, k + 3, 7, 3, NN));
-        MLB_TRY(FN(t_copy_rows)(tb, s->kr, 1, k + 6, 7, 1, NN));
+        MLB_TRY(tb->copy_rows(s->kd, 3, k, 7, 3, NN));
+        MLB_TRY(tb->copy_rows(s->ks, 3, k + 3, 7, 3, NN));
+        MLB_TRY(tb->copy_rows(s->kr, 1, k + 6, 7, 1, NN));
     }
 
     // shade; then sRGB, composite, antialias, downsample: per view
@@ -382,19 +348,19 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     for (int v = s->v0; v < s->v1; v++) {
         int j0 = s->start[v], m = s->start[v + 1] - j0;
         real* color = s->color + 4 * P * v;
-        MLB_TRY(FN(t_zero)(tb, color, 4 * P));
-        if (m > 0) MLB_TRY(T_COMPOSITE(tb, color, s->rgb + 3 * (size_t)j0, s->where + j0, m));
+        MLB_TRY(tb->zero(color, 4 * P));
+        if (m > 0) MLB_TRY(tb->composite_srgb(color, s->rgb + 3 * (size_t)j0, s->where + j0, m));
         real* outv = out + 4 * p * v;
         real* dst = ss == 1 ? outv : aa;
-        MLB_TRY(FN(rt_antialias)(tb, s->ctx, dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
+        MLB_TRY(tb->antialias(dst, s->weights + 2 * P * v, color, 4, s->tri + P * v, s->depth + P * v,
                                  s->clip + 4 * (size_t)V * v, V, s->faces, s->adj, F, S, S));
-        if (ss > 1) MLB_TRY(T_DOWNSAMPLE(tb, outv, aa, res, res, 4, ss));
-        if (images) MLB_TRY(FN(t_download)(tb, images + 4 * p * v, outv, 4 * p));
+        if (ss > 1) MLB_TRY(tb->downsample_box(outv, aa, res, res, 4, ss));
+        if (images) MLB_TRY(tb->download(images + 4 * p * v, outv, 4 * p));
     }
     a->t_images = out;
     a->t_dimages = dout;
     if (a->images_on_table && s->v1 > s->v0)
-        MLB_TRY(FN(t_zero)(tb, dout + 4 * p * s->v0, 4 * p * (size_t)(s->v1 - s->v0)));
+        MLB_TRY(tb->zero(dout + 4 * p * s->v0, 4 * p * (size_t)(s->v1 - s->v0)));
     s->kept = keep_for_backward != 0;
     return MLB_OK;
 }
@@ -423,7 +389,7 @@ static mlb_status FN(appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material
     if (net->n != N)
         return mlb_fail(MLB_ERR_ARG, "appearance backward: the material network's cache holds %d points, the render %d "
                                      "(another forward ran in between)", net->n, N);
-    const mlb_backend* tb = s->tb;
+    const FN(mlb_backend)* tb = s->tb;
     size_t P = (size_t)S * S, p = (size_t)s->res * s->res, NN = (size_t)N;
     real* dout_all = s->d[D_DOUT].p;   // [n, res, res, 4]: each view's dimage, uploaded or given there
     real* daa = s->ss > 1 ? FN(tbuf_get)(tb, &s->d[D_DAA], 4 * P) : NULL;
@@ -435,31 +401,31 @@ static mlb_status FN(appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material
     real* dk = FN(tbuf_get)(tb, &s->d[D_DK], 7 * NN);
     if ((s->ss > 1 && !daa) || !dcolor || !drgb || !dkd || !dks || !dkr || !dk)
         return mlb_fail(MLB_ERR_NOMEM, "appearance backward: out of memory on the %s", mlb_device_name(tb->device));
-    MLB_TRY(FN(t_zero)(tb, drgb, 3 * NN));
-    MLB_TRY(FN(t_zero)(tb, dkd, 3 * NN));
-    MLB_TRY(FN(t_zero)(tb, dks, 3 * NN));
-    MLB_TRY(FN(t_zero)(tb, dkr, NN));
+    MLB_TRY(tb->zero(drgb, 3 * NN));
+    MLB_TRY(tb->zero(dkd, 3 * NN));
+    MLB_TRY(tb->zero(dks, 3 * NN));
+    MLB_TRY(tb->zero(dkr, NN));
     for (int v = s->v0; v < s->v1; v++) {
         const real* dout = (t_dimages ? t_dimages : dout_all) + 4 * p * v;
-        if (!t_dimages) MLB_TRY(FN(t_upload)(tb, dout_all + 4 * p * v, dimages + 4 * p * v, 4 * p));
+        if (!t_dimages) MLB_TRY(tb->upload(dout_all + 4 * p * v, dimages + 4 * p * v, 4 * p));
         const real* dimg = dout;
         if (s->ss > 1) {
-            MLB_TRY(FN(t_zero)(tb, daa, 4 * P));
-            MLB_TRY(T_DOWNSAMPLE_BACKWARD(tb, daa, dout, s->res, s->res, 4, s->ss));
+            MLB_TRY(tb->zero(daa, 4 * P));
+            MLB_TRY(tb->downsample_box_backward(daa, dout, s->res, s->res, 4, s->ss));
             dimg = daa;
         }
-        MLB_TRY(FN(t_zero)(tb, dcolor, 4 * P));
-        MLB_TRY(FN(rt_antialias_backward)(tb, s->ctx, dcolor, NULL, dimg, s->weights + 2 * P * v, s->color + 4 * P * v,
+        MLB_TRY(tb->zero(dcolor, 4 * P));
+        MLB_TRY(tb->antialias_backward(dcolor, NULL, dimg, s->weights + 2 * P * v, s->color + 4 * P * v,
                                           4, s->tri + P * v, s->depth + P * v, s->clip + 4 * (size_t)V * v, V, s->faces,
                                           s->adj, F, S, S));
         // colour = sRGB(clamp(L)) at covered samples (the coverage channel does not depend on the material)
         int j0 = s->start[v], m = s->start[v + 1] - j0;
-        if (m > 0) MLB_TRY(T_COMPOSITE_BACKWARD(tb, drgb + 3 * (size_t)j0, dcolor, s->rgb + 3 * (size_t)j0, s->where + j0, m));
+        if (m > 0) MLB_TRY(tb->composite_srgb_backward(drgb + 3 * (size_t)j0, dcolor, s->rgb + 3 * (size_t)j0, s->where + j0, m));
     }
     MLB_TRY(FN(shade_views_backward)(s, dkd, dks, dkr, drgb, a->fresnel));
-    MLB_TRY(FN(t_copy_rows)(tb, dk, 7, dkd, 3, 3, NN));
-    MLB_TRY(FN(t_copy_rows)(tb, dk + 3, 7, dks, 3, 3, NN));
-    MLB_TRY(FN(t_copy_rows)(tb, dk + 6, 7, dkr, 1, 1, NN));
+    MLB_TRY(tb->copy_rows(dk, 7, dkd, 3, 3, NN));
+    MLB_TRY(tb->copy_rows(dk + 3, 7, dks, 3, 3, NN));
+    MLB_TRY(tb->copy_rows(dk + 6, 7, dkr, 1, 1, NN));
 #ifndef MLB_F64
     if (mlb_field_backend(net)) return mlb_field_backward_on_device(net, dk);
 #endif
@@ -535,6 +501,7 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
                                   const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
                                   float* normal_img) {
     MLB_TRY(check_mesh(mesh, res, 1, "appearance maps"));
+    const mlb_backend* tb = be ? be : mlb_backend_cpu();
     enum { C = 11 };   // kd 3, ks 3, kr 1, normal 3, coverage 1
     int V = mesh->n_verts, F = mesh->n_faces;
     size_t P = (size_t)res * res;
@@ -556,9 +523,9 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
     if (!s) s = mlb_edge_topology(adj, mesh->faces, F, V);
     if (!s) {
         mlb_transform_points(clip, mesh->pos, V, &view->cam.view_proj);
-        s = rt_rasterize(be, NULL, tri, bary, depth, clip, V, mesh->faces, F, res, res);
+        s = tb->rasterize(tri, bary, depth, clip, V, mesh->faces, F, res, res);
     }
-    if (!s) s = rt_interpolate(be, pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
+    if (!s) s = tb->interpolate(pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
     size_t N = 0;
     if (!s) {   // the covered pixels' samples, as the render gathers them
         mlb_covered_flags(index, tri, (long)P);
@@ -584,7 +551,7 @@ mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net*
             memcpy(o + 7, nrm + 3 * j, sizeof(float) * 3);
             o[10] = 1;
         }
-        s = rt_antialias(be, NULL, aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
+        s = tb->antialias(aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
     }
     if (!s) {
         for (size_t i = 0; i < P; i++) {

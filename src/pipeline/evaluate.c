@@ -2,13 +2,12 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend.h"
 #include "matlaber/evaluate.h"
 #include "matlaber/geometry.h"
 #include "matlaber/raster.h"
 #include "matlaber/render.h"
 #include "matlaber/shade.h"
-#include "core/real.h"
-#include "nn/raster_table.h"
 
 // Evaluation views: azimuths all round, elevations −15°, 20°, 50° in turn (what target views show).
 static const double EVAL_ELEVATIONS[3] = {-15, 20, 50};
@@ -25,9 +24,10 @@ static mlb_status eval_camera(mlb_camera* cam, double azimuth0_deg, int v, int n
 static mlb_status eval_interpolate(const mlb_backend* be, float* out, const float* attr, int D, const mlb_mesh* m,
                                    const mlb_camera* cam, int res, float* clip, int32_t* tri, float* bary,
                                    float* depth) {
+    if (!be) be = mlb_backend_cpu();
     mlb_transform_points(clip, m->pos, m->n_verts, &cam->view_proj);
-    mlb_status s = rt_rasterize(be, NULL, tri, bary, depth, clip, m->n_verts, m->faces, m->n_faces, res, res);
-    if (!s) s = rt_interpolate(be, out, attr, m->n_verts, D, tri, bary, m->faces, m->n_faces, res, res);
+    mlb_status s = be->rasterize(tri, bary, depth, clip, m->n_verts, m->faces, m->n_faces, res, res);
+    if (!s) s = be->interpolate(out, attr, m->n_verts, D, tri, bary, m->faces, m->n_faces, res, res);
     return s;
 }
 

@@ -70,11 +70,11 @@ int main(int argc, char** argv) {
         for (int p = 0; p < 4; p++) {
             const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p);
             double ms[100];
-            for (int i = 0; i < 2; i++) TRY(mlb_unet_forward_on(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
+            for (int i = 0; i < 2; i++) TRY(mlb_unet_forward(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
             TRY(mlb_cuda_sync());
             for (int i = 0; i < reps; i++) {
                 TRY(mlb_cuda_timer_begin());
-                TRY(mlb_unet_forward_on(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
+                TRY(mlb_unet_forward(be, u, out, x, t, ctx, N, H, W, Tc, NULL, NULL));
                 TRY(mlb_cuda_timer_end(&ms[i]));
             }
             qsort(ms, reps, sizeof ms[0], cmp_double);

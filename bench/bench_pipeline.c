@@ -175,7 +175,7 @@ static double time_unet(const guide* gd, int n, int h) {
         mlb_rng_fill_normal(c, nc, 5, 2, 0, 0, 1);
         for (int b = 0; b < B; b++) t[b] = 500;
         double t0 = mlb_now_seconds();
-        if (!mlb_unet_forward(u, y, x, t, c, B, h, h, gd->Tc, NULL, NULL)) dt = mlb_now_seconds() - t0;
+        if (!mlb_unet_forward(NULL, u, y, x, t, c, B, h, h, gd->Tc, NULL, NULL)) dt = mlb_now_seconds() - t0;
     }
     free(x); free(y); free(c); free(t);
     if (dt >= 0 && n_cache < 32) {
@@ -348,7 +348,7 @@ static mlb_status scene_init(scene* sc, int init_iters) {
         if (!sc->geo_params0) s = mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: parameters");
         else memcpy(sc->geo_params0, sc->geo.params, sizeof(float) * sc->geo.n_params);
     }
-    if (!s) s = mlb_geometry_extract(&sc->geo, &sc->grid, &sc->mesh);
+    if (!s) s = mlb_geometry_extract(NULL, &sc->geo, &sc->grid, &sc->mesh);
     if (!s) s = mlb_mesh_compute_normals(&sc->mesh);
     mlb_brdf_ae prior;
     memset(&prior, 0, sizeof prior);

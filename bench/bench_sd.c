@@ -251,7 +251,7 @@ int main(int argc, char** argv) {
         for (int rep = 0; rep < 3; rep++) {
             double a = mlb_now_seconds();
             // the CPU benchmark: the CPU's fp32 table
-            if (mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tok, 2, 77, out, NULL, 0)) { rc = fail("text forward"); free(out); mlb_text_encoder_free(te); goto out; }
+            if (mlb_text_encoder_forward(mlb_backend_cpu(), te, tok, 2, 77, out, NULL, 0)) { rc = fail("text forward"); free(out); mlb_text_encoder_free(te); goto out; }
             double d = mlb_now_seconds() - a;
             if (d < best) best = d;
         }
@@ -286,7 +286,7 @@ int main(int argc, char** argv) {
         double best = 1e30;
         for (int s = 0; s < steps; s++) {
             double a = mlb_now_seconds();
-            if (mlb_unet_forward(u, y, x, tt, ctx, batch, latent, latent, 77, NULL, NULL)) { rc = fail("UNet forward"); break; }
+            if (mlb_unet_forward(NULL, u, y, x, tt, ctx, batch, latent, latent, 77, NULL, NULL)) { rc = fail("UNet forward"); break; }
             double d = mlb_now_seconds() - a;
             if (d < best) best = d;
         }

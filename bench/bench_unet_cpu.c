@@ -83,7 +83,7 @@ int main(int argc, char** argv) {
         best[p] = 1e30;
         for (int r = 0; r < reps; r++) {
             double t0 = mlb_now_seconds();
-            TRY(mlb_unet_forward(u, p ? out : ref, x, t, ctx, N, L, L, 77, NULL, NULL));
+            TRY(mlb_unet_forward(NULL, u, p ? out : ref, x, t, ctx, N, L, L, 77, NULL, NULL));
             double dt = mlb_now_seconds() - t0;
             if (dt < best[p]) best[p] = dt;
         }

@@ -128,7 +128,7 @@ static inline mlb_status unet_profile_run(const mlb_backend* be, const mlb_unet*
                                           const float* t, const float* ctx, int N, int H, int W) {
     mlb_backend w;
     profile_wrap(be, &w);
-    return mlb_unet_forward_on(&w, u, out, x, t, ctx, N, H, W, 77, NULL, NULL);
+    return mlb_unet_forward(&w, u, out, x, t, ctx, N, H, W, 77, NULL, NULL);
 }
 
 #endif

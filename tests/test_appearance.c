@@ -154,7 +154,7 @@ TEST(matches_render_shaded) {
     CHECK(worst_interior < 2e-5);
     // the material maps of the same net: the constant material inside, 0 outside
     float* maps = malloc(sizeof(float) * p * 10);
-    REQUIRE(mlb_appearance_maps(&net, &sc.mesh, &views[0], res, maps, maps + 3 * p, maps + 6 * p, maps + 7 * p) == MLB_OK);
+    REQUIRE(mlb_appearance_maps(NULL, &net, &sc.mesh, &views[0], res, maps, maps + 3 * p, maps + 6 * p, maps + 7 * p) == MLB_OK);
     int inside = 0;
     for (size_t i = 0; i < p; i++) {
         float a = img[4 * i + 3];   // view 0's coverage

@@ -191,17 +191,17 @@ static void unet_case(int sd2, uint64_t seed) {
     float *x = host_alloc(nx), *ctx = host_alloc(nc), *ref = host_alloc(no), *got = host_alloc(no), t[2] = {999.0f, 17.5f};
     fill_uniform(x, nx, seed, 1, -1, 1);
     fill_uniform(ctx, nc, seed, 2, -1, 1);
-    CHECK(mlb_unet_forward(u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     float *dx = dev_floats(x, nx), *dc = dev_floats(ctx, nc);
     // the weights on the CPU with the GPU's ops is a clear error
     float* dummy = dev_floats(NULL, no);
-    CHECK(mlb_unet_forward_on(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), u, dummy, dx, t, dc, N, H, W, Tc, NULL,
+    CHECK(mlb_unet_forward(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), u, dummy, dx, t, dc, N, H, W, Tc, NULL,
                               NULL) == MLB_ERR_ARG);
     for (int p = 0; ud && p < 4; p++) {
         char what[80];
         snprintf(what, sizeof what, "UNet tiny SD%d N%d %dx%d %s", sd2 ? 2 : 1, N, H, W, prec_names[p]);
         float* dout = dev_floats(NULL, no);
-        mlb_status st = mlb_unet_forward_on(mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p), ud, dout, dx, t,
+        mlb_status st = mlb_unet_forward(mlb_backend_for(MLB_DEVICE_CUDA, (mlb_gemm_precision)p), ud, dout, dx, t,
                                             dc, N, H, W, Tc, NULL, NULL);
         CHECK_MSG(st == MLB_OK, "%s: %s", what, mlb_last_error());
         if (st == MLB_OK && host_floats(got, dout, no)) CHECK_PARITY(what, got, ref, no, unet_bound[p]);
@@ -210,10 +210,10 @@ static void unet_case(int sd2, uint64_t seed) {
     // mlb_unet_use_device: the host-buffer forward staged through the GPU copy
     if (ud) {
         CHECK_MSG(mlb_unet_use_device(u, MLB_DEVICE_CUDA, MLB_GEMM_FP32) == MLB_OK, "%s", mlb_last_error());
-        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         CHECK_PARITY("UNet mlb_unet_use_device(cuda) host buffers", got, ref, no, unet_bound[0]);
         CHECK(mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK && !u->mirror);
-        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         CHECK_MSG(!memcmp(got, ref, no * sizeof(float)), "back on the CPU: not the CPU's bits");
     }
     mlb_cuda_free(dx); mlb_cuda_free(dc); mlb_cuda_free(dummy);

@@ -131,7 +131,7 @@ static double chamfer_rel(mlb_geometry_net* net, int cells, const mlb_mesh* targ
     mlb_mesh m;
     double rel = INFINITY;
     if (mlb_tetgrid_create(&g, cells, net->cfg.scale) != MLB_OK) return rel;
-    if (mlb_geometry_extract(net, &g, &m) == MLB_OK) {
+    if (mlb_geometry_extract(NULL, net, &g, &m) == MLB_OK) {
         mlb_chamfer_result r;
         if (mlb_chamfer(&m, target, 20000, 1, &r) == MLB_OK) {
             rel = r.relative;
@@ -173,7 +173,7 @@ TEST(target_mesh) {
     REQUIRE(mlb_geofit_camera(&cam, &c, 0, 0) == MLB_OK);
     float* img = malloc(sizeof(float) * 64 * 64 * 4);
     REQUIRE(img);
-    REQUIRE(mlb_geofit_render_mesh(NULL, img, &t, &cam, 64, 1) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img, &t, &cam, 64, 1) == MLB_OK);
     int covered = 0;
     for (int i = 0; i < 64 * 64; i++) {
         if (img[4 * i + 3] == 1.0f) {
@@ -241,7 +241,7 @@ TEST(fd_full_chain_f64) {
     REQUIRE(targets);
     for (int v = 0; v < VIEWS; v++) {
         REQUIRE(mlb_geofit_camera(&cams[v], &fcfg, 3, v) == MLB_OK);
-        REQUIRE(mlb_geofit_render_mesh_f64(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, SS) == MLB_OK);
+        REQUIRE(mlb_geofit_render_mesh_f64(NULL, NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, SS) == MLB_OK);
     }
     mlb_geofit_stats st0, sp, sm;
     geometry_net_zero_grad_f64(&nd);
@@ -501,7 +501,7 @@ TEST(guided_step_equals_fit_loss) {
         memset(&views[v], 0, sizeof views[v]);
         REQUIRE(mlb_geofit_camera(&cams[v], &c, 7, v) == MLB_OK);
         views[v].cam = cams[v];
-        REQUIRE(mlb_geofit_render_mesh(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
+        REQUIRE(mlb_geofit_render_mesh(NULL, NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
     }
     l2_guidance u = {targets, 0};
     mlb_guidance gd = {.kind = "l2", .n_views = VIEWS, .loss = l2_loss, .impl = &u};
@@ -529,7 +529,7 @@ TEST(guided_step_equals_fit_loss) {
     // the step's surface is the extracted mesh of the network
     mlb_mesh m, e;
     REQUIRE(mlb_geofit_state_mesh(&st, &m) == MLB_OK);
-    REQUIRE(mlb_geometry_extract(&a, &g, &e) == MLB_OK);
+    REQUIRE(mlb_geometry_extract(NULL, &a, &g, &e) == MLB_OK);
     CHECK(m.n_faces == s1.n_faces && m.n_faces == e.n_faces && m.n_verts == e.n_verts);
     CHECK(memcmp(m.faces, e.faces, sizeof(int32_t) * 3 * (size_t)m.n_faces) == 0);
     double dmax = 0;

@@ -448,7 +448,7 @@ static void fit_and_measure(const mlb_shape* shape, const mlb_mesh* reference, d
     if (mlb_geometry_fit_shape(&net, shape, &fc, NULL, loss) == MLB_OK) {
         mlb_tetgrid g;
         mlb_mesh m;
-        if (mlb_tetgrid_create(&g, 32, c.scale) == MLB_OK && mlb_geometry_extract(&net, &g, &m) == MLB_OK) {
+        if (mlb_tetgrid_create(&g, 32, c.scale) == MLB_OK && mlb_geometry_extract(NULL, &net, &g, &m) == MLB_OK) {
             mlb_chamfer_result r;
             if (mlb_chamfer(&m, reference, 20000, 1, &r) == MLB_OK) {
                 *rel = r.relative;

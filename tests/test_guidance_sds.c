@@ -167,7 +167,7 @@ static int direct(const fixture* f, const mlb_guidance_sds_config* c, int stage,
                     x[((size_t)b * C + ch) * P + (size_t)y * h + xx] = v;
                 }
     mlb_sds_input in = {x, n, C, h, h, vids, step, NULL, NULL, 0, 0};
-    int ok = mlb_sds_step(s, &in, dx, loss, NULL) == MLB_OK;
+    int ok = mlb_sds_step(s, NULL, &in, dx, loss, NULL) == MLB_OK;
     memset(dimages, 0, sizeof(float) * n * HW * 4);
     for (int b = 0; ok && b < n; b++)
         for (int ch = 0; ch < C; ch++)

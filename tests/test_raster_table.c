@@ -139,8 +139,8 @@ TEST(geometry_stage_calls_the_table) {
     mlb_mesh sphere = {0};
     REQUIRE(mlb_mesh_uv_sphere(&sphere, 0.8f, 24, 12) == MLB_OK);
     memset(calls, 0, sizeof calls);
-    REQUIRE(mlb_geofit_render_mesh(NULL, img[0], &sphere, &k.cams[0], RES, SS) == MLB_OK);
-    REQUIRE(mlb_geofit_render_mesh_on(be, NULL, img[1], &sphere, &k.cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img[0], &sphere, &k.cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(be, NULL, img[1], &sphere, &k.cams[0], RES, SS) == MLB_OK);
     CHECK(same(img[0], img[1], sizeof(float) * RES * RES * 4));
     CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
     mlb_mesh_free(&sphere);
@@ -231,7 +231,7 @@ TEST(appearance_calls_the_table) {
     float* maps[2] = {malloc(sizeof(float) * p * 10), malloc(sizeof(float) * p * 10)};
     memset(calls, 0, sizeof calls);
     for (int t = 0; t < 2; t++)
-        REQUIRE(mlb_appearance_maps_on(t ? be : NULL, &net, &sc.mesh, &views[1], RES, maps[t], maps[t] + 3 * p,
+        REQUIRE(mlb_appearance_maps(t ? be : NULL, &net, &sc.mesh, &views[1], RES, maps[t], maps[t] + 3 * p,
                                        maps[t] + 6 * p, maps[t] + 7 * p) == MLB_OK);
     CHECK(same(maps[0], maps[1], sizeof(float) * p * 10));
     CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);

@@ -59,21 +59,21 @@ static void unet_case(int sd2) {
     REQUIRE(x && ctx && ref && got && got1);
     fill(x, nx, 1);
     fill(ctx, nc, 2);
-    CHECK(mlb_unet_forward(u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     // fp16 / tf32 (GPU formats, fp16 the program's default) are fp32 on the CPU: the same bits
     for (int p = MLB_GEMM_TF32; p <= MLB_GEMM_FP16; p++) {
         CHECK(mlb_unet_use_device(u, MLB_DEVICE_CPU, (mlb_gemm_precision)p) == MLB_OK && !u->mirror_ops);
-        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         CHECK_MSG(!memcmp(got, ref, nx * 4), "%s on the CPU changed the fp32 bits", mlb_gemm_precision_name(p));
     }
     if (mlb_gemm_bf16_native()) {
         CHECK(mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_BF16) == MLB_OK && !u->mirror && u->mirror_ops);
         int threads = omp_get_max_threads();
         omp_set_num_threads(2);
-        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         CHECK_REL(sd2 ? "tiny SD2 UNet forward" : "tiny SD1 UNet forward", got, ref, nx);
         omp_set_num_threads(1);
-        CHECK(mlb_unet_forward(u, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         omp_set_num_threads(threads);
         CHECK_MSG(!memcmp(got, got1, nx * 4), "bf16 UNet: 1 thread differs from 2");
         // loaded with its linear and conv weights stored in bf16: the same bits at half the memory
@@ -82,29 +82,29 @@ static void unet_case(int sd2) {
         CHECK_MSG(mlb_unet_load(path, &o16, &u16) == MLB_OK, "%s", mlb_last_error());
         if (u16) {
             CHECK(u16->bf16_weights && mlb_unet_param_count(u16) == mlb_unet_param_count(u));
-            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+            CHECK(mlb_unet_forward(NULL, u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
             CHECK_MSG(!memcmp(got, got1, nx * 4), "bf16-stored weights differ from the bf16 table on fp32 weights");
             // forced off, the attention goes fp32 but the stored weights have no fp32 copy: their GEMMs stay bf16
             mlb_gemm_bf16_force_fallback(1);
-            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+            CHECK(mlb_unet_forward(NULL, u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
             mlb_gemm_bf16_force_fallback(0);
             CHECK_REL("tiny UNet, bf16 weights, fallback forced", got1, ref, nx);
             CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_BF16) == MLB_OK);
             CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_ERR_UNSUPPORTED);
             CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CUDA, MLB_GEMM_BF16) == MLB_ERR_UNSUPPORTED);
-            CHECK(mlb_unet_forward_on(mlb_backend_cpu(), u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
-            CHECK(mlb_unet_forward(u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, got1, nx * 4));
+            CHECK(mlb_unet_forward(mlb_backend_cpu(), u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+            CHECK(mlb_unet_forward(NULL, u16, got1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, got1, nx * 4));
             mlb_unet_free(u16);
         }
         // the fallback (no AVX-512 BF16) is fp32, bit for bit
         mlb_gemm_bf16_force_fallback(1);
-        CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+        CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
         mlb_gemm_bf16_force_fallback(0);
         CHECK_MSG(!memcmp(got, ref, nx * 4), "bf16 with the fallback forced differs from fp32");
     }
     // back to fp32
     CHECK(mlb_unet_use_device(u, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK && !u->mirror_ops);
-    CHECK(mlb_unet_forward(u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
+    CHECK(mlb_unet_forward(NULL, u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
     free(x); free(ctx); free(ref); free(got); free(got1);
     mlb_unet_free(u);
 }
@@ -138,16 +138,16 @@ TEST(unet_f16_weights) {
     REQUIRE(x && ctx && ref && got);
     fill(x, nx, 3);
     fill(ctx, nc, 4);
-    CHECK(mlb_unet_forward(ref_u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, ref_u, ref, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     memset(got, 0, nx * 4);
-    CHECK(mlb_unet_forward(u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     CHECK_MSG(!memcmp(got, ref, nx * 4), "f16-stored weights changed the fp32 bits");
     // fp32 (and bf16 where the CPU lacks it) keep the stored table; what needs fp32 weights refuses
     CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK);
-    CHECK(mlb_unet_forward(u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
+    CHECK(mlb_unet_forward(NULL, u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(got, ref, nx * 4));
     CHECK(mlb_unet_use_device(u16, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_UNSUPPORTED);
-    CHECK(mlb_unet_forward_on(mlb_backend_cpu(), u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
-    CHECK(mlb_unet_forward_on(mlb_backend_cpu_f16_stored(), ref_u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_unet_forward(mlb_backend_cpu(), u16, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_unet_forward(mlb_backend_cpu_f16_stored(), ref_u, got, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "weights stored in fp32, ops for weights in f16") != NULL);
     mlb_unet* moved = NULL;
     CHECK(mlb_unet_to_device(u16, MLB_DEVICE_CPU, &moved) == MLB_ERR_UNSUPPORTED && !moved);

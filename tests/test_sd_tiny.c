@@ -121,8 +121,8 @@ static void layouts_identical(int sd2) {
     for (size_t i = nx; i < nx + 8; i++) o1[i] = o2[i] = o3[i] = 12345.0f;   // canary past the output
     int th = mlb_get_threads();
     mlb_set_threads(2);
-    CHECK(mlb_unet_forward(a, o1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
-    CHECK(mlb_unet_forward(b, o2, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, a, o1, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, b, o2, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     CHECK_MSG(!memcmp(o1, o2, nx * sizeof(float)), "diffusers and single-file layouts give different outputs");
     for (size_t i = nx; i < nx + 8; i++) CHECK(o1[i] == 12345.0f && o2[i] == 12345.0f);
     int finite = 1;
@@ -130,17 +130,17 @@ static void layouts_identical(int sd2) {
     for (size_t i = 0; i < nx; i++) { finite &= isfinite(o1[i]) != 0; norm += (double)o1[i] * o1[i]; }
     CHECK(finite && norm > 0);
     CHECK(memcmp(o1, o1 + nx / 2, nx / 2 * sizeof(float)) != 0);   // the two batch elements differ
-    CHECK(mlb_unet_forward(a, o3, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, a, o3, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     CHECK_MSG(!memcmp(o1, o3, nx * sizeof(float)), "the same call twice differs");
     mlb_set_threads(1);
-    CHECK(mlb_unet_forward(a, o3, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, a, o3, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     CHECK_MSG(!memcmp(o1, o3, nx * sizeof(float)), "1 and 2 threads differ (unet.h promises the same bits)");
     mlb_set_threads(th);
     // a batch of one gives the first element of the batch of two
-    CHECK(mlb_unet_forward(b, o3, x, t, ctx, 1, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, b, o3, x, t, ctx, 1, H, W, Tc, NULL, NULL) == MLB_OK);
     for (size_t i = 0; i < nx / 2; i++) CHECK_CLOSE(o3[i], o1[i], 1e-4, 1e-5);   // GEMM sizes differ: rounding
     // bad shapes: H not a multiple of 8
-    CHECK(mlb_unet_forward(a, o3, x, t, ctx, 1, 12, 12, Tc, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_unet_forward(NULL, a, o3, x, t, ctx, 1, 12, 12, Tc, NULL, NULL) == MLB_ERR_ARG);
     mlb_clear_error();
     free(x); free(ctx); free(o1); free(o2); free(o3);
     mlb_unet_free(a);
@@ -262,7 +262,7 @@ static void sds_direct(const mlb_unet* u, const float* ac, const float* z, const
         memcpy(ctx + (B + b) * nc, unc, nc * sizeof(float));
         tt[b] = tt[B + b] = (float)ts[b];
     }
-    mlb_unet_forward(u, e, x, tt, ctx, 2 * B, h, w, Tc, NULL, NULL);
+    mlb_unet_forward(NULL, u, e, x, tt, ctx, 2 * B, h, w, Tc, NULL, NULL);
     for (int b = 0; b < B; b++) {
         float wb = mlb_sds_weight(wt, ac[ts[b]], 0, 0);
         for (size_t i = 0; i < n; i++) {
@@ -309,7 +309,7 @@ TEST(sds_step_on_latents_matches_direct) {
         mlb_sds_trace tr = {0};
         tr.grad_latent = gl;
         tr.t = tr_t;
-        CHECK(mlb_sds_step(s, &in, g, &loss, &tr) == MLB_OK);
+        CHECK(mlb_sds_step(s, NULL, &in, g, &loss, &tr) == MLB_OK);
         sds_direct(u, ac, z, noise, ts, B, h, w, cond, unc, Tc, 7.5f, wts[k], want);
         CHECK_MSG(!memcmp(g, want, nall * sizeof(float)), "weighting %s: grad != w (eps^ - eps) / B",
                   mlb_sds_weighting_name(wts[k]));
@@ -321,7 +321,7 @@ TEST(sds_step_on_latents_matches_direct) {
             CHECK(loss > 0);
         }
         // the gradient is ADDED to grad_images
-        CHECK(mlb_sds_step(s, &in, g, NULL, NULL) == MLB_OK);
+        CHECK(mlb_sds_step(s, NULL, &in, g, NULL, NULL) == MLB_OK);
         int ok = 1;
         for (size_t i = 0; i < nall; i++) ok &= g[i] == want[i] + want[i];
         CHECK(ok);
@@ -337,7 +337,7 @@ TEST(sds_step_on_latents_matches_direct) {
         mlb_sds_input in = {z, B, 4, h, w, NULL, 0, ts, noise, 0, 0};
         memset(g, 0, nall * sizeof(float));
         float loss = -1;
-        CHECK(mlb_sds_step(s, &in, g, &loss, NULL) == MLB_OK);
+        CHECK(mlb_sds_step(s, NULL, &in, g, &loss, NULL) == MLB_OK);
         sds_direct(u, ac, z, noise, ts, B, h, w, cond, unc, Tc, 3e38f, MLB_SDS_W_DREAMFUSION, want);
         int finite = 1, zeros = 0;
         for (size_t i = 0; i < nall; i++) { finite &= isfinite(g[i]) != 0; zeros += g[i] == 0.0f; }
@@ -346,7 +346,7 @@ TEST(sds_step_on_latents_matches_direct) {
         CHECK(!memcmp(g, want, nall * sizeof(float)));
         // with no VAE a 3-channel image is refused
         mlb_sds_input im = {z, 1, 3, 64, 64, NULL, 0, NULL, NULL, 0, 0};
-        CHECK(mlb_sds_step(s, &im, NULL, NULL, NULL) == MLB_ERR_ARG);
+        CHECK(mlb_sds_step(s, NULL, &im, NULL, NULL, NULL) == MLB_ERR_ARG);
         mlb_sds_free(s);
         mlb_clear_error();
     }
@@ -361,7 +361,7 @@ TEST(sds_step_on_latents_matches_direct) {
         mlb_rng_fill_uniform(img, ni, 6, 1, 0, 0, 1);
         mlb_sds_input in = {img, 1, 3, 64, 64, NULL, 3, NULL, NULL, 0, 0};
         float loss = -1;
-        CHECK(mlb_sds_step(s, &in, gi, &loss, NULL) == MLB_OK);
+        CHECK(mlb_sds_step(s, NULL, &in, gi, &loss, NULL) == MLB_OK);
         double nrm = 0;
         int finite = 1;
         for (size_t i = 0; i < ni; i++) { finite &= isfinite(gi[i]) != 0; nrm += (double)gi[i] * gi[i]; }

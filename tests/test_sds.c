@@ -143,7 +143,7 @@ TEST(sds_matches_reference) {
     mlb_sds_trace tr = {lat, noisy, ec, eu, eg, gl, w, tt, err_c, err_u};
     mlb_sds_input in = {image, B, 3, H, H, NULL, 0, t, noise, 0, 0};
     float loss = 0;
-    REQUIRE(mlb_sds_step(s, &in, gi, &loss, &tr) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, gi, &loss, &tr) == MLB_OK);
     CHECK(tt[0] == t[0] && tt[1] == t[1]);
     // the denoising errors (the diffusion classifier's terms) from the reference's eps and the noise
     for (int b = 0; b < B; b++) {
@@ -172,7 +172,7 @@ TEST(sds_matches_reference) {
     CHECK_CLOSE(loss, r_loss[0], 1e-4, 0);
 
     // gradients accumulate: a second identical step doubles them
-    REQUIRE(mlb_sds_step(s, &in, gi, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, gi, NULL, NULL) == MLB_OK);
     for (size_t i = 0; i < nimg; i++) gi[i] *= 0.5f;
     CMP("accumulated/2", gi, r_gi, nimg, 1e-4);
 
@@ -237,10 +237,10 @@ TEST(sds_sampling_and_latent_input) {
     tr.t = t1;
     tr.grad_latent = gl;
     mlb_sds_input in = {z, B, 4, h, h, views, 5, NULL, NULL, 0, 0};
-    REQUIRE(mlb_sds_step(s, &in, g1, &l1, &tr) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, g1, &l1, &tr) == MLB_OK);
     tr.t = t2;
     tr.grad_latent = NULL;
-    REQUIRE(mlb_sds_step(s, &in, g2, &l2, &tr) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, g2, &l2, &tr) == MLB_OK);
     CHECK(memcmp(g1, g2, n * 4) == 0 && l1 == l2 && !memcmp(t1, t2, sizeof t1));
     for (int b = 0; b < B; b++) CHECK(t1[b] >= 20 && t1[b] <= 500);
     double l = 0, d = 0;   // latent input: grad_images = grad / B, loss = 0.5 |grad|^2 / B
@@ -248,7 +248,7 @@ TEST(sds_sampling_and_latent_input) {
     CHECK(d == 0);
     CHECK_CLOSE(l1, 0.5 * l / B, 1e-5, 0);
     in.step = 6;
-    REQUIRE(mlb_sds_step(s, &in, NULL, &l2, &tr) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, NULL, &l2, &tr) == MLB_OK);
     CHECK(l2 != l1);
     // each view's embedding is the suffixed prompt's: the same step through an SDS object holding
     // only "a golden goblet, <view> view" as its plain prompt gives the same bits
@@ -268,17 +268,17 @@ TEST(sds_sampling_and_latent_input) {
         mlb_sds_input a = {z, B, 4, h, h, vv, 5, NULL, NULL, 0, 0}, b = {z, B, 4, h, h, nn, 5, NULL, NULL, 0, 0};
         memset(ga, 0, n * 4);
         memset(gb, 0, n * 4);
-        REQUIRE(mlb_sds_step(s, &a, ga, NULL, NULL) == MLB_OK);
-        REQUIRE(mlb_sds_step(one, &b, gb, NULL, NULL) == MLB_OK);
+        REQUIRE(mlb_sds_step(s, NULL, &a, ga, NULL, NULL) == MLB_OK);
+        REQUIRE(mlb_sds_step(one, NULL, &b, gb, NULL, NULL) == MLB_OK);
         CHECK_MSG(memcmp(ga, gb, n * 4) == 0, "view %d: not the embedding of \"%s\"", v, text);
         mlb_sds_free(one);
     }
     free(emb); free(ga); free(gb);
     // errors
     in.C = 5;
-    CHECK(mlb_sds_step(s, &in, NULL, NULL, NULL) == MLB_ERR_ARG && strstr(mlb_last_error(), "channels"));
+    CHECK(mlb_sds_step(s, NULL, &in, NULL, NULL, NULL) == MLB_ERR_ARG && strstr(mlb_last_error(), "channels"));
     in.C = 4; in.H = 12;
-    CHECK(mlb_sds_step(s, &in, NULL, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_sds_step(s, NULL, &in, NULL, NULL, NULL) == MLB_ERR_ARG);
     // annealed to t_max_end 40 over 5 steps: step 0 draws as without annealing, step 5 within [20, 40]
     mlb_sds_options oa = o;
     oa.t_max_end = 40, oa.anneal_steps = 5;
@@ -287,12 +287,12 @@ TEST(sds_sampling_and_latent_input) {
     int ta[3], tp[3];
     mlb_sds_trace tt = {0};
     in.H = h, in.step = 0, tt.t = ta;
-    REQUIRE(mlb_sds_step(sa, &in, NULL, NULL, &tt) == MLB_OK);
+    REQUIRE(mlb_sds_step(sa, NULL, &in, NULL, NULL, &tt) == MLB_OK);
     tt.t = tp;
-    REQUIRE(mlb_sds_step(s, &in, NULL, NULL, &tt) == MLB_OK);
+    REQUIRE(mlb_sds_step(s, NULL, &in, NULL, NULL, &tt) == MLB_OK);
     CHECK(!memcmp(ta, tp, sizeof ta));
     in.step = 5, tt.t = ta;
-    REQUIRE(mlb_sds_step(sa, &in, NULL, NULL, &tt) == MLB_OK);
+    REQUIRE(mlb_sds_step(sa, NULL, &in, NULL, NULL, &tt) == MLB_OK);
     for (int b = 0; b < B; b++) CHECK_MSG(ta[b] >= 20 && ta[b] <= 40, "annealed step 5: t %d", ta[b]);
     mlb_sds_free(sa);
     mlb_sds* bad = NULL;

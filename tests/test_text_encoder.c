@@ -300,7 +300,7 @@ TEST(tiny_sd1_layouts_agree) {
         CHECK(strcmp(te->heads_from, i ? "config.json" : "ldm_config") == 0);
         CHECK(te->layout == (i ? MLB_TEXT_LAYOUT_DIFFUSERS : MLB_TEXT_LAYOUT_LDM_CLIP));
         CHECK(mlb_text_encoder_pad_id(te) == 49407);
-        CHECK(mlb_text_encoder_forward(te, tok, B, T, out[i]) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[i], NULL, 0) == MLB_OK);
         mlb_text_encoder_free(te);
     }
     for (int i = 1; i < 4; i++) CHECK(memcmp(out[0], out[i], sizeof out[0]) == 0);
@@ -311,7 +311,7 @@ TEST(tiny_sd1_layouts_agree) {
     CHECK(mlb_text_encoder_from_st(st, NULL, NULL, &te) == MLB_OK);
     mlb_st_close(st);   // the model keeps its own float32 copy
     REQUIRE(te);
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, out[1]) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[1], NULL, 0) == MLB_OK);
     CHECK(memcmp(out[0], out[1], sizeof out[0]) == 0);
     mlb_text_encoder_free(te);
     mlb_text_variant v;
@@ -341,8 +341,8 @@ TEST(tiny_sd2_layouts_agree) {
         CHECK(te->variant == MLB_TEXT_SD2 && te->act == MLB_ACT_GELU && te->n_heads == TNH);
         CHECK(te->n_layers_stored == TL && te->n_layers == TL - 1 && te->skip_last == 1);
         CHECK(mlb_text_encoder_pad_id(te) == 0);
-        CHECK(mlb_text_encoder_forward_states(te, tok, B, T, out[i], states[i], TL) == MLB_OK);
-        CHECK(mlb_text_encoder_forward_states(te, tok, B, T, out[i], states[i], TL + 1) == MLB_ERR_ARG);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[i], states[i], TL) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[i], states[i], TL + 1) == MLB_ERR_ARG);
         mlb_text_encoder_free(te);
     }
     CHECK(memcmp(out[0], out[1], sizeof out[0]) == 0);
@@ -358,7 +358,7 @@ TEST(tiny_sd2_layouts_agree) {
     mlb_text_encoder* te = NULL;
     REQUIRE(mlb_text_encoder_load(paths[0], &o, &te) == MLB_OK);
     CHECK(te->n_layers == TL);
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, out[0]) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[0], NULL, 0) == MLB_OK);
     mlb_text_encoder_free(te);
     naive_forward(m, TL, 1, tok, B, T, ref);
     CHECK(max_abs_fd(out[0], ref, B * T * TW) < 1e-5);
@@ -367,7 +367,7 @@ TEST(tiny_sd2_layouts_agree) {
     o.variant = MLB_TEXT_SD1;
     REQUIRE(mlb_text_encoder_load(paths[1], &o, &te) == MLB_OK);
     CHECK(te->act == MLB_ACT_QUICK_GELU && te->n_layers == TL);
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, out[0]) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out[0], NULL, 0) == MLB_OK);
     mlb_text_encoder_free(te);
     naive_forward(m, TL, 0, tok, B, T, ref);
     CHECK(max_abs_fd(out[0], ref, B * T * TW) < 1e-5);
@@ -388,8 +388,8 @@ TEST(tiny_half_dtypes) {
         mlb_text_encoder *a = NULL, *b = NULL;
         REQUIRE(mlb_text_encoder_load(tmp_path("half.safetensors"), NULL, &a) == MLB_OK);
         REQUIRE(mlb_text_encoder_load(tmp_path("rounded.safetensors"), NULL, &b) == MLB_OK);
-        CHECK(mlb_text_encoder_forward(a, tok, B, T, o1) == MLB_OK);
-        CHECK(mlb_text_encoder_forward(b, tok, B, T, o2) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, a, tok, B, T, o1, NULL, 0) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, b, tok, B, T, o2, NULL, 0) == MLB_OK);
         CHECK(memcmp(o1, o2, sizeof o1) == 0);
         mlb_text_encoder_free(a);
         mlb_text_encoder_free(b);
@@ -406,9 +406,9 @@ TEST(tiny_causal_and_threads) {
     int tok[B * T];
     tiny_tokens(tok, B, T);
     float o1[B * T * TW], o2[B * T * TW], o3[B * T * TW];
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, o1) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, o1, NULL, 0) == MLB_OK);
     for (int b = 0; b < B; b++) tok[b * T + T0] = (tok[b * T + T0] + 1) % TV;   // change a later token
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, o2) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, o2, NULL, 0) == MLB_OK);
     for (int b = 0; b < B; b++) {
         CHECK(memcmp(o1 + b * T * TW, o2 + b * T * TW, T0 * TW * sizeof(float)) == 0);
         CHECK(memcmp(o1 + (b * T + T0) * TW, o2 + (b * T + T0) * TW, TW * sizeof(float)) != 0);
@@ -416,13 +416,13 @@ TEST(tiny_causal_and_threads) {
     // a shorter sequence gives the same first tokens (positions are absolute, the mask is causal);
     // not bitwise: BLAS may block a 5-row GEMM differently from a 36-row one
     float s[TNC * TW];
-    CHECK(mlb_text_encoder_forward(te, tok, 1, T0, s) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, 1, T0, s, NULL, 0) == MLB_OK);
     CHECK(max_abs_ff(s, o2, T0 * TW, NULL) < 1e-6);
     int saved = mlb_get_threads();
     mlb_set_threads(1);
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, o1) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, o1, NULL, 0) == MLB_OK);
     mlb_set_threads(3);
-    CHECK(mlb_text_encoder_forward(te, tok, B, T, o3) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, o3, NULL, 0) == MLB_OK);
     mlb_set_threads(saved);
     CHECK(memcmp(o1, o2, sizeof o1) == 0 && memcmp(o1, o3, sizeof o1) == 0);
     mlb_text_encoder_free(te);
@@ -485,10 +485,10 @@ TEST(tiny_errors) {
     // forward argument errors
     int tok[TNC + 1] = {0};
     float out[(TNC + 1) * TW];
-    CHECK_ERR(mlb_text_encoder_forward(te, tok, 1, TNC + 1, out), MLB_ERR_ARG,
+    CHECK_ERR(mlb_text_encoder_forward(NULL, te, tok, 1, TNC + 1, out, NULL, 0), MLB_ERR_ARG,
               "text encoder: 13 tokens per sequence, more than the 12 positions");
     tok[3] = TV;
-    CHECK_ERR(mlb_text_encoder_forward(te, tok, 1, TNC, out), MLB_ERR_ARG,
+    CHECK_ERR(mlb_text_encoder_forward(NULL, te, tok, 1, TNC, out, NULL, 0), MLB_ERR_ARG,
               "text encoder: token 40 at [0, 3] is outside the vocabulary [0, 40)");
     mlb_text_encoder_free(te);
     o.n_heads = 3;
@@ -577,24 +577,24 @@ TEST(tiny_op_tables) {
         static float want[B * T * TW], got[B * T * TW], ws[(TL + 1) * B * T * TW], gs[(TL + 1) * B * T * TW];
         memset(ws, 0, sizeof ws), memset(gs, 0, sizeof gs);
         REQUIRE(direct_forward(te, tok, B, T, want, ws, L + 1) == MLB_OK);
-        CHECK(mlb_text_encoder_forward_on(cpu, te, tok, B, T, got, gs, L + 1) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(cpu, te, tok, B, T, got, gs, L + 1) == MLB_OK);
         CHECK_MSG(memcmp(want, got, sizeof got) == 0, "%s: the CPU fp32 table is not the CPU ops' bits", path);
         CHECK_MSG(memcmp(ws, gs, sizeof gs) == 0, "%s: hidden states differ from the CPU ops'", path);
         memset(got, 0, sizeof got);
-        CHECK(mlb_text_encoder_forward(te, tok, B, T, got) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, got, NULL, 0) == MLB_OK);
         CHECK(memcmp(want, got, sizeof got) == 0);
         // a copy through mlb_text_encoder_to_device (to the CPU: the carving and the upload)
         REQUIRE(mlb_text_encoder_to_device(te, MLB_DEVICE_CPU, &copy) == MLB_OK);
         CHECK(copy->params != te->params && copy->layers[L - 1].fc2_b - copy->params == te->layers[L - 1].fc2_b - te->params);
         memset(got, 0, sizeof got);
-        CHECK(mlb_text_encoder_forward_on(cpu, copy, tok, B, T, got, NULL, 0) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(cpu, copy, tok, B, T, got, NULL, 0) == MLB_OK);
         CHECK(memcmp(want, got, sizeof got) == 0);
         mlb_text_encoder_free(copy);
         // the bf16 table against the double forward, and not the fp32 result where bf16 is real
         double ref[B * T * TW];
         naive_forward(m, L, v, tok, B, T, ref);
         double e32 = max_abs_fd(want, ref, B * T * TW);
-        CHECK(mlb_text_encoder_forward_on(bf16, te, tok, B, T, got, NULL, 0) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(bf16, te, tok, B, T, got, NULL, 0) == MLB_OK);
         double e16 = max_abs_fd(got, ref, B * T * TW), d = max_abs_ff(got, want, B * T * TW, NULL);
         printf("  tiny %s on T %d: fp32 table vs double %.3g (bitwise the CPU ops), bf16 table vs double %.3g "
                "(bound %.0e), bf16 vs fp32 %.3g\n", v ? "SD2" : "SD1", T, e32, e16, BF16_TOL, d);
@@ -603,10 +603,10 @@ TEST(tiny_op_tables) {
         if (mlb_gemm_bf16_native()) CHECK_MSG(d > 1e-6, "the bf16 table gave the fp32 result (%.3g)", d);
         // what the tables refuse
         const mlb_backend* gpu = mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32);
-        CHECK_ERR(mlb_text_encoder_forward_on(gpu, te, tok, B, T, got, NULL, 0), MLB_ERR_ARG,
+        CHECK_ERR(mlb_text_encoder_forward(gpu, te, tok, B, T, got, NULL, 0), MLB_ERR_ARG,
                   "text encoder: the weights are on the cpu, the ops on the cuda (mlb_text_encoder_to_device)");
-        CHECK(mlb_text_encoder_forward_on(mlb_backend_cpu_bf16_stored(), te, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
-        CHECK(mlb_text_encoder_forward_on(NULL, te, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        CHECK(mlb_text_encoder_forward(mlb_backend_cpu_bf16_stored(), te, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        CHECK(mlb_text_encoder_forward(NULL, NULL, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);   // no model
         mlb_text_encoder_free(te);
         free(m);
     }
@@ -630,7 +630,7 @@ TEST(tiny_cuda_tables) {
         CHECK(dev->device == MLB_DEVICE_CUDA);
         int L = te->n_layers;
         static float want[B * T * TW], got[B * T * TW], ws[(TL + 1) * B * T * TW], gs[(TL + 1) * B * T * TW];
-        REQUIRE(mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tok, B, T, want, ws, L + 1) == MLB_OK);
+        REQUIRE(mlb_text_encoder_forward(mlb_backend_cpu(), te, tok, B, T, want, ws, L + 1) == MLB_OK);
         double ref[B * T * TW];
         naive_forward(m, L, v, tok, B, T, ref);
         const mlb_gemm_precision precs[3] = {MLB_GEMM_FP32, MLB_GEMM_TF32, MLB_GEMM_BF16};
@@ -638,7 +638,7 @@ TEST(tiny_cuda_tables) {
         for (int k = 0; k < 3; k++) {
             const mlb_backend* be = mlb_backend_for(MLB_DEVICE_CUDA, precs[k]);
             memset(got, 0xFF, sizeof got), memset(gs, 0xFF, sizeof gs);   // NaN: an unwritten value fails
-            CHECK(mlb_text_encoder_forward_on(be, dev, tok, B, T, got, gs, L + 1) == MLB_OK);
+            CHECK(mlb_text_encoder_forward(be, dev, tok, B, T, got, gs, L + 1) == MLB_OK);
             // the output is layer-normed (O(1)); the residual stream grows: its error relative to its largest value
             double smax, e = max_abs_ff(got, want, B * T * TW, NULL);
             double es = max_abs_ff(gs, ws, (size_t)(L + 1) * B * T * TW, &smax) / (smax > 1 ? smax : 1);
@@ -648,7 +648,7 @@ TEST(tiny_cuda_tables) {
             CHECK(e < bounds[k] && es < bounds[k] && ed < bounds[k]);
         }
         // the CUDA weights refused by the CPU table
-        CHECK(mlb_text_encoder_forward_on(mlb_backend_cpu(), dev, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
+        CHECK(mlb_text_encoder_forward(mlb_backend_cpu(), dev, tok, B, T, got, NULL, 0) == MLB_ERR_ARG);
         mlb_text_encoder_free(dev);
         mlb_text_encoder_free(te);
         free(m);
@@ -752,7 +752,7 @@ TEST(ref_sd1) {
         CHECK(te->variant == MLB_TEXT_SD1 && te->width == W && te->n_heads == 4 && te->n_layers == L && te->mlp == 64);
         CHECK(te->vocab == 49408 && te->n_ctx == 77);
         CHECK(strcmp(te->heads_from, i ? "config.json" : "ldm_config") == 0);
-        CHECK(mlb_text_encoder_forward_states(te, tok, B, T, out + i * n, i ? NULL : states, L + 1) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out + i * n, i ? NULL : states, L + 1) == MLB_OK);
         mlb_text_encoder_free(te);
     }
     for (int i = 1; i < 4; i++) CHECK_MSG(memcmp(out, out + i * n, n * sizeof(float)) == 0, "%s differs", paths[i]);
@@ -766,7 +766,7 @@ TEST(ref_sd1) {
     // the CPU's bf16 table (bf16 operands in the linear layers) within BF16_TOL of PyTorch's fp32
     mlb_text_encoder* te = NULL;
     REQUIRE(mlb_text_encoder_load(paths[0], NULL, &te) == MLB_OK);
-    CHECK(mlb_text_encoder_forward_on(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), te, tok, B, T, out, NULL, 0) ==
+    CHECK(mlb_text_encoder_forward(mlb_backend_for(MLB_DEVICE_CPU, MLB_GEMM_BF16), te, tok, B, T, out, NULL, 0) ==
           MLB_OK);
     mlb_text_encoder_free(te);
     CHECK(report("SD1 hidden, CPU bf16 table", out, hidden, n, NULL) < BF16_TOL);
@@ -795,7 +795,7 @@ TEST(ref_sd2) {
         CHECK(te->variant == MLB_TEXT_SD2 && te->width == W && te->n_heads == 4 && te->mlp == 96);
         CHECK(te->n_layers_stored == L && te->n_layers == L - 1 && te->act == MLB_ACT_GELU);
         CHECK(strcmp(te->heads_from, i ? "config.json" : "ldm_config") == 0);
-        CHECK(mlb_text_encoder_forward_states(te, tok, B, T, out + i * n, states, L) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out + i * n, states, L) == MLB_OK);
         mlb_text_encoder_free(te);
         char what[80];
         snprintf(what, sizeof what, "SD2 hidden (%s)", i ? "diffusers" : "single file");
@@ -813,7 +813,7 @@ TEST(ref_sd2) {
     o.skip_last = 0;
     mlb_text_encoder* te = NULL;
     REQUIRE(mlb_text_encoder_load(paths[0], &o, &te) == MLB_OK);
-    CHECK(mlb_text_encoder_forward_states(te, tok, B, T, out, states, L + 1) == MLB_OK);
+    CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out, states, L + 1) == MLB_OK);
     mlb_text_encoder_free(te);
     CHECK(report("SD2 skip_last 0 vs hidden_last_layer", out, last, n, NULL) < REF_TOL);
     CHECK(report("SD2 debug.hidden_states[4]", states + L * n, ref_states + L * n, n, NULL) < REF_TOL);
@@ -871,7 +871,7 @@ TEST(ref_half_weights) {
         CHECK_MSG(s == MLB_OK, "%s", mlb_last_error());
         if (!want || s) { free(want); continue; }
         CHECK(te->n_heads == 4 && te->variant == MLB_TEXT_SD1);
-        CHECK(mlb_text_encoder_forward(te, tok, B, T, out) == MLB_OK);
+        CHECK(mlb_text_encoder_forward(NULL, te, tok, B, T, out, NULL, 0) == MLB_OK);
         mlb_text_encoder_free(te);
         char what[64];
         snprintf(what, sizeof what, "SD1 %s weights vs %s", i ? "BF16" : "F16", refs[i]);

@@ -80,7 +80,7 @@ static void check_model(const mlb_unet* u, const char* ref_file, const char* lab
     int H = 16, W = 16, Tc = (int)(nctx / ((size_t)N * c->context_dim));
     float* out = malloc(nx * sizeof(float));
     dbg_ctx d = {ref, 0, 0};
-    REQUIRE(mlb_unet_forward(u, out, x, t, ctx, N, H, W, Tc, on_debug, &d) == MLB_OK);
+    REQUIRE(mlb_unet_forward(NULL, u, out, x, t, ctx, N, H, W, Tc, on_debug, &d) == MLB_OK);
     double e = max_abs_diff(out, eps, nx);
     printf("  %s: eps max abs err %.3g (stages: %d checked, worst %.3g)\n", label, e, d.checked, d.worst);
     CHECK(e <= 1e-4);
@@ -91,13 +91,13 @@ static void check_model(const mlb_unet* u, const char* ref_file, const char* lab
     float *tn = read_t(ref, "t_nonsquare", &N2), *en = read_all(ref, "eps_nonsquare", NULL);
     REQUIRE(xn && cn && tn && en);
     float* on = malloc((size_t)N2 * 4 * 16 * 24 * sizeof(float));
-    REQUIRE(mlb_unet_forward(u, on, xn, tn, cn, N2, 16, 24, Tc, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_unet_forward(NULL, u, on, xn, tn, cn, N2, 16, 24, Tc, NULL, NULL) == MLB_OK);
     double en_err = max_abs_diff(on, en, (size_t)N2 * 4 * 16 * 24);
     // 8x8 (ill-conditioned: the deepest level is 1x1)
     float *x8 = read_all(ref, "x_8x8", NULL), *e8 = read_all(ref, "eps_8x8", NULL);
     REQUIRE(x8 && e8);
     float* o8 = malloc((size_t)N * 4 * 64 * sizeof(float));
-    REQUIRE(mlb_unet_forward(u, o8, x8, t, ctx, N, 8, 8, Tc, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_unet_forward(NULL, u, o8, x8, t, ctx, N, 8, 8, Tc, NULL, NULL) == MLB_OK);
     double e8_err = max_abs_diff(o8, e8, (size_t)N * 4 * 64);
     printf("  %s: eps_nonsquare max abs err %.3g, eps_8x8 %.3g\n", label, en_err, e8_err);
     CHECK(en_err <= 1e-4);
@@ -175,7 +175,7 @@ TEST(sd1_f16_weights) {
     float* want = read_all(half, "f16.unet_eps", NULL);
     REQUIRE(x && ctx && t && want);
     static float out[2 * 4 * 16 * 16];
-    REQUIRE(mlb_unet_forward(u, out, x, t, ctx, N, 16, 16, 77, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_unet_forward(NULL, u, out, x, t, ctx, N, 16, 16, 77, NULL, NULL) == MLB_OK);
     double e = max_abs_diff(out, want, sizeof out / sizeof out[0]);
     printf("  SD1 F16 weights: eps max abs err %.3g vs f16.unet_eps\n", e);
     CHECK(e <= 1e-4);
@@ -239,7 +239,7 @@ TEST(errors) {
     // bad latent size
     REQUIRE(mlb_unet_load(ref_path("sd1_diffusers"), NULL, &u) == MLB_OK);
     float x[4 * 12 * 12] = {0}, t1 = 10, ctx[77 * 32] = {0}, o[4 * 12 * 12];
-    CHECK(mlb_unet_forward(u, o, x, &t1, ctx, 1, 12, 12, 77, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_unet_forward(NULL, u, o, x, &t1, ctx, 1, 12, 12, 77, NULL, NULL) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "multiple of 8") != NULL);
     mlb_unet_free(u);
 }
@@ -270,7 +270,7 @@ TEST(ddim_sd1_cfg) {
         memcpy(x2, lat, sizeof lat);
         memcpy(x2 + M, lat, sizeof lat);
         float tt[2] = {(float)ts[s], (float)ts[s]};
-        REQUIRE(mlb_unet_forward(u, e2, x2, tt, ctx, 2, 16, 16, 77, NULL, NULL) == MLB_OK);
+        REQUIRE(mlb_unet_forward(NULL, u, e2, x2, tt, ctx, 2, 16, 16, 77, NULL, NULL) == MLB_OK);
         mlb_cfg_combine(eg, e2, e2 + M, M, 7.5f);   // context = [uncond, cond]
         double e = max_abs_diff(eg, eg_ref + (size_t)s * M, M);
         if (e > eg_err) eg_err = e;
@@ -309,19 +309,19 @@ TEST(forward_on_cpu_table_is_bitwise) {
     float *x = malloc(nx * 4), *ctx = malloc(nc * 4), *a = malloc(nx * 4), *b = malloc(nx * 4), t[2] = {1.0f, 640.0f};
     for (size_t i = 0; i < nx; i++) x[i] = (float)mlb_rng_uniform_f64(9, 1, i) * 2 - 1;
     for (size_t i = 0; i < nc; i++) ctx[i] = (float)mlb_rng_uniform_f64(9, 2, i) * 2 - 1;
-    CHECK(mlb_unet_forward(u, a, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
-    CHECK(mlb_unet_forward_on(mlb_backend_cpu(), c, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(NULL, u, a, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
+    CHECK(mlb_unet_forward(mlb_backend_cpu(), c, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK);
     CHECK_MSG(!memcmp(a, b, nx * 4), "the CPU table's forward differs from mlb_unet_forward");
     double s = 0;
     for (size_t i = 0; i < nx; i++) s += fabs(a[i]);
     CHECK(isfinite(s) && s > 0);
     // the CUDA table with CPU weights is refused (either device mismatch, or no GPU in this build)
-    CHECK(mlb_unet_forward_on(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), c, b, x, t, ctx, N, H, W, Tc, NULL,
+    CHECK(mlb_unet_forward(mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32), c, b, x, t, ctx, N, H, W, Tc, NULL,
                               NULL) != MLB_OK);
     // without a GPU, use_device fails cleanly and the UNet stays on the CPU
     if (mlb_cuda_device_count() == 0) {
         CHECK(mlb_unet_use_device(u, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_DEVICE && !u->mirror);
-        CHECK(mlb_unet_forward(u, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(a, b, nx * 4));
+        CHECK(mlb_unet_forward(NULL, u, b, x, t, ctx, N, H, W, Tc, NULL, NULL) == MLB_OK && !memcmp(a, b, nx * 4));
     }
     free(x); free(ctx); free(a); free(b);
     mlb_unet_free(c);

@@ -1,5 +1,5 @@
 // The UNet's training forward and backward (unet_train.h) on tiny random UNets: forward_train's
-// output is mlb_unet_forward_on's bit for bit; the gradients of L = sum(out * r) for every tensor of
+// output is mlb_unet_forward's bit for bit; the gradients of L = sum(out * r) for every tensor of
 // the network (a sample of each), the latent and the context against central finite differences;
 // a directional derivative over all parameters at once; the same bits on 1 and 2 threads; the
 // bf16 table against fp32.
@@ -94,7 +94,7 @@ static void fixture_free(fixture* f) {
 
 // L = sum(out * r) in double, and sum |out * r| (the noise scale)
 static double loss(fixture* f, double* mag) {
-    if (mlb_unet_forward_on(mlb_backend_cpu(), f->u, f->out, f->x, f->t, f->ctx, f->N, f->H, f->W, f->Tc, NULL, NULL))
+    if (mlb_unet_forward(mlb_backend_cpu(), f->u, f->out, f->x, f->t, f->ctx, f->N, f->H, f->W, f->Tc, NULL, NULL))
         return NAN;
     double L = 0, m = 0;
     for (size_t i = 0; i < f->nout; i++) L += (double)f->out[i] * f->r[i], m += fabs((double)f->out[i] * f->r[i]);

@@ -103,13 +103,11 @@ MLB_APPEARANCE_DECLARE(double, MLB_APPEARANCE_F64)
 // cache untouched): rasterize at res, evaluate the net at the covered pixels, antialias, and write
 // (each may be NULL) kd [res,res,3], ks [res,res,3], kr [res,res] and the shading normal
 // [res,res,3] (world space, unit, turned towards the camera), all linear and premultiplied by the
-// antialiased coverage (background 0).
-mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh, const mlb_view* view, int res,
-                               float* kd_img, float* ks_img, float* kr_img, float* normal_img);
-// The same with the raster ops of table be (NULL: the CPU's). The mesh and the maps are host
-// buffers, so be is the CPU's for now (docs/cuda.md "The renderer on the op table").
-mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
-                                  const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
-                                  float* normal_img);
+// antialiased coverage (background 0). The raster ops run on table be (NULL: the CPU's); the mesh
+// and the maps are host buffers, so be is the CPU's for now (docs/cuda.md "The renderer on the op
+// table").
+mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
+                               const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
+                               float* normal_img);
 
 #endif

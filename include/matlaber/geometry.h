@@ -63,11 +63,9 @@ mlb_status mlb_geometry_load(mlb_geometry_net* net, const char* path);
 
 // SDF and deformation at the grid vertices, v = v_grid + tanh(d)/(2·cells), marching tets: a float
 // mesh with faces and positions (no normals). An empty surface is an MLB_ERR_ARG error ("no surface").
-mlb_status mlb_geometry_extract(mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out);
-// The same with marching tets on the op table be (mlb_mt_device_forward; mlb_geometry_extract is this
-// with the CPU's table): the network stays on the host, its SDF and positions go to be's device.
-mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net, const mlb_tetgrid* grid,
-                                   mlb_mesh* out);
+// Marching tets runs on the op table be (mlb_mt_device_forward; NULL: the CPU's): the network stays
+// on the host, its SDF and positions go to be's device.
+mlb_status mlb_geometry_extract(const mlb_backend* be, mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out);
 
 // ---- shapes and their signed distance (shape_init.c) ---------------------------------------
 typedef enum { MLB_SHAPE_ELLIPSOID = 0, MLB_SHAPE_CYLINDER, MLB_SHAPE_MESH, MLB_SHAPE_TORUS, MLB_SHAPE_BOX, MLB_SHAPE_CUP } mlb_shape_kind;

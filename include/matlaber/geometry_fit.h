@@ -141,13 +141,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
     /* The same with the image gradient in st->t_dimages, on the table (images_on_table).       */ \
     mlb_status N(mlb_geofit_backward_table)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, double reg_weight); \
     /* out[res, res, 4] = [normal, mask] of a float mesh (normals: area-weighted vertex normals)  \
-       seen by cam: rasterize at res·ss, interpolate, antialias, downsample. ctx may be NULL. */   \
-    mlb_status N(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, R* out, const mlb_mesh* m,            \
-                                         const mlb_camera* cam, int res, int ss);                   \
-    /* The same with the raster ops of table be (NULL: the CPU's):                                 \
-       the mesh, its normals and out stay host buffers, so be is the CPU's for now (docs/cuda.md). */ \
-    mlb_status N(mlb_geofit_render_mesh_on)(const N(mlb_backend)* be, mlb_raster_ctx* ctx, R* out,   \
-                                            const mlb_mesh* m, const mlb_camera* cam, int res, int ss); \
+       seen by cam: rasterize at res·ss, interpolate, antialias, downsample, with the raster ops of  \
+       table be (NULL: the CPU's): the mesh, its normals and out stay host buffers, so be is the    \
+       CPU's for now (docs/cuda.md). ctx is not used (each op keeps a scratch of its own). */      \
+    mlb_status N(mlb_geofit_render_mesh)(const N(mlb_backend)* be, mlb_raster_ctx* ctx, R* out,      \
+                                         const mlb_mesh* m, const mlb_camera* cam, int res, int ss); \
     /* The L2 loss of the network's surface against targets[v·res·res·4] seen by cams[v],          \
        v < n_views, with regulariser weight reg_weight (forward + loss + backward above).          \
        backward != 0: net->grads += ∂L/∂params (zero them first). An empty surface is an error.  */ \

@@ -106,19 +106,19 @@ typedef struct {
 // for latents; *c the UNet's input channels, c may be NULL); MLB_ERR_ARG naming what does not fit.
 mlb_status mlb_sds_latent_shape(const mlb_sds* s, int C, int H, int W, int* c, int* h, int* w);
 // grad_images [B, C, H, W] += d loss / d images (may be NULL: loss only, no VAE backward);
-// *loss (may be NULL) = 0.5 sum(grad^2) / B. trace may be NULL. Host buffers: where the VAE runs
-// on a GPU (mlb_vae_use_device) the images cross to it and the gradient back.
-mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* trace);
-// The same step with in->images and grad_images in the memory of be's device (backend.h): the
+// *loss (may be NULL) = 0.5 sum(grad^2) / B. trace may be NULL.
+// be NULL: host buffers; where the VAE runs on a GPU (mlb_vae_use_device) the images cross to it
+// and the gradient back.
+// Else in->images and grad_images are in the memory of be's device (backend.h): the
 // images are mapped to 2 x - 1 and encoded, the latent noised, the UNet run, the guidance, the
 // weighting and the gradient made, and the gradient taken back through the encoder, all there
 // (the VAE and the UNet on their own tables, which must run on be's device; fp32 CPU models run on
 // be). Only the timesteps and the noise go up (drawn on the host: Philox) and the loss (three
 // floats) comes down; the embeddings go up once (per device, and after mlb_sds_set_*). With the
-// CPU's table it is mlb_sds_step, bit for bit.
+// CPU's table it is the host buffers' step, bit for bit.
 struct mlb_backend;
-mlb_status mlb_sds_step_on(mlb_sds* s, const struct mlb_backend* be, const mlb_sds_input* in, float* grad_images,
-                           float* loss, mlb_sds_trace* trace);
+mlb_status mlb_sds_step(mlb_sds* s, const struct mlb_backend* be, const mlb_sds_input* in, float* grad_images,
+                        float* loss, mlb_sds_trace* trace);
 // The table whose device mlb_sds_step runs a [B, C, H, W] input on: the VAE's (a GPU, or the CPU's
 // bf16 ops) for images, the UNet's for latents (the CPU's where they have none).
 const struct mlb_backend* mlb_sds_images_table(const mlb_sds* s, int C);

@@ -84,7 +84,7 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
                                     const mlb_text_encoder_options* opt, mlb_text_encoder** out);
 void mlb_text_encoder_free(mlb_text_encoder* te);   // NULL is fine; frees device weights on their device
 // A copy of the CPU encoder src with its weights on device d (one upload of params), for
-// mlb_text_encoder_forward_on with that device's table. MLB_ERR_NOMEM / MLB_ERR_DEVICE.
+// mlb_text_encoder_forward with that device's table. MLB_ERR_NOMEM / MLB_ERR_DEVICE.
 mlb_status mlb_text_encoder_to_device(const mlb_text_encoder* src, mlb_device d, mlb_text_encoder** out);
 
 // The padding token the variant's tokenizer uses: 49407 (SD1) or 0 (SD2).
@@ -92,24 +92,20 @@ int mlb_text_encoder_pad_id(const mlb_text_encoder* te);
 const char* mlb_text_variant_name(mlb_text_variant v);   // "auto", "sd1", "sd2"
 mlb_status mlb_text_variant_parse(const char* name, mlb_text_variant* out);
 
-// tokens [B, T] (T <= n_ctx, normally 77) -> out [B, T, W]: the conditioning.
-// Deterministic (the same bits on any thread count); safe to call from several threads at once
-// (the model is read-only; scratch is allocated per call). MLB_ERR_ARG for a token outside the
-// vocabulary or T > n_ctx.
-mlb_status mlb_text_encoder_forward(const mlb_text_encoder* te, const int* tokens, int B, int T, float* out);
+// tokens [B, T] (T <= n_ctx, normally 77) -> out [B, T, W]: the conditioning, on the ops of `be`
+// (backend.h; NULL: the CPU's fp32 table, whose results are those of the CPU ops called directly,
+// bit for bit). te must be on be->device (mlb_text_encoder_to_device; the CPU tables use the host
+// weights as they are); tokens, out and states stay on the host (the tokens are checked there, the
+// rest crosses once). The CPU's bf16 table runs the linear layers on bf16 operands (the attention
+// stays fp32); its bf16-stored table is refused (these weights are fp32).
 // Also the residual stream before the final LayerNorm: states [n_states, B, T, W] with states[0] =
 // token + position embeddings and states[i] = output of layer i (as transformers'
 // hidden_states). n_states <= n_layers + 1; states may be NULL (n_states ignored).
-mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int* tokens, int B, int T,
-                                           float* out, float* states, int n_states);
-// forward_states on the ops of `be` (backend.h): te must be on be->device (mlb_text_encoder_to_device;
-// the CPU tables use the host weights as they are); tokens, out and states stay on the host (the
-// tokens are checked there, the rest crosses once). The two functions above are this with the CPU's
-// fp32 table, whose results are those of the CPU ops called directly, bit for bit. The CPU's bf16
-// table runs the linear layers on bf16 operands (the attention stays fp32); its bf16-stored table
-// is refused (these weights are fp32).
+// Deterministic (the same bits on any thread count); safe to call from several threads at once
+// (the model is read-only; scratch is allocated per call). MLB_ERR_ARG for a token outside the
+// vocabulary or T > n_ctx.
 struct mlb_backend;
-mlb_status mlb_text_encoder_forward_on(const struct mlb_backend* be, const mlb_text_encoder* te, const int* tokens,
-                                       int B, int T, float* out, float* states, int n_states);
+mlb_status mlb_text_encoder_forward(const struct mlb_backend* be, const mlb_text_encoder* te, const int* tokens, int B,
+                                    int T, float* out, float* states, int n_states);
 
 #endif

@@ -154,17 +154,14 @@ typedef void (*mlb_unet_debug_fn)(void* user, const char* name, const float* dat
 // out [N, out_channels, H, W] = unet(x [N, in_channels, H, W], t [N] (timesteps, may be fractional),
 // context [N, Tc, context_dim]). H and W must be multiples of 2^(n_levels - 1). The same bits on any
 // thread count (every GEMM is mlb_gemm, every reduction runs in a fixed order; tests/test_sd_tiny.c).
-// After mlb_unet_use_device it runs on that device (the buffers stay on the host).
 // MLB_ERR_ARG for bad shapes, MLB_ERR_NOMEM.
-mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
-                            int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user);
-
-// The same forward on the ops of `be` (backend.h): u must be on be->device (mlb_unet_to_device), and
-// out, x and context in that device's memory; t stays on the host. mlb_unet_forward is this with
-// the CPU table. The observer receives host copies.
+// On the ops of `be` (backend.h): u must be on be->device (mlb_unet_to_device), and out, x and
+// context in that device's memory; t stays on the host. The observer receives host copies.
+// be NULL: the buffers are on the host and the model picks its ops: the CPU table, or after
+// mlb_unet_use_device that device's (the inputs and the output cross per call).
 struct mlb_backend;
-mlb_status mlb_unet_forward_on(const struct mlb_backend* be, const mlb_unet* u, float* out, const float* x,
-                               const float* t, const float* context, int N, int H, int W, int Tc,
-                               mlb_unet_debug_fn debug, void* debug_user);
+mlb_status mlb_unet_forward(const struct mlb_backend* be, const mlb_unet* u, float* out, const float* x,
+                            const float* t, const float* context, int N, int H, int W, int Tc,
+                            mlb_unet_debug_fn debug, void* debug_user);
 
 #endif

@@ -34,9 +34,9 @@ mlb_status mlb_unet_tape_create(const mlb_backend* be, const mlb_unet* u, int N,
                                 mlb_unet_tape** out);
 void mlb_unet_tape_free(mlb_unet_tape* tape);   // NULL is fine
 
-// mlb_unet_forward_on's arithmetic (the same `out` bits on the same table), keeping the tape. x, ctx
+// mlb_unet_forward's arithmetic (the same `out` bits on the same table), keeping the tape. x, ctx
 // and out on be's device; t [N] on the host. MLB_ERR_ARG when the shape needs more than the tape
-// holds, or for what mlb_unet_forward_on refuses (u on another device, bf16-stored weights).
+// holds, or for what mlb_unet_forward refuses (u on another device, bf16-stored weights).
 mlb_status mlb_unet_forward_train(const mlb_backend* be, const mlb_unet* u, mlb_unet_tape* tape, float* out,
                                   const float* x, const float* t, const float* ctx, int N, int H, int W, int Tc);
 // Given dout = dL/dout [N, out_channels, H, W] of the last forward_train on this tape:

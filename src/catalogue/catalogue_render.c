@@ -112,6 +112,6 @@ mlb_status mlb_catalogue_render(mlb_catalogue_renderer* r, const mlb_catalogue_s
         for (size_t i = 0; i < P; i++)   // [res, res, 4] → [3, res, res]
             for (int ch = 0; ch < 3; ch++) rgb[ch * P + i] = r->rgba[4 * i + ch];
     }
-    if (normal) MLB_TRY(mlb_geofit_render_mesh(r->ctx, normal, &r->mesh, &smp->view.cam, res, r->c.supersample));
+    if (normal) MLB_TRY(mlb_geofit_render_mesh(NULL, r->ctx, normal, &r->mesh, &smp->view.cam, res, r->c.supersample));
     return MLB_OK;
 }

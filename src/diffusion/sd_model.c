@@ -209,7 +209,7 @@ mlb_status mlb_sd_model_encode_prompt(const mlb_sd_model* m, const char* prompt,
     // and the text encoder's weights stay on the host. So the CPU's fp32 table, whatever --device
     // and --precision say: a prompt is encoded a handful of times per run, and its conditioning is
     // the same on every machine.
-    return mlb_text_encoder_forward_on(mlb_backend_cpu(), m->text, ids, 1, MLB_CLIP_CONTEXT, out, NULL, 0);
+    return mlb_text_encoder_forward(mlb_backend_cpu(), m->text, ids, 1, MLB_CLIP_CONTEXT, out, NULL, 0);
 }
 
 mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_prediction, const float* ctx_uncond,
@@ -236,7 +236,7 @@ mlb_status mlb_sd_ddim_sample(const mlb_unet* unet, const float* ac, int v_predi
         float tt[2] = {(float)t, (float)t};
         memcpy(x2, latent, n * sizeof(float));
         memcpy(x2 + n, latent, n * sizeof(float));
-        if ((s = mlb_unet_forward(unet, e2, x2, tt, ctx, 2, h, w, Tc, NULL, NULL)) != MLB_OK) goto done;
+        if ((s = mlb_unet_forward(NULL, unet, e2, x2, tt, ctx, 2, h, w, Tc, NULL, NULL)) != MLB_OK) goto done;
         if (v_prediction) {
             mlb_v_to_eps(e2, e2, x2, n, ac[t]);
             mlb_v_to_eps(e2 + n, e2 + n, x2 + n, n, ac[t]);

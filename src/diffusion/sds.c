@@ -256,8 +256,8 @@ static mlb_status embeddings_on(mlb_sds* s, const mlb_backend* be) {
     return st;
 }
 
-mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input* in, float* grad_images, float* loss,
-                           mlb_sds_trace* tr) {
+static mlb_status step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input* in, float* grad_images, float* loss,
+                         mlb_sds_trace* tr) {
     if (!s || !be || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
     const int B = in->B, C = in->C, H = in->H, W = in->W;
     if (B < 1 || B > MLB_SDS_MAX_BATCH) return mlb_fail(MLB_ERR_ARG, "SDS batch %d outside 1..%d", B, MLB_SDS_MAX_BATCH);
@@ -322,7 +322,7 @@ mlb_status mlb_sds_step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_inpu
     if ((st = be->axpby_rows(x2, z, noise, B, n, sa, sb)) != MLB_OK) goto done;
     if ((st = be->copy(x2 + nall, x2, nall)) != MLB_OK) goto done;
     // 3. the UNet, eps from v, guidance, the weighted gradient and d loss / d latent
-    if ((st = mlb_unet_forward_on(ube, um, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
+    if ((st = mlb_unet_forward(ube, um, e2, x2, tt, ctx, 2 * B, h, w, s->Tc, NULL, NULL)) != MLB_OK) goto done;
     if (s->v_prediction && (st = be->axpby_rows(e2, e2, x2, 2 * B, n, sa, sb)) != MLB_OK) goto done;
     if (tr) {   // the trace's errors against the noise, on the host
         if (!(hnoise = malloc(nall * sizeof(float)))) { st = mlb_fail(MLB_ERR_NOMEM, "out of memory for the SDS trace"); goto done; }
@@ -356,10 +356,12 @@ done:
     return st;
 }
 
-mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images, float* loss, mlb_sds_trace* tr) {
+mlb_status mlb_sds_step(mlb_sds* s, const mlb_backend* be, const mlb_sds_input* in, float* grad_images, float* loss,
+                        mlb_sds_trace* tr) {
+    if (be) return step_on(s, be, in, grad_images, loss, tr);
     if (!s || !in || !in->images) return mlb_fail(MLB_ERR_ARG, "mlb_sds_step: NULL argument");
-    const mlb_backend* be = mlb_sds_images_table(s, in->C);
-    if (be->device == MLB_DEVICE_CPU) return mlb_sds_step_on(s, mlb_backend_cpu(), in, grad_images, loss, tr);
+    be = mlb_sds_images_table(s, in->C);
+    if (be->device == MLB_DEVICE_CPU) return step_on(s, mlb_backend_cpu(), in, grad_images, loss, tr);
     // the VAE is on a GPU: the images go up, the step runs there, the gradient comes down (added)
     const size_t nimg = (size_t)in->B * in->C * in->H * in->W;
     float *d = NULL, *dg = NULL;
@@ -369,7 +371,7 @@ mlb_status mlb_sds_step(mlb_sds* s, const mlb_sds_input* in, float* grad_images,
     if (!st && grad_images) st = be->alloc(&dg, nimg);
     if (!st && grad_images) st = be->upload(dg, grad_images, nimg);
     on.images = d;
-    if (!st) st = mlb_sds_step_on(s, be, &on, dg, loss, tr);
+    if (!st) st = step_on(s, be, &on, dg, loss, tr);
     if (!st && grad_images) st = be->download(grad_images, dg, nimg);
     if (d) be->release(d);
     if (dg) be->release(dg);

@@ -506,9 +506,9 @@ mlb_status mlb_text_encoder_to_device(const mlb_text_encoder* src, mlb_device d,
 }
 
 // ---- forward --------------------------------------------------------------------------------------
-mlb_status mlb_text_encoder_forward_on(const mlb_backend* be, const mlb_text_encoder* te, const int* tokens, int B,
-                                       int T, float* out, float* states, int n_states) {
-    if (!be) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL backend");
+mlb_status mlb_text_encoder_forward(const mlb_backend* be, const mlb_text_encoder* te, const int* tokens, int B, int T,
+                                    float* out, float* states, int n_states) {
+    if (!be) be = mlb_backend_cpu();
     if (!te) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL model");
     if (te->device != be->device)
         return mlb_fail(MLB_ERR_ARG, "text encoder: the weights are on the %s, the ops on the %s "
@@ -571,13 +571,4 @@ done:
     if (s && l >= 0) return mlb_fail_context(s, "text encoder layer %d", l);
     if (s) return mlb_fail_context(s, "text encoder");
     return MLB_OK;
-}
-
-mlb_status mlb_text_encoder_forward_states(const mlb_text_encoder* te, const int* tokens, int B, int T,
-                                           float* out, float* states, int n_states) {
-    return mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tokens, B, T, out, states, n_states);
-}
-
-mlb_status mlb_text_encoder_forward(const mlb_text_encoder* te, const int* tokens, int B, int T, float* out) {
-    return mlb_text_encoder_forward_on(mlb_backend_cpu(), te, tokens, B, T, out, NULL, 0);
 }

@@ -107,17 +107,23 @@ static mlb_status report(const mlb_backend* be, mlb_unet_debug_fn fn, void* user
     return s;
 }
 
-mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const float* t, const float* context,
-                            int N, int H, int W, int Tc, mlb_unet_debug_fn debug, void* debug_user) {
+static mlb_status forward_on(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
+                             const float* context, int N, int H, int W, int Tc, mlb_unet_debug_fn debug,
+                             void* debug_user);
+
+mlb_status mlb_unet_forward(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
+                            const float* context, int N, int H, int W, int Tc, mlb_unet_debug_fn debug,
+                            void* debug_user) {
+    if (be) return forward_on(be, u, out, x, t, context, N, H, W, Tc, debug, debug_user);
     if (!u || !u->mirror)   // on the CPU: its fp32 ops, or the bf16 ones (mlb_unet_use_device)
-        return mlb_unet_forward_on(u && u->mirror_ops ? u->mirror_ops : mlb_backend_cpu(), u, out, x, t, context, N,
-                                   H, W, Tc, debug, debug_user);
+        return forward_on(u && u->mirror_ops ? u->mirror_ops : mlb_backend_cpu(), u, out, x, t, context, N, H, W, Tc,
+                          debug, debug_user);
     // on the mirror's device: x, context and out staged in one device buffer (allocated per call,
     // as the activations are: small beside them)
     if (!out || !x || !t || !context || N < 1 || H < 1 || W < 1 || Tc < 1)
         return mlb_fail(MLB_ERR_ARG, "UNet forward: NULL argument or empty shape");
     const mlb_unet* du = u->mirror;
-    const mlb_backend* be = u->mirror_ops;
+    be = u->mirror_ops;
     size_t nx = (size_t)N * du->cfg.in_channels * H * W, nc = (size_t)N * Tc * du->cfg.context_dim;
     size_t no = (size_t)N * du->cfg.out_channels * H * W;
     float* stage;
@@ -125,7 +131,7 @@ mlb_status mlb_unet_forward(const mlb_unet* u, float* out, const float* x, const
     float *dx = stage, *dc = dx + nx, *dout = dc + nc;
     mlb_status s = be->upload(dx, x, nx);
     if (s == MLB_OK) s = be->upload(dc, context, nc);
-    if (s == MLB_OK) s = mlb_unet_forward_on(be, du, dout, dx, t, dc, N, H, W, Tc, debug, debug_user);
+    if (s == MLB_OK) s = forward_on(be, du, dout, dx, t, dc, N, H, W, Tc, debug, debug_user);
     if (s == MLB_OK) s = be->download(out, dout, no);
     be->release(stage);
     return s;
@@ -307,9 +313,9 @@ done:
     return s;
 }
 
-mlb_status mlb_unet_forward_on(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
-                               const float* context, int N, int H, int W, int Tc, mlb_unet_debug_fn debug,
-                               void* debug_user) {
+static mlb_status forward_on(const mlb_backend* be, const mlb_unet* u, float* out, const float* x, const float* t,
+                             const float* context, int N, int H, int W, int Tc, mlb_unet_debug_fn debug,
+                             void* debug_user) {
     if (!be || !u || !out || !x || !t || !context) return mlb_fail(MLB_ERR_ARG, "UNet forward: NULL argument");
     MLB_TRY(unet_check(be, u, N, H, W, Tc));
     const mlb_unet_config* c = &u->cfg;

@@ -71,7 +71,7 @@ void unet_sizes_of(const mlb_unet_config* c, int N, int H, int W, int Tc, unet_s
 // Carves the tape's pointers from base (NULL: count only); returns the floats used.
 size_t unet_tape_carve(mlb_unet_tape* tp, const mlb_unet_config* c, int N, int H, int W, int Tc, float* base);
 
-// The forward's blocks (unet.c). tape NULL: mlb_unet_forward_on's buffers; else the outputs the
+// The forward's blocks (unet.c). tape NULL: mlb_unet_forward's buffers; else the outputs the
 // tape keeps. resnet: out [N, cout, H, W] = resnet(x), out must not overlap x. attn: xo = xi +
 // transformer(xi, ctx); xo == xi runs in place.
 mlb_status unet_resnet_fwd(const mlb_backend* be, const mlb_unet* u, const mlb_unet_resnet* r, float* out,
@@ -81,7 +81,7 @@ mlb_status unet_attn_fwd(const mlb_backend* be, const mlb_unet* u, const mlb_une
                          unet_attn_tape* at);
 // The sinusoid [N, C0] of timesteps t (host) into host memory.
 void unet_time_proj(const mlb_unet_config* c, const float* t, int N, float* out);
-// The shape checks mlb_unet_forward_on makes (and forward_train).
+// The shape checks mlb_unet_forward makes (and forward_train).
 mlb_status unet_check(const mlb_backend* be, const mlb_unet* u, int N, int H, int W, int Tc);
 // The walk from x to out, on ws and the given feature buffers (tape NULL: h, h2, the skip stack
 // skips, emb, tproj; with a tape those come from it and these are ignored).

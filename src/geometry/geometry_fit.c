@@ -88,13 +88,8 @@ static uint64_t FN(geofit_hash)(uint64_t h, const int32_t* tri, size_t n) {
     return h;
 }
 
-mlb_status FN(mlb_geofit_render_mesh)(mlb_raster_ctx* ctx, real* out, const mlb_mesh* m, const mlb_camera* cam, int res,
-                                     int ss) {
-    return FN(mlb_geofit_render_mesh_on)(NULL, ctx, out, m, cam, res, ss);
-}
-
-mlb_status FN(mlb_geofit_render_mesh_on)(const FN(mlb_backend)* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
-                                        const mlb_camera* cam, int res, int ss) {
+mlb_status FN(mlb_geofit_render_mesh)(const FN(mlb_backend)* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
+                                     const mlb_camera* cam, int res, int ss) {
     (void)ctx;   // each raster op keeps a scratch of its own
     if (!be) be = FN(mlb_backend_cpu)();
     size_t V = (size_t)m->n_verts;

@@ -80,7 +80,7 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
     for (int it = 0; !s && it < c->iters; it++) {
         for (int v = 0; !s && v < c->views; v++) {
             s = mlb_geofit_camera(&cams[v], c, it, v);
-            if (!s) s = mlb_geofit_render_mesh(ctx, targets + img * (size_t)v, target, &cams[v], c->res, c->ss);
+            if (!s) s = mlb_geofit_render_mesh(NULL, ctx, targets + img * (size_t)v, target, &cams[v], c->res, c->ss);
         }
         if (s) break;
         geometry_net_zero_grad(net);

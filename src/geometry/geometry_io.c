@@ -33,12 +33,8 @@ mlb_status mlb_geometry_load(mlb_geometry_net* net, const char* path) { return m
 
 // ---- extraction --------------------------------------------------------------------------------
 
-mlb_status mlb_geometry_extract(mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out) {
-    return mlb_geometry_extract_on(mlb_backend_cpu(), net, grid, out);
-}
-
-mlb_status mlb_geometry_extract_on(const mlb_backend* be, mlb_geometry_net* net, const mlb_tetgrid* grid,
-                                   mlb_mesh* out) {
+mlb_status mlb_geometry_extract(const mlb_backend* be, mlb_geometry_net* net, const mlb_tetgrid* grid, mlb_mesh* out) {
+    if (!be) be = mlb_backend_cpu();
     memset(out, 0, sizeof *out);
     size_t V = (size_t)grid->n_verts;
     float* sdf = malloc(sizeof(float) * V);

@@ -492,14 +492,9 @@ mlb_status FN(mlb_material_smoothness_part)(FN(mlb_material_net)* net, const rea
 }
 
 #ifndef MLB_F64
-mlb_status mlb_appearance_maps(const mlb_material_net* net, const mlb_mesh* mesh, const mlb_view* view, int res,
-                               float* kd_img, float* ks_img, float* kr_img, float* normal_img) {
-    return mlb_appearance_maps_on(NULL, net, mesh, view, res, kd_img, ks_img, kr_img, normal_img);
-}
-
-mlb_status mlb_appearance_maps_on(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
-                                  const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
-                                  float* normal_img) {
+mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
+                               const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
+                               float* normal_img) {
     MLB_TRY(check_mesh(mesh, res, 1, "appearance maps"));
     const mlb_backend* tb = be ? be : mlb_backend_cpu();
     enum { C = 11 };   // kd 3, ks 3, kr 1, normal 3, coverage 1

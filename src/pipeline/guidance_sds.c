@@ -113,7 +113,7 @@ static mlb_status sds_loss_on(mlb_guidance* g, const mlb_backend* be, mlb_stage 
     mlb_status st = dimages ? be->zero(s->dx, N) : MLB_OK;
     mlb_sds_input in = {s->x, n, C, h, w, vids, step, NULL, NULL, g->part_first, g->part_total};
     float l = 0;
-    if (!st) st = mlb_sds_step_on(sds, be, &in, dimages ? s->dx : NULL, &l, NULL);
+    if (!st) st = mlb_sds_step(sds, be, &in, dimages ? s->dx : NULL, &l, NULL);
     opt->weighting = keep;
     if (st) return mlb_fail_context(st, "SDS guidance (%s stage, step %ld)", stage == MLB_STAGE_GEOMETRY ? "geometry" : "appearance", step);
     if (loss) *loss = (double)l;
@@ -172,7 +172,7 @@ static mlb_status sds_score(mlb_guidance* g, mlb_stage stage, const mlb_view* vi
         tr.latent = j ? NULL : z;
         tr.err_cond = ec;
         tr.err_uncond = eu;
-        st = mlb_sds_step(sds, &in, NULL, NULL, &tr);
+        st = mlb_sds_step(sds, NULL, &in, NULL, NULL, &tr);
         for (int b = 0; !st && b < n; b++) per_view[b] += (eu[b] - ec[b]) / SCORE_DRAWS;
     }
     free(z);

@@ -661,7 +661,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     // smoothed: surface_smooth), or the painted mesh in the generation frame
     if (geometry_done) s = pipeline_scene_lights(&r.scene, c);
     if (!s && geometry_done && paint) s = paint_scene_mesh(c, &input, &r.scene.mesh);
-    if (!s && geometry_done && !paint) s = mlb_geometry_extract_on(r.be, &r.geo, &r.grid, &r.scene.mesh);
+    if (!s && geometry_done && !paint) s = mlb_geometry_extract(r.be, &r.geo, &r.grid, &r.scene.mesh);
     if (!s && geometry_done && !paint) s = mlb_mesh_smooth_taubin(&r.scene.mesh, c->surface_smooth, 0.5f, -0.53f);
     if (!s && geometry_done && !paint) s = mlb_mesh_compute_normals(&r.scene.mesh);
     if (!s && geometry_done) {

@@ -135,7 +135,7 @@ mlb_status mlb_sd_train_text(const mlb_sd_train_config* c, float** table) {
         s = mlb_tokenizer_encode(tok, text, ids, T, mlb_tokenizer_eos(tok), NULL);
         // no op table in scope (mlb_sd_train_unet's comes later): the CPU's fp32 table, so the
         // caption table is the same whichever device trains the UNet
-        if (!s) s = mlb_text_encoder_forward_on(mlb_backend_cpu(), te, ids, 1, T, tab + (size_t)k * T * W, NULL, 0);
+        if (!s) s = mlb_text_encoder_forward(mlb_backend_cpu(), te, ids, 1, T, tab + (size_t)k * T * W, NULL, 0);
     }
     mlb_text_encoder_free(te);
     mlb_tokenizer_free(tok);

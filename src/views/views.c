@@ -746,7 +746,7 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
         join(path, sizeof path, dir, e->image);
         if (!s) s = mlb_views_write_color_png(path, img, R, R);
         if (!s && c->normals) {
-            s = mlb_geofit_render_mesh(ctx, img, c->mesh, &p.camera, R, c->supersample);
+            s = mlb_geofit_render_mesh(NULL, ctx, img, c->mesh, &p.camera, R, c->supersample);
             join(path, sizeof path, dir, e->normal);
             if (!s) s = mlb_views_write_normal_png(path, img, R, R);
         }

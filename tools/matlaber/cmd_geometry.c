@@ -86,7 +86,7 @@ static int geometry_init(int argc, char** argv) {
     mlb_mesh m = {0}, ref = {0};
     int cells = (int)grid / 2;
     s = mlb_tetgrid_create(&g, cells, cfg.scale);
-    if (!s) s = mlb_geometry_extract(&net, &g, &m);
+    if (!s) s = mlb_geometry_extract(NULL, &net, &g, &m);
     if (!s) {
         if (shape.kind == MLB_SHAPE_MESH) ref = shape.mesh, memset(&shape.mesh, 0, sizeof shape.mesh);
         else if (shape.kind == MLB_SHAPE_ELLIPSOID) {
@@ -184,7 +184,7 @@ static int geometry_extract(int argc, char** argv) {
     mlb_tetgrid g;
     mlb_mesh m = {0};
     s = mlb_tetgrid_create(&g, (int)grid / 2, net.cfg.scale);
-    if (!s) s = mlb_geometry_extract(&net, &g, &m);
+    if (!s) s = mlb_geometry_extract(NULL, &net, &g, &m);
     if (!s) s = write_obj(out, &m);
     if (!s) printf("wrote %s: %d vertices, %d faces (grid %ld)\n", out, m.n_verts, m.n_faces, grid);
     mlb_mesh_free(&m);

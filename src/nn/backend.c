@@ -11,6 +11,9 @@
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
 #include "nn/simd_rows.h"
+#include "nn/backend_host.h"
+
+MLB_HOST_ADAPTERS(cpu)
 
 // ---- CPU -----------------------------------------------------------------------------------------
 static mlb_status cpu_alloc(float** out, size_t n) {
@@ -196,11 +199,6 @@ static mlb_status cpu_adam(float* params, const float* grads, float* m, float* v
     adam_update(params, grads, m, v, n, cfg, t);
     return MLB_OK;
 }
-static mlb_status cpu_light_upload(void** handle, const mlb_envlight* light) {
-    *handle = (void*)light;
-    return MLB_OK;
-}
-static void cpu_light_free(void* handle) { (void)handle; }
 // The light turned as the CPU renderer turns it: a copy with mlb_envlight_set_rotation.
 static mlb_envlight cpu_turned(const void* handle, float rotation) {
     mlb_envlight l = *(const mlb_envlight*)handle;
@@ -353,10 +351,6 @@ static mlb_status cpu_antialias_backward(float* dcolor, float* dclip, const floa
 }
 
 // The appearance renderer's samples: raster_api.inc's passes over host memory.
-static mlb_status cpu_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
-    mlb_covered_flags(flags, tri, (long)n);
-    return MLB_OK;
-}
 static mlb_status cpu_gather_samples(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
                                      const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
     mlb_gather_samples(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez);
@@ -468,14 +462,6 @@ static mlb_status cpu_transform_points_backward(float* dpos, const float* dclip,
     mlb_transform_points_backward(dpos, dclip, V, &M);
     return MLB_OK;
 }
-static mlb_status cpu_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
-    return mlb_vertex_faces(off, vf, faces, F, V);
-}
-static mlb_status cpu_edge_topology(int32_t* adj, const int32_t* faces, int F, const int32_t* off, const int32_t* vf) {
-    if (F < 0) return mlb_fail(MLB_ERR_ARG, "edge_topology: %d faces", F);
-    mlb_edge_partners(adj, faces, F, off, vf);
-    return MLB_OK;
-}
 static mlb_status cpu_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
                                      const int32_t* off, const int32_t* vf) {
     mlb_vertex_normals(normal, sum, pos, V, faces, off, vf);
@@ -513,11 +499,6 @@ static mlb_status cpu_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, con
                                           int T, int cells) {
     if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
     mlb_mt_count(tet_nf, slot_nv, sdf, tets, T, cells);
-    return MLB_OK;
-}
-static mlb_status cpu_scan_i32(int32_t* out, const int32_t* in, int n) {
-    if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
-    mlb_scan_i32(out, in, n);
     return MLB_OK;
 }
 static mlb_status cpu_marching_tets_emit(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,

@@ -6,6 +6,9 @@
 #include "matlaber/mt_ops.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
+#include "nn/backend_host.h"
+
+MLB_HOST_ADAPTERS(f64)
 
 // ---- memory --------------------------------------------------------------------------------------
 static mlb_status f64_alloc(double** out, size_t n) {
@@ -120,11 +123,6 @@ static mlb_status f64_upsample_nearest2x_backward(double* din, const double* dou
 }
 
 // ---- the shading: the light's handle is the light itself, turned per call as the CPU table turns it
-static mlb_status f64_light_upload(void** handle, const mlb_envlight* light) {
-    *handle = (void*)light;
-    return MLB_OK;
-}
-static void f64_light_free(void* handle) { (void)handle; }
 static mlb_envlight f64_turned(const void* handle, double rotation) {
     mlb_envlight l = *(const mlb_envlight*)handle;
     mlb_envlight_set_rotation(&l, (float)rotation);   // a float's value: exact
@@ -184,14 +182,6 @@ static mlb_status f64_transform_points_backward(double* dpos, const double* dcli
     mlb_transform_points_backward_f64(dpos, dclip, V, &M);
     return MLB_OK;
 }
-static mlb_status f64_vertex_faces(int32_t* off, int32_t* vf, const int32_t* faces, int F, int V) {
-    return mlb_vertex_faces(off, vf, faces, F, V);
-}
-static mlb_status f64_edge_topology(int32_t* adj, const int32_t* faces, int F, const int32_t* off, const int32_t* vf) {
-    if (F < 0) return mlb_fail(MLB_ERR_ARG, "edge_topology: %d faces", F);
-    mlb_edge_partners(adj, faces, F, off, vf);
-    return MLB_OK;
-}
 static mlb_status f64_vertex_normals(double* normal, double* sum, const double* pos, int V, const int32_t* faces,
                                      const int32_t* off, const int32_t* vf) {
     mlb_vertex_normals_f64(normal, sum, pos, V, faces, off, vf);
@@ -202,17 +192,8 @@ static mlb_status f64_vertex_normals_backward(double* dpos, const double* dnorma
     mlb_vertex_normals_backward_f64(dpos, dnormal, sum, pos, V, faces, off, vf);
     return MLB_OK;
 }
-static mlb_status f64_scan_i32(int32_t* out, const int32_t* in, int n) {
-    if (n < 0) return mlb_fail(MLB_ERR_ARG, "scan of %d values", n);
-    mlb_scan_i32(out, in, n);
-    return MLB_OK;
-}
 
 // ---- the appearance renderer's samples
-static mlb_status f64_covered_flags(int32_t* flags, const int32_t* tri, size_t n) {
-    mlb_covered_flags(flags, tri, (long)n);
-    return MLB_OK;
-}
 static mlb_status f64_gather_samples(double* pts, double* nrm, double* vdir, int32_t* where, const double* pix,
                                      const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
     mlb_gather_samples_f64(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez);

@@ -321,35 +321,22 @@ static mlb_status cpu_marching_tets_backward(float* dpos, float* dsdf, const flo
 #define cpu_sdpa_backward_bf16_stored cpu_sdpa_backward_bf16
 
 // The CPU's tables differ only in their precision and their GEMM ops (cpu_<op>, cpu_<op>_bf16,
-// cpu_<op>_bf16_stored); every other op is cpu_<op>. Each entry is generated from the op list by
-// name, so no two ops can trade places.
-static const mlb_backend cpu_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+// cpu_<op>_bf16_stored, cpu_<op>_f16_stored); every other op is cpu_<op> (nn/backend_entries.h).
+static const mlb_backend cpu_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define CPU_GEMM(op) cpu_##op
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_bf16_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_bf16_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define CPU_GEMM(op) cpu_##op##_bf16
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_bf16_stored_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16_stored,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_bf16_stored_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define CPU_GEMM(op) cpu_##op##_bf16_stored
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_f16_stored_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_f16_stored,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_f16_stored_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define CPU_GEMM(op) cpu_##op##_f16_stored
+#include "nn/backend_entries.h"
 };
 
 // ---- CUDA ----------------------------------------------------------------------------------------
@@ -411,38 +398,25 @@ static mlb_status cuda_shade_backward(float* dkd, float* dks, float* dkr, float*
     static mlb_status cuda_##name(const mlb_backend* be, MLB_ARGS params) { return cuda_fn(MLB_ARGS args, be->precision); }
 #include "matlaber/backend_ops.def"
 
-// One table per GEMM precision, indexed by it: an op of the list calls its CUDA function, a GEMM
-// op the wrapper above, a memory or light op the hand-written cuda_<op>.
+// One table per GEMM precision, indexed by it, alike but for .precision: an op of the list calls its
+// CUDA function, a GEMM op the wrapper above, a memory or light op the hand-written cuda_<op>
+// (nn/backend_entries.h).
+#define TABLE_CUDA
 static const mlb_backend cuda_tables[4] = {
-    [MLB_GEMM_FP32] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_FP32] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP32,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_TF32] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_TF32,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_TF32] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_TF32,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_FP16] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP16,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_FP16] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP16,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_BF16] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_BF16] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_BF16,
+#include "nn/backend_entries.h"
     },
 };
+#undef TABLE_CUDA
 
 const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
 const mlb_backend* mlb_backend_cpu_bf16_stored(void) { return &cpu_bf16_stored_table; }

@@ -1,9 +1,9 @@
-// The CPU tables' ops over host memory, written once over `real` (core/real.h) for both tables:
-// backend.c includes it as float (the fp32 table, and every op of the bf16 tables but their GEMMs),
-// backend_f64.c as double (MLB_F64 defined before its includes: `real` is double, FN(name) is
-// name_f64). Each op is cpu_<name>, static, taking the table type FN(mlb_backend) where the op list
-// gives a table. What is precision-specific stays in those two files: the float table's SIMD rows,
-// bf16 GEMMs and stored weights, the double table's own add and affine_columns.
+// The CPU tables' ops over host memory, written once over `real` (core/real.h) for the float and
+// the double tables: backend.c includes it as float, backend_f64.c as double (MLB_F64 defined
+// before its includes: `real` is double, FN(name) is name_f64). Each op is cpu_<name>, static,
+// taking the table type FN(mlb_backend) where the op list gives a table. What is precision-specific
+// stays in those two files: the float tables' SIMD rows, bf16 GEMMs and stored weights and their
+// ops without a double twin, the double table's own add and affine_columns.
 #ifndef MATLABER_NN_BACKEND_HOST_H
 #define MATLABER_NN_BACKEND_HOST_H
 #include <stdlib.h>

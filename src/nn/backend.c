@@ -11,86 +11,13 @@
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
 #include "nn/simd_rows.h"
-#include "nn/backend_host.h"
-
-MLB_HOST_ADAPTERS(cpu)
 
 // ---- CPU -----------------------------------------------------------------------------------------
-static mlb_status cpu_alloc(float** out, size_t n) {
-    *out = malloc((n ? n : 1) * sizeof(float));
-    if (!*out) return mlb_fail(MLB_ERR_NOMEM, "out of memory for %.1f MB", n * 4.0 / 1e6);
-    return MLB_OK;
-}
-static void cpu_release(void* p) { free(p); }
-static mlb_status cpu_copy(float* dst, const float* src, size_t n) {
-    if (n) memcpy(dst, src, n * sizeof(float));
-    return MLB_OK;
-}
-static mlb_status cpu_zero(float* p, size_t n) {
-    if (n) memset(p, 0, n * sizeof(float));
-    return MLB_OK;
-}
-// host memory: uploading and downloading are copies
-#define cpu_upload cpu_copy
-#define cpu_download cpu_copy
-static mlb_status cpu_copy_rows(float* dst, size_t dpitch, const float* src, size_t spitch, size_t width, size_t rows) {
-    for (size_t r = 0; r < rows; r++) memcpy(dst + r * dpitch, src + r * spitch, width * sizeof(float));
-    return MLB_OK;
-}
-static mlb_status cpu_linear(const mlb_backend* be, float* out, const float* in, const float* w, const float* b, int B,
-                             int C, int OC) {
-    (void)be;
-    linear_forward(out, in, w, b, B, C, OC);
-    return MLB_OK;
-}
-static mlb_status cpu_linear_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
-                                      const float* in, const float* w, int B, int C, int OC) {
-    (void)be;
-    linear_backward(din, dw, db, dout, in, w, B, C, OC);
-    return MLB_OK;
-}
-static mlb_status cpu_conv2d_backward(const mlb_backend* be, float* din, float* dw, float* db, const float* dout,
-                                      const float* in, const float* w, const mlb_conv2d* cv) {
-    (void)be;
-    return conv2d_backward(din, dw, db, dout, in, w, cv, NULL);
-}
-static mlb_status cpu_conv2d(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
-                             const mlb_conv2d* cv) {
-    (void)be;
-    return conv2d_forward(out, in, w, b, cv, NULL);
-}
-static mlb_status cpu_groupnorm(float* out, float* mean, float* rstd, const float* in, const float* w, const float* b,
-                                int N, int C, int HW, int G, float eps, mlb_activation act) {
-    return groupnorm_forward(out, mean, rstd, in, w, b, N, C, HW, G, eps, act);
-}
-static mlb_status cpu_groupnorm_backward(float* din, float* dw, float* db, const float* dout, const float* in,
-                                         const float* w, const float* b, const float* mean, const float* rstd, int N,
-                                         int C, int HW, int G, mlb_activation act) {
-    return groupnorm_backward(din, dw, db, dout, in, w, b, mean, rstd, N, C, HW, G, act);
-}
-static mlb_status cpu_layernorm(float* out, const float* in, const float* w, const float* b, int N, int C, float eps) {
-    layernorm_forward(out, NULL, NULL, in, w, b, N, C, eps);
-    return MLB_OK;
-}
-static mlb_status cpu_activation(float* out, const float* in, size_t n, mlb_activation act) {
-    activation_forward(out, in, n, act);
-    return MLB_OK;
-}
-static mlb_status cpu_sdpa(const mlb_backend* be, float* out, float* lse, const float* q, const float* k,
-                           const float* v, int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    (void)be;
-    return sdpa_forward(out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
-}
-static mlb_status cpu_sdpa_backward(const mlb_backend* be, float* dq, float* dk, float* dv, const float* dout,
-                                    const float* out, const float* lse, const float* q, const float* k, const float* v,
-                                    int B, int Tq, int Tk, int C, int NH, int ldq, int ldkv) {
-    (void)be;
-    return sdpa_backward(dq, dk, dv, dout, out, lse, q, k, v, B, Tq, Tk, C, NH, ldq, ldkv, NULL);
-}
-static mlb_status cpu_attention(float* out, const float* q, const float* k, const float* v, int ld, int B, int T, int C,
-                               int NH, int causal) {
-    return attention_forward(out, NULL, q, k, v, ld, B, T, C, NH, causal);
-}
+// The ops both CPU tables share, written once over `real` (float here)
+#include "nn/backend_host.h"
+
+// The float table's own: ops with no double twin, or a float-only path (SIMD rows, bf16 GEMMs,
+// weights stored in bf16 or f16)
 static mlb_status cpu_embedding(float* out, const int32_t* tokens, const float* wte, const float* wpe, int B, int T,
                                int C, int V) {
     return embedding_forward(out, (const int*)tokens, wte, wpe, B, T, C, V);
@@ -101,17 +28,6 @@ static mlb_status cpu_add(float* y, const float* x, size_t n) {
     if (lv != MLB_SIMD_SCALAR) mlb_add_row(lv, y, x, n);
     else
         for (size_t i = 0; i < n; i++) y[i] += x[i];
-    return MLB_OK;
-}
-static mlb_status cpu_add_channel(float* x, const float* v, int N, int C, int HW) {
-    for (size_t r = 0; r < (size_t)N * C; r++) {
-        float t = v[r], *p = x + r * HW;
-        for (int i = 0; i < HW; i++) p[i] += t;
-    }
-    return MLB_OK;
-}
-static mlb_status cpu_transpose_last2(float* out, const float* in, int N, int R, int S, int accumulate) {
-    transpose_last2(out, in, N, R, S, accumulate);
     return MLB_OK;
 }
 // in [rows, 2 C4] = [a | gate] per row; out [rows, C4] = a · GELU(gate). In SIMD lanes where the CPU
@@ -126,21 +42,6 @@ static mlb_status cpu_geglu(float* out, const float* in, int rows, int C4) {
         else
             for (int j = 0; j < C4; j++) g[j] = row[j] * mlb_act(MLB_ACT_GELU, row[C4 + j]);
     }
-    return MLB_OK;
-}
-static mlb_status cpu_upsample_nearest2x(float* out, const float* in, int N, int C, int H, int W) {
-    upsample_nearest2x_forward(out, in, N, C, H, W);
-    return MLB_OK;
-}
-
-static mlb_status cpu_layernorm_stats(float* out, float* mean, float* rstd, const float* in, const float* w,
-                                      const float* b, int N, int C, float eps) {
-    layernorm_forward(out, mean, rstd, in, w, b, N, C, eps);
-    return MLB_OK;
-}
-static mlb_status cpu_layernorm_backward(float* din, float* dw, float* db, const float* dout, const float* in,
-                                         const float* w, const float* mean, const float* rstd, int N, int C) {
-    layernorm_backward(din, dw, db, dout, in, w, mean, rstd, N, C);
     return MLB_OK;
 }
 static mlb_status cpu_geglu_backward(float* din, const float* dout, const float* in, int rows, int C4) {
@@ -162,10 +63,6 @@ static mlb_status cpu_geglu_backward(float* din, const float* dout, const float*
     }
     return MLB_OK;
 }
-static mlb_status cpu_upsample_nearest2x_backward(float* din, const float* dout, int N, int C, int H, int W) {
-    upsample_nearest2x_backward(din, dout, N, C, H, W);
-    return MLB_OK;
-}
 static mlb_status cpu_add_channel_backward(float* dv, const float* dx, int N, int C, int HW) {
 #pragma omp parallel for schedule(static)
     for (long r = 0; r < (long)N * C; r++) {
@@ -177,10 +74,6 @@ static mlb_status cpu_add_channel_backward(float* dv, const float* dx, int N, in
     return MLB_OK;
 }
 
-static mlb_status cpu_activation_backward(float* din, const float* dout, const float* in, size_t n, mlb_activation act) {
-    activation_backward(din, dout, in, n, act);
-    return MLB_OK;
-}
 static mlb_status cpu_hashgrid(const mlb_hashgrid* g, const float* params, float* out, const float* x, int N) {
     mlb_hashgrid h = *g;
     h.params = (float*)params;   // read only: the forward does not write the table
@@ -199,23 +92,7 @@ static mlb_status cpu_adam(float* params, const float* grads, float* m, float* v
     adam_update(params, grads, m, v, n, cfg, t);
     return MLB_OK;
 }
-// The light turned as the CPU renderer turns it: a copy with mlb_envlight_set_rotation.
-static mlb_envlight cpu_turned(const void* handle, float rotation) {
-    mlb_envlight l = *(const mlb_envlight*)handle;
-    mlb_envlight_set_rotation(&l, rotation);
-    return l;
-}
-static mlb_status cpu_shade(float* out, const float* kd, const float* ks, const float* kr, const float* n,
-                            const float* v, int N, const void* handle, float rotation, mlb_fresnel fresnel) {
-    mlb_envlight l = cpu_turned(handle, rotation);
-    return mlb_shade_forward(out, kd, ks, kr, n, v, N, &l, fresnel);
-}
-static mlb_status cpu_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout,
-                                     const float* kd, const float* ks, const float* kr, const float* n, const float* v,
-                                     int N, const void* handle, float rotation, mlb_fresnel fresnel) {
-    mlb_envlight l = cpu_turned(handle, rotation);
-    return mlb_shade_backward(dkd, dks, dkr, dn, dv, dout, kd, ks, kr, n, v, N, &l, fresnel);
-}
+
 // bf16: the linear and conv GEMMs and the attention with bf16 operands (mlb_gemm_bf16 and the ops
 // built on its kernel), all else as the fp32 table.
 static mlb_status cpu_linear_bf16(const mlb_backend* be, float* out, const float* in, const float* w, const float* b,
@@ -319,60 +196,7 @@ static mlb_status cpu_conv2d_f16_stored(const mlb_backend* be, float* out, const
 #define cpu_sdpa_f16_stored cpu_sdpa
 #define cpu_sdpa_backward_f16_stored cpu_sdpa_backward
 
-// The rasterizer's ops: raster.h's functions with a scratch context of their own per call.
-static mlb_status cpu_rasterize(int32_t* tri, float* bary, float* depth, const float* clip, int V, const int32_t* faces,
-                                int F, int H, int W) {
-    return mlb_rasterize(NULL, tri, bary, depth, NULL, clip, V, faces, F, H, W);
-}
-static mlb_status cpu_rasterize_backward(float* dclip, const float* dbary, const float* ddepth, const int32_t* tri,
-                                         const float* clip, int V, const int32_t* faces, int F, int H, int W) {
-    return mlb_rasterize_backward(NULL, dclip, dbary, ddepth, tri, clip, V, faces, F, H, W);
-}
-static mlb_status cpu_interpolate(float* out, const float* attr, int V, int C, const int32_t* tri, const float* bary,
-                                  const int32_t* faces, int F, int H, int W) {
-    return mlb_interpolate(out, attr, V, C, tri, bary, faces, F, H, W);
-}
-static mlb_status cpu_interpolate_backward(float* dattr, float* dbary, const float* dout, const float* attr, int V,
-                                           int C, const int32_t* tri, const float* bary, const int32_t* faces, int F,
-                                           int H, int W) {
-    return mlb_interpolate_backward(NULL, dattr, dbary, dout, attr, V, C, tri, bary, faces, F, H, W);
-}
-static mlb_status cpu_antialias(float* out, float* weights, const float* color, int C, const int32_t* tri,
-                                const float* depth, const float* clip, int V, const int32_t* faces, const int32_t* adj,
-                                int F, int H, int W) {
-    return mlb_antialias(NULL, out, weights, color, C, tri, depth, clip, V, faces, adj, F, H, W);
-}
-static mlb_status cpu_antialias_backward(float* dcolor, float* dclip, const float* dout, const float* weights,
-                                         const float* color, int C, const int32_t* tri, const float* depth,
-                                         const float* clip, int V, const int32_t* faces, const int32_t* adj, int F,
-                                         int H, int W) {
-    return mlb_antialias_backward(NULL, dcolor, dclip, dout, weights, color, C, tri, depth, clip, V, faces, adj, F,
-                                  H, W);
-}
-
-// The appearance renderer's samples: raster_api.inc's passes over host memory.
-static mlb_status cpu_gather_samples(float* pts, float* nrm, float* vdir, int32_t* where, const float* pix,
-                                     const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {
-    mlb_gather_samples(pts, nrm, vdir, where, pix, tri, index, P, ex, ey, ez);
-    return MLB_OK;
-}
-static mlb_status cpu_composite_srgb(float* color, const float* rgb, const int32_t* where, int m) {
-    mlb_composite_srgb(color, rgb, where, m);
-    return MLB_OK;
-}
-static mlb_status cpu_composite_srgb_backward(float* drgb, const float* dcolor, const float* rgb, const int32_t* where,
-                                              int m) {
-    mlb_composite_srgb_backward(drgb, dcolor, rgb, where, m);
-    return MLB_OK;
-}
-static mlb_status cpu_downsample_box(float* out, const float* in, int H, int W, int C, int s) {
-    mlb_downsample_box(out, in, H, W, C, s);
-    return MLB_OK;
-}
-static mlb_status cpu_downsample_box_backward(float* din, const float* dout, int H, int W, int C, int s) {
-    mlb_downsample_box_backward(din, dout, H, W, C, s);
-    return MLB_OK;
-}
+// The guidance's conversions between renders and the diffusion model's images (image_convert.h)
 static mlb_status check_resize(const char* fn, int n, int H, int W, int C, int h, int w) {
     if (n < 0 || H < 1 || W < 1 || C < 1 || h < 1 || w < 1)
         return mlb_fail(MLB_ERR_ARG, "%s: %d images of %dx%d x %d to %dx%d", fn, n, W, H, C, w, h);
@@ -449,30 +273,6 @@ static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, 
     return MLB_OK;
 }
 
-// The surface's clip coordinates (raster.h) and vertex normals (mt_ops.h) over host memory.
-static mlb_status cpu_transform_points(float* clip, const float* pos, int V, const double* m) {
-    mlb_mat4 M;
-    memcpy(M.m, m, sizeof M.m);
-    mlb_transform_points(clip, pos, V, &M);
-    return MLB_OK;
-}
-static mlb_status cpu_transform_points_backward(float* dpos, const float* dclip, int V, const double* m) {
-    mlb_mat4 M;
-    memcpy(M.m, m, sizeof M.m);
-    mlb_transform_points_backward(dpos, dclip, V, &M);
-    return MLB_OK;
-}
-static mlb_status cpu_vertex_normals(float* normal, float* sum, const float* pos, int V, const int32_t* faces,
-                                     const int32_t* off, const int32_t* vf) {
-    mlb_vertex_normals(normal, sum, pos, V, faces, off, vf);
-    return MLB_OK;
-}
-static mlb_status cpu_vertex_normals_backward(float* dpos, const float* dnormal, const float* sum, const float* pos,
-                                              int V, const int32_t* faces, const int32_t* off, const int32_t* vf) {
-    mlb_vertex_normals_backward(dpos, dnormal, sum, pos, V, faces, off, vf);
-    return MLB_OK;
-}
-
 // DMTet's deformation and SDF regulariser: mt_ops.h's functions over host memory.
 static mlb_status cpu_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts, float grid_res) {
     mlb_mt_deform(out, grid, deform, n_verts, grid_res);
@@ -521,35 +321,22 @@ static mlb_status cpu_marching_tets_backward(float* dpos, float* dsdf, const flo
 #define cpu_sdpa_backward_bf16_stored cpu_sdpa_backward_bf16
 
 // The CPU's tables differ only in their precision and their GEMM ops (cpu_<op>, cpu_<op>_bf16,
-// cpu_<op>_bf16_stored); every other op is cpu_<op>. Each entry is generated from the op list by
-// name, so no two ops can trade places.
-static const mlb_backend cpu_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+// cpu_<op>_bf16_stored, cpu_<op>_f16_stored); every other op is cpu_<op> (nn/backend_entries.h).
+static const mlb_backend cpu_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define CPU_GEMM(op) cpu_##op
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_bf16_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_bf16_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define CPU_GEMM(op) cpu_##op##_bf16
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_bf16_stored_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_bf16_stored,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_bf16_stored_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_BF16,
+#define CPU_GEMM(op) cpu_##op##_bf16_stored
+#include "nn/backend_entries.h"
 };
-static const mlb_backend cpu_f16_stored_table = {
-    .device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cpu_##name,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cpu_##name##_f16_stored,
-#define MLB_DEVICE_OP(ret, name, params) .name = cpu_##name,
-#include "matlaber/backend_ops.def"
+static const mlb_backend cpu_f16_stored_table = {.device = MLB_DEVICE_CPU, .precision = MLB_GEMM_FP32,
+#define CPU_GEMM(op) cpu_##op##_f16_stored
+#include "nn/backend_entries.h"
 };
 
 // ---- CUDA ----------------------------------------------------------------------------------------
@@ -611,38 +398,25 @@ static mlb_status cuda_shade_backward(float* dkd, float* dks, float* dkr, float*
     static mlb_status cuda_##name(const mlb_backend* be, MLB_ARGS params) { return cuda_fn(MLB_ARGS args, be->precision); }
 #include "matlaber/backend_ops.def"
 
-// One table per GEMM precision, indexed by it: an op of the list calls its CUDA function, a GEMM
-// op the wrapper above, a memory or light op the hand-written cuda_<op>.
+// One table per GEMM precision, indexed by it, alike but for .precision: an op of the list calls its
+// CUDA function, a GEMM op the wrapper above, a memory or light op the hand-written cuda_<op>
+// (nn/backend_entries.h).
+#define TABLE_CUDA
 static const mlb_backend cuda_tables[4] = {
-    [MLB_GEMM_FP32] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP32,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_FP32] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP32,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_TF32] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_TF32,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_TF32] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_TF32,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_FP16] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP16,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_FP16] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_FP16,
+#include "nn/backend_entries.h"
     },
-    [MLB_GEMM_BF16] = {
-        .device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_BF16,
-#define MLB_OP(name, cuda_fn, params) .name = cuda_fn,
-#define MLB_GEMM_OP(name, cuda_fn, params, args) .name = cuda_##name,
-#define MLB_DEVICE_OP(ret, name, params) .name = cuda_##name,
-#include "matlaber/backend_ops.def"
+    [MLB_GEMM_BF16] = {.device = MLB_DEVICE_CUDA, .precision = MLB_GEMM_BF16,
+#include "nn/backend_entries.h"
     },
 };
+#undef TABLE_CUDA
 
 const mlb_backend* mlb_backend_cpu(void) { return &cpu_table; }
 const mlb_backend* mlb_backend_cpu_bf16_stored(void) { return &cpu_bf16_stored_table; }

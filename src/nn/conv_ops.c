@@ -470,6 +470,18 @@ static mlb_status FN(sdpa_check)(int B, int Tq, int Tk, int C, int NH, int ldq, 
     if (B > 0 && Tq > 0 && Tk < 1) return mlb_fail(MLB_ERR_ARG, "attention: %d queries but no keys", Tq);
     return MLB_OK;
 }
+// The blocks both passes walk: *rows queries per score block (att_rows), and two score blocks of
+// *rows x Tk at *ws, the caller's (sdpa_workspace_size) or allocated here into *owned, which the
+// caller frees (NULL when the caller gave one)
+static mlb_status FN(att_blocks)(real** ws, real** owned, size_t* rows, int Tq, int Tk, const char* op) {
+    *rows = FN(att_rows)(Tq, Tk);
+    *owned = NULL;
+    if (*ws) return MLB_OK;
+    *owned = malloc(2 * *rows * (size_t)Tk * sizeof(real));
+    if (!*owned) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory for a %zu x %d score block", op, *rows, Tk);
+    *ws = *owned;
+    return MLB_OK;
+}
 
 
 // Row p[0..n): p <- e^(p - max p); returns the max, *sum = the sum of the new p. The float pass
@@ -500,13 +512,9 @@ mlb_status FN(sdpa_forward)(real* out, real* lse, const real* q, const real* k, 
     if (!out || !q || !k || !v) return mlb_fail(MLB_ERR_ARG, "attention: NULL buffer");
     const int hd = C / NH;
     const real scale = (real)(1.0 / sqrt((double)hd));
-    const size_t rows = FN(att_rows)(Tq, Tk);
-    real* owned = NULL;
-    if (!ws) {
-        owned = malloc(2 * rows * (size_t)Tk * sizeof(real));
-        if (!owned) return mlb_fail(MLB_ERR_NOMEM, "attention: out of memory for a %zu x %d score block", rows, Tk);
-        ws = owned;
-    }
+    size_t rows;
+    real* owned;
+    MLB_TRY(FN(att_blocks)(&ws, &owned, &rows, Tq, Tk, "attention"));
     real* S = ws;
     for (int b = 0; b < B; b++)
         for (int h = 0; h < NH; h++) {
@@ -565,14 +573,9 @@ static mlb_status FN(sdpa_backward_with)(FN(mlb_gemm_fn) gemm, real* dq, real* d
     if (!dout || !out || !lse || !q || !k || !v) return mlb_fail(MLB_ERR_ARG, "attention backward: NULL buffer");
     const int hd = C / NH;
     const real scale = (real)(1.0 / sqrt((double)hd));
-    const size_t rows = FN(att_rows)(Tq, Tk);
-    real* owned = NULL;
-    if (!ws) {
-        owned = malloc(2 * rows * (size_t)Tk * sizeof(real));
-        if (!owned) return mlb_fail(MLB_ERR_NOMEM, "attention backward: out of memory for a %zu x %d score block",
-                                    rows, Tk);
-        ws = owned;
-    }
+    size_t rows;
+    real* owned;
+    MLB_TRY(FN(att_blocks)(&ws, &owned, &rows, Tq, Tk, "attention backward"));
     real* P = ws;
     real* dP = ws + rows * (size_t)Tk;
     for (int b = 0; b < B; b++)

@@ -1,7 +1,6 @@
 // Multi-view image data sets: cameras.json reading / writing, image loading and resampling, and
 // rendering a data set from a mesh (include/matlaber/views.h, docs/views.md).
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,16 +23,10 @@ typedef struct {
     const char* file;   // cameras.json path, for messages
 } jctx;
 
-#define JFAIL(code, jc, path, ...) jfail_(code, jc, path, __VA_ARGS__)
-static mlb_status jfail_(mlb_status code, const jctx* jc, const char* path, const char* fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static mlb_status jfail_(mlb_status code, const jctx* jc, const char* path, const char* fmt, ...) {
-    char msg[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mlb_fail(code, "%s: %s: %s", jc->file, path, msg);
+// "file: path: " + message, with `code`: JFAIL(code, jc, path, fmt, ...).
+#define JFAIL(code, jc, path, ...) jfail_where(jc, path, mlb_fail(code, __VA_ARGS__))
+static mlb_status jfail_where(const jctx* jc, const char* path, mlb_status code) {
+    return mlb_fail_context(code, "%s: %s", jc->file, path);
 }
 
 // A number member: required → error when missing; else *out keeps its default.

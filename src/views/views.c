@@ -152,8 +152,8 @@ static mlb_status parse_view(const jctx* jc, const cJSON* o, int i, int n_envs, 
     snprintf(w, sizeof w, "views[%d]", i);
     if (!cJSON_IsObject(o)) return JFAIL(MLB_ERR_FORMAT, jc, w, "not an object");
     memset(e, 0, sizeof *e);
-    e->near_z = 0.1;
-    e->far_z = 100;
+    e->near_z = MLB_ORBIT_NEAR;
+    e->far_z = MLB_ORBIT_FAR;
     e->env = -1;
     MLB_TRY(jpath(jc, o, "image", w, 1, e->image));
     MLB_TRY(jpath(jc, o, "normal", w, 0, e->normal));
@@ -727,8 +727,8 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
         e->elevation_deg = el;
         e->radius = c->radius;
         e->fovy_deg = c->fovy_deg;
-        e->near_z = 0.1;
-        e->far_z = 100;
+        e->near_z = MLB_ORBIT_NEAR;
+        e->far_z = MLB_ORBIT_FAR;
         e->env = env;
         e->env_rotation_deg = rot;
         snprintf(e->image, sizeof e->image, "view_%03d.png", i);

@@ -47,12 +47,15 @@ mlb_status mlb_camera_orbit(mlb_camera* cam, double azimuth_deg, double elevatio
 // (objects are scaled into the generation frame, the unit ball); the optimisation's random views
 // (cameras.h: mlb_orbit_default; geometry_fit.h: mlb_geofit_default) keep their elevation within
 // [MLB_ORBIT_EL_MIN, MLB_ORBIT_EL_MAX] degrees and their vertical field of view within
-// [MLB_ORBIT_FOVY_MIN, MLB_ORBIT_FOVY_MAX] (the geometry fit's fixed one: the widest).
+// [MLB_ORBIT_FOVY_MIN, MLB_ORBIT_FOVY_MAX] (the geometry fit's fixed one: the widest). Every
+// camera's clip planes, unless a cameras.json entry names its own, are MLB_ORBIT_NEAR and _FAR.
 #define MLB_ORBIT_RADIUS 3.0
 #define MLB_ORBIT_EL_MIN (-10.0)
 #define MLB_ORBIT_EL_MAX 45.0
 #define MLB_ORBIT_FOVY_MIN 25.7
 #define MLB_ORBIT_FOVY_MAX 45.0
+#define MLB_ORBIT_NEAR 0.1
+#define MLB_ORBIT_FAR 100.0
 
 // ---- scratch memory -------------------------------------------------------------------------------
 // Buffers the rasterizer, the backwards and antialias reuse from call to call (grown as needed,

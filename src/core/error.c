@@ -30,48 +30,42 @@ static void keep(const char* text, size_t n) {
     memcpy(last_message + head + sizeof gap - 1, text + from, n - from + 1);
 }
 
-// vsnprintf into a buffer of the message's own size; NULL when out of memory
-static char* format(const char* fmt, va_list ap, size_t* n) {
+// The message fmt makes, then ": " and `tail` when tail is not NULL, into last_message; 0 (and
+// last_message untouched) when out of memory.
+static int compose(const char* fmt, va_list ap, const char* tail) {
     va_list aq;
     va_copy(aq, ap);
     int len = vsnprintf(NULL, 0, fmt, aq);
     va_end(aq);
-    if (len < 0) return NULL;
-    char* text = malloc((size_t)len + 1);
-    if (text) vsnprintf(text, (size_t)len + 1, fmt, ap);
-    *n = (size_t)len;
-    return text;
+    if (len < 0) return 0;
+    size_t n = (size_t)len, m = tail ? strlen(tail) : 0, total = tail ? n + 2 + m : n;
+    char* text = malloc(total + 1);
+    if (!text) return 0;
+    vsnprintf(text, n + 1, fmt, ap);
+    if (tail) {
+        memcpy(text + n, ": ", 2);
+        memcpy(text + n + 2, tail, m + 1);
+    }
+    keep(text, total);
+    free(text);
+    return 1;
 }
 
 mlb_status mlb_fail(mlb_status code, const char* fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
-    size_t n = 0;
-    char* text = format(fmt, ap, &n);
+    int ok = compose(fmt, ap, NULL);
     va_end(ap);
-    if (text) keep(text, n);
-    else snprintf(last_message, sizeof last_message, "%s (and out of memory for its message)", mlb_status_name(code));
-    free(text);
+    if (!ok) snprintf(last_message, sizeof last_message, "%s (and out of memory for its message)", mlb_status_name(code));
     return code;
 }
 
 mlb_status mlb_fail_context(mlb_status code, const char* fmt, ...) {
+    const char* old = last_message[0] ? last_message : mlb_status_name(code);
     va_list ap;
     va_start(ap, fmt);
-    size_t n = 0;
-    char* prefix = format(fmt, ap, &n);
+    compose(fmt, ap, old);   // out of memory: the message stays as it was, without the context
     va_end(ap);
-    const char* old = last_message[0] ? last_message : mlb_status_name(code);
-    size_t m = strlen(old);
-    char* text = prefix ? malloc(n + 2 + m + 1) : NULL;
-    if (text) {
-        memcpy(text, prefix, n);
-        memcpy(text + n, ": ", 2);
-        memcpy(text + n + 2, old, m + 1);
-        keep(text, n + 2 + m);
-    }
-    free(prefix);
-    free(text);
     return code;
 }
 

@@ -49,7 +49,7 @@ mlb_status mlb_geofit_camera(mlb_camera* cam, const mlb_geofit_config* c, int it
     mlb_u32x4 w = mlb_rng_words(c->seed, STREAM_GEOFIT_CAMERA, (uint64_t)it * (uint64_t)c->views + (uint64_t)view);
     double az = -180.0 + 360.0 * mlb_u32_to_unit(w.v[0]);
     double el = c->el_min + (c->el_max - c->el_min) * mlb_u32_to_unit(w.v[1]);
-    return mlb_camera_orbit(cam, az, el, c->radius, NULL, c->fovy_deg, 1.0, 0.1, 100.0);
+    return mlb_camera_orbit(cam, az, el, c->radius, NULL, c->fovy_deg, 1.0, MLB_ORBIT_NEAR, MLB_ORBIT_FAR);
 }
 
 static mlb_status check_config(const mlb_geofit_config* c) {

@@ -10,7 +10,6 @@
 #include <errno.h>
 #include <limits.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -40,16 +39,9 @@ typedef struct {
     mlb_gltf_info info;
 } reader;
 
-// "name: " + message, with `code`.
-static mlb_status gerr(reader* R, mlb_status code, const char* fmt, ...) __attribute__((format(printf, 3, 4)));
-static mlb_status gerr(reader* R, mlb_status code, const char* fmt, ...) {
-    char msg[1024];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mlb_fail(code, "%s: %s", R->name, msg);
-}
+// "name: " + message, with `code`: GERR(R, code, fmt, ...).
+#define GERR(R, code, ...) gerr_name(R, mlb_fail(code, __VA_ARGS__))
+static mlb_status gerr_name(const reader* R, mlb_status code) { return mlb_fail_context(code, "%s", R->name); }
 
 static uint32_t le32(const unsigned char* p) {
     return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
@@ -64,13 +56,13 @@ static mlb_status get_size(reader* R, const cJSON* obj, const char* key, int req
                            size_t* out, const char* what) {
     const cJSON* v = item(obj, key);
     if (!v) {
-        if (required) return gerr(R, MLB_ERR_FORMAT, "%s: no %s", what, key);
+        if (required) return GERR(R, MLB_ERR_FORMAT, "%s: no %s", what, key);
         *out = dflt;
         return MLB_OK;
     }
     double d = cJSON_IsNumber(v) ? v->valuedouble : -1;
     if (!(d >= 0 && d <= (double)max && d == floor(d)))
-        return gerr(R, MLB_ERR_FORMAT, "%s: %s is not a whole number in [0, %zu]", what, key, max);
+        return GERR(R, MLB_ERR_FORMAT, "%s: %s is not a whole number in [0, %zu]", what, key, max);
     *out = (size_t)d;
     return MLB_OK;
 }
@@ -82,10 +74,10 @@ static const char* const TABLES[5] = {"buffers", "bufferViews", "accessors", "me
 static mlb_status make_tables(reader* R) {
     for (int k = 0; k < 5; k++) {
         const cJSON* a = item(R->root, TABLES[k]);
-        if (a && !cJSON_IsArray(a)) return gerr(R, MLB_ERR_FORMAT, "%s is not an array", TABLES[k]);
+        if (a && !cJSON_IsArray(a)) return GERR(R, MLB_ERR_FORMAT, "%s is not an array", TABLES[k]);
         int n = cJSON_GetArraySize(a);
         R->table[k] = malloc(sizeof(cJSON*) * ((size_t)n + 1));
-        if (!R->table[k]) return gerr(R, MLB_ERR_NOMEM, "out of memory for %d %s", n, TABLES[k]);
+        if (!R->table[k]) return GERR(R, MLB_ERR_NOMEM, "out of memory for %d %s", n, TABLES[k]);
         int i = 0;
         const cJSON* e;
         cJSON_ArrayForEach(e, a) R->table[k][i++] = e;
@@ -100,9 +92,9 @@ static mlb_status get_elem(reader* R, const char* key, size_t i, const cJSON** o
     int k = 0;
     while (k < 4 && strcmp(TABLES[k], key)) k++;
     int n = R->table_n[k];
-    if (i >= (size_t)n) return gerr(R, MLB_ERR_FORMAT, "%s: out of range (%d %s)", what, n, key);
+    if (i >= (size_t)n) return GERR(R, MLB_ERR_FORMAT, "%s: out of range (%d %s)", what, n, key);
     const cJSON* e = R->table[k][i];
-    if (!cJSON_IsObject(e)) return gerr(R, MLB_ERR_FORMAT, "%s: not an object", what);
+    if (!cJSON_IsObject(e)) return GERR(R, MLB_ERR_FORMAT, "%s: not an object", what);
     *out = e;
     return MLB_OK;
 }
@@ -113,11 +105,11 @@ static mlb_status get_numbers(reader* R, const cJSON* obj, const char* key, int 
     *present = 0;
     if (!a) return MLB_OK;
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) != n)
-        return gerr(R, MLB_ERR_FORMAT, "%s: %s is not an array of %d numbers", what, key, n);
+        return GERR(R, MLB_ERR_FORMAT, "%s: %s is not an array of %d numbers", what, key, n);
     for (int i = 0; i < n; i++) {
         const cJSON* v = cJSON_GetArrayItem(a, i);
         if (!cJSON_IsNumber(v) || !isfinite(v->valuedouble))
-            return gerr(R, MLB_ERR_FORMAT, "%s: %s[%d] is not a finite number", what, key, i);
+            return GERR(R, MLB_ERR_FORMAT, "%s: %s[%d] is not a finite number", what, key, i);
         out[i] = v->valuedouble;
     }
     *present = 1;
@@ -158,36 +150,36 @@ static int hexval(int c) {
 // A relative URI as a path under R->dir: percent-decoded, no scheme, no absolute path, no "..", no
 // backslash, no NUL; and (links followed) the file must lie inside the folder.
 static mlb_status external_path(reader* R, const char* uri, const char* what, char* out, size_t out_n) {
-    if (!R->dir) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: an external file (\"%.60s\") cannot be read from memory", what, uri);
+    if (!R->dir) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: an external file (\"%.60s\") cannot be read from memory", what, uri);
     char rel[1024];
     size_t k = 0;
     for (const char* p = uri; *p; p++) {
         int c = (unsigned char)*p;
         if (c == '%') {
             int hi = hexval((unsigned char)p[1]), lo = hi < 0 ? -1 : hexval((unsigned char)p[2]);
-            if (lo < 0) return gerr(R, MLB_ERR_FORMAT, "%s: uri has a bad %% escape", what);
+            if (lo < 0) return GERR(R, MLB_ERR_FORMAT, "%s: uri has a bad %% escape", what);
             c = hi * 16 + lo;
             p += 2;
         }
         if (c == 0 || c == '\\' || c == ':' || k + 1 >= sizeof rel)
-            return gerr(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" is not a plain relative file name", what, uri);
+            return GERR(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" is not a plain relative file name", what, uri);
         rel[k++] = (char)c;
     }
     rel[k] = 0;
-    if (k == 0 || rel[0] == '/') return gerr(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" is not a relative file name", what, uri);
+    if (k == 0 || rel[0] == '/') return GERR(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" is not a relative file name", what, uri);
     for (const char* p = rel; *p;) {   // no ".." component
         const char* e = strchr(p, '/');
         size_t len = e ? (size_t)(e - p) : strlen(p);
         if (len == 2 && p[0] == '.' && p[1] == '.')
-            return gerr(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" leaves the file's folder", what, uri);
+            return GERR(R, MLB_ERR_FORMAT, "%s: uri \"%.60s\" leaves the file's folder", what, uri);
         p += len + (e != NULL);
     }
-    if ((size_t)snprintf(out, out_n, "%s/%s", R->dir, rel) >= out_n) return gerr(R, MLB_ERR_FORMAT, "%s: path too long", what);
+    if ((size_t)snprintf(out, out_n, "%s/%s", R->dir, rel) >= out_n) return GERR(R, MLB_ERR_FORMAT, "%s: path too long", what);
     char *rd = realpath(R->dir, NULL), *rf = realpath(out, NULL);
     mlb_status s = MLB_OK;
-    if (!rf) s = gerr(R, errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s: %s", what, out, strerror(errno));
+    if (!rf) s = GERR(R, errno == ENOENT ? MLB_ERR_NOT_FOUND : MLB_ERR_IO, "%s: %s: %s", what, out, strerror(errno));
     else if (!rd || (strcmp(rd, "/") && (strncmp(rf, rd, strlen(rd)) != 0 || rf[strlen(rd)] != '/')))
-        s = gerr(R, MLB_ERR_FORMAT, "%s: %s resolves outside the file's folder", what, out);
+        s = GERR(R, MLB_ERR_FORMAT, "%s: %s resolves outside the file's folder", what, out);
     free(rd);
     free(rf);
     return s;
@@ -201,26 +193,26 @@ static mlb_status get_buffer(reader* R, size_t i, const unsigned char** p, size_
     if (R->buf[i]) { *p = R->buf[i]; *len = R->buf_len[i]; return MLB_OK; }
     size_t n;
     MLB_TRY(get_size(R, b, "byteLength", 1, SIZE_MAX / 2, 0, &n, what));
-    if (n == 0) return gerr(R, MLB_ERR_FORMAT, "%s: byteLength is 0", what);
+    if (n == 0) return GERR(R, MLB_ERR_FORMAT, "%s: byteLength is 0", what);
     const cJSON* uri = item(b, "uri");
     if (!uri) {   // the .glb's BIN chunk (may be up to 3 bytes longer: padding)
-        if (i != 0 || !R->bin) return gerr(R, MLB_ERR_FORMAT, "%s: no uri, and the file has no BIN chunk for it", what);
-        if (n > R->bin_len) return gerr(R, MLB_ERR_FORMAT, "%s: byteLength %zu, but the BIN chunk has %zu bytes", what, n, R->bin_len);
+        if (i != 0 || !R->bin) return GERR(R, MLB_ERR_FORMAT, "%s: no uri, and the file has no BIN chunk for it", what);
+        if (n > R->bin_len) return GERR(R, MLB_ERR_FORMAT, "%s: byteLength %zu, but the BIN chunk has %zu bytes", what, n, R->bin_len);
         R->buf[i] = R->bin;
     } else {
-        if (!cJSON_IsString(uri)) return gerr(R, MLB_ERR_FORMAT, "%s: uri is not a string", what);
-        if (n > R->budget) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: byteLength %zu is over the %zu bytes left to read", what, n, R->budget);
+        if (!cJSON_IsString(uri)) return GERR(R, MLB_ERR_FORMAT, "%s: uri is not a string", what);
+        if (n > R->budget) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: byteLength %zu is over the %zu bytes left to read", what, n, R->budget);
         const char* u = uri->valuestring;
         size_t got = 0;
         unsigned char* data = NULL;
         if (!strncmp(u, "data:", 5)) {
             const char* comma = strchr(u, ',');
             if (!comma || comma - u < 12 || strncmp(comma - 7, ";base64", 7))
-                return gerr(R, MLB_ERR_FORMAT, "%s: a data: uri that is not base64", what);
+                return GERR(R, MLB_ERR_FORMAT, "%s: a data: uri that is not base64", what);
             size_t len = strlen(comma + 1);
             data = malloc(len / 4 * 3 + 3);
-            if (!data) return gerr(R, MLB_ERR_NOMEM, "%s: out of memory", what);
-            if (!base64_decode(comma + 1, len, data, &got)) { free(data); return gerr(R, MLB_ERR_FORMAT, "%s: bad base64 data", what); }
+            if (!data) return GERR(R, MLB_ERR_NOMEM, "%s: out of memory", what);
+            if (!base64_decode(comma + 1, len, data, &got)) { free(data); return GERR(R, MLB_ERR_FORMAT, "%s: bad base64 data", what); }
         } else {
             char path[4200];
             MLB_TRY(external_path(R, u, what, path, sizeof path));
@@ -230,7 +222,7 @@ static mlb_status get_buffer(reader* R, size_t i, const unsigned char** p, size_
             data = (unsigned char*)text;
         }
         R->owned[i] = data;
-        if (got < n) return gerr(R, MLB_ERR_FORMAT, "%s: byteLength %zu, but its data has %zu bytes", what, n, got);
+        if (got < n) return GERR(R, MLB_ERR_FORMAT, "%s: byteLength %zu, but its data has %zu bytes", what, n, got);
         R->budget -= n;
         R->buf[i] = data;
     }
@@ -261,8 +253,8 @@ static int comp_size(int ctype) {
 static mlb_status get_accessor(reader* R, size_t idx, acc_t* A, char* what, size_t what_n) {
     const cJSON *a, *v;
     MLB_TRY(get_elem(R, "accessors", idx, &a, what, what_n));
-    if (item(a, "sparse")) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: sparse accessors are not read", what);
-    if (!item(a, "bufferView")) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: no bufferView (all zeros) is not read", what);
+    if (item(a, "sparse")) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: sparse accessors are not read", what);
+    if (!item(a, "bufferView")) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: no bufferView (all zeros) is not read", what);
     size_t bv, ct, count, aoff;
     MLB_TRY(get_size(R, a, "bufferView", 1, INT_MAX, 0, &bv, what));
     MLB_TRY(get_size(R, a, "componentType", 1, 65535, 0, &ct, what));
@@ -270,12 +262,12 @@ static mlb_status get_accessor(reader* R, size_t idx, acc_t* A, char* what, size
     MLB_TRY(get_size(R, a, "byteOffset", 0, SIZE_MAX / 2, 0, &aoff, what));
     A->ctype = (int)ct;
     A->csize = comp_size(A->ctype);
-    if (!A->csize) return gerr(R, MLB_ERR_FORMAT, "%s: componentType %zu is not one of glTF's", what, ct);
-    if (count == 0) return gerr(R, MLB_ERR_FORMAT, "%s: count is 0", what);
+    if (!A->csize) return GERR(R, MLB_ERR_FORMAT, "%s: componentType %zu is not one of glTF's", what, ct);
+    if (count == 0) return GERR(R, MLB_ERR_FORMAT, "%s: count is 0", what);
     const cJSON* type = item(a, "type");
     const char* t = cJSON_IsString(type) ? type->valuestring : "";
     A->ncomp = !strcmp(t, "SCALAR") ? 1 : !strcmp(t, "VEC2") ? 2 : !strcmp(t, "VEC3") ? 3 : !strcmp(t, "VEC4") ? 4 : 0;
-    if (!A->ncomp) return gerr(R, MLB_ERR_FORMAT, "%s: type \"%.20s\" is not SCALAR or VEC2-4", what, t);
+    if (!A->ncomp) return GERR(R, MLB_ERR_FORMAT, "%s: type \"%.20s\" is not SCALAR or VEC2-4", what, t);
     const cJSON* nm = item(a, "normalized");
     A->normalized = cJSON_IsTrue(nm);
     char vwhat[64];
@@ -289,13 +281,13 @@ static mlb_status get_accessor(reader* R, size_t idx, acc_t* A, char* what, size
     size_t blen;
     MLB_TRY(get_buffer(R, buf, &base, &blen));
     if (voff > blen || vlen > blen - voff)
-        return gerr(R, MLB_ERR_FORMAT, "%s: bytes %zu + %zu do not fit buffers[%zu] (%zu bytes)", vwhat, voff, vlen, buf, blen);
+        return GERR(R, MLB_ERR_FORMAT, "%s: bytes %zu + %zu do not fit buffers[%zu] (%zu bytes)", vwhat, voff, vlen, buf, blen);
     size_t elem = (size_t)A->csize * (size_t)A->ncomp;
     if (stride && (stride < elem || stride % (size_t)A->csize))
-        return gerr(R, MLB_ERR_FORMAT, "%s: byteStride %zu does not suit %s's %zu-byte elements", vwhat, stride, what, elem);
+        return GERR(R, MLB_ERR_FORMAT, "%s: byteStride %zu does not suit %s's %zu-byte elements", vwhat, stride, what, elem);
     A->stride = stride ? stride : elem;
     if (aoff > vlen || elem > vlen - aoff || count - 1 > (vlen - aoff - elem) / A->stride)
-        return gerr(R, MLB_ERR_FORMAT, "%s: %zu elements of %zu bytes (stride %zu) from byte %zu do not fit %s (%zu bytes)",
+        return GERR(R, MLB_ERR_FORMAT, "%s: %zu elements of %zu bytes (stride %zu) from byte %zu do not fit %s (%zu bytes)",
                     what, count, elem, A->stride, aoff, vwhat, vlen);
     A->p = base + voff + aoff;
     A->count = count;
@@ -320,7 +312,7 @@ static double comp(const acc_t* A, size_t i, int c) {
 static mlb_status check_attr(reader* R, const acc_t* A, const char* what, const char* attr, int ncomp, const int* norm_types) {
     int ok = A->ncomp == ncomp && A->ctype == 5126 && !A->normalized;
     for (int k = 0; norm_types && norm_types[k]; k++) ok |= A->ncomp == ncomp && A->ctype == norm_types[k] && A->normalized;
-    if (!ok) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: %s must be a float VEC%d%s (componentType %d, %d components%s)", what, attr,
+    if (!ok) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: %s must be a float VEC%d%s (componentType %d, %d components%s)", what, attr,
                          ncomp, norm_types ? " or normalized integers" : "", A->ctype, A->ncomp, A->normalized ? ", normalized" : "");
     return MLB_OK;
 }
@@ -349,8 +341,8 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
     MLB_TRY(get_size(R, prim, "mode", 0, 6, 4, &mode, pwhat));
     if (mode < 4) { R->info.n_skipped++; return MLB_OK; }   // points, lines: no surface
     const cJSON* attrs = item(prim, "attributes");
-    if (!cJSON_IsObject(attrs)) return gerr(R, MLB_ERR_FORMAT, "%s: no attributes", pwhat);
-    if (!item(attrs, "POSITION")) return gerr(R, MLB_ERR_FORMAT, "%s: no POSITION", pwhat);
+    if (!cJSON_IsObject(attrs)) return GERR(R, MLB_ERR_FORMAT, "%s: no attributes", pwhat);
+    if (!item(attrs, "POSITION")) return GERR(R, MLB_ERR_FORMAT, "%s: no POSITION", pwhat);
     char what[64], nwhat[64], twhat[64], iwhat[64] = "";
     size_t ip, in_ = 0, it = 0, ii = 0;
     acc_t P, N, T, I;
@@ -366,13 +358,13 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
         MLB_TRY(get_size(R, attrs, "NORMAL", 1, INT_MAX, 0, &in_, pwhat));
         MLB_TRY(get_accessor(R, in_, &N, nwhat, sizeof nwhat));
         MLB_TRY(check_attr(R, &N, nwhat, "NORMAL", 3, n_norm));
-        if (N.count != P.count) return gerr(R, MLB_ERR_FORMAT, "%s: NORMAL has %zu elements, POSITION %zu", pwhat, N.count, P.count);
+        if (N.count != P.count) return GERR(R, MLB_ERR_FORMAT, "%s: NORMAL has %zu elements, POSITION %zu", pwhat, N.count, P.count);
     }
     if (has_t) {
         MLB_TRY(get_size(R, attrs, "TEXCOORD_0", 1, INT_MAX, 0, &it, pwhat));
         MLB_TRY(get_accessor(R, it, &T, twhat, sizeof twhat));
         MLB_TRY(check_attr(R, &T, twhat, "TEXCOORD_0", 2, t_norm));
-        if (T.count != P.count) return gerr(R, MLB_ERR_FORMAT, "%s: TEXCOORD_0 has %zu elements, POSITION %zu", pwhat, T.count, P.count);
+        if (T.count != P.count) return GERR(R, MLB_ERR_FORMAT, "%s: TEXCOORD_0 has %zu elements, POSITION %zu", pwhat, T.count, P.count);
     }
     int indexed = item(prim, "indices") != NULL;
     size_t n_idx = P.count;
@@ -380,17 +372,17 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
         MLB_TRY(get_size(R, prim, "indices", 1, INT_MAX, 0, &ii, pwhat));
         MLB_TRY(get_accessor(R, ii, &I, iwhat, sizeof iwhat));
         if (I.ncomp != 1 || I.normalized || !(I.ctype == 5121 || I.ctype == 5123 || I.ctype == 5125))
-            return gerr(R, MLB_ERR_FORMAT, "%s: indices must be unsigned byte, short or int SCALARs", iwhat);
+            return GERR(R, MLB_ERR_FORMAT, "%s: indices must be unsigned byte, short or int SCALARs", iwhat);
         n_idx = I.count;
     }
     size_t n_tri = mode == 4 ? n_idx / 3 : n_idx >= 3 ? n_idx - 2 : 0;
     if (mode == 4 && n_idx % 3)
-        return gerr(R, MLB_ERR_FORMAT, "%s: %zu %s is not a multiple of 3 (mode 4, triangles)", pwhat, n_idx, indexed ? "indices" : "vertices");
+        return GERR(R, MLB_ERR_FORMAT, "%s: %zu %s is not a multiple of 3 (mode 4, triangles)", pwhat, n_idx, indexed ? "indices" : "vertices");
     if (n_tri > R->max_tris - R->nt)
-        return gerr(R, MLB_ERR_UNSUPPORTED, "more than %zu triangles (at %s)", R->max_tris, pwhat);
-    if (P.count > MAX_VERTS - R->nv) return gerr(R, MLB_ERR_UNSUPPORTED, "more than %zu vertices (at %s)", MAX_VERTS, pwhat);
+        return GERR(R, MLB_ERR_UNSUPPORTED, "more than %zu triangles (at %s)", R->max_tris, pwhat);
+    if (P.count > MAX_VERTS - R->nv) return GERR(R, MLB_ERR_UNSUPPORTED, "more than %zu vertices (at %s)", MAX_VERTS, pwhat);
     if (!grow_verts(R, R->nv + P.count) || !mlb_reserve((void**)&R->tri, &R->cap_t, R->nt + n_tri, 3 * sizeof(int32_t)))
-        return gerr(R, MLB_ERR_NOMEM, "out of memory for %zu vertices", R->nv + P.count);
+        return GERR(R, MLB_ERR_NOMEM, "out of memory for %zu vertices", R->nv + P.count);
     // normals go through the inverse transpose: the cofactor matrix, times the sign of the determinant
     double C[9];
     for (int r = 0; r < 3; r++)
@@ -404,11 +396,11 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
         if (identity) for (int k = 0; k < 3; k++) p[k] = (float)x[k];   // exact: no arithmetic on the bits
         else transform_point(M, x, p);
         if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]))
-            return gerr(R, MLB_ERR_FORMAT, "%s: element %zu is not finite%s", what, i, identity ? "" : " (after its node's transform)");
+            return GERR(R, MLB_ERR_FORMAT, "%s: element %zu is not finite%s", what, i, identity ? "" : " (after its node's transform)");
         float* n = R->nrm + 3 * (R->nv + i);
         if (has_n) {
             double y[3] = {comp(&N, i, 0), comp(&N, i, 1), comp(&N, i, 2)};
-            if (!isfinite(y[0]) || !isfinite(y[1]) || !isfinite(y[2])) return gerr(R, MLB_ERR_FORMAT, "%s: element %zu is not finite", nwhat, i);
+            if (!isfinite(y[0]) || !isfinite(y[1]) || !isfinite(y[2])) return GERR(R, MLB_ERR_FORMAT, "%s: element %zu is not finite", nwhat, i);
             for (int r = 0; r < 3; r++) n[r] = identity ? (float)y[r] : (float)(C[3 * r] * y[0] + C[3 * r + 1] * y[1] + C[3 * r + 2] * y[2]);
             double l = sqrt((double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2]);
             if (!identity && l > 0 && isfinite(l)) for (int r = 0; r < 3; r++) n[r] = (float)(n[r] / l);
@@ -417,7 +409,7 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
         float* t = R->uv + 2 * (R->nv + i);
         if (has_t) {
             double u = comp(&T, i, 0), v = comp(&T, i, 1);
-            if (!isfinite(u) || !isfinite(v)) return gerr(R, MLB_ERR_FORMAT, "%s: element %zu is not finite", twhat, i);
+            if (!isfinite(u) || !isfinite(v)) return GERR(R, MLB_ERR_FORMAT, "%s: element %zu is not finite", twhat, i);
             t[0] = (float)u;
             t[1] = 1.0f - (float)v;   // glTF's v runs down the image, OBJ's up
         } else t[0] = t[1] = 0;
@@ -431,7 +423,7 @@ static mlb_status add_primitive(reader* R, const cJSON* prim, const char* pwhat,
         for (int j = 0; j < 3; j++) {
             size_t v = indexed ? (size_t)comp(&I, c[j], 0) : c[j];
             if (v >= P.count)
-                return gerr(R, MLB_ERR_FORMAT, "%s: index %zu (element %zu) out of range (%zu vertices)", iwhat, v, c[j], P.count);
+                return GERR(R, MLB_ERR_FORMAT, "%s: index %zu (element %zu) out of range (%zu vertices)", iwhat, v, c[j], P.count);
             t[mirrored && j ? 3 - j : j] = (int32_t)(R->nv + v);
         }
     }
@@ -450,7 +442,7 @@ static mlb_status add_mesh(reader* R, size_t mi, const double* M) {
     char what[64], pwhat[96];
     MLB_TRY(get_elem(R, "meshes", mi, &m, what, sizeof what));
     const cJSON* prims = item(m, "primitives");
-    if (!cJSON_IsArray(prims) || cJSON_GetArraySize(prims) < 1) return gerr(R, MLB_ERR_FORMAT, "%s: no primitives", what);
+    if (!cJSON_IsArray(prims) || cJSON_GetArraySize(prims) < 1) return GERR(R, MLB_ERR_FORMAT, "%s: no primitives", what);
     int identity = 1;
     for (int k = 0; k < 16; k++) identity &= M[k] == (k % 5 == 0 ? 1.0 : 0.0);
     double det = M[0] * (M[5] * M[10] - M[9] * M[6]) - M[4] * (M[1] * M[10] - M[9] * M[2]) + M[8] * (M[1] * M[6] - M[5] * M[2]);
@@ -461,7 +453,7 @@ static mlb_status add_mesh(reader* R, size_t mi, const double* M) {
     const cJSON* prim;
     cJSON_ArrayForEach(prim, prims) {
         snprintf(pwhat, sizeof pwhat, "%s.primitives[%d]", what, p);
-        if (!cJSON_IsObject(prim)) return gerr(R, MLB_ERR_FORMAT, "%s: not an object", pwhat);
+        if (!cJSON_IsObject(prim)) return GERR(R, MLB_ERR_FORMAT, "%s: not an object", pwhat);
         MLB_TRY(add_primitive(R, prim, pwhat, M, identity, mirrored));
         p++;
     }
@@ -487,7 +479,7 @@ static mlb_status local_matrix(reader* R, const cJSON* node, const char* what, d
     MLB_TRY(get_numbers(R, node, "translation", 3, t, what, &has));
     MLB_TRY(get_numbers(R, node, "rotation", 4, q, what, &has));
     double ql = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (!(ql > 1e-12) || !isfinite(ql)) return gerr(R, MLB_ERR_FORMAT, "%s: rotation is not a unit quaternion", what);
+    if (!(ql > 1e-12) || !isfinite(ql)) return GERR(R, MLB_ERR_FORMAT, "%s: rotation is not a unit quaternion", what);
     for (int k = 0; k < 4; k++) q[k] /= ql;
     MLB_TRY(get_numbers(R, node, "scale", 3, s, what, &has));
     double x = q[0], y = q[1], z = q[2], w = q[3];
@@ -508,8 +500,8 @@ static mlb_status visit(reader* R, size_t ni, const double* parent, int depth, u
     const cJSON* node;
     char what[64];
     MLB_TRY(get_elem(R, "nodes", ni, &node, what, sizeof what));
-    if (seen[ni]) return gerr(R, MLB_ERR_FORMAT, "%s: reached twice (the nodes must form a tree)", what);
-    if (depth >= MLB_GLTF_MAX_DEPTH) return gerr(R, MLB_ERR_UNSUPPORTED, "%s: nodes nested deeper than %d", what, MLB_GLTF_MAX_DEPTH);
+    if (seen[ni]) return GERR(R, MLB_ERR_FORMAT, "%s: reached twice (the nodes must form a tree)", what);
+    if (depth >= MLB_GLTF_MAX_DEPTH) return GERR(R, MLB_ERR_UNSUPPORTED, "%s: nodes nested deeper than %d", what, MLB_GLTF_MAX_DEPTH);
     seen[ni] = 1;
     double local[16], world[16];
     MLB_TRY(local_matrix(R, node, what, local));
@@ -520,12 +512,12 @@ static mlb_status visit(reader* R, size_t ni, const double* parent, int depth, u
         MLB_TRY(add_mesh(R, mi, world));
     }
     const cJSON* ch = item(node, "children");
-    if (ch && !cJSON_IsArray(ch)) return gerr(R, MLB_ERR_FORMAT, "%s: children is not an array", what);
+    if (ch && !cJSON_IsArray(ch)) return GERR(R, MLB_ERR_FORMAT, "%s: children is not an array", what);
     int k = 0;
     const cJSON* c;
     cJSON_ArrayForEach(c, ch) {
         double d = cJSON_IsNumber(c) ? c->valuedouble : -1;
-        if (!(d >= 0 && d < INT_MAX && d == floor(d))) return gerr(R, MLB_ERR_FORMAT, "%s: children[%d] is not a node index", what, k);
+        if (!(d >= 0 && d < INT_MAX && d == floor(d))) return GERR(R, MLB_ERR_FORMAT, "%s: children[%d] is not a node index", what, k);
         MLB_TRY(visit(R, (size_t)d, world, depth + 1, seen));
         k++;
     }
@@ -545,7 +537,7 @@ static mlb_status walk_scene(reader* R) {
     }
     unsigned char* seen = calloc((size_t)n_nodes + 1, 1);
     unsigned char* child = calloc((size_t)n_nodes + 1, 1);
-    mlb_status s = seen && child ? MLB_OK : gerr(R, MLB_ERR_NOMEM, "out of memory for %d nodes", n_nodes);
+    mlb_status s = seen && child ? MLB_OK : GERR(R, MLB_ERR_NOMEM, "out of memory for %d nodes", n_nodes);
     if (!s && scenes) {
         size_t si;
         const cJSON* scene = NULL;
@@ -553,17 +545,17 @@ static mlb_status walk_scene(reader* R) {
         s = get_size(R, R->root, "scene", 0, INT_MAX, 0, &si, "the file");
         snprintf(what, sizeof what, "scenes[%zu]", si);   // looked up once: no table needed
         int n_scenes = cJSON_IsArray(scenes) ? cJSON_GetArraySize(scenes) : 0;
-        if (!s && si >= (size_t)n_scenes) s = gerr(R, MLB_ERR_FORMAT, "%s: out of range (%d scenes)", what, n_scenes);
+        if (!s && si >= (size_t)n_scenes) s = GERR(R, MLB_ERR_FORMAT, "%s: out of range (%d scenes)", what, n_scenes);
         if (!s) scene = cJSON_GetArrayItem(scenes, (int)si);
-        if (!s && !cJSON_IsObject(scene)) s = gerr(R, MLB_ERR_FORMAT, "%s: not an object", what);
+        if (!s && !cJSON_IsObject(scene)) s = GERR(R, MLB_ERR_FORMAT, "%s: not an object", what);
         const cJSON* roots = s ? NULL : item(scene, "nodes");
-        if (!s && roots && !cJSON_IsArray(roots)) s = gerr(R, MLB_ERR_FORMAT, "%s: nodes is not an array", what);
+        if (!s && roots && !cJSON_IsArray(roots)) s = GERR(R, MLB_ERR_FORMAT, "%s: nodes is not an array", what);
         if (s) roots = NULL;
         int k = 0;
         const cJSON* c;
         cJSON_ArrayForEach(c, roots) {
             double d = cJSON_IsNumber(c) ? c->valuedouble : -1;
-            if (!(d >= 0 && d < INT_MAX && d == floor(d))) s = gerr(R, MLB_ERR_FORMAT, "%s: nodes[%d] is not a node index", what, k);
+            if (!(d >= 0 && d < INT_MAX && d == floor(d))) s = GERR(R, MLB_ERR_FORMAT, "%s: nodes[%d] is not a node index", what, k);
             else s = visit(R, (size_t)d, I, 0, seen);
             if (s) break;
             k++;
@@ -597,17 +589,17 @@ static mlb_status split_file(reader* R, const unsigned char* d, size_t n, const 
         return MLB_OK;
     }
     R->info.binary = 1;
-    if (n < 20) return gerr(R, MLB_ERR_FORMAT, "truncated .glb: %zu bytes, less than a header and a chunk header", n);
-    if (le32(d + 4) != 2) return gerr(R, MLB_ERR_UNSUPPORTED, ".glb version %u (only 2 is read)", le32(d + 4));
-    if (le32(d + 8) != n) return gerr(R, MLB_ERR_FORMAT, "the .glb header says %u bytes, the file has %zu (truncated or padded)", le32(d + 8), n);
+    if (n < 20) return GERR(R, MLB_ERR_FORMAT, "truncated .glb: %zu bytes, less than a header and a chunk header", n);
+    if (le32(d + 4) != 2) return GERR(R, MLB_ERR_UNSUPPORTED, ".glb version %u (only 2 is read)", le32(d + 4));
+    if (le32(d + 8) != n) return GERR(R, MLB_ERR_FORMAT, "the .glb header says %u bytes, the file has %zu (truncated or padded)", le32(d + 8), n);
     size_t jl = le32(d + 12);
-    if (le32(d + 16) != GLB_JSON) return gerr(R, MLB_ERR_FORMAT, "the .glb's first chunk is not JSON");
-    if (jl > n - 20) return gerr(R, MLB_ERR_FORMAT, "the .glb's JSON chunk (%zu bytes) runs past the end of the file", jl);
+    if (le32(d + 16) != GLB_JSON) return GERR(R, MLB_ERR_FORMAT, "the .glb's first chunk is not JSON");
+    if (jl > n - 20) return GERR(R, MLB_ERR_FORMAT, "the .glb's JSON chunk (%zu bytes) runs past the end of the file", jl);
     *json = (const char*)d + 20;
     *json_n = jl;
     for (size_t off = 20 + jl; n - off >= 8;) {   // later chunks: the first BIN is the buffer, others are skipped
         size_t cl = le32(d + off);
-        if (cl > n - off - 8) return gerr(R, MLB_ERR_FORMAT, "a .glb chunk at byte %zu (%zu bytes) runs past the end of the file", off, cl);
+        if (cl > n - off - 8) return GERR(R, MLB_ERR_FORMAT, "a .glb chunk at byte %zu (%zu bytes) runs past the end of the file", off, cl);
         if (le32(d + off + 4) == GLB_BIN && !R->bin) { R->bin = d + off + 8; R->bin_len = cl; }
         off += 8 + cl;
     }
@@ -622,29 +614,29 @@ static mlb_status parse(reader* R, const unsigned char* data, size_t n) {
     if (!R->root) {
         char why[96];
         mlb_json_why(json, jn, why, sizeof why);
-        return gerr(R, MLB_ERR_FORMAT, "not glTF: %s (%s)", R->info.binary ? "the JSON chunk does not parse" : "neither a .glb nor JSON text", why);
+        return GERR(R, MLB_ERR_FORMAT, "not glTF: %s (%s)", R->info.binary ? "the JSON chunk does not parse" : "neither a .glb nor JSON text", why);
     }
-    if (!cJSON_IsObject(R->root)) return gerr(R, MLB_ERR_FORMAT, "not glTF: the JSON is not an object");
+    if (!cJSON_IsObject(R->root)) return GERR(R, MLB_ERR_FORMAT, "not glTF: the JSON is not an object");
     const cJSON* asset = item(R->root, "asset");
     const cJSON* ver = cJSON_IsObject(asset) ? item(asset, "version") : NULL;
-    if (!cJSON_IsString(ver)) return gerr(R, MLB_ERR_FORMAT, "not glTF: no asset.version");
-    if (strncmp(ver->valuestring, "2.", 2)) return gerr(R, MLB_ERR_UNSUPPORTED, "glTF version %.20s (only 2.x is read)", ver->valuestring);
+    if (!cJSON_IsString(ver)) return GERR(R, MLB_ERR_FORMAT, "not glTF: no asset.version");
+    if (strncmp(ver->valuestring, "2.", 2)) return GERR(R, MLB_ERR_UNSUPPORTED, "glTF version %.20s (only 2.x is read)", ver->valuestring);
     const cJSON* req = item(R->root, "extensionsRequired");
     const cJSON* e;
     if (!cJSON_IsArray(req)) req = NULL;
     cJSON_ArrayForEach(e, req) {
         if (cJSON_IsString(e) && (!strcmp(e->valuestring, "KHR_draco_mesh_compression") || !strcmp(e->valuestring, "EXT_meshopt_compression")))
-            return gerr(R, MLB_ERR_UNSUPPORTED, "compressed geometry (%s) is not read; export without compression", e->valuestring);
+            return GERR(R, MLB_ERR_UNSUPPORTED, "compressed geometry (%s) is not read; export without compression", e->valuestring);
     }
     MLB_TRY(make_tables(R));
     R->n_buf = R->table_n[0];
     R->owned = calloc((size_t)R->n_buf + 1, sizeof *R->owned);
     R->buf = calloc((size_t)R->n_buf + 1, sizeof *R->buf);
     R->buf_len = calloc((size_t)R->n_buf + 1, sizeof *R->buf_len);
-    if (!R->owned || !R->buf || !R->buf_len) return gerr(R, MLB_ERR_NOMEM, "out of memory for %d buffers", R->n_buf);
+    if (!R->owned || !R->buf || !R->buf_len) return GERR(R, MLB_ERR_NOMEM, "out of memory for %d buffers", R->n_buf);
     MLB_TRY(walk_scene(R));
     if (R->nt == 0)
-        return gerr(R, MLB_ERR_FORMAT, "no faces: no triangles in the scene (%d meshes, %d point or line primitives)",
+        return GERR(R, MLB_ERR_FORMAT, "no faces: no triangles in the scene (%d meshes, %d point or line primitives)",
                     R->info.n_meshes, R->info.n_skipped);
     return MLB_OK;
 }
@@ -655,7 +647,7 @@ static mlb_status finish(reader* R, mlb_mesh* out) {
     R->info.uv_dropped = R->uv_some && R->uv_missing;
     R->info.normals_dropped = R->n_some && R->n_missing;
     int32_t* map = malloc(sizeof(int32_t) * (R->nv + 1));
-    if (!map) return gerr(R, MLB_ERR_NOMEM, "out of memory for %zu vertices", R->nv);
+    if (!map) return GERR(R, MLB_ERR_NOMEM, "out of memory for %zu vertices", R->nv);
     for (size_t i = 0; i < R->nv; i++) map[i] = -1;
     int32_t nv = 0;
     for (size_t i = 0; i < 3 * R->nt; i++)
@@ -700,7 +692,7 @@ mlb_status mlb_gltf_parse(const unsigned char* data, size_t n, const char* name,
     if (R.max_tris > MLB_GLTF_MAX_TRIANGLES) R.max_tris = MLB_GLTF_MAX_TRIANGLES;
     R.drop_uv = opt && opt->drop_uv;
     R.drop_normals = opt && opt->drop_normals;
-    mlb_status s = n > max_bytes ? gerr(&R, MLB_ERR_UNSUPPORTED, "%zu bytes, more than the %zu allowed", n, max_bytes) : MLB_OK;
+    mlb_status s = n > max_bytes ? GERR(&R, MLB_ERR_UNSUPPORTED, "%zu bytes, more than the %zu allowed", n, max_bytes) : MLB_OK;
     R.budget = max_bytes - (s ? 0 : n);
     if (!s) s = parse(&R, data, n);
     if (!s) s = finish(&R, out);

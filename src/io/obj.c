@@ -8,7 +8,6 @@
 #include <errno.h>
 #include <locale.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -32,16 +31,9 @@ typedef struct {
     mlb_obj_info info;
 } parser;
 
-// "name: line N: " + message, with `code`.
-static mlb_status perr(parser* P, mlb_status code, const char* fmt, ...) __attribute__((format(printf, 3, 4)));
-static mlb_status perr(parser* P, mlb_status code, const char* fmt, ...) {
-    char msg[1024];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mlb_fail(code, "%s: line %d: %s", P->name, P->line, msg);
-}
+// "name: line N: " + message, with `code`: PERR(P, code, fmt, ...).
+#define PERR(P, code, ...) perr_line(P, mlb_fail(code, __VA_ARGS__))
+static mlb_status perr_line(const parser* P, mlb_status code) { return mlb_fail_context(code, "%s: line %d", P->name, P->line); }
 
 // A token as a message shows it: quoted when it could be a number or a face corner (at most 24
 // bytes of digits, signs, points, commas, slashes and the letters of e, 0x, nan, inf), else only its
@@ -131,10 +123,10 @@ static mlb_status read_numbers(parser* P, char** cur, const char* kw, float* val
     char b[48];
     int k = 0;
     while ((tok = next_token(cur))) {
-        if (k == max) return perr(P, MLB_ERR_FORMAT, "'%s' with more than %d numbers", kw, max);
+        if (k == max) return PERR(P, MLB_ERR_FORMAT, "'%s' with more than %d numbers", kw, max);
         int r = parse_float(tok, P->loc, &vals[k]);
-        if (r == 1) return perr(P, MLB_ERR_FORMAT, "malformed number %s in '%s'", show(tok, b), kw);
-        if (r == 2) return perr(P, MLB_ERR_FORMAT, "number %s in '%s' is out of float range", show(tok, b), kw);
+        if (r == 1) return PERR(P, MLB_ERR_FORMAT, "malformed number %s in '%s'", show(tok, b), kw);
+        if (r == 2) return PERR(P, MLB_ERR_FORMAT, "number %s in '%s' is out of float range", show(tok, b), kw);
         k++;
     }
     *count = k;
@@ -147,10 +139,10 @@ static mlb_status stmt_v(parser* P, char** cur) {
     float x[7];
     int k = 0;
     MLB_TRY(read_numbers(P, cur, "v", x, 7, &k));
-    if (k < 3) return perr(P, MLB_ERR_FORMAT, "'v' needs 3 coordinates, got %d", k);
-    if (P->n_pos >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d positions", INT32_MAX);
+    if (k < 3) return PERR(P, MLB_ERR_FORMAT, "'v' needs 3 coordinates, got %d", k);
+    if (P->n_pos >= INT32_MAX) return PERR(P, MLB_ERR_UNSUPPORTED, "more than %d positions", INT32_MAX);
     if (!mlb_reserve((void**)&P->pos, &P->cap_pos, 3 * (P->n_pos + 1), sizeof(float)))
-        return perr(P, MLB_ERR_NOMEM, "out of memory for %zu positions", P->n_pos + 1);
+        return PERR(P, MLB_ERR_NOMEM, "out of memory for %zu positions", P->n_pos + 1);
     memcpy(P->pos + 3 * P->n_pos, x, 3 * sizeof(float));   // w (x[3]) and colours (x[3..6]) are ignored
     P->n_pos++;
     return MLB_OK;
@@ -160,10 +152,10 @@ static mlb_status stmt_vt(parser* P, char** cur) {
     float x[3] = {0, 0, 0};
     int k = 0;
     MLB_TRY(read_numbers(P, cur, "vt", x, 3, &k));
-    if (k < 1) return perr(P, MLB_ERR_FORMAT, "'vt' needs at least 1 coordinate, got 0");
-    if (P->n_tex >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d texture coordinates", INT32_MAX);
+    if (k < 1) return PERR(P, MLB_ERR_FORMAT, "'vt' needs at least 1 coordinate, got 0");
+    if (P->n_tex >= INT32_MAX) return PERR(P, MLB_ERR_UNSUPPORTED, "more than %d texture coordinates", INT32_MAX);
     if (!mlb_reserve((void**)&P->tex, &P->cap_tex, 2 * (P->n_tex + 1), sizeof(float)))
-        return perr(P, MLB_ERR_NOMEM, "out of memory for %zu texture coordinates", P->n_tex + 1);
+        return PERR(P, MLB_ERR_NOMEM, "out of memory for %zu texture coordinates", P->n_tex + 1);
     P->tex[2 * P->n_tex] = x[0];
     P->tex[2 * P->n_tex + 1] = x[1];   // 0 when absent; the third (w) is ignored
     P->n_tex++;
@@ -174,10 +166,10 @@ static mlb_status stmt_vn(parser* P, char** cur) {
     float x[3];
     int k = 0;
     MLB_TRY(read_numbers(P, cur, "vn", x, 3, &k));
-    if (k != 3) return perr(P, MLB_ERR_FORMAT, "'vn' needs 3 components, got %d", k);
-    if (P->n_nrm >= INT32_MAX) return perr(P, MLB_ERR_UNSUPPORTED, "more than %d normals", INT32_MAX);
+    if (k != 3) return PERR(P, MLB_ERR_FORMAT, "'vn' needs 3 components, got %d", k);
+    if (P->n_nrm >= INT32_MAX) return PERR(P, MLB_ERR_UNSUPPORTED, "more than %d normals", INT32_MAX);
     if (!mlb_reserve((void**)&P->nrm, &P->cap_nrm, 3 * (P->n_nrm + 1), sizeof(float)))
-        return perr(P, MLB_ERR_NOMEM, "out of memory for %zu normals", P->n_nrm + 1);
+        return PERR(P, MLB_ERR_NOMEM, "out of memory for %zu normals", P->n_nrm + 1);
     memcpy(P->nrm + 3 * P->n_nrm, x, 3 * sizeof(float));
     P->n_nrm++;
     return MLB_OK;
@@ -198,12 +190,12 @@ static const char* parse_index(const char* p, long long* out) {
 static mlb_status resolve(parser* P, const char* tok, long long idx, size_t count, const char* what, int32_t* out) {
     char b[48];
     if (idx == 0)
-        return perr(P, MLB_ERR_FORMAT, "face corner %s: %s index 0 is invalid (OBJ indices start at 1)", show(tok, b), what);
+        return PERR(P, MLB_ERR_FORMAT, "face corner %s: %s index 0 is invalid (OBJ indices start at 1)", show(tok, b), what);
     unsigned long long mag = idx > 0 ? (unsigned long long)idx : (unsigned long long)(-idx);
     if (mag > count) {
         char num[32] = "";
         if (mag < ((unsigned long long)1 << 40)) snprintf(num, sizeof num, " %lld", idx);   // else saturated: the token tells
-        return perr(P, MLB_ERR_FORMAT, "face corner %s: %s%s index%s out of range (%zu defined so far)", show(tok, b),
+        return PERR(P, MLB_ERR_FORMAT, "face corner %s: %s%s index%s out of range (%zu defined so far)", show(tok, b),
                     idx < 0 ? "relative " : "", what, num, count);
     }
     *out = (int32_t)(idx > 0 ? idx - 1 : (long long)count + idx);
@@ -228,7 +220,7 @@ static mlb_status parse_corner(parser* P, const char* tok, corner* c) {
         }
     }
     if (!p || *p)
-        return perr(P, MLB_ERR_FORMAT, "malformed face corner %s (expected v, v/vt, v//vn or v/vt/vn)", show(tok, b));
+        return PERR(P, MLB_ERR_FORMAT, "malformed face corner %s (expected v, v/vt, v//vn or v/vt/vn)", show(tok, b));
     c->t = c->n = -1;
     MLB_TRY(resolve(P, tok, iv, P->n_pos, "position", &c->v));
     if (has_t) MLB_TRY(resolve(P, tok, it, P->n_tex, "texture coordinate", &c->t));
@@ -247,9 +239,9 @@ static mlb_status stmt_f(parser* P, char** cur) {
         if (k == 0) first = c;
         if (k >= 2) {   // fan: (first, previous, this)
             if (P->n_cor / 3 >= P->max_tris)
-                return perr(P, MLB_ERR_UNSUPPORTED, "more than %zu triangles (the limit)", P->max_tris);
+                return PERR(P, MLB_ERR_UNSUPPORTED, "more than %zu triangles (the limit)", P->max_tris);
             if (!mlb_reserve((void**)&P->cor, &P->cap_cor, P->n_cor + 3, sizeof(corner)))
-                return perr(P, MLB_ERR_NOMEM, "out of memory for %zu triangles", P->n_cor / 3 + 1);
+                return PERR(P, MLB_ERR_NOMEM, "out of memory for %zu triangles", P->n_cor / 3 + 1);
             P->cor[P->n_cor++] = first;
             P->cor[P->n_cor++] = prev;
             P->cor[P->n_cor++] = c;
@@ -257,7 +249,7 @@ static mlb_status stmt_f(parser* P, char** cur) {
         prev = c;
         k++;
     }
-    if (k < 3) return perr(P, MLB_ERR_FORMAT, "face with %d corner%s (at least 3 are needed)", k, k == 1 ? "" : "s");
+    if (k < 3) return PERR(P, MLB_ERR_FORMAT, "face with %d corner%s (at least 3 are needed)", k, k == 1 ? "" : "s");
     P->info.n_polygons++;
     if (k > 3) P->info.n_polygons_split++;
     return MLB_OK;
@@ -281,9 +273,9 @@ static mlb_status statement(parser* P) {
     if (!strcmp(kw, "vn")) { P->info.n_normals++; return stmt_vn(P, &cur); }
     if (!strcmp(kw, "f") || !strcmp(kw, "fo")) return stmt_f(P, &cur);   // fo: the old spelling of f
     if (!strcmp(kw, "curv") || !strcmp(kw, "curv2") || !strcmp(kw, "surf"))
-        return perr(P, MLB_ERR_UNSUPPORTED, "free-form geometry ('%s') is not supported; triangulate the mesh first", kw);
+        return PERR(P, MLB_ERR_UNSUPPORTED, "free-form geometry ('%s') is not supported; triangulate the mesh first", kw);
     if (!is_identifier(kw))   // not shown: the first word of a line of some other file
-        return perr(P, MLB_ERR_FORMAT, "not an OBJ statement (a statement starts with a keyword of letters, digits and _)");
+        return PERR(P, MLB_ERR_FORMAT, "not an OBJ statement (a statement starts with a keyword of letters, digits and _)");
     if (!strcmp(kw, "mtllib") && !P->info.mtllib[0]) {
         while (is_space(*cur)) cur++;
         snprintf(P->info.mtllib, sizeof P->info.mtllib, "%s", cur);
@@ -312,13 +304,13 @@ static mlb_status parse_text(parser* P, const char* text, size_t n) {
             i += l + (nl ? 1 : 0);
             if (l && s[l - 1] == '\r') l--;
             if (len + l + 1 > P->max_line)
-                return perr(P, MLB_ERR_FORMAT, "statement longer than %zu bytes (binary data, or raise max_line)", P->max_line);
+                return PERR(P, MLB_ERR_FORMAT, "statement longer than %zu bytes (binary data, or raise max_line)", P->max_line);
             if (!mlb_reserve((void**)&P->stmt, &P->stmt_cap, len + l + 1, 1))
-                return perr(P, MLB_ERR_NOMEM, "out of memory");
+                return PERR(P, MLB_ERR_NOMEM, "out of memory");
             for (size_t k = 0; k < l; k++) {
                 unsigned char ch = (unsigned char)s[k];
                 if (ch < 32 && ch != '\t' && ch != '\r' && ch != '\f' && ch != '\v')
-                    return perr(P, MLB_ERR_FORMAT, "control byte 0x%02x at column %zu (binary data, not OBJ text)", ch,
+                    return PERR(P, MLB_ERR_FORMAT, "control byte 0x%02x at column %zu (binary data, not OBJ text)", ch,
                                 k + 1);
                 P->stmt[len + k] = (char)ch;
             }

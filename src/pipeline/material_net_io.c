@@ -4,23 +4,21 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/geometry.h"
 #include "matlaber/material_net.h"
 
+// The geometry field's defaults (encoding, MLP, grid box, seed): the two fields differ only in kind.
 mlb_material_config mlb_material_default(void) {
-    mlb_material_config c;
-    memset(&c, 0, sizeof c);
+    mlb_material_config c = mlb_geometry_default();
     c.kind = MLB_FIELD_MATERIAL;
-    c.enc = mlb_hashgrid_default();
-    c.hidden = 32;
-    c.n_hidden = 2;
-    c.scale = 2.1f;
     c.mode = MLB_MATERIAL_LATENT;
-    c.seed = 1;
     return c;
 }
 
+// The geometry's Adam with the weight decay decoupled (AdamW), as the appearance stage names it.
 mlb_adam_config mlb_material_adam(double lr) {
-    mlb_adam_config a = {.lr = lr, .beta1 = 0.9, .beta2 = 0.99, .eps = 1e-15, .weight_decay = 0, .decoupled = 1};
+    mlb_adam_config a = mlb_geometry_adam(lr);
+    a.decoupled = 1;
     return a;
 }
 

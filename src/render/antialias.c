@@ -58,6 +58,26 @@ static void aa_weights(real* wgt, uint8_t* sil, int8_t* fsign, const int32_t* tr
         }
 }
 
+// aa_weights into w, or into the context's scratch when w is NULL (*wgt: where they went), with the
+// faces' signs and silhouette flags in its scratch too. *cx is ctx, or when ctx is NULL a context
+// made here that the caller frees (NULL after a failure).
+static mlb_status pair_weights(const char* fn, mlb_raster_ctx* ctx, mlb_raster_ctx** cx, real* w, real** wgt,
+                               const int32_t* tri, const real* depth, const real* clip, const int32_t* faces,
+                               const int32_t* adj, int n_faces, int H, int W) {
+    *cx = ctx ? ctx : mlb_raster_ctx_create();
+    if (!w && *cx) w = mlb_rctx_get(*cx, 0, 2 * (size_t)H * W * sizeof(real));
+    int8_t* fsign = *cx ? mlb_rctx_get(*cx, 1, (size_t)n_faces) : NULL;
+    uint8_t* sil = *cx ? mlb_rctx_get(*cx, 2, (size_t)n_faces) : NULL;
+    if (!w || !fsign || !sil) {
+        if (*cx && !ctx) mlb_raster_ctx_free(*cx);
+        *cx = NULL;
+        return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory (%d pixels)", fn, H * W);
+    }
+    aa_weights(w, sil, fsign, tri, depth, clip, faces, adj, n_faces, H, W);
+    *wgt = w;
+    return MLB_OK;
+}
+
 static mlb_status check_args(const char* fn, const real* color, int C, const int32_t* tri, const real* depth,
                              const real* clip, int n_verts, const int32_t* faces, const int32_t* adj, int n_faces,
                              int H, int W) {
@@ -80,15 +100,9 @@ mlb_status FN(mlb_antialias)(mlb_raster_ctx* ctx, real* out, real* weights, cons
                              int n_faces, int H, int W) {
     MLB_TRY(check_args("mlb_antialias", color, C, tri, depth, clip, n_verts, faces, adj, n_faces, H, W));
     if (!out || out == color) return mlb_fail(MLB_ERR_ARG, "mlb_antialias: out is NULL or aliases color");
-    mlb_raster_ctx* cx = ctx ? ctx : mlb_raster_ctx_create();
-    real* wgt = weights ? weights : cx ? mlb_rctx_get(cx, 0, 2 * (size_t)H * W * sizeof(real)) : NULL;
-    int8_t* fsign = cx ? mlb_rctx_get(cx, 1, (size_t)n_faces) : NULL;
-    uint8_t* sil = cx ? mlb_rctx_get(cx, 2, (size_t)n_faces) : NULL;
-    if (!wgt || !fsign || !sil) {
-        if (cx && !ctx) mlb_raster_ctx_free(cx);
-        return mlb_fail(MLB_ERR_NOMEM, "mlb_antialias: out of memory (%d pixels)", H * W);
-    }
-    aa_weights(wgt, sil, fsign, tri, depth, clip, faces, adj, n_faces, H, W);
+    mlb_raster_ctx* cx;
+    real* wgt;
+    MLB_TRY(pair_weights("mlb_antialias", ctx, &cx, weights, &wgt, tri, depth, clip, faces, adj, n_faces, H, W));
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++) {
@@ -120,15 +134,8 @@ mlb_status FN(mlb_antialias_backward)(mlb_raster_ctx* ctx, real* dcolor, real* d
     mlb_raster_ctx* cx = NULL;
     const real* wgt = weights;
     if (!wgt) {   // recompute the forward's pair weights
-        cx = ctx ? ctx : mlb_raster_ctx_create();
-        real* w = cx ? mlb_rctx_get(cx, 0, 2 * (size_t)H * W * sizeof(real)) : NULL;
-        int8_t* fsign = cx ? mlb_rctx_get(cx, 1, (size_t)n_faces) : NULL;
-        uint8_t* sil = cx ? mlb_rctx_get(cx, 2, (size_t)n_faces) : NULL;
-        if (!w || !fsign || !sil) {
-            if (cx && !ctx) mlb_raster_ctx_free(cx);
-            return mlb_fail(MLB_ERR_NOMEM, "mlb_antialias_backward: out of memory (%d pixels)", H * W);
-        }
-        aa_weights(w, sil, fsign, tri, depth, clip, faces, adj, n_faces, H, W);
+        real* w;
+        MLB_TRY(pair_weights("mlb_antialias_backward", ctx, &cx, NULL, &w, tri, depth, clip, faces, adj, n_faces, H, W));
         wgt = w;
     }
     if (dcolor) {

@@ -6,36 +6,31 @@
 
 void mlb_area_resize_nhwc_to_nchw(float* dst, const float* src, int n, int H, int W, int C, int h, int w) {
     for (int b = 0; b < n; b++)
-        for (int y = 0; y < h; y++) {
-            int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h);
+        for (int y = 0; y < h; y++)
             for (int x = 0; x < w; x++) {
-                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
-                double inv = area_inv(y0, y1, x0, x1);
+                area_box a = area_box_at(y, x, H, W, h, w);
                 for (int c = 0; c < C; c++) {
                     double s = 0;
-                    for (int yy = y0; yy < y1; yy++)
-                        for (int xx = x0; xx < x1; xx++) s += src[(((size_t)b * H + yy) * W + xx) * C + c];
-                    dst[(((size_t)b * C + c) * h + y) * w + x] = (float)(s * inv);
+                    for (int yy = a.y0; yy < a.y1; yy++)
+                        for (int xx = a.x0; xx < a.x1; xx++) s += src[(((size_t)b * H + yy) * W + xx) * C + c];
+                    dst[(((size_t)b * C + c) * h + y) * w + x] = (float)(s * a.inv);
                 }
             }
-        }
 }
 
 void mlb_area_resize_nhwc_to_nchw_backward(float* dsrc, const float* ddst, int n, int H, int W, int C, int h, int w) {
     for (int b = 0; b < n; b++)
-        for (int y = 0; y < h; y++) {
-            int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h);
+        for (int y = 0; y < h; y++)
             for (int x = 0; x < w; x++) {
-                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
-                double inv = area_inv(y0, y1, x0, x1);
+                area_box a = area_box_at(y, x, H, W, h, w);
                 for (int c = 0; c < C; c++) {
-                    float g = (float)(ddst[(((size_t)b * C + c) * h + y) * w + x] * inv);
-                    for (int yy = y0; yy < y1; yy++)
-                        for (int xx = x0; xx < x1; xx++) dsrc[(((size_t)b * H + yy) * W + xx) * C + c] += g;
+                    float g = (float)(ddst[(((size_t)b * C + c) * h + y) * w + x] * a.inv);
+                    for (int yy = a.y0; yy < a.y1; yy++)
+                        for (int xx = a.x0; xx < a.x1; xx++) dsrc[(((size_t)b * H + yy) * W + xx) * C + c] += g;
                 }
             }
-        }
 }
+
 void mlb_renders_to_sd(float* x, const float* renders, int n, int H, int W, int normal) {
     const size_t HW = (size_t)H * W;
     for (int b = 0; b < n; b++)

@@ -123,6 +123,29 @@ static void tile_draw(tile_job* j, int t, int tx1, int ty1) {
     if (x0 <= x1 && y0 <= y1) raster_in_tile(j, t, x0, x1, y0, y1);
 }
 
+// Face t into a list at its cursor (lists NULL: only counted).
+static inline void bin_put(int64_t* cursor, int32_t* lists, int t) {
+    if (lists) lists[*cursor] = t;
+    (*cursor)++;
+}
+
+// Chunk c of nch (consecutive faces) into the lists of the tiles each face's box touches, a face
+// over more than LARGE_TILES tiles into list ntiles: with lists NULL it counts them in cc[list];
+// else it writes each face at its list's cursor cc[list] and advances the cursor. The two passes
+// walk the faces the same way, so the fill matches the count.
+static void bin_chunk(const tsetup* S, const tpoly* polys, int n_faces, int c, int nch, int ntx, int ntiles, int64_t* cc,
+                      int32_t* lists) {
+    int t0 = (int)((int64_t)n_faces * c / nch), t1 = (int)((int64_t)n_faces * (c + 1) / nch);
+    for (int t = t0; t < t1; t++) {
+        const tsetup* s = &S[t];
+        if (box_empty(s) || (s->poly >= 0 && polys[s->poly].n < 3)) continue;
+        int bx0 = s->x0 / TILE, bx1 = s->x1 / TILE, by0 = s->y0 / TILE, by1 = s->y1 / TILE;
+        if ((bx1 - bx0 + 1) * (by1 - by0 + 1) > LARGE_TILES) { bin_put(&cc[ntiles], lists, t); continue; }
+        for (int by = by0; by <= by1; by++)
+            for (int bx = bx0; bx <= bx1; bx++) bin_put(&cc[by * ntx + bx], lists, t);
+    }
+}
+
 // The whole rasterization; count != NULL switches to counting coverage (no depth test, no outputs).
 static mlb_status rasterize_impl(mlb_raster_ctx* ctx, int32_t* tri, real* bary, real* depth, uint8_t* backfacing,
                                  int32_t* count, const real* clip, int n_verts, const int32_t* faces, int n_faces,
@@ -163,18 +186,7 @@ static mlb_status rasterize_impl(mlb_raster_ctx* ctx, int32_t* tri, real* bary, 
     memset(cnt, 0, (size_t)nch * (ntiles + 1) * sizeof(int64_t));
     // cnt[c * (ntiles + 1) + ntiles] counts chunk c's large faces
 #pragma omp parallel for schedule(static)
-    for (int c = 0; c < nch; c++) {
-        int64_t* cc = cnt + (size_t)c * (ntiles + 1);
-        int t0 = (int)((int64_t)n_faces * c / nch), t1 = (int)((int64_t)n_faces * (c + 1) / nch);
-        for (int t = t0; t < t1; t++) {
-            const tsetup* s = &S[t];
-            if (box_empty(s) || (s->poly >= 0 && polys[s->poly].n < 3)) continue;
-            int bx0 = s->x0 / TILE, bx1 = s->x1 / TILE, by0 = s->y0 / TILE, by1 = s->y1 / TILE;
-            if ((bx1 - bx0 + 1) * (by1 - by0 + 1) > LARGE_TILES) { cc[ntiles]++; continue; }
-            for (int by = by0; by <= by1; by++)
-                for (int bx = bx0; bx <= bx1; bx++) cc[by * ntx + bx]++;
-        }
-    }
+    for (int c = 0; c < nch; c++) bin_chunk(S, polys, n_faces, c, nch, ntx, ntiles, cnt + (size_t)c * (ntiles + 1), NULL);
     int64_t total = 0;
     for (int b = 0; b <= ntiles; b++) {   // b = ntiles: the large list, after the tiles' lists
         tstart[b] = total;
@@ -188,18 +200,7 @@ static mlb_status rasterize_impl(mlb_raster_ctx* ctx, int32_t* tri, real* bary, 
     int32_t* lists = mlb_rctx_get(ctx, SLOT_LIST, (size_t)total * sizeof(int32_t));
     if (!lists) return mlb_fail(MLB_ERR_NOMEM, "mlb_rasterize: out of memory (%lld tile entries)", (long long)total);
 #pragma omp parallel for schedule(static)
-    for (int c = 0; c < nch; c++) {
-        int64_t* cc = cnt + (size_t)c * (ntiles + 1);
-        int t0 = (int)((int64_t)n_faces * c / nch), t1 = (int)((int64_t)n_faces * (c + 1) / nch);
-        for (int t = t0; t < t1; t++) {
-            const tsetup* s = &S[t];
-            if (box_empty(s) || (s->poly >= 0 && polys[s->poly].n < 3)) continue;
-            int bx0 = s->x0 / TILE, bx1 = s->x1 / TILE, by0 = s->y0 / TILE, by1 = s->y1 / TILE;
-            if ((bx1 - bx0 + 1) * (by1 - by0 + 1) > LARGE_TILES) { lists[cc[ntiles]++] = t; continue; }
-            for (int by = by0; by <= by1; by++)
-                for (int bx = bx0; bx <= bx1; bx++) lists[cc[by * ntx + bx]++] = t;
-        }
-    }
+    for (int c = 0; c < nch; c++) bin_chunk(S, polys, n_faces, c, nch, ntx, ntiles, cnt + (size_t)c * (ntiles + 1), lists);
 
 #pragma omp parallel for schedule(dynamic, 1)
     for (int b = 0; b < ntiles; b++) {
@@ -236,6 +237,16 @@ static mlb_status rasterize_impl(mlb_raster_ctx* ctx, int32_t* tri, real* bary, 
     return MLB_OK;
 }
 
+// rasterize_impl with ctx's scratch, or with a context of its own when ctx is NULL.
+static mlb_status rasterize_in(const char* fn, mlb_raster_ctx* ctx, int32_t* tri, real* bary, real* depth, uint8_t* backfacing,
+                               int32_t* count, const real* clip, int n_verts, const int32_t* faces, int n_faces, int H, int W) {
+    mlb_raster_ctx* c = ctx ? ctx : mlb_raster_ctx_create();
+    if (!c) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", fn);
+    mlb_status st = rasterize_impl(c, tri, bary, depth, backfacing, count, clip, n_verts, faces, n_faces, H, W);
+    if (!ctx) mlb_raster_ctx_free(c);
+    return st;
+}
+
 static mlb_status check_args(const char* fn, const real* clip, int n_verts, const int32_t* faces, int n_faces, int H, int W) {
     MLB_TRY(mlb_raster_check_size(fn, H, W));
     MLB_TRY(mlb_raster_check_mesh(fn, n_verts, faces, n_faces));
@@ -247,22 +258,14 @@ mlb_status FN(mlb_rasterize)(mlb_raster_ctx* ctx, int32_t* tri, real* bary, real
                              const real* clip, int n_verts, const int32_t* faces, int n_faces, int H, int W) {
     MLB_TRY(check_args("mlb_rasterize", clip, n_verts, faces, n_faces, H, W));
     if (!tri) return mlb_fail(MLB_ERR_ARG, "mlb_rasterize: tri (the output face ids) is NULL");
-    mlb_raster_ctx* c = ctx ? ctx : mlb_raster_ctx_create();
-    if (!c) return mlb_fail(MLB_ERR_NOMEM, "mlb_rasterize: out of memory");
-    mlb_status st = rasterize_impl(c, tri, bary, depth, backfacing, NULL, clip, n_verts, faces, n_faces, H, W);
-    if (!ctx) mlb_raster_ctx_free(c);
-    return st;
+    return rasterize_in("mlb_rasterize", ctx, tri, bary, depth, backfacing, NULL, clip, n_verts, faces, n_faces, H, W);
 }
 
 mlb_status FN(mlb_raster_coverage_count)(mlb_raster_ctx* ctx, int32_t* count, const real* clip, int n_verts,
                                          const int32_t* faces, int n_faces, int H, int W) {
     MLB_TRY(check_args("mlb_raster_coverage_count", clip, n_verts, faces, n_faces, H, W));
     if (!count) return mlb_fail(MLB_ERR_ARG, "mlb_raster_coverage_count: count is NULL");
-    mlb_raster_ctx* c = ctx ? ctx : mlb_raster_ctx_create();
-    if (!c) return mlb_fail(MLB_ERR_NOMEM, "mlb_raster_coverage_count: out of memory");
-    mlb_status st = rasterize_impl(c, NULL, NULL, NULL, NULL, count, clip, n_verts, faces, n_faces, H, W);
-    if (!ctx) mlb_raster_ctx_free(c);
-    return st;
+    return rasterize_in("mlb_raster_coverage_count", ctx, NULL, NULL, NULL, NULL, count, clip, n_verts, faces, n_faces, H, W);
 }
 
 mlb_status FN(mlb_rasterize_backward)(mlb_raster_ctx* ctx, real* dclip, const real* dbary, const real* ddepth,

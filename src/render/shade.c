@@ -14,21 +14,22 @@
 
 static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
+// Checks the arguments and makes *L, the light with the split-sum table, for the shading loop.
 static mlb_status check_args(const char* fn, int N, const mlb_envlight* light, const void* out, const void* kd, const void* ks,
-                             const void* kr, const void* n, const void* v, const float** lut) {
+                             const void* kr, const void* n, const void* v, sm_light* L) {
     if (N < 0) return mlb_fail(MLB_ERR_ARG, "%s: N = %d must be >= 0", fn, N);
     if (!light || !light->irr || light->n_levels < 3) return mlb_fail(MLB_ERR_ARG, "%s: the environment light is not built", fn);
     if (N > 0 && (!out || !kd || !ks || !kr || !n || !v)) return mlb_fail(MLB_ERR_ARG, "%s: NULL input or output buffer", fn);
-    *lut = mlb_splitsum_lut();
-    if (!*lut) return mlb_fail_context(MLB_ERR_NOMEM, "%s", fn);
+    const float* lut = mlb_splitsum_lut();
+    if (!lut) return mlb_fail_context(MLB_ERR_NOMEM, "%s", fn);
+    *L = sm_light_of(light, lut);
     return MLB_OK;
 }
 
 mlb_status mlb_shade_forward(float* out, const float* kd, const float* ks, const float* kr, const float* n, const float* v, int N,
                              const mlb_envlight* light, mlb_fresnel fresnel) {
-    const float* lut;
-    MLB_TRY(check_args("mlb_shade_forward", N, light, out, kd, ks, kr, n, v, &lut));
-    const sm_light L = sm_light_of(light, lut);
+    sm_light L;
+    MLB_TRY(check_args("mlb_shade_forward", N, light, out, kd, ks, kr, n, v, &L));
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double a[3], b[3], nn[3], vv[3], o[3];
@@ -44,9 +45,8 @@ mlb_status mlb_shade_forward(float* out, const float* kd, const float* ks, const
 mlb_status mlb_shade_backward(float* dkd, float* dks, float* dkr, float* dn, float* dv, const float* dout, const float* kd,
                               const float* ks, const float* kr, const float* n, const float* v, int N, const mlb_envlight* light,
                               mlb_fresnel fresnel) {
-    const float* lut;
-    MLB_TRY(check_args("mlb_shade_backward", N, light, dout, kd, ks, kr, n, v, &lut));
-    const sm_light L = sm_light_of(light, lut);
+    sm_light L;
+    MLB_TRY(check_args("mlb_shade_backward", N, light, dout, kd, ks, kr, n, v, &L));
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double a[3], b[3], nn[3], vv[3], o[3], g[3];
@@ -68,9 +68,8 @@ mlb_status mlb_shade_backward(float* dkd, float* dks, float* dkr, float* dn, flo
 
 mlb_status mlb_shade_forward_f64(double* out, const double* kd, const double* ks, const double* kr, const double* n,
                                  const double* v, int N, const mlb_envlight* light, mlb_fresnel fresnel) {
-    const float* lut;
-    MLB_TRY(check_args("mlb_shade_forward_f64", N, light, out, kd, ks, kr, n, v, &lut));
-    const sm_light L = sm_light_of(light, lut);
+    sm_light L;
+    MLB_TRY(check_args("mlb_shade_forward_f64", N, light, out, kd, ks, kr, n, v, &L));
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++)
         sm_shade_point(&L, fresnel == MLB_FRESNEL_PAPER, kd + 3 * i, ks + 3 * i, kr[i], n + 3 * i, v + 3 * i, out + 3 * i, NULL, NULL, NULL, NULL,
@@ -81,9 +80,8 @@ mlb_status mlb_shade_forward_f64(double* out, const double* kd, const double* ks
 mlb_status mlb_shade_backward_f64(double* dkd, double* dks, double* dkr, double* dn, double* dv, const double* dout,
                                   const double* kd, const double* ks, const double* kr, const double* n, const double* v, int N,
                                   const mlb_envlight* light, mlb_fresnel fresnel) {
-    const float* lut;
-    MLB_TRY(check_args("mlb_shade_backward_f64", N, light, dout, kd, ks, kr, n, v, &lut));
-    const sm_light L = sm_light_of(light, lut);
+    sm_light L;
+    MLB_TRY(check_args("mlb_shade_backward_f64", N, light, dout, kd, ks, kr, n, v, &L));
 #pragma omp parallel for schedule(static) if (N > 256)
     for (int i = 0; i < N; i++) {
         double o[3];

@@ -33,29 +33,29 @@ enum { N_THETA = 24, N_PHI = 16 };
 static double gl_x[N_THETA], gl_w[N_THETA];   // Gauss-Legendre on [0, 1]
 static pthread_once_t gl_once = PTHREAD_ONCE_INIT;
 
+// The Legendre polynomial P_n(x) (*p, by the three-term recurrence) and its derivative (returned).
+static double legendre(int n, double x, double* p) {
+    double p0 = 1, p1 = x;
+    for (int k = 2; k <= n; k++) {
+        double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
+        p0 = p1;
+        p1 = p2;
+    }
+    *p = p1;
+    return n * (x * p1 - p0) / (x * x - 1);
+}
+
 static void gauss_legendre_init(void) {
     const int n = N_THETA;
     for (int i = 0; i < n; i++) {
-        double x = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1;
-        for (int it = 0; it < 100; it++) {
-            double p0 = 1, p1 = x;
-            for (int k = 2; k <= n; k++) {
-                double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = n * (x * p1 - p0) / (x * x - 1);
-            double dx = p1 / dp;
+        double x = cos(PI * (i + 0.75) / (n + 0.5)), p;
+        for (int it = 0; it < 100; it++) {   // Newton on P_n's root
+            double dp = legendre(n, x, &p);
+            double dx = p / dp;
             x -= dx;
             if (fabs(dx) < 1e-15) break;
         }
-        double p0 = 1, p1 = x;
-        for (int k = 2; k <= n; k++) {
-            double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
-            p0 = p1;
-            p1 = p2;
-        }
-        dp = n * (x * p1 - p0) / (x * x - 1);
+        double dp = legendre(n, x, &p);
         gl_x[i] = 0.5 * (1 - x);
         gl_w[i] = 1.0 / ((1 - x * x) * dp * dp);   // = (Legendre weight) / 2
     }

@@ -17,8 +17,8 @@ mlb_orbit_config mlb_orbit_default(void) {
     c.az_min = -180.0;
     c.az_max = 180.0;
     c.jitter = 0.05;
-    c.near_z = 0.1;
-    c.far_z = 100.0;
+    c.near_z = MLB_ORBIT_NEAR;
+    c.far_z = MLB_ORBIT_FAR;
     c.n_envs = 1;
     c.fixed_env = 0;
     return c;

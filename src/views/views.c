@@ -1,7 +1,6 @@
 // Multi-view image data sets: cameras.json reading / writing, image loading and resampling, and
 // rendering a data set from a mesh (include/matlaber/views.h, docs/views.md).
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,16 +23,10 @@ typedef struct {
     const char* file;   // cameras.json path, for messages
 } jctx;
 
-#define JFAIL(code, jc, path, ...) jfail_(code, jc, path, __VA_ARGS__)
-static mlb_status jfail_(mlb_status code, const jctx* jc, const char* path, const char* fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static mlb_status jfail_(mlb_status code, const jctx* jc, const char* path, const char* fmt, ...) {
-    char msg[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mlb_fail(code, "%s: %s: %s", jc->file, path, msg);
+// "file: path: " + message, with `code`: JFAIL(code, jc, path, fmt, ...).
+#define JFAIL(code, jc, path, ...) jfail_where(jc, path, mlb_fail(code, __VA_ARGS__))
+static mlb_status jfail_where(const jctx* jc, const char* path, mlb_status code) {
+    return mlb_fail_context(code, "%s: %s", jc->file, path);
 }
 
 // A number member: required → error when missing; else *out keeps its default.
@@ -159,8 +152,8 @@ static mlb_status parse_view(const jctx* jc, const cJSON* o, int i, int n_envs, 
     snprintf(w, sizeof w, "views[%d]", i);
     if (!cJSON_IsObject(o)) return JFAIL(MLB_ERR_FORMAT, jc, w, "not an object");
     memset(e, 0, sizeof *e);
-    e->near_z = 0.1;
-    e->far_z = 100;
+    e->near_z = MLB_ORBIT_NEAR;
+    e->far_z = MLB_ORBIT_FAR;
     e->env = -1;
     MLB_TRY(jpath(jc, o, "image", w, 1, e->image));
     MLB_TRY(jpath(jc, o, "normal", w, 0, e->normal));
@@ -422,6 +415,17 @@ mlb_status mlb_views_entry_camera(mlb_camera* cam, const mlb_views_entry* e) {
 
 // ---- images --------------------------------------------------------------------------------------------
 
+// Output pixel x of res over n source pixels, centres aligned and clamped at the edges: the two
+// source pixels *x0, *x1 it lies between and its weight on *x1 (returned).
+static double bilinear_taps(int x, int n, int res, int* x0, int* x1) {
+    double s = (x + 0.5) * n / res - 0.5;
+    if (s < 0) s = 0;
+    if (s > n - 1) s = n - 1;
+    *x0 = (int)s;
+    *x1 = *x0 + 1 < n ? *x0 + 1 : *x0;
+    return s - *x0;
+}
+
 mlb_status mlb_views_resample(float* out, int res, const float* in, int w, int h, int c) {
     if (res < 1 || w < 1 || h < 1 || c < 1 || res > MLB_VIEWS_MAX_SIZE || w > 65536 || h > 65536)
         return mlb_fail(MLB_ERR_ARG, "views: resampling %dx%d to %d", w, h, res);
@@ -441,17 +445,11 @@ mlb_status mlb_views_resample(float* out, int res, const float* in, int w, int h
     }
 #pragma omp parallel for schedule(static) if (res >= 128)
     for (int y = 0; y < res; y++) {
-        double sy = (y + 0.5) * h / res - 0.5;
-        if (sy < 0) sy = 0;
-        if (sy > h - 1) sy = h - 1;
-        int y0 = (int)sy, y1 = y0 + 1 < h ? y0 + 1 : y0;
-        double ty = sy - y0;
+        int y0, y1;
+        double ty = bilinear_taps(y, h, res, &y0, &y1);
         for (int x = 0; x < res; x++) {
-            double sx = (x + 0.5) * w / res - 0.5;
-            if (sx < 0) sx = 0;
-            if (sx > w - 1) sx = w - 1;
-            int x0 = (int)sx, x1 = x0 + 1 < w ? x0 + 1 : x0;
-            double tx = sx - x0;
+            int x0, x1;
+            double tx = bilinear_taps(x, w, res, &x0, &x1);
             for (int k = 0; k < c; k++) {
                 double a = in[((size_t)y0 * w + x0) * c + k], b = in[((size_t)y0 * w + x1) * c + k];
                 double d = in[((size_t)y1 * w + x0) * c + k], e = in[((size_t)y1 * w + x1) * c + k];
@@ -590,34 +588,33 @@ mlb_status mlb_views_render_target(const mlb_render_params* p, float* out) {
     return s;
 }
 
-mlb_status mlb_views_write_color_png(const char* path, const float* rgba, int w, int h) {
+// A premultiplied [h, w, 4] image as a straight-alpha PNG: sRGB colour in 8 bits, or a normal
+// map (n / alpha mapped from [-1, 1] to [0, 1]; 0.5 where nothing covers) in 16.
+static mlb_status write_straight_png(const char* path, const float* rgba, int w, int h, int normal) {
     size_t n = (size_t)w * h;
     float* s = malloc(sizeof(float) * 4 * (n ? n : 1));
     if (!s) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
-    for (size_t i = 0; i < n; i++) {   // straight sRGB colour
+    for (size_t i = 0; i < n; i++) {
         float a = clamp01(rgba[4 * i + 3]);
-        for (int k = 0; k < 3; k++) s[4 * i + k] = a > 0 ? clamp01(rgba[4 * i + k] / a) : 0;
+        for (int k = 0; k < 3; k++) {
+            float v = rgba[4 * i + k];
+            if (normal) s[4 * i + k] = a > 0 ? clamp01(0.5f * (v / a + 1)) : 0.5f;
+            else s[4 * i + k] = a > 0 ? clamp01(v / a) : 0;
+        }
         s[4 * i + 3] = a;
     }
-    mlb_png_options po = {.bits = 8, .encoding = MLB_PNG_AS_IS};
+    mlb_png_options po = {.bits = normal ? 16 : 8, .encoding = MLB_PNG_AS_IS};
     mlb_status st = mlb_image_write_png(path, s, w, h, 4, &po);
     free(s);
     return st;
 }
 
+mlb_status mlb_views_write_color_png(const char* path, const float* rgba, int w, int h) {
+    return write_straight_png(path, rgba, w, h, 0);
+}
+
 mlb_status mlb_views_write_normal_png(const char* path, const float* nrm, int w, int h) {
-    size_t n = (size_t)w * h;
-    float* s = malloc(sizeof(float) * 4 * (n ? n : 1));
-    if (!s) return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path);
-    for (size_t i = 0; i < n; i++) {
-        float a = clamp01(nrm[4 * i + 3]);
-        for (int k = 0; k < 3; k++) s[4 * i + k] = a > 0 ? clamp01(0.5f * (nrm[4 * i + k] / a + 1)) : 0.5f;
-        s[4 * i + 3] = a;
-    }
-    mlb_png_options po = {.bits = 16, .encoding = MLB_PNG_AS_IS};
-    mlb_status st = mlb_image_write_png(path, s, w, h, 4, &po);
-    free(s);
-    return st;
+    return write_straight_png(path, nrm, w, h, 1);
 }
 
 // ---- rendering a data set ---------------------------------------------------------------------------------
@@ -730,8 +727,8 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
         e->elevation_deg = el;
         e->radius = c->radius;
         e->fovy_deg = c->fovy_deg;
-        e->near_z = 0.1;
-        e->far_z = 100;
+        e->near_z = MLB_ORBIT_NEAR;
+        e->far_z = MLB_ORBIT_FAR;
         e->env = env;
         e->env_rotation_deg = rot;
         snprintf(e->image, sizeof e->image, "view_%03d.png", i);

@@ -7,6 +7,7 @@
 #include <string.h>
 #include "matlaber/catalogue.h"
 #include "matlaber/plot.h"
+#include "matlaber/raster.h"
 #include "matlaber/render.h"
 #include "matlaber/shade.h"
 #include "matlaber/run.h"
@@ -33,7 +34,7 @@ static mlb_status render_cell(const mlb_mesh* mesh, const float* k, mlb_run_asse
     rp.width = rp.height = res;
     rp.supersample = 2;
     rp.fresnel = MLB_FRESNEL_PAPER;
-    mlb_status s = mlb_camera_orbit(&rp.camera, SHEET_AZIMUTH, SHEET_ELEVATION, 3.0, NULL, SHEET_FOVY, 1.0, 0.1, 10.0);
+    mlb_status s = mlb_camera_orbit(&rp.camera, SHEET_AZIMUTH, SHEET_ELEVATION, MLB_ORBIT_RADIUS, NULL, SHEET_FOVY, 1.0, 0.1, 10.0);
     if (!s) s = mlb_render_shaded(&rp, rgba);
     for (size_t i = 0; !s && i < (size_t)res * res; i++)   // premultiplied over black: white shows through
         for (int c = 0; c < 3; c++) rgb[3 * i + c] = mlb_srgb_encode(rgba[4 * i + c] + 1.0f - rgba[4 * i + 3]);

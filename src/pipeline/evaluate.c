@@ -12,10 +12,10 @@
 // Evaluation views: azimuths all round, elevations −15°, 20°, 50° in turn (what target views show).
 static const double EVAL_ELEVATIONS[3] = {-15, 20, 50};
 
-// View v of n_views: azimuth azimuth0_deg + 360°·v/n, the elevations in turn, radius 3, fovy 45°.
+// View v of n_views: azimuth azimuth0_deg + 360°·v/n, the elevations in turn, the project's orbit radius and widest fovy (raster.h).
 static mlb_status eval_camera(mlb_camera* cam, double azimuth0_deg, int v, int n_views) {
-    return mlb_camera_orbit(cam, azimuth0_deg + 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], 3.0, NULL, 45.0, 1.0,
-                            0.1, 100.0);
+    return mlb_camera_orbit(cam, azimuth0_deg + 360.0 * v / n_views, EVAL_ELEVATIONS[v % 3], MLB_ORBIT_RADIUS, NULL,
+                            MLB_ORBIT_FOVY_MAX, 1.0, MLB_ORBIT_NEAR, MLB_ORBIT_FAR);
 }
 
 // out [res², D] = the vertex attribute attr [V, D] of mesh m seen by cam, per pixel; tri [res²] gets

@@ -11,6 +11,7 @@
 #include "matlaber/image_write.h"
 #include "matlaber/obj.h"
 #include "matlaber/plot.h"
+#include "matlaber/raster.h"
 #include "matlaber/safetensors.h"
 #include "matlaber/shade.h"
 #include "matlaber/log.h"
@@ -182,8 +183,8 @@ static mlb_status write_final_renders(pipeline_run* r) {
         views[v].elevation_deg = 15;
         views[v].radius = MLB_ORBIT_RADIUS;
         views[v].target = -1;
-        s = mlb_camera_orbit(&views[v].cam, views[v].azimuth_deg, views[v].elevation_deg, MLB_ORBIT_RADIUS, NULL, 45.0, 1.0,
-                             0.1, 100.0);
+        s = mlb_camera_orbit(&views[v].cam, views[v].azimuth_deg, views[v].elevation_deg, MLB_ORBIT_RADIUS, NULL,
+                             MLB_ORBIT_FOVY_MAX, 1.0, MLB_ORBIT_NEAR, MLB_ORBIT_FAR);
     }
     float* shaded = malloc(sizeof(float) * p * 4 * FINAL_VIEWS);
     float* normal = malloc(sizeof(float) * p * 4);

@@ -11,6 +11,7 @@
 #include "matlaber/log.h"
 #include "matlaber/pipeline.h"
 #include "matlaber/plot.h"
+#include "matlaber/raster.h"
 #include "matlaber/render.h"
 #include "matlaber/shade.h"
 
@@ -51,7 +52,8 @@ static mlb_status render_asset(const mlb_mesh* m, mlb_material_fn material, void
     p.width = p.height = res;
     p.supersample = 2;
     p.fresnel = MLB_FRESNEL_PAPER;
-    mlb_status s = mlb_camera_orbit(&p.camera, az, el, 3.0, NULL, 45.0, 1.0, 0.1, 100.0);
+    mlb_status s = mlb_camera_orbit(&p.camera, az, el, MLB_ORBIT_RADIUS, NULL, MLB_ORBIT_FOVY_MAX, 1.0, MLB_ORBIT_NEAR,
+                                    MLB_ORBIT_FAR);
     return s ? s : mlb_render_shaded(&p, rgba);
 }
 

@@ -62,8 +62,9 @@ static size_t FN(carve_all)(vae_t* v, real* base) {
     return c.n;
 }
 
-mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out) {
+mlb_status FN(mlb_vae_create)(vae_ops be, const mlb_vae_config* cfg, vae_t** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
+    if (!be) be = CPU_OPS;
     *out = NULL;
     MLB_TRY(mlb_vae_config_check(cfg));
     vae_t* v = calloc(1, sizeof *v);
@@ -83,8 +84,6 @@ mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out)
     *out = v;
     return MLB_OK;
 }
-
-mlb_status FN(mlb_vae_create)(const mlb_vae_config* cfg, vae_t** out) { return FN(vae_create_on)(CPU_OPS, cfg, out); }
 
 void FN(mlb_vae_free)(vae_t* v) {
     if (!v) return;
@@ -424,12 +423,22 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     return s;
 }
 
-mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, int W, real* mean, real* logvar,
-                              FN(mlb_vae_cache)* cache) {
+mlb_status FN(vae_check_on)(vae_ops be, const vae_t* v, const char* what) {
+    if (!v) return mlb_fail(MLB_ERR_ARG, "VAE %s: NULL model", what);
+    if (v->device != ops_device(be))
+        return mlb_fail(MLB_ERR_ARG, "VAE %s: the model is on the %s, the backend runs on the %s (pass v->mirror "
+                        "after mlb_vae_use_device)", what, mlb_device_name(v->device), mlb_device_name(ops_device(be)));
+    return MLB_OK;
+}
+
+mlb_status FN(mlb_vae_encode)(vae_ops be, const vae_t* v, const real* image, int N, int H, int W, real* mean,
+                              real* logvar, FN(mlb_vae_cache)* cache) {
+    if (be) MLB_TRY(FN(vae_check_on)(be, v, "encoder"));
     MLB_TRY(FN(vae_check_size)(v, "encoder", N, H, W));
     if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
+    if (be) return FN(encode_core)(be, v, image, N, H, W, mean, logvar, cache);
     if (v->mirror) {   // mlb_vae_use_device: the image crosses once, the cache stays on the device
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t n = (size_t)N * v->cfg.in_channels * H * W;
         real* d;
         MLB_TRY(op_alloc(be, &d, n));
@@ -439,6 +448,17 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
         return s;
     }
     return FN(encode_core)(MODEL_OPS(v), v, image, N, H, W, mean, logvar, cache);
+}
+
+mlb_status FN(mlb_vae_encode_mean)(vae_ops be, const vae_t* v, const real* image, int N, int H, int W, real* mean,
+                                   FN(mlb_vae_cache)* cache) {
+    if (!image || !mean || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image, mean or cache");
+    if (!be) return FN(mlb_vae_encode)(NULL, v, image, N, H, W, mean, NULL, cache);
+    MLB_TRY(FN(mlb_vae_encode)(be, v, image, N, H, W, NULL, NULL, cache));
+    enc_rec rec;
+    FN(enc_layout)(&v->cfg, N, H, W, cache->train_kept, cache->buf, &rec);
+    size_t zn = (size_t)v->cfg.latent_channels * mlb_vae_latent_size(&v->cfg, H) * mlb_vae_latent_size(&v->cfg, W);
+    return be->copy_rows(mean, zn, rec.moments, 2 * zn, zn, (size_t)N);   // the moments' mean halves
 }
 
 // On the ops of be: the cache, dimage (may be NULL) and gr (NULL: no weight gradients) live on be's
@@ -555,21 +575,25 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     return s;
 }
 
-// The public backward: on the model's ops, through the mirror when there is one (dimage and host
-// grads cross; the weight gradients are summed on the device and added into grads once).
-static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                           const real* dlogvar, real* dimage, vae_t* grads) {
+mlb_status FN(mlb_vae_encode_backward)(vae_ops be, const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
+                                       const real* dlogvar, real* dimage, vae_t* grads) {
     if (!v || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL model or cache");
     if (cache->N < 1 || !cache->buf)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward (run mlb_vae_encode with this "
                         "cache first)");
-    if (v->mirror) {
-        vae_ops be = v->mirror_ops;
+    if (!dimage && !grads) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL image gradient and gradient model");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "encoder backward"));
+        MLB_TRY(FN(vae_check_grads)(be, v, grads, "encoder backward"));
+        return FN(encode_backward_core)(be, v, cache, dmean, dlogvar, dimage, grads, NULL);
+    }
+    if (v->mirror) {   // dimage and host grads cross; the weight gradients are summed on the device, added once
+        be = v->mirror_ops;
         size_t n = dimage ? (size_t)cache->N * v->cfg.in_channels * cache->H * cache->W : 0;
         vae_t* gd = NULL;
         real* d = NULL;
         MLB_TRY(FN(vae_check_grads)(CPU_OPS, v, grads, "encoder backward"));
-        if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
+        if (grads) MLB_TRY(FN(mlb_vae_create)(be, &v->cfg, &gd));
         mlb_status s = n ? op_alloc(be, &d, n) : MLB_OK;
         if (!s && n) s = op_upload(be, d, dimage, n);
         if (!s) s = FN(encode_backward_core)(be, v->mirror, cache, dmean, dlogvar, d, gd, NULL);
@@ -583,16 +607,14 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
     return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage, grads, NULL);
 }
 
-mlb_status FN(mlb_vae_encode_backward)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                       const real* dlogvar, real* dimage) {
-    if (!dimage) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL image gradient");
-    return FN(encode_backward_host)(v, cache, dmean, dlogvar, dimage, NULL);
-}
-
-mlb_status FN(mlb_vae_encode_backward_params)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                              const real* dlogvar, real* dimage, vae_t* grads) {
-    if (!grads) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL gradient model");
-    return FN(encode_backward_host)(v, cache, dmean, dlogvar, dimage, grads);
+mlb_status FN(mlb_vae_encode_backward_mean)(vae_ops be, const vae_t* v, const FN(mlb_vae_cache)* cache,
+                                            const real* dmean, real* dimage) {
+    if (!dmean) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL dmean");
+    if (!be) return FN(mlb_vae_encode_backward)(NULL, v, cache, dmean, NULL, dimage, NULL);
+    if (!v || !cache || cache->N < 1 || !cache->buf)
+        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL model, or the cache holds no forward");
+    MLB_TRY(FN(vae_check_on)(be, v, "encoder backward"));
+    return FN(encode_backward_core)(be, v, cache, NULL, NULL, dimage, NULL, dmean);
 }
 
 mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, const char* what) {
@@ -606,29 +628,6 @@ mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, c
     return MLB_OK;
 }
 
-#ifndef MLB_F64
-mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec) {
-    if (!v) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: NULL VAE");
-    mlb_vae_free(v->mirror);
-    v->mirror = NULL;
-    // on the CPU no copy: only bf16 changes the ops (fp16 and tf32 are GPU formats: fp32 here)
-    v->mirror_ops = d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16 ? mlb_backend_for(d, prec) : NULL;
-    if (d == MLB_DEVICE_CPU) return MLB_OK;
-    if (v->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: the VAE must be on the CPU");
-    vae_ops be = mlb_backend_for(d, prec);
-    vae_t* m;
-    mlb_status s = FN(vae_create_on)(be, &v->cfg, &m);
-    if (!s) {
-        s = op_upload(be, m->params, v->params, v->n_params);
-        if (s) mlb_vae_free(m);
-    }
-    if (s) return mlb_fail_context(s, "moving the VAE (%zu parameters) to the %s", v->n_params, mlb_device_name(d));
-    v->mirror = m;
-    v->mirror_ops = be;
-    return MLB_OK;
-}
-#endif
-
 mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* gd) {
     real* h = malloc(gd->n_params * sizeof(real));
     if (!h) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for the weight gradients' host copy");
@@ -638,57 +637,3 @@ mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* 
     free(h);
     return s;
 }
-
-#ifndef MLB_F64
-
-mlb_status mlb_vae_create_on(const mlb_backend* be, const mlb_vae_config* cfg, mlb_vae** out) {
-    if (!be) return mlb_fail(MLB_ERR_ARG, "mlb_vae_create_on: NULL backend");
-    return vae_create_on(be, cfg, out);
-}
-
-// The _on calls: the model (and grads) must live where be runs.
-static mlb_status check_on(const mlb_backend* be, const mlb_vae* v, const char* what) {
-    if (!be || !v) return mlb_fail(MLB_ERR_ARG, "VAE %s: NULL backend or model", what);
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE %s: the model is on the %s, the backend runs on the %s (pass v->mirror "
-                        "after mlb_vae_use_device)", what, mlb_device_name(v->device), mlb_device_name(be->device));
-    return MLB_OK;
-}
-
-mlb_status mlb_vae_encode_on(const mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
-                             float* mean, float* logvar, mlb_vae_cache* cache) {
-    MLB_TRY(check_on(be, v, "encoder"));
-    MLB_TRY(vae_check_size(v, "encoder", N, H, W));
-    if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
-    return encode_core(be, v, image, N, H, W, mean, logvar, cache);
-}
-
-mlb_status mlb_vae_encode_backward_params_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                             const float* dmean, const float* dlogvar, float* dimage, mlb_vae* grads) {
-    MLB_TRY(check_on(be, v, "encoder backward"));
-    if (!cache || cache->N < 1 || !cache->buf)
-        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward");
-    MLB_TRY(vae_check_grads(be, v, grads, "encoder backward"));
-    return encode_backward_core(be, v, cache, dmean, dlogvar, dimage, grads, NULL);
-}
-
-mlb_status mlb_vae_encode_mean_on(const mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
-                                  float* mean, mlb_vae_cache* cache) {
-    MLB_TRY(check_on(be, v, "encoder"));
-    MLB_TRY(vae_check_size(v, "encoder", N, H, W));
-    if (!image || !mean || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image, mean or cache");
-    MLB_TRY(encode_core(be, v, image, N, H, W, NULL, NULL, cache));
-    enc_rec rec;
-    enc_layout(&v->cfg, N, H, W, cache->train_kept, cache->buf, &rec);
-    size_t zn = (size_t)v->cfg.latent_channels * mlb_vae_latent_size(&v->cfg, H) * mlb_vae_latent_size(&v->cfg, W);
-    return be->copy_rows(mean, zn, rec.moments, 2 * zn, zn, (size_t)N);   // the moments' mean halves
-}
-
-mlb_status mlb_vae_encode_backward_mean_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                           const float* dmean, float* dimage) {
-    MLB_TRY(check_on(be, v, "encoder backward"));
-    if (!cache || cache->N < 1 || !cache->buf || !dmean)
-        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward, or no dmean");
-    return encode_backward_core(be, v, cache, NULL, NULL, dimage, NULL, dmean);
-}
-#endif

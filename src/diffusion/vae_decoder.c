@@ -1,5 +1,5 @@
 // The SD VAE's decoder (vae.h, docs/vae.md): the forward, optionally keeping what its backward needs
-// (mlb_vae_decode_train), and the backward to the latent and the weights. Dual-compiled (float /
+// (mlb_vae_decode with a cache), and the backward to the latent and the weights. Dual-compiled (float /
 // double _f64) like vae.c, whose blocks (vae_internal.h) it shares.
 #include "core/real.h"
 #include "diffusion/vae_internal.h"
@@ -207,14 +207,18 @@ static mlb_status FN(check_latent)(const vae_t* v, int N, int h, int w) {
     return FN(vae_check_size)(v, "decoder", N, h << (L - 1), w << (L - 1));
 }
 
-static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h, int w, real* image,
-                                  dec_cache_t* cache) {
+mlb_status FN(mlb_vae_decode)(vae_ops be, const vae_t* v, const real* zin, int N, int h, int w, real* image,
+                              dec_cache_t* cache) {
     MLB_TRY(FN(check_latent)(v, N, h, w));
     if (!zin || !image) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL latent or image");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "decoder"));
+        return FN(decode_core)(be, v, zin, N, h, w, image, cache);
+    }
     if (v->mirror) {   // the latent and the image cross; a cache stays on the device
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t nz = (size_t)N * g->latent_channels * h * w, ni = (size_t)N * g->out_channels * (h << (L - 1)) * (w << (L - 1));
         real* d;
         MLB_TRY(op_alloc(be, &d, nz + ni));
@@ -225,16 +229,6 @@ static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h,
         return s;
     }
     return FN(decode_core)(MODEL_OPS(v), v, zin, N, h, w, image, cache);
-}
-
-mlb_status FN(mlb_vae_decode)(const vae_t* v, const real* zin, int N, int h, int w, real* image) {
-    return FN(decode_host)(v, zin, N, h, w, image, NULL);
-}
-
-mlb_status FN(mlb_vae_decode_train)(const vae_t* v, const real* zin, int N, int h, int w, real* image,
-                                    dec_cache_t* cache) {
-    if (!cache) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL cache (mlb_vae_decode is the forward without one)");
-    return FN(decode_host)(v, zin, N, h, w, image, cache);
 }
 
 // ---- backward --------------------------------------------------------------------------------------
@@ -324,22 +318,27 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
     return s;
 }
 
-mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache, const real* dimage, real* dz,
-                                       vae_t* grads) {
+mlb_status FN(mlb_vae_decode_backward)(vae_ops be, const vae_t* v, const dec_cache_t* cache, const real* dimage,
+                                       real* dz, vae_t* grads) {
     if (!v || !cache || !dimage) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: NULL model, cache or dimage");
     if (cache->N < 1 || !cache->buf)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward (run mlb_vae_decode_train "
-                        "with this cache first)");
+        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward (run mlb_vae_decode with "
+                        "this cache first)");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "decoder backward"));
+        MLB_TRY(FN(vae_check_grads)(be, v, grads, "decoder backward"));
+        return FN(decode_backward_core)(be, v, cache, dimage, dz, grads);
+    }
     if (v->mirror) {   // dimage crosses in, dz (+=) both ways; the weight gradients are added once
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t ni = (size_t)cache->N * g->out_channels * (cache->h << (L - 1)) * (cache->w << (L - 1));
         size_t nz = dz ? (size_t)cache->N * g->latent_channels * cache->h * cache->w : 0;
         vae_t* gd = NULL;
         real* d;
         MLB_TRY(FN(vae_check_grads)(CPU_OPS, v, grads, "decoder backward"));
-        if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
+        if (grads) MLB_TRY(FN(mlb_vae_create)(be, &v->cfg, &gd));
         mlb_status s = op_alloc(be, &d, ni + nz);
         if (s) { FN(mlb_vae_free)(gd); return s; }
         s = op_upload(be, d, dimage, ni);
@@ -354,26 +353,3 @@ mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache,
     MLB_TRY(FN(vae_check_grads)(MODEL_OPS(v), v, grads, "decoder backward"));
     return FN(decode_backward_core)(MODEL_OPS(v), v, cache, dimage, dz, grads);
 }
-
-#ifndef MLB_F64
-mlb_status mlb_vae_decode_train_on(const mlb_backend* be, const mlb_vae* v, const float* z, int N, int h, int w,
-                                   float* image, mlb_vae_dec_cache* cache) {
-    if (!be || !v || !z || !image || !cache) return mlb_fail(MLB_ERR_ARG, "VAE decoder: a NULL argument");
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder: the model is on the %s, the backend runs on the %s",
-                        mlb_device_name(v->device), mlb_device_name(be->device));
-    MLB_TRY(check_latent(v, N, h, w));
-    return decode_core(be, v, z, N, h, w, image, cache);
-}
-
-mlb_status mlb_vae_decode_backward_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_dec_cache* cache,
-                                      const float* dimage, float* dz, mlb_vae* grads) {
-    if (!be || !v || !cache || !dimage) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: a NULL argument");
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the model is on the %s, the backend runs on the %s",
-                        mlb_device_name(v->device), mlb_device_name(be->device));
-    if (cache->N < 1 || !cache->buf) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward");
-    MLB_TRY(vae_check_grads(be, v, grads, "decoder backward"));
-    return decode_backward_core(be, v, cache, dimage, dz, grads);
-}
-#endif

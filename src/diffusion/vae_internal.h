@@ -134,8 +134,6 @@ static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout
 // st [2, N, G] kept for the backward (in the cache or in scratch).
 typedef struct { real *tok, *qkv, *o, *lse, *st; } att_bufs;
 
-// A model of cfg with zeroed parameters in the memory of be's device.
-mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out);
 // x [N, cin, H, W] -> out [N, cout, H, W]. h1 receives conv1's output, st [4, N, G] the two norms'
 // mean/rstd; t is scratch of the larger channel count.
 mlb_status FN(vae_resnet_fwd)(vae_ops be, const resnet_t* r, const mlb_vae_config* g, const real* x, real* out,
@@ -155,6 +153,8 @@ mlb_status FN(vae_attn_bwd)(vae_ops be, const attn_t* a, attn_t* ga, const mlb_v
 // A host view of n values at x on be's device: x itself on the CPU, else a copy in *tmp (the caller
 // frees *tmp, NULL when nothing was copied).
 mlb_status FN(vae_host_view)(vae_ops be, const real* x, size_t n, real** tmp, const real** view);
+// MLB_OK when v (not NULL) lives where be runs (a call given a table).
+mlb_status FN(vae_check_on)(vae_ops be, const vae_t* v, const char* what);
 mlb_status FN(vae_check_size)(const vae_t* v, const char* what, int N, int H, int W);
 // MLB_OK when grads (may be NULL) can receive v's weight gradients on be's device.
 mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, const char* what);

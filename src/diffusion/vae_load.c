@@ -497,7 +497,7 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     mlb_status s = mlb_vae_config_check(&cfg);
     if (s) return mlb_fail_context(s, "%s", path);
     mlb_vae* v = NULL;
-    MLB_TRY(mlb_vae_create(&cfg, &v));
+    MLB_TRY(mlb_vae_create(NULL, &cfg, &v));
     vae_tdesc* all = NULL;
     size_t n = 0;
     s = all_tensors(v, &all, &n);
@@ -581,7 +581,7 @@ mlb_status mlb_vae_to_f64(const mlb_vae* v, mlb_vae_f64** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
     if (!v) return mlb_fail(MLB_ERR_ARG, "VAE: NULL model");
-    MLB_TRY(mlb_vae_create_f64(&v->cfg, out));
+    MLB_TRY(mlb_vae_create_f64(NULL, &v->cfg, out));
     for (size_t i = 0; i < v->n_params; i++) (*out)->params[i] = (double)v->params[i];   // the same layout
     memcpy((*out)->source, v->source, sizeof v->source);
     return MLB_OK;

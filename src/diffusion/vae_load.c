@@ -240,12 +240,8 @@ static mlb_status json_int_list(const cJSON* o, const char* key, vae_cfg_file* c
 }
 
 static mlb_status parse_config_json(const char* path, vae_cfg_file* c) {
-    char* text = NULL;
-    size_t n = 0;
-    MLB_TRY(mlb_read_file(path, &text, &n, VAE_CONFIG_MAX));
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    free(text);
-    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: not valid JSON", path);
+    cJSON* root;
+    MLB_TRY(mlb_json_read_file(path, VAE_CONFIG_MAX, &root));
     mlb_status s = MLB_OK;
     const cJSON* cls = cJSON_GetObjectItemCaseSensitive(root, "_class_name");
     const cJSON* act = cJSON_GetObjectItemCaseSensitive(root, "act_fn");
@@ -279,9 +275,7 @@ static mlb_status parse_config_json(const char* path, vae_cfg_file* c) {
 // the LatentDiffusion scale_factor. Unparsable or absent metadata is ignored (published files
 // carry none); present but wrong values are errors.
 static mlb_status parse_ldm_config(const mlb_safetensors* st, vae_cfg_file* c) {
-    const char* meta = mlb_st_metadata(st, "ldm_config");
-    if (!meta) return MLB_OK;
-    cJSON* root = cJSON_Parse(meta);
+    cJSON* root = mlb_sd_ldm_config(st, NULL);
     if (!root) return MLB_OK;
     const char* file = mlb_st_path(st);
     mlb_status s = MLB_OK;
@@ -411,20 +405,6 @@ static mlb_status apply_config(const vae_cfg_file* f, const char* cfg_name, mlb_
 
 // ---- loading ---------------------------------------------------------------------------------------
 
-static void config_beside(const char* weights, char* out, size_t cap) {
-    out[0] = 0;
-    if (!weights || strlen(weights) >= VAE_PATH_MAX - 32 || !mlb_is_file(weights)) return;
-    char p[VAE_PATH_MAX];
-    if (mlb_ends_with(weights, ".safetensors")) {
-        snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
-    }
-    const char* slash = strrchr(weights, '/');
-    if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
-    else snprintf(p, sizeof p, "config.json");
-    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
-}
-
 static void fmt_shape(char* buf, size_t cap, int ndim, const int64_t* shape) {
     size_t n = (size_t)snprintf(buf, cap, "[");
     for (int i = 0; i < ndim && n < cap; i++)
@@ -482,7 +462,7 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     char beside[VAE_PATH_MAX];
     const char* cfg_name = NULL;
     if (!config_path && nm.layout == MLB_VAE_LAYOUT_DIFFUSERS && !nm.prefix[0]) {
-        config_beside(path, beside, sizeof beside);
+        mlb_sd_config_beside(path, beside, sizeof beside);
         if (beside[0]) config_path = beside;
     }
     if (config_path) {
@@ -520,19 +500,18 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
 }
 
 
+typedef struct { const mlb_vae_options* opt; mlb_vae** out; } vae_load_args;
+static mlb_status load_from_st(const mlb_safetensors* st, const char* config, void* user) {
+    const vae_load_args* a = user;
+    return mlb_vae_from_st(st, config, a->opt, a->out);
+}
+
 mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
-    if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "VAE: empty path");
-    if (strlen(path) > VAE_PATH_MAX - 100) return mlb_fail(MLB_ERR_ARG, "VAE: path longer than 1000 bytes");
-    char weights[VAE_PATH_MAX], config[VAE_PATH_MAX];
-    MLB_TRY(mlb_sd_component_files("VAE", path, "vae", "diffusion_pytorch_model", weights, config, sizeof weights));
-    if (opt && opt->config_path) config[0] = 0;   // the caller's config wins (from_st uses it)
-    mlb_safetensors* st = NULL;
-    MLB_TRY(mlb_st_open(&st, weights));
-    mlb_status s = mlb_vae_from_st(st, config[0] ? config : NULL, opt, out);
-    mlb_st_close(st);
-    return s;
+    vae_load_args a = {opt, out};
+    return mlb_sd_component_load("VAE", path, "vae", "diffusion_pytorch_model", opt && opt->config_path, load_from_st,
+                                 &a);
 }
 
 // ---- saving, the double copy, random weights --------------------------------------------------------

@@ -605,13 +605,9 @@ static int idbuf_reserve(idbuf* b, size_t extra) {
 // The text's BPE ids into *out (no bos/eos), stopping once `stop_after` ids are there.
 static mlb_status encode_ids(mlb_tokenizer* t, const char* text, idbuf* out, size_t stop_after) {
     if (!t) return mlb_fail(MLB_ERR_ARG, "tokenizer: NULL tokenizer");
-    if (!text) return mlb_fail(MLB_ERR_ARG, "tokenizer: text is NULL");
-    size_t nb = strlen(text);
-    if (nb > MLB_TOKENIZER_MAX_TEXT)
-        return mlb_fail(MLB_ERR_ARG, "text is %zu bytes, more than the %d allowed", nb, MLB_TOKENIZER_MAX_TEXT);
     uint32_t* cps;
     size_t n;
-    MLB_TRY(tok_clean(text, nb, t->flags, &cps, &n));
+    MLB_TRY(tok_clean(text, t->flags, &cps, &n));
     mlb_status s = MLB_OK;
     unsigned char small[256];
     unsigned char* word = small;

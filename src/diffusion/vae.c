@@ -214,8 +214,7 @@ mlb_status FN(vae_attn_bwd)(vae_ops be, const attn_t* a, attn_t* ga, const mlb_v
 typedef struct {
     real *res_x[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS], *res_h1[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
     real* res_st[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
-    real *mid_x[2], *mid_h1[2], *mid_st[2];
-    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+    mid_rec mid;
     real *out_x, *out_st;
     real* moments;
     // a training cache's (cache->train) inputs of the convs the values above do not give: the image
@@ -240,19 +239,7 @@ static size_t FN(enc_layout)(const mlb_vae_config* g, int N, int H, int W, int t
         if (l < L - 1) { H /= 2; W /= 2; }
     }
     const size_t T = (size_t)H * W, n = (size_t)N * top * T;
-    for (int k = 0; k < 2; k++) {
-        r->mid_x[k] = vae_take(&c, n);
-        r->mid_h1[k] = vae_take(&c, n);
-        r->mid_st[k] = vae_take(&c, 4 * NG);
-    }
-    r->att_x = r->att_qkv = r->att_o = r->att_lse = r->att_st = NULL;
-    if (g->mid_attention) {
-        r->att_x = vae_take(&c, n);
-        r->att_qkv = vae_take(&c, 3 * n);
-        r->att_o = vae_take(&c, n);
-        r->att_lse = vae_take(&c, (size_t)N * T);
-        r->att_st = vae_take(&c, 2 * NG);
-    }
+    vae_take_mid(&c, g, N, T, &r->mid);
     r->out_x = vae_take(&c, n);
     r->out_st = vae_take(&c, 2 * NG);
     r->moments = vae_take(&c, (size_t)N * 2 * g->latent_channels * T);
@@ -346,10 +333,10 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     real* ab = st + 4 * NG;
     att_bufs A = {ab, NULL, NULL, NULL, NULL};
     if (g->mid_attention) {
-        A.qkv = cache ? rec.att_qkv : ab + nT;
-        A.o = cache ? rec.att_o : ab + 4 * nT;
-        A.lse = cache ? rec.att_lse : ab + 5 * nT;
-        A.st = cache ? rec.att_st : st;
+        A.qkv = cache ? rec.mid.att_qkv : ab + nT;
+        A.o = cache ? rec.mid.att_o : ab + 4 * nT;
+        A.lse = cache ? rec.mid.att_lse : ab + 5 * nT;
+        A.st = cache ? rec.mid.att_st : st;
     }
 #define OTHER(x) ((x) == P0 ? P1 : P0)
     mlb_status s = MLB_OK;
@@ -361,7 +348,7 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
             real* nxt;
             if (j < R - 1) nxt = cache ? rec.res_x[l][j + 1] : OTHER(cur);
             else if (l < L - 1) nxt = train ? rec.down_in[l] : OTHER(cur);
-            else nxt = cache ? rec.mid_x[0] : OTHER(cur);
+            else nxt = cache ? rec.mid.x[0] : OTHER(cur);
             s = FN(vae_resnet_fwd)(be, &v->enc_res[l][j], g, cur, nxt, cache ? rec.res_h1[l][j] : Hs, Tb,
                                cache ? rec.res_st[l][j] : st, N, h, w);
             cur = nxt;
@@ -376,20 +363,20 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     }
     const int T = h * w;
     if (!s) {   // mid: ResNet, attention, ResNet
-        real* nxt = g->mid_attention ? (cache ? rec.att_x : OTHER(cur)) : (cache ? rec.mid_x[1] : OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[0], g, cur, nxt, cache ? rec.mid_h1[0] : Hs, Tb,
-                           cache ? rec.mid_st[0] : st, N, h, w);
+        real* nxt = g->mid_attention ? (cache ? rec.mid.att_x : OTHER(cur)) : (cache ? rec.mid.x[1] : OTHER(cur));
+        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[0], g, cur, nxt, cache ? rec.mid.h1[0] : Hs, Tb,
+                           cache ? rec.mid.st[0] : st, N, h, w);
         cur = nxt;
     }
     if (!s && g->mid_attention) {
-        real* nxt = cache ? rec.mid_x[1] : OTHER(cur);
+        real* nxt = cache ? rec.mid.x[1] : OTHER(cur);
         s = FN(vae_attn_fwd)(be, &v->enc_mid_attn, g, cur, nxt, Tb, A, N, T);
         cur = nxt;
     }
     if (!s) {
         real* nxt = cache ? rec.out_x : OTHER(cur);
-        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[1], g, cur, nxt, cache ? rec.mid_h1[1] : Hs, Tb,
-                           cache ? rec.mid_st[1] : st, N, h, w);
+        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[1], g, cur, nxt, cache ? rec.mid.h1[1] : Hs, Tb,
+                           cache ? rec.mid.st[1] : st, N, h, w);
         cur = nxt;
     }
     if (!s) {
@@ -489,7 +476,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     real* T1 = D1 + p.act;
     real* T2 = T1 + p.act;
     real* ab = T2 + p.act;
-    att_bufs A = {ab, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    att_bufs A = {ab, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
     int hs[MLB_VAE_MAX_LEVELS], wsz[MLB_VAE_MAX_LEVELS];
     hs[0] = H; wsz[0] = W;
     for (int l = 1; l < L; l++) { hs[l] = hs[l - 1] / 2; wsz[l] = wsz[l - 1] / 2; }
@@ -539,18 +526,18 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
         s = op_gn_bwd(be, D1, GRAD(gr, enc_norm_out_w), GRAD(gr, enc_norm_out_b), T2, rec.out_x, v->enc_norm_out_w,
                       v->enc_norm_out_b, rec.out_st, rec.out_st + NG, N, top, T, g->norm_groups, MLB_ACT_SILU);
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[1], GRAD(gr, enc_mid_res + 1), g, rec.mid_x[1], rec.mid_h1[1],
-                               rec.mid_st[1], cur, OTHER(cur), T1, T2, N, h, w);
+        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[1], GRAD(gr, enc_mid_res + 1), g, rec.mid.x[1], rec.mid.h1[1],
+                               rec.mid.st[1], cur, OTHER(cur), T1, T2, N, h, w);
         cur = OTHER(cur);
     }
     if (!s && g->mid_attention) {
-        s = FN(vae_attn_bwd)(be, &v->enc_mid_attn, gr ? &gr->enc_mid_attn : NULL, g, rec.att_x, A, cur, OTHER(cur), T1,
+        s = FN(vae_attn_bwd)(be, &v->enc_mid_attn, gr ? &gr->enc_mid_attn : NULL, g, rec.mid.att_x, A, cur, OTHER(cur), T1,
                              ab + nT, ab + 2 * nT, N, T);
         cur = OTHER(cur);
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[0], GRAD(gr, enc_mid_res), g, rec.mid_x[0], rec.mid_h1[0],
-                               rec.mid_st[0], cur, OTHER(cur), T1, T2, N, h, w);
+        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[0], GRAD(gr, enc_mid_res), g, rec.mid.x[0], rec.mid.h1[0],
+                               rec.mid.st[0], cur, OTHER(cur), T1, T2, N, h, w);
         cur = OTHER(cur);
     }
     for (int l = L - 1; l >= 0 && !s; l--) {

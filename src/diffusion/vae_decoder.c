@@ -35,8 +35,7 @@ static vae_plan dec_plan(const mlb_vae_config* g, int N, int h, int w) {
 // low-resolution input (the upsampled map is recomputed) and norm_out's input.
 typedef struct {
     real *z, *pq;
-    real *mid_x[2], *mid_h1[2], *mid_st[2];
-    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+    mid_rec mid;
     real *res_x[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1], *res_h1[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1];
     real* res_st[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1];
     real* up_x[MLB_VAE_MAX_LEVELS];
@@ -45,23 +44,11 @@ typedef struct {
 
 static size_t FN(dec_layout)(const mlb_vae_config* g, int N, int h, int w, real* buf, dec_rec* r) {
     carver c = {buf, 0};
-    const int L = g->n_levels, top = g->block_out[L - 1], z = g->latent_channels;
-    const size_t NG = (size_t)N * g->norm_groups, T = (size_t)h * w, n = (size_t)N * top * T;
+    const int L = g->n_levels, z = g->latent_channels;
+    const size_t NG = (size_t)N * g->norm_groups, T = (size_t)h * w;
     r->z = vae_take(&c, (size_t)N * z * T);
     r->pq = vae_take(&c, (size_t)N * z * T);
-    for (int k = 0; k < 2; k++) {
-        r->mid_x[k] = vae_take(&c, n);
-        r->mid_h1[k] = vae_take(&c, n);
-        r->mid_st[k] = vae_take(&c, 4 * NG);
-    }
-    r->att_x = r->att_qkv = r->att_o = r->att_lse = r->att_st = NULL;
-    if (g->mid_attention) {
-        r->att_x = vae_take(&c, n);
-        r->att_qkv = vae_take(&c, 3 * n);
-        r->att_o = vae_take(&c, n);
-        r->att_lse = vae_take(&c, (size_t)N * T);
-        r->att_st = vae_take(&c, 2 * NG);
-    }
+    vae_take_mid(&c, g, N, T, &r->mid);
     memset(r->up_x, 0, sizeof r->up_x);
     for (int i = 0; i < L; i++) {
         size_t px = (size_t)N * h * w;
@@ -144,28 +131,28 @@ static mlb_status FN(decode_core)(vae_ops be, const vae_t* v, const real* zin, i
     real* st = Hs + p.act;
     real* ab = st + 4 * NG;   // without a cache; with one the token scratch is the backward's (below)
     att_bufs A = {ab, ab + nT, ab + 4 * nT, ab + 5 * nT, st};
-    if (cache) A = (att_bufs){P0 + 4 * p.act, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    if (cache) A = (att_bufs){P0 + 4 * p.act, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
 #define OTHER(x) ((x) == P0 ? P1 : P0)
 #define KEEP(field, fallback) (cache ? rec.field : (fallback))
     real* cur = KEEP(pq, P0);
     mlb_status s = op_conv(be, cur, zin, v->post_quant_w, v->post_quant_b, conv1_desc(N, z, h, w, z));
-    real* nxt = KEEP(mid_x[0], P1);
+    real* nxt = KEEP(mid.x[0], P1);
     if (!s) s = op_conv(be, nxt, cur, v->dec_conv_in_w, v->dec_conv_in_b, conv3_desc(N, z, h, w, top));
     cur = nxt;
     if (!s) {
-        nxt = g->mid_attention ? KEEP(att_x, OTHER(cur)) : KEEP(mid_x[1], OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[0], g, cur, nxt, KEEP(mid_h1[0], Hs), Tb, KEEP(mid_st[0], st), N,
+        nxt = g->mid_attention ? KEEP(mid.att_x, OTHER(cur)) : KEEP(mid.x[1], OTHER(cur));
+        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[0], g, cur, nxt, KEEP(mid.h1[0], Hs), Tb, KEEP(mid.st[0], st), N,
                                h, w);
         cur = nxt;
     }
     if (!s && g->mid_attention) {
-        nxt = KEEP(mid_x[1], OTHER(cur));
+        nxt = KEEP(mid.x[1], OTHER(cur));
         s = FN(vae_attn_fwd)(be, &v->dec_mid_attn, g, cur, nxt, Tb, A, N, h * w);
         cur = nxt;
     }
     if (!s) {
         nxt = KEEP(res_x[0][0], OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[1], g, cur, nxt, KEEP(mid_h1[1], Hs), Tb, KEEP(mid_st[1], st), N,
+        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[1], g, cur, nxt, KEEP(mid.h1[1], Hs), Tb, KEEP(mid.st[1], st), N,
                                h, w);
         cur = nxt;
     }
@@ -258,7 +245,7 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
     real* T1 = D1 + p.act;
     real* T2 = T1 + p.act;
     real* ab = T2 + p.act;
-    att_bufs A = {ab, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    att_bufs A = {ab, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
     const int H = h0 << (L - 1), W = w0 << (L - 1);
 #define OTHER(x) ((x) == D0 ? D1 : D0)
     mlb_status s = MLB_OK;
@@ -292,18 +279,18 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
         }
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[1], GRAD(gr, dec_mid_res + 1), g, rec.mid_x[1], rec.mid_h1[1],
-                               rec.mid_st[1], cur, OTHER(cur), T1, T2, N, h0, w0);
+        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[1], GRAD(gr, dec_mid_res + 1), g, rec.mid.x[1], rec.mid.h1[1],
+                               rec.mid.st[1], cur, OTHER(cur), T1, T2, N, h0, w0);
         cur = OTHER(cur);
     }
     if (!s && g->mid_attention) {
-        s = FN(vae_attn_bwd)(be, &v->dec_mid_attn, gr ? &gr->dec_mid_attn : NULL, g, rec.att_x, A, cur, OTHER(cur),
+        s = FN(vae_attn_bwd)(be, &v->dec_mid_attn, gr ? &gr->dec_mid_attn : NULL, g, rec.mid.att_x, A, cur, OTHER(cur),
                              T1, ab + nT, ab + 2 * nT, N, h0 * w0);
         cur = OTHER(cur);
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[0], GRAD(gr, dec_mid_res), g, rec.mid_x[0], rec.mid_h1[0],
-                               rec.mid_st[0], cur, OTHER(cur), T1, T2, N, h0, w0);
+        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[0], GRAD(gr, dec_mid_res), g, rec.mid.x[0], rec.mid.h1[0],
+                               rec.mid.st[0], cur, OTHER(cur), T1, T2, N, h0, w0);
         cur = OTHER(cur);
     }
     real* dpq = OTHER(cur);

@@ -124,8 +124,6 @@ static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout
     return op_upsample_bwd_acc(be, din, dout, N, C, H, W);
 }
 
-#define LOGVAR_MIN (-30.0)
-#define LOGVAR_MAX 20.0
 // A gradient model's tensor, or NULL (that gradient not wanted).
 #define GRAD(gr, field) ((gr) ? (gr)->field : NULL)
 
@@ -133,6 +131,33 @@ static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout
 // Buffers of the mid attention: tok [N*T, C] scratch; qkv [N*T, 3C], o [N*T, C], lse [N, T] and
 // st [2, N, G] kept for the backward (in the cache or in scratch).
 typedef struct { real *tok, *qkv, *o, *lse, *st; } att_bufs;
+
+// What a cache keeps of the mid block (encoder and decoder alike): per ResNet its input, conv1's
+// output and the norms' statistics [4, N, G]; the attention's input, qkv, output, log-sum-exp and
+// norm statistics (NULL without mid attention).
+typedef struct {
+    real *x[2], *h1[2], *st[2];
+    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+} mid_rec;
+
+// Carves the mid block's kept tensors for N images of T = h w tokens and `top` channels.
+static inline void vae_take_mid(carver* c, const mlb_vae_config* g, int N, size_t T, mid_rec* m) {
+    const int top = g->block_out[g->n_levels - 1];
+    const size_t NG = (size_t)N * g->norm_groups, n = (size_t)N * top * T;
+    for (int k = 0; k < 2; k++) {
+        m->x[k] = vae_take(c, n);
+        m->h1[k] = vae_take(c, n);
+        m->st[k] = vae_take(c, 4 * NG);
+    }
+    m->att_x = m->att_qkv = m->att_o = m->att_lse = m->att_st = NULL;
+    if (g->mid_attention) {
+        m->att_x = vae_take(c, n);
+        m->att_qkv = vae_take(c, 3 * n);
+        m->att_o = vae_take(c, n);
+        m->att_lse = vae_take(c, (size_t)N * T);
+        m->att_st = vae_take(c, 2 * NG);
+    }
+}
 
 // x [N, cin, H, W] -> out [N, cout, H, W]. h1 receives conv1's output, st [4, N, G] the two norms'
 // mean/rstd; t is scratch of the larger channel count.

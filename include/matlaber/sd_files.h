@@ -21,14 +21,13 @@ mlb_status mlb_sd_component_files(const char* what, const char* path, const char
 // or is too long for out (cap - 32 bytes or more; cap at most 4096).
 void mlb_sd_config_beside(const char* weights, char* out, size_t cap);
 
-// What every component loader does with the path the user gave: `what`: empty path or a path over
-// 1000 bytes is MLB_ERR_ARG; then mlb_sd_component_files, the weights opened and
-// from_st(st, config, user) with the folder's config.json (NULL when there is none or when
-// config_given: the caller's own config wins, and its from_st reads that one); the file is closed.
+// What every component loader does with the path the user gave: an empty path or one over 1000
+// bytes is MLB_ERR_ARG naming `what`; then mlb_sd_component_files and *st = the weights opened
+// (close with mlb_st_close); config as there (cap: MLB_SD_PATH_CAP).
+#define MLB_SD_PATH_CAP 1100
 struct mlb_safetensors;
-typedef mlb_status (*mlb_sd_from_st_fn)(const struct mlb_safetensors* st, const char* config, void* user);
-mlb_status mlb_sd_component_load(const char* what, const char* path, const char* subdir, const char* base,
-                                 int config_given, mlb_sd_from_st_fn from_st, void* user);
+mlb_status mlb_sd_component_open(const char* what, const char* path, const char* subdir, const char* base,
+                                 struct mlb_safetensors** st, char config[MLB_SD_PATH_CAP]);
 
 // *root = the JSON in the file at path (at most max_bytes): MLB_ERR_FORMAT "<path>: not valid
 // JSON" when it does not parse; the file's own errors otherwise. Free with cJSON_Delete.

@@ -61,18 +61,15 @@ void mlb_sd_config_beside(const char* weights, char* out, size_t cap) {
     if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
 }
 
-mlb_status mlb_sd_component_load(const char* what, const char* path, const char* subdir, const char* base,
-                                 int config_given, mlb_sd_from_st_fn from_st, void* user) {
+mlb_status mlb_sd_component_open(const char* what, const char* path, const char* subdir, const char* base,
+                                 mlb_safetensors** st, char config[MLB_SD_PATH_CAP]) {
+    *st = NULL;
+    config[0] = 0;
     if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "%s: empty path", what);
     if (strlen(path) > 1000) return mlb_fail(MLB_ERR_ARG, "%s: path longer than 1000 bytes", what);
-    char weights[1100], config[1100];
+    char weights[MLB_SD_PATH_CAP];
     MLB_TRY(mlb_sd_component_files(what, path, subdir, base, weights, config, sizeof weights));
-    if (config_given) config[0] = 0;
-    mlb_safetensors* st = NULL;
-    MLB_TRY(mlb_st_open(&st, weights));
-    mlb_status s = from_st(st, config[0] ? config : NULL, user);
-    mlb_st_close(st);
-    return s;
+    return mlb_st_open(st, weights);
 }
 
 mlb_status mlb_json_read_file(const char* path, size_t max_bytes, cJSON** root) {

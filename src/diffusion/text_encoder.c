@@ -14,7 +14,6 @@
 #include "matlaber/text_encoder.h"
 #include "matlaber/tokenizer.h"
 
-#define TE_PATH_MAX 1100
 #define TE_CONFIG_MAX (1 << 20)   // bytes of config.json / ldm_config accepted
 
 // ---- small helpers ------------------------------------------------------------------------------
@@ -337,7 +336,7 @@ static mlb_status configure(mlb_text_encoder* te, const mlb_safetensors* st, con
     // Config: config.json for the diffusers layout, the ldm_config metadata for single files.
     te_config cfg;
     memset(&cfg, 0, sizeof cfg);
-    char beside[TE_PATH_MAX];
+    char beside[MLB_SD_PATH_CAP];
     if (!cfg_path && nm->layout == MLB_TEXT_LAYOUT_DIFFUSERS) {
         mlb_sd_config_beside(path, beside, sizeof beside);
         if (beside[0]) cfg_path = beside;
@@ -432,18 +431,16 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
 }
 
 
-typedef struct { const mlb_text_encoder_options* opt; mlb_text_encoder** out; } te_load_args;
-static mlb_status load_from_st(const mlb_safetensors* st, const char* config, void* user) {
-    const te_load_args* a = user;
-    return mlb_text_encoder_from_st(st, config, a->opt, a->out);
-}
-
 mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_options* opt, mlb_text_encoder** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL output");
     *out = NULL;
-    te_load_args a = {opt, out};
-    return mlb_sd_component_load("text encoder", path, "text_encoder", "model", opt && opt->config_path, load_from_st,
-                                 &a);
+    mlb_safetensors* st;
+    char config[MLB_SD_PATH_CAP];
+    MLB_TRY(mlb_sd_component_open("text encoder", path, "text_encoder", "model", &st, config));
+    // the caller's config wins (from_st reads it)
+    mlb_status s = mlb_text_encoder_from_st(st, config[0] && !(opt && opt->config_path) ? config : NULL, opt, out);
+    mlb_st_close(st);
+    return s;
 }
 
 void mlb_text_encoder_free(mlb_text_encoder* te) {

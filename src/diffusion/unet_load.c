@@ -15,7 +15,6 @@
 #include "matlaber/sd_files.h"
 #include "unet_schema.h"
 
-#define UNET_PATH_MAX 4096
 #define UNET_CONFIG_MAX (1 << 20)
 #define LDM_PREFIX "model.diffusion_model."
 
@@ -317,26 +316,21 @@ fail:
     return s;
 }
 
-typedef struct { const mlb_unet_options* opt; mlb_unet** out; } unet_load_args;
-static mlb_status load_from_st(const mlb_safetensors* st, const char* config, void* user) {
-    const unet_load_args* a = user;
-    char beside[UNET_PATH_MAX];
-    if (!config && mlb_st_find(st, "conv_in.weight")) {   // a diffusers file: a config beside it
-        mlb_sd_config_beside(mlb_st_path(st), beside, sizeof beside);
-        if (beside[0]) config = beside;
-    }
-    const char* cp = a->opt && a->opt->config_path ? a->opt->config_path : config;
-    mlb_unet_options o = {cp, a->opt ? a->opt->bf16_weights : 0, a->opt ? a->opt->f16_weights : 0};
-    return mlb_unet_from_st_opt(st, &o, a->out);
-}
-
 // A model folder, the unet/ folder (either with .safetensors or the fp16 variant's
 // .fp16.safetensors) or one file; pickles refused, as for the other components.
 mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_load: NULL output");
     *out = NULL;
-    unet_load_args a = {opt, out};
-    return mlb_sd_component_load("UNet", path, "unet", "diffusion_pytorch_model", 0, load_from_st, &a);
+    mlb_safetensors* st;
+    char config[MLB_SD_PATH_CAP];
+    MLB_TRY(mlb_sd_component_open("UNet", path, "unet", "diffusion_pytorch_model", &st, config));
+    if (!config[0] && mlb_st_find(st, "conv_in.weight"))   // a diffusers file: a config beside it
+        mlb_sd_config_beside(mlb_st_path(st), config, MLB_SD_PATH_CAP);
+    const char* cp = opt && opt->config_path ? opt->config_path : (config[0] ? config : NULL);
+    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
+    mlb_status s = mlb_unet_from_st_opt(st, &o, out);
+    mlb_st_close(st);
+    return s;
 }
 
 void mlb_unet_free(mlb_unet* u) {

@@ -14,7 +14,6 @@
 #include "matlaber/rng.h"
 #include "matlaber/vae.h"
 
-#define VAE_PATH_MAX 1100
 #define VAE_CONFIG_MAX (1 << 20)
 
 // ---- tensor names ----------------------------------------------------------------------------------
@@ -459,7 +458,7 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     vae_cfg_file f;
     memset(&f, 0, sizeof f);
     f.attn = -1;
-    char beside[VAE_PATH_MAX];
+    char beside[MLB_SD_PATH_CAP];
     const char* cfg_name = NULL;
     if (!config_path && nm.layout == MLB_VAE_LAYOUT_DIFFUSERS && !nm.prefix[0]) {
         mlb_sd_config_beside(path, beside, sizeof beside);
@@ -500,18 +499,16 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
 }
 
 
-typedef struct { const mlb_vae_options* opt; mlb_vae** out; } vae_load_args;
-static mlb_status load_from_st(const mlb_safetensors* st, const char* config, void* user) {
-    const vae_load_args* a = user;
-    return mlb_vae_from_st(st, config, a->opt, a->out);
-}
-
 mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
-    vae_load_args a = {opt, out};
-    return mlb_sd_component_load("VAE", path, "vae", "diffusion_pytorch_model", opt && opt->config_path, load_from_st,
-                                 &a);
+    mlb_safetensors* st;
+    char config[MLB_SD_PATH_CAP];
+    MLB_TRY(mlb_sd_component_open("VAE", path, "vae", "diffusion_pytorch_model", &st, config));
+    // the caller's config wins (from_st reads it)
+    mlb_status s = mlb_vae_from_st(st, config[0] && !(opt && opt->config_path) ? config : NULL, opt, out);
+    mlb_st_close(st);
+    return s;
 }
 
 // ---- saving, the double copy, random weights --------------------------------------------------------

@@ -298,7 +298,6 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     const mlb_vae_config* g = &v->cfg;
     const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
     const size_t NG = (size_t)N * g->norm_groups;
-    const mlb_device dev = ops_device(be);
     enc_rec rec;
     size_t kept = 0;   // with a cache: the values its backward reads; the scratch follows them
     const int train = cache && cache->train;
@@ -306,25 +305,15 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
         kept = FN(enc_layout)(g, N, H, W, train, NULL, &rec);
         size_t need = kept + FN(enc_scratch)(g, N, H, W);
         cache->N = 0;   // invalid until this forward completes
-        if (cache->capacity < need || cache->device != dev) {
-            op_release(ops_of(cache->device), cache->buf);
-            cache->buf = NULL;
-            cache->capacity = 0;
-            cache->device = dev;
-            if (op_alloc(be, &cache->buf, need) != MLB_OK)
-                return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: the backward cache (%.1f MB)",
-                                        need * (double)sizeof(real) / 1e6);
-            cache->capacity = need;
-        }
+        MLB_TRY(vae_cache_reserve(be, &cache->buf, &cache->capacity, &cache->device, need, "encoder"));
         FN(enc_layout)(g, N, H, W, train, cache->buf, &rec);
         if (train) MLB_TRY(op_copy(be, rec.image, image, (size_t)N * g->in_channels * H * W));
     }
     vae_plan p = enc_plan(g, N, H, W);
     const size_t nT = (size_t)N * p.T * top;
     size_t total = FN(enc_scratch_of)(g, N, H, W, cache ? ENC_FORWARD_CACHED : ENC_FORWARD);
-    real* scratch = cache ? cache->buf + kept : NULL;
-    if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
-        return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* scratch;
+    MLB_TRY(vae_scratch(be, cache ? cache->buf : NULL, kept, total, &scratch, "encoder"));
     real* P0 = scratch;
     real* P1 = P0 + p.act;
     real* Tb = P1 + p.act;

@@ -107,23 +107,13 @@ static mlb_status FN(decode_core)(vae_ops be, const vae_t* v, const real* zin, i
         kept = FN(dec_layout)(g, N, h, w, NULL, &rec);
         size_t need = kept + FN(dec_scratch)(g, N, h, w, 1);
         cache->N = 0;   // invalid until this forward completes
-        if (cache->capacity < need || cache->device != ops_device(be)) {
-            op_release(ops_of(cache->device), cache->buf);
-            cache->buf = NULL;
-            cache->capacity = 0;
-            cache->device = ops_device(be);
-            if (op_alloc(be, &cache->buf, need) != MLB_OK)
-                return mlb_fail_context(MLB_ERR_NOMEM, "VAE decoder: the backward cache (%.1f MB)",
-                                        need * (double)sizeof(real) / 1e6);
-            cache->capacity = need;
-        }
+        MLB_TRY(vae_cache_reserve(be, &cache->buf, &cache->capacity, &cache->device, need, "decoder"));
         FN(dec_layout)(g, N, h, w, cache->buf, &rec);
         MLB_TRY(op_copy(be, rec.z, zin, (size_t)N * z * h * w));
     }
     size_t total = FN(dec_scratch)(g, N, h, w, cache != NULL);
-    real* scratch = cache ? cache->buf + kept : NULL;
-    if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
-        return mlb_fail_context(MLB_ERR_NOMEM, "VAE decoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* scratch;
+    MLB_TRY(vae_scratch(be, cache ? cache->buf : NULL, kept, total, &scratch, "decoder"));
     real* P0 = scratch;
     real* P1 = P0 + p.act;
     real* Tb = P1 + p.act;

@@ -127,6 +127,32 @@ static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout
 // A gradient model's tensor, or NULL (that gradient not wanted).
 #define GRAD(gr, field) ((gr) ? (gr)->field : NULL)
 
+// A cache's buffer (buf, capacity, device: the fields both caches have) grown to hold `need` values
+// on be's device; on failure it is left empty. `what` ("encoder", "decoder") names the pass.
+static inline mlb_status vae_cache_reserve(vae_ops be, real** buf, size_t* capacity, mlb_device* device, size_t need,
+                                           const char* what) {
+    if (*capacity >= need && *device == ops_device(be)) return MLB_OK;
+    op_release(ops_of(*device), *buf);
+    *buf = NULL;
+    *capacity = 0;
+    *device = ops_device(be);
+    if (op_alloc(be, buf, need) != MLB_OK)
+        return mlb_fail_context(MLB_ERR_NOMEM, "VAE %s: the backward cache (%.1f MB)", what,
+                                need * (double)sizeof(real) / 1e6);
+    *capacity = need;
+    return MLB_OK;
+}
+
+// A forward's scratch: in the cache after its `kept` values (cache_buf not NULL), else `total`
+// values allocated on be's device, which the caller releases.
+static inline mlb_status vae_scratch(vae_ops be, real* cache_buf, size_t kept, size_t total, real** scratch,
+                                     const char* what) {
+    *scratch = cache_buf ? cache_buf + kept : NULL;
+    if (!cache_buf && op_alloc(be, scratch, total) != MLB_OK)
+        return mlb_fail_context(MLB_ERR_NOMEM, "VAE %s: %.1f MB of scratch", what, total * (double)sizeof(real) / 1e6);
+    return MLB_OK;
+}
+
 // ---- shared by vae.c and vae_decoder.c (defined in vae.c) -----------------------------------------
 // Buffers of the mid attention: tok [N*T, C] scratch; qkv [N*T, 3C], o [N*T, C], lse [N, T] and
 // st [2, N, G] kept for the backward (in the cache or in scratch).

@@ -22,12 +22,16 @@ mlb_status mlb_sd_component_files(const char* what, const char* path, const char
 void mlb_sd_config_beside(const char* weights, char* out, size_t cap);
 
 // What every component loader does with the path the user gave: an empty path or one over 1000
-// bytes is MLB_ERR_ARG naming `what`; then mlb_sd_component_files and *st = the weights opened
-// (close with mlb_st_close); config as there (cap: MLB_SD_PATH_CAP).
+// bytes is MLB_ERR_ARG naming `what`; then mlb_sd_component_files and the weights opened.
 #define MLB_SD_PATH_CAP 1100
 struct mlb_safetensors;
+typedef struct {
+    struct mlb_safetensors* st;   // the weights, open (close with mlb_st_close)
+    const char* config;           // the caller's own config (own_config), else the folder's, else NULL
+    char buf[MLB_SD_PATH_CAP];    // where the folder's config path is kept
+} mlb_sd_component;
 mlb_status mlb_sd_component_open(const char* what, const char* path, const char* subdir, const char* base,
-                                 struct mlb_safetensors** st, char config[MLB_SD_PATH_CAP]);
+                                 const char* own_config, mlb_sd_component* c);
 
 // *root = the JSON in the file at path (at most max_bytes): MLB_ERR_FORMAT "<path>: not valid
 // JSON" when it does not parse; the file's own errors otherwise. Free with cJSON_Delete.

@@ -62,14 +62,15 @@ void mlb_sd_config_beside(const char* weights, char* out, size_t cap) {
 }
 
 mlb_status mlb_sd_component_open(const char* what, const char* path, const char* subdir, const char* base,
-                                 mlb_safetensors** st, char config[MLB_SD_PATH_CAP]) {
-    *st = NULL;
-    config[0] = 0;
+                                 const char* own_config, mlb_sd_component* c) {
+    c->st = NULL;
+    c->config = NULL;
     if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "%s: empty path", what);
     if (strlen(path) > 1000) return mlb_fail(MLB_ERR_ARG, "%s: path longer than 1000 bytes", what);
     char weights[MLB_SD_PATH_CAP];
-    MLB_TRY(mlb_sd_component_files(what, path, subdir, base, weights, config, sizeof weights));
-    return mlb_st_open(st, weights);
+    MLB_TRY(mlb_sd_component_files(what, path, subdir, base, weights, c->buf, sizeof weights));
+    c->config = own_config ? own_config : c->buf[0] ? c->buf : NULL;
+    return mlb_st_open(&c->st, weights);
 }
 
 mlb_status mlb_json_read_file(const char* path, size_t max_bytes, cJSON** root) {

@@ -434,12 +434,10 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
 mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_options* opt, mlb_text_encoder** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL output");
     *out = NULL;
-    mlb_safetensors* st;
-    char config[MLB_SD_PATH_CAP];
-    MLB_TRY(mlb_sd_component_open("text encoder", path, "text_encoder", "model", &st, config));
-    // the caller's config wins (from_st reads it)
-    mlb_status s = mlb_text_encoder_from_st(st, config[0] && !(opt && opt->config_path) ? config : NULL, opt, out);
-    mlb_st_close(st);
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("text encoder", path, "text_encoder", "model", opt ? opt->config_path : NULL, &c));
+    mlb_status s = mlb_text_encoder_from_st(c.st, c.config, opt, out);
+    mlb_st_close(c.st);
     return s;
 }
 

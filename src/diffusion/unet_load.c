@@ -321,15 +321,15 @@ fail:
 mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_load: NULL output");
     *out = NULL;
-    mlb_safetensors* st;
-    char config[MLB_SD_PATH_CAP];
-    MLB_TRY(mlb_sd_component_open("UNet", path, "unet", "diffusion_pytorch_model", &st, config));
-    if (!config[0] && mlb_st_find(st, "conv_in.weight"))   // a diffusers file: a config beside it
-        mlb_sd_config_beside(mlb_st_path(st), config, MLB_SD_PATH_CAP);
-    const char* cp = opt && opt->config_path ? opt->config_path : (config[0] ? config : NULL);
-    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
-    mlb_status s = mlb_unet_from_st_opt(st, &o, out);
-    mlb_st_close(st);
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("UNet", path, "unet", "diffusion_pytorch_model", opt ? opt->config_path : NULL, &c));
+    if (!c.config && mlb_st_find(c.st, "conv_in.weight")) {   // a diffusers file: a config beside it
+        mlb_sd_config_beside(mlb_st_path(c.st), c.buf, sizeof c.buf);
+        if (c.buf[0]) c.config = c.buf;
+    }
+    mlb_unet_options o = {c.config, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
+    mlb_status s = mlb_unet_from_st_opt(c.st, &o, out);
+    mlb_st_close(c.st);
     return s;
 }
 

@@ -502,12 +502,10 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
 mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
-    mlb_safetensors* st;
-    char config[MLB_SD_PATH_CAP];
-    MLB_TRY(mlb_sd_component_open("VAE", path, "vae", "diffusion_pytorch_model", &st, config));
-    // the caller's config wins (from_st reads it)
-    mlb_status s = mlb_vae_from_st(st, config[0] && !(opt && opt->config_path) ? config : NULL, opt, out);
-    mlb_st_close(st);
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("VAE", path, "vae", "diffusion_pytorch_model", opt ? opt->config_path : NULL, &c));
+    mlb_status s = mlb_vae_from_st(c.st, c.config, opt, out);
+    mlb_st_close(c.st);
     return s;
 }
 

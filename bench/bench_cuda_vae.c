@@ -34,7 +34,7 @@ int main(int argc, char** argv) {
     TRY(mlb_cuda_describe(0, desc, sizeof desc));
     mlb_vae_config cfg = mlb_vae_sd_config();
     mlb_vae* v;
-    TRY(mlb_vae_create(&cfg, &v));
+    TRY(mlb_vae_create(NULL, &cfg, &v));
     mlb_vae_init_random(v, 3, 1.0f);
     const int N = 9, H = 512, W = 512, h = H / 8, w = W / 8;
     size_t ni = (size_t)N * 3 * H * W, nz = (size_t)N * 4 * h * w;
@@ -53,11 +53,11 @@ int main(int argc, char** argv) {
         double te[50], tb[50], td[50];
         for (int r = -1; r < reps; r++) {
             double t0 = mlb_now_seconds();
-            TRY(mlb_vae_encode(v, img, N, H, W, mean, logvar, &cache));
+            TRY(mlb_vae_encode(NULL, v, img, N, H, W, mean, logvar, &cache));
             double t1 = mlb_now_seconds();
-            TRY(mlb_vae_encode_backward(v, &cache, g, NULL, dimg));
+            TRY(mlb_vae_encode_backward(NULL, v, &cache, g, NULL, dimg, NULL));
             double t2 = mlb_now_seconds();
-            TRY(mlb_vae_decode(v, mean, 1, h, w, out));
+            TRY(mlb_vae_decode(NULL, v, mean, 1, h, w, out, NULL));
             double t3 = mlb_now_seconds();
             if (r >= 0) { te[r] = (t1 - t0) * 1e3; tb[r] = (t2 - t1) * 1e3; td[r] = (t3 - t2) * 1e3; }
         }
@@ -90,8 +90,8 @@ int main(int argc, char** argv) {
         for (int pass = 0; pass < 2; pass++) {
             profile_wrap(keep, &w);
             v->mirror_ops = &w;
-            if (pass == 0) TRY(mlb_vae_encode(v, img, N, H, W, mean, logvar, &cache));
-            else TRY(mlb_vae_encode_backward(v, &cache, g, NULL, dimg));
+            if (pass == 0) TRY(mlb_vae_encode(NULL, v, img, N, H, W, mean, logvar, &cache));
+            else TRY(mlb_vae_encode_backward(NULL, v, &cache, g, NULL, dimg, NULL));
             v->mirror_ops = keep;
             printf("\nprofile, %s 9 x 512^2, bf16 (each op synchronised):\n", pass ? "encode backward" : "encode (with cache)");
             profile_print(names);

@@ -644,7 +644,7 @@ int main(int argc, char** argv) {
         mlb_vae_config vc = mlb_vae_sd_config();
         int bo[4] = {32, 32, 64, 64};
         for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
-        if (mlb_unet_write_random(&uc, &uo, pu) || mlb_unet_load(pu, NULL, &tu) || mlb_vae_create(&vc, &tv)) {
+        if (mlb_unet_write_random(&uc, &uo, pu) || mlb_unet_load(pu, NULL, &tu) || mlb_vae_create(NULL, &vc, &tv)) {
             fprintf(stderr, "bench_pipeline: tiny model: %s\n", mlb_last_error());
             rc = 1;
             goto out;
@@ -675,7 +675,7 @@ int main(int argc, char** argv) {
         mlb_status s = mlb_unet_write_random(&uc, &uo, pu);
         mlb_unet_options lo = mlb_unet_options_for(device, precision);   // as the program loads it
         if (!s) s = mlb_unet_load(pu, &lo, &tu);
-        if (!s) s = mlb_vae_create(&vc, &tv);
+        if (!s) s = mlb_vae_create(NULL, &vc, &tv);
         if (!s) {
             mlb_vae_init_random(tv, 1, 1.0f);
             s = mlb_vae_save(tv, pv, MLB_VAE_LAYOUT_LDM, "first_stage_model.", NULL);

@@ -304,7 +304,7 @@ int main(int argc, char** argv) {
         mlb_vae_config g = mlb_vae_sd_config();
         mlb_vae* v = NULL;
         double t0 = mlb_now_seconds();
-        if (mlb_vae_create(&g, &v)) { rc = fail("creating the VAE"); goto out; }
+        if (mlb_vae_create(NULL, &g, &v)) { rc = fail("creating the VAE"); goto out; }
         mlb_vae_init_random(v, 1, 1.0f);
         if (mlb_vae_save(v, pv, MLB_VAE_LAYOUT_LDM, "first_stage_model.", NULL)) { rc = fail("writing the VAE"); mlb_vae_free(v); goto out; }
         mlb_vae_free(v);
@@ -320,7 +320,7 @@ int main(int argc, char** argv) {
         mlb_rng_fill_normal(dm, nz, 3, 2, 0, 0, 1);
         mlb_vae_cache cache = {0};
         double a = mlb_now_seconds();
-        if (mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(v, &cache, dm, NULL, dimg))
+        if (mlb_vae_encode(NULL, v, img, 1, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(NULL, v, &cache, dm, NULL, dimg, NULL))
             rc = fail("VAE encode/backward");
         double d = mlb_now_seconds() - a;
         double ff, fb;

@@ -65,10 +65,10 @@ static int time_encoder(const mlb_vae* v, int S, int reps, double* t_fwd, double
     *t_fwd = *t_both = 1e30;
     for (int r = 0; r <= reps; r++) {
         double t0 = mlb_now_seconds();
-        if (mlb_vae_encode(v, img, 1, S, S, mean, NULL, NULL)) goto fail;
+        if (mlb_vae_encode(NULL, v, img, 1, S, S, mean, NULL, NULL)) goto fail;
         double t1 = mlb_now_seconds();
-        if (mlb_vae_encode(v, img, 1, S, S, mean, NULL, &cache)) goto fail;
-        if (mlb_vae_encode_backward(v, &cache, g, NULL, dimg)) goto fail;
+        if (mlb_vae_encode(NULL, v, img, 1, S, S, mean, NULL, &cache)) goto fail;
+        if (mlb_vae_encode_backward(NULL, v, &cache, g, NULL, dimg, NULL)) goto fail;
         double t2 = mlb_now_seconds();
         if (r > 0 || reps == 0) {
             if (t1 - t0 < *t_fwd) *t_fwd = t1 - t0;
@@ -115,7 +115,7 @@ static const char* find_tiny(int argc, char** argv) {
 static int profile_sd_vae(int S, int B, const char* path, mlb_gemm_precision prec) {
     mlb_vae_config g = mlb_vae_sd_config();
     mlb_vae* v = NULL;
-    mlb_status made = S % 8 || B < 1 ? MLB_ERR_ARG : path ? mlb_vae_load(path, NULL, &v) : mlb_vae_create(&g, &v);
+    mlb_status made = S % 8 || B < 1 ? MLB_ERR_ARG : path ? mlb_vae_load(path, NULL, &v) : mlb_vae_create(NULL, &g, &v);
     if (made || mlb_vae_use_device(v, MLB_DEVICE_CPU, prec)) {
         fprintf(stderr, "bench_vae: --profile %d: %s\n", S,
                 S % 8 || B < 1 ? "the size must be a multiple of 8, the batch positive" : mlb_last_error());
@@ -139,15 +139,15 @@ static int profile_sd_vae(int S, int B, const char* path, mlb_gemm_precision pre
     mlb_vae_cache cache = {0};
     // one encode + backward first, unprofiled: an SDS loop's steady state (the cache, with the
     // scratch at its end, allocated and its pages mapped by an earlier step)
-    int rc = mlb_vae_encode(v, img, B, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(v, &cache, dm, NULL, dimg);
+    int rc = mlb_vae_encode(NULL, v, img, B, S, S, mean, NULL, &cache) || mlb_vae_encode_backward(NULL, v, &cache, dm, NULL, dimg, NULL);
     if (rc) fprintf(stderr, "bench_vae: warm-up: %s\n", mlb_last_error());
     for (int pass = 0; pass < 3 && !rc; pass++) {
         profile_wrap(keep ? keep : mlb_backend_cpu(), &w);
         v->mirror_ops = &w;
         double t0 = mlb_now_seconds();
-        mlb_status s = pass == 0 ? mlb_vae_encode(v, img, B, S, S, mean, NULL, &cache)
-                     : pass == 1 ? mlb_vae_encode_backward(v, &cache, dm, NULL, dimg)
-                                 : mlb_vae_decode(v, mean, B, h, h, img);
+        mlb_status s = pass == 0 ? mlb_vae_encode(NULL, v, img, B, S, S, mean, NULL, &cache)
+                     : pass == 1 ? mlb_vae_encode_backward(NULL, v, &cache, dm, NULL, dimg, NULL)
+                                 : mlb_vae_decode(NULL, v, mean, B, h, h, img, NULL);
         double dt = mlb_now_seconds() - t0;
         v->mirror_ops = keep;
         if (s) { fprintf(stderr, "bench_vae: %s: %s\n", what[pass], mlb_last_error()); rc = 1; break; }
@@ -209,7 +209,7 @@ int main(int argc, char** argv) {
     }
 
     mlb_vae_config sd = mlb_vae_sd_config();
-    if (mlb_vae_create(&sd, &v) != MLB_OK) { fprintf(stderr, "bench_vae: %s\n", mlb_last_error()); return 1; }
+    if (mlb_vae_create(NULL, &sd, &v) != MLB_OK) { fprintf(stderr, "bench_vae: %s\n", mlb_last_error()); return 1; }
     mlb_vae_init_random(v, 1, 1.0f);
     printf("real SD VAE architecture (128, 256, 512, 512), random weights, %zu parameters (%.0f MB float)\n\n",
            v->n_params, v->n_params * 4.0 / 1e6);

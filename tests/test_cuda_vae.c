@@ -166,7 +166,7 @@ static void vae_case(mlb_gemm_precision prec, double tol, uint64_t seed) {
     c.block_out[0] = 32; c.block_out[1] = 32; c.block_out[2] = 64; c.block_out[3] = 64;
     c.layers_per_block = 2;
     mlb_vae* v = NULL;
-    CHECK_MSG(mlb_vae_create(&c, &v) == MLB_OK, "%s", mlb_last_error());
+    CHECK_MSG(mlb_vae_create(NULL, &c, &v) == MLB_OK, "%s", mlb_last_error());
     if (!v) return;
     mlb_vae_init_random(v, seed, 1.0f);
     const int N = 2, H = 64, W = 48, h = H / 8, w = W / 8, z = c.latent_channels;
@@ -181,12 +181,12 @@ static void vae_case(mlb_gemm_precision prec, double tol, uint64_t seed) {
     memcpy(dc, d0, ni * 4);
     memcpy(dg, d0, ni * 4);
     mlb_vae_cache cc = {0}, cg = {0};
-    CHECK(mlb_vae_encode(v, img, N, H, W, mc, lc, &cc) == MLB_OK);
-    CHECK(mlb_vae_encode_backward(v, &cc, g, g, dc) == MLB_OK);
-    CHECK(mlb_vae_decode(v, lat, N, h, w, oc) == MLB_OK);
+    CHECK(mlb_vae_encode(NULL, v, img, N, H, W, mc, lc, &cc) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(NULL, v, &cc, g, g, dc, NULL) == MLB_OK);
+    CHECK(mlb_vae_decode(NULL, v, lat, N, h, w, oc, NULL) == MLB_OK);
     CHECK_MSG(mlb_vae_use_device(v, MLB_DEVICE_CUDA, prec) == MLB_OK, "%s", mlb_last_error());
     char what[120];
-    mlb_status st = mlb_vae_encode(v, img, N, H, W, mg, lg, &cg);
+    mlb_status st = mlb_vae_encode(NULL, v, img, N, H, W, mg, lg, &cg);
     CHECK_MSG(st == MLB_OK, "encode: %s", mlb_last_error());
     CHECK(cg.device == MLB_DEVICE_CUDA);
     if (st == MLB_OK) {
@@ -194,20 +194,20 @@ static void vae_case(mlb_gemm_precision prec, double tol, uint64_t seed) {
         CHECK_PARITY(what, mg, mc, nz, tol);
         snprintf(what, sizeof what, "VAE encode logvar %s", prec_names[prec]);
         CHECK_PARITY(what, lg, lc, nz, tol);
-        st = mlb_vae_encode_backward(v, &cg, g, g, dg);
+        st = mlb_vae_encode_backward(NULL, v, &cg, g, g, dg, NULL);
         CHECK_MSG(st == MLB_OK, "backward: %s", mlb_last_error());
         snprintf(what, sizeof what, "VAE encode backward dimage %s", prec_names[prec]);
         if (st == MLB_OK) check_increment(what, dg, dc, d0, ni, tol);
     }
-    st = mlb_vae_decode(v, lat, N, h, w, og);
+    st = mlb_vae_decode(NULL, v, lat, N, h, w, og, NULL);
     CHECK_MSG(st == MLB_OK, "decode: %s", mlb_last_error());
     snprintf(what, sizeof what, "VAE decode %s", prec_names[prec]);
     if (st == MLB_OK) CHECK_PARITY(what, og, oc, ni, tol);
     // a CPU cache handed to the GPU model is refused; back on the CPU at fp32 the bits are the CPU's
     // again (MLB_DEVICE_CPU with bf16 would select the CPU's bf16 GEMMs: vae.h)
-    CHECK(mlb_vae_encode_backward(v, &cc, g, g, dg) == MLB_ERR_ARG);
+    CHECK(mlb_vae_encode_backward(NULL, v, &cc, g, g, dg, NULL) == MLB_ERR_ARG);
     CHECK(mlb_vae_use_device(v, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_OK && !v->mirror);
-    CHECK(mlb_vae_decode(v, lat, N, h, w, og) == MLB_OK && !memcmp(og, oc, ni * 4));
+    CHECK(mlb_vae_decode(NULL, v, lat, N, h, w, og, NULL) == MLB_OK && !memcmp(og, oc, ni * 4));
     mlb_vae_cache_free(&cc);
     mlb_vae_cache_free(&cg);
     mlb_vae_free(v);

@@ -507,7 +507,7 @@ TEST(sds_generate_two_steps_per_stage) {
     int bo[4] = {32, 32, 64, 64};
     for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
     mlb_vae* vae = NULL;
-    REQUIRE(mlb_vae_create(&vc, &vae) == MLB_OK);
+    REQUIRE(mlb_vae_create(NULL, &vc, &vae) == MLB_OK);
     mlb_vae_init_random(vae, 3, 1.0f);
     float ac[1000];
     REQUIRE(mlb_schedule_alphas_cumprod_f32(ac, 1000, MLB_SD_BETA_START, MLB_SD_BETA_END) == MLB_OK);

@@ -192,7 +192,7 @@ TEST(vae) {
     c.block_out[0] = 32; c.block_out[1] = 32; c.block_out[2] = 64; c.block_out[3] = 64;
     c.layers_per_block = 2;
     mlb_vae* v = NULL;
-    CHECK_MSG(mlb_vae_create(&c, &v) == MLB_OK, "%s", mlb_last_error());
+    CHECK_MSG(mlb_vae_create(NULL, &c, &v) == MLB_OK, "%s", mlb_last_error());
     if (!v) return;
     mlb_vae_init_random(v, 17, 1.0f);
     const int N = 2, H = 64, W = 48, h = H / 8, w = W / 8, z = c.latent_channels;
@@ -208,20 +208,20 @@ TEST(vae) {
     memcpy(d32, d0, ni * 4);
     memcpy(d16, d0, ni * 4);
     mlb_vae_cache c32 = {0}, c16 = {0};
-    CHECK(mlb_vae_encode(v, img, N, H, W, m32, l32, &c32) == MLB_OK);
-    CHECK(mlb_vae_encode_backward(v, &c32, g, g, d32) == MLB_OK);
-    CHECK(mlb_vae_decode(v, lat, N, h, w, o32) == MLB_OK);
+    CHECK(mlb_vae_encode(NULL, v, img, N, H, W, m32, l32, &c32) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(NULL, v, &c32, g, g, d32, NULL) == MLB_OK);
+    CHECK(mlb_vae_decode(NULL, v, lat, N, h, w, o32, NULL) == MLB_OK);
     CHECK(mlb_vae_use_device(v, MLB_DEVICE_CPU, MLB_GEMM_BF16) == MLB_OK && !v->mirror && v->mirror_ops);
-    CHECK(mlb_vae_encode(v, img, N, H, W, m16, l16, &c16) == MLB_OK);
+    CHECK(mlb_vae_encode(NULL, v, img, N, H, W, m16, l16, &c16) == MLB_OK);
     CHECK_REL("VAE encode mean", m16, m32, nz);
     CHECK_REL("VAE encode logvar", l16, l32, nz);
-    CHECK(mlb_vae_encode_backward(v, &c16, g, g, d16) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(NULL, v, &c16, g, g, d16, NULL) == MLB_OK);
     check_increment("VAE encode backward dimage", d16, d32, d0, ni);
-    CHECK(mlb_vae_decode(v, lat, N, h, w, o16) == MLB_OK);
+    CHECK(mlb_vae_decode(NULL, v, lat, N, h, w, o16, NULL) == MLB_OK);
     CHECK_REL("VAE decode", o16, o32, ni);
     // back to fp32: the fp32 bits again
     CHECK(mlb_vae_use_device(v, MLB_DEVICE_CPU, MLB_GEMM_FP16) == MLB_OK && !v->mirror_ops);
-    CHECK(mlb_vae_decode(v, lat, N, h, w, o16) == MLB_OK && !memcmp(o16, o32, ni * 4));
+    CHECK(mlb_vae_decode(NULL, v, lat, N, h, w, o16, NULL) == MLB_OK && !memcmp(o16, o32, ni * 4));
     mlb_vae_cache_free(&c32);
     mlb_vae_cache_free(&c16);
     mlb_vae_free(v);

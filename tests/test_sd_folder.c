@@ -79,7 +79,7 @@ TEST(write_and_load) {
     vc.n_levels = 2; vc.block_out[0] = 8; vc.block_out[1] = 8; vc.layers_per_block = 1; vc.norm_groups = 4;
     vc.scaling_factor = 0.5f;
     mlb_vae* v = NULL;
-    REQUIRE(mlb_vae_create(&vc, &v) == MLB_OK);
+    REQUIRE(mlb_vae_create(NULL, &vc, &v) == MLB_OK);
     mlb_vae_init_random(v, 3, 1.0f);
     snprintf(p, sizeof p, "%s/vae", dir);
     REQUIRE(mlb_mkdir_p(p) == MLB_OK);

@@ -184,7 +184,7 @@ TEST(sds_matches_reference) {
     double* mean = malloc(n * sizeof(double));
     double* target = malloc(n * sizeof(double));
     for (size_t i = 0; i < nimg; i++) x[i] = 2.0 * image[i] - 1.0;
-    REQUIRE(mlb_vae_encode_f64(v64, x, B, H, H, mean, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode_f64(NULL, v64, x, B, H, H, mean, NULL, NULL) == MLB_OK);
     for (size_t i = 0; i < n; i++) target[i] = m->scaling_factor * mean[i] - gl[i];
     const int probes[6] = {0, 1234, 3 * H * H + 77, 3 * H * H + 2 * H * H + 8191, 40000, 98000};
     double worst = 0, gmax = max_abs(r_gi, nimg);
@@ -195,7 +195,7 @@ TEST(sds_matches_reference) {
             const double eps = 1e-3;   // in image units; x moves by 2 eps
             double x0 = 2.0 * image[p] - 1.0;
             x[p] = x0 + 2.0 * (sgn ? -eps : eps);
-            REQUIRE(mlb_vae_encode_f64(v64, x, B, H, H, mean, NULL, NULL) == MLB_OK);
+            REQUIRE(mlb_vae_encode_f64(NULL, v64, x, B, H, H, mean, NULL, NULL) == MLB_OK);
             x[p] = x0;
             double l = 0;
             for (size_t i = 0; i < n; i++) { double d = m->scaling_factor * mean[i] - target[i]; l += d * d; }

@@ -74,8 +74,8 @@ TEST(layouts_load_identically) {
     // identical outputs (the same weights through the same code)
     float img[3 * 64 * 64], ma[4 * 64], mb[4 * 64];
     for (int i = 0; i < 3 * 64 * 64; i++) img[i] = (float)sin(0.37 * i);
-    REQUIRE(mlb_vae_encode(a, img, 1, 64, 64, ma, NULL, NULL) == MLB_OK);
-    REQUIRE(mlb_vae_encode(b, img, 1, 64, 64, mb, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, a, img, 1, 64, 64, ma, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, b, img, 1, 64, 64, mb, NULL, NULL) == MLB_OK);
     CHECK(memcmp(ma, mb, sizeof ma) == 0);
     mlb_vae_free(a); mlb_vae_free(b); mlb_vae_free(c); mlb_vae_free(d);
 }
@@ -131,8 +131,8 @@ TEST(encoder_decoder_match_reference) {
     REQUIRE(ni == 3 * 64 * 64 && nz == 4 * 8 * 8 && nd == ni && nzn == 4 * 8 * 12 && ndn == 3 * 64 * 96);
     float mean[256], logvar[256], *dimage = calloc(ni, sizeof(float)), *dec = malloc(ndn * sizeof(float));
     mlb_vae_cache cache = {0};
-    REQUIRE(mlb_vae_encode(v, image, 1, 64, 64, mean, logvar, &cache) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward(v, &cache, G, NULL, dimage) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, image, 1, 64, 64, mean, logvar, &cache) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cache, G, NULL, dimage, NULL) == MLB_OK);
     double em = max_abs_diff(mean, mean_ref, nz), el = max_abs_diff(logvar, logvar_ref, nz);
     double eg = max_abs_diff(dimage, grad_ref, ni);
     printf("  encoder mean: max abs %.3g (|ref| max %.3g); logvar: %.3g (%.3g)\n", em, max_abs(mean_ref, nz), el,
@@ -140,13 +140,13 @@ TEST(encoder_decoder_match_reference) {
     printf("  encoder input gradient: max abs %.3g (|ref| max %.3g)\n", eg, max_abs(grad_ref, ni));
     CHECK(em < TOL && el < TOL && eg < TOL);
     // a second backward from the same cache adds the same gradient again (accumulation)
-    REQUIRE(mlb_vae_encode_backward(v, &cache, G, NULL, dimage) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cache, G, NULL, dimage, NULL) == MLB_OK);
     double e2 = 0;
     for (size_t i = 0; i < ni; i++) e2 = fmax(e2, fabs(dimage[i] - 2 * grad_ref[i]));
     CHECK(e2 < 2 * TOL);
-    REQUIRE(mlb_vae_decode(v, latent, 1, 8, 8, dec) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, latent, 1, 8, 8, dec, NULL) == MLB_OK);
     double ed = max_abs_diff(dec, dec_ref, nd);
-    REQUIRE(mlb_vae_decode(v, latent_ns, 1, 8, 12, dec) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, latent_ns, 1, 8, 12, dec, NULL) == MLB_OK);
     double edn = max_abs_diff(dec, dec_ns_ref, ndn);
     printf("  decoder: max abs %.3g (|ref| max %.3g); non-square 8x12: %.3g (%.3g)\n", ed, max_abs(dec_ref, nd), edn,
            max_abs(dec_ns_ref, ndn));
@@ -178,8 +178,8 @@ TEST(double_precision_copy) {
     for (size_t i = 0; i < ni; i++) imd[i] = image[i];
     for (int i = 0; i < 256; i++) Gd[i] = G[i];
     mlb_vae_cache_f64 cache = {0};
-    REQUIRE(mlb_vae_encode_f64(vd, imd, 1, 64, 64, md, NULL, &cache) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward_f64(vd, &cache, Gd, NULL, dd) == MLB_OK);
+    REQUIRE(mlb_vae_encode_f64(NULL, vd, imd, 1, 64, 64, md, NULL, &cache) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward_f64(NULL, vd, &cache, Gd, NULL, dd, NULL) == MLB_OK);
     double em = 0, eg = 0;
     for (int i = 0; i < 256; i++) em = fmax(em, fabs(md[i] - mean_ref[i]));
     for (size_t i = 0; i < ni; i++) eg = fmax(eg, fabs(dd[i] - grad_ref[i]));
@@ -208,7 +208,7 @@ TEST(half_precision_weights) {
     mlb_vae* v = load_or_null(f16);
     REQUIRE(v);
     CHECK(strstr(v->source, "F16 weights") != NULL);
-    REQUIRE(mlb_vae_decode(v, latent, 1, 8, 8, dec) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, latent, 1, 8, 8, dec, NULL) == MLB_OK);
     double e16 = max_abs_diff(dec, want16, 3 * 64 * 64);
     mlb_vae_free(v);
     // BF16: every first_stage_model tensor rounded to nearest-even BF16
@@ -236,7 +236,7 @@ TEST(half_precision_weights) {
     v = load_or_null(bf_path);
     REQUIRE(v);
     CHECK(strstr(v->source, "BF16 weights") != NULL);
-    REQUIRE(mlb_vae_decode(v, latent, 1, 8, 8, dec) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, latent, 1, 8, 8, dec, NULL) == MLB_OK);
     double ebf = max_abs_diff(dec, want_bf, 3 * 64 * 64);
     printf("  decoder with F16 weights: max abs %.3g vs f16.vae_decoded; BF16 (%zu tensors rounded here): %.3g vs "
            "bf16.vae_decoded\n", e16, k, ebf);
@@ -262,7 +262,7 @@ static mlb_vae_config tiny_config(void) {
 static mlb_vae* tiny_vae(void) {
     mlb_vae_config c = tiny_config();
     mlb_vae* v = NULL;
-    if (mlb_vae_create(&c, &v) != MLB_OK) return NULL;
+    if (mlb_vae_create(NULL, &c, &v) != MLB_OK) return NULL;
     mlb_vae_init_random(v, 7, 1.0f);
     return v;
 }
@@ -302,18 +302,18 @@ TEST(tiny_encoder_backward_fd) {
     for (int i = 0; i < NI; i++) img[i] = sin(1.7 * i + 0.3);
     for (int i = 0; i < NZ; i++) { Gm[i] = cos(0.9 * i); Gl[i] = sin(2.1 * i + 1); }
     mlb_vae_cache_f64 cache = {0};
-    REQUIRE(mlb_vae_encode_f64(vd, img, N, H, W, m, l, &cache) == MLB_OK);
+    REQUIRE(mlb_vae_encode_f64(NULL, vd, img, N, H, W, m, l, &cache) == MLB_OK);
     for (int i = 0; i < NI; i++) dimg[i] = 0.5;
-    REQUIRE(mlb_vae_encode_backward_f64(vd, &cache, Gm, Gl, dimg) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward_f64(NULL, vd, &cache, Gm, Gl, dimg, NULL) == MLB_OK);
     const double h = 1e-6;
     double err = 0, gmax = 0;
     for (int i = 0; i < NI; i++) {
         double keep = img[i], lp = 0, lm = 0;
         img[i] = keep + h;
-        REQUIRE(mlb_vae_encode_f64(vd, img, N, H, W, m, l, NULL) == MLB_OK);
+        REQUIRE(mlb_vae_encode_f64(NULL, vd, img, N, H, W, m, l, NULL) == MLB_OK);
         for (int j = 0; j < NZ; j++) lp += m[j] * Gm[j] + l[j] * Gl[j];
         img[i] = keep - h;
-        REQUIRE(mlb_vae_encode_f64(vd, img, N, H, W, m, l, NULL) == MLB_OK);
+        REQUIRE(mlb_vae_encode_f64(NULL, vd, img, N, H, W, m, l, NULL) == MLB_OK);
         for (int j = 0; j < NZ; j++) lm += m[j] * Gm[j] + l[j] * Gl[j];
         img[i] = keep;
         double fd = (lp - lm) / (2 * h);
@@ -329,13 +329,13 @@ TEST(tiny_encoder_backward_fd) {
     float Gmf[NZ], Glf[NZ];
     for (int i = 0; i < NZ; i++) { Gmf[i] = (float)Gm[i]; Glf[i] = (float)Gl[i]; }
     mlb_vae_cache cf = {0};
-    REQUIRE(mlb_vae_encode(v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward(v, &cf, Gmf, Glf, df) == MLB_OK);
-    REQUIRE(mlb_vae_encode_f64(vd, img, N, H, W, m, l, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cf, Gmf, Glf, df, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode_f64(NULL, vd, img, N, H, W, m, l, NULL) == MLB_OK);
     double ef = 0, egf = 0;
     for (int i = 0; i < NZ; i++) ef = fmax(ef, fabs(mf[i] - m[i]));
     for (int i = 0; i < NI; i++) egf = fmax(egf, fabs(df[i] - (dimg[i] - 0.5)));
-    REQUIRE(mlb_vae_encode(v, imf + NI / 2, 1, H, W, mf1, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, imf + NI / 2, 1, H, W, mf1, NULL, NULL) == MLB_OK);
     CHECK(memcmp(mf1, mf + NZ / 2, sizeof mf1) == 0);
     printf("  float vs double: mean %.3g, input gradient %.3g\n", ef, egf);
     CHECK(ef < 1e-5 && egf < 1e-4);
@@ -353,18 +353,18 @@ TEST(tiny_decoder_and_threads) {
     for (int i = 0; i < 3 * 256; i++) img[i] = (float)sin(0.3 * i);
     int threads = mlb_get_threads();
     mlb_set_threads(1);
-    REQUIRE(mlb_vae_decode(v, z, 2, 3, 5, a) == MLB_OK);
-    REQUIRE(mlb_vae_encode(v, img, 1, 16, 16, m1, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, z, 2, 3, 5, a, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, img, 1, 16, 16, m1, NULL, NULL) == MLB_OK);
     mlb_set_threads(2);
-    REQUIRE(mlb_vae_decode(v, z, 2, 3, 5, b) == MLB_OK);
-    REQUIRE(mlb_vae_encode(v, img, 1, 16, 16, m2, NULL, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, z, 2, 3, 5, b, NULL) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, img, 1, 16, 16, m2, NULL, NULL) == MLB_OK);
     mlb_set_threads(threads);
     CHECK(memcmp(a, b, sizeof a) == 0 && memcmp(m1, m2, sizeof m1) == 0);
     mlb_vae_f64* vd = NULL;
     REQUIRE(mlb_vae_to_f64(v, &vd) == MLB_OK);
     double zd[60], ad[360];
     for (int i = 0; i < 60; i++) zd[i] = z[i];
-    REQUIRE(mlb_vae_decode_f64(vd, zd, 2, 3, 5, ad) == MLB_OK);
+    REQUIRE(mlb_vae_decode_f64(NULL, vd, zd, 2, 3, 5, ad, NULL) == MLB_OK);
     double e = 0;
     for (int i = 0; i < 360; i++) e = fmax(e, fabs(a[i] - ad[i]));
     printf("  tiny decoder float vs double: %.3g\n", e);
@@ -387,15 +387,15 @@ TEST(tiny_logvar_clamp_and_cache_reuse) {
     for (int i = 0; i < 3 * 64; i++) img[i] = (float)cos(0.2 * i);
     for (int i = 0; i < 2 * 16; i++) G[i] = 1;
     mlb_vae_cache c = {0};
-    REQUIRE(mlb_vae_encode(v, big, 1, 16, 16, m, NULL, &c) == MLB_OK);   // latent 8x8
+    REQUIRE(mlb_vae_encode(NULL, v, big, 1, 16, 16, m, NULL, &c) == MLB_OK);   // latent 8x8
     size_t cap = c.capacity;
-    REQUIRE(mlb_vae_encode(v, img, 1, 8, 8, m, l, &c) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, img, 1, 8, 8, m, l, &c) == MLB_OK);
     CHECK(c.capacity == cap && c.H == 8 && c.W == 8);
     int clamped = 1;
     for (int i = 0; i < 16; i++) clamped &= l[i] == 20.0f && l[16 + i] == -30.0f;
     CHECK(clamped);
-    REQUIRE(mlb_vae_encode_backward(v, &c, G, G, d1) == MLB_OK);   // the logvar gradient is stopped
-    REQUIRE(mlb_vae_encode_backward(v, &c, G, NULL, d2) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &c, G, G, d1, NULL) == MLB_OK);   // the logvar gradient is stopped
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &c, G, NULL, d2, NULL) == MLB_OK);
     CHECK(memcmp(d1, d2, sizeof d1) == 0);
     mlb_vae_cache_free(&c);
     mlb_vae_free(v);
@@ -487,18 +487,18 @@ TEST(error_messages) {
     CHECK(mlb_vae_load(dir, NULL, &out) == MLB_ERR_NOT_FOUND);
     // forward/backward misuse
     float img[3 * 4 * 4] = {0}, m[8], d[48];
-    CHECK(mlb_vae_encode(v, img, 1, 1, 4, m, NULL, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_vae_encode(NULL, v, img, 1, 1, 4, m, NULL, NULL) == MLB_ERR_ARG);
     CHECK(!strcmp(mlb_last_error(), "VAE encoder: image [1, 3, 1, 4] is too small: height and width must be at least 2"));
     mlb_vae_cache c = {0};
-    CHECK(mlb_vae_encode_backward(v, &c, m, NULL, d) == MLB_ERR_ARG);
+    CHECK(mlb_vae_encode_backward(NULL, v, &c, m, NULL, d, NULL) == MLB_ERR_ARG);
     CHECK(!strcmp(mlb_last_error(), "VAE encoder backward: the cache holds no forward (run mlb_vae_encode with this "
                                     "cache first)"));
-    CHECK(mlb_vae_decode(v, m, 1, 0, 2, d) == MLB_ERR_ARG);
+    CHECK(mlb_vae_decode(NULL, v, m, 1, 0, 2, d, NULL) == MLB_ERR_ARG);
     CHECK(!strcmp(mlb_last_error(), "VAE decoder: bad latent shape [1, 2, 0, 2]"));
     mlb_vae_config bad = tiny_config();
     bad.block_out[1] = 10;
     mlb_vae* vb = NULL;
-    CHECK(mlb_vae_create(&bad, &vb) == MLB_ERR_ARG && vb == NULL);
+    CHECK(mlb_vae_create(NULL, &bad, &vb) == MLB_ERR_ARG && vb == NULL);
     CHECK(!strcmp(mlb_last_error(), "VAE config: block_out[1] = 10 is not a multiple of the 4 groups"));
     mlb_vae_free(v);
 }
@@ -512,10 +512,10 @@ TEST(use_device_without_gpu) {
     const int N = 1, h = 4, w = 6;
     float z[1 * 2 * 4 * 6], a[3 * 8 * 12], b[3 * 8 * 12];
     for (int i = 0; i < N * 2 * h * w; i++) z[i] = (float)mlb_rng_uniform_f64(4, 0, i) * 2 - 1;
-    REQUIRE(mlb_vae_decode(v, z, N, h, w, a) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, z, N, h, w, a, NULL) == MLB_OK);
     CHECK(mlb_vae_use_device(v, MLB_DEVICE_CUDA, MLB_GEMM_FP16) == MLB_ERR_DEVICE);
     CHECK(v->mirror == NULL && v->device == MLB_DEVICE_CPU);
-    CHECK(mlb_vae_decode(v, z, N, h, w, b) == MLB_OK && !memcmp(a, b, sizeof a));
+    CHECK(mlb_vae_decode(NULL, v, z, N, h, w, b, NULL) == MLB_OK && !memcmp(a, b, sizeof a));
     CHECK(mlb_vae_use_device(NULL, MLB_DEVICE_CPU, MLB_GEMM_FP32) == MLB_ERR_ARG);
     mlb_vae_free(v);
 }

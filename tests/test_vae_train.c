@@ -1,9 +1,10 @@
-// Training backward of the VAE (vae.h): the encoder's weight gradients (mlb_vae_encode_backward_params)
-// and the decoder's cached forward and full backward (mlb_vae_decode_train / _backward), on a tiny
-// random VAE (3 levels, 8/16/16 channels, 4 groups, mid attention). In double: every parameter tensor
-// (two entries each: its largest gradient and one more) and every image / latent entry against
-// central finite differences. In float: against double, decode_train == decode bitwise, the same
-// bits on 1 and 2 threads, the image gradient of the params variant == mlb_vae_encode_backward's.
+// Training backward of the VAE (vae.h): the encoder's weight gradients (mlb_vae_encode_backward with
+// grads) and the decoder's cached forward and full backward (mlb_vae_decode with a cache,
+// mlb_vae_decode_backward), on a tiny random VAE (3 levels, 8/16/16 channels, 4 groups, mid
+// attention). In double: every parameter tensor (two entries each: its largest gradient and one
+// more) and every image / latent entry against central finite differences. In float: against
+// double, decode with a cache == without bitwise, the same bits on 1 and 2 threads, the image
+// gradient with grads == the one without.
 #include <stdint.h>
 #include "matlaber/device.h"
 #include "matlaber/error.h"
@@ -31,7 +32,7 @@ static mlb_vae_config tiny_config(void) {
 static mlb_vae* tiny_vae(void) {
     mlb_vae_config c = tiny_config();
     mlb_vae* v = NULL;
-    if (mlb_vae_create(&c, &v) != MLB_OK) return NULL;
+    if (mlb_vae_create(NULL, &c, &v) != MLB_OK) return NULL;
     mlb_vae_init_random(v, 11, 1.0f);
     return v;
 }
@@ -42,13 +43,13 @@ static double rnd(uint64_t stream, uint64_t i) { return mlb_rng_uniform_f64(stre
 static double r1[NZ], r2[NZ], rimg[NI], img[NI], zlat[NZ];
 static double enc_loss(const mlb_vae_f64* v, const double* x) {
     double m[NZ], l[NZ], L = 0;
-    if (mlb_vae_encode_f64(v, x, N, H, W, m, l, NULL) != MLB_OK) return NAN;
+    if (mlb_vae_encode_f64(NULL, v, x, N, H, W, m, l, NULL) != MLB_OK) return NAN;
     for (int i = 0; i < NZ; i++) L += m[i] * r1[i] + l[i] * r2[i];
     return L;
 }
 static double dec_loss(const mlb_vae_f64* v, const double* zz) {
     double out[NI], L = 0;
-    if (mlb_vae_decode_f64(v, zz, N, LAT, LAT, out) != MLB_OK) return NAN;
+    if (mlb_vae_decode_f64(NULL, v, zz, N, LAT, LAT, out, NULL) != MLB_OK) return NAN;
     for (int i = 0; i < NI; i++) L += out[i] * rimg[i];
     return L;
 }
@@ -121,12 +122,12 @@ TEST(encoder_weight_gradients_fd) {
     setup();
     mlb_vae* v = tiny_vae();
     mlb_vae_f64 *vd = NULL, *gd = NULL;
-    REQUIRE(v && mlb_vae_to_f64(v, &vd) == MLB_OK && mlb_vae_create_f64(&v->cfg, &gd) == MLB_OK);
+    REQUIRE(v && mlb_vae_to_f64(v, &vd) == MLB_OK && mlb_vae_create_f64(NULL, &v->cfg, &gd) == MLB_OK);
     double m[NZ], l[NZ], dimg[NI] = {0};
     mlb_vae_cache_f64 c = {0};
     c.train = 1;
-    REQUIRE(mlb_vae_encode_f64(vd, img, N, H, W, m, l, &c) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward_params_f64(vd, &c, r1, r2, dimg, gd) == MLB_OK);
+    REQUIRE(mlb_vae_encode_f64(NULL, vd, img, N, H, W, m, l, &c) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward_f64(NULL, vd, &c, r1, r2, dimg, gd) == MLB_OK);
     int nt;
     double ea, e = check_params(v, vd, gd, 1, &nt, &ea);
     printf("  encoder weights vs FD (double, h %g): %d tensors x 2 entries, max rel %.3g, max abs %.3g\n", FD_H, nt,
@@ -145,9 +146,9 @@ TEST(encoder_weight_gradients_fd) {
     printf("  encoder image gradient vs FD over all %d inputs: max rel %.3g\n", NI, ei);
     CHECK(ei < 1e-6);
 
-    // float: against double; dimage bitwise mlb_vae_encode_backward's; threads; a non-training cache
+    // float: against double; dimage bitwise that without grads; threads; a non-training cache
     mlb_vae *g1 = NULL, *g2 = NULL, *other = NULL;
-    REQUIRE(mlb_vae_create(&v->cfg, &g1) == MLB_OK && mlb_vae_create(&v->cfg, &g2) == MLB_OK);
+    REQUIRE(mlb_vae_create(NULL, &v->cfg, &g1) == MLB_OK && mlb_vae_create(NULL, &v->cfg, &g2) == MLB_OK);
     float imf[NI], r1f[NZ], r2f[NZ], mf[NZ], d1[NI] = {0}, d2[NI] = {0}, d3[NI] = {0};
     for (int i = 0; i < NI; i++) imf[i] = (float)img[i];
     for (int i = 0; i < NZ; i++) { r1f[i] = (float)r1[i]; r2f[i] = (float)r2[i]; }
@@ -155,26 +156,26 @@ TEST(encoder_weight_gradients_fd) {
     cf.train = 1;
     int threads = mlb_get_threads();
     mlb_set_threads(1);
-    REQUIRE(mlb_vae_encode(v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward_params(v, &cf, r1f, r2f, d1, g1) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cf, r1f, r2f, d1, g1) == MLB_OK);
     mlb_set_threads(2);
-    REQUIRE(mlb_vae_encode(v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
-    REQUIRE(mlb_vae_encode_backward_params(v, &cf, r1f, r2f, d2, g2) == MLB_OK);
+    REQUIRE(mlb_vae_encode(NULL, v, imf, N, H, W, mf, NULL, &cf) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cf, r1f, r2f, d2, g2) == MLB_OK);
     mlb_set_threads(threads);
     CHECK(memcmp(d1, d2, sizeof d1) == 0 && memcmp(g1->params, g2->params, v->n_params * sizeof(float)) == 0);
-    REQUIRE(mlb_vae_encode_backward(v, &cf, r1f, r2f, d3) == MLB_OK);
+    REQUIRE(mlb_vae_encode_backward(NULL, v, &cf, r1f, r2f, d3, NULL) == MLB_OK);
     CHECK(memcmp(d1, d3, sizeof d1) == 0);
     double ef = float_vs_double(v, g1->params, gd->params, 1);
     printf("  encoder weight gradients float vs double: max per-tensor relative %.3g (%s)\n", ef, worst_name);
     CHECK(ef < 1e-4);
     mlb_vae_cache cs = {0};   // an SDS cache: no weight gradients, a clear error
-    REQUIRE(mlb_vae_encode(v, imf, N, H, W, mf, NULL, &cs) == MLB_OK);
-    CHECK(mlb_vae_encode_backward_params(v, &cs, r1f, r2f, NULL, g1) == MLB_ERR_ARG);
+    REQUIRE(mlb_vae_encode(NULL, v, imf, N, H, W, mf, NULL, &cs) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(NULL, v, &cs, r1f, r2f, NULL, g1) == MLB_ERR_ARG);
     CHECK(strstr(mlb_last_error(), "train") != NULL);
     mlb_vae_config oc = v->cfg;
     oc.block_out[2] = 32;
-    REQUIRE(mlb_vae_create(&oc, &other) == MLB_OK);
-    CHECK(mlb_vae_encode_backward_params(v, &cf, r1f, r2f, NULL, other) == MLB_ERR_ARG);
+    REQUIRE(mlb_vae_create(NULL, &oc, &other) == MLB_OK);
+    CHECK(mlb_vae_encode_backward(NULL, v, &cf, r1f, r2f, NULL, other) == MLB_ERR_ARG);
     CHECK(mlb_vae_cache_size(&v->cfg, N, H, W) <= cs.capacity && cf.capacity > cs.capacity);
     mlb_vae_cache_free(&cf);
     mlb_vae_cache_free(&cs);
@@ -188,13 +189,13 @@ TEST(decoder_backward_fd) {
     setup();
     mlb_vae* v = tiny_vae();
     mlb_vae_f64 *vd = NULL, *gd = NULL;
-    REQUIRE(v && mlb_vae_to_f64(v, &vd) == MLB_OK && mlb_vae_create_f64(&v->cfg, &gd) == MLB_OK);
+    REQUIRE(v && mlb_vae_to_f64(v, &vd) == MLB_OK && mlb_vae_create_f64(NULL, &v->cfg, &gd) == MLB_OK);
     double out[NI], out2[NI], dz[NZ] = {0};
     mlb_vae_dec_cache_f64 c = {0};
-    REQUIRE(mlb_vae_decode_train_f64(vd, zlat, N, LAT, LAT, out, &c) == MLB_OK);
-    REQUIRE(mlb_vae_decode_f64(vd, zlat, N, LAT, LAT, out2) == MLB_OK);
+    REQUIRE(mlb_vae_decode_f64(NULL, vd, zlat, N, LAT, LAT, out, &c) == MLB_OK);
+    REQUIRE(mlb_vae_decode_f64(NULL, vd, zlat, N, LAT, LAT, out2, NULL) == MLB_OK);
     CHECK(memcmp(out, out2, sizeof out) == 0);
-    REQUIRE(mlb_vae_decode_backward_f64(vd, &c, rimg, dz, gd) == MLB_OK);
+    REQUIRE(mlb_vae_decode_backward_f64(NULL, vd, &c, rimg, dz, gd) == MLB_OK);
     int nt;
     double ea, e = check_params(v, vd, gd, 0, &nt, &ea);
     printf("  decoder weights vs FD (double, h %g): %d tensors x 2 entries, max rel %.3g, max abs %.3g\n", FD_H, nt,
@@ -213,28 +214,28 @@ TEST(decoder_backward_fd) {
     printf("  decoder latent gradient vs FD over all %d entries: max rel %.3g\n", NZ, ez);
     CHECK(ez < 1e-6);
 
-    // float: decode_train == decode bitwise, threads, against double, dz NULL / grads NULL
+    // float: decode with a cache == without bitwise, threads, against double, dz NULL / grads NULL
     mlb_vae *g1 = NULL, *g2 = NULL, *g3 = NULL;
-    REQUIRE(mlb_vae_create(&v->cfg, &g1) == MLB_OK && mlb_vae_create(&v->cfg, &g2) == MLB_OK &&
-            mlb_vae_create(&v->cfg, &g3) == MLB_OK);
+    REQUIRE(mlb_vae_create(NULL, &v->cfg, &g1) == MLB_OK && mlb_vae_create(NULL, &v->cfg, &g2) == MLB_OK &&
+            mlb_vae_create(NULL, &v->cfg, &g3) == MLB_OK);
     float zf[NZ], rf[NI], a[NI], b[NI], dz1[NZ] = {0}, dz2[NZ] = {0}, dz3[NZ] = {0};
     for (int i = 0; i < NZ; i++) zf[i] = (float)zlat[i];
     for (int i = 0; i < NI; i++) rf[i] = (float)rimg[i];
     mlb_vae_dec_cache cf = {0};
     int threads = mlb_get_threads();
     mlb_set_threads(1);
-    REQUIRE(mlb_vae_decode_train(v, zf, N, LAT, LAT, a, &cf) == MLB_OK);
-    REQUIRE(mlb_vae_decode_backward(v, &cf, rf, dz1, g1) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, zf, N, LAT, LAT, a, &cf) == MLB_OK);
+    REQUIRE(mlb_vae_decode_backward(NULL, v, &cf, rf, dz1, g1) == MLB_OK);
     mlb_set_threads(2);
-    REQUIRE(mlb_vae_decode(v, zf, N, LAT, LAT, b) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, zf, N, LAT, LAT, b, NULL) == MLB_OK);
     CHECK(memcmp(a, b, sizeof a) == 0);
-    REQUIRE(mlb_vae_decode_train(v, zf, N, LAT, LAT, b, &cf) == MLB_OK);
+    REQUIRE(mlb_vae_decode(NULL, v, zf, N, LAT, LAT, b, &cf) == MLB_OK);
     CHECK(memcmp(a, b, sizeof a) == 0);
-    REQUIRE(mlb_vae_decode_backward(v, &cf, rf, dz2, g2) == MLB_OK);
+    REQUIRE(mlb_vae_decode_backward(NULL, v, &cf, rf, dz2, g2) == MLB_OK);
     mlb_set_threads(threads);
     CHECK(memcmp(dz1, dz2, sizeof dz1) == 0 && memcmp(g1->params, g2->params, v->n_params * sizeof(float)) == 0);
-    REQUIRE(mlb_vae_decode_backward(v, &cf, rf, dz3, NULL) == MLB_OK);   // no weight gradients: same dz
-    REQUIRE(mlb_vae_decode_backward(v, &cf, rf, NULL, g3) == MLB_OK);    // no dz: same weight gradients
+    REQUIRE(mlb_vae_decode_backward(NULL, v, &cf, rf, dz3, NULL) == MLB_OK);   // no weight gradients: same dz
+    REQUIRE(mlb_vae_decode_backward(NULL, v, &cf, rf, NULL, g3) == MLB_OK);    // no dz: same weight gradients
     CHECK(memcmp(dz1, dz3, sizeof dz1) == 0 && memcmp(g1->params, g3->params, v->n_params * sizeof(float)) == 0);
     double ef = float_vs_double(v, g1->params, gd->params, 0), ezf = 0, mz = 0;
     for (int i = 0; i < NZ; i++) { ezf = fmax(ezf, fabs(dz1[i] - dz[i])); mz = fmax(mz, fabs(dz[i])); }
@@ -243,7 +244,7 @@ TEST(decoder_backward_fd) {
     CHECK(ef < 1e-4 && ezf / mz < 1e-5);
     CHECK(mlb_vae_dec_cache_size(&v->cfg, N, LAT, LAT) == cf.capacity);
     mlb_vae_dec_cache empty = {0};
-    CHECK(mlb_vae_decode_backward(v, &empty, rf, dz3, NULL) == MLB_ERR_ARG);
+    CHECK(mlb_vae_decode_backward(NULL, v, &empty, rf, dz3, NULL) == MLB_ERR_ARG);
     mlb_vae_dec_cache_free(&cf);
     mlb_vae_dec_cache_free_f64(&c);
     mlb_vae_free(g1); mlb_vae_free(g2); mlb_vae_free(g3);
@@ -257,7 +258,7 @@ TEST(gpu_matches_cpu) {
     if (mlb_cuda_device_count() < 1) SKIP("no GPU");
     setup();
     mlb_vae *v = tiny_vae(), *gc = NULL, *gg = NULL;
-    REQUIRE(v && mlb_vae_create(&v->cfg, &gc) == MLB_OK && mlb_vae_create(&v->cfg, &gg) == MLB_OK);
+    REQUIRE(v && mlb_vae_create(NULL, &v->cfg, &gc) == MLB_OK && mlb_vae_create(NULL, &v->cfg, &gg) == MLB_OK);
     float imf[NI], r1f[NZ], r2f[NZ], m[NZ], zf[NZ], rf[NI], a[NI], b[NI];
     float dic[NI] = {0}, dig[NI] = {0}, dzc[NZ] = {0}, dzg[NZ] = {0};
     for (int i = 0; i < NI; i++) { imf[i] = (float)img[i]; rf[i] = (float)rimg[i]; }
@@ -268,10 +269,10 @@ TEST(gpu_matches_cpu) {
         mlb_vae_cache ec = {0};
         ec.train = 1;
         mlb_vae_dec_cache dc = {0};
-        REQUIRE(mlb_vae_encode(v, imf, N, H, W, m, NULL, &ec) == MLB_OK);
-        REQUIRE(mlb_vae_encode_backward_params(v, &ec, r1f, r2f, pass ? dig : dic, g) == MLB_OK);
-        REQUIRE(mlb_vae_decode_train(v, zf, N, LAT, LAT, pass ? b : a, &dc) == MLB_OK);
-        REQUIRE(mlb_vae_decode_backward(v, &dc, rf, pass ? dzg : dzc, g) == MLB_OK);
+        REQUIRE(mlb_vae_encode(NULL, v, imf, N, H, W, m, NULL, &ec) == MLB_OK);
+        REQUIRE(mlb_vae_encode_backward(NULL, v, &ec, r1f, r2f, pass ? dig : dic, g) == MLB_OK);
+        REQUIRE(mlb_vae_decode(NULL, v, zf, N, LAT, LAT, pass ? b : a, &dc) == MLB_OK);
+        REQUIRE(mlb_vae_decode_backward(NULL, v, &dc, rf, pass ? dzg : dzc, g) == MLB_OK);
         CHECK(!pass || (ec.device == MLB_DEVICE_CUDA && dc.device == MLB_DEVICE_CUDA));
         mlb_vae_cache_free(&ec);
         mlb_vae_dec_cache_free(&dc);

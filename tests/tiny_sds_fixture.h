@@ -36,7 +36,7 @@ static inline mlb_vae* tiny_vae(void) {
     int bo[4] = {32, 32, 64, 64};
     for (int i = 0; i < 4; i++) vc.block_out[i] = bo[i];
     mlb_vae* v = NULL;
-    if (mlb_vae_create(&vc, &v)) return NULL;
+    if (mlb_vae_create(NULL, &vc, &v)) return NULL;
     mlb_vae_init_random(v, 3, 1.0f);
     return v;
 }

@@ -77,37 +77,13 @@ typedef struct {
 #undef MLB_REAL
 #undef MLB_FN
 
-// From now on mlb_vae_encode / _encode_backward / _decode (host buffers) run on device d with GEMM
-// operands at prec: the weights are copied there once; the encoder's cache stays there; images,
-// latents and gradients cross per call. MLB_DEVICE_CPU undoes it; with MLB_GEMM_BF16 the CPU's conv
-// and linear GEMMs then take bf16 operands (backend.h), any other prec is the CPU's fp32. Float
-// models only.
+// From now on mlb_vae_encode / _encode_backward / _decode / _decode_backward with be NULL (host
+// buffers) run on device d with GEMM operands at prec: the weights are copied there once (v->mirror,
+// its table v->mirror_ops); the caches stay there; images, latents and gradients cross per call.
+// MLB_DEVICE_CPU undoes it; with MLB_GEMM_BF16 the CPU's conv and linear GEMMs then take bf16
+// operands (backend.h), any other prec is the CPU's fp32. Float models only (no device has a
+// double table).
 mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec);
-
-// ---- training on a device (float) -------------------------------------------------------------------
-// The calls above on the ops of `be` (backend.h) with every tensor argument in be's device memory
-// except mean/logvar/dmean/dlogvar (host, latent-sized): the model and grads must be on be->device
-// (v->mirror with be = v->mirror_ops after mlb_vae_use_device; grads from mlb_vae_create_on), and
-// so are the caches. For a trainer that keeps the weights, their gradients and the optimizer state
-// on the GPU (be->adam over grads->params) instead of crossing per step.
-struct mlb_backend;
-// A zeroed model of cfg in be's device memory (e.g. the gradients of a mirror). Free with mlb_vae_free.
-mlb_status mlb_vae_create_on(const struct mlb_backend* be, const mlb_vae_config* cfg, mlb_vae** out);
-mlb_status mlb_vae_encode_on(const struct mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
-                             float* mean, float* logvar, mlb_vae_cache* cache);
-mlb_status mlb_vae_encode_backward_params_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                             const float* dmean, const float* dlogvar, float* dimage, mlb_vae* grads);
-// The encoder with the mean [N, z, h, w] on be's device too (the moments' mean halves copied there;
-// a cache is required: the moments live in it), and its backward from dmean there (no logvar
-// gradient, no weight gradients): the SDS step's latent stays on the device (sds.h).
-mlb_status mlb_vae_encode_mean_on(const struct mlb_backend* be, const mlb_vae* v, const float* image, int N, int H,
-                                  int W, float* mean, mlb_vae_cache* cache);
-mlb_status mlb_vae_encode_backward_mean_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                           const float* dmean, float* dimage);
-mlb_status mlb_vae_decode_train_on(const struct mlb_backend* be, const mlb_vae* v, const float* z, int N, int h, int w,
-                                   float* image, mlb_vae_dec_cache* cache);
-mlb_status mlb_vae_decode_backward_on(const struct mlb_backend* be, const mlb_vae* v, const mlb_vae_dec_cache* cache,
-                                      const float* dimage, float* dz, mlb_vae* grads);
 
 // ---- loading (float) ------------------------------------------------------------------------------
 // `path`: a diffusers vae/ folder, a diffusers model folder (vae/ inside), a single-file checkpoint

@@ -1,10 +1,12 @@
 // Locating a Stable Diffusion component's files (sd_files.h), shared by the component loaders.
 #include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <cjson/cJSON.h>
 #include "matlaber/fileio.h"
+#include "matlaber/safetensors.h"
 #include "matlaber/sd_files.h"
 
 int mlb_is_pickle_path(const char* p) {
@@ -43,6 +45,49 @@ mlb_status mlb_sd_component_files(const char* what, const char* path, const char
     if (mlb_is_file(weights)) return mlb_pickle_refusal(what, weights);
     return mlb_fail(MLB_ERR_NOT_FOUND, "%s %s: no %s.safetensors in it or in %s/ (expected a diffusers %s folder or a "
                     "diffusers model folder)", what, path, base, subdir, subdir);
+}
+
+void mlb_sd_config_beside(const char* weights, char* out, size_t cap) {
+    out[0] = 0;
+    if (!weights || cap > 4096 || strlen(weights) >= cap - 32 || !mlb_is_file(weights)) return;
+    char p[4096];
+    if (mlb_ends_with(weights, ".safetensors")) {
+        snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
+        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
+    }
+    const char* slash = strrchr(weights, '/');
+    if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
+    else snprintf(p, sizeof p, "config.json");
+    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
+}
+
+mlb_status mlb_sd_component_open(const char* what, const char* path, const char* subdir, const char* base,
+                                 const char* own_config, mlb_sd_component* c) {
+    c->st = NULL;
+    c->config = NULL;
+    if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "%s: empty path", what);
+    if (strlen(path) > 1000) return mlb_fail(MLB_ERR_ARG, "%s: path longer than 1000 bytes", what);
+    char weights[MLB_SD_PATH_CAP];
+    MLB_TRY(mlb_sd_component_files(what, path, subdir, base, weights, c->buf, sizeof weights));
+    c->config = own_config ? own_config : c->buf[0] ? c->buf : NULL;
+    return mlb_st_open(&c->st, weights);
+}
+
+mlb_status mlb_json_read_file(const char* path, size_t max_bytes, cJSON** root) {
+    char* text = NULL;
+    size_t n = 0;
+    *root = NULL;
+    MLB_TRY(mlb_read_file(path, &text, &n, max_bytes));
+    *root = cJSON_ParseWithLength(text, n);
+    free(text);
+    return *root ? MLB_OK : mlb_fail(MLB_ERR_FORMAT, "%s: not valid JSON", path);
+}
+
+cJSON* mlb_sd_ldm_config(const mlb_safetensors* st, int* bad) {
+    const char* meta = mlb_st_metadata(st, "ldm_config");
+    cJSON* root = meta ? cJSON_Parse(meta) : NULL;
+    if (bad) *bad = meta && !root;
+    return root;
 }
 
 const cJSON* mlb_json_find(const cJSON* node, const char* key) {

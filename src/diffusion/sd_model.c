@@ -262,7 +262,7 @@ mlb_status mlb_sd_decode_latent(const mlb_vae* vae, float scaling_factor, const 
     float* z = malloc(n * sizeof(float));
     if (!z) return mlb_fail(MLB_ERR_NOMEM, "out of memory");
     for (size_t i = 0; i < n; i++) z[i] = latent[i] / scaling_factor;
-    mlb_status s = mlb_vae_decode(vae, z, 1, h, w, image);
+    mlb_status s = mlb_vae_decode(NULL, vae, z, 1, h, w, image, NULL);
     free(z);
     return s;
 }

@@ -292,7 +292,7 @@ static mlb_status step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input
     else {
         if ((st = be->alloc(&img, nimg)) != MLB_OK) goto done;
         if ((st = be->affine_columns(img, in->images, nimg, 1, &two, &minus_one, 1)) != MLB_OK) goto done;
-        if ((st = mlb_vae_encode_mean_on(vbe, vm, img, B, H, W, z, &s->cache)) != MLB_OK) goto done;
+        if ((st = mlb_vae_encode_mean(vbe, vm, img, B, H, W, z, &s->cache)) != MLB_OK) goto done;
         st = be->affine_columns(z, z, nall, 1, &sf, NULL, 1);
     }
     if (st) goto done;
@@ -344,7 +344,7 @@ static mlb_status step_on(mlb_sds* s, const mlb_backend* be, const mlb_sds_input
         if (C == Lc) st = be->add(grad_images, dz, nall);
         else {
             if ((st = be->zero(img, nimg)) != MLB_OK) goto done;
-            if ((st = mlb_vae_encode_backward_mean_on(vbe, vm, &s->cache, dz, img)) != MLB_OK) goto done;
+            if ((st = mlb_vae_encode_backward_mean(vbe, vm, &s->cache, dz, img)) != MLB_OK) goto done;
             if ((st = be->affine_columns(img, img, nimg, 1, &two, NULL, 1)) != MLB_OK) goto done;   // d(2x - 1)/dx
             st = be->add(grad_images, img, nimg);
         }

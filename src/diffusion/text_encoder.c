@@ -14,7 +14,6 @@
 #include "matlaber/text_encoder.h"
 #include "matlaber/tokenizer.h"
 
-#define TE_PATH_MAX 1100
 #define TE_CONFIG_MAX (1 << 20)   // bytes of config.json / ldm_config accepted
 
 // ---- small helpers ------------------------------------------------------------------------------
@@ -76,12 +75,8 @@ static int json_int(const cJSON* o, const char* key, int* out) {
 
 // Reads the CLIPTextConfig fields that matter; a field of the wrong type is an error naming it.
 static mlb_status parse_config_json(const char* path, te_config* cfg) {
-    char* text = NULL;
-    size_t n = 0;
-    MLB_TRY(mlb_read_file(path, &text, &n, TE_CONFIG_MAX));
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    free(text);
-    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: not valid JSON", path);
+    cJSON* root;
+    MLB_TRY(mlb_json_read_file(path, TE_CONFIG_MAX, &root));
     mlb_status s = MLB_OK;
     if (!cJSON_IsObject(root)) { s = mlb_fail(MLB_ERR_FORMAT, "%s: expected a JSON object", path); goto done; }
     const cJSON* mt = cJSON_GetObjectItemCaseSensitive(root, "model_type");
@@ -123,9 +118,7 @@ done:
 // of cond_stage_config. Absent or unparsable metadata leaves cfg untouched (published checkpoints
 // carry none); a present but malformed heads entry is an error.
 static mlb_status parse_ldm_config(const mlb_safetensors* st, te_config* cfg) {
-    const char* meta = mlb_st_metadata(st, "ldm_config");
-    if (!meta) return MLB_OK;
-    cJSON* root = cJSON_Parse(meta);
+    cJSON* root = mlb_sd_ldm_config(st, NULL);
     if (!root) return MLB_OK;
     mlb_status s = MLB_OK;
     const cJSON* cond = mlb_json_find(root, "cond_stage_config");
@@ -236,22 +229,6 @@ static int count_layers(const mlb_safetensors* st, const te_names* nm) {
 }
 
 // ---- loading --------------------------------------------------------------------------------------
-// The config.json of a CLIPTextModel file: <name>.config.json for <name>.safetensors, else
-// config.json in its folder. Empty when neither exists.
-static void config_beside(const char* weights, char* out, size_t cap) {
-    out[0] = 0;
-    if (!weights || strlen(weights) >= TE_PATH_MAX - 32 || !mlb_is_file(weights)) return;   // not "<memory>"
-    char p[TE_PATH_MAX];
-    if (mlb_ends_with(weights, ".safetensors")) {
-        snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
-    }
-    const char* slash = strrchr(weights, '/');
-    if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
-    else snprintf(p, sizeof p, "config.json");
-    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
-}
-
 static mlb_status check_config_size(const char* cfg_path, const char* key, int cfg_value, int weights_value,
                                     const char* st_path) {
     if (cfg_value && cfg_value != weights_value)
@@ -359,9 +336,9 @@ static mlb_status configure(mlb_text_encoder* te, const mlb_safetensors* st, con
     // Config: config.json for the diffusers layout, the ldm_config metadata for single files.
     te_config cfg;
     memset(&cfg, 0, sizeof cfg);
-    char beside[TE_PATH_MAX];
+    char beside[MLB_SD_PATH_CAP];
     if (!cfg_path && nm->layout == MLB_TEXT_LAYOUT_DIFFUSERS) {
-        config_beside(path, beside, sizeof beside);
+        mlb_sd_config_beside(path, beside, sizeof beside);
         if (beside[0]) cfg_path = beside;
     }
     if (cfg_path) {
@@ -457,15 +434,10 @@ mlb_status mlb_text_encoder_from_st(const mlb_safetensors* st, const char* confi
 mlb_status mlb_text_encoder_load(const char* path, const mlb_text_encoder_options* opt, mlb_text_encoder** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "text encoder: NULL output");
     *out = NULL;
-    if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "text encoder: empty path");
-    if (strlen(path) > TE_PATH_MAX - 100) return mlb_fail(MLB_ERR_ARG, "text encoder: path longer than 1000 bytes");
-    char weights[TE_PATH_MAX], config[TE_PATH_MAX];
-    MLB_TRY(mlb_sd_component_files("text encoder", path, "text_encoder", "model", weights, config, sizeof weights));
-    if (opt && opt->config_path) config[0] = 0;   // the caller's config wins (from_st uses it)
-    mlb_safetensors* st = NULL;
-    MLB_TRY(mlb_st_open(&st, weights));
-    mlb_status s = mlb_text_encoder_from_st(st, config[0] ? config : NULL, opt, out);
-    mlb_st_close(st);
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("text encoder", path, "text_encoder", "model", opt ? opt->config_path : NULL, &c));
+    mlb_status s = mlb_text_encoder_from_st(c.st, c.config, opt, out);
+    mlb_st_close(c.st);
     return s;
 }
 

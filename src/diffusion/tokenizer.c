@@ -13,6 +13,7 @@
 #include <zlib.h>
 #include "diffusion/tokenizer_internal.h"
 #include "matlaber/fileio.h"
+#include "matlaber/sd_files.h"
 #include "matlaber/tokenizer.h"
 
 #define MAX_MERGES_BYTES (64u << 20)    // decompressed merges file (the CLIP one is 3.2 MB)
@@ -331,12 +332,8 @@ static mlb_status load_merges_text(mlb_tokenizer* t, const char* path, const cha
 
 // vocab.json must map exactly the tokens the merges made to the same ids.
 static mlb_status check_vocab_json(const mlb_tokenizer* t, const char* path) {
-    char* text;
-    size_t n;
-    MLB_TRY(mlb_read_file(path, &text, &n, MAX_VOCAB_JSON_BYTES));
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    free(text);
-    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: not valid JSON", path);
+    cJSON* root;
+    MLB_TRY(mlb_json_read_file(path, MAX_VOCAB_JSON_BYTES, &root));
     mlb_status s = MLB_OK;
     unsigned char* seen = calloc((size_t)t->n_vocab, 1);
     if (!seen) { cJSON_Delete(root); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }
@@ -608,13 +605,9 @@ static int idbuf_reserve(idbuf* b, size_t extra) {
 // The text's BPE ids into *out (no bos/eos), stopping once `stop_after` ids are there.
 static mlb_status encode_ids(mlb_tokenizer* t, const char* text, idbuf* out, size_t stop_after) {
     if (!t) return mlb_fail(MLB_ERR_ARG, "tokenizer: NULL tokenizer");
-    if (!text) return mlb_fail(MLB_ERR_ARG, "tokenizer: text is NULL");
-    size_t nb = strlen(text);
-    if (nb > MLB_TOKENIZER_MAX_TEXT)
-        return mlb_fail(MLB_ERR_ARG, "text is %zu bytes, more than the %d allowed", nb, MLB_TOKENIZER_MAX_TEXT);
     uint32_t* cps;
     size_t n;
-    MLB_TRY(tok_clean(text, nb, t->flags, &cps, &n));
+    MLB_TRY(tok_clean(text, t->flags, &cps, &n));
     mlb_status s = MLB_OK;
     unsigned char small[256];
     unsigned char* word = small;

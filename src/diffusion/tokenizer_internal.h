@@ -20,8 +20,9 @@ mlb_status tok_utf8_encode(const uint32_t* cps, size_t n, char** out, size_t* nb
 mlb_status tok_utf8_decode_replace(const unsigned char* s, size_t n, char** out, size_t* nout);
 
 // The whole cleaning pipeline (docs/tokenizer.md): fix-text subset, html.unescape twice, strip,
-// whitespace collapse, strip, Python str.lower(). *cps is malloc'd.
-mlb_status tok_clean(const char* text, size_t nbytes, unsigned flags, uint32_t** cps, size_t* n);
+// whitespace collapse, strip, Python str.lower(). *cps is malloc'd. MLB_ERR_ARG for a NULL text or
+// one over MLB_TOKENIZER_MAX_TEXT bytes.
+mlb_status tok_clean(const char* text, unsigned flags, uint32_t** cps, size_t* n);
 
 // CLIP's pre-tokenizer over cleaned code points, one piece per call, findall-style:
 // returns 0 at the end; otherwise [*start, *end) is the piece and *special is 1 for a literal

@@ -433,8 +433,12 @@ static void py_lower(const uint32_t* s, size_t n, cpbuf* out) {
     }
 }
 
-mlb_status tok_clean(const char* text, size_t nbytes, unsigned flags, uint32_t** cps_out, size_t* n_out) {
+mlb_status tok_clean(const char* text, unsigned flags, uint32_t** cps_out, size_t* n_out) {
     *cps_out = NULL; *n_out = 0;
+    if (!text) return mlb_fail(MLB_ERR_ARG, "tokenizer: text is NULL");
+    size_t nbytes = strlen(text);
+    if (nbytes > MLB_TOKENIZER_MAX_TEXT)
+        return mlb_fail(MLB_ERR_ARG, "text is %zu bytes, more than the %d allowed", nbytes, MLB_TOKENIZER_MAX_TEXT);
     uint32_t* cps;
     size_t n;
     MLB_TRY(tok_utf8_decode(text, nbytes, "text", &cps, &n));
@@ -471,13 +475,9 @@ mlb_status tok_clean(const char* text, size_t nbytes, unsigned flags, uint32_t**
 
 mlb_status mlb_tokenizer_clean_text(const char* text, unsigned flags, char** out) {
     *out = NULL;
-    if (!text) return mlb_fail(MLB_ERR_ARG, "tokenizer: text is NULL");
-    size_t nb = strlen(text);
-    if (nb > MLB_TOKENIZER_MAX_TEXT)
-        return mlb_fail(MLB_ERR_ARG, "text is %zu bytes, more than the %d allowed", nb, MLB_TOKENIZER_MAX_TEXT);
     uint32_t* cps;
     size_t n;
-    MLB_TRY(tok_clean(text, nb, flags, &cps, &n));
+    MLB_TRY(tok_clean(text, flags, &cps, &n));
     mlb_status s = tok_utf8_encode(cps, n, out, NULL);
     free(cps);
     return s;

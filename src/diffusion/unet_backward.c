@@ -46,6 +46,36 @@ static mlb_status resnet_bwd(const mlb_backend* be, const mlb_unet* u, const mlb
                                   HW, G, MLB_ACT_SILU);
 }
 
+// One attention sublayer of a transformer block: tok_out = tok_in + o(sdpa(ln(tok_in) Wq, kv Wk, kv Wv)).
+typedef struct {
+    const float *ln_w, *ln_b, *wq, *wk, *wv, *o_w;               // weights
+    float *g_ln_w, *g_ln_b, *g_wq, *g_wk, *g_wv, *g_o_w, *g_o_b;  // their gradients
+    const float *tok_in, *lm, *lr, *q, *k, *v, *o, *lse;         // the tape
+} attn_sub;
+
+// dtok [NT, C] = d tok_out on entry, += d tok_in through the sublayer on return. kv: the context
+// [N, Tk, Dk] of a cross-attention (dkv += its gradient, may be NULL), or NULL for a self-attention
+// (kv = ln(tok_in), Tk = T, Dk = C). ln(tok_in) is recomputed into tp->ws.ln.
+static mlb_status attn_sub_bwd(const mlb_backend* be, const attn_sub* s, float* dtok, const float* kv, float* dkv,
+                               int N, int T, int Tk, int Dk, int C, int NH, float eps, mlb_unet_tape* tp) {
+    const int NT = N * T;
+    const size_t nt = (size_t)NT * C, nkv = (size_t)N * Tk * C;
+    float *dln = tp->dln, *datt = tp->datt, *dq = tp->dq, *dk = tp->dk, *dv = tp->dv, *ln = tp->ws.ln;
+    MLB_TRY(be->zero(datt, nt));
+    MLB_TRY(be->linear_backward(be, datt, s->g_o_w, s->g_o_b, dtok, s->o, s->o_w, NT, C, C));
+    MLB_TRY(be->zero(dq, nt));
+    MLB_TRY(be->zero(dk, nkv));
+    MLB_TRY(be->zero(dv, nkv));
+    MLB_TRY(be->sdpa_backward(be, dq, dk, dv, datt, s->o, s->lse, s->q, s->k, s->v, N, T, Tk, C, NH, C, C));
+    MLB_TRY(be->layernorm_stats(ln, NULL, NULL, s->tok_in, s->ln_w, s->ln_b, NT, C, eps));
+    MLB_TRY(be->zero(dln, nt));
+    MLB_TRY(be->linear_backward(be, dln, s->g_wq, NULL, dq, ln, s->wq, NT, C, C));
+    if (!kv) { kv = ln; dkv = dln; }   // self-attention: k and v see ln(tok_in) too
+    MLB_TRY(be->linear_backward(be, dkv, s->g_wk, NULL, dk, kv, s->wk, N * Tk, Dk, C));
+    MLB_TRY(be->linear_backward(be, dkv, s->g_wv, NULL, dv, kv, s->wv, N * Tk, Dk, C));
+    return be->layernorm_backward(dtok, s->g_ln_w, s->g_ln_b, dln, s->tok_in, s->ln_w, s->lm, s->lr, NT, C);
+}
+
 // dxi [N, C, H, W] += d transformer(xi) given dy = dL/dxo (xo = xi + T(xi)); dctx += (may be NULL).
 // dxi must not overlap dy.
 static mlb_status attn_bwd(const mlb_backend* be, const mlb_unet* u, const mlb_unet_transformer* a,
@@ -53,9 +83,9 @@ static mlb_status attn_bwd(const mlb_backend* be, const mlb_unet* u, const mlb_u
                            float* dxi, const float* ctx, float* dctx, int N, int H, int W, int Tc, mlb_unet_tape* tp) {
     const mlb_unet_config* c = &u->cfg;
     int C = a->C, T = H * W, D = c->context_dim, NT = N * T, NH = a->heads;
-    size_t nt = (size_t)NT * C, nkv = (size_t)N * Tc * C;
+    size_t nt = (size_t)NT * C;
     unet_ws* ws = &tp->ws;
-    float *dtok = tp->dtok, *dln = tp->dln, *datt = tp->datt, *dq = tp->dq, *dk = tp->dk, *dv = tp->dv;
+    float *dtok = tp->dtok, *dln = tp->dln, *datt = tp->datt;
     float eps = c->layer_norm_eps;
     MLB_TRY(be->add(dxi, dy, nt));   // the residual
     // proj_out: xo += transpose(tok3 Wo + b)
@@ -73,31 +103,13 @@ static mlb_status attn_bwd(const mlb_backend* be, const mlb_unet* u, const mlb_u
     MLB_TRY(be->linear_backward(be, dln, ga->ff1_w, ga->ff1_b, tp->dff, ws->ln, a->ff1_w, NT, C, 8 * C));
     MLB_TRY(be->layernorm_backward(dtok, ga->ln3_w, ga->ln3_b, dln, at->tok[2], a->ln3_w, at->lm[2], at->lr[2], NT, C));
     // cross-attention: tok2 = tok1 + o2(sdpa(ln2(tok1) Wq, ctx Wk, ctx Wv))
-    MLB_TRY(be->zero(datt, nt));
-    MLB_TRY(be->linear_backward(be, datt, ga->o2_w, ga->o2_b, dtok, at->o2, a->o2_w, NT, C, C));
-    MLB_TRY(be->zero(dq, nt));
-    MLB_TRY(be->zero(dk, nkv));
-    MLB_TRY(be->zero(dv, nkv));
-    MLB_TRY(be->sdpa_backward(be, dq, dk, dv, datt, at->o2, at->lse2, at->q2, at->k2, at->v2, N, T, Tc, C, NH, C, C));
-    MLB_TRY(be->linear_backward(be, dctx, ga->k2, NULL, dk, ctx, a->k2, N * Tc, D, C));
-    MLB_TRY(be->linear_backward(be, dctx, ga->v2, NULL, dv, ctx, a->v2, N * Tc, D, C));
-    MLB_TRY(be->layernorm_stats(ws->ln, NULL, NULL, at->tok[1], a->ln2_w, a->ln2_b, NT, C, eps));
-    MLB_TRY(be->zero(dln, nt));
-    MLB_TRY(be->linear_backward(be, dln, ga->q2, NULL, dq, ws->ln, a->q2, NT, C, C));
-    MLB_TRY(be->layernorm_backward(dtok, ga->ln2_w, ga->ln2_b, dln, at->tok[1], a->ln2_w, at->lm[1], at->lr[1], NT, C));
+    attn_sub cross = {a->ln2_w, a->ln2_b, a->q2, a->k2, a->v2, a->o2_w, ga->ln2_w, ga->ln2_b, ga->q2, ga->k2, ga->v2,
+                      ga->o2_w, ga->o2_b, at->tok[1], at->lm[1], at->lr[1], at->q2, at->k2, at->v2, at->o2, at->lse2};
+    MLB_TRY(attn_sub_bwd(be, &cross, dtok, ctx, dctx, N, T, Tc, D, C, NH, eps, tp));
     // self-attention: tok1 = tok0 + o1(sdpa(q, k, v)), q/k/v = ln1(tok0) W
-    MLB_TRY(be->zero(datt, nt));
-    MLB_TRY(be->linear_backward(be, datt, ga->o1_w, ga->o1_b, dtok, at->o1, a->o1_w, NT, C, C));
-    MLB_TRY(be->zero(dq, nt));
-    MLB_TRY(be->zero(dk, nt));
-    MLB_TRY(be->zero(dv, nt));
-    MLB_TRY(be->sdpa_backward(be, dq, dk, dv, datt, at->o1, at->lse1, at->q1, at->k1, at->v1, N, T, T, C, NH, C, C));
-    MLB_TRY(be->layernorm_stats(ws->ln, NULL, NULL, at->tok[0], a->ln1_w, a->ln1_b, NT, C, eps));
-    MLB_TRY(be->zero(dln, nt));
-    MLB_TRY(be->linear_backward(be, dln, ga->q1, NULL, dq, ws->ln, a->q1, NT, C, C));
-    MLB_TRY(be->linear_backward(be, dln, ga->k1, NULL, dk, ws->ln, a->k1, NT, C, C));
-    MLB_TRY(be->linear_backward(be, dln, ga->v1, NULL, dv, ws->ln, a->v1, NT, C, C));
-    MLB_TRY(be->layernorm_backward(dtok, ga->ln1_w, ga->ln1_b, dln, at->tok[0], a->ln1_w, at->lm[0], at->lr[0], NT, C));
+    attn_sub self = {a->ln1_w, a->ln1_b, a->q1, a->k1, a->v1, a->o1_w, ga->ln1_w, ga->ln1_b, ga->q1, ga->k1, ga->v1,
+                     ga->o1_w, ga->o1_b, at->tok[0], at->lm[0], at->lr[0], at->q1, at->k1, at->v1, at->o1, at->lse1};
+    MLB_TRY(attn_sub_bwd(be, &self, dtok, NULL, NULL, N, T, T, C, C, NH, eps, tp));
     // proj_in over the tokens of gn(xi), recomputed
     MLB_TRY(be->groupnorm(ws->ta, NULL, NULL, xi, a->norm_w, a->norm_b, N, C, T, c->norm_groups,
                           c->transformer_norm_eps, MLB_ACT_IDENTITY));

@@ -15,7 +15,6 @@
 #include "matlaber/sd_files.h"
 #include "unet_schema.h"
 
-#define UNET_PATH_MAX 4096
 #define UNET_CONFIG_MAX (1 << 20)
 #define LDM_PREFIX "model.diffusion_model."
 
@@ -127,12 +126,9 @@ static mlb_status read_heads(const cJSON* v, unet_cfg_file* f, const char* src, 
 }
 
 static mlb_status parse_config_json(const char* path, unet_cfg_file* f) {
-    char* text = NULL;
-    size_t n = 0;
-    MLB_TRY(mlb_read_file(path, &text, &n, UNET_CONFIG_MAX));
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    free(text);
-    if (!root || !cJSON_IsObject(root)) { cJSON_Delete(root); return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path); }
+    cJSON* root;
+    MLB_TRY(mlb_json_read_file(path, UNET_CONFIG_MAX, &root));
+    if (!cJSON_IsObject(root)) { cJSON_Delete(root); return mlb_fail(MLB_ERR_FORMAT, "%s: not a JSON object", path); }
     mlb_status s = MLB_OK;
     const cJSON* v = cJSON_GetObjectItemCaseSensitive(root, "num_attention_heads");
     const char* key = "num_attention_heads";
@@ -158,10 +154,10 @@ static mlb_status parse_config_json(const char* path, unet_cfg_file* f) {
 }
 
 static mlb_status parse_ldm_config(const mlb_safetensors* st, unet_cfg_file* f) {
-    const char* meta = mlb_st_metadata(st, "ldm_config");
-    if (!meta) return MLB_OK;
-    cJSON* root = cJSON_Parse(meta);
-    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: ldm_config metadata is not valid JSON", mlb_st_path(st));
+    int bad;
+    cJSON* root = mlb_sd_ldm_config(st, &bad);
+    if (bad) return mlb_fail(MLB_ERR_FORMAT, "%s: ldm_config metadata is not valid JSON", mlb_st_path(st));
+    if (!root) return MLB_OK;
     mlb_status s = MLB_OK;
     const cJSON* un = mlb_json_find(root, "unet_config");
     const cJSON* p = un ? cJSON_GetObjectItemCaseSensitive(un, "params") : NULL;
@@ -320,32 +316,20 @@ fail:
     return s;
 }
 
+// A model folder, the unet/ folder (either with .safetensors or the fp16 variant's
+// .fp16.safetensors) or one file; pickles refused, as for the other components.
 mlb_status mlb_unet_load(const char* path, const mlb_unet_options* opt, mlb_unet** out) {
-    if (!out || !path) return mlb_fail(MLB_ERR_ARG, "mlb_unet_load: NULL argument");
+    if (!out) return mlb_fail(MLB_ERR_ARG, "mlb_unet_load: NULL output");
     *out = NULL;
-    if (strlen(path) > UNET_PATH_MAX - 64) return mlb_fail(MLB_ERR_ARG, "UNet path too long");
-    char weights[UNET_PATH_MAX], cfg[UNET_PATH_MAX];
-    // a model folder, the unet/ folder (either with .safetensors or the fp16 variant's
-    // .fp16.safetensors) or one file; pickles refused, as for the other components
-    MLB_TRY(mlb_sd_component_files("UNet", path, "unet", "diffusion_pytorch_model", weights, cfg, sizeof weights));
-    mlb_safetensors* st = NULL;
-    MLB_TRY(mlb_st_open(&st, weights));
-    if (!cfg[0] && mlb_st_find(st, "conv_in.weight")) {   // a diffusers file: a config beside it
-        char p[UNET_PATH_MAX + 32];
-        if (mlb_ends_with(weights, ".safetensors")) {
-            snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-            if (mlb_is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
-        }
-        const char* slash = strrchr(weights, '/');
-        if (!cfg[0] && slash) {
-            snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
-            if (mlb_is_file(p)) snprintf(cfg, sizeof cfg, "%s", p);
-        }
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("UNet", path, "unet", "diffusion_pytorch_model", opt ? opt->config_path : NULL, &c));
+    if (!c.config && mlb_st_find(c.st, "conv_in.weight")) {   // a diffusers file: a config beside it
+        mlb_sd_config_beside(mlb_st_path(c.st), c.buf, sizeof c.buf);
+        if (c.buf[0]) c.config = c.buf;
     }
-    const char* cp = opt && opt->config_path ? opt->config_path : (cfg[0] ? cfg : NULL);
-    mlb_unet_options o = {cp, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
-    mlb_status s = mlb_unet_from_st_opt(st, &o, out);
-    mlb_st_close(st);
+    mlb_unet_options o = {c.config, opt ? opt->bf16_weights : 0, opt ? opt->f16_weights : 0};
+    mlb_status s = mlb_unet_from_st_opt(c.st, &o, out);
+    mlb_st_close(c.st);
     return s;
 }
 

@@ -62,8 +62,9 @@ static size_t FN(carve_all)(vae_t* v, real* base) {
     return c.n;
 }
 
-mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out) {
+mlb_status FN(mlb_vae_create)(vae_ops be, const mlb_vae_config* cfg, vae_t** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
+    if (!be) be = CPU_OPS;
     *out = NULL;
     MLB_TRY(mlb_vae_config_check(cfg));
     vae_t* v = calloc(1, sizeof *v);
@@ -83,8 +84,6 @@ mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out)
     *out = v;
     return MLB_OK;
 }
-
-mlb_status FN(mlb_vae_create)(const mlb_vae_config* cfg, vae_t** out) { return FN(vae_create_on)(CPU_OPS, cfg, out); }
 
 void FN(mlb_vae_free)(vae_t* v) {
     if (!v) return;
@@ -215,8 +214,7 @@ mlb_status FN(vae_attn_bwd)(vae_ops be, const attn_t* a, attn_t* ga, const mlb_v
 typedef struct {
     real *res_x[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS], *res_h1[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
     real* res_st[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS];
-    real *mid_x[2], *mid_h1[2], *mid_st[2];
-    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+    mid_rec mid;
     real *out_x, *out_st;
     real* moments;
     // a training cache's (cache->train) inputs of the convs the values above do not give: the image
@@ -241,19 +239,7 @@ static size_t FN(enc_layout)(const mlb_vae_config* g, int N, int H, int W, int t
         if (l < L - 1) { H /= 2; W /= 2; }
     }
     const size_t T = (size_t)H * W, n = (size_t)N * top * T;
-    for (int k = 0; k < 2; k++) {
-        r->mid_x[k] = vae_take(&c, n);
-        r->mid_h1[k] = vae_take(&c, n);
-        r->mid_st[k] = vae_take(&c, 4 * NG);
-    }
-    r->att_x = r->att_qkv = r->att_o = r->att_lse = r->att_st = NULL;
-    if (g->mid_attention) {
-        r->att_x = vae_take(&c, n);
-        r->att_qkv = vae_take(&c, 3 * n);
-        r->att_o = vae_take(&c, n);
-        r->att_lse = vae_take(&c, (size_t)N * T);
-        r->att_st = vae_take(&c, 2 * NG);
-    }
+    vae_take_mid(&c, g, N, T, &r->mid);
     r->out_x = vae_take(&c, n);
     r->out_st = vae_take(&c, 2 * NG);
     r->moments = vae_take(&c, (size_t)N * 2 * g->latent_channels * T);
@@ -312,7 +298,6 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     const mlb_vae_config* g = &v->cfg;
     const int L = g->n_levels, R = g->layers_per_block, z = g->latent_channels, top = g->block_out[L - 1];
     const size_t NG = (size_t)N * g->norm_groups;
-    const mlb_device dev = ops_device(be);
     enc_rec rec;
     size_t kept = 0;   // with a cache: the values its backward reads; the scratch follows them
     const int train = cache && cache->train;
@@ -320,25 +305,15 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
         kept = FN(enc_layout)(g, N, H, W, train, NULL, &rec);
         size_t need = kept + FN(enc_scratch)(g, N, H, W);
         cache->N = 0;   // invalid until this forward completes
-        if (cache->capacity < need || cache->device != dev) {
-            op_release(ops_of(cache->device), cache->buf);
-            cache->buf = NULL;
-            cache->capacity = 0;
-            cache->device = dev;
-            if (op_alloc(be, &cache->buf, need) != MLB_OK)
-                return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: the backward cache (%.1f MB)",
-                                        need * (double)sizeof(real) / 1e6);
-            cache->capacity = need;
-        }
+        MLB_TRY(vae_cache_reserve(be, &cache->buf, &cache->capacity, &cache->device, need, "encoder"));
         FN(enc_layout)(g, N, H, W, train, cache->buf, &rec);
         if (train) MLB_TRY(op_copy(be, rec.image, image, (size_t)N * g->in_channels * H * W));
     }
     vae_plan p = enc_plan(g, N, H, W);
     const size_t nT = (size_t)N * p.T * top;
     size_t total = FN(enc_scratch_of)(g, N, H, W, cache ? ENC_FORWARD_CACHED : ENC_FORWARD);
-    real* scratch = cache ? cache->buf + kept : NULL;
-    if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
-        return mlb_fail_context(MLB_ERR_NOMEM, "VAE encoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* scratch;
+    MLB_TRY(vae_scratch(be, cache ? cache->buf : NULL, kept, total, &scratch, "encoder"));
     real* P0 = scratch;
     real* P1 = P0 + p.act;
     real* Tb = P1 + p.act;
@@ -347,10 +322,10 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     real* ab = st + 4 * NG;
     att_bufs A = {ab, NULL, NULL, NULL, NULL};
     if (g->mid_attention) {
-        A.qkv = cache ? rec.att_qkv : ab + nT;
-        A.o = cache ? rec.att_o : ab + 4 * nT;
-        A.lse = cache ? rec.att_lse : ab + 5 * nT;
-        A.st = cache ? rec.att_st : st;
+        A.qkv = cache ? rec.mid.att_qkv : ab + nT;
+        A.o = cache ? rec.mid.att_o : ab + 4 * nT;
+        A.lse = cache ? rec.mid.att_lse : ab + 5 * nT;
+        A.st = cache ? rec.mid.att_st : st;
     }
 #define OTHER(x) ((x) == P0 ? P1 : P0)
     mlb_status s = MLB_OK;
@@ -362,7 +337,7 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
             real* nxt;
             if (j < R - 1) nxt = cache ? rec.res_x[l][j + 1] : OTHER(cur);
             else if (l < L - 1) nxt = train ? rec.down_in[l] : OTHER(cur);
-            else nxt = cache ? rec.mid_x[0] : OTHER(cur);
+            else nxt = cache ? rec.mid.x[0] : OTHER(cur);
             s = FN(vae_resnet_fwd)(be, &v->enc_res[l][j], g, cur, nxt, cache ? rec.res_h1[l][j] : Hs, Tb,
                                cache ? rec.res_st[l][j] : st, N, h, w);
             cur = nxt;
@@ -377,20 +352,20 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     }
     const int T = h * w;
     if (!s) {   // mid: ResNet, attention, ResNet
-        real* nxt = g->mid_attention ? (cache ? rec.att_x : OTHER(cur)) : (cache ? rec.mid_x[1] : OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[0], g, cur, nxt, cache ? rec.mid_h1[0] : Hs, Tb,
-                           cache ? rec.mid_st[0] : st, N, h, w);
+        real* nxt = g->mid_attention ? (cache ? rec.mid.att_x : OTHER(cur)) : (cache ? rec.mid.x[1] : OTHER(cur));
+        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[0], g, cur, nxt, cache ? rec.mid.h1[0] : Hs, Tb,
+                           cache ? rec.mid.st[0] : st, N, h, w);
         cur = nxt;
     }
     if (!s && g->mid_attention) {
-        real* nxt = cache ? rec.mid_x[1] : OTHER(cur);
+        real* nxt = cache ? rec.mid.x[1] : OTHER(cur);
         s = FN(vae_attn_fwd)(be, &v->enc_mid_attn, g, cur, nxt, Tb, A, N, T);
         cur = nxt;
     }
     if (!s) {
         real* nxt = cache ? rec.out_x : OTHER(cur);
-        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[1], g, cur, nxt, cache ? rec.mid_h1[1] : Hs, Tb,
-                           cache ? rec.mid_st[1] : st, N, h, w);
+        s = FN(vae_resnet_fwd)(be, &v->enc_mid_res[1], g, cur, nxt, cache ? rec.mid.h1[1] : Hs, Tb,
+                           cache ? rec.mid.st[1] : st, N, h, w);
         cur = nxt;
     }
     if (!s) {
@@ -424,12 +399,22 @@ static mlb_status FN(encode_core)(vae_ops be, const vae_t* v, const real* image,
     return s;
 }
 
-mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, int W, real* mean, real* logvar,
-                              FN(mlb_vae_cache)* cache) {
+mlb_status FN(vae_check_on)(vae_ops be, const vae_t* v, const char* what) {
+    if (!v) return mlb_fail(MLB_ERR_ARG, "VAE %s: NULL model", what);
+    if (v->device != ops_device(be))
+        return mlb_fail(MLB_ERR_ARG, "VAE %s: the model is on the %s, the backend runs on the %s (pass v->mirror "
+                        "after mlb_vae_use_device)", what, mlb_device_name(v->device), mlb_device_name(ops_device(be)));
+    return MLB_OK;
+}
+
+mlb_status FN(mlb_vae_encode)(vae_ops be, const vae_t* v, const real* image, int N, int H, int W, real* mean,
+                              real* logvar, FN(mlb_vae_cache)* cache) {
+    if (be) MLB_TRY(FN(vae_check_on)(be, v, "encoder"));
     MLB_TRY(FN(vae_check_size)(v, "encoder", N, H, W));
     if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
+    if (be) return FN(encode_core)(be, v, image, N, H, W, mean, logvar, cache);
     if (v->mirror) {   // mlb_vae_use_device: the image crosses once, the cache stays on the device
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t n = (size_t)N * v->cfg.in_channels * H * W;
         real* d;
         MLB_TRY(op_alloc(be, &d, n));
@@ -439,6 +424,17 @@ mlb_status FN(mlb_vae_encode)(const vae_t* v, const real* image, int N, int H, i
         return s;
     }
     return FN(encode_core)(MODEL_OPS(v), v, image, N, H, W, mean, logvar, cache);
+}
+
+mlb_status FN(mlb_vae_encode_mean)(vae_ops be, const vae_t* v, const real* image, int N, int H, int W, real* mean,
+                                   FN(mlb_vae_cache)* cache) {
+    if (!image || !mean || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image, mean or cache");
+    if (!be) return FN(mlb_vae_encode)(NULL, v, image, N, H, W, mean, NULL, cache);
+    MLB_TRY(FN(mlb_vae_encode)(be, v, image, N, H, W, NULL, NULL, cache));
+    enc_rec rec;
+    FN(enc_layout)(&v->cfg, N, H, W, cache->train_kept, cache->buf, &rec);
+    size_t zn = (size_t)v->cfg.latent_channels * mlb_vae_latent_size(&v->cfg, H) * mlb_vae_latent_size(&v->cfg, W);
+    return be->copy_rows(mean, zn, rec.moments, 2 * zn, zn, (size_t)N);   // the moments' mean halves
 }
 
 // On the ops of be: the cache, dimage (may be NULL) and gr (NULL: no weight gradients) live on be's
@@ -469,7 +465,7 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     real* T1 = D1 + p.act;
     real* T2 = T1 + p.act;
     real* ab = T2 + p.act;
-    att_bufs A = {ab, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    att_bufs A = {ab, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
     int hs[MLB_VAE_MAX_LEVELS], wsz[MLB_VAE_MAX_LEVELS];
     hs[0] = H; wsz[0] = W;
     for (int l = 1; l < L; l++) { hs[l] = hs[l - 1] / 2; wsz[l] = wsz[l - 1] / 2; }
@@ -519,18 +515,18 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
         s = op_gn_bwd(be, D1, GRAD(gr, enc_norm_out_w), GRAD(gr, enc_norm_out_b), T2, rec.out_x, v->enc_norm_out_w,
                       v->enc_norm_out_b, rec.out_st, rec.out_st + NG, N, top, T, g->norm_groups, MLB_ACT_SILU);
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[1], GRAD(gr, enc_mid_res + 1), g, rec.mid_x[1], rec.mid_h1[1],
-                               rec.mid_st[1], cur, OTHER(cur), T1, T2, N, h, w);
+        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[1], GRAD(gr, enc_mid_res + 1), g, rec.mid.x[1], rec.mid.h1[1],
+                               rec.mid.st[1], cur, OTHER(cur), T1, T2, N, h, w);
         cur = OTHER(cur);
     }
     if (!s && g->mid_attention) {
-        s = FN(vae_attn_bwd)(be, &v->enc_mid_attn, gr ? &gr->enc_mid_attn : NULL, g, rec.att_x, A, cur, OTHER(cur), T1,
+        s = FN(vae_attn_bwd)(be, &v->enc_mid_attn, gr ? &gr->enc_mid_attn : NULL, g, rec.mid.att_x, A, cur, OTHER(cur), T1,
                              ab + nT, ab + 2 * nT, N, T);
         cur = OTHER(cur);
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[0], GRAD(gr, enc_mid_res), g, rec.mid_x[0], rec.mid_h1[0],
-                               rec.mid_st[0], cur, OTHER(cur), T1, T2, N, h, w);
+        s = FN(vae_resnet_bwd)(be, &v->enc_mid_res[0], GRAD(gr, enc_mid_res), g, rec.mid.x[0], rec.mid.h1[0],
+                               rec.mid.st[0], cur, OTHER(cur), T1, T2, N, h, w);
         cur = OTHER(cur);
     }
     for (int l = L - 1; l >= 0 && !s; l--) {
@@ -555,21 +551,25 @@ static mlb_status FN(encode_backward_core)(vae_ops be, const vae_t* v, const FN(
     return s;
 }
 
-// The public backward: on the model's ops, through the mirror when there is one (dimage and host
-// grads cross; the weight gradients are summed on the device and added into grads once).
-static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                           const real* dlogvar, real* dimage, vae_t* grads) {
+mlb_status FN(mlb_vae_encode_backward)(vae_ops be, const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
+                                       const real* dlogvar, real* dimage, vae_t* grads) {
     if (!v || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL model or cache");
     if (cache->N < 1 || !cache->buf)
         return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward (run mlb_vae_encode with this "
                         "cache first)");
-    if (v->mirror) {
-        vae_ops be = v->mirror_ops;
+    if (!dimage && !grads) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL image gradient and gradient model");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "encoder backward"));
+        MLB_TRY(FN(vae_check_grads)(be, v, grads, "encoder backward"));
+        return FN(encode_backward_core)(be, v, cache, dmean, dlogvar, dimage, grads, NULL);
+    }
+    if (v->mirror) {   // dimage and host grads cross; the weight gradients are summed on the device, added once
+        be = v->mirror_ops;
         size_t n = dimage ? (size_t)cache->N * v->cfg.in_channels * cache->H * cache->W : 0;
         vae_t* gd = NULL;
         real* d = NULL;
         MLB_TRY(FN(vae_check_grads)(CPU_OPS, v, grads, "encoder backward"));
-        if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
+        if (grads) MLB_TRY(FN(mlb_vae_create)(be, &v->cfg, &gd));
         mlb_status s = n ? op_alloc(be, &d, n) : MLB_OK;
         if (!s && n) s = op_upload(be, d, dimage, n);
         if (!s) s = FN(encode_backward_core)(be, v->mirror, cache, dmean, dlogvar, d, gd, NULL);
@@ -583,16 +583,14 @@ static mlb_status FN(encode_backward_host)(const vae_t* v, const FN(mlb_vae_cach
     return FN(encode_backward_core)(MODEL_OPS(v), v, cache, dmean, dlogvar, dimage, grads, NULL);
 }
 
-mlb_status FN(mlb_vae_encode_backward)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                       const real* dlogvar, real* dimage) {
-    if (!dimage) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL image gradient");
-    return FN(encode_backward_host)(v, cache, dmean, dlogvar, dimage, NULL);
-}
-
-mlb_status FN(mlb_vae_encode_backward_params)(const vae_t* v, const FN(mlb_vae_cache)* cache, const real* dmean,
-                                              const real* dlogvar, real* dimage, vae_t* grads) {
-    if (!grads) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL gradient model");
-    return FN(encode_backward_host)(v, cache, dmean, dlogvar, dimage, grads);
+mlb_status FN(mlb_vae_encode_backward_mean)(vae_ops be, const vae_t* v, const FN(mlb_vae_cache)* cache,
+                                            const real* dmean, real* dimage) {
+    if (!dmean) return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL dmean");
+    if (!be) return FN(mlb_vae_encode_backward)(NULL, v, cache, dmean, NULL, dimage, NULL);
+    if (!v || !cache || cache->N < 1 || !cache->buf)
+        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: NULL model, or the cache holds no forward");
+    MLB_TRY(FN(vae_check_on)(be, v, "encoder backward"));
+    return FN(encode_backward_core)(be, v, cache, NULL, NULL, dimage, NULL, dmean);
 }
 
 mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, const char* what) {
@@ -606,29 +604,6 @@ mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, c
     return MLB_OK;
 }
 
-#ifndef MLB_F64
-mlb_status mlb_vae_use_device(mlb_vae* v, mlb_device d, mlb_gemm_precision prec) {
-    if (!v) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: NULL VAE");
-    mlb_vae_free(v->mirror);
-    v->mirror = NULL;
-    // on the CPU no copy: only bf16 changes the ops (fp16 and tf32 are GPU formats: fp32 here)
-    v->mirror_ops = d == MLB_DEVICE_CPU && prec == MLB_GEMM_BF16 ? mlb_backend_for(d, prec) : NULL;
-    if (d == MLB_DEVICE_CPU) return MLB_OK;
-    if (v->device != MLB_DEVICE_CPU) return mlb_fail(MLB_ERR_ARG, "mlb_vae_use_device: the VAE must be on the CPU");
-    vae_ops be = mlb_backend_for(d, prec);
-    vae_t* m;
-    mlb_status s = FN(vae_create_on)(be, &v->cfg, &m);
-    if (!s) {
-        s = op_upload(be, m->params, v->params, v->n_params);
-        if (s) mlb_vae_free(m);
-    }
-    if (s) return mlb_fail_context(s, "moving the VAE (%zu parameters) to the %s", v->n_params, mlb_device_name(d));
-    v->mirror = m;
-    v->mirror_ops = be;
-    return MLB_OK;
-}
-#endif
-
 mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* gd) {
     real* h = malloc(gd->n_params * sizeof(real));
     if (!h) return mlb_fail(MLB_ERR_NOMEM, "VAE: out of memory for the weight gradients' host copy");
@@ -638,57 +613,3 @@ mlb_status FN(vae_grads_add_from_device)(vae_ops be, vae_t* grads, const vae_t* 
     free(h);
     return s;
 }
-
-#ifndef MLB_F64
-
-mlb_status mlb_vae_create_on(const mlb_backend* be, const mlb_vae_config* cfg, mlb_vae** out) {
-    if (!be) return mlb_fail(MLB_ERR_ARG, "mlb_vae_create_on: NULL backend");
-    return vae_create_on(be, cfg, out);
-}
-
-// The _on calls: the model (and grads) must live where be runs.
-static mlb_status check_on(const mlb_backend* be, const mlb_vae* v, const char* what) {
-    if (!be || !v) return mlb_fail(MLB_ERR_ARG, "VAE %s: NULL backend or model", what);
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE %s: the model is on the %s, the backend runs on the %s (pass v->mirror "
-                        "after mlb_vae_use_device)", what, mlb_device_name(v->device), mlb_device_name(be->device));
-    return MLB_OK;
-}
-
-mlb_status mlb_vae_encode_on(const mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
-                             float* mean, float* logvar, mlb_vae_cache* cache) {
-    MLB_TRY(check_on(be, v, "encoder"));
-    MLB_TRY(vae_check_size(v, "encoder", N, H, W));
-    if (!image) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image");
-    return encode_core(be, v, image, N, H, W, mean, logvar, cache);
-}
-
-mlb_status mlb_vae_encode_backward_params_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                             const float* dmean, const float* dlogvar, float* dimage, mlb_vae* grads) {
-    MLB_TRY(check_on(be, v, "encoder backward"));
-    if (!cache || cache->N < 1 || !cache->buf)
-        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward");
-    MLB_TRY(vae_check_grads(be, v, grads, "encoder backward"));
-    return encode_backward_core(be, v, cache, dmean, dlogvar, dimage, grads, NULL);
-}
-
-mlb_status mlb_vae_encode_mean_on(const mlb_backend* be, const mlb_vae* v, const float* image, int N, int H, int W,
-                                  float* mean, mlb_vae_cache* cache) {
-    MLB_TRY(check_on(be, v, "encoder"));
-    MLB_TRY(vae_check_size(v, "encoder", N, H, W));
-    if (!image || !mean || !cache) return mlb_fail(MLB_ERR_ARG, "VAE encoder: NULL image, mean or cache");
-    MLB_TRY(encode_core(be, v, image, N, H, W, NULL, NULL, cache));
-    enc_rec rec;
-    enc_layout(&v->cfg, N, H, W, cache->train_kept, cache->buf, &rec);
-    size_t zn = (size_t)v->cfg.latent_channels * mlb_vae_latent_size(&v->cfg, H) * mlb_vae_latent_size(&v->cfg, W);
-    return be->copy_rows(mean, zn, rec.moments, 2 * zn, zn, (size_t)N);   // the moments' mean halves
-}
-
-mlb_status mlb_vae_encode_backward_mean_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_cache* cache,
-                                           const float* dmean, float* dimage) {
-    MLB_TRY(check_on(be, v, "encoder backward"));
-    if (!cache || cache->N < 1 || !cache->buf || !dmean)
-        return mlb_fail(MLB_ERR_ARG, "VAE encoder backward: the cache holds no forward, or no dmean");
-    return encode_backward_core(be, v, cache, NULL, NULL, dimage, NULL, dmean);
-}
-#endif

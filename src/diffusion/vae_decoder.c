@@ -1,5 +1,5 @@
 // The SD VAE's decoder (vae.h, docs/vae.md): the forward, optionally keeping what its backward needs
-// (mlb_vae_decode_train), and the backward to the latent and the weights. Dual-compiled (float /
+// (mlb_vae_decode with a cache), and the backward to the latent and the weights. Dual-compiled (float /
 // double _f64) like vae.c, whose blocks (vae_internal.h) it shares.
 #include "core/real.h"
 #include "diffusion/vae_internal.h"
@@ -35,8 +35,7 @@ static vae_plan dec_plan(const mlb_vae_config* g, int N, int h, int w) {
 // low-resolution input (the upsampled map is recomputed) and norm_out's input.
 typedef struct {
     real *z, *pq;
-    real *mid_x[2], *mid_h1[2], *mid_st[2];
-    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+    mid_rec mid;
     real *res_x[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1], *res_h1[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1];
     real* res_st[MLB_VAE_MAX_LEVELS][MLB_VAE_MAX_LAYERS + 1];
     real* up_x[MLB_VAE_MAX_LEVELS];
@@ -45,23 +44,11 @@ typedef struct {
 
 static size_t FN(dec_layout)(const mlb_vae_config* g, int N, int h, int w, real* buf, dec_rec* r) {
     carver c = {buf, 0};
-    const int L = g->n_levels, top = g->block_out[L - 1], z = g->latent_channels;
-    const size_t NG = (size_t)N * g->norm_groups, T = (size_t)h * w, n = (size_t)N * top * T;
+    const int L = g->n_levels, z = g->latent_channels;
+    const size_t NG = (size_t)N * g->norm_groups, T = (size_t)h * w;
     r->z = vae_take(&c, (size_t)N * z * T);
     r->pq = vae_take(&c, (size_t)N * z * T);
-    for (int k = 0; k < 2; k++) {
-        r->mid_x[k] = vae_take(&c, n);
-        r->mid_h1[k] = vae_take(&c, n);
-        r->mid_st[k] = vae_take(&c, 4 * NG);
-    }
-    r->att_x = r->att_qkv = r->att_o = r->att_lse = r->att_st = NULL;
-    if (g->mid_attention) {
-        r->att_x = vae_take(&c, n);
-        r->att_qkv = vae_take(&c, 3 * n);
-        r->att_o = vae_take(&c, n);
-        r->att_lse = vae_take(&c, (size_t)N * T);
-        r->att_st = vae_take(&c, 2 * NG);
-    }
+    vae_take_mid(&c, g, N, T, &r->mid);
     memset(r->up_x, 0, sizeof r->up_x);
     for (int i = 0; i < L; i++) {
         size_t px = (size_t)N * h * w;
@@ -120,23 +107,13 @@ static mlb_status FN(decode_core)(vae_ops be, const vae_t* v, const real* zin, i
         kept = FN(dec_layout)(g, N, h, w, NULL, &rec);
         size_t need = kept + FN(dec_scratch)(g, N, h, w, 1);
         cache->N = 0;   // invalid until this forward completes
-        if (cache->capacity < need || cache->device != ops_device(be)) {
-            op_release(ops_of(cache->device), cache->buf);
-            cache->buf = NULL;
-            cache->capacity = 0;
-            cache->device = ops_device(be);
-            if (op_alloc(be, &cache->buf, need) != MLB_OK)
-                return mlb_fail_context(MLB_ERR_NOMEM, "VAE decoder: the backward cache (%.1f MB)",
-                                        need * (double)sizeof(real) / 1e6);
-            cache->capacity = need;
-        }
+        MLB_TRY(vae_cache_reserve(be, &cache->buf, &cache->capacity, &cache->device, need, "decoder"));
         FN(dec_layout)(g, N, h, w, cache->buf, &rec);
         MLB_TRY(op_copy(be, rec.z, zin, (size_t)N * z * h * w));
     }
     size_t total = FN(dec_scratch)(g, N, h, w, cache != NULL);
-    real* scratch = cache ? cache->buf + kept : NULL;
-    if (!cache && op_alloc(be, &scratch, total) != MLB_OK)
-        return mlb_fail_context(MLB_ERR_NOMEM, "VAE decoder: %.1f MB of scratch", total * (double)sizeof(real) / 1e6);
+    real* scratch;
+    MLB_TRY(vae_scratch(be, cache ? cache->buf : NULL, kept, total, &scratch, "decoder"));
     real* P0 = scratch;
     real* P1 = P0 + p.act;
     real* Tb = P1 + p.act;
@@ -144,28 +121,28 @@ static mlb_status FN(decode_core)(vae_ops be, const vae_t* v, const real* zin, i
     real* st = Hs + p.act;
     real* ab = st + 4 * NG;   // without a cache; with one the token scratch is the backward's (below)
     att_bufs A = {ab, ab + nT, ab + 4 * nT, ab + 5 * nT, st};
-    if (cache) A = (att_bufs){P0 + 4 * p.act, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    if (cache) A = (att_bufs){P0 + 4 * p.act, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
 #define OTHER(x) ((x) == P0 ? P1 : P0)
 #define KEEP(field, fallback) (cache ? rec.field : (fallback))
     real* cur = KEEP(pq, P0);
     mlb_status s = op_conv(be, cur, zin, v->post_quant_w, v->post_quant_b, conv1_desc(N, z, h, w, z));
-    real* nxt = KEEP(mid_x[0], P1);
+    real* nxt = KEEP(mid.x[0], P1);
     if (!s) s = op_conv(be, nxt, cur, v->dec_conv_in_w, v->dec_conv_in_b, conv3_desc(N, z, h, w, top));
     cur = nxt;
     if (!s) {
-        nxt = g->mid_attention ? KEEP(att_x, OTHER(cur)) : KEEP(mid_x[1], OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[0], g, cur, nxt, KEEP(mid_h1[0], Hs), Tb, KEEP(mid_st[0], st), N,
+        nxt = g->mid_attention ? KEEP(mid.att_x, OTHER(cur)) : KEEP(mid.x[1], OTHER(cur));
+        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[0], g, cur, nxt, KEEP(mid.h1[0], Hs), Tb, KEEP(mid.st[0], st), N,
                                h, w);
         cur = nxt;
     }
     if (!s && g->mid_attention) {
-        nxt = KEEP(mid_x[1], OTHER(cur));
+        nxt = KEEP(mid.x[1], OTHER(cur));
         s = FN(vae_attn_fwd)(be, &v->dec_mid_attn, g, cur, nxt, Tb, A, N, h * w);
         cur = nxt;
     }
     if (!s) {
         nxt = KEEP(res_x[0][0], OTHER(cur));
-        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[1], g, cur, nxt, KEEP(mid_h1[1], Hs), Tb, KEEP(mid_st[1], st), N,
+        s = FN(vae_resnet_fwd)(be, &v->dec_mid_res[1], g, cur, nxt, KEEP(mid.h1[1], Hs), Tb, KEEP(mid.st[1], st), N,
                                h, w);
         cur = nxt;
     }
@@ -207,14 +184,18 @@ static mlb_status FN(check_latent)(const vae_t* v, int N, int h, int w) {
     return FN(vae_check_size)(v, "decoder", N, h << (L - 1), w << (L - 1));
 }
 
-static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h, int w, real* image,
-                                  dec_cache_t* cache) {
+mlb_status FN(mlb_vae_decode)(vae_ops be, const vae_t* v, const real* zin, int N, int h, int w, real* image,
+                              dec_cache_t* cache) {
     MLB_TRY(FN(check_latent)(v, N, h, w));
     if (!zin || !image) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL latent or image");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "decoder"));
+        return FN(decode_core)(be, v, zin, N, h, w, image, cache);
+    }
     if (v->mirror) {   // the latent and the image cross; a cache stays on the device
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t nz = (size_t)N * g->latent_channels * h * w, ni = (size_t)N * g->out_channels * (h << (L - 1)) * (w << (L - 1));
         real* d;
         MLB_TRY(op_alloc(be, &d, nz + ni));
@@ -225,16 +206,6 @@ static mlb_status FN(decode_host)(const vae_t* v, const real* zin, int N, int h,
         return s;
     }
     return FN(decode_core)(MODEL_OPS(v), v, zin, N, h, w, image, cache);
-}
-
-mlb_status FN(mlb_vae_decode)(const vae_t* v, const real* zin, int N, int h, int w, real* image) {
-    return FN(decode_host)(v, zin, N, h, w, image, NULL);
-}
-
-mlb_status FN(mlb_vae_decode_train)(const vae_t* v, const real* zin, int N, int h, int w, real* image,
-                                    dec_cache_t* cache) {
-    if (!cache) return mlb_fail(MLB_ERR_ARG, "VAE decoder: NULL cache (mlb_vae_decode is the forward without one)");
-    return FN(decode_host)(v, zin, N, h, w, image, cache);
 }
 
 // ---- backward --------------------------------------------------------------------------------------
@@ -264,7 +235,7 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
     real* T1 = D1 + p.act;
     real* T2 = T1 + p.act;
     real* ab = T2 + p.act;
-    att_bufs A = {ab, rec.att_qkv, rec.att_o, rec.att_lse, rec.att_st};
+    att_bufs A = {ab, rec.mid.att_qkv, rec.mid.att_o, rec.mid.att_lse, rec.mid.att_st};
     const int H = h0 << (L - 1), W = w0 << (L - 1);
 #define OTHER(x) ((x) == D0 ? D1 : D0)
     mlb_status s = MLB_OK;
@@ -298,18 +269,18 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
         }
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[1], GRAD(gr, dec_mid_res + 1), g, rec.mid_x[1], rec.mid_h1[1],
-                               rec.mid_st[1], cur, OTHER(cur), T1, T2, N, h0, w0);
+        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[1], GRAD(gr, dec_mid_res + 1), g, rec.mid.x[1], rec.mid.h1[1],
+                               rec.mid.st[1], cur, OTHER(cur), T1, T2, N, h0, w0);
         cur = OTHER(cur);
     }
     if (!s && g->mid_attention) {
-        s = FN(vae_attn_bwd)(be, &v->dec_mid_attn, gr ? &gr->dec_mid_attn : NULL, g, rec.att_x, A, cur, OTHER(cur),
+        s = FN(vae_attn_bwd)(be, &v->dec_mid_attn, gr ? &gr->dec_mid_attn : NULL, g, rec.mid.att_x, A, cur, OTHER(cur),
                              T1, ab + nT, ab + 2 * nT, N, h0 * w0);
         cur = OTHER(cur);
     }
     if (!s) {
-        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[0], GRAD(gr, dec_mid_res), g, rec.mid_x[0], rec.mid_h1[0],
-                               rec.mid_st[0], cur, OTHER(cur), T1, T2, N, h0, w0);
+        s = FN(vae_resnet_bwd)(be, &v->dec_mid_res[0], GRAD(gr, dec_mid_res), g, rec.mid.x[0], rec.mid.h1[0],
+                               rec.mid.st[0], cur, OTHER(cur), T1, T2, N, h0, w0);
         cur = OTHER(cur);
     }
     real* dpq = OTHER(cur);
@@ -324,22 +295,27 @@ static mlb_status FN(decode_backward_core)(vae_ops be, const vae_t* v, const dec
     return s;
 }
 
-mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache, const real* dimage, real* dz,
-                                       vae_t* grads) {
+mlb_status FN(mlb_vae_decode_backward)(vae_ops be, const vae_t* v, const dec_cache_t* cache, const real* dimage,
+                                       real* dz, vae_t* grads) {
     if (!v || !cache || !dimage) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: NULL model, cache or dimage");
     if (cache->N < 1 || !cache->buf)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward (run mlb_vae_decode_train "
-                        "with this cache first)");
+        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward (run mlb_vae_decode with "
+                        "this cache first)");
+    if (be) {
+        MLB_TRY(FN(vae_check_on)(be, v, "decoder backward"));
+        MLB_TRY(FN(vae_check_grads)(be, v, grads, "decoder backward"));
+        return FN(decode_backward_core)(be, v, cache, dimage, dz, grads);
+    }
     if (v->mirror) {   // dimage crosses in, dz (+=) both ways; the weight gradients are added once
         const mlb_vae_config* g = &v->cfg;
         const int L = g->n_levels;
-        vae_ops be = v->mirror_ops;
+        be = v->mirror_ops;
         size_t ni = (size_t)cache->N * g->out_channels * (cache->h << (L - 1)) * (cache->w << (L - 1));
         size_t nz = dz ? (size_t)cache->N * g->latent_channels * cache->h * cache->w : 0;
         vae_t* gd = NULL;
         real* d;
         MLB_TRY(FN(vae_check_grads)(CPU_OPS, v, grads, "decoder backward"));
-        if (grads) MLB_TRY(FN(vae_create_on)(be, &v->cfg, &gd));
+        if (grads) MLB_TRY(FN(mlb_vae_create)(be, &v->cfg, &gd));
         mlb_status s = op_alloc(be, &d, ni + nz);
         if (s) { FN(mlb_vae_free)(gd); return s; }
         s = op_upload(be, d, dimage, ni);
@@ -354,26 +330,3 @@ mlb_status FN(mlb_vae_decode_backward)(const vae_t* v, const dec_cache_t* cache,
     MLB_TRY(FN(vae_check_grads)(MODEL_OPS(v), v, grads, "decoder backward"));
     return FN(decode_backward_core)(MODEL_OPS(v), v, cache, dimage, dz, grads);
 }
-
-#ifndef MLB_F64
-mlb_status mlb_vae_decode_train_on(const mlb_backend* be, const mlb_vae* v, const float* z, int N, int h, int w,
-                                   float* image, mlb_vae_dec_cache* cache) {
-    if (!be || !v || !z || !image || !cache) return mlb_fail(MLB_ERR_ARG, "VAE decoder: a NULL argument");
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder: the model is on the %s, the backend runs on the %s",
-                        mlb_device_name(v->device), mlb_device_name(be->device));
-    MLB_TRY(check_latent(v, N, h, w));
-    return decode_core(be, v, z, N, h, w, image, cache);
-}
-
-mlb_status mlb_vae_decode_backward_on(const mlb_backend* be, const mlb_vae* v, const mlb_vae_dec_cache* cache,
-                                      const float* dimage, float* dz, mlb_vae* grads) {
-    if (!be || !v || !cache || !dimage) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: a NULL argument");
-    if (v->device != be->device)
-        return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the model is on the %s, the backend runs on the %s",
-                        mlb_device_name(v->device), mlb_device_name(be->device));
-    if (cache->N < 1 || !cache->buf) return mlb_fail(MLB_ERR_ARG, "VAE decoder backward: the cache holds no forward");
-    MLB_TRY(vae_check_grads(be, v, grads, "decoder backward"));
-    return decode_backward_core(be, v, cache, dimage, dz, grads);
-}
-#endif

@@ -124,18 +124,67 @@ static inline mlb_status op_upsample_bwd(vae_ops be, real* din, const real* dout
     return op_upsample_bwd_acc(be, din, dout, N, C, H, W);
 }
 
-#define LOGVAR_MIN (-30.0)
-#define LOGVAR_MAX 20.0
 // A gradient model's tensor, or NULL (that gradient not wanted).
 #define GRAD(gr, field) ((gr) ? (gr)->field : NULL)
+
+// A cache's buffer (buf, capacity, device: the fields both caches have) grown to hold `need` values
+// on be's device; on failure it is left empty. `what` ("encoder", "decoder") names the pass.
+static inline mlb_status vae_cache_reserve(vae_ops be, real** buf, size_t* capacity, mlb_device* device, size_t need,
+                                           const char* what) {
+    if (*capacity >= need && *device == ops_device(be)) return MLB_OK;
+    op_release(ops_of(*device), *buf);
+    *buf = NULL;
+    *capacity = 0;
+    *device = ops_device(be);
+    if (op_alloc(be, buf, need) != MLB_OK)
+        return mlb_fail_context(MLB_ERR_NOMEM, "VAE %s: the backward cache (%.1f MB)", what,
+                                need * (double)sizeof(real) / 1e6);
+    *capacity = need;
+    return MLB_OK;
+}
+
+// A forward's scratch: in the cache after its `kept` values (cache_buf not NULL), else `total`
+// values allocated on be's device, which the caller releases.
+static inline mlb_status vae_scratch(vae_ops be, real* cache_buf, size_t kept, size_t total, real** scratch,
+                                     const char* what) {
+    *scratch = cache_buf ? cache_buf + kept : NULL;
+    if (!cache_buf && op_alloc(be, scratch, total) != MLB_OK)
+        return mlb_fail_context(MLB_ERR_NOMEM, "VAE %s: %.1f MB of scratch", what, total * (double)sizeof(real) / 1e6);
+    return MLB_OK;
+}
 
 // ---- shared by vae.c and vae_decoder.c (defined in vae.c) -----------------------------------------
 // Buffers of the mid attention: tok [N*T, C] scratch; qkv [N*T, 3C], o [N*T, C], lse [N, T] and
 // st [2, N, G] kept for the backward (in the cache or in scratch).
 typedef struct { real *tok, *qkv, *o, *lse, *st; } att_bufs;
 
-// A model of cfg with zeroed parameters in the memory of be's device.
-mlb_status FN(vae_create_on)(vae_ops be, const mlb_vae_config* cfg, vae_t** out);
+// What a cache keeps of the mid block (encoder and decoder alike): per ResNet its input, conv1's
+// output and the norms' statistics [4, N, G]; the attention's input, qkv, output, log-sum-exp and
+// norm statistics (NULL without mid attention).
+typedef struct {
+    real *x[2], *h1[2], *st[2];
+    real *att_x, *att_qkv, *att_o, *att_lse, *att_st;
+} mid_rec;
+
+// Carves the mid block's kept tensors for N images of T = h w tokens and `top` channels.
+static inline void vae_take_mid(carver* c, const mlb_vae_config* g, int N, size_t T, mid_rec* m) {
+    const int top = g->block_out[g->n_levels - 1];
+    const size_t NG = (size_t)N * g->norm_groups, n = (size_t)N * top * T;
+    for (int k = 0; k < 2; k++) {
+        m->x[k] = vae_take(c, n);
+        m->h1[k] = vae_take(c, n);
+        m->st[k] = vae_take(c, 4 * NG);
+    }
+    m->att_x = m->att_qkv = m->att_o = m->att_lse = m->att_st = NULL;
+    if (g->mid_attention) {
+        m->att_x = vae_take(c, n);
+        m->att_qkv = vae_take(c, 3 * n);
+        m->att_o = vae_take(c, n);
+        m->att_lse = vae_take(c, (size_t)N * T);
+        m->att_st = vae_take(c, 2 * NG);
+    }
+}
+
 // x [N, cin, H, W] -> out [N, cout, H, W]. h1 receives conv1's output, st [4, N, G] the two norms'
 // mean/rstd; t is scratch of the larger channel count.
 mlb_status FN(vae_resnet_fwd)(vae_ops be, const resnet_t* r, const mlb_vae_config* g, const real* x, real* out,
@@ -155,6 +204,8 @@ mlb_status FN(vae_attn_bwd)(vae_ops be, const attn_t* a, attn_t* ga, const mlb_v
 // A host view of n values at x on be's device: x itself on the CPU, else a copy in *tmp (the caller
 // frees *tmp, NULL when nothing was copied).
 mlb_status FN(vae_host_view)(vae_ops be, const real* x, size_t n, real** tmp, const real** view);
+// MLB_OK when v (not NULL) lives where be runs (a call given a table).
+mlb_status FN(vae_check_on)(vae_ops be, const vae_t* v, const char* what);
 mlb_status FN(vae_check_size)(const vae_t* v, const char* what, int N, int H, int W);
 // MLB_OK when grads (may be NULL) can receive v's weight gradients on be's device.
 mlb_status FN(vae_check_grads)(vae_ops be, const vae_t* v, const vae_t* grads, const char* what);

@@ -14,7 +14,6 @@
 #include "matlaber/rng.h"
 #include "matlaber/vae.h"
 
-#define VAE_PATH_MAX 1100
 #define VAE_CONFIG_MAX (1 << 20)
 
 // ---- tensor names ----------------------------------------------------------------------------------
@@ -240,12 +239,8 @@ static mlb_status json_int_list(const cJSON* o, const char* key, vae_cfg_file* c
 }
 
 static mlb_status parse_config_json(const char* path, vae_cfg_file* c) {
-    char* text = NULL;
-    size_t n = 0;
-    MLB_TRY(mlb_read_file(path, &text, &n, VAE_CONFIG_MAX));
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    free(text);
-    if (!root) return mlb_fail(MLB_ERR_FORMAT, "%s: not valid JSON", path);
+    cJSON* root;
+    MLB_TRY(mlb_json_read_file(path, VAE_CONFIG_MAX, &root));
     mlb_status s = MLB_OK;
     const cJSON* cls = cJSON_GetObjectItemCaseSensitive(root, "_class_name");
     const cJSON* act = cJSON_GetObjectItemCaseSensitive(root, "act_fn");
@@ -279,9 +274,7 @@ static mlb_status parse_config_json(const char* path, vae_cfg_file* c) {
 // the LatentDiffusion scale_factor. Unparsable or absent metadata is ignored (published files
 // carry none); present but wrong values are errors.
 static mlb_status parse_ldm_config(const mlb_safetensors* st, vae_cfg_file* c) {
-    const char* meta = mlb_st_metadata(st, "ldm_config");
-    if (!meta) return MLB_OK;
-    cJSON* root = cJSON_Parse(meta);
+    cJSON* root = mlb_sd_ldm_config(st, NULL);
     if (!root) return MLB_OK;
     const char* file = mlb_st_path(st);
     mlb_status s = MLB_OK;
@@ -411,20 +404,6 @@ static mlb_status apply_config(const vae_cfg_file* f, const char* cfg_name, mlb_
 
 // ---- loading ---------------------------------------------------------------------------------------
 
-static void config_beside(const char* weights, char* out, size_t cap) {
-    out[0] = 0;
-    if (!weights || strlen(weights) >= VAE_PATH_MAX - 32 || !mlb_is_file(weights)) return;
-    char p[VAE_PATH_MAX];
-    if (mlb_ends_with(weights, ".safetensors")) {
-        snprintf(p, sizeof p, "%.*s.config.json", (int)(strlen(weights) - strlen(".safetensors")), weights);
-        if (mlb_is_file(p)) { snprintf(out, cap, "%s", p); return; }
-    }
-    const char* slash = strrchr(weights, '/');
-    if (slash) snprintf(p, sizeof p, "%.*s/config.json", (int)(slash - weights), weights);
-    else snprintf(p, sizeof p, "config.json");
-    if (mlb_is_file(p)) snprintf(out, cap, "%s", p);
-}
-
 static void fmt_shape(char* buf, size_t cap, int ndim, const int64_t* shape) {
     size_t n = (size_t)snprintf(buf, cap, "[");
     for (int i = 0; i < ndim && n < cap; i++)
@@ -479,10 +458,10 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     vae_cfg_file f;
     memset(&f, 0, sizeof f);
     f.attn = -1;
-    char beside[VAE_PATH_MAX];
+    char beside[MLB_SD_PATH_CAP];
     const char* cfg_name = NULL;
     if (!config_path && nm.layout == MLB_VAE_LAYOUT_DIFFUSERS && !nm.prefix[0]) {
-        config_beside(path, beside, sizeof beside);
+        mlb_sd_config_beside(path, beside, sizeof beside);
         if (beside[0]) config_path = beside;
     }
     if (config_path) {
@@ -497,7 +476,7 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
     mlb_status s = mlb_vae_config_check(&cfg);
     if (s) return mlb_fail_context(s, "%s", path);
     mlb_vae* v = NULL;
-    MLB_TRY(mlb_vae_create(&cfg, &v));
+    MLB_TRY(mlb_vae_create(NULL, &cfg, &v));
     vae_tdesc* all = NULL;
     size_t n = 0;
     s = all_tensors(v, &all, &n);
@@ -523,15 +502,10 @@ mlb_status mlb_vae_from_st(const mlb_safetensors* st, const char* config_path, c
 mlb_status mlb_vae_load(const char* path, const mlb_vae_options* opt, mlb_vae** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
-    if (!path || !*path) return mlb_fail(MLB_ERR_ARG, "VAE: empty path");
-    if (strlen(path) > VAE_PATH_MAX - 100) return mlb_fail(MLB_ERR_ARG, "VAE: path longer than 1000 bytes");
-    char weights[VAE_PATH_MAX], config[VAE_PATH_MAX];
-    MLB_TRY(mlb_sd_component_files("VAE", path, "vae", "diffusion_pytorch_model", weights, config, sizeof weights));
-    if (opt && opt->config_path) config[0] = 0;   // the caller's config wins (from_st uses it)
-    mlb_safetensors* st = NULL;
-    MLB_TRY(mlb_st_open(&st, weights));
-    mlb_status s = mlb_vae_from_st(st, config[0] ? config : NULL, opt, out);
-    mlb_st_close(st);
+    mlb_sd_component c;
+    MLB_TRY(mlb_sd_component_open("VAE", path, "vae", "diffusion_pytorch_model", opt ? opt->config_path : NULL, &c));
+    mlb_status s = mlb_vae_from_st(c.st, c.config, opt, out);
+    mlb_st_close(c.st);
     return s;
 }
 
@@ -581,7 +555,7 @@ mlb_status mlb_vae_to_f64(const mlb_vae* v, mlb_vae_f64** out) {
     if (!out) return mlb_fail(MLB_ERR_ARG, "VAE: NULL output");
     *out = NULL;
     if (!v) return mlb_fail(MLB_ERR_ARG, "VAE: NULL model");
-    MLB_TRY(mlb_vae_create_f64(&v->cfg, out));
+    MLB_TRY(mlb_vae_create_f64(NULL, &v->cfg, out));
     for (size_t i = 0; i < v->n_params; i++) (*out)->params[i] = (double)v->params[i];   // the same layout
     memcpy((*out)->source, v->source, sizeof v->source);
     return MLB_OK;

@@ -117,11 +117,11 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
             vc.scaling_factor = hv->cfg.scaling_factor = 1.0f;
         }
     } else if (!s) {
-        s = mlb_vae_create(&vc, &hv);
+        s = mlb_vae_create(NULL, &vc, &hv);
         if (!s) mlb_vae_init_random(hv, c->seed, 1.0f);
     }
-    if (!s) s = mlb_vae_create_on(be, &vc, &dv);
-    if (!s) s = mlb_vae_create_on(be, &vc, &gv);
+    if (!s) s = mlb_vae_create(be, &vc, &dv);
+    if (!s) s = mlb_vae_create(be, &vc, &gv);
     if (!s) s = be->upload(dv->params, hv->params, hv->n_params);
     if (!s) s = mlb_train_params_init(be, &PV, c->out_dir, "vae", 0, dv->params, gv->params, dv->n_params, c->vae_steps);
     PV.vae = dv;

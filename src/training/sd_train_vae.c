@@ -51,7 +51,7 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
         }
         s = be->upload(dimg, hx, NI);
         if (!s) s = be->zero(P->grads, P->n);
-        if (!s) s = mlb_vae_encode_on(be, v, dimg, B, R, R, mu, lv, &ec);   // mean, logvar to the host
+        if (!s) s = mlb_vae_encode(be, v, dimg, B, R, R, mu, lv, &ec);   // mean, logvar to the host
         if (s) break;
         // z = mean + exp(logvar / 2) eps
         double kl = 0;
@@ -62,7 +62,7 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
         }
         kl /= (double)NZ;
         s = be->upload(dz, zz, NZ);
-        if (!s) s = mlb_vae_decode_train_on(be, v, dz, B, h, h, drec, &dc);
+        if (!s) s = mlb_vae_decode(be, v, dz, B, h, h, drec, &dc);
         if (!s) s = be->download(hr, drec, NI);
         if (s) break;
         double rec = 0;
@@ -75,7 +75,7 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
         // decoder backward: dL/dz over z on the device
         s = be->upload(drec, hr, NI);
         if (!s) s = be->zero(dz, NZ);
-        if (!s) s = mlb_vae_decode_backward_on(be, v, &dc, drec, dz, (mlb_vae*)P->vae_grads);
+        if (!s) s = mlb_vae_decode_backward(be, v, &dc, drec, dz, (mlb_vae*)P->vae_grads);
         if (!s) s = be->download(zz, dz, NZ);
         if (s) break;
         // dmean = dz + w mu / NZ; dlogvar = dz eps exp(lv/2) / 2 + w (exp(lv) - 1) / (2 NZ)
@@ -85,7 +85,7 @@ mlb_status mlb_sd_train_vae(const mlb_backend* be, const mlb_sd_train_config* c,
             dlv[k] = 0.5f * zz[k] * eps[k] * e + (float)(w * 0.5 * ((double)e * e - 1.0) / (double)NZ);
             mu[k] = zz[k] + (float)(w * mu[k] / (double)NZ);
         }
-        s = mlb_vae_encode_backward_params_on(be, v, &ec, mu, dlv, NULL, (mlb_vae*)P->vae_grads);
+        s = mlb_vae_encode_backward(be, v, &ec, mu, dlv, NULL, (mlb_vae*)P->vae_grads);
         if (!s) s = mlb_train_params_step(be, P, c->vae_lr, step, P->total);
         if (s) break;
         P->step = step + 1;
@@ -123,7 +123,7 @@ mlb_status mlb_sd_encode_dataset(const mlb_backend* be, const mlb_vae* v, const 
             int nb = d->n - i0 < B ? d->n - i0 : B;
             for (int b = 0; b < nb; b++) vae_image(d, i0 + b, geo, hx + b * ni);
             s = be->upload(dimg, hx, nb * ni);
-            if (!s) s = mlb_vae_encode_on(be, v, dimg, nb, R, R, (geo ? lat_geo : lat_rgb) + (size_t)i0 * nz, NULL, NULL);
+            if (!s) s = mlb_vae_encode(be, v, dimg, nb, R, R, (geo ? lat_geo : lat_rgb) + (size_t)i0 * nz, NULL, NULL);
             mlb_progress_update(&pr, (long)geo * d->n + i0 + nb, NULL);
         }
     if (!s) mlb_progress_end(&pr, NULL);

@@ -249,7 +249,7 @@ static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, cons
         MLB_TRY(tb->upload(d[T_DEFORM].p, st->deform, 3 * G));
     }
     MLB_TRY(tb->dmtet_deform(d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
-    return mlb_mt_device_forward_on(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p);
+    return mlb_mt_device_forward(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p, MLB_MT_TABLE);
 }
 
 // The grid's part of the backward from dverts (on the table): marching tets, the deformation and the
@@ -262,7 +262,7 @@ static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, con
     MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
     MLB_TRY(tb->zero(d[T_DSDF].p, G));
     MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
-    MLB_TRY(mlb_mt_device_backward_on(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts));
+    MLB_TRY(mlb_mt_device_backward(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts, MLB_MT_TABLE));
     MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (float)(2 * g->cells)));
     if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (float)reg_weight));
     if (mlb_field_backend(net)) {

@@ -70,9 +70,9 @@ struct bench {
 
 static void mt_forward(bench* b) {
     mt_surface_free(&b->surf);
-    TRY(mlb_mt_device_forward(&b->mt, b->be, &b->surf, b->g, b->pos, b->sdf));
+    TRY(mlb_mt_device_forward(&b->mt, b->be, &b->surf, b->g, b->pos, b->sdf, MLB_MT_HOST));
 }
-static void mt_backward(bench* b) { TRY(mlb_mt_device_backward(b->mt, b->dpos, b->dsdf, b->dverts)); }
+static void mt_backward(bench* b) { TRY(mlb_mt_device_backward(b->mt, b->dpos, b->dsdf, b->dverts, MLB_MT_HOST)); }
 
 #define RGRID(name, body) \
     static void name(bench* b) { const mlb_backend* be = b->be; for (int v = 0; v < VIEWS; v++) TRY(body); }

@@ -584,7 +584,7 @@ TEST(table_path_is_forward) {
             for (int v = 0; v < V; v++) sdf[v] = 1;   // nothing inside
         mlb_mt_surface a, b;
         REQUIRE(marching_tets_forward(&a, &g, pos, sdf) == MLB_OK);
-        REQUIRE(mlb_mt_device_forward(&d, mlb_backend_cpu(), &b, &g, pos, sdf) == MLB_OK);
+        REQUIRE(mlb_mt_device_forward(&d, mlb_backend_cpu(), &b, &g, pos, sdf, MLB_MT_HOST) == MLB_OK);
         const int M = a.n_verts, F = a.n_faces;
         CHECK(b.n_verts == M && b.n_faces == F);
         CHECK(round == 2 ? M == 0 : M > 100);
@@ -597,7 +597,7 @@ TEST(table_path_is_forward) {
         REQUIRE(dv && p1 && p2 && q1 && q2);
         for (int i = 0; i < 3 * M; i++) dv[i] = (float)mlb_rng_normal_f64(6, 2, i);
         marching_tets_backward(p1, q1, &a, pos, sdf, dv);
-        REQUIRE(mlb_mt_device_backward(d, p2, q2, dv) == MLB_OK);
+        REQUIRE(mlb_mt_device_backward(d, p2, q2, dv, MLB_MT_HOST) == MLB_OK);
         CHECK(!memcmp(p1, p2, sizeof(float) * 3 * V) && !memcmp(q1, q2, sizeof(float) * V));
         free(dv), free(p1), free(p2), free(q1), free(q2);
         mt_surface_free(&a);

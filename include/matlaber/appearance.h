@@ -90,7 +90,17 @@
     mlb_status N(mlb_material_smoothness_part)(N(mlb_material_net)* net, const R* pts, int n, int first,  \
                                                int count, double sigma, double weight,                  \
                                                double weight_spec, uint64_t seed, long step,           \
-                                               int backward, double* loss);
+                                               int backward, double* loss);                             \
+    /* Per-pixel material maps of one view for previews and evaluation (no gradients, the net's     \
+       cache untouched): rasterize at res, evaluate the net at the covered pixels, antialias, and   \
+       write (each may be NULL) kd [res,res,3], ks [res,res,3], kr [res,res] and the shading normal \
+       [res,res,3] (world space, unit, turned towards the camera), all linear and premultiplied by  \
+       the antialiased coverage (background 0). The raster ops run on table be (NULL: the CPU's);    \
+       the mesh and the maps are host buffers, so be is the CPU's for now (docs/cuda.md "The        \
+       renderer on the op table"). */                                                                \
+    mlb_status N(mlb_appearance_maps)(const N(mlb_backend)* be, const N(mlb_material_net)* net,       \
+                                      const mlb_mesh* mesh, const mlb_view* view, int res, R* kd_img, \
+                                      R* ks_img, R* kr_img, R* normal_img);
 
 #define MLB_APPEARANCE_F32(name) name
 #define MLB_APPEARANCE_F64(name) name##_f64
@@ -98,16 +108,5 @@ MLB_APPEARANCE_DECLARE(float, MLB_APPEARANCE_F32)
 MLB_APPEARANCE_DECLARE(double, MLB_APPEARANCE_F64)
 #undef MLB_APPEARANCE_F32
 #undef MLB_APPEARANCE_F64
-
-// Per-pixel material maps of one view for previews and evaluation (float, no gradients, the net's
-// cache untouched): rasterize at res, evaluate the net at the covered pixels, antialias, and write
-// (each may be NULL) kd [res,res,3], ks [res,res,3], kr [res,res] and the shading normal
-// [res,res,3] (world space, unit, turned towards the camera), all linear and premultiplied by the
-// antialiased coverage (background 0). The raster ops run on table be (NULL: the CPU's); the mesh
-// and the maps are host buffers, so be is the CPU's for now (docs/cuda.md "The renderer on the op
-// table").
-mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
-                               const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
-                               float* normal_img);
 
 #endif

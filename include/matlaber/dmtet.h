@@ -77,22 +77,22 @@ MLB_DMTET_DECLARE(double, MLB_DMTET_F64)
 #undef MLB_DMTET_F64
 
 // Marching tets through an op table (backend.h; float): marching_tets_forward and _backward with
-// the passes of backend_ops.def on the table's device (count, scan_i32, emit, backward), host
-// buffers in and out. The handle (*d NULL at first) keeps the grid's tets and the last forward's
-// buffers on the device; the grid g must stay unchanged while it is used. With the CPU table the
-// results are marching_tets_forward's and _backward's bits.
+// the passes of backend_ops.def on the table's device (count, scan_i32, emit, backward). The handle
+// (*d NULL at first) keeps the grid's tets and the last forward's buffers on the device; the grid g
+// must stay unchanged while it is used. With the CPU table the results are marching_tets_forward's
+// and _backward's bits. `where` says where a call's buffers are:
+//   MLB_MT_HOST   host buffers in and out (uploaded and downloaded by the call);
+//   MLB_MT_TABLE  on the table's device (the geometry fit's deformed grid and surface gradients):
+//                 the forward's surface stays there, `out` gets its sizes only (n_verts, n_faces;
+//                 no arrays), mlb_mt_device_surface_host the rest.
 typedef struct mlb_backend mlb_backend;
 typedef struct mlb_mt_device mlb_mt_device;
+typedef enum { MLB_MT_HOST = 0, MLB_MT_TABLE = 1 } mlb_mt_place;
+// pos [V,3] (deformed grid positions), sdf [V] → the surface
 mlb_status mlb_mt_device_forward(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
-                                 const mlb_tetgrid* g, const float* pos, const float* sdf);
+                                 const mlb_tetgrid* g, const float* pos, const float* sdf, mlb_mt_place where);
 // dpos [V,3] +=, dsdf [V] += (either may be NULL) for dverts [n_verts,3] of the last forward
-mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
-// The same with pos, sdf (forward) and dpos, dsdf, dverts (backward) on the table's device (the
-// geometry fit's deformed grid and surface gradients); the forward's surface stays there: `out`
-// gets its sizes only (n_verts, n_faces; no arrays), mlb_mt_device_surface_host the rest
-mlb_status mlb_mt_device_forward_on(mlb_mt_device** d, const mlb_backend* be, mlb_mt_surface* out,
-                                    const mlb_tetgrid* g, const float* pos, const float* sdf);
-mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts);
+mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts, mlb_mt_place where);
 // The last forward's surface where it was made: verts [n_verts,3], faces [n_faces,3] (int32) on the
 // table's device (what came down into the host surface), valid until the next forward
 mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces);

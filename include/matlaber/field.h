@@ -11,7 +11,8 @@
 // thread count. Coarse to fine: levels >= active_levels give zero features and get no gradient.
 //
 // Exists as float (plain names) and double (name_f64, for the finite-difference tests). A float
-// field can run on another device (field_use_device, src/field/field_device.c).
+// field can run on another device (field_use_device, src/field/field_device.c); a double one stays
+// on the host.
 #ifndef MATLABER_FIELD_H
 #define MATLABER_FIELD_H
 #include <stddef.h>
@@ -37,7 +38,7 @@ typedef struct {
 } mlb_field_config;
 
 // The output width of a field of this config: 4 (geometry) or 7 (material: k).
-int mlb_field_out_dim(const mlb_field_config* c);
+static inline int mlb_field_out_dim(const mlb_field_config* c) { return c->kind == MLB_FIELD_GEOMETRY ? 4 : 7; }
 
 #define MLB_FIELD_DECLARE(R, N)                                                                     \
     typedef struct {                                                                               \
@@ -108,6 +109,13 @@ const mlb_backend* mlb_field_backend(const mlb_field* f);   // NULL for a field 
 // MLB_ERR_ARG for a field on the host.
 mlb_status mlb_field_forward_on_device(mlb_field* f, float* y, const float* pos, int n);
 mlb_status mlb_field_backward_on_device(mlb_field* f, const float* dy);
+// A double field is never on a device (the double pass has only the CPU's double table): its
+// mlb_field_backend is NULL and the two calls above are MLB_ERR_UNSUPPORTED. They exist so that the
+// models over a field (geometry_fit.c, appearance.c) are written once for both precisions.
+typedef struct mlb_backend_f64 mlb_backend_f64;   // backend_f64.h
+const mlb_backend_f64* mlb_field_backend_f64(const mlb_field_f64* f);
+mlb_status mlb_field_forward_on_device_f64(mlb_field_f64* f, double* y, const double* pos, int n);
+mlb_status mlb_field_backward_on_device_f64(mlb_field_f64* f, const double* dy);
 
 // ---- files (float fields; src/field/field_io.c) ----
 // Tensors "encoding.table" [entries, F], "mlp.N.weight" [out, in] (and "mlp.N.bias" with biases),

@@ -88,15 +88,15 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
                                         brings them down) */                                          \
         mlb_mat4* vp;                /* [n] the views' world → clip matrices */                    \
         R* images;                   /* [n, res, res, 4] the renders of the last forward */        \
-        R *gv, *sdf, *deform, *gpos; /* [G,3], [G], [G,3], [G,3]: the double build's; the float     \
-                                        build's are on the table (gv and, with the network on the   \
-                                        host, sdf and deform are filled here too) */                \
+        R *gv, *sdf, *deform;        /* [G,3], [G], [G,3]: the host's side of the grid's buffers on \
+                                        the table (the grid's vertices; the network's outputs when \
+                                        it is on the host) */                                        \
         /* on the table's device (be): */                                                            \
         int32_t* tri;                /* [n,S,S] */                                                  \
         R *bary, *depth, *img, *weights; /* [n,S,S,2], [n,S,S], [n,S,S,4], [n,S,S,2] */             \
         R *aa, *daa, *dimg, *dbary;  /* per-view scratch [S,S,4], [S,S,4], [S,S,4], [S,S,2] */      \
         struct N(geofit_table)* tab; /* private: the table's buffers and the table they are on */   \
-        R *dgpos, *dsdf, *ddeform;   /* [G,3], [G], [G,3] */                                        \
+        R *dsdf, *ddeform;           /* [G], [G,3]: their gradients, for a network on the host */   \
         R* pieces;                   /* [n, M, 6]: each view's share of the surface's gradients,   \
                                         on the host for the gather across processes */             \
         size_t cap_grid, cap_surf, cap_px, cap_views, cap_pieces;   /* allocated sizes */          \
@@ -111,9 +111,10 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            mlb_backend_cpu), with every per-pixel buffer there, and the surface's normals, clip     \
            coordinates, the edge topology and the gradients: the surface stays there (st->surf      \
            has its sizes), the images come down and the dimages go up unless images_on_table; the   \
-           views' gradient pieces cross only between processes. mt its buffers there (the state's own). The double build's     \
-           table is backend_f64.h's (the CPU's only); its grid part (network, deformation, marching   \
-           tets) runs on the host. stats->coverage is measured on tables whose     \
+           views' gradient pieces cross only between processes; mt holds marching tets' buffers   \
+           there (the state's own). The double build's table is backend_f64.h's (the CPU's only),  \
+           which lacks the grid's passes (deformation, marching tets, regulariser): those run as    \
+           dmtet.h's host functions on its buffers. stats->coverage is measured on tables whose     \
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const N(mlb_backend)* be;                                                                   \
         mlb_mt_device* mt;                                                                          \

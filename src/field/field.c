@@ -1,9 +1,10 @@
 // The neural field: hash grid → MLP (→ frozen decoder) (include/matlaber/field.h). Dual-compiled
-// (float / double _f64), see core/real.h. A float field on a device dispatches to its twin
-// (src/field/field_device.c).
+// (float / double _f64), see core/real.h. A field on a device (f->dev) dispatches to its twin
+// (src/field/field_device.c; a double field is never there, its twin's entry points say so).
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "matlaber/backend_f64.h"
 #include "matlaber/brdf.h"
 #include "matlaber/field.h"
 #include "core/real.h"
@@ -17,10 +18,6 @@
 // backward and eval are bitwise the same on any number of threads. EVAL_CHUNK is a multiple of
 // SHARD, so eval matches forward.
 #define SHARD 1024
-
-#ifndef MLB_F64
-int mlb_field_out_dim(const mlb_field_config* c) { return c->kind == MLB_FIELD_GEOMETRY ? 4 : K_DIM; }
-#endif
 
 // The BRDF auto-encoder's output map k = lo + (hi − lo)·s (brdf_ae.h) applied to sigmoid outputs s.
 void FN(field_map_to_ranges)(real* k, const real* s, int n) {
@@ -58,9 +55,7 @@ static void FN(free_cache)(FN(mlb_field)* f) {
 }
 
 void FN(field_free)(FN(mlb_field)* f) {
-#ifndef MLB_F64
-    field_device_free(f->dev);
-#endif
+    FN(field_device_free)(f->dev);
     free(f->params);
     free(f->grads);
     free(f->adam_m);
@@ -123,9 +118,7 @@ mlb_status FN(field_init)(FN(mlb_field)* f, const mlb_field_config* cfg, const m
 }
 
 void FN(field_zero_grad)(FN(mlb_field)* f) {
-#ifndef MLB_F64
-    if (f->dev) { field_device_zero_grad(f); return; }   // a failure is reported by the next op
-#endif
+    if (f->dev) { FN(field_device_zero_grad)(f); return; }   // a failure is reported by the next op
     memset(f->grads, 0, sizeof(real) * f->n_params);
 }
 
@@ -255,9 +248,7 @@ static const real* FN(run)(const FN(mlb_field)* f, FN(mlb_mlp_cache)* cache, FN(
 
 mlb_status FN(field_forward)(FN(mlb_field)* f, real* y, real* z, const real* pos, int n) {
     if (n < 1) return mlb_fail(MLB_ERR_ARG, "field: %d points", n);
-#ifndef MLB_F64
-    if (f->dev) return field_device_forward(f, y, z, pos, n);
-#endif
+    if (f->dev) return FN(field_device_forward)(f, y, z, pos, n);
     MLB_TRY(FN(reserve)(f, n));
     f->n = n;
     const int O = FN(mlp_out)(&f->cfg), D = mlb_field_out_dim(&f->cfg);
@@ -271,9 +262,7 @@ mlb_status FN(field_forward)(FN(mlb_field)* f, real* y, real* z, const real* pos
 mlb_status FN(field_backward)(FN(mlb_field)* f, const real* dy, real* dpos) {
     int n = f->n, L = f->enc.out_dim;
     if (n < 1) return mlb_fail(MLB_ERR_ARG, "field: backward without a forward");
-#ifndef MLB_F64
-    if (f->dev) return field_device_backward(f, dy, dpos);
-#endif
+    if (f->dev) return FN(field_device_backward)(f, dy, dpos);
     const real* dmlp = dy;   // the gradient at the trained MLP's output
     if (f->cfg.kind == MLB_FIELD_MATERIAL) {
         // ds = dk·(hi − lo): the gradient at the sigmoid outputs (decoder's or the MLP's own)
@@ -304,9 +293,7 @@ mlb_status FN(field_backward)(FN(mlb_field)* f, const real* dy, real* dpos) {
 }
 
 mlb_status FN(field_update)(FN(mlb_field)* f, const mlb_adam_config* adam) {
-#ifndef MLB_F64
-    if (f->dev) return field_device_update(f, adam);
-#endif
+    if (f->dev) return FN(field_device_update)(f, adam);
     f->step++;
     FN(adam_update)(f->params, f->grads, f->adam_m, f->adam_v, f->n_params, adam, f->step);
     return MLB_OK;
@@ -314,11 +301,9 @@ mlb_status FN(field_update)(FN(mlb_field)* f, const mlb_adam_config* adam) {
 
 mlb_status FN(field_eval)(const FN(mlb_field)* f, const real* pos, size_t n, real* y, real* z) {
     if (z && !FN(latent)(f)) return mlb_fail(MLB_ERR_ARG, "field: latent codes asked of a field without them");
-#ifndef MLB_F64
-    if (field_device_host_behind(f))
+    if (FN(field_device_host_behind)(f))
         return mlb_fail(MLB_ERR_ARG, "field: its parameters on the %s are ahead of the host's copy (mlb_field_sync_host "
-                                     "first)", mlb_device_name(mlb_field_backend(f)->device));
-#endif
+                                     "first)", mlb_device_name(FN(mlb_field_backend)(f)->device));
     if (n == 0) return MLB_OK;
     int chunk = n < EVAL_CHUNK ? (int)n : EVAL_CHUNK, L = f->enc.out_dim, D = mlb_field_out_dim(&f->cfg);
     FN(mlb_mlp_cache) c, dc;

@@ -332,3 +332,27 @@ mlb_status mlb_field_use_device(mlb_field* net, const mlb_backend* be) {
     net->n = 0;   // a host forward's cache is not the device's
     return MLB_OK;
 }
+
+// ---- the double field (field.c's _f64 build) ----
+// The double pass (the finite-difference references) has only the CPU's double table, so a double
+// field never goes to a device: its dev stays NULL and these, its twin's entry points, are never
+// reached from field.c. They are here, in one place, so that field.c and the models over a field
+// are written once for both precisions instead of holding float-only branches.
+static mlb_status no_device_f64(const char* what) {
+    return mlb_fail(MLB_ERR_UNSUPPORTED, "field %s: a double field has no device (the double pass runs on the host)", what);
+}
+void field_device_free_f64(struct mlb_field_device* d) { field_device_free(d); }
+mlb_status field_device_forward_f64(mlb_field_f64* f, double* y, double* z, const double* pos, int n) {
+    return no_device_f64("forward");
+}
+mlb_status field_device_backward_f64(mlb_field_f64* f, const double* dy, double* dpos) { return no_device_f64("backward"); }
+void field_device_zero_grad_f64(mlb_field_f64* f) {}
+mlb_status field_device_update_f64(mlb_field_f64* f, const mlb_adam_config* adam) { return no_device_f64("update"); }
+int field_device_host_behind_f64(const mlb_field_f64* f) { return 0; }
+const mlb_backend_f64* mlb_field_backend_f64(const mlb_field_f64* f) { return NULL; }
+mlb_status mlb_field_forward_on_device_f64(mlb_field_f64* f, double* y, const double* pos, int n) {
+    return no_device_f64("forward on the device");
+}
+mlb_status mlb_field_backward_on_device_f64(mlb_field_f64* f, const double* dy) {
+    return no_device_f64("backward on the device");
+}

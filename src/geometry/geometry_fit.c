@@ -17,7 +17,7 @@
 #include "nn/table_ops.h"
 
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
-// (the grid group: the float build's deformed grid, SDF and their gradients)
+// (the grid group: the network's outputs, the deformed grid, the regulariser and their gradients)
 // (the surface group: normals, attribute, clip coordinates, the faces at each vertex, gradients)
 enum { T_TRI, T_BARY, T_DEPTH, T_IMG, T_WEIGHTS, T_AA, T_DAA, T_DIMG, T_DBARY, T_OUT, T_DOUT,
        T_ATTR, T_CLIP, T_ADJ, T_DATTR, T_DCLIP, T_NRM, T_NSUM, T_VOFF, T_VF, T_ONES, T_PIECES, T_DSURF,
@@ -124,9 +124,9 @@ void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     FN(mt_surface_free)(&st->surf);
     mlb_mt_device_free(st->mt);
     free(st->vp); free(st->images);
-    free(st->gv); free(st->sdf); free(st->deform); free(st->gpos);
+    free(st->gv); free(st->sdf); free(st->deform);
     FN(geofit_table_free)(st->tab);
-    free(st->dgpos); free(st->dsdf); free(st->ddeform);
+    free(st->dsdf); free(st->ddeform);
     free(st->pieces);
     memset(st, 0, sizeof *st);
 }
@@ -159,17 +159,14 @@ static mlb_status FN(state_reserve)(FN(mlb_geofit_state)* st, size_t G, int M, i
     if (ok && G != st->cap_grid) {
         st->cap_grid = 0;
         ok &= FN(grow)((void**)&st->gv, G * 3, sizeof(real)) & FN(grow)((void**)&st->sdf, G, sizeof(real)) &
-              FN(grow)((void**)&st->deform, G * 3, sizeof(real)) & FN(grow)((void**)&st->gpos, G * 3, sizeof(real)) &
-              FN(grow)((void**)&st->dgpos, G * 3, sizeof(real)) & FN(grow)((void**)&st->dsdf, G, sizeof(real)) &
+              FN(grow)((void**)&st->deform, G * 3, sizeof(real)) & FN(grow)((void**)&st->dsdf, G, sizeof(real)) &
               FN(grow)((void**)&st->ddeform, G * 3, sizeof(real));
-#ifndef MLB_F64
         FN(tbuf)* d = st->tab->d;
         st->tab->gv_cells = 0;
         ok = ok && FN(tbuf_get)(tb, &d[T_GV], G * 3) && FN(tbuf_get)(tb, &d[T_Y], G * 4) && FN(tbuf_get)(tb, &d[T_SDF], G) &&
              FN(tbuf_get)(tb, &d[T_DEFORM], G * 3) && FN(tbuf_get)(tb, &d[T_GPOS], G * 3) &&
              FN(tbuf_get)(tb, &d[T_DGPOS], G * 3) && FN(tbuf_get)(tb, &d[T_DSDF], G) &&
              FN(tbuf_get)(tb, &d[T_DDEFORM], G * 3) && FN(tbuf_get)(tb, &d[T_REG], 1);
-#endif
         if (ok) st->cap_grid = G;
     }
     size_t S = (size_t)res * ss, P = S * S, px = P * (size_t)n;
@@ -218,13 +215,78 @@ static void FN(part_range)(const FN(mlb_geofit_state)* st, int n, int* v0, int* 
     }
 }
 
-#ifndef MLB_F64
+// ---- the grid's passes: DMTet's deformation, marching tets, the SDF sign regulariser ----
+// The float tables have them as ops (backend_ops.def; marching tets through mlb_mt_device, dmtet.h,
+// whose surface stays on the table). The CPU's double table does not: the double build (the
+// finite-difference references) runs dmtet.h's host functions on the table's buffers instead, which
+// for that table are host memory. These are the only lines of this file that differ by precision.
+#ifdef MLB_F64
+static mlb_status grid_deform_f64(const mlb_backend_f64* tb, double* out, const double* grid, const double* deform,
+                                  int n_verts, double grid_res) {
+    dmtet_deform_forward_f64(out, grid, deform, n_verts, grid_res);
+    return MLB_OK;
+}
+static mlb_status grid_deform_backward_f64(const mlb_backend_f64* tb, double* ddeform, const double* dout,
+                                           const double* deform, int n_verts, double grid_res) {
+    dmtet_deform_backward_f64(NULL, ddeform, dout, deform, n_verts, grid_res);
+    return MLB_OK;
+}
+static mlb_status grid_sdf_reg_f64(const mlb_backend_f64* tb, double* out, const double* sdf, const mlb_tetgrid* g) {
+    *out = sdf_reg_forward_f64(g, sdf);
+    return MLB_OK;
+}
+static mlb_status grid_sdf_reg_backward_f64(const mlb_backend_f64* tb, double* dsdf, const double* sdf,
+                                            const mlb_tetgrid* g, double dloss) {
+    sdf_reg_backward_f64(dsdf, g, sdf, dloss);
+    return MLB_OK;
+}
+// the surface in st->surf, whole (the table's memory is the host's)
+static mlb_status grid_surface_f64(mlb_geofit_state_f64* st, const mlb_tetgrid* g, const double* pos, const double* sdf) {
+    return marching_tets_forward_f64(&st->surf, g, pos, sdf);
+}
+static mlb_status grid_surface_backward_f64(mlb_geofit_state_f64* st, double* dpos, double* dsdf, const double* dverts) {
+    marching_tets_backward_f64(dpos, dsdf, &st->surf, st->tab->d[T_GPOS].p, st->tab->d[T_SDF].p, dverts);
+    return MLB_OK;
+}
+static mlb_status grid_surface_on_table_f64(mlb_geofit_state_f64* st, const double** pos, const int32_t** faces) {
+    *pos = st->surf.pos;
+    *faces = st->surf.faces;
+    return MLB_OK;
+}
+#else
+static mlb_status grid_deform(const mlb_backend* tb, float* out, const float* grid, const float* deform, int n_verts,
+                              float grid_res) {
+    return tb->dmtet_deform(out, grid, deform, n_verts, grid_res);
+}
+static mlb_status grid_deform_backward(const mlb_backend* tb, float* ddeform, const float* dout, const float* deform,
+                                       int n_verts, float grid_res) {
+    return tb->dmtet_deform_backward(ddeform, dout, deform, n_verts, grid_res);
+}
+static mlb_status grid_sdf_reg(const mlb_backend* tb, float* out, const float* sdf, const mlb_tetgrid* g) {
+    return tb->sdf_reg(out, sdf, g->cells);
+}
+static mlb_status grid_sdf_reg_backward(const mlb_backend* tb, float* dsdf, const float* sdf, const mlb_tetgrid* g,
+                                        float dloss) {
+    return tb->sdf_reg_backward(dsdf, sdf, g->cells, dloss);
+}
+// the surface on the table (st->mt); st->surf gets its sizes (mlb_geofit_state_mesh brings it down)
+static mlb_status grid_surface(mlb_geofit_state* st, const mlb_tetgrid* g, const float* pos, const float* sdf) {
+    return mlb_mt_device_forward(&st->mt, st->tab->tb, &st->surf, g, pos, sdf, MLB_MT_TABLE);
+}
+static mlb_status grid_surface_backward(mlb_geofit_state* st, float* dpos, float* dsdf, const float* dverts) {
+    return mlb_mt_device_backward(st->mt, dpos, dsdf, dverts, MLB_MT_TABLE);
+}
+static mlb_status grid_surface_on_table(mlb_geofit_state* st, const float** pos, const int32_t** faces) {
+    return mlb_mt_device_surface(st->mt, pos, faces);
+}
+#endif
+
 // The grid's part of a forward on the state's table: the network at the grid vertices (on the
 // table's device when it is there, else on the host and its outputs uploaded), the deformation,
-// marching tets; the surface stays there (st->surf gets its sizes; mlb_geofit_state_mesh brings it
-// down when asked). The SDF stays on the table for the regulariser and the backward.
-static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, float grid_res) {
-    const mlb_backend* tb = st->tab->tb;
+// marching tets. The SDF stays on the table for the regulariser and the backward.
+static mlb_status FN(grid_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
+                                   real grid_res) {
+    const FN(mlb_backend)* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;
     size_t G = (size_t)g->n_verts;
     if (st->tab->gv_cells != g->cells || st->tab->gv_scale != g->scale) {   // the grid's vertices go up once
@@ -232,60 +294,47 @@ static mlb_status grid_forward(mlb_geofit_state* st, mlb_geometry_net* net, cons
         st->tab->gv_cells = g->cells;
         st->tab->gv_scale = g->scale;
     }
-    const mlb_backend* nb = mlb_field_backend(net);
+    const FN(mlb_backend)* nb = FN(mlb_field_backend)(net);   // (a double network is on the host)
     if (nb) {
         if (nb->device != tb->device)
             return mlb_fail(MLB_ERR_ARG, "geometry step: the geometry network is on the %s, the step on the %s",
                             mlb_device_name(nb->device), mlb_device_name(tb->device));
-        MLB_TRY(mlb_field_forward_on_device(net, d[T_Y].p, d[T_GV].p, g->n_verts));
+        MLB_TRY(FN(mlb_field_forward_on_device)(net, d[T_Y].p, d[T_GV].p, g->n_verts));
         MLB_TRY(tb->copy_rows(d[T_SDF].p, 1, d[T_Y].p, 4, 1, G));
         MLB_TRY(tb->copy_rows(d[T_DEFORM].p, 3, d[T_Y].p + 1, 4, 3, G));
     } else {
         if (tb->device != MLB_DEVICE_CPU)
             return mlb_fail(MLB_ERR_ARG, "geometry step: the geometry network is on the host, the step on the %s",
                             mlb_device_name(tb->device));
-        MLB_TRY(geometry_net_forward(net, st->sdf, st->deform, st->gv, g->n_verts));
+        MLB_TRY(FN(geometry_net_forward)(net, st->sdf, st->deform, st->gv, g->n_verts));
         MLB_TRY(tb->upload(d[T_SDF].p, st->sdf, G));
         MLB_TRY(tb->upload(d[T_DEFORM].p, st->deform, 3 * G));
     }
-    MLB_TRY(tb->dmtet_deform(d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
-    return mlb_mt_device_forward_on(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p);
+    MLB_TRY(FN(grid_deform)(tb, d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
+    return FN(grid_surface)(st, g, d[T_GPOS].p, d[T_SDF].p);
 }
 
 // The grid's part of the backward from dverts (on the table): marching tets, the deformation and the
 // regulariser on the table, then the network (there, or on the host with the gradients brought down).
-static mlb_status grid_backward(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* g, const float* dverts,
-                                double reg_weight) {
-    const mlb_backend* tb = st->tab->tb;
+static mlb_status FN(grid_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
+                                    const real* dverts, double reg_weight) {
+    const FN(mlb_backend)* tb = st->tab->tb;
     FN(tbuf)* d = st->tab->d;
     size_t G = (size_t)g->n_verts;
     MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
     MLB_TRY(tb->zero(d[T_DSDF].p, G));
     MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
-    MLB_TRY(mlb_mt_device_backward_on(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts));
-    MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (float)(2 * g->cells)));
-    if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (float)reg_weight));
-    if (mlb_field_backend(net)) {
+    MLB_TRY(FN(grid_surface_backward)(st, d[T_DGPOS].p, d[T_DSDF].p, dverts));
+    MLB_TRY(FN(grid_deform_backward)(tb, d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (real)(2 * g->cells)));
+    if (reg_weight != 0) MLB_TRY(FN(grid_sdf_reg_backward)(tb, d[T_DSDF].p, d[T_SDF].p, g, (real)reg_weight));
+    if (FN(mlb_field_backend)(net)) {
         MLB_TRY(tb->copy_rows(d[T_Y].p, 4, d[T_DSDF].p, 1, 1, G));   // dy [G,4], over the forward's y (no longer needed)
         MLB_TRY(tb->copy_rows(d[T_Y].p + 1, 4, d[T_DDEFORM].p, 3, 3, G));
-        return mlb_field_backward_on_device(net, d[T_Y].p);
+        return FN(mlb_field_backward_on_device)(net, d[T_Y].p);
     }
     MLB_TRY(tb->download(st->dsdf, d[T_DSDF].p, G));
     MLB_TRY(tb->download(st->ddeform, d[T_DDEFORM].p, 3 * G));
-    return geometry_net_backward(net, st->dsdf, st->ddeform);
-}
-#endif
-
-// The surface where the table has it: the float build's marching tets made it there (the host's
-// st->surf is its copy); the double build's is the host's.
-static mlb_status FN(surface_on_table)(FN(mlb_geofit_state)* st, const real** pos, const int32_t** faces) {
-#ifdef MLB_F64
-    *pos = st->surf.pos;
-    *faces = st->surf.faces;
-    return MLB_OK;
-#else
-    return mlb_mt_device_surface(st->mt, pos, faces);
-#endif
+    return FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
 }
 
 mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
@@ -304,14 +353,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     mlb_status s = FN(state_reserve)(st, G, 0, 0, n, res, ss);
     if (s) return s;
     for (size_t i = 0; i < 3 * G; i++) st->gv[i] = (real)g->verts[i];
-#ifdef MLB_F64
-    s = FN(geometry_net_forward)(net, st->sdf, st->deform, st->gv, g->n_verts);
-    if (s) return s;
-    FN(dmtet_deform_forward)(st->gpos, st->gv, st->deform, g->n_verts, grid_res);
-    s = FN(marching_tets_forward)(&st->surf, g, st->gpos, st->sdf);
-#else
-    s = grid_forward(st, net, g, grid_res);
-#endif
+    s = FN(grid_forward)(st, net, g, grid_res);
     if (s) return s;
     if (st->surf.n_faces == 0) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface (the SDF has one sign everywhere)");
     int M = st->surf.n_verts, F = st->surf.n_faces;
@@ -333,7 +375,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
-    MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
+    MLB_TRY(FN(grid_surface_on_table)(st, &t_pos, &t_faces));
     real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_nrm = d[T_NRM].p;
     int32_t *t_adj = (int32_t*)d[T_ADJ].p, *t_off = (int32_t*)d[T_VOFF].p, *t_vf = (int32_t*)d[T_VF].p;
     MLB_TRY(tb->vertex_faces(t_off, t_vf, t_faces, F, M));
@@ -371,15 +413,11 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     }
     if (!host_memory) hash = 0;
     if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
-#ifdef MLB_F64
-    stats->reg = (double)FN(sdf_reg_forward)(g, st->sdf);
-#else
-    float reg;
-    s = tb->sdf_reg(st->tab->d[T_REG].p, st->tab->d[T_SDF].p, g->cells);
-    if (!s) s = tb->download(&reg, st->tab->d[T_REG].p, 1);
+    real reg;
+    s = FN(grid_sdf_reg)(tb, d[T_REG].p, d[T_SDF].p, g);
+    if (!s) s = tb->download(&reg, d[T_REG].p, 1);
     if (s) return s;
     stats->reg = (double)reg;
-#endif
     stats->coverage = hash;
     st->ok = 1;
     return MLB_OK;
@@ -425,7 +463,7 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
-    MLB_TRY(FN(surface_on_table)(st, &t_pos, &t_faces));
+    MLB_TRY(FN(grid_surface_on_table)(st, &t_pos, &t_faces));
     real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_pieces = d[T_PIECES].p;
     real *t_dattr = d[T_DATTR].p, *t_dclip = d[T_DCLIP].p, *t_dsurf = d[T_DSURF].p;
     const int32_t *t_adj = (const int32_t*)d[T_ADJ].p, *t_off = (const int32_t*)d[T_VOFF].p;
@@ -470,18 +508,7 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
     MLB_TRY(tb->zero(t_dsurf, piece));   // [dverts 3M | dnrm 3M]
     for (int v = 0; grads && v < n; v++) MLB_TRY(tb->add(t_dsurf, t_pieces + piece * (size_t)v, piece));
     MLB_TRY(tb->vertex_normals_backward(t_dsurf, t_dsurf + 3 * (size_t)M, d[T_NSUM].p, t_pos, M, t_faces, t_off, t_vf));
-#ifdef MLB_F64
-    size_t G = (size_t)st->n_grid;
-    memset(st->dgpos, 0, sizeof(real) * G * 3);
-    memset(st->dsdf, 0, sizeof(real) * G);
-    memset(st->ddeform, 0, sizeof(real) * G * 3);
-    FN(marching_tets_backward)(st->dgpos, st->dsdf, &st->surf, st->gpos, st->sdf, t_dsurf);
-    FN(dmtet_deform_backward)(NULL, st->ddeform, st->dgpos, st->deform, (int)G, (real)(2 * g->cells));
-    if (reg_weight != 0) FN(sdf_reg_backward)(st->dsdf, g, st->sdf, (real)reg_weight);
-    return FN(geometry_net_backward)(net, st->dsdf, st->ddeform);
-#else
-    return grid_backward(st, net, g, t_dsurf, reg_weight);
-#endif
+    return FN(grid_backward)(st, net, g, t_dsurf, reg_weight);
 }
 
 mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx,

@@ -107,7 +107,7 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
 mlb_status mlb_geofit_state_mesh(const mlb_geofit_state* st, mlb_mesh* out) {
     if (!st || !st->ok || !out) return mlb_fail(MLB_ERR_ARG, "geometry step: no surface held (run a forward first)");
     if (st->surf.pos || !st->mt) return mt_surface_to_mesh(&st->surf, out);
-    mlb_mt_surface host;   // the surface stayed on the table (mlb_mt_device_forward_on): down now
+    mlb_mt_surface host;   // the surface stayed on the table (mlb_mt_device_forward, MLB_MT_TABLE): down now
     MLB_TRY(mlb_mt_device_surface_host(st->mt, &host));
     mlb_status s = mt_surface_to_mesh(&host, out);
     mt_surface_free(&host);

@@ -46,7 +46,7 @@ mlb_status mlb_geometry_extract(const mlb_backend* be, mlb_geometry_net* net, co
     mlb_mt_device* mt = NULL;
     if (!s) {
         dmtet_deform_forward(pos, grid->verts, deform, grid->n_verts, (float)(2 * grid->cells));
-        s = mlb_mt_device_forward(&mt, be, &surf, grid, pos, sdf);
+        s = mlb_mt_device_forward(&mt, be, &surf, grid, pos, sdf, MLB_MT_HOST);
     }
     mlb_mt_device_free(mt);
     if (!s && surf.n_faces == 0) s = mlb_fail(MLB_ERR_ARG, "no surface: the SDF has the same sign at every grid vertex");

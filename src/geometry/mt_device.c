@@ -1,8 +1,9 @@
 // Marching tets through an op table (dmtet.h mlb_mt_device_*): the passes of backend_ops.def on the
-// table's device, host buffers in and out. The grid's tets go up once per grid; each forward
-// uploads the SDF and positions, counts, scans in place, reads the two totals back, emits into
-// buffers of the surface's size and downloads the surface; the backward uploads the vertex
-// gradient and the caller's dpos/dsdf (the op accumulates), runs and downloads them. With the CPU
+// table's device. The grid's tets go up once per grid; each forward takes the SDF and positions
+// (uploaded from the host, or copied on the device), counts, scans in place, reads the two totals
+// back, emits into buffers of the surface's size and, with host buffers, downloads the surface; the
+// backward with host buffers uploads the vertex gradient and the caller's dpos/dsdf (the op
+// accumulates), runs and downloads them. With the CPU
 // table the copies are memcpy and the ops are mt_ops.h's passes: the bits of marching_tets_forward.
 #include <stdlib.h>
 #include <string.h>
@@ -89,24 +90,17 @@ static mlb_status surface_on_device(mlb_mt_device* d, size_t nv, size_t nf) {
 static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int on_device);
 
 // pos and sdf into the handle's buffers (uploaded from the host, or copied on the device), then the forward
-static mlb_status forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out, const mlb_tetgrid* g,
-                          const float* pos, const float* sdf, int on_device) {
+mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out, const mlb_tetgrid* g,
+                                 const float* pos, const float* sdf, mlb_mt_place where) {
     memset(out, 0, sizeof *out);
     MLB_TRY(grid_on_device(dp, be, g));
     mlb_mt_device* d = *dp;
     d->nv = d->nf = 0;
     size_t V = (size_t)d->V;
+    const int on_device = where == MLB_MT_TABLE;
     MLB_TRY(on_device ? be->copy(d->pos, pos, 3 * V) : be->upload(d->pos, pos, 3 * V));
     MLB_TRY(on_device ? be->copy(d->sdf, sdf, V) : be->upload(d->sdf, sdf, V));
     return forward_from_device(d, out, on_device);
-}
-mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
-                                 const mlb_tetgrid* g, const float* pos, const float* sdf) {
-    return forward(dp, be, out, g, pos, sdf, 0);
-}
-mlb_status mlb_mt_device_forward_on(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out,
-                                    const mlb_tetgrid* g, const float* pos, const float* sdf) {
-    return forward(dp, be, out, g, pos, sdf, 1);
 }
 
 static mlb_status surface_down(const mlb_mt_device* d, mlb_mt_surface* out);
@@ -166,25 +160,22 @@ mlb_status mlb_mt_device_surface_host(const mlb_mt_device* d, mlb_mt_surface* ou
     return surface_down(d, out);
 }
 
-mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
+// The op on the device's buffers; host buffers go through the handle's (dverts, dpos, dsdf) and back.
+mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts, mlb_mt_place where) {
     if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
-    const mlb_backend* be = d->be;
-    size_t V = (size_t)d->V;
     if (!dpos && !dsdf) return MLB_OK;
+    const mlb_backend* be = d->be;
+    if (where == MLB_MT_TABLE)
+        return be->marching_tets_backward(dpos, dsdf, dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
+                                          (const int32_t*)d->slot_off, d->cells);
+    size_t V = (size_t)d->V;
     MLB_TRY(be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
     if (dpos) MLB_TRY(be->upload(d->dpos, dpos, 3 * V));
     if (dsdf) MLB_TRY(be->upload(d->dsdf, dsdf, V));
-    MLB_TRY(mlb_mt_device_backward_on(d, dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts));
+    MLB_TRY(mlb_mt_device_backward(d, dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts, MLB_MT_TABLE));
     if (dpos) MLB_TRY(be->download(dpos, d->dpos, 3 * V));
     if (dsdf) MLB_TRY(be->download(dsdf, d->dsdf, V));
     return MLB_OK;
-}
-
-mlb_status mlb_mt_device_backward_on(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts) {
-    if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
-    if (!dpos && !dsdf) return MLB_OK;
-    return d->be->marching_tets_backward(dpos, dsdf, dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
-                                         (const int32_t*)d->slot_off, d->cells);
 }
 
 mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces) {

@@ -223,19 +223,17 @@ static void FN(part_range)(const FN(mlb_appearance)* a, int n, int* v0, int* v1)
 // a net on the host runs on the samples in place (the CPU's table: host memory).
 static mlb_status FN(material_of_samples)(struct FN(mlb_appearance_state)* s, FN(mlb_material_net)* net, real* k,
                                           int N, int keep) {
-#ifndef MLB_F64
-    const mlb_backend* nb = mlb_field_backend(net);
+    const FN(mlb_backend)* nb = FN(mlb_field_backend)(net);   // (a double net is on the host)
     if (nb) {
         if (nb->device != s->tb->device)
             return mlb_fail(MLB_ERR_ARG, "appearance render: the material network is on the %s, the render on the %s",
                             mlb_device_name(nb->device), mlb_device_name(s->tb->device));
         if (!keep) return mlb_fail(MLB_ERR_ARG, "appearance render: a render without backward needs the network on the host");
-        return mlb_field_forward_on_device(net, k, s->pts, N);
+        return FN(mlb_field_forward_on_device)(net, k, s->pts, N);
     }
     if (s->tb->device != MLB_DEVICE_CPU)
         return mlb_fail(MLB_ERR_ARG, "appearance render: the material network is on the host, the render on the %s",
                         mlb_device_name(s->tb->device));
-#endif
     if (keep) return FN(material_net_forward)(net, k, NULL, s->pts, N);
     return FN(material_net_eval)(net, s->pts, (size_t)N, k, NULL);
 }
@@ -426,9 +424,7 @@ static mlb_status FN(appearance_backward)(FN(mlb_appearance)* a, FN(mlb_material
     MLB_TRY(tb->copy_rows(dk, 7, dkd, 3, 3, NN));
     MLB_TRY(tb->copy_rows(dk + 3, 7, dks, 3, 3, NN));
     MLB_TRY(tb->copy_rows(dk + 6, 7, dkr, 1, 1, NN));
-#ifndef MLB_F64
-    if (mlb_field_backend(net)) return mlb_field_backward_on_device(net, dk);
-#endif
+    if (FN(mlb_field_backend)(net)) return FN(mlb_field_backward_on_device)(net, dk);
     return FN(material_net_backward)(net, dk, NULL);
 }
 
@@ -491,33 +487,34 @@ mlb_status FN(mlb_material_smoothness_part)(FN(mlb_material_net)* net, const rea
     return st;
 }
 
-#ifndef MLB_F64
-mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* net, const mlb_mesh* mesh,
-                               const mlb_view* view, int res, float* kd_img, float* ks_img, float* kr_img,
-                               float* normal_img) {
-    MLB_TRY(check_mesh(mesh, res, 1, "appearance maps"));
-    const mlb_backend* tb = be ? be : mlb_backend_cpu();
+mlb_status FN(mlb_appearance_maps)(const FN(mlb_backend)* be, const FN(mlb_material_net)* net, const mlb_mesh* mesh,
+                                   const mlb_view* view, int res, real* kd_img, real* ks_img, real* kr_img,
+                                   real* normal_img) {
+    MLB_TRY(FN(check_mesh)(mesh, res, 1, "appearance maps"));
+    const FN(mlb_backend)* tb = be ? be : FN(mlb_backend_cpu)();
     enum { C = 11 };   // kd 3, ks 3, kr 1, normal 3, coverage 1
     int V = mesh->n_verts, F = mesh->n_faces;
     size_t P = (size_t)res * res;
     abuf normals = {0};
-    float* attr = malloc(sizeof(float) * ATTR_C * (size_t)V);
-    float* clip = malloc(sizeof(float) * 4 * (size_t)V);
+    real* pos = malloc(sizeof(real) * 3 * (size_t)V);
+    real* attr = malloc(sizeof(real) * ATTR_C * (size_t)V);
+    real* clip = malloc(sizeof(real) * 4 * (size_t)V);
     int32_t* adj = malloc(sizeof(int32_t) * 3 * (size_t)F);
     int32_t* tri = malloc(sizeof(int32_t) * P);
-    float* bary = malloc(sizeof(float) * 2 * P);
-    float* depth = malloc(sizeof(float) * P);
-    float* pix = malloc(sizeof(float) * ATTR_C * P);
-    float* img = malloc(sizeof(float) * C * P);
-    float* aa = malloc(sizeof(float) * C * P);
-    float *pts = NULL, *nrm = NULL, *vdir = NULL, *k = NULL;
+    real* bary = malloc(sizeof(real) * 2 * P);
+    real* depth = malloc(sizeof(real) * P);
+    real* pix = malloc(sizeof(real) * ATTR_C * P);
+    real* img = malloc(sizeof(real) * C * P);
+    real* aa = malloc(sizeof(real) * C * P);
+    real *pts = NULL, *nrm = NULL, *vdir = NULL, *k = NULL;
     int32_t *where = NULL, *index = malloc(sizeof(int32_t) * (P + 1));
-    mlb_status s = (attr && clip && adj && tri && bary && depth && pix && img && aa && index)
+    mlb_status s = (pos && attr && clip && adj && tri && bary && depth && pix && img && aa && index)
                        ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory (%dx%d)", res, res);
-    if (!s) s = mesh_attr(&normals, mesh, attr);
+    if (!s) s = FN(mesh_attr)(&normals, mesh, attr);
     if (!s) s = mlb_edge_topology(adj, mesh->faces, F, V);
     if (!s) {
-        mlb_transform_points(clip, mesh->pos, V, &view->cam.view_proj);
+        for (size_t i = 0; i < 3 * (size_t)V; i++) pos[i] = (real)mesh->pos[i];
+        FN(mlb_transform_points)(clip, pos, V, &view->cam.view_proj);
         s = tb->rasterize(tri, bary, depth, clip, V, mesh->faces, F, res, res);
     }
     if (!s) s = tb->interpolate(pix, attr, V, ATTR_C, tri, bary, mesh->faces, F, res, res);
@@ -526,31 +523,31 @@ mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* ne
         mlb_covered_flags(index, tri, (long)P);
         mlb_scan_i32(index, index, (int)P);
         N = (size_t)index[P];
-        pts = malloc(sizeof(float) * 3 * (N ? N : 1));
-        nrm = malloc(sizeof(float) * 3 * (N ? N : 1));
-        vdir = malloc(sizeof(float) * 3 * (N ? N : 1));
-        k = malloc(sizeof(float) * 7 * (N ? N : 1));
+        pts = malloc(sizeof(real) * 3 * (N ? N : 1));
+        nrm = malloc(sizeof(real) * 3 * (N ? N : 1));
+        vdir = malloc(sizeof(real) * 3 * (N ? N : 1));
+        k = malloc(sizeof(real) * 7 * (N ? N : 1));
         where = malloc(sizeof(int32_t) * (N ? N : 1));
         if (!pts || !nrm || !vdir || !k || !where) s = mlb_fail(MLB_ERR_NOMEM, "appearance maps: out of memory");
     }
     if (!s) {
-        mlb_gather_samples(pts, nrm, vdir, where, pix, tri, index, (int)P, view->cam.eye[0], view->cam.eye[1],
+        FN(mlb_gather_samples)(pts, nrm, vdir, where, pix, tri, index, (int)P, view->cam.eye[0], view->cam.eye[1],
                            view->cam.eye[2]);
-        if (N) s = material_net_eval(net, pts, N, k, NULL);
+        if (N) s = FN(material_net_eval)(net, pts, N, k, NULL);
     }
     if (!s) {
-        memset(img, 0, sizeof(float) * C * P);
+        memset(img, 0, sizeof(real) * C * P);
         for (size_t j = 0; j < N; j++) {
-            float* o = img + C * (size_t)where[j];
-            memcpy(o, k + 7 * j, sizeof(float) * 7);
-            memcpy(o + 7, nrm + 3 * j, sizeof(float) * 3);
+            real* o = img + C * (size_t)where[j];
+            memcpy(o, k + 7 * j, sizeof(real) * 7);
+            memcpy(o + 7, nrm + 3 * j, sizeof(real) * 3);
             o[10] = 1;
         }
         s = tb->antialias(aa, NULL, img, C, tri, depth, clip, V, mesh->faces, adj, F, res, res);
     }
     if (!s) {
         for (size_t i = 0; i < P; i++) {
-            const float* o = aa + C * i;
+            const real* o = aa + C * i;
             for (int c = 0; c < 3; c++) {
                 if (kd_img) kd_img[3 * i + c] = o[c];
                 if (ks_img) ks_img[3 * i + c] = o[3 + c];
@@ -560,8 +557,7 @@ mlb_status mlb_appearance_maps(const mlb_backend* be, const mlb_material_net* ne
         }
     }
     free(normals.p);
-    free(attr); free(clip); free(adj); free(tri); free(bary); free(depth); free(pix); free(img); free(aa);
+    free(pos); free(attr); free(clip); free(adj); free(tri); free(bary); free(depth); free(pix); free(img); free(aa);
     free(pts); free(nrm); free(vdir); free(k); free(where); free(index);
     return s;
 }
-#endif

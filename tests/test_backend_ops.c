@@ -8,7 +8,9 @@
 // 4): trial 0 with every size 1, then random ragged ones (1, primes, 2^k +- 1 or anything up to a
 // cap: never only multiples of 8, 16 or 32); optional outputs are NULL on some trials. The seed is
 // $MLB_TEST_SEED (default 1), printed. The attention op is also checked against a naive double
-// attention on every table (cpu_/cuda_attention_vs_double).
+// attention on every table (cpu_/cuda_attention_vs_double). The CPU's double table (backend_f64.h):
+// every field set, its attention against the naive one, its DMTet grid ops against dmtet.h's double
+// host functions bit for bit (cpu_f64_table, cpu_f64_grid_ops).
 //
 // Compared: the relative L2 error ||got - ref|| / max(||ref||, 0.5 sqrt(n)) of each output (of
 // accumulated outputs, the increments over their random start, so the bound speaks of the gradient
@@ -44,6 +46,8 @@
 #include "backend_op_cases.h"
 #include <string.h>
 #include "matlaber/backend_f64.h"
+#include "matlaber/dmtet.h"
+#include "matlaber/rng.h"
 #include "backend_op_cases_glue.h"
 #include "backend_op_cases_raster.h"
 #include "backend_op_cases_mt.h"
@@ -381,6 +385,94 @@ TEST(cpu_f64_table) {
     free(hq), free(ref);
 }
 
+// The double table's DMTet grid ops (the deformation, the SDF regulariser, marching tets' count and
+// emit around the table's scans, the backward) against dmtet.h's host functions in double, which
+// they wrap: the same bits, on grids of 4 and 7 cells (an odd and an even vertex count), gradients
+// added onto random values, either marching-tets gradient NULL; a grid size out of range fails as
+// an argument error.
+static double* dalloc(size_t n) { return malloc((n ? n : 1) * sizeof(double)); }
+static void dnormal(double* x, size_t n, uint64_t stream) {
+    for (size_t i = 0; i < n; i++) x[i] = mlb_rng_normal_f64(test_seed(), stream, i);
+}
+TEST(cpu_f64_grid_ops) {
+    const mlb_backend_f64* be = mlb_backend_cpu_f64();
+    for (int cells = 4; cells <= 7; cells += 3) {
+        mlb_tetgrid g;
+        REQUIRE(mlb_tetgrid_create(&g, cells, 1.0f) == MLB_OK);
+        const int V = g.n_verts, T = g.n_tets;
+        const size_t S = 7 * (size_t)V;
+        const double res = 2.0 * cells;
+        double *grid = dalloc(3 * V), *def = dalloc(3 * V), *pos = dalloc(3 * V), *pos2 = dalloc(3 * V);
+        double *dout = dalloc(3 * V), *a1 = dalloc(3 * V), *a2 = dalloc(3 * V), *sdf = dalloc(V);
+        double *b1 = dalloc(V), *b2 = dalloc(V);
+        int32_t *tet_off = malloc(sizeof(int32_t) * (T + 1)), *slot_off = malloc(sizeof(int32_t) * (S + 1));
+        REQUIRE(grid && def && pos && pos2 && dout && a1 && a2 && sdf && b1 && b2 && tet_off && slot_off);
+        dnormal(def, 3 * V, 700);
+        for (int i = 0; i < 3 * V; i++) grid[i] = g.verts[i], def[i] *= 0.5;
+        dnormal(sdf, V, 701);
+        for (int v = 0; v < V; v++) {
+            const float* p = g.verts + 3 * v;
+            sdf[v] = sqrt((double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2]) - 0.3 + 0.1 * sdf[v];
+        }
+        // the deformation and its backward
+        dmtet_deform_forward_f64(pos, grid, def, V, res);
+        CHECK(be->dmtet_deform(pos2, grid, def, V, res) == MLB_OK);
+        CHECK_MSG(!memcmp(pos, pos2, sizeof(double) * 3 * V), "f64 dmtet_deform, %d cells", cells);
+        dnormal(dout, 3 * V, 702), dnormal(a1, 3 * V, 703);
+        memcpy(a2, a1, sizeof(double) * 3 * V);
+        dmtet_deform_backward_f64(NULL, a1, dout, def, V, res);
+        CHECK(be->dmtet_deform_backward(a2, dout, def, V, res) == MLB_OK);
+        CHECK_MSG(!memcmp(a1, a2, sizeof(double) * 3 * V), "f64 dmtet_deform_backward, %d cells", cells);
+        // the regulariser and its backward
+        double reg = NAN, reg0 = sdf_reg_forward_f64(&g, sdf);
+        CHECK(be->sdf_reg(&reg, sdf, cells) == MLB_OK);
+        CHECK_MSG(reg == reg0 && reg0 > 0, "f64 sdf_reg, %d cells: %.17g, host %.17g", cells, reg, reg0);
+        dnormal(b1, V, 704);
+        memcpy(b2, b1, sizeof(double) * V);
+        sdf_reg_backward_f64(b1, &g, sdf, 0.7);
+        CHECK(be->sdf_reg_backward(b2, sdf, cells, 0.7) == MLB_OK);
+        CHECK_MSG(!memcmp(b1, b2, sizeof(double) * V), "f64 sdf_reg_backward, %d cells", cells);
+        // marching tets: count, the table's scans, emit = marching_tets_forward_f64
+        mlb_mt_surface_f64 s;
+        REQUIRE(marching_tets_forward_f64(&s, &g, pos, sdf) == MLB_OK);
+        const int M = s.n_verts, F = s.n_faces;
+        CHECK(be->marching_tets_count(tet_off, slot_off, sdf, g.tets, T, cells) == MLB_OK);
+        CHECK(be->scan_i32(tet_off, tet_off, T) == MLB_OK && be->scan_i32(slot_off, slot_off, (int)S) == MLB_OK);
+        CHECK_MSG(tet_off[T] == F && slot_off[S] == M && F > 20, "f64 marching tets, %d cells: %d faces, host %d",
+                  cells, tet_off[T], F);
+        double *verts = dalloc(3 * M), *weight = dalloc(2 * M), *dverts = dalloc(3 * M);
+        int32_t *vedge = malloc(sizeof(int32_t) * 2 * M), *faces = malloc(sizeof(int32_t) * 3 * F);
+        REQUIRE(verts && weight && dverts && vedge && faces);
+        CHECK(be->marching_tets_emit(verts, vedge, weight, faces, pos, sdf, g.tets, T, cells, tet_off, slot_off) ==
+              MLB_OK);
+        CHECK_MSG(!memcmp(verts, s.pos, sizeof(double) * 3 * M) && !memcmp(weight, s.weight, sizeof(double) * 2 * M) &&
+                      !memcmp(vedge, s.edge, sizeof(int32_t) * 2 * M) && !memcmp(faces, s.faces, sizeof(int32_t) * 3 * F),
+                  "f64 marching_tets_emit, %d cells", cells);
+        // its backward: both gradients, dpos alone, dsdf alone
+        dnormal(dverts, 3 * M, 705);
+        for (int k = 0; k < 3; k++) {
+            dnormal(a1, 3 * V, 706 + k), dnormal(b1, V, 709 + k);
+            memcpy(a2, a1, sizeof(double) * 3 * V), memcpy(b2, b1, sizeof(double) * V);
+            marching_tets_backward_f64(k != 2 ? a1 : NULL, k != 1 ? b1 : NULL, &s, pos, sdf, dverts);
+            CHECK(be->marching_tets_backward(k != 2 ? a2 : NULL, k != 1 ? b2 : NULL, dverts, weight, vedge, M, pos, sdf,
+                                             slot_off, cells) == MLB_OK);
+            CHECK_MSG(!memcmp(a1, a2, sizeof(double) * 3 * V) && !memcmp(b1, b2, sizeof(double) * V),
+                      "f64 marching_tets_backward, %d cells, case %d", cells, k);
+        }
+        printf("  f64 grid ops, %d cells: %d surface vertices, %d faces, regulariser %.6f, against the host functions\n",
+               cells, M, F, reg0);
+        mt_surface_free_f64(&s);
+        free(grid), free(def), free(pos), free(pos2), free(dout), free(a1), free(a2), free(sdf), free(b1), free(b2);
+        free(tet_off), free(slot_off), free(verts), free(weight), free(dverts), free(vedge), free(faces);
+        mlb_tetgrid_free(&g);
+    }
+    double x = 0;
+    CHECK(be->sdf_reg(&x, &x, 0) == MLB_ERR_ARG);
+    CHECK(be->sdf_reg_backward(&x, &x, 513, 1) == MLB_ERR_ARG);
+    CHECK(be->marching_tets_count(NULL, NULL, &x, NULL, 1, 0) == MLB_ERR_ARG);
+    mlb_clear_error();
+}
+
 TEST(cuda_tables) {
     REQUIRE_GPU();
     for (int p = MLB_GEMM_FP32; p <= MLB_GEMM_BF16; p++) {
@@ -398,6 +490,7 @@ int main(void) {
     RUN(cpu_attention_vs_double);
     RUN(cuda_attention_vs_double);
     RUN(cpu_f64_table);
+    RUN(cpu_f64_grid_ops);
     RUN(cuda_tables);
     free_test_light();
     return test_summary();

@@ -4,7 +4,8 @@
 // the passes of mt_ops.h: the packed tables and edge slots, the GPU's gathered backward against the
 // CPU's scatter and the op-table path against marching_tets_forward, bit for bit.
 #include <stdint.h>
-#include "matlaber/backend.h"
+#include "matlaber/backend_f64.h"
+#include "geometry/mt_device_f64.h"
 #include "matlaber/dmtet.h"
 #include "matlaber/mt_ops.h"
 #include "matlaber/rng.h"
@@ -566,45 +567,70 @@ TEST(backward_gather_is_scatter) {
     mlb_tetgrid_free(&g);
 }
 
-// marching tets through the CPU's op table (mlb_mt_device_*, what the geometry stage calls) is
-// marching_tets_forward and _backward bit for bit, including a second forward on the same handle
-// and an empty surface.
+// marching tets through the CPU's op tables (mlb_mt_device_*, what the geometry stage calls: the
+// float table's, and the double table's of geometry/mt_device_f64.h) is marching_tets_forward and
+// _backward bit for bit, including a second forward on the same handle and an empty surface; the
+// surface left on the table (MLB_MT_TABLE) is the same one. The surfaces: two noisy spheres, a
+// noisy slanted plane cut by the grid's sides, none.
+#define TABLE_PATH(R, SUF, TABLE)                                                                           \
+    static void table_path_##R(const mlb_tetgrid* g) {                                                      \
+        const int V = g->n_verts;                                                                           \
+        float* sdf32 = malloc(sizeof(float) * V);                                                           \
+        R *sdf = malloc(sizeof(R) * V), *pos = malloc(sizeof(R) * 3 * V);                                   \
+        REQUIRE(sdf32 && sdf && pos);                                                                       \
+        for (int i = 0; i < 3 * V; i++) pos[i] = (R)(g->verts[i] + 0.02f * (float)mlb_rng_normal_f64(6, 1, i)); \
+        mlb_mt_device *d = NULL, *t = NULL;                                                                 \
+        for (int round = 0; round < 4; round++) {                                                           \
+            noisy_sphere(sdf32, g, 6 + round);                                                              \
+            for (int v = 0; v < V; v++) {   /* 2: a slanted plane, 3: nothing inside */                     \
+                const float* p = g->verts + 3 * v;                                                          \
+                sdf[v] = round == 3 ? 1 : round == 2 ? (R)(p[0] + 0.3f * p[1] + 0.2f * sdf32[v]) : sdf32[v]; \
+            }                                                                                               \
+            mlb_mt_surface##SUF a, b, c;                                                                    \
+            REQUIRE(marching_tets_forward##SUF(&a, g, pos, sdf) == MLB_OK);                                 \
+            REQUIRE(mlb_mt_device_forward##SUF(&d, TABLE, &b, g, pos, sdf, MLB_MT_HOST) == MLB_OK);         \
+            REQUIRE(mlb_mt_device_forward##SUF(&t, TABLE, &c, g, pos, sdf, MLB_MT_TABLE) == MLB_OK);        \
+            const int M = a.n_verts, F = a.n_faces;                                                         \
+            CHECK(b.n_verts == M && b.n_faces == F && c.n_verts == M && c.n_faces == F && !c.pos);          \
+            CHECK(round == 3 ? M == 0 : M > 100);                                                           \
+            if (b.n_verts != M || b.n_faces != F) break;                                                    \
+            CHECK(!memcmp(a.pos, b.pos, sizeof(R) * 3 * M) && !memcmp(a.faces, b.faces, sizeof(int32_t) * 3 * F)); \
+            CHECK(!memcmp(a.edge, b.edge, sizeof(int32_t) * 2 * M) && !memcmp(a.weight, b.weight, sizeof(R) * 2 * M)); \
+            const R* tv;                                                                                    \
+            const int32_t* tf;                                                                              \
+            REQUIRE(mlb_mt_device_surface##SUF(t, &tv, &tf) == MLB_OK);   /* host memory on a CPU table */  \
+            CHECK(!memcmp(a.pos, tv, sizeof(R) * 3 * M) && !memcmp(a.faces, tf, sizeof(int32_t) * 3 * F));  \
+            mt_surface_free##SUF(&c);                                                                       \
+            REQUIRE(mlb_mt_device_surface_host##SUF(t, &c) == MLB_OK);                                      \
+            CHECK(c.n_faces == F && !memcmp(a.faces, c.faces, sizeof(int32_t) * 3 * F) &&                   \
+                  !memcmp(a.edge, c.edge, sizeof(int32_t) * 2 * M));                                        \
+            R* dv = malloc(sizeof(R) * 3 * (M + 1));                                                        \
+            R *p1 = calloc(3 * V, sizeof(R)), *p2 = calloc(3 * V, sizeof(R)), *p3 = calloc(3 * V, sizeof(R)); \
+            R *q1 = calloc(V, sizeof(R)), *q2 = calloc(V, sizeof(R)), *q3 = calloc(V, sizeof(R));           \
+            REQUIRE(dv && p1 && p2 && p3 && q1 && q2 && q3);                                                \
+            for (int i = 0; i < 3 * M; i++) dv[i] = (R)(float)mlb_rng_normal_f64(6, 2, i);                  \
+            marching_tets_backward##SUF(p1, q1, &a, pos, sdf, dv);                                          \
+            REQUIRE(mlb_mt_device_backward##SUF(d, p2, q2, dv, MLB_MT_HOST) == MLB_OK);                     \
+            REQUIRE(mlb_mt_device_backward##SUF(t, p3, q3, dv, MLB_MT_TABLE) == MLB_OK);                    \
+            CHECK(!memcmp(p1, p2, sizeof(R) * 3 * V) && !memcmp(q1, q2, sizeof(R) * V));                    \
+            CHECK(!memcmp(p1, p3, sizeof(R) * 3 * V) && !memcmp(q1, q3, sizeof(R) * V));                    \
+            free(dv), free(p1), free(p2), free(p3), free(q1), free(q2), free(q3);                           \
+            mt_surface_free##SUF(&a);                                                                       \
+            mt_surface_free##SUF(&b);                                                                       \
+            mt_surface_free##SUF(&c);                                                                       \
+        }                                                                                                   \
+        mlb_mt_device_free##SUF(d);                                                                         \
+        mlb_mt_device_free##SUF(t);                                                                         \
+        free(sdf32), free(sdf), free(pos);                                                                  \
+    }
+TABLE_PATH(float, , mlb_backend_cpu())
+TABLE_PATH(double, _f64, mlb_backend_cpu_f64())
+
 TEST(table_path_is_forward) {
     mlb_tetgrid g;
     REQUIRE(mlb_tetgrid_create(&g, 9, 1.0f) == MLB_OK);
-    const int V = g.n_verts;
-    float* sdf = malloc(sizeof(float) * V);
-    float* pos = malloc(sizeof(float) * 3 * V);
-    REQUIRE(sdf && pos);
-    for (int i = 0; i < 3 * V; i++) pos[i] = g.verts[i] + 0.02f * (float)mlb_rng_normal_f64(6, 1, i);
-    mlb_mt_device* d = NULL;
-    for (int round = 0; round < 3; round++) {
-        noisy_sphere(sdf, &g, 6 + round);
-        if (round == 2)
-            for (int v = 0; v < V; v++) sdf[v] = 1;   // nothing inside
-        mlb_mt_surface a, b;
-        REQUIRE(marching_tets_forward(&a, &g, pos, sdf) == MLB_OK);
-        REQUIRE(mlb_mt_device_forward(&d, mlb_backend_cpu(), &b, &g, pos, sdf, MLB_MT_HOST) == MLB_OK);
-        const int M = a.n_verts, F = a.n_faces;
-        CHECK(b.n_verts == M && b.n_faces == F);
-        CHECK(round == 2 ? M == 0 : M > 100);
-        if (b.n_verts != M || b.n_faces != F) break;
-        CHECK(!memcmp(a.pos, b.pos, sizeof(float) * 3 * M) && !memcmp(a.faces, b.faces, sizeof(int32_t) * 3 * F));
-        CHECK(!memcmp(a.edge, b.edge, sizeof(int32_t) * 2 * M) && !memcmp(a.weight, b.weight, sizeof(float) * 2 * M));
-        float* dv = malloc(sizeof(float) * 3 * (M + 1));
-        float *p1 = calloc(3 * V, sizeof(float)), *p2 = calloc(3 * V, sizeof(float));
-        float *q1 = calloc(V, sizeof(float)), *q2 = calloc(V, sizeof(float));
-        REQUIRE(dv && p1 && p2 && q1 && q2);
-        for (int i = 0; i < 3 * M; i++) dv[i] = (float)mlb_rng_normal_f64(6, 2, i);
-        marching_tets_backward(p1, q1, &a, pos, sdf, dv);
-        REQUIRE(mlb_mt_device_backward(d, p2, q2, dv, MLB_MT_HOST) == MLB_OK);
-        CHECK(!memcmp(p1, p2, sizeof(float) * 3 * V) && !memcmp(q1, q2, sizeof(float) * V));
-        free(dv), free(p1), free(p2), free(q1), free(q2);
-        mt_surface_free(&a);
-        mt_surface_free(&b);
-    }
-    mlb_mt_device_free(d);
-    free(sdf), free(pos);
+    table_path_float(&g);
+    table_path_double(&g);
     mlb_tetgrid_free(&g);
 }
 

@@ -15,6 +15,7 @@
 #include "matlaber/rng.h"
 #include "core/real.h"
 #include "nn/table_ops.h"
+#include "geometry/mt_device_f64.h"
 
 // The per-pixel buffers and the surface's copies on the state's table (mlb_geofit_state.be)
 // (the grid group: the network's outputs, the deformed grid, the regulariser and their gradients)
@@ -122,7 +123,7 @@ mlb_status FN(mlb_geofit_render_mesh)(const FN(mlb_backend)* be, mlb_raster_ctx*
 void FN(mlb_geofit_state_free)(FN(mlb_geofit_state)* st) {
     if (!st) return;
     FN(mt_surface_free)(&st->surf);
-    mlb_mt_device_free(st->mt);
+    FN(mlb_mt_device_free)(st->mt);
     free(st->vp); free(st->images);
     free(st->gv); free(st->sdf); free(st->deform);
     FN(geofit_table_free)(st->tab);
@@ -215,75 +216,11 @@ static void FN(part_range)(const FN(mlb_geofit_state)* st, int n, int* v0, int* 
     }
 }
 
-// ---- the grid's passes: DMTet's deformation, marching tets, the SDF sign regulariser ----
-// The float tables have them as ops (backend_ops.def; marching tets through mlb_mt_device, dmtet.h,
-// whose surface stays on the table). The CPU's double table does not: the double build (the
-// finite-difference references) runs dmtet.h's host functions on the table's buffers instead, which
-// for that table are host memory. These are the only lines of this file that differ by precision.
-#ifdef MLB_F64
-static mlb_status grid_deform_f64(const mlb_backend_f64* tb, double* out, const double* grid, const double* deform,
-                                  int n_verts, double grid_res) {
-    dmtet_deform_forward_f64(out, grid, deform, n_verts, grid_res);
-    return MLB_OK;
-}
-static mlb_status grid_deform_backward_f64(const mlb_backend_f64* tb, double* ddeform, const double* dout,
-                                           const double* deform, int n_verts, double grid_res) {
-    dmtet_deform_backward_f64(NULL, ddeform, dout, deform, n_verts, grid_res);
-    return MLB_OK;
-}
-static mlb_status grid_sdf_reg_f64(const mlb_backend_f64* tb, double* out, const double* sdf, const mlb_tetgrid* g) {
-    *out = sdf_reg_forward_f64(g, sdf);
-    return MLB_OK;
-}
-static mlb_status grid_sdf_reg_backward_f64(const mlb_backend_f64* tb, double* dsdf, const double* sdf,
-                                            const mlb_tetgrid* g, double dloss) {
-    sdf_reg_backward_f64(dsdf, g, sdf, dloss);
-    return MLB_OK;
-}
-// the surface in st->surf, whole (the table's memory is the host's)
-static mlb_status grid_surface_f64(mlb_geofit_state_f64* st, const mlb_tetgrid* g, const double* pos, const double* sdf) {
-    return marching_tets_forward_f64(&st->surf, g, pos, sdf);
-}
-static mlb_status grid_surface_backward_f64(mlb_geofit_state_f64* st, double* dpos, double* dsdf, const double* dverts) {
-    marching_tets_backward_f64(dpos, dsdf, &st->surf, st->tab->d[T_GPOS].p, st->tab->d[T_SDF].p, dverts);
-    return MLB_OK;
-}
-static mlb_status grid_surface_on_table_f64(mlb_geofit_state_f64* st, const double** pos, const int32_t** faces) {
-    *pos = st->surf.pos;
-    *faces = st->surf.faces;
-    return MLB_OK;
-}
-#else
-static mlb_status grid_deform(const mlb_backend* tb, float* out, const float* grid, const float* deform, int n_verts,
-                              float grid_res) {
-    return tb->dmtet_deform(out, grid, deform, n_verts, grid_res);
-}
-static mlb_status grid_deform_backward(const mlb_backend* tb, float* ddeform, const float* dout, const float* deform,
-                                       int n_verts, float grid_res) {
-    return tb->dmtet_deform_backward(ddeform, dout, deform, n_verts, grid_res);
-}
-static mlb_status grid_sdf_reg(const mlb_backend* tb, float* out, const float* sdf, const mlb_tetgrid* g) {
-    return tb->sdf_reg(out, sdf, g->cells);
-}
-static mlb_status grid_sdf_reg_backward(const mlb_backend* tb, float* dsdf, const float* sdf, const mlb_tetgrid* g,
-                                        float dloss) {
-    return tb->sdf_reg_backward(dsdf, sdf, g->cells, dloss);
-}
-// the surface on the table (st->mt); st->surf gets its sizes (mlb_geofit_state_mesh brings it down)
-static mlb_status grid_surface(mlb_geofit_state* st, const mlb_tetgrid* g, const float* pos, const float* sdf) {
-    return mlb_mt_device_forward(&st->mt, st->tab->tb, &st->surf, g, pos, sdf, MLB_MT_TABLE);
-}
-static mlb_status grid_surface_backward(mlb_geofit_state* st, float* dpos, float* dsdf, const float* dverts) {
-    return mlb_mt_device_backward(st->mt, dpos, dsdf, dverts, MLB_MT_TABLE);
-}
-static mlb_status grid_surface_on_table(mlb_geofit_state* st, const float** pos, const int32_t** faces) {
-    return mlb_mt_device_surface(st->mt, pos, faces);
-}
-#endif
-
 // The grid's part of a forward on the state's table: the network at the grid vertices (on the
 // table's device when it is there, else on the host and its outputs uploaded), the deformation,
-// marching tets. The SDF stays on the table for the regulariser and the backward.
+// marching tets (through mlb_mt_device: the surface stays on the table, st->surf gets its sizes and
+// mlb_geofit_state_mesh brings it down). The SDF stays on the table for the regulariser and the
+// backward.
 static mlb_status FN(grid_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
                                    real grid_res) {
     const FN(mlb_backend)* tb = st->tab->tb;
@@ -310,8 +247,8 @@ static mlb_status FN(grid_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net
         MLB_TRY(tb->upload(d[T_SDF].p, st->sdf, G));
         MLB_TRY(tb->upload(d[T_DEFORM].p, st->deform, 3 * G));
     }
-    MLB_TRY(FN(grid_deform)(tb, d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
-    return FN(grid_surface)(st, g, d[T_GPOS].p, d[T_SDF].p);
+    MLB_TRY(tb->dmtet_deform(d[T_GPOS].p, d[T_GV].p, d[T_DEFORM].p, g->n_verts, grid_res));
+    return FN(mlb_mt_device_forward)(&st->mt, tb, &st->surf, g, d[T_GPOS].p, d[T_SDF].p, MLB_MT_TABLE);
 }
 
 // The grid's part of the backward from dverts (on the table): marching tets, the deformation and the
@@ -324,9 +261,9 @@ static mlb_status FN(grid_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_ne
     MLB_TRY(tb->zero(d[T_DGPOS].p, 3 * G));
     MLB_TRY(tb->zero(d[T_DSDF].p, G));
     MLB_TRY(tb->zero(d[T_DDEFORM].p, 3 * G));
-    MLB_TRY(FN(grid_surface_backward)(st, d[T_DGPOS].p, d[T_DSDF].p, dverts));
-    MLB_TRY(FN(grid_deform_backward)(tb, d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (real)(2 * g->cells)));
-    if (reg_weight != 0) MLB_TRY(FN(grid_sdf_reg_backward)(tb, d[T_DSDF].p, d[T_SDF].p, g, (real)reg_weight));
+    MLB_TRY(FN(mlb_mt_device_backward)(st->mt, d[T_DGPOS].p, d[T_DSDF].p, dverts, MLB_MT_TABLE));
+    MLB_TRY(tb->dmtet_deform_backward(d[T_DDEFORM].p, d[T_DGPOS].p, d[T_DEFORM].p, g->n_verts, (real)(2 * g->cells)));
+    if (reg_weight != 0) MLB_TRY(tb->sdf_reg_backward(d[T_DSDF].p, d[T_SDF].p, g->cells, (real)reg_weight));
     if (FN(mlb_field_backend)(net)) {
         MLB_TRY(tb->copy_rows(d[T_Y].p, 4, d[T_DSDF].p, 1, 1, G));   // dy [G,4], over the forward's y (no longer needed)
         MLB_TRY(tb->copy_rows(d[T_Y].p + 1, 4, d[T_DDEFORM].p, 3, 3, G));
@@ -375,7 +312,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
-    MLB_TRY(FN(grid_surface_on_table)(st, &t_pos, &t_faces));
+    MLB_TRY(FN(mlb_mt_device_surface)(st->mt, &t_pos, &t_faces));
     real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_nrm = d[T_NRM].p;
     int32_t *t_adj = (int32_t*)d[T_ADJ].p, *t_off = (int32_t*)d[T_VOFF].p, *t_vf = (int32_t*)d[T_VF].p;
     MLB_TRY(tb->vertex_faces(t_off, t_vf, t_faces, F, M));
@@ -414,7 +351,7 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     if (!host_memory) hash = 0;
     if (images) memcpy(images, st->images, sizeof(real) * p * 4 * (size_t)n);
     real reg;
-    s = FN(grid_sdf_reg)(tb, d[T_REG].p, d[T_SDF].p, g);
+    s = tb->sdf_reg(d[T_REG].p, d[T_SDF].p, g->cells);
     if (!s) s = tb->download(&reg, d[T_REG].p, 1);
     if (s) return s;
     stats->reg = (double)reg;
@@ -463,7 +400,7 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
     FN(tbuf)* d = st->tab->d;
     const real* t_pos;
     const int32_t* t_faces;
-    MLB_TRY(FN(grid_surface_on_table)(st, &t_pos, &t_faces));
+    MLB_TRY(FN(mlb_mt_device_surface)(st->mt, &t_pos, &t_faces));
     real *t_attr = d[T_ATTR].p, *t_clip = d[T_CLIP].p, *t_pieces = d[T_PIECES].p;
     real *t_dattr = d[T_DATTR].p, *t_dclip = d[T_DCLIP].p, *t_dsurf = d[T_DSURF].p;
     const int32_t *t_adj = (const int32_t*)d[T_ADJ].p, *t_off = (const int32_t*)d[T_VOFF].p;

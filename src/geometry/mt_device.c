@@ -3,45 +3,57 @@
 // (uploaded from the host, or copied on the device), counts, scans in place, reads the two totals
 // back, emits into buffers of the surface's size and, with host buffers, downloads the surface; the
 // backward with host buffers uploads the vertex gradient and the caller's dpos/dsdf (the op
-// accumulates), runs and downloads them. With the CPU
-// table the copies are memcpy and the ops are mt_ops.h's passes: the bits of marching_tets_forward.
+// accumulates), runs and downloads them. With the CPU tables the copies are memcpy and the ops are
+// mt_ops.h's passes: the bits of marching_tets_forward.
+// Dual-compiled (float / double _f64, core/real.h): the double pass runs on the CPU's double table
+// (backend_f64.h) for the double geometry fit; geometry/mt_device_f64.h declares it. The handle is
+// dmtet.h's mlb_mt_device in both passes (the same layout: pointers and sizes); a handle is made,
+// used and freed by the functions of one pass.
 #include <stdlib.h>
 #include <string.h>
-#include "matlaber/backend.h"
+#include "matlaber/backend_f64.h"
 #include "matlaber/dmtet.h"
+#include "core/real.h"
+#include "geometry/mt_device_f64.h"
 
 struct mlb_mt_device {
-    const mlb_backend* be;
+    const FN(mlb_backend)* be;
     const int32_t* grid_tets;       // the host grid whose tets are on the device
     int T, V, cells;
     int64_t S;                      // edge slots, 7 V
-    float *tets, *pos, *sdf;        // [T,4] int32, [V,3], [V]
-    float *tet_off, *slot_off;      // [T+1], [S+1] int32: the scans of the last forward
-    float *dpos, *dsdf;             // [V,3], [V]
-    float *verts, *vedge, *weight, *faces, *dverts;   // [nv,3], [nv,2] int32, [nv,2], [nf,3] int32, [nv,3]
+    real *tets, *pos, *sdf;         // [T,4] int32, [V,3], [V]
+    real *tet_off, *slot_off;       // [T+1], [S+1] int32: the scans of the last forward
+    real *dpos, *dsdf;              // [V,3], [V]
+    real *verts, *vedge, *weight, *faces, *dverts;   // [nv,3], [nv,2] int32, [nv,2], [nf,3] int32, [nv,3]
     size_t cap_v, cap_f;
     int nv, nf;
 };
 
-static void release(const mlb_backend* be, float** p) {
+// The reals that carry n int32 values to or from a table's int32 buffer (allocated as that many
+// reals: a double table's holds them in its first half, the last odd one in a real of its own)
+static size_t i32_reals(size_t n) {
+    return sizeof(real) == sizeof(int32_t) ? n : (n * sizeof(int32_t) + sizeof(real) - 1) / sizeof(real);
+}
+
+static void release(const FN(mlb_backend)* be, real** p) {
     if (*p) be->release(*p);
     *p = NULL;
 }
 
-void mlb_mt_device_free(mlb_mt_device* d) {
+void FN(mlb_mt_device_free)(mlb_mt_device* d) {
     if (!d) return;
-    const mlb_backend* be = d->be;
-    float** bufs[] = {&d->tets, &d->pos, &d->sdf, &d->tet_off, &d->slot_off, &d->dpos, &d->dsdf,
-                      &d->verts, &d->vedge, &d->weight, &d->faces, &d->dverts};
+    const FN(mlb_backend)* be = d->be;
+    real** bufs[] = {&d->tets, &d->pos, &d->sdf, &d->tet_off, &d->slot_off, &d->dpos, &d->dsdf,
+                     &d->verts, &d->vedge, &d->weight, &d->faces, &d->dverts};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; i++) release(be, bufs[i]);
     free(d);
 }
 
 // The grid's buffers on be's device (again when the grid or the table changed).
-static mlb_status grid_on_device(mlb_mt_device** dp, const mlb_backend* be, const mlb_tetgrid* g) {
+static mlb_status grid_on_device(mlb_mt_device** dp, const FN(mlb_backend)* be, const mlb_tetgrid* g) {
     mlb_mt_device* d = *dp;
     if (d && d->be == be && d->grid_tets == g->tets && d->T == g->n_tets && d->cells == g->cells) return MLB_OK;
-    mlb_mt_device_free(d);
+    FN(mlb_mt_device_free)(d);
     *dp = d = calloc(1, sizeof *d);
     if (!d) return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory");
     d->be = be;
@@ -54,9 +66,9 @@ static mlb_status grid_on_device(mlb_mt_device** dp, const mlb_backend* be, cons
     if (!s) s = be->alloc(&d->slot_off, S + 1);
     if (!s) s = be->alloc(&d->dpos, 3 * V);
     if (!s) s = be->alloc(&d->dsdf, V);
-    if (!s) s = be->upload(d->tets, (const float*)g->tets, 4 * T);
+    if (!s) s = be->upload(d->tets, (const real*)g->tets, i32_reals(4 * T));
     if (s) {
-        mlb_mt_device_free(d);
+        FN(mlb_mt_device_free)(d);
         *dp = NULL;
         return s;
     }
@@ -66,7 +78,7 @@ static mlb_status grid_on_device(mlb_mt_device** dp, const mlb_backend* be, cons
 
 // Surface buffers for nv vertices and nf faces (grown, never shrunk).
 static mlb_status surface_on_device(mlb_mt_device* d, size_t nv, size_t nf) {
-    const mlb_backend* be = d->be;
+    const FN(mlb_backend)* be = d->be;
     mlb_status s = MLB_OK;
     if (nv > d->cap_v || !d->verts) {
         release(be, &d->verts), release(be, &d->vedge), release(be, &d->weight), release(be, &d->dverts);
@@ -87,11 +99,11 @@ static mlb_status surface_on_device(mlb_mt_device* d, size_t nv, size_t nf) {
 }
 
 // The forward from the handle's pos and sdf (on the device)
-static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int on_device);
+static mlb_status forward_from_device(mlb_mt_device* d, FN(mlb_mt_surface)* out, int on_device);
 
 // pos and sdf into the handle's buffers (uploaded from the host, or copied on the device), then the forward
-mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_mt_surface* out, const mlb_tetgrid* g,
-                                 const float* pos, const float* sdf, mlb_mt_place where) {
+mlb_status FN(mlb_mt_device_forward)(mlb_mt_device** dp, const FN(mlb_backend)* be, FN(mlb_mt_surface)* out,
+                                     const mlb_tetgrid* g, const real* pos, const real* sdf, mlb_mt_place where) {
     memset(out, 0, sizeof *out);
     MLB_TRY(grid_on_device(dp, be, g));
     mlb_mt_device* d = *dp;
@@ -103,20 +115,23 @@ mlb_status mlb_mt_device_forward(mlb_mt_device** dp, const mlb_backend* be, mlb_
     return forward_from_device(d, out, on_device);
 }
 
-static mlb_status surface_down(const mlb_mt_device* d, mlb_mt_surface* out);
+static mlb_status surface_down(const mlb_mt_device* d, FN(mlb_mt_surface)* out);
 
 // out: the host's copy of the surface (on_device: its sizes only; mlb_mt_device_surface_host brings
 // the rest when someone needs it)
-static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int on_device) {
-    const mlb_backend* be = d->be;
+static mlb_status forward_from_device(mlb_mt_device* d, FN(mlb_mt_surface)* out, int on_device) {
+    const FN(mlb_backend)* be = d->be;
     const int T = d->T;
     int32_t *tet_off = (int32_t*)d->tet_off, *slot_off = (int32_t*)d->slot_off;
     MLB_TRY(be->marching_tets_count(tet_off, slot_off, d->sdf, (const int32_t*)d->tets, T, d->cells));
     MLB_TRY(be->scan_i32(tet_off, tet_off, T));
     MLB_TRY(be->scan_i32(slot_off, slot_off, (int)d->S));
-    int32_t nf, nv;   // the totals (at most 2 T and S: within int32 for cells <= 512)
-    MLB_TRY(be->download((float*)&nf, (const float*)(tet_off + T), 1));
-    MLB_TRY(be->download((float*)&nv, (const float*)(slot_off + d->S), 1));
+    int32_t nf, nv;   // the totals (at most 2 T and S: within int32 for cells <= 512), each in the real at it
+    real got[2];
+    MLB_TRY(be->download(&got[0], (const real*)(tet_off + T), 1));
+    MLB_TRY(be->download(&got[1], (const real*)(slot_off + d->S), 1));
+    memcpy(&nf, &got[0], sizeof nf);
+    memcpy(&nv, &got[1], sizeof nv);
     if (nf > INT32_MAX / 3 || nv > INT32_MAX / 3)
         return mlb_fail(MLB_ERR_ARG, "marching tets: surface too large (%lld faces)", (long long)nf);
     size_t mv = nv ? (size_t)nv : 1, mf = nf ? (size_t)nf : 1;
@@ -132,39 +147,40 @@ static mlb_status forward_from_device(mlb_mt_device* d, mlb_mt_surface* out, int
     return surface_down(d, out);
 }
 
-static mlb_status surface_down(const mlb_mt_device* d, mlb_mt_surface* out) {
-    const mlb_backend* be = d->be;
+static mlb_status surface_down(const mlb_mt_device* d, FN(mlb_mt_surface)* out) {
+    const FN(mlb_backend)* be = d->be;
     int nv = d->nv, nf = d->nf;
     size_t mv = nv ? (size_t)nv : 1, mf = nf ? (size_t)nf : 1;
-    out->pos = malloc(sizeof(float) * 3 * mv);
-    out->edge = malloc(sizeof(int32_t) * 2 * mv);
-    out->weight = malloc(sizeof(float) * 2 * mv);
-    out->faces = malloc(sizeof(int32_t) * 3 * mf);
+    out->pos = malloc(sizeof(real) * 3 * mv);
+    out->edge = malloc(sizeof(real) * i32_reals(2 * mv));   // (the reals they come down in)
+    out->weight = malloc(sizeof(real) * 2 * mv);
+    out->faces = malloc(sizeof(real) * i32_reals(3 * mf));
     if (!out->pos || !out->edge || !out->weight || !out->faces) {
-        mt_surface_free(out);
+        FN(mt_surface_free)(out);
         return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory for %d vertices", nv);
     }
     out->n_verts = nv;
     out->n_faces = nf;
     mlb_status s = be->download(out->pos, d->verts, 3 * (size_t)nv);
-    if (!s) s = be->download((float*)out->edge, d->vedge, 2 * (size_t)nv);
+    if (!s) s = be->download((real*)out->edge, d->vedge, i32_reals(2 * (size_t)nv));
     if (!s) s = be->download(out->weight, d->weight, 2 * (size_t)nv);
-    if (!s) s = be->download((float*)out->faces, d->faces, 3 * (size_t)nf);
-    if (s) mt_surface_free(out);
+    if (!s) s = be->download((real*)out->faces, d->faces, i32_reals(3 * (size_t)nf));
+    if (s) FN(mt_surface_free)(out);
     return s;
 }
 
-mlb_status mlb_mt_device_surface_host(const mlb_mt_device* d, mlb_mt_surface* out) {
+mlb_status FN(mlb_mt_device_surface_host)(const mlb_mt_device* d, FN(mlb_mt_surface)* out) {
     if (!d || !out) return mlb_fail(MLB_ERR_ARG, "marching tets: no surface made on a table");
     memset(out, 0, sizeof *out);
     return surface_down(d, out);
 }
 
 // The op on the device's buffers; host buffers go through the handle's (dverts, dpos, dsdf) and back.
-mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, const float* dverts, mlb_mt_place where) {
+mlb_status FN(mlb_mt_device_backward)(mlb_mt_device* d, real* dpos, real* dsdf, const real* dverts,
+                                      mlb_mt_place where) {
     if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: backward without a forward");
     if (!dpos && !dsdf) return MLB_OK;
-    const mlb_backend* be = d->be;
+    const FN(mlb_backend)* be = d->be;
     if (where == MLB_MT_TABLE)
         return be->marching_tets_backward(dpos, dsdf, dverts, d->weight, (const int32_t*)d->vedge, d->nv, d->pos, d->sdf,
                                           (const int32_t*)d->slot_off, d->cells);
@@ -172,13 +188,13 @@ mlb_status mlb_mt_device_backward(mlb_mt_device* d, float* dpos, float* dsdf, co
     MLB_TRY(be->upload(d->dverts, dverts, 3 * (size_t)d->nv));
     if (dpos) MLB_TRY(be->upload(d->dpos, dpos, 3 * V));
     if (dsdf) MLB_TRY(be->upload(d->dsdf, dsdf, V));
-    MLB_TRY(mlb_mt_device_backward(d, dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts, MLB_MT_TABLE));
+    MLB_TRY(FN(mlb_mt_device_backward)(d, dpos ? d->dpos : NULL, dsdf ? d->dsdf : NULL, d->dverts, MLB_MT_TABLE));
     if (dpos) MLB_TRY(be->download(dpos, d->dpos, 3 * V));
     if (dsdf) MLB_TRY(be->download(dsdf, d->dsdf, V));
     return MLB_OK;
 }
 
-mlb_status mlb_mt_device_surface(const mlb_mt_device* d, const float** verts, const int32_t** faces) {
+mlb_status FN(mlb_mt_device_surface)(const mlb_mt_device* d, const real** verts, const int32_t** faces) {
     if (!d) return mlb_fail(MLB_ERR_ARG, "marching tets: no forward");
     *verts = d->verts;
     *faces = (const int32_t*)d->faces;

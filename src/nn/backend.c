@@ -6,7 +6,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include "matlaber/image_convert.h"
-#include "matlaber/mt_ops.h"
 #include "matlaber/rng.h"
 #include "matlaber/raster.h"
 #include "matlaber/transformer_ops.h"
@@ -270,49 +269,6 @@ static mlb_status cpu_affine_columns(float* y, const float* x, size_t n, int C, 
     for (size_t i = 0; i < n; i++)
         for (int c = 0; c < C; c++)
             y[i * C + c] = (float)(shift ? shift[c] + scale[c] * (double)x[i * C + c] : scale[c] * (double)x[i * C + c]);
-    return MLB_OK;
-}
-
-// DMTet's deformation and SDF regulariser: mt_ops.h's functions over host memory.
-static mlb_status cpu_dmtet_deform(float* out, const float* grid, const float* deform, int n_verts, float grid_res) {
-    mlb_mt_deform(out, grid, deform, n_verts, grid_res);
-    return MLB_OK;
-}
-static mlb_status cpu_dmtet_deform_backward(float* ddeform, const float* dout, const float* deform, int n_verts,
-                                            float grid_res) {
-    mlb_mt_deform_backward(NULL, ddeform, dout, deform, n_verts, grid_res);
-    return MLB_OK;
-}
-static mlb_status cpu_sdf_reg(float* out, const float* sdf, int cells) {
-    if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg: %d cells", cells);
-    *out = mlb_mt_sdf_reg(sdf, cells);
-    return MLB_OK;
-}
-static mlb_status cpu_sdf_reg_backward(float* dsdf, const float* sdf, int cells, float dloss) {
-    if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg_backward: %d cells", cells);
-    mlb_mt_sdf_reg_backward(dsdf, sdf, cells, dloss);
-    return MLB_OK;
-}
-
-// Marching tets: mt_ops.h's passes over host memory.
-static mlb_status cpu_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const float* sdf, const int32_t* tets,
-                                          int T, int cells) {
-    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
-    mlb_mt_count(tet_nf, slot_nv, sdf, tets, T, cells);
-    return MLB_OK;
-}
-static mlb_status cpu_marching_tets_emit(float* verts, int32_t* vedge, float* weight, int32_t* faces, const float* pos,
-                                         const float* sdf, const int32_t* tets, int T, int cells,
-                                         const int32_t* tet_off, const int32_t* slot_off) {
-    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
-    mlb_mt_emit(verts, vedge, weight, faces, pos, sdf, tets, T, cells, tet_off, slot_off);
-    return MLB_OK;
-}
-static mlb_status cpu_marching_tets_backward(float* dpos, float* dsdf, const float* dverts, const float* weight,
-                                             const int32_t* vedge, int nv, const float* pos, const float* sdf,
-                                             const int32_t* slot_off, int cells) {
-    (void)slot_off, (void)cells;   // the scatter needs only vedge
-    mlb_mt_backward(dpos, dsdf, dverts, weight, vedge, nv, pos, sdf);
     return MLB_OK;
 }
 

@@ -60,6 +60,8 @@ static const mlb_backend_f64 cpu_f64_table = {
     F64(edge_topology) F64(vertex_normals) F64(vertex_normals_backward) F64(scan_i32)
     F64(covered_flags) F64(gather_samples) F64(composite_srgb) F64(composite_srgb_backward)
     F64(downsample_box) F64(downsample_box_backward) F64(affine_columns)
+    F64(dmtet_deform) F64(dmtet_deform_backward) F64(sdf_reg) F64(sdf_reg_backward)
+    F64(marching_tets_count) F64(marching_tets_emit) F64(marching_tets_backward)
 #undef F64
 };
 #pragma GCC diagnostic pop

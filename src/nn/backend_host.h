@@ -222,6 +222,47 @@ static mlb_status cpu_vertex_normals_backward(real* dpos, const real* dnormal, c
     return MLB_OK;
 }
 
+// ---- DMTet's grid passes: the deformation, the SDF sign regulariser and marching tets, mt_ops.h's
+// passes (the backward scatters over the surface vertices in order: it needs vedge, not slot_off)
+static mlb_status cpu_dmtet_deform(real* out, const real* grid, const real* deform, int n_verts, real grid_res) {
+    FN(mlb_mt_deform)(out, grid, deform, n_verts, grid_res);
+    return MLB_OK;
+}
+static mlb_status cpu_dmtet_deform_backward(real* ddeform, const real* dout, const real* deform, int n_verts,
+                                            real grid_res) {
+    FN(mlb_mt_deform_backward)(NULL, ddeform, dout, deform, n_verts, grid_res);
+    return MLB_OK;
+}
+static mlb_status cpu_sdf_reg(real* out, const real* sdf, int cells) {
+    if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg: %d cells", cells);
+    *out = FN(mlb_mt_sdf_reg)(sdf, cells);
+    return MLB_OK;
+}
+static mlb_status cpu_sdf_reg_backward(real* dsdf, const real* sdf, int cells, real dloss) {
+    if (cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "sdf_reg_backward: %d cells", cells);
+    FN(mlb_mt_sdf_reg_backward)(dsdf, sdf, cells, dloss);
+    return MLB_OK;
+}
+static mlb_status cpu_marching_tets_count(int32_t* tet_nf, int32_t* slot_nv, const real* sdf, const int32_t* tets,
+                                          int T, int cells) {
+    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
+    FN(mlb_mt_count)(tet_nf, slot_nv, sdf, tets, T, cells);
+    return MLB_OK;
+}
+static mlb_status cpu_marching_tets_emit(real* verts, int32_t* vedge, real* weight, int32_t* faces, const real* pos,
+                                         const real* sdf, const int32_t* tets, int T, int cells,
+                                         const int32_t* tet_off, const int32_t* slot_off) {
+    if (T < 0 || cells < 1 || cells > 512) return mlb_fail(MLB_ERR_ARG, "marching tets: %d tets, %d cells", T, cells);
+    FN(mlb_mt_emit)(verts, vedge, weight, faces, pos, sdf, tets, T, cells, tet_off, slot_off);
+    return MLB_OK;
+}
+static mlb_status cpu_marching_tets_backward(real* dpos, real* dsdf, const real* dverts, const real* weight,
+                                             const int32_t* vedge, int nv, const real* pos, const real* sdf,
+                                             const int32_t* slot_off, int cells) {
+    FN(mlb_mt_backward)(dpos, dsdf, dverts, weight, vedge, nv, pos, sdf);
+    return MLB_OK;
+}
+
 // ---- the appearance renderer's samples: raster_api.inc's passes
 static mlb_status cpu_gather_samples(real* pts, real* nrm, real* vdir, int32_t* where, const real* pix,
                                      const int32_t* tri, const int32_t* index, int P, double ex, double ey, double ez) {

@@ -76,7 +76,8 @@ MLB_DMTET_DECLARE(double, MLB_DMTET_F64)
 #undef MLB_DMTET_F32
 #undef MLB_DMTET_F64
 
-// Marching tets through an op table (backend.h; float): marching_tets_forward and _backward with
+// Marching tets through an op table (backend.h; the double twins for the double CPU table are in
+// src/geometry/mt_device_f64.h): marching_tets_forward and _backward with
 // the passes of backend_ops.def on the table's device (count, scan_i32, emit, backward). The handle
 // (*d NULL at first) keeps the grid's tets and the last forward's buffers on the device; the grid g
 // must stay unchanged while it is used. With the CPU table the results are marching_tets_forward's

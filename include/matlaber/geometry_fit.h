@@ -83,9 +83,9 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         int n_grid;                  /* grid vertices of the last forward */                        \
         const mlb_tetgrid* grid;     /* borrowed from the forward */                               \
         mlb_raster_ctx* ctx;         /* borrowed from the forward (may be NULL) */                 \
-        N(mlb_mt_surface) surf;      /* the extracted surface of the last forward (the float build: \
-                                        its sizes; the arrays stay on the table, mlb_geofit_state_mesh \
-                                        brings them down) */                                          \
+        N(mlb_mt_surface) surf;      /* the extracted surface of the last forward: its sizes; the   \
+                                        arrays stay on the table, mlb_geofit_state_mesh brings them \
+                                        down */                                                       \
         mlb_mat4* vp;                /* [n] the views' world → clip matrices */                    \
         R* images;                   /* [n, res, res, 4] the renders of the last forward */        \
         R *gv, *sdf, *deform;        /* [G,3], [G], [G,3]: the host's side of the grid's buffers on \
@@ -106,15 +106,14 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
            part_batch views (mlb_dist_share_batches; 0: one batch). part_count 0: every view (no    \
            gathers), -1: none. */                                                                   \
         int part_first, part_count, part_batch;                                                     \
-        /* Set by the caller before the forward (float): the op table marching tets and the views' \
+        /* Set by the caller before the forward: the op table marching tets and the views' \
            rasterize, interpolate, antialias and their backwards run on (NULL: the CPU's,          \
            mlb_backend_cpu), with every per-pixel buffer there, and the surface's normals, clip     \
            coordinates, the edge topology and the gradients: the surface stays there (st->surf      \
            has its sizes), the images come down and the dimages go up unless images_on_table; the   \
            views' gradient pieces cross only between processes; mt holds marching tets' buffers   \
            there (the state's own). The double build's table is backend_f64.h's (the CPU's only),  \
-           which lacks the grid's passes (deformation, marching tets, regulariser): those run as    \
-           dmtet.h's host functions on its buffers. stats->coverage is measured on tables whose     \
+           the grid's passes included. stats->coverage is measured on tables whose                  \
            buffers are host memory (the CPU's; else 0: it would need every face id on the host). */ \
         const N(mlb_backend)* be;                                                                   \
         mlb_mt_device* mt;                                                                          \

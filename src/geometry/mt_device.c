@@ -15,6 +15,7 @@
 #include "matlaber/dmtet.h"
 #include "core/real.h"
 #include "geometry/mt_device_f64.h"
+#include "nn/table_ops.h"
 
 struct mlb_mt_device {
     const FN(mlb_backend)* be;
@@ -28,12 +29,6 @@ struct mlb_mt_device {
     size_t cap_v, cap_f;
     int nv, nf;
 };
-
-// The reals that carry n int32 values to or from a table's int32 buffer (allocated as that many
-// reals: a double table's holds them in its first half, the last odd one in a real of its own)
-static size_t i32_reals(size_t n) {
-    return sizeof(real) == sizeof(int32_t) ? n : (n * sizeof(int32_t) + sizeof(real) - 1) / sizeof(real);
-}
 
 static void release(const FN(mlb_backend)* be, real** p) {
     if (*p) be->release(*p);
@@ -66,7 +61,7 @@ static mlb_status grid_on_device(mlb_mt_device** dp, const FN(mlb_backend)* be, 
     if (!s) s = be->alloc(&d->slot_off, S + 1);
     if (!s) s = be->alloc(&d->dpos, 3 * V);
     if (!s) s = be->alloc(&d->dsdf, V);
-    if (!s) s = be->upload(d->tets, (const real*)g->tets, i32_reals(4 * T));
+    if (!s) s = FN(t_upload_i32)(be, (int32_t*)d->tets, g->tets, 4 * T);
     if (s) {
         FN(mlb_mt_device_free)(d);
         *dp = NULL;
@@ -126,12 +121,9 @@ static mlb_status forward_from_device(mlb_mt_device* d, FN(mlb_mt_surface)* out,
     MLB_TRY(be->marching_tets_count(tet_off, slot_off, d->sdf, (const int32_t*)d->tets, T, d->cells));
     MLB_TRY(be->scan_i32(tet_off, tet_off, T));
     MLB_TRY(be->scan_i32(slot_off, slot_off, (int)d->S));
-    int32_t nf, nv;   // the totals (at most 2 T and S: within int32 for cells <= 512), each in the real at it
-    real got[2];
-    MLB_TRY(be->download(&got[0], (const real*)(tet_off + T), 1));
-    MLB_TRY(be->download(&got[1], (const real*)(slot_off + d->S), 1));
-    memcpy(&nf, &got[0], sizeof nf);
-    memcpy(&nv, &got[1], sizeof nv);
+    int32_t nf, nv;   // the totals (at most 2 T and S: within int32 for cells <= 512)
+    MLB_TRY(FN(t_download_i32)(be, &nf, tet_off + T, 1));
+    MLB_TRY(FN(t_download_i32)(be, &nv, slot_off + d->S, 1));
     if (nf > INT32_MAX / 3 || nv > INT32_MAX / 3)
         return mlb_fail(MLB_ERR_ARG, "marching tets: surface too large (%lld faces)", (long long)nf);
     size_t mv = nv ? (size_t)nv : 1, mf = nf ? (size_t)nf : 1;
@@ -152,9 +144,9 @@ static mlb_status surface_down(const mlb_mt_device* d, FN(mlb_mt_surface)* out) 
     int nv = d->nv, nf = d->nf;
     size_t mv = nv ? (size_t)nv : 1, mf = nf ? (size_t)nf : 1;
     out->pos = malloc(sizeof(real) * 3 * mv);
-    out->edge = malloc(sizeof(real) * i32_reals(2 * mv));   // (the reals they come down in)
+    out->edge = malloc(sizeof(int32_t) * 2 * mv);
     out->weight = malloc(sizeof(real) * 2 * mv);
-    out->faces = malloc(sizeof(real) * i32_reals(3 * mf));
+    out->faces = malloc(sizeof(int32_t) * 3 * mf);
     if (!out->pos || !out->edge || !out->weight || !out->faces) {
         FN(mt_surface_free)(out);
         return mlb_fail(MLB_ERR_NOMEM, "marching tets: out of memory for %d vertices", nv);
@@ -162,9 +154,9 @@ static mlb_status surface_down(const mlb_mt_device* d, FN(mlb_mt_surface)* out) 
     out->n_verts = nv;
     out->n_faces = nf;
     mlb_status s = be->download(out->pos, d->verts, 3 * (size_t)nv);
-    if (!s) s = be->download((real*)out->edge, d->vedge, i32_reals(2 * (size_t)nv));
+    if (!s) s = FN(t_download_i32)(be, out->edge, (const int32_t*)d->vedge, 2 * (size_t)nv);
     if (!s) s = be->download(out->weight, d->weight, 2 * (size_t)nv);
-    if (!s) s = be->download((real*)out->faces, d->faces, i32_reals(3 * (size_t)nf));
+    if (!s) s = FN(t_download_i32)(be, out->faces, (const int32_t*)d->faces, 3 * (size_t)nf);
     if (s) FN(mt_surface_free)(out);
     return s;
 }

@@ -9,13 +9,13 @@
 
 typedef struct { real* p; size_t cap; } FN(tbuf);   // cap in reals
 
-static void FN(tbuf_free)(const FN(mlb_backend)* be, FN(tbuf)* b) {
+static inline void FN(tbuf_free)(const FN(mlb_backend)* be, FN(tbuf)* b) {
     if (b->p) be->release(b->p);
     b->p = NULL;
     b->cap = 0;
 }
 // At least n reals (grown, never shrunk); NULL out of memory
-static real* FN(tbuf_get)(const FN(mlb_backend)* be, FN(tbuf)* b, size_t n) {
+static inline real* FN(tbuf_get)(const FN(mlb_backend)* be, FN(tbuf)* b, size_t n) {
     if (n < 1) n = 1;
     if (b->p && n <= b->cap) return b->p;
     FN(tbuf_free)(be, b);
@@ -34,11 +34,15 @@ static inline mlb_status FN(t_upload_i32)(const FN(mlb_backend)* be, int32_t* ds
     memcpy(&last, src + whole * per, rest * sizeof(int32_t));
     return be->upload((real*)(dst + whole * per), &last, 1);
 }
-// one int32 value of an int32 buffer of the table, brought to the host
-static inline mlb_status FN(t_download_i32)(const FN(mlb_backend)* be, int32_t* dst, const int32_t* src) {
-    real got;   // the real that starts at src: its first bytes are the value's
-    MLB_TRY(be->download(&got, (const real*)src, 1));
-    memcpy(dst, &got, sizeof(int32_t));
+// n int32 values of an int32 buffer of the table, brought to the host: the same way back, so
+// nothing past dst[n - 1] is written
+static inline mlb_status FN(t_download_i32)(const FN(mlb_backend)* be, int32_t* dst, const int32_t* src, size_t n) {
+    const size_t per = sizeof(real) / sizeof(int32_t), whole = n / per, rest = n % per;
+    if (whole) MLB_TRY(be->download((real*)dst, (const real*)src, whole));
+    if (!rest) return MLB_OK;
+    real got;   // the real that starts at the last odd value: its first bytes are the value's
+    MLB_TRY(be->download(&got, (const real*)(src + whole * per), 1));
+    memcpy(dst + whole * per, &got, rest * sizeof(int32_t));
     return MLB_OK;
 }
 // p [n] = 1: zeros mapped by 0 x + 1 (no upload)

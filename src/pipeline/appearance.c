@@ -306,7 +306,7 @@ mlb_status FN(mlb_appearance_render)(FN(mlb_appearance)* a, FN(mlb_material_net)
     for (int v = 0; v <= n; v++) {
         if (v <= s->v0) { s->start[v] = 0; continue; }
         if (v > s->v1) { s->start[v] = s->start[s->v1]; continue; }
-        MLB_TRY(FN(t_download_i32)(tb, &s->start[v], index + P * (size_t)(v - s->v0)));
+        MLB_TRY(FN(t_download_i32)(tb, &s->start[v], index + P * (size_t)(v - s->v0), 1));
     }
     int N = s->start[n];
     if ((size_t)N > (size_t)INT32_MAX / 8) return mlb_fail(MLB_ERR_ARG, "appearance render: too many samples (%d)", N);

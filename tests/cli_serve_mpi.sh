@@ -41,6 +41,10 @@ state() { curl -s --max-time 10 "$U/api/jobs/$1" | sed -n 's/.*"state":"\([a-z]*
 wait_state() { for _ in $(seq 1500); do [ "$(state "$1")" = "$2" ] && return 0; sleep 0.2; done; return 1; }
 post() { curl -s -o "$T/body" -w '%{http_code}' --max-time 20 -X POST -H 'Content-Type: application/json' --data-binary "$1" "$U/api/jobs"; }
 id_of() { sed -n 's/.*"id":"\([^"]*\)".*/\1/p' "$T/body"; }
+# a job's processes (mpirun and its ranks name the job's folder); on a loaded machine mpirun takes
+# seconds to start its ranks, so wait up to a minute for a count (the loop ends as soon as it holds)
+procs() { pgrep -f -- "$R/$1" | wc -l; }
+wait_procs() { for _ in $(seq 300); do [ "$(procs "$1")" "$2" "$3" ] && return 0; sleep 0.2; done; return 1; }
 
 # the job's options as generate's: 2 views a step; the server's --view-batch 1 gives each process one
 OPTS='"init":"ellipsoid","material_start":0,"init_iters":10,"res":64,"grid":16,"views":2,"export_texture":64,"preview_every":0'
@@ -69,14 +73,14 @@ LONG=${OPTS/\"init_iters\":10/\"init_iters\":200000}
   && ok "POST a long MPI job" || bad "POST long: $(cat "$T/body")"
 LID=$(id_of)
 wait_state "$LID" running && ok "it runs" || bad "long job: $(state "$LID")"
-for _ in $(seq 100); do [ "$(pgrep -f -- "$R/$LID" | wc -l)" -ge 3 ] && break; sleep 0.1; done
-n0=$(pgrep -f -- "$R/$LID" | wc -l)
+wait_procs "$LID" -ge 3
+n0=$(procs "$LID")
 [ "$n0" -ge 3 ] && ok "mpirun and its 2 processes run ($n0)" || bad "processes of the job: $n0"
 code=$(curl -s -o /dev/null -w '%{http_code}' -X DELETE "$U/api/jobs/$LID")
 [ "$code" = 200 ] && ok "DELETE the running MPI job" || bad "DELETE: $code"
 wait_state "$LID" cancelled && ok "cancelled" || bad "state after DELETE: $(state "$LID")"
-for _ in $(seq 50); do [ "$(pgrep -f -- "$R/$LID" | wc -l)" = 0 ] && break; sleep 0.2; done
-[ "$(pgrep -f -- "$R/$LID" | wc -l)" = 0 ] && ok "none of its processes left" || { bad "left: $(pgrep -af -- "$R/$LID")"; }
+wait_procs "$LID" -eq 0
+[ "$(procs "$LID")" = 0 ] && ok "none of its processes left" || { bad "left: $(pgrep -af -- "$R/$LID")"; }
 
 # another, and the server killed with -9: the job's processes go with it (mpirun's parent-death
 # signal, then OpenMPI ends its processes), so that a restarted server's resume is the run's only writer
@@ -84,9 +88,9 @@ for _ in $(seq 50); do [ "$(pgrep -f -- "$R/$LID" | wc -l)" = 0 ] && break; slee
   && ok "POST another long MPI job" || bad "POST: $(cat "$T/body")"
 KID=$(id_of)
 wait_state "$KID" running && ok "it runs" || bad "job: $(state "$KID")"
-for _ in $(seq 100); do [ "$(pgrep -f -- "$R/$KID" | wc -l)" -ge 3 ] && break; sleep 0.1; done
+wait_procs "$KID" -ge 3
 kill -9 "$PID"; wait "$PID" 2> /dev/null
-for _ in $(seq 50); do [ "$(pgrep -f -- "$R/$KID" | wc -l)" = 0 ] && break; sleep 0.2; done
-[ "$(pgrep -f -- "$R/$KID" | wc -l)" = 0 ] && ok "kill -9 of the server: none of the job's processes left" \
+wait_procs "$KID" -eq 0
+[ "$(procs "$KID")" = 0 ] && ok "kill -9 of the server: none of the job's processes left" \
   || bad "left after kill -9: $(pgrep -af -- "$R/$KID")"
 finish

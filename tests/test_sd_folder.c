@@ -150,6 +150,12 @@ TEST(write_and_load) {
 
 // The index's geometry suffix: written, read back, refused when malformed; the guidance puts it on
 // the geometry stage's prompt and only there (the same loss as a plain model given the longer prompt).
+static int write_text(const char* d, const char* rel, const char* text) {
+    char p[600];
+    snprintf(p, sizeof p, "%s/%s", d, rel);
+    return mlb_write_file_atomic(p, text, strlen(text)) == MLB_OK;
+}
+
 static int write_index_text(const char* d, const char* suffix_json) {
     char p[600], text[700];
     snprintf(p, sizeof p, "%s/model_index.json", d);
@@ -241,6 +247,29 @@ TEST(geometry_suffix) {
         CHECK(strstr(mlb_last_error(), "model_index.json") != NULL);
     }
     CHECK(mlb_sd_write_index(dir, "a \"quote\"") == MLB_ERR_ARG);
+    // an index that is not JSON is refused naming it, not read as a folder without an index
+    REQUIRE(write_text(dir, "model_index.json", "{\"_class_name\": \"StableDiffusionPipeline\","));
+    m = NULL;
+    CHECK(mlb_sd_model_load(dir, &o, &m) == MLB_ERR_FORMAT && !m);
+    CHECK_MSG(strstr(mlb_last_error(), "model_index.json") && strstr(mlb_last_error(), "not valid JSON"), "%s", mlb_last_error());
+    REQUIRE(mlb_sd_write_index(dir, "") == MLB_OK);
+    // the scheduler's prediction type: read when there (an SD 2.x folder says v_prediction), refused
+    // when it is one the sampler and the guidance do not compute, or the file is not JSON
+    char sched[300];
+    snprintf(sched, sizeof sched, "%s/scheduler", dir);
+    REQUIRE(mlb_mkdir_p(sched) == MLB_OK);
+    const char* pred[] = {"{\"prediction_type\": \"v_prediction\"}", "{\"prediction_type\": \"epsilon\"}",
+                          "{\"prediction_type\": \"sample\"}", "{\"prediction_type\": 1}", "[1,"};
+    const mlb_status want[] = {MLB_OK, MLB_OK, MLB_ERR_UNSUPPORTED, MLB_ERR_UNSUPPORTED, MLB_ERR_FORMAT};
+    for (int i = 0; i < 5; i++) {
+        REQUIRE(write_text(dir, "scheduler/scheduler_config.json", pred[i]));
+        m = NULL;
+        mlb_status st = mlb_sd_model_load(dir, &o, &m);
+        CHECK_MSG(st == want[i], "%s: status %d", pred[i], (int)st);
+        if (st == MLB_OK) CHECK(m && m->v_prediction == (i == 0));
+        else CHECK_MSG(!m && strstr(mlb_last_error(), "scheduler_config.json"), "%s", mlb_last_error());
+        mlb_sd_model_free(m);
+    }
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     CHECK(system(cmd) == 0);

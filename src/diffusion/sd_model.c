@@ -6,11 +6,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include "matlaber/backend.h"
 #include "matlaber/fileio.h"
 #include "matlaber/log.h"
 #include "matlaber/schedule.h"
+#include "matlaber/sd_files.h"
 
 
 mlb_sd_model_options mlb_sd_model_default_options(void) {
@@ -40,23 +40,29 @@ void mlb_sd_model_free(mlb_sd_model* m) {
     free(m);
 }
 
-// scheduler/scheduler_config.json's prediction_type: 1 v_prediction, 0 epsilon, -1 absent.
-static int scheduler_prediction(const char* folder) {
+// folder/rel parsed into *root; *root NULL when the file is absent (a folder need not have it). A
+// file that is there but unreadable or not JSON is an error naming it.
+static mlb_status folder_json(const char* folder, const char* rel, cJSON** root) {
     char p[4200];
-    snprintf(p, sizeof p, "%s/scheduler/scheduler_config.json", folder);
-    if (!mlb_is_file(p)) return -1;
-    char* text = NULL;
-    size_t n = 0;
-    if (mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) { return -1; }
-    int r = -1;
-    cJSON* root = cJSON_ParseWithLength(text, n);
-    if (root) {
-        const cJSON* v = cJSON_GetObjectItemCaseSensitive(root, "prediction_type");
-        if (cJSON_IsString(v)) r = strcmp(v->valuestring, "v_prediction") == 0;
-        cJSON_Delete(root);
-    }
-    free(text);
-    return r;
+    *root = NULL;
+    snprintf(p, sizeof p, "%s/%s", folder, rel);
+    return mlb_is_file(p) ? mlb_json_read_file(p, 1 << 20, root) : MLB_OK;
+}
+
+// scheduler/scheduler_config.json's prediction_type into *v_prediction: 1 v_prediction, 0 epsilon,
+// left as it is when the file or the key is absent; any other value is an error naming the file.
+static mlb_status scheduler_prediction(const char* folder, int* v_prediction) {
+    cJSON* root = NULL;
+    MLB_TRY(folder_json(folder, "scheduler/scheduler_config.json", &root));
+    const cJSON* v = root ? cJSON_GetObjectItemCaseSensitive(root, "prediction_type") : NULL;
+    mlb_status s = MLB_OK;
+    if (v && cJSON_IsString(v) && !strcmp(v->valuestring, "v_prediction")) *v_prediction = 1;
+    else if (v && cJSON_IsString(v) && !strcmp(v->valuestring, "epsilon")) *v_prediction = 0;
+    else if (v)
+        s = mlb_fail(MLB_ERR_UNSUPPORTED, "%s/scheduler/scheduler_config.json: prediction_type must be \"epsilon\" or "
+                     "\"v_prediction\"", folder);
+    cJSON_Delete(root);
+    return s;
 }
 
 int mlb_sd_geometry_suffix_ok(const char* s) {
@@ -67,41 +73,29 @@ int mlb_sd_geometry_suffix_ok(const char* s) {
 }
 
 int mlb_sd_model_is_own(const char* path) {
-    char p[4200];
-    if (!path || strlen(path) > 4000 || !mlb_is_dir(path)) return 0;
-    snprintf(p, sizeof p, "%s/model_index.json", path);
-    char* text = NULL;
-    size_t n = 0;
-    if (!mlb_is_file(p) || mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) return 0;
-    cJSON* root = cJSON_ParseWithLength(text, n);
+    cJSON* root = NULL;
+    if (!path || strlen(path) > 4000 || !mlb_is_dir(path) || folder_json(path, "model_index.json", &root) != MLB_OK) return 0;
     int own = root && cJSON_GetObjectItemCaseSensitive(root, "_matlaber") != NULL;
     cJSON_Delete(root);
-    free(text);
     return own;
 }
 
 // model_index.json's "_matlaber_geometry_suffix" into out (sd_folder.h); "" when the file or the
-// key is absent or the file is not JSON (a user's folder need not have a readable index); a key
-// that is there but not a short printable string is an error naming the file.
+// key is absent (a user's folder need not have an index); an index that is not JSON, or a key that
+// is there but not a short printable string, is an error naming the file.
 static mlb_status geometry_suffix(const char* folder, char out[MLB_SD_SUFFIX_MAX]) {
     out[0] = 0;
-    char p[4200];
-    snprintf(p, sizeof p, "%s/model_index.json", folder);
-    if (!mlb_is_file(p)) return MLB_OK;
-    char* text = NULL;
-    size_t n = 0;
-    if (mlb_read_file(p, &text, &n, 1 << 20) != MLB_OK) return MLB_OK;
+    cJSON* root = NULL;
+    MLB_TRY(folder_json(folder, "model_index.json", &root));
     mlb_status s = MLB_OK;
-    cJSON* root = cJSON_ParseWithLength(text, n);
     const cJSON* v = root ? cJSON_GetObjectItemCaseSensitive(root, "_matlaber_geometry_suffix") : NULL;
     if (v) {
         const char* t = cJSON_IsString(v) ? v->valuestring : NULL;
         if (mlb_sd_geometry_suffix_ok(t)) snprintf(out, MLB_SD_SUFFIX_MAX, "%s", t);
-        else s = mlb_fail(MLB_ERR_FORMAT, "%s: \"_matlaber_geometry_suffix\" must be a string of at most %d printable ASCII "
-                                          "characters without quotes or backslashes", p, MLB_SD_SUFFIX_MAX - 1);
+        else s = mlb_fail(MLB_ERR_FORMAT, "%s/model_index.json: \"_matlaber_geometry_suffix\" must be a string of at most %d "
+                          "printable ASCII characters without quotes or backslashes", folder, MLB_SD_SUFFIX_MAX - 1);
     }
     cJSON_Delete(root);
-    free(text);
     return s;
 }
 
@@ -183,8 +177,8 @@ mlb_status mlb_sd_model_load(const char* path, const mlb_sd_model_options* opt_i
         }
     }
     m->v_prediction = m->unet->cfg.v_prediction;
-    if (folder) { int p = scheduler_prediction(path); if (p >= 0) m->v_prediction = p; }
-    if (folder && (s = geometry_suffix(path, m->geometry_suffix)) != MLB_OK) goto fail;
+    if (folder && ((s = scheduler_prediction(path, &m->v_prediction)) != MLB_OK ||
+                   (s = geometry_suffix(path, m->geometry_suffix)) != MLB_OK)) goto fail;
     if (opt.v_prediction >= 0) m->v_prediction = opt.v_prediction;
     m->scaling_factor = m->vae ? m->vae->cfg.scaling_factor : 0.18215f;
     if (!(m->scaling_factor > 0)) m->scaling_factor = 0.18215f;

@@ -122,6 +122,9 @@ TEST(round_trip_export) {
     o.max_bytes = n - 1;
     s = mlb_gltf_parse(glb, n, "mem.glb", NULL, &r, &o, NULL);
     CHECK(s == MLB_ERR_UNSUPPORTED && mesh_is_zero(&r));
+    s = mlb_gltf_load(path, &r, &o, NULL);   // a file over the limit: the same status as the OBJ loader's, the path named
+    CHECK_MSG(s == MLB_ERR_UNSUPPORTED && strstr(mlb_last_error(), path) && strstr(mlb_last_error(), "more than the") &&
+              mesh_is_zero(&r), "%s", mlb_last_error());
     free(glb);
     mlb_mesh_free(&m);
 }

@@ -31,7 +31,7 @@ mlb_status mlb_open_input(const char* path, int* fd, size_t* size);
 // The same as a FILE* ("rb"); NULL with the error set.
 FILE* mlb_open_input_file(const char* path);
 // Reads a whole file through mlb_open_input; *data is malloc'd and NUL-terminated. A file over
-// max_bytes is refused before reading (MLB_ERR_FORMAT).
+// max_bytes is refused before reading (MLB_ERR_UNSUPPORTED: a limit, not a broken file).
 mlb_status mlb_read_file(const char* path, char** data, size_t* n, size_t max_bytes);
 mlb_status mlb_mkdir_p(const char* path);
 // Path tests the loaders share: a regular file, a folder (both follow links), a name's suffix.

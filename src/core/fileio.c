@@ -147,7 +147,7 @@ mlb_status mlb_read_file(const char* path, char** data, size_t* n, size_t max_by
     MLB_TRY(mlb_open_input(path, &fd, &size));
     if (size > max_bytes) {
         close(fd);
-        return mlb_fail(MLB_ERR_FORMAT, "%s: %zu bytes, more than the %zu allowed", path, size, max_bytes);
+        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %zu bytes, more than the %zu allowed", path, size, max_bytes);
     }
     char* buf = malloc(size + 1);
     if (!buf) { close(fd); return mlb_fail(MLB_ERR_NOMEM, "%s: out of memory", path); }

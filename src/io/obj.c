@@ -12,7 +12,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include "matlaber/fileio.h"
 
 typedef struct { int32_t v, t, n; } corner;   // 0-based indices, -1 = absent
@@ -445,10 +444,6 @@ mlb_status mlb_obj_load_ex(const char* path, mlb_mesh* out, const mlb_obj_option
     if (info) memset(info, 0, sizeof *info);
     if (!path || !out) return mlb_fail(MLB_ERR_ARG, "mlb_obj_load: NULL %s", path ? "output mesh" : "path");
     size_t max_bytes = opt && opt->max_bytes ? opt->max_bytes : MLB_OBJ_MAX_BYTES;
-    struct stat st;
-    if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && (unsigned long long)st.st_size > max_bytes)
-        return mlb_fail(MLB_ERR_UNSUPPORTED, "%s: %lld bytes, more than the %zu allowed for an OBJ file", path,
-                        (long long)st.st_size, max_bytes);
     char* text = NULL;
     size_t n = 0;
     mlb_status s = mlb_read_file(path, &text, &n, max_bytes);

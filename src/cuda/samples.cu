@@ -125,12 +125,11 @@ __global__ void area_resize_kernel(float* dst, const float* src, int n, int H, i
     GRID_STRIDE(o, (size_t)n * C * h * w) {
         int x = (int)(o % w), y = (int)((o / w) % h), c = (int)((o / ((size_t)w * h)) % C);
         size_t b = o / ((size_t)w * h * C);
-        int y0 = area_lo(y, H, h), y1 = area_hi(y, H, h), x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
-        double inv = area_inv(y0, y1, x0, x1);
+        area_box a = area_box_at(y, x, H, W, h, w);
         double acc = 0;
-        for (int yy = y0; yy < y1; yy++)
-            for (int xx = x0; xx < x1; xx++) acc = __dadd_rn(acc, (double)src[((b * H + yy) * W + xx) * C + c]);
-        dst[o] = (float)__dmul_rn(acc, inv);
+        for (int yy = a.y0; yy < a.y1; yy++)
+            for (int xx = a.x0; xx < a.x1; xx++) acc = __dadd_rn(acc, (double)src[((b * H + yy) * W + xx) * C + c]);
+        dst[o] = (float)__dmul_rn(acc, a.inv);
     }
 }
 // one thread per source value: the shares of the output pixels whose boxes hold it, added in the
@@ -145,10 +144,9 @@ __global__ void area_resize_backward_kernel(float* dsrc, const float* ddst, int 
         for (int y = ya < 0 ? 0 : ya; y <= yb && y < h; y++) {
             if (yy < area_lo(y, H, h) || yy >= area_hi(y, H, h)) continue;
             for (int x = xa < 0 ? 0 : xa; x <= xb && x < w; x++) {
-                int x0 = area_lo(x, W, w), x1 = area_hi(x, W, w);
-                if (xx < x0 || xx >= x1) continue;
-                double inv = area_inv(area_lo(y, H, h), area_hi(y, H, h), x0, x1);
-                d = __fadd_rn(d, (float)__dmul_rn((double)ddst[((b * C + c) * h + y) * w + x], inv));
+                area_box a = area_box_at(y, x, H, W, h, w);
+                if (xx < a.x0 || xx >= a.x1) continue;
+                d = __fadd_rn(d, (float)__dmul_rn((double)ddst[((b * C + c) * h + y) * w + x], a.inv));
             }
         }
         dsrc[q] = d;

@@ -84,6 +84,103 @@ static mlb_status check_or_write_options(const mlb_sd_train_config* c) {
     return s;
 }
 
+// The run's two models: host copies (initial values, the files written), the device's, their
+// gradients, and each one's optimiser state.
+typedef struct {
+    mlb_vae *hv, *dv, *gv;
+    mlb_unet *hu, *du, *gu;
+    mlb_train_params PV, PU;
+    float init_scale;   // the scale a UNet from --init was trained at; 0 without --init
+} sd_run;
+
+static void run_free(const mlb_backend* be, sd_run* r) {
+    mlb_train_params_free(be, &r->PV);
+    mlb_train_params_free(be, &r->PU);
+    mlb_vae_free(r->hv); mlb_vae_free(r->dv); mlb_vae_free(r->gv);
+    mlb_unet_free(r->hu); mlb_unet_free(r->du); mlb_unet_free(r->gu);
+}
+
+// The VAE: --init's weights (its scale kept aside, the training's at 1) or random ones.
+static mlb_status run_vae(const mlb_backend* be, const mlb_sd_train_config* c, sd_run* r) {
+    char p[4200];
+    mlb_vae_config vc = c->vae;
+    vc.scaling_factor = 1.0f;
+    if (c->init_dir) {
+        snprintf(p, sizeof p, "%s/vae", c->init_dir);
+        MLB_TRY(mlb_vae_load(p, NULL, &r->hv));
+        r->init_scale = r->hv->cfg.scaling_factor;
+        vc = r->hv->cfg;
+        vc.scaling_factor = r->hv->cfg.scaling_factor = 1.0f;
+    } else {
+        MLB_TRY(mlb_vae_create(NULL, &vc, &r->hv));
+        mlb_vae_init_random(r->hv, c->seed, 1.0f);
+    }
+    MLB_TRY(mlb_vae_create(be, &vc, &r->dv));
+    MLB_TRY(mlb_vae_create(be, &vc, &r->gv));
+    MLB_TRY(be->upload(r->dv->params, r->hv->params, r->hv->n_params));
+    MLB_TRY(mlb_train_params_init(be, &r->PV, c->out_dir, "vae", 0, r->dv->params, r->gv->params, r->dv->n_params,
+                                  c->vae_steps));
+    r->PV.vae = r->dv;
+    r->PV.vae_grads = r->gv;
+    return MLB_OK;
+}
+
+// The UNet likewise (its text width checked against the text encoder's).
+static mlb_status run_unet(const mlb_backend* be, const mlb_sd_train_config* c, sd_run* r) {
+    char p[4200];
+    mlb_unet_config uc = c->unet;
+    if (c->init_dir) {
+        snprintf(p, sizeof p, "%s/unet", c->init_dir);
+        MLB_TRY(mlb_unet_load(p, NULL, &r->hu));
+        uc = r->hu->cfg;
+        if (uc.context_dim != c->text.width)
+            return mlb_fail(MLB_ERR_ARG, "sd train: --init %s: its UNet attends to %d-wide text, the text encoder is %d wide",
+                            c->init_dir, uc.context_dim, c->text.width);
+    } else {
+        MLB_TRY(mlb_unet_create(&uc, MLB_DEVICE_CPU, &r->hu));
+        unet_init(r->hu, c->seed + 1);
+    }
+    if (be->device != MLB_DEVICE_CPU) MLB_TRY(mlb_unet_to_device(r->hu, be->device, &r->du));
+    mlb_unet* u = r->du ? r->du : r->hu;
+    MLB_TRY(mlb_unet_create(&uc, be->device, &r->gu));
+    MLB_TRY(mlb_train_params_init(be, &r->PU, c->out_dir, "unet", 1, u->params, r->gu->params, u->n_params, c->unet_steps));
+    r->PU.unet = u;
+    r->PU.unet_grads = r->gu;
+    return MLB_OK;
+}
+
+// --resume: the states that exist; *stage and *step say where the log is cut (the later phase's).
+static mlb_status run_resume(const mlb_backend* be, sd_run* r, int* stage, long* step) {
+    mlb_status a = mlb_train_params_load(be, &r->PV);
+    if (a != MLB_OK && a != MLB_ERR_NOT_FOUND) return a;
+    mlb_status b = mlb_train_params_load(be, &r->PU);
+    if (b != MLB_OK && b != MLB_ERR_NOT_FOUND) return b;
+    if (b == MLB_OK) *stage = 1, *step = r->PU.step;
+    else if (a == MLB_OK) *stage = 0, *step = r->PV.step;
+    else *stage = 0;
+    mlb_log(MLB_LOG_INFO, "sd train: resuming at VAE step %ld, UNet step %ld", r->PV.step, r->PU.step);
+    return MLB_OK;
+}
+
+// The trained VAE's latents of every image, in both forms, scaled, and the VAE written with the
+// scale: a UNet continued over an untouched VAE keeps the scale it learned at; otherwise this
+// data's (a few tenths of a percent apart between renders of the catalogue).
+static mlb_status run_latents(const mlb_backend* be, const mlb_sd_train_config* c, const mlb_sd_dataset* d, sd_run* r,
+                              float* lat_rgb, float* lat_geo) {
+    size_t nl = (size_t)d->n * 4 * d->lat * d->lat;
+    MLB_TRY(mlb_sd_encode_dataset(be, r->dv, d, lat_rgb, lat_geo));
+    float sf = r->init_scale > 0.0f && r->PV.total == 0 ? r->init_scale : latent_scale(lat_rgb, nl);
+    for (size_t i = 0; i < nl; i++) { lat_rgb[i] *= sf; lat_geo[i] *= sf; }
+    r->hv->cfg.scaling_factor = sf;
+    mlb_log(MLB_LOG_INFO, "sd train: latent scale %.5f (the appearance latents' standard deviation is %.4f)", sf, 1.0 / sf);
+    char p[4200], w[4300], cj[4300];
+    snprintf(p, sizeof p, "%s/vae", c->out_dir);
+    MLB_TRY(mlb_mkdir_p(p));
+    snprintf(w, sizeof w, "%s/diffusion_pytorch_model.safetensors", p);
+    snprintf(cj, sizeof cj, "%s/config.json", p);
+    return mlb_vae_save(r->hv, w, MLB_VAE_LAYOUT_DIFFUSERS, NULL, cj);
+}
+
 mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     MLB_TRY(mlb_sd_train_check(c));
     char p[4200];
@@ -98,104 +195,41 @@ mlb_status mlb_sd_train(const mlb_backend* be, const mlb_sd_train_config* c) {
     mlb_progress_end(&pr, NULL);
     mlb_log(MLB_LOG_INFO, "sd train: %d catalogue images at %dx%d rendered in %.1f s", d.n, d.res, d.res, mlb_now_seconds() - t0);
     float* captions = NULL;
-    mlb_vae *hv = NULL, *dv = NULL, *gv = NULL;
-    mlb_unet *hu = NULL, *du = NULL, *gu = NULL;
-    mlb_train_params PV = {0}, PU = {0};
+    sd_run r = {0};
     mlb_losslog* log = NULL;
     float *lat_rgb = NULL, *lat_geo = NULL;
     size_t nl = (size_t)d.n * 4 * d.lat * d.lat;
     mlb_status s = mlb_sd_train_text(c, &captions);
-    // the VAE: host model (initial values, the file written), device model, device gradients
-    mlb_vae_config vc = c->vae;
-    vc.scaling_factor = 1.0f;
-    float init_scale = 0.0f;   // the scale a UNet from --init was trained at
-    if (!s && c->init_dir) {   // a trained model's weights as the start
-        snprintf(p, sizeof p, "%s/vae", c->init_dir);
-        if (!(s = mlb_vae_load(p, NULL, &hv))) {
-            init_scale = hv->cfg.scaling_factor;
-            vc = hv->cfg;
-            vc.scaling_factor = hv->cfg.scaling_factor = 1.0f;
-        }
-    } else if (!s) {
-        s = mlb_vae_create(NULL, &vc, &hv);
-        if (!s) mlb_vae_init_random(hv, c->seed, 1.0f);
-    }
-    if (!s) s = mlb_vae_create(be, &vc, &dv);
-    if (!s) s = mlb_vae_create(be, &vc, &gv);
-    if (!s) s = be->upload(dv->params, hv->params, hv->n_params);
-    if (!s) s = mlb_train_params_init(be, &PV, c->out_dir, "vae", 0, dv->params, gv->params, dv->n_params, c->vae_steps);
-    PV.vae = dv;
-    PV.vae_grads = gv;
-    // the UNet likewise
-    mlb_unet_config uc = c->unet;
-    if (!s && c->init_dir) {
-        snprintf(p, sizeof p, "%s/unet", c->init_dir);
-        if (!(s = mlb_unet_load(p, NULL, &hu))) uc = hu->cfg;
-        if (!s && uc.context_dim != c->text.width)
-            s = mlb_fail(MLB_ERR_ARG, "sd train: --init %s: its UNet attends to %d-wide text, the text encoder is %d wide",
-                         c->init_dir, uc.context_dim, c->text.width);
-    } else if (!s) {
-        s = mlb_unet_create(&uc, MLB_DEVICE_CPU, &hu);
-        if (!s) unet_init(hu, c->seed + 1);
-    }
-    if (!s) s = be->device == MLB_DEVICE_CPU ? MLB_OK : mlb_unet_to_device(hu, be->device, &du);
-    mlb_unet* u = du ? du : hu;
-    if (!s) s = mlb_unet_create(&uc, be->device, &gu);
-    if (!s) s = mlb_train_params_init(be, &PU, c->out_dir, "unet", 1, u->params, gu->params, u->n_params, c->unet_steps);
-    PU.unet = u;
-    PU.unet_grads = gu;
-    // resume: the states that exist, the log cut where the later one stopped
-    int rstage = -1;
+    if (!s) s = run_vae(be, c, &r);
+    if (!s) s = run_unet(be, c, &r);
+    int rstage = -1;   // where the loss log is cut: -1 a fresh run
     long rstep = 0;
-    if (!s && c->resume) {
-        mlb_status a = mlb_train_params_load(be, &PV), b = a == MLB_OK || a == MLB_ERR_NOT_FOUND ? mlb_train_params_load(be, &PU) : a;
-        if (a != MLB_OK && a != MLB_ERR_NOT_FOUND) s = a;
-        else if (b != MLB_OK && b != MLB_ERR_NOT_FOUND) s = b;
-        else if (b == MLB_OK) { rstage = 1; rstep = PU.step; }
-        else if (a == MLB_OK) { rstage = 0; rstep = PV.step; }
-        else rstage = 0;
-        if (!s) mlb_log(MLB_LOG_INFO, "sd train: resuming at VAE step %ld, UNet step %ld", PV.step, PU.step);
-    }
+    if (!s && c->resume) s = run_resume(be, &r, &rstage, &rstep);
     const char* col[1] = {"loss"};
     snprintf(p, sizeof p, "%s/train/loss.csv", c->out_dir);
     if (!s) s = mlb_losslog_open(&log, p, col, 1, rstage, rstep);
     if (c->time_limit > 0) {
         double left = c->time_limit - (mlb_now_seconds() - t0);
-        PV.deadline = mlb_now_seconds() + 0.25 * (left > 0 ? left : 0);
-        PU.deadline = t0 + c->time_limit - 15.0;   // the latents, the files
+        r.PV.deadline = mlb_now_seconds() + 0.25 * (left > 0 ? left : 0);
+        r.PU.deadline = t0 + c->time_limit - 15.0;   // the latents, the files
     }
-    if (!s && PV.step < PV.total) s = mlb_sd_train_vae(be, c, &d, &PV, log);
-    if (!s && PV.step == PV.total && rstage < 1) s = mlb_train_params_save(be, &PV);
-    int stopped = !s && PV.step < PV.total;
-    if (!s) s = be->download(hv->params, dv->params, hv->n_params);
-    // latents and their scale
+    if (!s && r.PV.step < r.PV.total) s = mlb_sd_train_vae(be, c, &d, &r.PV, log);
+    if (!s && r.PV.step == r.PV.total && rstage < 1) s = mlb_train_params_save(be, &r.PV);
+    int stopped = !s && r.PV.step < r.PV.total;
+    if (!s) s = be->download(r.hv->params, r.dv->params, r.hv->n_params);
     if (!s && !stopped && (!(lat_rgb = malloc(nl * sizeof(float))) || !(lat_geo = malloc(nl * sizeof(float)))))
         s = mlb_fail(MLB_ERR_NOMEM, "sd train: out of memory for the latents");
-    if (!s && !stopped) s = mlb_sd_encode_dataset(be, dv, &d, lat_rgb, lat_geo);
-    if (!s && !stopped) {
-        // a UNet continued over an untouched VAE keeps the scale it learned at; otherwise this
-        // data's scale (a few tenths of a percent apart between renders of the catalogue)
-        float sf = init_scale > 0.0f && PV.total == 0 ? init_scale : latent_scale(lat_rgb, nl);
-        for (size_t i = 0; i < nl; i++) { lat_rgb[i] *= sf; lat_geo[i] *= sf; }
-        hv->cfg.scaling_factor = sf;
-        mlb_log(MLB_LOG_INFO, "sd train: latent scale %.5f (the appearance latents' standard deviation is %.4f)", sf, 1.0 / sf);
-        snprintf(p, sizeof p, "%s/vae", c->out_dir);
-        s = mlb_mkdir_p(p);
-        char w[4300], cj[4300];
-        snprintf(w, sizeof w, "%s/diffusion_pytorch_model.safetensors", p);
-        snprintf(cj, sizeof cj, "%s/config.json", p);
-        if (!s) s = mlb_vae_save(hv, w, MLB_VAE_LAYOUT_DIFFUSERS, NULL, cj);
-    }
-    if (!s && !stopped && PU.step < PU.total) s = mlb_sd_train_unet(be, c, &d, lat_rgb, lat_geo, captions, &PU, log);
-    if (!s && !stopped) stopped = PU.step < PU.total;
-    if (!s && !stopped) s = mlb_train_params_save(be, &PU);
+    if (!s && !stopped) s = run_latents(be, c, &d, &r, lat_rgb, lat_geo);
+    if (!s && !stopped && r.PU.step < r.PU.total) s = mlb_sd_train_unet(be, c, &d, lat_rgb, lat_geo, captions, &r.PU, log);
+    if (!s && !stopped) stopped = r.PU.step < r.PU.total;
+    if (!s && !stopped) s = mlb_train_params_save(be, &r.PU);
     if (!s && stopped) {
-        mlb_log(MLB_LOG_INFO, "sd train: stopped after VAE step %ld, UNet step %ld: continue with --resume", PV.step, PU.step);
+        mlb_log(MLB_LOG_INFO, "sd train: stopped after VAE step %ld, UNet step %ld: continue with --resume", r.PV.step, r.PU.step);
         goto finish;
     }
-    if (!s && du) s = be->download(hu->params, du->params, hu->n_params);
+    if (!s && r.du) s = be->download(r.hu->params, r.du->params, r.hu->n_params);
     snprintf(p, sizeof p, "%s/unet", c->out_dir);
-    if (!s) s = mlb_unet_save_folder(hu, p, c->unet_dtype);
+    if (!s) s = mlb_unet_save_folder(r.hu, p, c->unet_dtype);
     if (!s) s = mlb_sd_write_index(c->out_dir, MLB_SD_GEOMETRY_SUFFIX);
 finish:;
     mlb_losslog_close(log);
@@ -207,13 +241,10 @@ finish:;
     if (!s && !stopped) {
         char dur[32];
         mlb_log(MLB_LOG_INFO, "sd train: %s written in %s (VAE %d steps, UNet %d steps on the %s)", c->out_dir,
-                mlb_format_duration(mlb_now_seconds() - t0, dur, sizeof dur), (int)PV.total, (int)PU.total,
+                mlb_format_duration(mlb_now_seconds() - t0, dur, sizeof dur), (int)r.PV.total, (int)r.PU.total,
                 mlb_device_name(be->device));
     }
-    mlb_train_params_free(be, &PV);
-    mlb_train_params_free(be, &PU);
-    mlb_vae_free(hv); mlb_vae_free(dv); mlb_vae_free(gv);
-    mlb_unet_free(hu); mlb_unet_free(du); mlb_unet_free(gu);
+    run_free(be, &r);
     free(lat_rgb); free(lat_geo); free(captions);
     mlb_sd_dataset_free(&d);
     return s;

@@ -18,12 +18,15 @@ typedef struct {
     int cls;                  // catalogue class, -1 when none was named
     int mat;                  // catalogue material, -1 when none was named
     int view;                 // MLB_SDS_VIEW_NONE, or the view suffix the prompt names ("side view")
-    char caption[96];         // "a gold goblet" (+ ", side view"); "a goblet" without a material; "" when unread
+    char caption[96];         // "a gold goblet" (+ ", normal map") (+ ", side view"); "a goblet" without a material; "" when unread
     int n_unknown;            // words outside the table, named in unknown[] (once each, any case)
     char unknown[MLB_CAPTION_MAX_UNKNOWN][MLB_CAPTION_WORD];   // as typed
     int more_unknown;         // 1: more of them than unknown[] holds
     int second_cls, second_mat;   // a second, different class or material named (-1: none)
+    int normal_map;           // 1: the prompt asks for the normal render ("normal map", the geometry captions)
 } mlb_caption_reading;
+// What the geometry captions add after the object (sd_train.h MLB_SD_GEOMETRY_SUFFIX, the same text)
+#define MLB_CAPTION_NORMAL_MAP ", normal map"
 
 // Reads prompt into r (always filled). MLB_OK when it names exactly one class, at most one
 // material and no unknown word; otherwise MLB_ERR_ARG with a message that names the unknown words

@@ -6,7 +6,7 @@
 #include "matlaber/catalogue.h"
 #include "matlaber/sds.h"
 
-typedef enum { FILLER, CLASS, MATERIAL, VIEW } kind;
+typedef enum { FILLER, CLASS, MATERIAL, VIEW, NORMAL_MAP } kind;
 // words: lower-case, separated by one space; name: the catalogue's class or material (VIEW: unused)
 typedef struct { const char* words; kind k; const char* name; int view; } phrase;
 
@@ -31,6 +31,8 @@ static const phrase PHRASES[] = {
     // the view suffixes the model was trained with
     {"front view", VIEW, 0, MLB_SDS_VIEW_FRONT}, {"side view", VIEW, 0, MLB_SDS_VIEW_SIDE},
     {"back view", VIEW, 0, MLB_SDS_VIEW_BACK}, {"overhead view", VIEW, 0, MLB_SDS_VIEW_OVERHEAD},
+    // the geometry captions' suffix (the normal renders', sd_train.h MLB_SD_GEOMETRY_SUFFIX)
+    {"normal map", NORMAL_MAP, 0, 0},
 };
 #define N_PHRASES ((int)(sizeof PHRASES / sizeof *PHRASES))
 
@@ -126,6 +128,7 @@ mlb_status mlb_caption_read(const char* prompt, mlb_caption_reading* r) {
             const phrase* p = &PHRASES[best];
             if (p->k == CLASS) name_one(&r->cls, &r->second_cls, class_of(p->name));
             else if (p->k == MATERIAL) name_one(&r->mat, &r->second_mat, material_of(p->name));
+            else if (p->k == NORMAL_MAP) r->normal_map = 1;
             else if (p->k == VIEW) {
                 if (r->view != MLB_SDS_VIEW_NONE && r->view != p->view) second_view = 1;
                 r->view = p->view;
@@ -143,8 +146,12 @@ mlb_status mlb_caption_read(const char* prompt, mlb_caption_reading* r) {
         i++;
     }
     int ok = r->n_unknown == 0 && !r->more_unknown && r->cls >= 0 && r->second_cls < 0 && r->second_mat < 0 && !second_view;
-    if (ok && r->mat >= 0) mlb_catalogue_caption(r->cls, r->mat, r->view, r->caption, sizeof r->caption);
-    else if (ok) snprintf(r->caption, sizeof r->caption, "a %s%s", mlb_catalogue_class_name(r->cls), mlb_sds_view_suffix(r->view));
+    char object[64];   // "a gold goblet" or "a goblet", then the normal map's and the view's suffixes
+    if (ok && r->mat >= 0) mlb_catalogue_caption(r->cls, r->mat, MLB_SDS_VIEW_NONE, object, sizeof object);
+    else if (ok) snprintf(object, sizeof object, "a %s", mlb_catalogue_class_name(r->cls));
+    if (ok)
+        snprintf(r->caption, sizeof r->caption, "%s%s%s", object, r->normal_map ? MLB_CAPTION_NORMAL_MAP : "",
+                 mlb_sds_view_suffix(r->view));
     if (ok) return MLB_OK;
 
     // what is wrong, then what the model does read

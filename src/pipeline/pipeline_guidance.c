@@ -130,6 +130,9 @@ mlb_status mlb_pipeline_read_prompt(mlb_pipeline_config* c) {
     if (r.view != MLB_SDS_VIEW_NONE)
         return mlb_fail(MLB_ERR_ARG, "'%s' names a view ('%s'): the run adds each view's own to the caption; drop it "
                                      "from the prompt", c->prompt, mlb_sds_view_suffix(r.view) + 2);
+    if (r.normal_map)
+        return mlb_fail(MLB_ERR_ARG, "'%s' asks for a normal map: the geometry stage adds that to its own model's "
+                                     "caption where the model was trained with it; drop it from the prompt", c->prompt);
     snprintf(c->caption, sizeof c->caption, "%s", r.caption);
     if (strcmp(c->caption, c->prompt))
         mlb_log(MLB_LOG_INFO, "the prompt '%s' read as '%s' (the project's own model)", c->prompt, c->caption);

@@ -204,7 +204,7 @@ static int txt2img_main(int argc, char** argv) {
     if (ws) return cli_fail(ws, "sd txt2img -o");
     // the project's own models read only their catalogue's captions (caption.h): the prompt read
     // into one (a view suffix kept), or refused naming the words they never saw
-    mlb_caption_reading reading;
+    mlb_caption_reading reading = {0};
     if (mlb_sd_model_is_own(model_path)) {
         if (mlb_caption_read(prompt, &reading)) return cli_usage_error("sd txt2img", "%s", mlb_last_error());
         if (strcmp(reading.caption, prompt))
@@ -221,6 +221,11 @@ static int txt2img_main(int argc, char** argv) {
     mlb_status s = mlb_sd_model_load(model_path, &mo, &m);
     if (s) return cli_fail(s, "loading the model");
     mlb_log(MLB_LOG_INFO, "model: %s (%.1fs)", m->source, mlb_now_seconds() - t0);
+    if (reading.normal_map && strcmp(m->geometry_suffix, MLB_CAPTION_NORMAL_MAP)) {
+        mlb_sd_model_free(m);
+        return cli_usage_error("sd txt2img", "'%s' asks for a normal map, and %s was not trained with normal-map captions "
+                               "(its model_index.json names no \"_matlaber_geometry_suffix\")", prompt, model_path);
+    }
     const int Dc = mlb_sd_model_context_width(m), T = MLB_CLIP_CONTEXT;
     const int h = (int)size / 8;
     const size_t n = (size_t)m->unet->cfg.in_channels * h * h;

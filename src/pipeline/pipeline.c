@@ -21,7 +21,6 @@
 #include "matlaber/run_textured.h"
 #include "matlaber/run.h"
 #include "matlaber/safetensors.h"
-#include "matlaber/shade.h"
 #include "pipeline/pipeline_internal.h"
 
 // ---- optimiser state: one safetensors file per stage -----------------------------------------
@@ -374,25 +373,8 @@ static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* tria
     if (trial && trial->steps < end) end = trial->steps;
     if (start >= end) return MLB_OK;
 
-    const int paint_images = c->paint_mesh[0] && !strcmp(c->guidance, "images");
-    int n = r->g->n_views;
-    size_t img = (size_t)c->res * c->res * 4;
-    mlb_view* views = calloc((size_t)n, sizeof *views);
-    float* images = malloc(sizeof(float) * img * (size_t)n);
-    float* dimages = malloc(sizeof(float) * img * (size_t)n);
-    enum { SMOOTH_POINTS = 4096 };
-    float* pts = malloc(sizeof(float) * 3 * SMOOTH_POINTS);
-    mlb_appearance app;
-    memset(&app, 0, sizeof app);
-    // the renderer, the material network, its optimiser and the shading on the run's field table (a
-    // GPU's): only the mesh and the cameras go up, the images come down
-    app.be = pipeline_stage_table(r);
-    // a guidance that reads renders where they are gets them on that table (only previews come down)
-    app.images_on_table = r->g->loss_on != NULL;
-    const mlb_backend* atb = app.be ? app.be : mlb_backend_cpu();
-    if (!views || !images || !dimages || !pts) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
     int metal = trial ? trial->metal : 0;
-    if (!s && !trial && start == 0) {   // before the network goes to a device
+    if (!trial && start == 0) {   // before the network goes to a device
         mlb_progress_enter(r->progress, PIPELINE_MATERIAL_START, 0);
         s = pipeline_material_start(r, &metal);
     }
@@ -406,98 +388,24 @@ static mlb_status appearance_stage(pipeline_run* r, const appearance_trial* tria
         s = mlb_field_use_device(net, r->field_be);
         if (!s && !trial) mlb_log(MLB_LOG_INFO, "appearance stage: renderer, material network and shading on the GPU");
     }
-    // this process's views (dist.h): whole micro-batches of the config's view_batch views, one
-    // guidance call each, the same calls on any number of processes. Each batch is rendered, guided
-    // and backpropagated on its own (the material network over its samples only, with its share of
-    // the smoothness points), into a gradient of its own; the batches' gradients are then summed in
-    // batch order on every process (mlb_dist_sum_batches), so every process takes the same AdamW
-    // step and the bits depend on the batch size, not on the number of processes. One batch (the
-    // default) on one process is the gradient as it always was: nothing is copied or summed.
-    const int k = mlb_guidance_batch(r->g, n), nb = (n + k - 1) / k;
-    const int smooth_on = c->w_mat > 0 || c->w_mat_spec > 0;
-    int v0 = 0, cnt = n, b0 = 0, bc = nb;
-    mlb_dist_share_batches(n, k, &v0, &cnt);
-    mlb_dist_share(nb, &b0, &bc);   // the same batches, counted in batches
-    const int sum_grads = nb > 1 || mlb_dist_size() > 1;
-    // this process's batches' gradients [bc, n_params] where they cannot stay in net->grads (one batch
-    // on the host: the sum reads it there and writes the total over it)
-    const int own_in_place = bc == 1 && !mlb_field_backend(net);
-    float* mine = NULL;
-    if (!s && sum_grads && bc > 0 && !own_in_place) {
-        mine = malloc(sizeof(float) * net->n_params * (size_t)bc);
-        if (!mine) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory (%d gradients of %zu parameters)", bc, net->n_params);
-    }
-    double* losses = calloc(2 * (size_t)nb, sizeof(double));   // per batch: guidance, smoothness
-    if (!losses && !s) s = mlb_fail(MLB_ERR_NOMEM, "appearance stage: out of memory");
-    // the shading's split-sum table, built once per process on first use (about 0.75 CPU s on the
-    // benchmark machine): before the clock, so that the stage report's work per step is the steps'
-    if (!s && !mlb_splitsum_lut()) s = mlb_fail_context(MLB_ERR_NOMEM, "appearance stage");
+    pipeline_appearance a = {0};
+    if (!s) s = pipeline_appearance_begin(r, &a);
     stage_clock clock = stage_clock_start();
     for (long it = start; !s && it < end; it++) {
-        s = r->g->sample_views(r->g, MLB_STAGE_APPEARANCE, it, views);
-        if (!s) s = pipeline_fix_env(r, views, n);
-        // paint with image guidance: the views were taken of the mesh as given; move their cameras
-        // into the frame the mesh was moved into (SDS cameras are the frame's own)
-        for (int i = 0; !s && paint_images && i < n; i++) s = mlb_paint_frame_camera(c->paint_centre, c->paint_scale, &views[i].cam);
-        if (!s && cnt > 0 && !app.images_on_table) memset(dimages + img * (size_t)v0, 0, sizeof(float) * img * (size_t)cnt);
-        if (!s && smooth_on && bc > 0)   // every process draws the same points, each smooths its batches' share
-            s = mlb_mesh_sample_surface(&r->scene.mesh, pts, SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
-        for (int j = 0; !s && j < bc; j++) {
-            int b = b0 + j, f = b * k, m = n - f < k ? n - f : k, p0, pc;
-            material_net_zero_grad(net);
-            app.part_first = f;
-            app.part_count = m;
-            s = mlb_appearance_render(&app, net, &r->scene.mesh, r->scene.light_ptrs, views, n, c->res, c->ss,
-                                      app.images_on_table ? NULL : images, 1);
-            if (!s && app.images_on_table) {
-                s = mlb_guidance_loss_batches(r->g, atb, MLB_STAGE_APPEARANCE, it, views, n, f, m, app.t_images, c->res,
-                                              c->res, app.t_dimages, losses);
-                if (!s) s = mlb_appearance_backward_table(&app, net);
-            } else if (!s) {
-                s = mlb_guidance_loss_batches(r->g, NULL, MLB_STAGE_APPEARANCE, it, views, n, f, m, images, c->res, c->res,
-                                              dimages, losses);
-                if (!s) s = mlb_appearance_backward(&app, net, dimages);
-            }
-            mlb_dist_share_of(SMOOTH_POINTS, b, nb, &p0, &pc);
-            if (!s && smooth_on)
-                s = mlb_material_smoothness_part(net, pts, SMOOTH_POINTS, p0, pc, c->mat_sigma, c->w_mat, c->w_mat_spec,
-                                                 c->seed, it, 1, &losses[nb + b]);
-            if (!s && mine) s = mlb_field_grads_get(net, mine + net->n_params * (size_t)j);
-        }
         const int preview = !trial && preview_at(c, it);
-        if (!s && app.images_on_table && cnt > 0 && preview)   // this process's renders down for the previews
-            s = atb->download(images + img * (size_t)v0, app.t_images + img * (size_t)v0, img * (size_t)cnt);
-        s = pipeline_agree(s);   // the collectives below need every rank
-        if (!s && sum_grads) {
-            s = mlb_dist_sum_batches(mine ? mine : net->grads, net->grads, net->n_params, nb);
-            if (!s && mlb_field_backend(net)) s = mlb_field_grads_set(net, net->grads);
-        }
-        double loss = 0, smooth = 0;   // the batches' losses, shared as the batches are
-        if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + b0, losses, nb, sizeof(double));
-        if (!s && mlb_dist_size() > 1) s = mlb_dist_allgather_items(losses + nb + b0, losses + nb, nb, sizeof(double));
-        for (int b = 0; !s && b < nb; b++) { loss += losses[b]; smooth += losses[nb + b]; }   // in batch order
-        if (!s && mlb_dist_size() > 1 && preview)   // previews: every view's render
-            s = mlb_dist_allgather_batches(images + img * (size_t)v0, images, n, k, img * sizeof(float));
-        if (!s) s = material_net_update(net, &adam);
-        s = pipeline_agree(s);
+        double loss = 0, smooth = 0;
+        s = pipeline_appearance_step(r, &a, &adam, it, preview, &loss, &smooth);
         if (s) { s = mlb_fail_context(s, "appearance stage, step %ld", it); break; }
         if (trial) continue;
         double row[3] = {loss, smooth, r->scene.mesh.n_faces};
         int stop = 0;
-        s = stage_end_of_step(r, &ss, it, row, images, n, &stop);
+        s = stage_end_of_step(r, &ss, it, row, a.images, a.n, &stop);
         if (stop) break;
     }
     if (!trial) stage_clock_report(&clock, "appearance", r->result.appearance_steps);
-    mlb_appearance_free(&app);
+    pipeline_appearance_end(&a);
     mlb_status left = mlb_field_leave_device(net);   // the host copy is the result
-    if (!s) s = left;
-    free(views);
-    free(images);
-    free(dimages);
-    free(pts);
-    free(losses);
-    free(mine);
-    return s;
+    return s ? s : left;
 }
 
 static mlb_status appearance_trial_run(pipeline_run* r, int metal, long steps) {

@@ -81,6 +81,31 @@ int pipeline_active_levels_at(const mlb_pipeline_config* c, const mlb_geometry_n
 mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const mlb_adam_config* adam, long it,
                                   mlb_view* views, mlb_geofit_stats* stats, float* images);
 
+// appearance_step.c
+// The appearance stage's buffers and this process's share of a step's view batches (dist.h).
+#define PIPELINE_SMOOTH_POINTS 4096   // surface points of the material smoothness term per step
+typedef struct {
+    mlb_appearance app;                     // the renderer's state, on the run's stage table
+    const mlb_backend* atb;                 // that table (the CPU's when the run has none)
+    mlb_view* views;                        // [n] the step's views
+    float *images, *dimages;                // [n, res, res, 4] renders and their gradients (host)
+    float* pts;                             // [PIPELINE_SMOOTH_POINTS, 3] the step's smoothness points
+    float* mine;                            // [bc, n_params] this process's batches' gradients, or NULL
+    double* losses;                         // [2, nb] per batch: guidance, smoothness
+    size_t img;                             // floats of one render
+    int n, k, nb;                           // views, views per batch, batches
+    int v0, cnt, b0, bc;                    // this process's views and batches
+    int smooth_on, sum_grads;
+} pipeline_appearance;
+// After the material network is on its device (the gradients' layout depends on it); a failed
+// begin leaves a to pipeline_appearance_end.
+mlb_status pipeline_appearance_begin(pipeline_run* r, pipeline_appearance* a);
+void pipeline_appearance_end(pipeline_appearance* a);
+// Appearance step `it`: every rank agreeing on the outcome, then the AdamW update. preview: the
+// step's renders into a->images on every process. *loss, *smooth: the step's summed losses.
+mlb_status pipeline_appearance_step(pipeline_run* r, pipeline_appearance* a, const mlb_adam_config* adam, long it,
+                                    int preview, double* loss, double* smooth);
+
 // pipeline_init.c
 // Fits net to the starting shape `init` ("ellipsoid", "cylinder", "torus", "slab", "cup" or an OBJ file) in the
 // hash grid's first active_levels levels (0: all). Adam's moments and step are zero after it.

@@ -189,7 +189,6 @@ typedef struct {
     mlb_geometry_net geo;
     float *geo_params0;                 // the initialised network every configuration starts from
     mlb_tetgrid grid;
-    mlb_raster_ctx* ctx;
     mlb_mesh mesh;                      // the appearance stage's fixed surface
     mlb_material_net mat;
     float* mat_params0;
@@ -242,7 +241,7 @@ static mlb_status bench_geometry(scene* sc, guide* gd, long step0, int res, int 
         s = g->sample_views(g, MLB_STAGE_GEOMETRY, step, views);
         for (int v = 0; v < n; v++) cams[v] = views[v].cam;
         geometry_net_zero_grad(&sc->geo);
-        if (!s) s = mlb_geofit_forward(&st, &sc->geo, &sc->grid, sc->ctx, cams, n, res, 1, NULL, &stats);
+        if (!s) s = mlb_geofit_forward(&st, &sc->geo, &sc->grid, cams, n, res, 1, NULL, &stats);
         double t1 = mlb_now_seconds();
         memset(dimages, 0, sizeof(float) * N);
         if (!s) s = g->loss(g, MLB_STAGE_GEOMETRY, step, views, n, st.images, res, res, dimages, &loss);
@@ -330,8 +329,6 @@ static mlb_status scene_init(scene* sc, int init_iters) {
     gc.seed = 1;
     mlb_status s = geometry_net_init(&sc->geo, &gc);
     if (!s) s = mlb_tetgrid_create(&sc->grid, 32, gc.scale);
-    sc->ctx = mlb_raster_ctx_create();
-    if (!s && !sc->ctx) s = mlb_fail(MLB_ERR_NOMEM, "bench_pipeline: raster context");
     if (!s) {   // the pipeline's default start: the ellipsoid
         mlb_shape shape;
         memset(&shape, 0, sizeof shape);
@@ -385,7 +382,6 @@ static void scene_free(scene* sc) {
     material_net_free(&sc->mat);
     geometry_net_free(&sc->geo);
     mlb_tetgrid_free(&sc->grid);
-    mlb_raster_ctx_free(sc->ctx);
     mlb_mesh_free(&sc->mesh);
     free(sc->geo_params0);
     free(sc->mat_params0);

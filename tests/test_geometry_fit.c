@@ -173,7 +173,7 @@ TEST(target_mesh) {
     REQUIRE(mlb_geofit_camera(&cam, &c, 0, 0) == MLB_OK);
     float* img = malloc(sizeof(float) * 64 * 64 * 4);
     REQUIRE(img);
-    REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img, &t, &cam, 64, 1) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(NULL, img, &t, &cam, 64, 1) == MLB_OK);
     int covered = 0;
     for (int i = 0; i < 64 * 64; i++) {
         if (img[4 * i + 3] == 1.0f) {
@@ -241,18 +241,18 @@ TEST(fd_full_chain_f64) {
     REQUIRE(targets);
     for (int v = 0; v < VIEWS; v++) {
         REQUIRE(mlb_geofit_camera(&cams[v], &fcfg, 3, v) == MLB_OK);
-        REQUIRE(mlb_geofit_render_mesh_f64(NULL, NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, SS) == MLB_OK);
+        REQUIRE(mlb_geofit_render_mesh_f64(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, SS) == MLB_OK);
     }
     mlb_geofit_stats st0, sp, sm;
     geometry_net_zero_grad_f64(&nd);
-    REQUIRE(mlb_geofit_loss_f64(&nd, &g, NULL, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 1, &st0) == MLB_OK);
+    REQUIRE(mlb_geofit_loss_f64(&nd, &g, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 1, &st0) == MLB_OK);
     printf("  %d faces, loss %.6g (img %.6g, reg %.6g)\n", st0.n_faces, st0.loss, st0.img, st0.reg);
     CHECK(st0.n_faces > 20);
     double* grad = malloc(sizeof(double) * nd.n_params);
     REQUIRE(grad);
     memcpy(grad, nd.grads, sizeof(double) * nd.n_params);
     // a second backward doubles the gradient (accumulation)
-    REQUIRE(mlb_geofit_loss_f64(&nd, &g, NULL, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 1, &sp) == MLB_OK);
+    REQUIRE(mlb_geofit_loss_f64(&nd, &g, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 1, &sp) == MLB_OK);
     double acc = 0;   // (not bitwise: the table backward adds corner by corner into the buffer)
     for (size_t i = 0; i < nd.n_params; i++) acc = fmax(acc, fabs(nd.grads[i] - 2 * grad[i]) / (1e-300 + fabs(grad[i]) + 1e-12));
     CHECK(acc < 1e-9);
@@ -266,9 +266,9 @@ TEST(fd_full_chain_f64) {
         size_t i = pick[q];
         double x0 = nd.params[i], h = 1e-6 * fmax(1.0, fabs(x0));
         nd.params[i] = x0 + h;
-        REQUIRE(mlb_geofit_loss_f64(&nd, &g, NULL, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 0, &sp) == MLB_OK);
+        REQUIRE(mlb_geofit_loss_f64(&nd, &g, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 0, &sp) == MLB_OK);
         nd.params[i] = x0 - h;
-        REQUIRE(mlb_geofit_loss_f64(&nd, &g, NULL, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 0, &sm) == MLB_OK);
+        REQUIRE(mlb_geofit_loss_f64(&nd, &g, cams, VIEWS, targets, RES, SS, 1.0, 1.0, 0.1, 0, &sm) == MLB_OK);
         nd.params[i] = x0;
         if (sp.coverage != st0.coverage || sm.coverage != st0.coverage || sp.n_faces != st0.n_faces || sm.n_faces != st0.n_faces) {
             skipped++;
@@ -374,7 +374,7 @@ static int tiny_net_f64(mlb_geometry_net_f64* nd) {
 // fixed) through the whole chain, against central differences in double.
 static double ext_loss(mlb_geofit_state_f64* st, mlb_geometry_net_f64* nd, const mlb_tetgrid* g, const mlb_camera* cams,
                        int n, int res, int ss, const double* R, double lambda, mlb_geofit_stats* stats) {
-    if (mlb_geofit_forward_f64(st, nd, g, NULL, cams, n, res, ss, NULL, stats) != MLB_OK) return NAN;
+    if (mlb_geofit_forward_f64(st, nd, g, cams, n, res, ss, NULL, stats) != MLB_OK) return NAN;
     double L = 0;
     for (size_t i = 0; i < (size_t)n * res * res * 4; i++) L += R[i] * st->images[i];
     return L + lambda * stats->reg;
@@ -399,7 +399,7 @@ TEST(fd_external_gradient_f64) {
     mlb_geofit_state_f64 st = {0};
     mlb_geofit_stats s0, sp, sm;
     geometry_net_zero_grad_f64(&nd);
-    REQUIRE(mlb_geofit_forward_f64(&st, &nd, &g, NULL, cams, VIEWS, RES, SS, imgs, &s0) == MLB_OK);
+    REQUIRE(mlb_geofit_forward_f64(&st, &nd, &g, cams, VIEWS, RES, SS, imgs, &s0) == MLB_OK);
     CHECK(memcmp(imgs, st.images, sizeof(double) * N) == 0);
     CHECK(s0.n_faces == st.surf.n_faces && s0.n_faces > 20 && s0.img == 0 && s0.reg > 0);
     REQUIRE(mlb_geofit_backward_f64(&st, &nd, R, lambda) == MLB_OK);
@@ -501,23 +501,21 @@ TEST(guided_step_equals_fit_loss) {
         memset(&views[v], 0, sizeof views[v]);
         REQUIRE(mlb_geofit_camera(&cams[v], &c, 7, v) == MLB_OK);
         views[v].cam = cams[v];
-        REQUIRE(mlb_geofit_render_mesh(NULL, NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
+        REQUIRE(mlb_geofit_render_mesh(NULL, targets + RES * RES * 4 * v, &t, &cams[v], RES, 1) == MLB_OK);
     }
     l2_guidance u = {targets, 0};
     mlb_guidance gd = {.kind = "l2", .n_views = VIEWS, .loss = l2_loss, .impl = &u};
     mlb_geofit_state st = {0};
     mlb_geofit_stats s1, s2;
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
-    REQUIRE(ctx);
     geometry_net_zero_grad(&b);
-    REQUIRE(mlb_geofit_loss(&b, &g, ctx, cams, VIEWS, targets, RES, 1, 1.0, 1.0, 0.1, 1, &s2) == MLB_OK);
+    REQUIRE(mlb_geofit_loss(&b, &g, cams, VIEWS, targets, RES, 1, 1.0, 1.0, 0.1, 1, &s2) == MLB_OK);
     // micro-batches of views (view_batch): all 3 in one call (0, the default, and 3), 2 + 1, 1 + 1 + 1;
     // this guidance treats views independently, so every batching gives the same bits
     const int batch[4] = {0, 3, 2, 1}, calls[4] = {1, 1, 2, 3};
     for (int i = 0; i < 4; i++) {
         gd.view_batch = batch[i];
         u.calls = 0;
-        REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 3, views, RES, 1, 0.1, &s1, shown) == MLB_OK);
+        REQUIRE(mlb_geometry_guided_step(&st, &a, &g, &gd, 3, views, RES, 1, 0.1, &s1, shown) == MLB_OK);
         CHECK_MSG(u.calls == calls[i], "view_batch %d: %d calls", batch[i], u.calls);
         CHECK(memcmp(a.grads, b.grads, sizeof(float) * a.n_params) == 0);
         CHECK(s1.img == s2.img && s1.reg == s2.reg && s1.loss == s2.loss && s1.n_faces == s2.n_faces &&
@@ -536,11 +534,10 @@ TEST(guided_step_equals_fit_loss) {
     for (int i = 0; i < 3 * m.n_verts; i++) dmax = fmax(dmax, fabs(m.pos[i] - e.pos[i]));
     CHECK(dmax < 1e-5);
     // a second step reuses the state
-    REQUIRE(mlb_geometry_guided_step(&st, &a, &g, ctx, &gd, 4, views, RES, 1, 0.1, &s1, NULL) == MLB_OK);
+    REQUIRE(mlb_geometry_guided_step(&st, &a, &g, &gd, 4, views, RES, 1, 0.1, &s1, NULL) == MLB_OK);
     mlb_mesh_free(&m);
     mlb_mesh_free(&e);
     mlb_geofit_state_free(&st);
-    mlb_raster_ctx_free(ctx);
     free(targets); free(shown);
     mlb_tetgrid_free(&g);
     geometry_net_free(&a);

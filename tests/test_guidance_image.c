@@ -218,9 +218,9 @@ TEST(goblet_data_set) {
     float* img = malloc(sizeof(float) * 4 * P * 2);
     float* lin = malloc(sizeof(float) * 4 * P);
     double L_same, L_other, L_app;
-    for (int i = 0; i < 2; i++) REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img + 4 * P * i, &m, &views[i].cam, 24, 1) == MLB_OK);
+    for (int i = 0; i < 2; i++) REQUIRE(mlb_geofit_render_mesh(NULL, img + 4 * P * i, &m, &views[i].cam, 24, 1) == MLB_OK);
     REQUIRE(g->loss(g, MLB_STAGE_GEOMETRY, 4, views, 2, img, 24, 24, NULL, &L_same) == MLB_OK);
-    for (int i = 0; i < 2; i++) REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img + 4 * P * i, &sphere, &views[i].cam, 24, 1) == MLB_OK);
+    for (int i = 0; i < 2; i++) REQUIRE(mlb_geofit_render_mesh(NULL, img + 4 * P * i, &sphere, &views[i].cam, 24, 1) == MLB_OK);
     REQUIRE(g->loss(g, MLB_STAGE_GEOMETRY, 4, views, 2, img, 24, 24, NULL, &L_other) == MLB_OK);
     printf("  geometry loss: the goblet %.3g, a sphere %.3g\n", L_same, L_other);
     CHECK(L_same < 1e-8);       // 16-bit normal maps

@@ -110,7 +110,7 @@ static void geometry_case_run(geometry_case* k, const mlb_backend* be, int first
     memset(&st, 0, sizeof st);
     st.be = be;
     geometry_net_zero_grad(&k->net);
-    REQUIRE(mlb_geofit_forward(&st, &k->net, &k->g, NULL, k->cams, G_VIEWS, G_RES, G_SS, img, NULL) == MLB_OK);
+    REQUIRE(mlb_geofit_forward(&st, &k->net, &k->g, k->cams, G_VIEWS, G_RES, G_SS, img, NULL) == MLB_OK);
     if (first)
         for (size_t i = 0; i < k->m; i++) k->dimg[i] = img[i] - 0.5f;
     REQUIRE(mlb_geofit_backward(&st, &k->net, k->dimg, 0.1) == MLB_OK);
@@ -139,8 +139,8 @@ TEST(geometry_stage_calls_the_table) {
     mlb_mesh sphere = {0};
     REQUIRE(mlb_mesh_uv_sphere(&sphere, 0.8f, 24, 12) == MLB_OK);
     memset(calls, 0, sizeof calls);
-    REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img[0], &sphere, &k.cams[0], RES, SS) == MLB_OK);
-    REQUIRE(mlb_geofit_render_mesh(be, NULL, img[1], &sphere, &k.cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(NULL, img[0], &sphere, &k.cams[0], RES, SS) == MLB_OK);
+    REQUIRE(mlb_geofit_render_mesh(be, img[1], &sphere, &k.cams[0], RES, SS) == MLB_OK);
     CHECK(same(img[0], img[1], sizeof(float) * RES * RES * 4));
     CHECK(calls[OP_RAST] == 1 && calls[OP_INTERP] == 1 && calls[OP_AA] == 1);
     mlb_mesh_free(&sphere);
@@ -314,7 +314,7 @@ TEST(guided_steps_stay_on_their_table) {
             memset(&st, 0, sizeof st);
             st.be = t ? guarded_table() : NULL;
             mlb_geofit_stats stats;
-            REQUIRE(mlb_geometry_guided_step(&st, &k.net, &k.g, NULL, t ? g : &host, step, views, RES, 1, 0.1, &stats,
+            REQUIRE(mlb_geometry_guided_step(&st, &k.net, &k.g, t ? g : &host, step, views, RES, 1, 0.1, &stats,
                                              img[t]) == MLB_OK);
             CHECK(st.images_on_table == t);
             loss[t] = stats.loss;

@@ -77,7 +77,7 @@ TEST(render_load_round_trip) {
         for (size_t j = 0; j < P; j++) cover += tgt[4 * j + 3];
         CHECK_MSG(worst <= 1.0 / 255 + 1e-6, "view %d: colour differs by %g", i, worst);
         CHECK(cover > 0.05 * P);   // the goblet is in the picture
-        REQUIRE(mlb_geofit_render_mesh(NULL, NULL, img, &m, &cam, 40, 2) == MLB_OK);
+        REQUIRE(mlb_geofit_render_mesh(NULL, img, &m, &cam, 40, 2) == MLB_OK);
         worst = 0;
         for (size_t j = 0; j < 4 * P; j++) worst = fmax(worst, fabs(img[j] - v.normals[4 * P * i + j]));
         CHECK_MSG(worst <= 1e-4, "view %d: normal differs by %g", i, worst);

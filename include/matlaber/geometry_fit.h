@@ -82,7 +82,6 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
         int n, res, ss, S;           /* views, output size, supersampling, S = res·ss */             \
         int n_grid;                  /* grid vertices of the last forward */                        \
         const mlb_tetgrid* grid;     /* borrowed from the forward */                               \
-        mlb_raster_ctx* ctx;         /* borrowed from the forward (may be NULL) */                 \
         N(mlb_mt_surface) surf;      /* the extracted surface of the last forward: its sizes; the   \
                                         arrays stay on the table, mlb_geofit_state_mesh brings them \
                                         down */                                                       \
@@ -128,11 +127,11 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
     /* The network's surface (on grid g, deformation tanh(d)/(2·cells)) seen by cams[v], v < n:      \
        images[v·res·res·4 ...] (may be NULL; the renders are in st->images either way) = [normal,    \
        mask] as mlb_geofit_render_mesh draws them. Keeps every view's buffers in st, and the        \
-       network's forward cache (run nothing else on net before the backward). g and ctx are        \
-       borrowed until the backward. stats: n_verts, n_faces, coverage, reg (the unweighted SDF     \
-       regulariser); img = loss = 0 (the caller's loss). An empty surface is an MLB_ERR_ARG error. */ \
+       network's forward cache (run nothing else on net before the backward). g is borrowed until \
+       the backward. stats: n_verts, n_faces, coverage, reg (the unweighted SDF regulariser);       \
+       img = loss = 0 (the caller's loss). An empty surface is an MLB_ERR_ARG error.              */ \
     mlb_status N(mlb_geofit_forward)(N(mlb_geofit_state)* st, N(mlb_geometry_net)* net, const mlb_tetgrid* g, \
-                                     mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, \
+                                     const mlb_camera* cams, int n, int res, int ss,                \
                                      R* images, mlb_geofit_stats* stats);                           \
     /* net->grads += ∂(Σ dimages·images + reg_weight·sdf_reg)/∂params for the last forward;          \
        dimages [n, res, res, 4] may be NULL (regulariser only). May repeat (gradients add).       */ \
@@ -143,13 +142,13 @@ typedef int (*mlb_geofit_step_fn)(void* user, int it, const mlb_geofit_stats* st
     /* out[res, res, 4] = [normal, mask] of a float mesh (normals: area-weighted vertex normals)  \
        seen by cam: rasterize at res·ss, interpolate, antialias, downsample, with the raster ops of  \
        table be (NULL: the CPU's): the mesh, its normals and out stay host buffers, so be is the    \
-       CPU's for now (docs/cuda.md). ctx is not used (each op keeps a scratch of its own). */      \
-    mlb_status N(mlb_geofit_render_mesh)(const N(mlb_backend)* be, mlb_raster_ctx* ctx, R* out,      \
+       CPU's for now (docs/cuda.md). Each op allocates its own scratch (no mlb_raster_ctx).    */ \
+    mlb_status N(mlb_geofit_render_mesh)(const N(mlb_backend)* be, R* out,                           \
                                          const mlb_mesh* m, const mlb_camera* cam, int res, int ss); \
     /* The L2 loss of the network's surface against targets[v·res·res·4] seen by cams[v],          \
        v < n_views, with regulariser weight reg_weight (forward + loss + backward above).          \
        backward != 0: net->grads += ∂L/∂params (zero them first). An empty surface is an error.  */ \
-    mlb_status N(mlb_geofit_loss)(N(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx, \
+    mlb_status N(mlb_geofit_loss)(N(mlb_geometry_net)* net, const mlb_tetgrid* g,                  \
                                   const mlb_camera* cams, int n_views, const R* targets, int res, int ss, \
                                   double w_normal, double w_mask, double reg_weight, int backward,  \
                                   mlb_geofit_stats* st);
@@ -176,7 +175,7 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
 // surface size, coverage hash. images_out (may be NULL) [n, res, res, 4] receives the renders
 // (previews); the surface of this step stays in st->surf (mlb_geofit_state_mesh).
 mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* grid,
-                                    mlb_raster_ctx* ctx, mlb_guidance* g, long step, const mlb_view* views, int res,
+                                    mlb_guidance* g, long step, const mlb_view* views, int res,
                                     int ss, double reg_weight, mlb_geofit_stats* stats, float* images_out);
 // The surface of the state's last forward as a float mesh (positions and faces; MLB_ERR_ARG when
 // no forward is held).

@@ -16,7 +16,6 @@ struct mlb_catalogue_renderer {
     int n_envs;
     mlb_envmap maps[MLB_CATALOGUE_MAX_ENVS];
     mlb_envlight lights[MLB_CATALOGUE_MAX_ENVS];
-    mlb_raster_ctx* ctx;
     float* rgba;                  // [res, res, 4] scratch
     int mesh_cls;                 // the cached mesh: class (−1 none) and seed
     uint64_t mesh_seed;
@@ -41,7 +40,6 @@ void mlb_catalogue_renderer_free(mlb_catalogue_renderer* r) {
         mlb_envlight_free(&r->lights[i]);
         mlb_envmap_free(&r->maps[i]);
     }
-    mlb_raster_ctx_free(r->ctx);
     free(r->rgba);
     mlb_mesh_free(&r->mesh);
     free(r);
@@ -59,9 +57,8 @@ mlb_status mlb_catalogue_renderer_create(mlb_catalogue_renderer** out, const mlb
     if (!r) return mlb_fail(MLB_ERR_NOMEM, "catalogue renderer: out of memory");
     r->c = c;
     r->mesh_cls = -1;
-    r->ctx = mlb_raster_ctx_create();
     r->rgba = malloc(sizeof(float) * 4 * (size_t)c.res * c.res);
-    mlb_status s = r->ctx && r->rgba ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "catalogue renderer: out of memory");
+    mlb_status s = r->rgba ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "catalogue renderer: out of memory");
     mlb_envlight_options opt = {0};
     opt.face_size = c.cube_size;
     for (int i = 0; !s && i < c.n_envs; i++) {
@@ -112,6 +109,6 @@ mlb_status mlb_catalogue_render(mlb_catalogue_renderer* r, const mlb_catalogue_s
         for (size_t i = 0; i < P; i++)   // [res, res, 4] → [3, res, res]
             for (int ch = 0; ch < 3; ch++) rgb[ch * P + i] = r->rgba[4 * i + ch];
     }
-    if (normal) MLB_TRY(mlb_geofit_render_mesh(NULL, r->ctx, normal, &r->mesh, &smp->view.cam, res, r->c.supersample));
+    if (normal) MLB_TRY(mlb_geofit_render_mesh(NULL, normal, &r->mesh, &smp->view.cam, res, r->c.supersample));
     return MLB_OK;
 }

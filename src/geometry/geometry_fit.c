@@ -89,9 +89,8 @@ static uint64_t FN(geofit_hash)(uint64_t h, const int32_t* tri, size_t n) {
     return h;
 }
 
-mlb_status FN(mlb_geofit_render_mesh)(const FN(mlb_backend)* be, mlb_raster_ctx* ctx, real* out, const mlb_mesh* m,
-                                     const mlb_camera* cam, int res, int ss) {
-    (void)ctx;   // each raster op keeps a scratch of its own
+mlb_status FN(mlb_geofit_render_mesh)(const FN(mlb_backend)* be, real* out, const mlb_mesh* m, const mlb_camera* cam,
+                                     int res, int ss) {
     if (!be) be = FN(mlb_backend_cpu)();
     size_t V = (size_t)m->n_verts;
     real* pos = malloc(sizeof(real) * V * 3);
@@ -275,8 +274,7 @@ static mlb_status FN(grid_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_ne
 }
 
 mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)* net, const mlb_tetgrid* g,
-                                 mlb_raster_ctx* ctx, const mlb_camera* cams, int n, int res, int ss, real* images,
-                                 mlb_geofit_stats* stats) {
+                                 const mlb_camera* cams, int n, int res, int ss, real* images, mlb_geofit_stats* stats) {
     mlb_geofit_stats local;
     if (!stats) stats = &local;
     memset(stats, 0, sizeof *stats);
@@ -302,7 +300,6 @@ mlb_status FN(mlb_geofit_forward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_net)
     st->S = res * ss;
     st->n_grid = g->n_verts;
     st->grid = g;
-    st->ctx = ctx;
     stats->n_verts = M;
     stats->n_faces = F;
     // 2. on the table: the faces at each vertex, the normals, the attribute [normal, 1] and the
@@ -448,14 +445,14 @@ static mlb_status FN(geofit_backward)(FN(mlb_geofit_state)* st, FN(mlb_geometry_
     return FN(grid_backward)(st, net, g, t_dsurf, reg_weight);
 }
 
-mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, mlb_raster_ctx* ctx,
-                              const mlb_camera* cams, int n_views, const real* targets, int res, int ss, double w_normal,
-                              double w_mask, double reg_weight, int backward, mlb_geofit_stats* stats) {
+mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, const mlb_camera* cams, int n_views,
+                              const real* targets, int res, int ss, double w_normal, double w_mask, double reg_weight,
+                              int backward, mlb_geofit_stats* stats) {
     mlb_geofit_stats local;
     if (!stats) stats = &local;
     FN(mlb_geofit_state) st;
     memset(&st, 0, sizeof st);
-    mlb_status s = FN(mlb_geofit_forward)(&st, net, g, ctx, cams, n_views, res, ss, NULL, stats);
+    mlb_status s = FN(mlb_geofit_forward)(&st, net, g, cams, n_views, res, ss, NULL, stats);
     size_t p = (size_t)res * res, N = p * 4 * (size_t)n_views;
     real* dimages = NULL;
     if (!s && backward && !(dimages = malloc(sizeof(real) * N))) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");

@@ -70,9 +70,8 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
     size_t img = (size_t)c->res * c->res * 4;
     float* targets = malloc(sizeof(float) * img * (size_t)c->views);
     mlb_camera* cams = malloc(sizeof(mlb_camera) * (size_t)c->views);
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
     mlb_tetgrid g = {0};
-    if (!targets || !cams || !ctx) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
+    if (!targets || !cams) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
     if (!s) s = mlb_tetgrid_create(&g, c->cells, net->cfg.scale);
     mlb_adam_config adam = mlb_geometry_adam(c->lr);
     mlb_geofit_stats st;
@@ -80,11 +79,11 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
     for (int it = 0; !s && it < c->iters; it++) {
         for (int v = 0; !s && v < c->views; v++) {
             s = mlb_geofit_camera(&cams[v], c, it, v);
-            if (!s) s = mlb_geofit_render_mesh(NULL, ctx, targets + img * (size_t)v, target, &cams[v], c->res, c->ss);
+            if (!s) s = mlb_geofit_render_mesh(NULL, targets + img * (size_t)v, target, &cams[v], c->res, c->ss);
         }
         if (s) break;
         geometry_net_zero_grad(net);
-        s = mlb_geofit_loss(net, &g, ctx, cams, c->views, targets, c->res, c->ss, c->w_normal, c->w_mask,
+        s = mlb_geofit_loss(net, &g, cams, c->views, targets, c->res, c->ss, c->w_normal, c->w_mask,
                             mlb_sdf_reg_weight(&c->sdf_reg, it, c->iters), 1, &st);
         if (s) { s = mlb_fail_context(s, "geometry fit, step %d", it); break; }
         geometry_net_update(net, &adam);
@@ -97,7 +96,6 @@ mlb_status mlb_geometry_fit_images(mlb_geometry_net* net, const mlb_mesh* target
     }
     if (last) *last = st;
     mlb_tetgrid_free(&g);
-    mlb_raster_ctx_free(ctx);
     free(cams);
     free(targets);
     return s;
@@ -115,8 +113,8 @@ mlb_status mlb_geofit_state_mesh(const mlb_geofit_state* st, mlb_mesh* out) {
 }
 
 mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net, const mlb_tetgrid* grid,
-                                    mlb_raster_ctx* ctx, mlb_guidance* g, long step, const mlb_view* views, int res,
-                                    int ss, double reg_weight, mlb_geofit_stats* stats, float* images_out) {
+                                    mlb_guidance* g, long step, const mlb_view* views, int res, int ss, double reg_weight,
+                                    mlb_geofit_stats* stats, float* images_out) {
     mlb_geofit_stats local;
     if (!stats) stats = &local;
     memset(stats, 0, sizeof *stats);
@@ -143,7 +141,7 @@ mlb_status mlb_geometry_guided_step(mlb_geofit_state* st, mlb_geometry_net* net,
     if (!s) {
         for (int v = 0; v < n; v++) cams[v] = views[v].cam;
         geometry_net_zero_grad(net);
-        s = mlb_geofit_forward(st, net, grid, ctx, cams, n, res, ss, NULL, stats);
+        s = mlb_geofit_forward(st, net, grid, cams, n, res, ss, NULL, stats);
     }
     if (!s && st->images_on_table)
         s = mlb_guidance_loss_batches(g, tb, MLB_STAGE_GEOMETRY, step, views, n, v0, cnt, st->t_images, res, res,

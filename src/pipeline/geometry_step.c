@@ -22,8 +22,7 @@ mlb_status pipeline_geometry_step(pipeline_run* r, mlb_geofit_state* st, const m
     net->active_levels = pipeline_active_levels_at(c, net, it);
     mlb_status s = r->g->sample_views(r->g, MLB_STAGE_GEOMETRY, it, views);
     const double reg_weight = mlb_sdf_reg_weight(&c->sdf_reg, it, c->geometry_iters);
-    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->ctx, r->g, it, views, c->res, c->ss, reg_weight, stats,
-                                         images);
+    if (!s) s = mlb_geometry_guided_step(st, net, &r->grid, r->g, it, views, c->res, c->ss, reg_weight, stats, images);
     s = pipeline_agree(s);   // every rank fails together, or none does
     if (!s) geometry_net_update(net, adam);
     return s;

@@ -549,14 +549,12 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     if (c->hash_log2 > 0) gc.enc.table_size = 1u << c->hash_log2;
     if (!s && !paint) s = geometry_net_init(&r.geo, &gc);
     if (!s && !paint) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
-    r.ctx = mlb_raster_ctx_create();
     // The final renders and the extraction run on the CPU's table (host meshes in, host images out);
     // the stages on field_be's when there is one (pipeline_stage_table)
     r.be = mlb_backend_cpu();
     // The caller's device: on a GPU the material network, its AdamW and the shading run there, in
     // fp32 whatever the table's precision (the MLPs are small)
     r.field_be = be && be->device == MLB_DEVICE_CUDA ? mlb_backend_for(MLB_DEVICE_CUDA, MLB_GEMM_FP32) : NULL;
-    if (!s && !r.ctx) s = mlb_fail(MLB_ERR_NOMEM, "pipeline: out of memory");
     if (!s && progress) {
         pipeline_start_sizes starts = {pipeline_shape_start_steps(r.c), pipeline_material_start_steps(&r),
                                        pipeline_material_start_views(&r)};
@@ -605,7 +603,6 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     brdf_ae_free(&prior);
     material_net_free(&r.mat);
     pipeline_scene_free(&r.scene);
-    mlb_raster_ctx_free(r.ctx);
     mlb_tetgrid_free(&r.grid);
     geometry_net_free(&r.geo);
     mlb_mesh_free(&input);

@@ -106,7 +106,7 @@ static mlb_status score_shape(pipeline_run* r, const mlb_view* views, int n, dou
     memset(&st, 0, sizeof st);
     st.be = pipeline_stage_table(r);
     mlb_geofit_stats stats;
-    mlb_status s = mlb_geofit_forward(&st, &r->geo, &r->grid, r->ctx, cams, n, c->res, c->ss, NULL, &stats);
+    mlb_status s = mlb_geofit_forward(&st, &r->geo, &r->grid, cams, n, c->res, c->ss, NULL, &stats);
     *vanished = s && st.surf.n_faces == 0;   // marching tets found no surface
     if (*vanished) s = MLB_OK;
     else if (!s) s = r->g->score(r->g, MLB_STAGE_GEOMETRY, views, n, st.images, c->res, c->res, NULL, per_view);

@@ -32,7 +32,6 @@ typedef struct pipeline_run {
     mlb_losslog* log;
     mlb_geometry_net geo;
     mlb_tetgrid grid;
-    mlb_raster_ctx* ctx;
     const mlb_backend* be;   // the op table the stages' marching tets and raster ops run on
     const mlb_backend* field_be;   // the stages' table (CUDA fp32 on a GPU), NULL: the host
     mlb_material_net mat;

@@ -198,7 +198,7 @@ static mlb_status write_final_renders(pipeline_run* r) {
     char path[MLB_PIPELINE_PATH + 64], rel[64];
     for (int v = 0; !s && v < FINAL_VIEWS; v++) {
         float* row = sheet;   // tile index = kind * FINAL_VIEWS + v
-        s = mlb_geofit_render_mesh(r->be, r->ctx, normal, &r->scene.mesh, &views[v].cam, res, 2);
+        s = mlb_geofit_render_mesh(r->be, normal, &r->scene.mesh, &views[v].cam, res, 2);
         if (!s) s = mlb_appearance_maps(r->be, &r->mat, &r->scene.mesh, &views[v], res, maps, maps + 3 * p, maps + 6 * p, maps + 7 * p);
         if (s) break;
         display_rgb(row + p * 3 * (0 * FINAL_VIEWS + v), normal, p, MLB_STAGE_GEOMETRY);

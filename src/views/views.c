@@ -682,8 +682,7 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
     meta.envs = calloc((size_t)ne, sizeof *meta.envs);
     meta.views = calloc((size_t)n, sizeof *meta.views);
     float* img = malloc(sizeof(float) * 4 * (size_t)R * R);
-    mlb_raster_ctx* ctx = mlb_raster_ctx_create();
-    mlb_status s = (envs && lights && meta.envs && meta.views && img && ctx) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "views render: out of memory");
+    mlb_status s = (envs && lights && meta.envs && meta.views && img) ? MLB_OK : mlb_fail(MLB_ERR_NOMEM, "views render: out of memory");
     char path[4400];
     for (int i = 0; i < ne && !s; i++) {
         const char* name = c->envs[i];
@@ -743,7 +742,7 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
         join(path, sizeof path, dir, e->image);
         if (!s) s = mlb_views_write_color_png(path, img, R, R);
         if (!s && c->normals) {
-            s = mlb_geofit_render_mesh(NULL, ctx, img, c->mesh, &p.camera, R, c->supersample);
+            s = mlb_geofit_render_mesh(NULL, img, c->mesh, &p.camera, R, c->supersample);
             join(path, sizeof path, dir, e->normal);
             if (!s) s = mlb_views_write_normal_png(path, img, R, R);
         }
@@ -753,6 +752,5 @@ mlb_status mlb_views_render(const char* dir, const mlb_views_render_config* c, m
     for (int i = 0; i < ne && envs && lights; i++) { mlb_envmap_free(&envs[i]); mlb_envlight_free(&lights[i]); }
     free(envs); free(lights); free(img);
     mlb_views_meta_free(&meta);
-    mlb_raster_ctx_free(ctx);
     return s;
 }

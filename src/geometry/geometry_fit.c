@@ -458,7 +458,7 @@ mlb_status FN(mlb_geofit_loss)(FN(mlb_geometry_net)* net, const mlb_tetgrid* g, 
     if (!s && backward && !(dimages = malloc(sizeof(real) * N))) s = mlb_fail(MLB_ERR_NOMEM, "geometry fit: out of memory");
     if (!s) {
         double img_loss = 0, norm = 1.0 / ((double)n_views * (double)p);
-        for (int v = 0; v < n_views; v++) {   // per view in double, in order (as before)
+        for (int v = 0; v < n_views; v++) {   // per view in double, in view order
             double sum = 0;
             for (size_t i = (size_t)v * p * 4; i < (size_t)(v + 1) * p * 4; i++) {
                 double d = (double)st.images[i] - (double)targets[i];

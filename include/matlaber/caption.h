@@ -25,7 +25,7 @@ typedef struct {
     int second_cls, second_mat;   // a second, different class or material named (-1: none)
     int normal_map;           // 1: the prompt asks for the normal render ("normal map", the geometry captions)
 } mlb_caption_reading;
-// What the geometry captions add after the object (sd_train.h MLB_SD_GEOMETRY_SUFFIX, the same text)
+// What the geometry captions add after the object (sd_train.h's MLB_SD_GEOMETRY_SUFFIX is this)
 #define MLB_CAPTION_NORMAL_MAP ", normal map"
 
 // Reads prompt into r (always filled). MLB_OK when it names exactly one class, at most one

@@ -22,6 +22,7 @@
 #define MATLABER_SD_TRAIN_H
 #include <stdint.h>
 #include "matlaber/backend.h"
+#include "matlaber/caption.h"
 #include "matlaber/error.h"
 #include "matlaber/progress.h"
 #include "matlaber/sd_folder.h"
@@ -49,7 +50,7 @@ void mlb_sd_dataset_free(mlb_sd_dataset* d);
 // render lean to the normal map's colours (the striped blue-green silver of docs/sd_train.md). The
 // model folder names it (model_index.json "_matlaber_geometry_suffix", sd_folder.h) so that the
 // geometry stage's guidance appends it (sd_model.h geometry_suffix).
-#define MLB_SD_GEOMETRY_SUFFIX ", normal map"
+#define MLB_SD_GEOMETRY_SUFFIX MLB_CAPTION_NORMAL_MAP   /* ", normal map": the caption reader reads it back */
 // Caption index of (class, material, view in 0 .. MLB_SDS_N_VIEWS-1, geometry 0/1): the rows of the
 // embedding table (after it: the unconditional prompts); the text of row 0 .. count-1.
 int mlb_sd_caption_index(int cls, int mat, int view, int geometry);

@@ -31,7 +31,7 @@ static const phrase PHRASES[] = {
     // the view suffixes the model was trained with
     {"front view", VIEW, 0, MLB_SDS_VIEW_FRONT}, {"side view", VIEW, 0, MLB_SDS_VIEW_SIDE},
     {"back view", VIEW, 0, MLB_SDS_VIEW_BACK}, {"overhead view", VIEW, 0, MLB_SDS_VIEW_OVERHEAD},
-    // the geometry captions' suffix (the normal renders', sd_train.h MLB_SD_GEOMETRY_SUFFIX)
+    // the geometry captions' suffix (the normal renders', MLB_CAPTION_NORMAL_MAP)
     {"normal map", NORMAL_MAP, 0, 0},
 };
 #define N_PHRASES ((int)(sizeof PHRASES / sizeof *PHRASES))

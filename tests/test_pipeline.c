@@ -166,6 +166,23 @@ TEST(config_round_trip_and_errors) {
     optional_key(&c, path, "appearance_model", "/models/other one", "", NULL);
     // "surface_smooth": a run from before it used the surface as extracted (0)
     optional_key(&c, path, "surface_smooth", "10", "0", "-1");
+    // the geometry hash grid's span: a run from before it had the paper's (0 = 16 levels, 16..4096)
+    optional_key(&c, path, "geometry_hash_levels", "8", "0", "33");
+    optional_key(&c, path, "geometry_hash_base_res", "4", "0", "1");
+    optional_key(&c, path, "geometry_hash_max_res", "16", "0", "4097");
+    mlb_pipeline_config span = c;
+    span.geometry_hash_levels = 8;
+    span.geometry_hash_base_res = 32;   // finest below coarsest: 32..16
+    span.geometry_hash_max_res = 16;
+    CHECK(mlb_pipeline_validate(&span) == MLB_ERR_ARG && strstr(mlb_last_error(), "geometry_hash_max_res"));
+    span.geometry_hash_base_res = 0;    // 16..16 over 8 levels: allowed (all one resolution)
+    CHECK(mlb_pipeline_validate(&span) == MLB_OK);
+    span.geometry_hash_levels = 1;
+    span.geometry_hash_max_res = 64;    // one level, two resolutions
+    CHECK(mlb_pipeline_validate(&span) == MLB_ERR_ARG && strstr(mlb_last_error(), "geometry_hash_levels 1"));
+    mlb_hashgrid_config enc = mlb_hashgrid_default(), paper = enc;
+    mlb_pipeline_geometry_hash(&c, &enc);   // all 0: the paper's grid, bit for bit
+    CHECK(!memcmp(&enc, &paper, sizeof enc));
     mlb_pipeline_config img = c;   // a model for image guidance's appearance stage makes no sense
     snprintf(img.guidance, sizeof img.guidance, "images");
     snprintf(img.views_dir, sizeof img.views_dir, "/views");
@@ -525,6 +542,9 @@ TEST(sds_generate_two_steps_per_stage) {
     c.cube_size = 64;
     c.env_height = 64;
     c.preview_every = 1;
+    c.geometry_hash_levels = 6;   // the geometry network's hash grid from 4 to 16
+    c.geometry_hash_base_res = 4;
+    c.geometry_hash_max_res = 16;
     mlb_guidance_sds_config gc = mlb_guidance_sds_default();
     gc.views = c.views;
     gc.latent_iters = c.latent_iters;
@@ -543,6 +563,14 @@ TEST(sds_generate_two_steps_per_stage) {
     CHECK(mlb_is_file(p));
     snprintf(p, sizeof p, "%s/final/mesh.obj", run);
     CHECK(mlb_is_file(p));
+    // the network was made, and saved, with the config's hash-grid span
+    snprintf(p, sizeof p, "%s/final/geometry.safetensors", run);
+    mlb_geometry_net net;
+    memset(&net, 0, sizeof net);
+    REQUIRE(mlb_geometry_load(&net, p) == MLB_OK);
+    CHECK(net.cfg.enc.n_levels == 6 && net.cfg.enc.base_res == 4);
+    CHECK_MSG(fabs(pow(net.cfg.enc.per_level_scale, 5) - 4.0) < 1e-12, "per-level scale %.17g", net.cfg.enc.per_level_scale);
+    geometry_net_free(&net);
     mlb_guidance_free(g);
     mlb_vae_free(vae);
     mlb_unet_free(u);

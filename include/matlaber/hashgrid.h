@@ -24,6 +24,9 @@ typedef struct {
 } mlb_hashgrid_config;
 
 mlb_hashgrid_config mlb_hashgrid_default(void);
+// The levels' span: L levels from resolution base_res to max_res, evenly spaced in log scale
+// (per_level_scale = (max_res / base_res)^(1/(L-1)); 1 for one level).
+void mlb_hashgrid_set_span(mlb_hashgrid_config* c, int levels, int base_res, int max_res);
 // The index of integer grid corner pos within a level of resolution res whose table has
 // level_size entries; dense selects the dense formula (the caller passes res^3 <= table_size).
 uint32_t mlb_hashgrid_index(const uint32_t pos[3], uint32_t res, uint32_t level_size, int dense);

@@ -65,6 +65,10 @@ typedef struct {
     double geometry_lr;           // 1e-3 (AdamW, betas 0.9/0.99, eps 1e-15)
     int grid;                     // DMTet grid as Fantasia3D names it (128 → 64 cells per axis)
     int hash_log2;                // both networks' hash tables: 2^hash_log2 entries per hashed level, 0 = 19 (the paper's)
+    int geometry_hash_levels;     // the geometry network's hash grid: levels (0 = 16, the paper's),
+    int geometry_hash_base_res;   // its coarsest resolution (0 = 16)
+    int geometry_hash_max_res;    // and its finest (0 = 4096): at most about the grid's cells keeps
+                                  // the SDF smooth between the grid's vertices (docs/geometry.md)
     char init[MLB_PIPELINE_PATH]; // "ellipsoid", "cylinder", "torus", "slab", "cup", an OBJ file, or "auto" / "auto:A,B,.." (the
                                   // candidate the model scores best: docs/pipeline.md, Init)
     int init_iters;               // SDF initialisation steps: 400
@@ -121,6 +125,8 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 #define MLB_PIPELINE_PRESETS "paper, cpu, tiny"
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
+// The geometry network's hash-grid levels as the config sets them (geometry_hash_*; 0 keeps enc's).
+void mlb_pipeline_geometry_hash(const mlb_pipeline_config* c, mlb_hashgrid_config* enc);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
 // 1 when the prompt is empty or only white space (refused where it is read: "a prompt is required")
 int mlb_prompt_is_blank(const char* prompt);

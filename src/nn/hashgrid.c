@@ -16,8 +16,14 @@
 #ifndef MLB_F64
 mlb_hashgrid_config mlb_hashgrid_default(void) {
     mlb_hashgrid_config c = {16, 2, 1u << 19, 16, 0.0};
-    c.per_level_scale = exp(log(4096.0 / 16.0) / 15.0);
+    mlb_hashgrid_set_span(&c, 16, 16, 4096);
     return c;
+}
+
+void mlb_hashgrid_set_span(mlb_hashgrid_config* c, int levels, int base_res, int max_res) {
+    c->n_levels = levels;
+    c->base_res = base_res;
+    c->per_level_scale = levels > 1 ? exp(log((double)max_res / base_res) / (levels - 1)) : 1.0;
 }
 
 uint32_t mlb_hashgrid_index(const uint32_t pos[3], uint32_t res, uint32_t level_size, int dense) {

@@ -547,6 +547,7 @@ mlb_status mlb_pipeline_run(const char* dir, const mlb_pipeline_config* c_in, ml
     mlb_geometry_config gc = mlb_geometry_default();
     gc.seed = c->seed + 1;
     if (c->hash_log2 > 0) gc.enc.table_size = 1u << c->hash_log2;
+    mlb_pipeline_geometry_hash(c, &gc.enc);
     if (!s && !paint) s = geometry_net_init(&r.geo, &gc);
     if (!s && !paint) s = mlb_tetgrid_create(&r.grid, mlb_pipeline_cells(c), gc.scale);
     // The final renders and the extraction run on the CPU's table (host meshes in, host images out);

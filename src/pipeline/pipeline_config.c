@@ -122,6 +122,20 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
 
 int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? c->grid / 2 : 1; }
 
+// The geometry hash grid's levels, coarsest and finest resolution, 0s as the paper's 16, 16, 4096.
+static void geometry_hash_span(const mlb_pipeline_config* c, int* levels, int* base_res, int* max_res) {
+    *levels = c->geometry_hash_levels ? c->geometry_hash_levels : 16;
+    *base_res = c->geometry_hash_base_res ? c->geometry_hash_base_res : 16;
+    *max_res = c->geometry_hash_max_res ? c->geometry_hash_max_res : 4096;
+}
+
+void mlb_pipeline_geometry_hash(const mlb_pipeline_config* c, mlb_hashgrid_config* enc) {
+    if (!c->geometry_hash_levels && !c->geometry_hash_base_res && !c->geometry_hash_max_res) return;   // the paper's
+    int levels, base_res, max_res;
+    geometry_hash_span(c, &levels, &base_res, &max_res);
+    mlb_hashgrid_set_span(enc, levels, base_res, max_res);
+}
+
 int mlb_pipeline_init_is_auto(const char* init) { return !strncmp(init, "auto", 4) && (init[4] == 0 || init[4] == ':'); }
 
 // The paint keys' default, +0 to the bit: a config.json without paint_mesh does not store them, so a
@@ -137,6 +151,8 @@ int mlb_prompt_is_blank(const char* p) {
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
     const char* bad = NULL;
     mlb_gemm_precision prec;
+    int span_levels, span_base, span_max;
+    geometry_hash_span(c, &span_levels, &span_base, &span_max);
     if (strcmp(c->guidance, "sds") && strcmp(c->guidance, "images")) bad = "guidance must be \"sds\" or \"images\"";
     else if (!strcmp(c->guidance, "sds") && !c->model[0]) bad = "score distillation needs a model (-m)";
     else if (!strcmp(c->guidance, "sds") && mlb_prompt_is_blank(c->prompt)) bad = "a prompt is required (score distillation reads one)";
@@ -160,6 +176,15 @@ mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c) {
         bad = "learning rates (geometry_lr, appearance_lr) must be in [1e-9, 10]";
     else if (c->init_iters < 0 || c->init_iters > MLB_PIPELINE_MAX_INIT_ITERS) bad = "init_iters must be in 0..1000000";
     else if (c->hash_log2 != 0 && (c->hash_log2 < 10 || c->hash_log2 > 24)) bad = "hash_table_log2 must be 0 (19) or 10..24";
+    else if (c->geometry_hash_levels < 0 || c->geometry_hash_levels > MLB_HASHGRID_MAX_LEVELS)
+        bad = "geometry_hash_levels must be 0 (16) or 1..32";
+    else if (c->geometry_hash_base_res < 0 || c->geometry_hash_base_res == 1 || c->geometry_hash_base_res > 4096 ||
+             c->geometry_hash_max_res < 0 || c->geometry_hash_max_res == 1 || c->geometry_hash_max_res > 4096)
+        bad = "geometry_hash_base_res and geometry_hash_max_res must be 0 (16 and 4096) or 2..4096";
+    else if (span_max < span_base)
+        bad = "geometry_hash_max_res must not be below geometry_hash_base_res";
+    else if (span_levels == 1 && span_max != span_base)
+        bad = "one hash-grid level (geometry_hash_levels 1) has one resolution: geometry_hash_max_res = geometry_hash_base_res";
     else if (c->geometry_t_min < 0 || c->geometry_t_min > 500) bad = "geometry_t_min must be in 0..500 (0: the guidance's 20)";
     else if (c->geometry_t_max_end != 0 && (c->geometry_t_max_end < (c->geometry_t_min ? c->geometry_t_min : 20) || c->geometry_t_max_end > 999))
         bad = "geometry_t_max_end must be 0 (no annealing) or between the smallest timestep and 999";
@@ -247,6 +272,9 @@ static const field FIELDS[] = {
     FLD_OPT("latent_size", F_INT, latent_size, 0),                    // missing: 64
     FLD_OPT("geometry_t_min", F_INT, geometry_t_min, 0),              // missing: 20
     FLD_OPT("hash_table_log2", F_INT, hash_log2, 0),                  // missing: 2^19
+    FLD_OPT("geometry_hash_levels", F_INT, geometry_hash_levels, 0),  // missing: 16
+    FLD_OPT("geometry_hash_base_res", F_INT, geometry_hash_base_res, 0),  // missing: 16
+    FLD_OPT("geometry_hash_max_res", F_INT, geometry_hash_max_res, 0),    // missing: 4096
     FLD_OPT("view_batch", F_INT, view_batch, 0),                      // missing: one call a step
     FLD_OPT("precision", F_STR, precision, 0),                        // missing: the program's
     FLD_OPT("appearance_guidance_scale", F_DOUBLE, appearance_guidance_scale, 0),  // missing: guidance_scale

@@ -296,6 +296,8 @@ TEST(presets) {
     mlb_pipeline_config t = mlb_pipeline_default();
     REQUIRE(mlb_pipeline_preset(&t, "tiny") == MLB_OK);
     CHECK(!strcmp(t.init, "auto"));
+    // its geometry hash grid is no finer than its tet grid (docs/geometry.md, "Smoothness")
+    CHECK(t.geometry_hash_max_res > 0 && t.geometry_hash_max_res <= mlb_pipeline_cells(&t));
     snprintf(t.prompt, sizeof t.prompt, "a ring");
     snprintf(t.model, sizeof t.model, "/models/tiny");
     CHECK(mlb_pipeline_validate(&t) == MLB_OK);

@@ -368,6 +368,7 @@ TEST(bench_smoke_tiny_sd) {
     bc.base.latent_size = 8;
     bc.base.grid = 32;
     bc.base.views = 1;
+    bc.base.init_iters = 10;     // the start needs a surface: one step of the fit (0.01 x 100) leaves none
     bc.n_classes = 1;
     REQUIRE(mlb_catalogue_class_parse("bowl", &bc.classes[0]) == MLB_OK);
     bc.n_materials = 1;

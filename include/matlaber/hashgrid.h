@@ -14,6 +14,10 @@
 
 #define MLB_HASHGRID_MAX_LEVELS 32
 #define MLB_HASHGRID_MAX_FEATURES 8
+// The default span (Instant-NGP's, the paper's): 16 levels from resolution 16 to 4096
+#define MLB_HASHGRID_DEFAULT_LEVELS 16
+#define MLB_HASHGRID_DEFAULT_BASE_RES 16
+#define MLB_HASHGRID_DEFAULT_MAX_RES 4096
 
 typedef struct {
     int n_levels;            // L (1..32), default 16

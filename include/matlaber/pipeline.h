@@ -125,7 +125,7 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name);
 #define MLB_PIPELINE_PRESETS "paper, cpu, tiny"
 // The grid's cells per axis for --grid G (G / 2, as Fantasia3D's "128" = 64 cells).
 int mlb_pipeline_cells(const mlb_pipeline_config* c);
-// The geometry network's hash-grid levels as the config sets them (geometry_hash_*; 0 keeps enc's).
+// The geometry network's hash-grid span as the config sets it (geometry_hash_*; 0: the default's).
 void mlb_pipeline_geometry_hash(const mlb_pipeline_config* c, mlb_hashgrid_config* enc);
 mlb_status mlb_pipeline_validate(const mlb_pipeline_config* c);
 // 1 when the prompt is empty or only white space (refused where it is read: "a prompt is required")

@@ -16,7 +16,7 @@
 #ifndef MLB_F64
 mlb_hashgrid_config mlb_hashgrid_default(void) {
     mlb_hashgrid_config c = {16, 2, 1u << 19, 16, 0.0};
-    mlb_hashgrid_set_span(&c, 16, 16, 4096);
+    mlb_hashgrid_set_span(&c, MLB_HASHGRID_DEFAULT_LEVELS, MLB_HASHGRID_DEFAULT_BASE_RES, MLB_HASHGRID_DEFAULT_MAX_RES);
     return c;
 }
 

@@ -128,15 +128,15 @@ mlb_status mlb_pipeline_preset(mlb_pipeline_config* c, const char* name) {
 
 int mlb_pipeline_cells(const mlb_pipeline_config* c) { return c->grid / 2 > 0 ? c->grid / 2 : 1; }
 
-// The geometry hash grid's levels, coarsest and finest resolution, 0s as the paper's 16, 16, 4096.
+// The geometry hash grid's levels, coarsest and finest resolution, each 0 as the default's (the paper's).
 static void geometry_hash_span(const mlb_pipeline_config* c, int* levels, int* base_res, int* max_res) {
-    *levels = c->geometry_hash_levels ? c->geometry_hash_levels : 16;
-    *base_res = c->geometry_hash_base_res ? c->geometry_hash_base_res : 16;
-    *max_res = c->geometry_hash_max_res ? c->geometry_hash_max_res : 4096;
+    *levels = c->geometry_hash_levels ? c->geometry_hash_levels : MLB_HASHGRID_DEFAULT_LEVELS;
+    *base_res = c->geometry_hash_base_res ? c->geometry_hash_base_res : MLB_HASHGRID_DEFAULT_BASE_RES;
+    *max_res = c->geometry_hash_max_res ? c->geometry_hash_max_res : MLB_HASHGRID_DEFAULT_MAX_RES;
 }
 
+// All 0: the default's span again, the same bits as mlb_hashgrid_default's (test_pipeline).
 void mlb_pipeline_geometry_hash(const mlb_pipeline_config* c, mlb_hashgrid_config* enc) {
-    if (!c->geometry_hash_levels && !c->geometry_hash_base_res && !c->geometry_hash_max_res) return;   // the paper's
     int levels, base_res, max_res;
     geometry_hash_span(c, &levels, &base_res, &max_res);
     mlb_hashgrid_set_span(enc, levels, base_res, max_res);

@@ -18,7 +18,8 @@ static inline void randomize_f64(mlb_material_net_f64* net, uint64_t seed) {
 }
 
 // Two copies of one random field (kind; mode for materials), one on the host and one moved to
-// `be`'s device: forward (y, z), backward with dpos onto random starting values, and AdamW (eps
+// `be`'s device: forward (y, z), backward with dpos onto random starting values (latent mode: with a term on
+// the codes from the second step, dy NULL in the third), and AdamW (eps
 // 1e-4: smooth in the gradient) for 3 steps over n points (the first coarse to fine, 3 of 6 levels), compared by relative L2 within tol;
 // dpos point by point (CHECK_POINTWISE: a ReLU flipped by rounding changes one point's dpos
 // entirely). The loss is ½|y − 0.5|² (dy = y − 0.5 from the host's y), a coherent gradient: with
@@ -40,7 +41,7 @@ static inline void field_twin_check(const mlb_backend* be, mlb_field_kind kind, 
     REQUIRE(mlb_field_use_device(&net[1], be) == MLB_OK);
     const int D = mlb_field_out_dim(&c), latent = kind == MLB_FIELD_MATERIAL && mode == MLB_MATERIAL_LATENT;
     size_t N = (size_t)n;
-    float *pos = malloc(sizeof(float) * 3 * N), *dy = malloc(sizeof(float) * D * N);
+    float *pos = malloc(sizeof(float) * 3 * N), *dy = malloc(sizeof(float) * D * N), *dz = malloc(sizeof(float) * 4 * N);
     float *y[2], *z[2], *dpos[2];
     for (int t = 0; t < 2; t++) {
         y[t] = malloc(sizeof(float) * D * N);
@@ -58,7 +59,11 @@ static inline void field_twin_check(const mlb_backend* be, mlb_field_kind kind, 
             REQUIRE(field_forward(&net[t], y[t], latent ? z[t] : NULL, pos, n) == MLB_OK);
         }
         for (size_t i = 0; i < (size_t)D * N; i++) dy[i] = y[0][i] - 0.5f;
-        for (int t = 0; t < 2; t++) REQUIRE(field_backward(&net[t], dy, dpos[t]) == MLB_OK);
+        // latent mode: a term on the codes too (step 1: with dy; step 2: alone, dy NULL)
+        for (size_t i = 0; latent && i < 4 * N; i++) dz[i] = 0.1f * z[0][i];
+        for (int t = 0; t < 2; t++)
+            REQUIRE((latent && it > 0 ? field_backward_latent(&net[t], it == 1 ? dy : NULL, dz, dpos[t])
+                                      : field_backward(&net[t], dy, dpos[t])) == MLB_OK);
         CHECK_PARITY("y", y[1], y[0], (size_t)D * N, tol);
         if (latent) CHECK_PARITY("z", z[1], z[0], 4 * N, tol);
         for (size_t i = 0; i < 3 * N; i++) {   // the increments
@@ -93,11 +98,18 @@ static inline void field_twin_check(const mlb_backend* be, mlb_field_kind kind, 
     REQUIRE(field_eval(&net[0], pos, 8, y[0], NULL) == MLB_OK);
     CHECK_PARITY("eval of the synced host copy", y[1], y[0], (size_t)D * 8, tol);
     for (int t = 0; t < 2; t++) CHECK(field_forward(&net[t], y[t], NULL, pos, 0) == MLB_ERR_ARG);
+    // a term on the codes of a field without codes is refused on both paths
+    if (!latent)
+        for (int t = 0; t < 2; t++) {
+            REQUIRE(field_forward(&net[t], y[t], NULL, pos, n) == MLB_OK);
+            CHECK(field_backward_latent(&net[t], dy, dy, NULL) == MLB_ERR_ARG);
+            CHECK(field_backward_latent(&net[t], NULL, NULL, NULL) == MLB_ERR_ARG);
+        }
     for (int t = 0; t < 2; t++) {
         field_free(&net[t]);
         free(y[t]); free(z[t]); free(dpos[t]);
     }
-    free(pos); free(dy);
+    free(pos); free(dy); free(dz);
     brdf_ae_free(&prior);
 }
 

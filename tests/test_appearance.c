@@ -455,6 +455,84 @@ TEST(smoothness) {
     brdf_ae_free(&prior);
 }
 
+// The prior's support term: its value from the definition, 0 inside the ball, finite differences
+// of its gradient, shares adding up to the whole, and the errors.
+TEST(latent_support) {
+    mlb_brdf_ae prior;
+    REQUIRE(random_prior(&prior));
+    mlb_material_config c = small_config(MLB_MATERIAL_LATENT);
+    mlb_material_net_f64 net;
+    REQUIRE(material_net_init_f64(&net, &c, &prior) == MLB_OK);
+    randomize_f64(&net, 5);
+    enum { n = 60 };
+    double pts[3 * n], z[4 * n], r[n];
+    for (int i = 0; i < 3 * n; i++) pts[i] = (mlb_rng_uniform_f64(8, 0, i) - 0.5) * 1.5;
+    REQUIRE(material_net_eval_f64(&net, pts, n, NULL, z) == MLB_OK);
+    double rmin = INFINITY, rmax = 0;
+    for (int i = 0; i < n; i++) {
+        r[i] = sqrt(z[4 * i] * z[4 * i] + z[4 * i + 1] * z[4 * i + 1] + z[4 * i + 2] * z[4 * i + 2] + z[4 * i + 3] * z[4 * i + 3]);
+        rmin = fmin(rmin, r[i]), rmax = fmax(rmax, r[i]);
+    }
+    REQUIRE(rmax > rmin);
+    const double radius = 0.5 * (rmin + rmax), weight = 3.0;   // some points inside, some outside
+    double ref = 0;
+    int outside = 0;
+    for (int i = 0; i < n; i++)
+        if (r[i] > radius) ref += (r[i] - radius) * (r[i] - radius), outside++;
+    CHECK(outside > 0 && outside < n);
+    double L;
+    material_net_zero_grad_f64(&net);
+    REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 1, &L) == MLB_OK);
+    CHECK_CLOSE(L, weight / n * ref, 1e-12, 0);
+    // finite differences over the parameters of largest gradient
+    const double h = 1e-7;
+    size_t pick[8];
+    test_top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
+    for (int q = 0; q < 8; q++) {
+        size_t i = pick[q];
+        double keep = net.params[i], Lp, Lm;
+        net.params[i] = keep + h;
+        REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 0, &Lp) == MLB_OK);
+        net.params[i] = keep - h;
+        REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 0, &Lm) == MLB_OK);
+        net.params[i] = keep;
+        double fd = (Lp - Lm) / (2 * h);
+        CHECK_MSG(fabs(fd - net.grads[i]) <= 1e-6 * fabs(fd) + 1e-10, "param %zu: fd %.10g, backward %.10g", i, fd, net.grads[i]);
+        CHECK(net.grads[i] != 0);
+    }
+    // shares add up to the whole
+    double* whole = malloc(sizeof(double) * net.n_params);
+    REQUIRE(whole);
+    memcpy(whole, net.grads, sizeof(double) * net.n_params);
+    material_net_zero_grad_f64(&net);
+    double La, Lb;
+    REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, 23, radius, weight, 1, &La) == MLB_OK);
+    REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 23, n - 23, radius, weight, 1, &Lb) == MLB_OK);
+    CHECK_CLOSE(La + Lb, L, 1e-12, 0);
+    double worst = 0;
+    for (size_t i = 0; i < net.n_params; i++) worst = fmax(worst, fabs(net.grads[i] - whole[i]));
+    CHECK_MSG(worst < 1e-12, "shares' gradients differ from the whole's by %g", worst);
+    // every code inside the ball: no loss, no gradient
+    material_net_zero_grad_f64(&net);
+    REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, rmax * 1.01, weight, 1, &L) == MLB_OK);
+    CHECK(L == 0);
+    size_t nonzero = 0;
+    for (size_t i = 0; i < net.n_params; i++) nonzero += net.grads[i] != 0;
+    CHECK(nonzero == 0);
+    CHECK(mlb_material_latent_support_part_f64(&net, pts, n, 40, 21, radius, weight, 0, &L) == MLB_ERR_ARG);
+    CHECK(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, -1, weight, 0, &L) == MLB_ERR_ARG);
+    CHECK(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, NAN, 0, &L) == MLB_ERR_ARG);
+    free(whole);
+    material_net_free_f64(&net);
+    // a direct-mode net has no codes
+    mlb_material_net_f64 direct;
+    mlb_material_config cd = small_config(MLB_MATERIAL_DIRECT);
+    REQUIRE(material_net_init_f64(&direct, &cd, &prior) == MLB_OK);
+    CHECK(mlb_material_latent_support_part_f64(&direct, pts, n, 0, n, radius, weight, 1, &L) == MLB_ERR_ARG);
+    material_net_free_f64(&direct);
+    brdf_ae_free(&prior);
+}
+
 // The material network, its optimiser and the shading on the CPU table's "device" (the code the GPU
 // runs, on host memory) agree with the host path; test_cuda_material runs it on a GPU.
 TEST(device_twin_on_cpu_table) { appearance_twin_check(mlb_backend_cpu(), 3, 48, 2, 3, 1e-5); }
@@ -524,6 +602,7 @@ int main(void) {
     RUN(fit_constant_material);
     RUN(thread_count_independent);
     RUN(smoothness);
+    RUN(latent_support);
     RUN(device_twin_on_cpu_table);
     RUN(render_stays_on_its_table);
     RUN(render_and_network_on_one_device);

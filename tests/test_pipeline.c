@@ -162,6 +162,9 @@ TEST(config_round_trip_and_errors) {
     optional_key(&c, path, "material_start", "1", "0", "2");
     // "metal_start_lr_scale": a run from before it refined a metal start at the stage's rate (1)
     optional_key(&c, path, "metal_start_lr_scale", "0.1", "1", "0");
+    // the prior's support term: a run from before it had none (0), and its radius 4.2
+    optional_key(&c, path, "material_support", "100", "0", "-1");
+    optional_key(&c, path, "material_support_radius", "5", "4.2", "0");
     // "appearance_model": a run from before it guided both stages with "model" ("")
     optional_key(&c, path, "appearance_model", "/models/other one", "", NULL);
     // "surface_smooth": a run from before it used the surface as extracted (0)
@@ -1012,6 +1015,76 @@ TEST(metal_start_resumes_at_its_rate) {
     free(resumed);
 }
 
+// ---- the prior's support (material_support) ----------------------------------------------------
+// A guidance that asks for brighter renders in the appearance stage (dL/dimage = -1 on every
+// colour channel): the codes run outwards, to where the decoder's kd and ks saturate. With the
+// support term at a small test radius they stay near it; without, they go well past it.
+static mlb_status bright_loss(mlb_guidance* g, mlb_stage stage, long step, const mlb_view* views, int n,
+                              const float* images, int H, int W, float* dimages, double* loss) {
+    (void)g, (void)step, (void)views;
+    *loss = 0;
+    if (stage != MLB_STAGE_APPEARANCE) return MLB_OK;
+    for (size_t i = 0; i < (size_t)n * H * W; i++)
+        for (int c = 0; c < 3; c++) {
+            dimages[4 * i + c] = -1.0f;
+            *loss -= images[4 * i + c];
+        }
+    return MLB_OK;
+}
+
+// The final codes' largest |z| over points of the sphere of radius 0.5 (the run's surface), or -1.
+static double support_run(const char* run, double weight, double radius) {
+    mlb_orbit_config orbit = mlb_orbit_default();
+    arch_guidance a;
+    memset(&a, 0, sizeof a);
+    a.orbit = orbit;
+    mlb_guidance g = {.kind = "sds", .n_views = 2, .sample_views = arch_sample_views, .loss = bright_loss, .impl = &a};
+    mlb_pipeline_config c = mlb_pipeline_default();
+    snprintf(c.prompt, sizeof c.prompt, "a bright thing");
+    snprintf(c.model, sizeof c.model, "(a guidance written by the test)");
+    c.res = 32, c.views = 2, c.grid = 16, c.hash_log2 = 14, c.init_iters = 30;
+    c.geometry_iters = 1, c.appearance_iters = 25, c.appearance_lr = 0.05;
+    c.checkpoint_every = 100, c.preview_every = 0, c.export_texture = 0, c.cube_size = 64, c.env_height = 32;
+    c.material_support = weight, c.material_support_radius = radius;
+    mlb_pipeline_result r;
+    if (mlb_pipeline_run(run, &c, &g, NULL, NULL, 0, NULL, &r)) { printf("  %s: %s\n", run, mlb_last_error()); return -1; }
+    char path[700];
+    snprintf(path, sizeof path, "%s/final/material.safetensors", run);
+    mlb_material_net net;
+    memset(&net, 0, sizeof net);
+    if (mlb_material_load(&net, path)) { printf("  %s: %s\n", path, mlb_last_error()); return -1; }
+    enum { P = 64 };
+    float pos[3 * P], z[4 * P];
+    for (int i = 0; i < P; i++) {   // a spiral over the sphere of radius 0.5
+        double y = 1 - (2.0 * i + 1) / P, rho = sqrt(1 - y * y), phi = 2.399963 * i;
+        pos[3 * i] = (float)(0.5 * rho * cos(phi)), pos[3 * i + 1] = (float)(0.5 * y), pos[3 * i + 2] = (float)(0.5 * rho * sin(phi));
+    }
+    mlb_status s = mlb_material_eval_latent(&net, pos, P, z);
+    material_net_free(&net);
+    if (s) return -1;
+    double most = 0;
+    for (int i = 0; i < P; i++)
+        most = fmax(most, sqrt((double)z[4 * i] * z[4 * i] + (double)z[4 * i + 1] * z[4 * i + 1] +
+                               (double)z[4 * i + 2] * z[4 * i + 2] + (double)z[4 * i + 3] * z[4 * i + 3]));
+    return most;
+}
+
+TEST(material_support_holds_the_codes) {
+    char run[512];
+    double most[3];
+    const double weight[3] = {0, 100, 1000};
+    for (int i = 0; i < 3; i++) {
+        snprintf(run, sizeof run, "%s/support_%d", tmpdir, i);
+        most[i] = support_run(run, weight[i], 1.0);
+        REQUIRE(most[i] >= 0);
+    }
+    printf("  largest |z| after 25 steps towards brightness: off %.3f; radius 1 at weight 100 %.3f, 1000 %.3f\n", most[0],
+           most[1], most[2]);
+    CHECK(most[0] > 10);                      // the guidance alone takes the codes far past the radius
+    CHECK(most[1] < 0.1 * most[0] && most[2] < most[1]);   // the term holds them, the harder the stronger
+    CHECK(most[2] < 1.5 && most[2] > 0.5);    // at 1000 near the radius (and they did move out to it)
+}
+
 int main(void) {
     const char* base = getenv("TMPDIR");
     snprintf(tmpdir, sizeof tmpdir, "%s/mlb_pipeline_XXXXXX", base && *base ? base : "/tmp");
@@ -1028,6 +1101,7 @@ int main(void) {
     RUN(shape_fits_kept);
     RUN(material_start_picks_a_metal);
     RUN(metal_start_resumes_at_its_rate);
+    RUN(material_support_holds_the_codes);
     char cmd[400];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
     if (system(cmd)) return 1;

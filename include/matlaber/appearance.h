@@ -91,6 +91,16 @@
                                                int count, double sigma, double weight,                  \
                                                double weight_spec, uint64_t seed, long step,           \
                                                int backward, double* loss);                             \
+    /* The material prior's support (latent mode): score distillation at a high guidance scale     \
+       pushes the codes far outside what the prior was trained on (|z| of its data: 99% below 4.2), \
+       where the frozen decoder's sigmoids saturate (kd 1 or 0, roughness at its floor). Over the   \
+       points [first, first + count) of pts [n,3]:                                                  \
+         L = weight · (1/n) Σ_i max(0, |z(x_i)| − radius)²                                          \
+       0 inside the ball. backward != 0: net->grads += ∂L/∂params. Replaces the net's forward       \
+       cache, as the smoothness term does. *loss (may be NULL) receives L. */                       \
+    mlb_status N(mlb_material_latent_support_part)(N(mlb_material_net)* net, const R* pts, int n, int first, \
+                                                   int count, double radius, double weight,          \
+                                                   int backward, double* loss);                      \
     /* Per-pixel material maps of one view for previews and evaluation (no gradients, the net's     \
        cache untouched): rasterize at res, evaluate the net at the covered pixels, antialias, and   \
        write (each may be NULL) kd [res,res,3], ks [res,res,3], kr [res,res] and the shading normal \

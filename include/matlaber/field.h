@@ -71,6 +71,9 @@ static inline int mlb_field_out_dim(const mlb_field_config* c) { return c->kind 
     mlb_status N(field_forward)(N(mlb_field)* f, R* y, R* z, const R* pos, int n);                  \
     /* grads += ∂(Σ dy·y)/∂params over the last forward's points; dpos (may be NULL) += ∂/∂pos. */ \
     mlb_status N(field_backward)(N(mlb_field)* f, const R* dy, R* dpos);                            \
+    /* The same with dz [n,4] (may be NULL) added at the codes (latent mode; MLB_ERR_ARG otherwise): \
+       a term on z itself (the material prior's support, appearance.h); dy NULL: no term on y.    */ \
+    mlb_status N(field_backward_latent)(N(mlb_field)* f, const R* dy, const R* dz, R* dpos);         \
     mlb_status N(field_update)(N(mlb_field)* f, const mlb_adam_config* adam);                      \
     /* Inference without the field's cache (thread-safe, chunked): y [n, out_dim] and z [n,4]       \
        (either may be NULL; z of a field without codes is MLB_ERR_ARG). */                          \

@@ -260,18 +260,25 @@ mlb_status FN(field_forward)(FN(mlb_field)* f, real* y, real* z, const real* pos
 }
 
 mlb_status FN(field_backward)(FN(mlb_field)* f, const real* dy, real* dpos) {
+    return FN(field_backward_latent)(f, dy, NULL, dpos);
+}
+
+mlb_status FN(field_backward_latent)(FN(mlb_field)* f, const real* dy, const real* dz, real* dpos) {
     int n = f->n, L = f->enc.out_dim;
     if (n < 1) return mlb_fail(MLB_ERR_ARG, "field: backward without a forward");
-    if (f->dev) return FN(field_device_backward)(f, dy, dpos);
+    if ((dz || !dy) && !FN(latent)(f)) return mlb_fail(MLB_ERR_ARG, "field: a gradient at the codes of a field without codes");
+    if (f->dev) return FN(field_device_backward)(f, dy, dz, dpos);
     const real* dmlp = dy;   // the gradient at the trained MLP's output
     if (f->cfg.kind == MLB_FIELD_MATERIAL) {
         // ds = dk·(hi − lo): the gradient at the sigmoid outputs (decoder's or the MLP's own)
         real* ds = f->dy;
         for (int i = 0; i < n; i++)
             for (int c = 0; c < K_DIM; c++)
-                ds[(size_t)i * K_DIM + c] = dy[(size_t)i * K_DIM + c] * (real)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
-        if (FN(latent)(f)) {   // dz through the frozen decoder
+                ds[(size_t)i * K_DIM + c] = dy ? dy[(size_t)i * K_DIM + c] * (real)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]) : 0;
+        if (FN(latent)(f)) {   // dz through the frozen decoder, plus the codes' own term
             FN(mlp_backward_sharded)(&f->dec, &f->dec_cache, NULL, NULL, 0, f->dout, ds, NULL, n, 1);
+            if (dz)
+                for (size_t i = 0; i < Z_DIM * (size_t)n; i++) f->dout[i] += dz[i];
             dmlp = f->dout;
         } else {
             dmlp = ds;

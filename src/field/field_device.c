@@ -192,7 +192,7 @@ mlb_status field_device_forward(mlb_field* net, float* y, float* z, const float*
 // The backward from dy [n, out_dim] on the device (may be d->ds): the gradient at the network's
 // last outputs ds = dy (geometry) or dy·(hi − lo) in float (material: the sigmoid outputs, the
 // decoder's or the MLP's own); dx [n,3] on the device (in [0,1]^3 units) when with_dx.
-static mlb_status backward_on(mlb_field* net, const float* dy, int with_dx) {
+static mlb_status backward_on(mlb_field* net, const float* dy, const float* dz_host, int with_dx) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     if (d->pending) { mlb_status s = d->pending; d->pending = MLB_OK; return s; }
@@ -203,12 +203,17 @@ static mlb_status backward_on(mlb_field* net, const float* dy, int with_dx) {
     } else {
         double scale[K_DIM];
         for (int c = 0; c < K_DIM; c++) scale[c] = (float)(mlb_brdf_range_hi[c] - mlb_brdf_range_lo[c]);
-        MLB_TRY(be->affine_columns(d->ds, dy, N, K_DIM, scale, NULL, 1));
+        if (dy) MLB_TRY(be->affine_columns(d->ds, dy, N, K_DIM, scale, NULL, 1));
+        else MLB_TRY(be->zero(d->ds, K_DIM * N));
     }
     const float* dout = d->ds;
     if (latent(net)) {   // dz through the frozen decoder
         const mlb_mlp* mlp = &d->net[NET_MLP];
         MLB_TRY(mlp_backward_on(d, NET_DEC, NULL, d->post[NET_MLP][mlp->n_layers - 1], d->ds, d->dz, n));
+        if (dz_host) {   // the codes' own term, through ds (read above, free now)
+            MLB_TRY(be->upload(d->ds, dz_host, MLB_LATENT_DIM * N));
+            MLB_TRY(be->add(d->dz, d->ds, MLB_LATENT_DIM * N));
+        }
         dout = d->dz;
     }
     MLB_TRY(mlp_backward_on(d, NET_MLP, &d->grad_mlp, d->feat, dout, d->dfeat, n));
@@ -221,15 +226,15 @@ static mlb_status backward_on(mlb_field* net, const float* dy, int with_dx) {
 
 mlb_status mlb_field_backward_on_device(mlb_field* net, const float* dy) {
     if (!net->dev) return mlb_fail(MLB_ERR_ARG, "field backward on the device: the field is on the host");
-    return backward_on(net, dy, 0);
+    return backward_on(net, dy, NULL, 0);
 }
 
-mlb_status field_device_backward(mlb_field* net, const float* dy, float* dpos) {
+mlb_status field_device_backward(mlb_field* net, const float* dy, const float* dz, float* dpos) {
     struct mlb_field_device* d = net->dev;
     const mlb_backend* be = d->be;
     size_t N = (size_t)net->n;
-    MLB_TRY(be->upload(d->ds, dy, (size_t)out_dim(net) * N));
-    MLB_TRY(backward_on(net, d->ds, dpos != NULL));
+    if (dy) MLB_TRY(be->upload(d->ds, dy, (size_t)out_dim(net) * N));
+    MLB_TRY(backward_on(net, dy ? d->ds : NULL, dz, dpos != NULL));
     if (dpos) {
         MLB_TRY(be->download(d->host, d->dx, 3 * N));
         float inv = (float)(1.0 / net->cfg.scale);
@@ -345,7 +350,9 @@ void field_device_free_f64(struct mlb_field_device* d) { field_device_free(d); }
 mlb_status field_device_forward_f64(mlb_field_f64* f, double* y, double* z, const double* pos, int n) {
     return no_device_f64("forward");
 }
-mlb_status field_device_backward_f64(mlb_field_f64* f, const double* dy, double* dpos) { return no_device_f64("backward"); }
+mlb_status field_device_backward_f64(mlb_field_f64* f, const double* dy, const double* dz, double* dpos) {
+    return no_device_f64("backward");
+}
 void field_device_zero_grad_f64(mlb_field_f64* f) {}
 mlb_status field_device_update_f64(mlb_field_f64* f, const mlb_adam_config* adam) { return no_device_f64("update"); }
 int field_device_host_behind_f64(const mlb_field_f64* f) { return 0; }

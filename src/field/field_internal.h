@@ -28,13 +28,13 @@ static inline mlb_hashgrid_f64 field_active_enc_f64(const mlb_field_f64* f) {
 // double ones (field_device.c's end) are never reached: a double field's dev stays NULL.
 void field_device_free(struct mlb_field_device* d);
 mlb_status field_device_forward(mlb_field* f, float* y, float* z, const float* pos, int n);
-mlb_status field_device_backward(mlb_field* f, const float* dy, float* dpos);
+mlb_status field_device_backward(mlb_field* f, const float* dy, const float* dz, float* dpos);
 void field_device_zero_grad(mlb_field* f);   // an error is kept for the next op to return
 mlb_status field_device_update(mlb_field* f, const mlb_adam_config* adam);
 int field_device_host_behind(const mlb_field* f);   // 1: the host's params are stale
 void field_device_free_f64(struct mlb_field_device* d);
 mlb_status field_device_forward_f64(mlb_field_f64* f, double* y, double* z, const double* pos, int n);
-mlb_status field_device_backward_f64(mlb_field_f64* f, const double* dy, double* dpos);
+mlb_status field_device_backward_f64(mlb_field_f64* f, const double* dy, const double* dz, double* dpos);
 void field_device_zero_grad_f64(mlb_field_f64* f);
 mlb_status field_device_update_f64(mlb_field_f64* f, const mlb_adam_config* adam);
 int field_device_host_behind_f64(const mlb_field_f64* f);

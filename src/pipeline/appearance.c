@@ -487,6 +487,38 @@ mlb_status FN(mlb_material_smoothness_part)(FN(mlb_material_net)* net, const rea
     return st;
 }
 
+mlb_status FN(mlb_material_latent_support_part)(FN(mlb_material_net)* net, const real* pts, int n, int first,
+                                                int count, double radius, double weight, int backward, double* loss) {
+    if (loss) *loss = 0;
+    if (n < 1 || !pts) return mlb_fail(MLB_ERR_ARG, "material support: %d points", n);
+    if (first < 0 || count < 0 || first > n - count)
+        return mlb_fail(MLB_ERR_ARG, "material support: points [%d, %d) of %d", first, first + count, n);
+    if (!(radius >= 0) || !isfinite(radius) || !isfinite(weight))
+        return mlb_fail(MLB_ERR_ARG, "material support: radius %g, weight %g", radius, weight);
+    if (net->cfg.mode != MLB_MATERIAL_LATENT) return mlb_fail(MLB_ERR_ARG, "material support: a direct-mode net has no codes");
+    if (count == 0) return MLB_OK;
+    size_t nn = (size_t)count;
+    real* z = malloc(sizeof(real) * 4 * nn);   // [count, 4]
+    if (!z) return mlb_fail(MLB_ERR_NOMEM, "material support: out of memory (%d points)", count);
+    mlb_status st = FN(material_net_forward)(net, NULL, z, pts + 3 * (size_t)first, count);
+    if (!st) {
+        double sum = 0;
+        for (size_t i = 0; i < nn; i++) {
+            real* zi = z + 4 * i;
+            double r = sqrt((double)zi[0] * zi[0] + (double)zi[1] * zi[1] + (double)zi[2] * zi[2] + (double)zi[3] * zi[3]);
+            double over = r > radius ? r - radius : 0;
+            sum += over * over;
+            // dL/dz_i = weight/n · 2 (r − radius) z_i / r outside the ball, 0 inside (in place: z_i read first)
+            double g = over > 0 ? weight / n * 2 * over / r : 0;
+            for (int d = 0; d < 4; d++) zi[d] = (real)(g * zi[d]);
+        }
+        if (loss) *loss = weight / n * sum;
+        if (backward) st = FN(field_backward_latent)(net, NULL, z, NULL);
+    }
+    free(z);
+    return st;
+}
+
 mlb_status FN(mlb_appearance_maps)(const FN(mlb_backend)* be, const FN(mlb_material_net)* net, const mlb_mesh* mesh,
                                    const mlb_view* view, int res, real* kd_img, real* ks_img, real* kr_img,
                                    real* normal_img) {

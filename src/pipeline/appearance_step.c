@@ -37,6 +37,7 @@ mlb_status pipeline_appearance_begin(pipeline_run* r, pipeline_appearance* a) {
     a->k = mlb_guidance_batch(r->g, a->n);
     a->nb = (a->n + a->k - 1) / a->k;
     a->smooth_on = c->w_mat > 0 || c->w_mat_spec > 0;
+    a->support_on = c->material_support > 0 && c->material == MLB_MATERIAL_LATENT;
     a->v0 = 0, a->cnt = a->n, a->b0 = 0, a->bc = a->nb;
     mlb_dist_share_batches(a->n, a->k, &a->v0, &a->cnt);
     mlb_dist_share(a->nb, &a->b0, &a->bc);   // the same batches, counted in batches
@@ -90,9 +91,14 @@ static mlb_status appearance_batch(pipeline_run* r, pipeline_appearance* a, long
     }
     int p0, pc;
     mlb_dist_share_of(PIPELINE_SMOOTH_POINTS, b, a->nb, &p0, &pc);
+    double smooth = 0, support = 0;
     if (!s && a->smooth_on)
         s = mlb_material_smoothness_part(net, a->pts, PIPELINE_SMOOTH_POINTS, p0, pc, c->mat_sigma, c->w_mat, c->w_mat_spec,
-                                         c->seed, it, 1, &a->losses[a->nb + b]);
+                                         c->seed, it, 1, &smooth);
+    if (!s && a->support_on)   // the same points: the codes kept inside the prior's support
+        s = mlb_material_latent_support_part(net, a->pts, PIPELINE_SMOOTH_POINTS, p0, pc, c->material_support_radius,
+                                             c->material_support, 1, &support);
+    a->losses[a->nb + b] = smooth + support;   // the regulariser's column
     if (!s && a->mine) s = mlb_field_grads_get(net, a->mine + net->n_params * (size_t)j);
     return s;
 }
@@ -110,7 +116,7 @@ mlb_status pipeline_appearance_step(pipeline_run* r, pipeline_appearance* a, con
         s = mlb_paint_frame_camera(c->paint_centre, c->paint_scale, &a->views[i].cam);
     if (!s && a->cnt > 0 && !a->app.images_on_table)
         memset(a->dimages + a->img * (size_t)a->v0, 0, sizeof(float) * a->img * (size_t)a->cnt);
-    if (!s && a->smooth_on && a->bc > 0)   // every process draws the same points, each smooths its batches' share
+    if (!s && (a->smooth_on || a->support_on) && a->bc > 0)   // every process draws the same points, each takes its batches' share
         s = mlb_mesh_sample_surface(&r->scene.mesh, a->pts, PIPELINE_SMOOTH_POINTS, c->seed, 0x5300000000ull + (uint64_t)it);
     for (int j = 0; !s && j < a->bc; j++) s = appearance_batch(r, a, it, j);
     if (!s && a->app.images_on_table && a->cnt > 0 && preview)   // this process's renders down for the previews

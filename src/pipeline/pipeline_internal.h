@@ -94,7 +94,7 @@ typedef struct {
     size_t img;                             // floats of one render
     int n, k, nb;                           // views, views per batch, batches
     int v0, cnt, b0, bc;                    // this process's views and batches
-    int smooth_on, sum_grads;
+    int smooth_on, support_on, sum_grads;
 } pipeline_appearance;
 // After the material network is on its device (the gradients' layout depends on it); a failed
 // begin leaves a to pipeline_appearance_end.

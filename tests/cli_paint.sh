@@ -125,6 +125,8 @@ fi
 # a .glb as input (docs/paint.md): the asset just written, painted again, keeps the cube's corners
 grep -q '"appearance_guidance_scale":[[:space:]]*100,' "$T/a/config.json" && ok "the tiny preset paints at guidance 100" \
   || bad "config: appearance_guidance_scale not the preset's 100"
+grep -q '"material_support":[[:space:]]*100,' "$T/a/config.json" && ok "the tiny preset holds the codes in the prior's support" \
+  || bad "config: material_support not the preset's 100"
 # paint has one stage: --guidance-scale alone is its scale, not overridden by the preset's appearance one
 expect 0 "paint a .glb (our own asset)" -- $Q paint --mesh "$T/a/final/asset.glb" -p "a red bowl" $small --stop-after 1 \
   --guidance-scale 30 -o "$T/g"

@@ -368,16 +368,55 @@ TEST(thread_count_independent) {
     scene_free(&sc);
 }
 
+// A random latent-mode net over a random prior, and n points in the box (the regularisers' tests).
+static void random_latent_net(mlb_brdf_ae* prior, mlb_material_net_f64* net, uint64_t seed, double* pts, int n) {
+    REQUIRE(random_prior(prior));
+    mlb_material_config c = small_config(MLB_MATERIAL_LATENT);
+    REQUIRE(material_net_init_f64(net, &c, prior) == MLB_OK);
+    randomize_f64(net, seed);
+    for (int i = 0; i < 3 * n; i++) pts[i] = (mlb_rng_uniform_f64(seed + 2, 0, i) - 0.5) * 1.5;
+}
+
+// Central differences of loss(net) over the 8 parameters of largest gradient (4 table, 4 MLP)
+// against net->grads, which the caller's backward has just filled.
+static void fd_top_grads(mlb_material_net_f64* net, double (*loss)(mlb_material_net_f64*, const void*), const void* ctx) {
+    const double h = 1e-7;
+    size_t pick[8];
+    test_top_grads(net->grads, net->n_enc, net->n_params, 4, pick);
+    for (int q = 0; q < 8; q++) {
+        size_t i = pick[q];
+        double keep = net->params[i];
+        net->params[i] = keep + h;
+        double Lp = loss(net, ctx);
+        net->params[i] = keep - h;
+        double Lm = loss(net, ctx);
+        net->params[i] = keep;
+        double fd = (Lp - Lm) / (2 * h);
+        CHECK_MSG(fabs(fd - net->grads[i]) <= 1e-6 * fabs(fd) + 1e-10, "param %zu: fd %.10g, backward %.10g", i, fd, net->grads[i]);
+        CHECK(net->grads[i] != 0);
+    }
+}
+
+typedef struct { const double* pts; int n; double sigma, weight, wspec, radius; } reg_args;
+static double smoothness_loss(mlb_material_net_f64* net, const void* ctx) {
+    const reg_args* a = ctx;
+    double L = NAN;
+    CHECK(mlb_material_smoothness_f64(net, a->pts, a->n, a->sigma, a->weight, a->wspec, 42, 7, 0, &L) == MLB_OK);
+    return L;
+}
+static double support_loss(mlb_material_net_f64* net, const void* ctx) {
+    const reg_args* a = ctx;
+    double L = NAN;
+    CHECK(mlb_material_latent_support_part_f64(net, a->pts, a->n, 0, a->n, a->radius, a->weight, 0, &L) == MLB_OK);
+    return L;
+}
+
 TEST(smoothness) {
     mlb_brdf_ae prior;
-    REQUIRE(random_prior(&prior));
-    mlb_material_config c = small_config(MLB_MATERIAL_LATENT);
     mlb_material_net_f64 net;
-    REQUIRE(material_net_init_f64(&net, &c, &prior) == MLB_OK);
-    randomize_f64(&net, 4);
     enum { n = 50 };
     double pts[3 * n];
-    for (int i = 0; i < 3 * n; i++) pts[i] = (mlb_rng_uniform_f64(6, 0, i) - 0.5) * 1.5;
+    random_latent_net(&prior, &net, 4, pts, n);
     const double sigma = 0.05, weight = 0.03, wspec = 0.02;
     double L;
     material_net_zero_grad_f64(&net);
@@ -407,21 +446,7 @@ TEST(smoothness) {
     // finite differences over the parameters of largest gradient
     material_net_zero_grad_f64(&net);
     REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 1, &L) == MLB_OK);
-    const double h = 1e-7;
-    size_t pick[8];
-    test_top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
-    for (int q = 0; q < 8; q++) {
-        size_t i = pick[q];
-        double keep = net.params[i], Lp, Lm;
-        net.params[i] = keep + h;
-        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 0, &Lp) == MLB_OK);
-        net.params[i] = keep - h;
-        REQUIRE(mlb_material_smoothness_f64(&net, pts, n, sigma, weight, wspec, 42, 7, 0, &Lm) == MLB_OK);
-        net.params[i] = keep;
-        double fd = (Lp - Lm) / (2 * h);
-        CHECK_MSG(fabs(fd - net.grads[i]) <= 1e-6 * fabs(fd) + 1e-10, "param %zu: fd %.10g, backward %.10g", i, fd, net.grads[i]);
-        CHECK(net.grads[i] != 0);
-    }
+    fd_top_grads(&net, smoothness_loss, &(reg_args){pts, n, sigma, weight, wspec, 0});
     CHECK(mlb_material_smoothness_f64(&net, pts, 0, sigma, weight, wspec, 42, 7, 0, &L) == MLB_ERR_ARG);
     // shares of the points (the pipeline's per-batch shares): the whole's loss and gradient as sums;
     // the one share of every point is the whole, bit for bit
@@ -459,14 +484,10 @@ TEST(smoothness) {
 // of its gradient, shares adding up to the whole, and the errors.
 TEST(latent_support) {
     mlb_brdf_ae prior;
-    REQUIRE(random_prior(&prior));
-    mlb_material_config c = small_config(MLB_MATERIAL_LATENT);
     mlb_material_net_f64 net;
-    REQUIRE(material_net_init_f64(&net, &c, &prior) == MLB_OK);
-    randomize_f64(&net, 5);
     enum { n = 60 };
     double pts[3 * n], z[4 * n], r[n];
-    for (int i = 0; i < 3 * n; i++) pts[i] = (mlb_rng_uniform_f64(8, 0, i) - 0.5) * 1.5;
+    random_latent_net(&prior, &net, 5, pts, n);
     REQUIRE(material_net_eval_f64(&net, pts, n, NULL, z) == MLB_OK);
     double rmin = INFINITY, rmax = 0;
     for (int i = 0; i < n; i++) {
@@ -484,22 +505,7 @@ TEST(latent_support) {
     material_net_zero_grad_f64(&net);
     REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 1, &L) == MLB_OK);
     CHECK_CLOSE(L, weight / n * ref, 1e-12, 0);
-    // finite differences over the parameters of largest gradient
-    const double h = 1e-7;
-    size_t pick[8];
-    test_top_grads(net.grads, net.n_enc, net.n_params, 4, pick);
-    for (int q = 0; q < 8; q++) {
-        size_t i = pick[q];
-        double keep = net.params[i], Lp, Lm;
-        net.params[i] = keep + h;
-        REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 0, &Lp) == MLB_OK);
-        net.params[i] = keep - h;
-        REQUIRE(mlb_material_latent_support_part_f64(&net, pts, n, 0, n, radius, weight, 0, &Lm) == MLB_OK);
-        net.params[i] = keep;
-        double fd = (Lp - Lm) / (2 * h);
-        CHECK_MSG(fabs(fd - net.grads[i]) <= 1e-6 * fabs(fd) + 1e-10, "param %zu: fd %.10g, backward %.10g", i, fd, net.grads[i]);
-        CHECK(net.grads[i] != 0);
-    }
+    fd_top_grads(&net, support_loss, &(reg_args){pts, n, 0, weight, 0, radius});
     // shares add up to the whole
     double* whole = malloc(sizeof(double) * net.n_params);
     REQUIRE(whole);

@@ -93,7 +93,7 @@ typedef struct {
     double w_mat_spec;            // the same on ks and roughness: 0 (the paper smooths kd only)
     double mat_sigma;             // its offset std in world units: 0.01
     double material_support;      // weight of the prior's support term on the codes (latent mode;
-                                  // appearance.h): 0, off (the paper; the tiny preset's 1e3)
+                                  // appearance.h): 0, off (the paper; the tiny preset's 100)
     double material_support_radius; // |z| beyond which it acts: 4.2 (99% of the prior's data inside)
     int n_envs;                   // the environment pool (sds; image guidance uses the views' own)
     char envs[MLB_PIPELINE_MAX_ENVS][MLB_PIPELINE_PATH];

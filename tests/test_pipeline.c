@@ -853,6 +853,14 @@ static double checkpoint_lr(const char* run) {
     return lr;
 }
 
+// n points on a spiral over the sphere of radius 0.5 (the test runs' surface), pos [n,3].
+static void sphere_points(float* pos, int n) {
+    for (int i = 0; i < n; i++) {
+        double y = 1 - (2.0 * i + 1) / n, rho = sqrt(1 - y * y), phi = 2.399963 * i;
+        pos[3 * i] = (float)(0.5 * rho * cos(phi)), pos[3 * i + 1] = (float)(0.5 * y), pos[3 * i + 2] = (float)(0.5 * rho * sin(phi));
+    }
+}
+
 // One geometry step from the ellipsoid and one appearance step (or o's); the final material
 // network's bytes (*size) and its mean kd and ks over points of the surface (the sphere of radius 0.5).
 static char* material_start_run(const char* run, int material_start, int want, mlb_material_mode mode, arch_guidance* a,
@@ -897,12 +905,7 @@ static char* material_start_run(const char* run, int material_start, int want, m
     }
     enum { P = 64 };
     float pos[3 * P], k[7 * P];
-    for (int i = 0; i < P; i++) {   // a spiral over the sphere of radius 0.5
-        double z = 1 - (2.0 * i + 1) / P, rho = sqrt(1 - z * z), phi = 2.399963 * i;
-        pos[3 * i] = (float)(0.5 * rho * cos(phi));
-        pos[3 * i + 1] = (float)(0.5 * z);
-        pos[3 * i + 2] = (float)(0.5 * rho * sin(phi));
-    }
+    sphere_points(pos, P);
     mlb_status s = mlb_material_eval(&net, pos, P, k);
     *kd = *ks = 0;
     for (int i = 0; !s && i < P; i++)
@@ -1034,10 +1037,9 @@ static mlb_status bright_loss(mlb_guidance* g, mlb_stage stage, long step, const
 
 // The final codes' largest |z| over points of the sphere of radius 0.5 (the run's surface), or -1.
 static double support_run(const char* run, double weight, double radius) {
-    mlb_orbit_config orbit = mlb_orbit_default();
-    arch_guidance a;
+    arch_guidance a;   // for its orbit's views only
     memset(&a, 0, sizeof a);
-    a.orbit = orbit;
+    a.orbit = mlb_orbit_default();
     mlb_guidance g = {.kind = "sds", .n_views = 2, .sample_views = arch_sample_views, .loss = bright_loss, .impl = &a};
     mlb_pipeline_config c = mlb_pipeline_default();
     snprintf(c.prompt, sizeof c.prompt, "a bright thing");
@@ -1055,10 +1057,7 @@ static double support_run(const char* run, double weight, double radius) {
     if (mlb_material_load(&net, path)) { printf("  %s: %s\n", path, mlb_last_error()); return -1; }
     enum { P = 64 };
     float pos[3 * P], z[4 * P];
-    for (int i = 0; i < P; i++) {   // a spiral over the sphere of radius 0.5
-        double y = 1 - (2.0 * i + 1) / P, rho = sqrt(1 - y * y), phi = 2.399963 * i;
-        pos[3 * i] = (float)(0.5 * rho * cos(phi)), pos[3 * i + 1] = (float)(0.5 * y), pos[3 * i + 2] = (float)(0.5 * rho * sin(phi));
-    }
+    sphere_points(pos, P);
     mlb_status s = mlb_material_eval_latent(&net, pos, P, z);
     material_net_free(&net);
     if (s) return -1;
